@@ -1,0 +1,119 @@
+"""``telerobot`` subcommands: serve, val-emulator, bench."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import runpy
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from pydantic import ValidationError
+
+
+def _serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from backend.app import create_app
+    from backend.settings import load_settings
+
+    try:
+        settings = load_settings(
+            args.config,
+            host=args.host,
+            http_port=args.http_port,
+            robot=args.robot,
+            serial_port=args.port,
+            serial_baudrate=args.baudrate,
+            auto_initialize=False if args.no_init else None,
+        )
+    except (ValidationError, FileNotFoundError, ValueError) as exc:
+        print(f"telerobot: bad settings: {exc}", file=sys.stderr)
+        return 2
+    app = create_app(settings)
+    host = settings.host
+    shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::") else host
+    where = "the simulation" if settings.robot == "sim" else f"the {settings.robot} robot on {settings.serial_port}"
+    config = uvicorn.Config(app, host=host, port=settings.http_port, log_level="info")
+    server = uvicorn.Server(config)
+
+    async def run() -> None:
+        task = asyncio.create_task(server.serve())
+        while not server.started and not task.done():
+            await asyncio.sleep(0.05)
+        if server.started:
+            port = server.servers[0].sockets[0].getsockname()[1] if server.servers else settings.http_port
+            print(f"\nTelerobot is running on {where}: http://{shown}:{port}/\n", flush=True)
+        await task
+
+    asyncio.run(run())
+    return 0
+
+
+def _val_emulator(args: argparse.Namespace) -> int:
+    from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+
+    emulator = ValControllerEmulator(time_scale=args.time_scale)
+    if args.tcp:
+        host, _, port = args.tcp.rpartition(":")
+        link = EmulatorLink.on_tcp(emulator, host or "127.0.0.1", int(port))
+    else:
+        link = EmulatorLink.on_pty(emulator)
+    link.start()
+    print(f"VAL controller emulator listening on {link.url}", flush=True)
+    print(f"  run the server against it: telerobot serve --robot val --port {link.url}", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        stop.wait()
+    except KeyboardInterrupt:
+        pass
+    link.stop()
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    sys.argv = [f"bench.{args.name}", *args.rest]
+    runpy.run_module(f"bench.{args.name}", run_name="__main__", alter_sys=True)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="telerobot", description="Drive a robot arm from a browser.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    serve = sub.add_parser("serve", help="start the server (simulation by default)")
+    serve.add_argument("--config", type=Path, help="TOML settings file")
+    serve.add_argument("--host", help="address to listen on (default 127.0.0.1)")
+    serve.add_argument("--http-port", type=int, help="HTTP port (default 8000)")
+    serve.add_argument("--robot", choices=["sim", "val"], help="robot driver (default sim)")
+    serve.add_argument("--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port")
+    serve.add_argument("--baudrate", type=int, help="serial baud rate (default 9600)")
+    serve.add_argument("--no-init", action="store_true", help="connect but do not initialise the robot")
+    serve.set_defaults(func=_serve)
+
+    emu = sub.add_parser("val-emulator", help="emulate a Unimation VAL controller on a pty or TCP port")
+    emu.add_argument("--tcp", metavar="HOST:PORT", help="listen on TCP instead of a pseudo-terminal")
+    emu.add_argument("--time-scale", type=float, default=1.0, help="scale move durations (0.1 = 10× faster)")
+    emu.set_defaults(func=_val_emulator)
+
+    bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")
+    bench.add_argument("name")
+    bench.add_argument("rest", nargs=argparse.REMAINDER)
+    bench.set_defaults(func=_bench)
+
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    code: int = args.func(args)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,42 @@
+"""Errors as RFC 9457 problem+json with a message a person can act on."""
+
+from __future__ import annotations
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from drivers.base import (
+    DeviceError,
+    DriverUnavailable,
+    InvalidCommand,
+    JointLimitError,
+    NotReady,
+    TelerobotError,
+    UnreachablePose,
+)
+
+_STATUS: dict[type[TelerobotError], int] = {
+    UnreachablePose: 422,
+    JointLimitError: 422,
+    InvalidCommand: 422,
+    NotReady: 409,
+    DeviceError: 503,
+    DriverUnavailable: 503,
+}
+
+
+def problem(status: int, code: str, detail: str) -> JSONResponse:
+    return JSONResponse(
+        {"type": f"urn:telerobot:error:{code}", "title": code.replace("_", " "), "status": status, "detail": detail},
+        status_code=status,
+        media_type="application/problem+json",
+    )
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    async def on_telerobot_error(_request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, TelerobotError)
+        status = next((s for cls, s in _STATUS.items() if isinstance(exc, cls)), 500)
+        return problem(status, exc.code, str(exc))
+
+    app.add_exception_handler(TelerobotError, on_telerobot_error)

@@ -1,0 +1,81 @@
+"""One Settings class for the whole server (ARCHITECTURE rule 8).
+
+Values come, highest first, from: explicit arguments (the CLI's flags),
+environment variables ``TELEROBOT_*``, a TOML file (``--config`` or
+``TELEROBOT_CONFIG``), then the defaults below, which run everything on the
+simulation.
+"""
+
+from __future__ import annotations
+
+import os
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from drivers.robot.puma560.kinematics import NAMED_POSES
+
+_config_file: ContextVar[Path | None] = ContextVar("telerobot_config_file", default=None)
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="TELEROBOT_", extra="forbid")
+
+    host: str = "127.0.0.1"
+    http_port: int = Field(8000, ge=0, le=65535)
+
+    robot: Literal["sim", "val"] = "sim"
+    auto_initialize: bool = True  # connect and initialise the robot at start-up
+    home_pose: str = "qn"  # a named pose (qz, qr, qs, qn) the robot initialises to
+    tool_length: float = Field(0.10, ge=0.0, le=0.5)  # gripper length along the flange z axis, m
+
+    # ValSerialPuma: port is a device path, a pty, socket://host:port or loop://
+    serial_port: str = "/dev/ttyS0"
+    serial_baudrate: int = 9600
+    serial_reply_timeout: float = Field(1.0, gt=0)
+
+    # Simulated workcell
+    camera_distance: float = Field(1.8, ge=0.3, le=10.0)
+    camera_baseline: float = Field(0.12, gt=0.0, lt=1.0)
+
+    @field_validator("home_pose")
+    @classmethod
+    def _known_pose(cls, v: str) -> str:
+        if v not in NAMED_POSES:
+            raise ValueError(f"home_pose must be one of {', '.join(NAMED_POSES)}")
+        return v
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        sources: list[PydanticBaseSettingsSource] = [init_settings, env_settings]
+        config = _config_file.get() or os.environ.get("TELEROBOT_CONFIG")
+        if config:
+            sources.append(TomlConfigSettingsSource(settings_cls, toml_file=Path(config)))
+        return tuple(sources)
+
+
+def load_settings(config: Path | None = None, **overrides: Any) -> Settings:
+    """Settings from a TOML file (optional), the environment and ``overrides``
+    (``None`` values are ignored, so unset CLI flags do not hide the environment)."""
+    if config is not None and not config.is_file():
+        raise FileNotFoundError(f"settings file {config} does not exist")
+    token = _config_file.set(config)
+    try:
+        return Settings(**{k: v for k, v in overrides.items() if v is not None})
+    finally:
+        _config_file.reset(token)

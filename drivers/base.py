@@ -1,0 +1,176 @@
+"""Device interfaces and typed errors shared by every driver (ARCHITECTURE rule 1).
+
+Simulated and real devices implement the same small interface; the server never
+asks which one it holds. Units are SI: metres, radians, seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivers.events import Event
+
+FloatArray = NDArray[np.float64]
+
+
+# ---------------------------------------------------------------- errors
+class TelerobotError(Exception):
+    """Base of every error a person may see; ``code`` is stable for clients."""
+
+    code = "telerobot_error"
+
+
+class InvalidCommand(TelerobotError, ValueError):
+    """The command itself is wrong (NaN, wrong size, not a rotation …); nothing moved."""
+
+    code = "invalid_command"
+
+
+class UnreachablePose(InvalidCommand):
+    """No joint configuration reaches the pose; nothing moved."""
+
+    code = "unreachable_pose"
+
+
+class JointLimitError(InvalidCommand):
+    """The target is past a joint limit; nothing moved."""
+
+    code = "joint_limit"
+
+
+class NotReady(TelerobotError):
+    """The device is not in a state that accepts this command; nothing moved."""
+
+    code = "not_ready"
+
+
+class DeviceError(TelerobotError):
+    """The device or its link failed (timeout, garbled reply, port gone)."""
+
+    code = "device_error"
+
+
+class DriverUnavailable(TelerobotError):
+    """The chosen driver is unknown or its SDK is not installed."""
+
+    code = "driver_unavailable"
+
+
+# ---------------------------------------------------------------- robot
+@dataclass(frozen=True)
+class SerialSettings:
+    """RS-232 link settings (the thesis's Communication Settings property)."""
+
+    port: str = "/dev/ttyS0"  # or a pty path, socket://host:port, loop://
+    baudrate: int = 9600
+    bytesize: int = 8
+    parity: str = "N"
+    stopbits: float = 1
+    reply_timeout: float = 1.0  # seconds to wait for any reply
+    move_margin: float = 2.0  # seconds past the controller's own estimate before a move is late
+
+
+class RobotStatus(StrEnum):
+    NOT_CONNECTED = "NOT_CONNECTED"
+    CONNECTED = "CONNECTED"
+    WAITING = "WAITING"  # initialising
+    READY = "READY"
+    MOVING = "MOVING"
+    ERROR = "ERROR"
+
+
+class WorkingFrame(StrEnum):
+    """Frame in which Cartesian increments are expressed (thesis §4.3.1)."""
+
+    BASE = "base"  # translate along and rotate about the base axes, pivoting at the tool point
+    WRIST = "wrist"  # increments in the wrist (flange) frame, pivoting at the wrist centre
+    TOOL = "tool"  # increments in the tool frame, pivoting at the tool point
+
+
+@dataclass(frozen=True)
+class Pose:
+    position: FloatArray  # (3,) metres, base frame
+    rotation: FloatArray  # (3, 3) orientation matrix, base frame
+
+    @classmethod
+    def from_matrix(cls, T: FloatArray) -> Pose:
+        return cls(position=T[:3, 3].copy(), rotation=T[:3, :3].copy())
+
+    def matrix(self) -> FloatArray:
+        T = np.eye(4)
+        T[:3, :3] = self.rotation
+        T[:3, 3] = self.position
+        return T
+
+
+@dataclass(frozen=True)
+class RobotMoved:
+    joints: FloatArray  # corrected joint angles, radians
+    pose: Pose
+    time: float  # clock seconds
+
+
+@dataclass(frozen=True)
+class StatusChanged:
+    old: RobotStatus
+    new: RobotStatus
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class RobotFault:
+    code: str
+    message: str
+
+
+@dataclass
+class RobotEvents:
+    """The thesis's PUMADataReceived, PUMAErrorOccured, PUMARobotMoved, PUMAStatusChanged."""
+
+    data_received: Event[str] = field(default_factory=lambda: Event("data_received"))
+    error: Event[RobotFault] = field(default_factory=lambda: Event("error"))
+    moved: Event[RobotMoved] = field(default_factory=lambda: Event("moved"))
+    status_changed: Event[StatusChanged] = field(default_factory=lambda: Event("status_changed"))
+
+
+@runtime_checkable
+class Robot(Protocol):
+    """A 6-axis arm. Every move is validated before anything is sent; a refused
+    command raises a typed ``TelerobotError`` and the arm does not move."""
+
+    name: str
+    events: RobotEvents
+
+    @property
+    def status(self) -> RobotStatus: ...
+    @property
+    def status_message(self) -> str: ...
+    @property
+    def joints(self) -> FloatArray: ...
+    @property
+    def pose(self) -> Pose: ...
+    @property
+    def target_joints(self) -> FloatArray: ...
+
+    frame: WorkingFrame
+    joint_offsets: FloatArray
+
+    async def connect(self) -> None: ...
+    async def disconnect(self) -> None: ...
+    async def initialize(self, joints: FloatArray | None = None) -> None: ...
+    async def move_joints(self, q: FloatArray, *, relative: bool) -> FloatArray: ...
+    async def move_cartesian(
+        self,
+        position: FloatArray,
+        rotation: FloatArray,
+        *,
+        relative: bool,
+        frame: WorkingFrame | None = None,
+    ) -> FloatArray: ...
+    async def stop(self) -> None: ...
+    async def wait_idle(self, timeout: float | None = None) -> None: ...

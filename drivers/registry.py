@@ -1,0 +1,41 @@
+"""Driver name → implementation, imported only when chosen (ARCHITECTURE rule 2).
+
+A driver whose SDK is missing fails when, and only when, it is selected, with one
+message that says what to install.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Final
+
+from drivers.base import DriverUnavailable
+
+# kind → name → (module, class)
+DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
+    "robot": {
+        "sim": ("drivers.robot.puma560.sim", "SimPuma"),
+        "val": ("drivers.robot.puma560.val_serial", "ValSerialPuma"),
+    },
+}
+
+
+def driver_names(kind: str) -> list[str]:
+    return sorted(DRIVERS.get(kind, {}))
+
+
+def load_driver(kind: str, name: str) -> type:
+    """The class implementing driver ``name`` of ``kind`` (robot, force, camera …)."""
+    try:
+        module_name, class_name = DRIVERS[kind][name]
+    except KeyError:
+        known = ", ".join(driver_names(kind)) or "none"
+        raise DriverUnavailable(f"unknown {kind} driver {name!r} (known: {known})") from None
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise DriverUnavailable(
+            f"the {kind} driver {name!r} needs {exc.name or 'a package'} that is not installed: {exc}"
+        ) from None
+    cls: type = getattr(module, class_name)
+    return cls

@@ -1,0 +1,358 @@
+"""PUMA 560 kinematics: forward kinematics and Jacobian through Pinocchio, and the
+closed-form inverse kinematics with all eight configurations.
+
+Standard DH parameters and joint limits as in Robotics Toolbox for Python's
+``Puma560``. Joint i's transform is Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i). The
+wrist centre is the origin of frames 4, 5 and 6 (a4 = a5 = d5 = d6 = 0).
+
+Inverse kinematics (derived for this DH table; see docs/kinematics.md):
+
+* wrist centre p = flange position. In the arm's vertical plane, with
+  rho = a2 c2 + a3 c23 - d4 s23 and z = p_z - d1,
+  p_x = rho c1 + d3 s1 and p_y = rho s1 - d3 c1, so rho = ±sqrt(p_x² + p_y² - d3²)
+  (the two shoulder configurations) and q1 = atan2(p_y, p_x) - atan2(-d3, rho).
+* a3 c3 - d4 s3 = (rho² + z² - a2² - a3² - d4²) / (2 a2) = L cos(q3 + phi), with
+  L = hypot(a3, d4), phi = atan2(d4, a3): two elbow configurations.
+* q2 = atan2(z, rho) - atan2(a3 s3 + d4 c3, a2 + a3 c3 - d4 s3).
+* R_03 = Rz(q1) Ry(-q23) and R_36 = Rz(q4) Ry(-q5) Rz(q6): a ZYZ decomposition of
+  R_03ᵀ R gives the wrist and its flipped twin (q4 + pi, -q5, q6 + pi).
+
+At the wrist singularity (sin q5 ≈ 0) only q4 + q6 is defined: q4 keeps the
+seed's value (the current joints) and q6 takes the rest, so the wrist never spins.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final, Literal
+
+import numpy as np
+import pinocchio as pin
+
+from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose
+
+PI: Final = math.pi
+TWO_PI: Final = 2.0 * math.pi
+
+# d, a, alpha for joints 1..6 (metres, radians)
+D1: Final = 0.67183
+A2: Final = 0.4318
+D3: Final = 0.15005
+A3: Final = 0.0203
+D4: Final = 0.4318
+DH: Final = (
+    (D1, 0.0, PI / 2),
+    (0.0, A2, 0.0),
+    (D3, A3, -PI / 2),
+    (D4, 0.0, PI / 2),
+    (0.0, 0.0, -PI / 2),
+    (0.0, 0.0, 0.0),
+)
+QLIM_DEG: Final = ((-160, 160), (-45, 225), (-225, 45), (-110, 170), (-100, 100), (-266, 266))
+QLIM: Final = np.radians(np.array(QLIM_DEG, dtype=float))  # (6, 2) lower, upper
+
+# Robotics Toolbox's named poses. qn's q3 is written -pi rather than +pi: the same
+# arm pose, but +pi lies past q3's upper limit of 45 degrees.
+NAMED_POSES: Final[dict[str, FloatArray]] = {
+    "qz": np.zeros(6),  # zero angles, upper arm horizontal, forearm up
+    "qr": np.array([0.0, PI / 2, -PI / 2, 0.0, 0.0, 0.0]),  # ready: arm straight up
+    "qs": np.array([0.0, 0.0, -PI / 2, 0.0, 0.0, 0.0]),  # stretched: arm horizontal
+    "qn": np.array([0.0, PI / 4, -PI, 0.0, PI / 4, 0.0]),  # nominal: dextrous, not singular
+}
+
+# Below this |sin q5| the wrist is treated as singular (q4 and q6 share one rotation).
+WRIST_SINGULAR_SIN: Final = 1e-9
+_L: Final = math.hypot(A3, D4)
+_PHI: Final = math.atan2(D4, A3)
+_TWO_A2: Final = 2.0 * A2
+_K0: Final = A2 * A2 + A3 * A3 + D4 * D4
+
+
+@dataclass(frozen=True)
+class Configuration:
+    arm: Literal["right", "left"]  # wrist centre in front of (right) or behind (left) the shoulder
+    elbow: Literal["up", "down"]  # elbow above or below the shoulder-to-wrist line
+    wrist: Literal["noflip", "flip"]  # q5 >= 0 or q5 < 0
+
+
+@dataclass(frozen=True)
+class IKSolutions:
+    """All eight closed-form solutions of one pose.
+
+    ``q[i]`` has angles wrapped to [-pi, pi); ``reachable[i]`` is False where the
+    geometry has no solution (those rows are NaN). Index bits: 4 = shoulder
+    (rho < 0), 2 = elbow branch, 1 = wrist flip.
+    """
+
+    q: FloatArray  # (8, 6)
+    reachable: np.ndarray  # (8,) bool
+
+
+def _wrap(a: float) -> float:
+    return (a + PI) % TWO_PI - PI
+
+
+def check_vector(name: str, v: object, size: int) -> FloatArray:
+    """A finite float vector of the given size, or a clear ``InvalidCommand``."""
+    try:
+        arr = np.asarray(v, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommand(f"{name} must be {size} numbers: {exc}") from None
+    if arr.shape != (size,):
+        raise InvalidCommand(f"{name} must have {size} values, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InvalidCommand(f"{name} contains NaN or infinity: {arr.tolist()}")
+    return arr
+
+
+def check_rotation(name: str, R: object, tol: float = 1e-6) -> FloatArray:
+    """A proper 3×3 rotation matrix (orthonormal, det +1), or a clear ``InvalidCommand``."""
+    try:
+        arr = np.asarray(R, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidCommand(f"{name} must be a 3x3 matrix: {exc}") from None
+    if arr.shape != (3, 3):
+        raise InvalidCommand(f"{name} must be a 3x3 matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InvalidCommand(f"{name} contains NaN or infinity")
+    if np.abs(arr.T @ arr - np.eye(3)).max() > tol or np.linalg.det(arr) < 0:
+        raise InvalidCommand(f"{name} is not a rotation matrix (orthonormal with det +1)")
+    return arr
+
+
+def tool_transform(length: float) -> FloatArray:
+    """A gripper of ``length`` metres along the flange's z axis."""
+    T = np.eye(4)
+    T[2, 3] = length
+    return T
+
+
+class Puma560Kinematics:
+    """FK and Jacobian from a Pinocchio model built from the DH table; closed-form IK.
+
+    Not thread-safe (one Pinocchio ``Data`` per instance): give each thread its own.
+    """
+
+    def __init__(self, tool: FloatArray | None = None) -> None:
+        self.qlim = QLIM.copy()
+        self._lo = [float(x) for x in QLIM[:, 0]]
+        self._hi = [float(x) for x in QLIM[:, 1]]
+        self.tool = np.eye(4) if tool is None else tool
+
+    # ------------------------------------------------------------- model
+    @property
+    def tool(self) -> FloatArray:
+        return self._tool.copy()
+
+    @tool.setter
+    def tool(self, T: FloatArray) -> None:
+        T = np.asarray(T, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InvalidCommand("tool transform must be a finite 4x4 matrix")
+        check_rotation("tool rotation", T[:3, :3])
+        self._tool = T.copy()
+        self._tool_inv = np.linalg.inv(T)
+        self._tool_is_identity = bool(np.allclose(T, np.eye(4), atol=0, rtol=0))
+        self._build_model()
+
+    def _build_model(self) -> None:
+        model = pin.Model()
+        model.name = "puma560"
+        parent = 0
+        placement = pin.SE3.Identity()
+        for i, (d, a, alpha) in enumerate(DH):
+            jid = model.addJoint(
+                parent,
+                pin.JointModelRZ(),
+                placement,
+                f"joint{i + 1}",
+                np.zeros(1),
+                np.zeros(1),
+                np.array([self.qlim[i, 0]]),
+                np.array([self.qlim[i, 1]]),
+            )
+            # Inertias are placeholders: only kinematics is used here.
+            model.appendBodyToJoint(jid, pin.Inertia.FromSphere(1.0, 0.05), pin.SE3.Identity())
+            parent = jid
+            placement = pin.SE3(pin.utils.rotate("x", alpha), np.array([a, 0.0, d]))
+        # `placement` is now the link-6 DH transform (identity for the PUMA's d6 = a6 = 0).
+        flange = pin.Frame("flange", parent, 0, placement, pin.FrameType.OP_FRAME)
+        self._flange_id = model.addFrame(flange)
+        tool = pin.Frame("tool", parent, 0, placement * pin.SE3(self._tool), pin.FrameType.OP_FRAME)
+        self._tool_id = model.addFrame(tool)
+        self.model = model
+        self._data = model.createData()
+
+    # ------------------------------------------------------------- forward
+    def fk(self, q: FloatArray) -> FloatArray:
+        """Tool pose in the base frame as a 4×4 homogeneous matrix."""
+        # Joint placements, then only the tool frame: half the cost of all frames.
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = pin.updateFramePlacement(self.model, self._data, self._tool_id).homogeneous
+        return result
+
+    def fk_flange(self, q: FloatArray) -> FloatArray:
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = pin.updateFramePlacement(self.model, self._data, self._flange_id).homogeneous
+        return result
+
+    def wrist_centre(self, q: FloatArray) -> FloatArray:
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = self._data.oMi[6].translation
+        return result
+
+    def link_origins(self, q: FloatArray) -> FloatArray:
+        """Origins of the base, joints 1..6 and the tool (8×3), for drawing the arm."""
+        pin.framesForwardKinematics(self.model, self._data, q)
+        pts = [self._data.oMi[i].translation for i in range(1, 7)]
+        return np.array([np.zeros(3), *pts, self._data.oMf[self._tool_id].translation])
+
+    def jacobian(self, q: FloatArray) -> FloatArray:
+        """6×6 geometric Jacobian of the tool point: rows vx vy vz wx wy wz in the base frame."""
+        J: FloatArray = pin.computeFrameJacobian(
+            self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
+        )
+        return J
+
+    # ------------------------------------------------------------- limits
+    def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:
+        return bool(np.all(q >= self.qlim[:, 0] - tol) and np.all(q <= self.qlim[:, 1] + tol))
+
+    def fit_limits(self, q: FloatArray, seed: FloatArray | None = None) -> FloatArray | None:
+        """``q`` with each angle moved by whole turns into its limits, nearest ``seed``
+        (or nearest zero); None if some joint cannot be placed inside its limits."""
+        ref = [0.0] * 6 if seed is None else [float(x) for x in seed]
+        fitted = self._fit_row([float(x) for x in q], ref)
+        return None if fitted is None else np.array(fitted[0])
+
+    def _fit_row(self, row: list[float], seed: list[float]) -> tuple[list[float], float] | None:
+        """Pure-Python on purpose: for six angles it is twice as fast as numpy.
+        Angles come within ±pi of [-pi, pi), so one whole turn either way suffices
+        for limits within ±3pi. Returns the fitted row and its squared distance."""
+        out: list[float] = []
+        cost = 0.0
+        for a, lo, hi, ref in zip(row, self._lo, self._hi, seed, strict=True):
+            best = math.nan
+            best_d = math.inf
+            for x in (a - TWO_PI, a, a + TWO_PI):
+                if lo - 1e-9 <= x <= hi + 1e-9 and abs(x - ref) < best_d:
+                    best, best_d = x, abs(x - ref)
+            if best_d == math.inf:
+                return None
+            out.append(min(max(best, lo), hi))
+            cost += best_d * best_d
+        return out, cost
+
+    def check_joint_limits(self, q: FloatArray) -> None:
+        bad = [
+            f"joint {i + 1} = {math.degrees(q[i]):.2f}° (limits {lo:g}…{hi:g}°)"
+            for i, (lo, hi) in enumerate(QLIM_DEG)
+            if not (self.qlim[i, 0] - 1e-9 <= q[i] <= self.qlim[i, 1] + 1e-9)
+        ]
+        if bad:
+            raise JointLimitError("target is past a joint limit: " + "; ".join(bad))
+
+    # ------------------------------------------------------------- inverse
+    def ik_all(self, T: FloatArray, seed: FloatArray | None = None) -> IKSolutions:
+        """All eight closed-form solutions for the tool pose ``T`` (4×4).
+
+        ``seed`` only matters at the wrist singularity, where q4 keeps its value.
+        """
+        rows, reach = self._solve(T, seed)
+        return IKSolutions(q=np.array(rows), reachable=np.array(reach))
+
+    def _solve(self, T: FloatArray, seed: FloatArray | None) -> tuple[list[list[float]], list[bool]]:
+        if not self._tool_is_identity:
+            T = T @ self._tool_inv
+        (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz) = T[:3].tolist()
+        q4_seed = 0.0 if seed is None else float(seed[3])
+        nan6 = [math.nan] * 6
+        rows: list[list[float]] = []
+        reach: list[bool] = []
+        rr = px * px + py * py - D3 * D3
+        z = pz - D1
+        base = math.atan2(py, px)
+        for rho_sign in (1.0, -1.0):
+            if rr < 0.0:  # wrist centre inside the cylinder of radius d3: nothing reaches it
+                rows += [nan6] * 4
+                reach += [False] * 4
+                continue
+            rho = rho_sign * math.sqrt(rr)
+            q1 = _wrap(base - math.atan2(-D3, rho))
+            c1, s1 = math.cos(q1), math.sin(q1)
+            # R' = Rz(-q1) R
+            a00, a01, a02 = c1 * r00 + s1 * r10, c1 * r01 + s1 * r11, c1 * r02 + s1 * r12
+            a10, a11, a12 = c1 * r10 - s1 * r00, c1 * r11 - s1 * r01, c1 * r12 - s1 * r02
+            kk = (rho * rho + z * z - _K0) / (_TWO_A2 * _L)
+            if kk > 1.0 + 1e-12 or kk < -1.0 - 1e-12:  # out of the arm's reach
+                rows += [nan6] * 4
+                reach += [False] * 4
+                continue
+            acos_k = math.acos(min(1.0, max(-1.0, kk)))
+            for elbow_sign in (1.0, -1.0):
+                q3 = _wrap(elbow_sign * acos_k - _PHI)
+                c3, s3 = math.cos(q3), math.sin(q3)
+                q2 = _wrap(math.atan2(z, rho) - math.atan2(A3 * s3 + D4 * c3, A2 + A3 * c3 - D4 * s3))
+                q23 = q2 + q3
+                cb, sb = math.cos(q23), math.sin(q23)
+                # M = Ry(q23) R' = R_36
+                m02 = cb * a02 + sb * r22
+                m12 = a12
+                m22 = -sb * a02 + cb * r22
+                m20 = -sb * a00 + cb * r20
+                m21 = -sb * a01 + cb * r21
+                s5 = math.sqrt(m02 * m02 + m12 * m12)
+                q5 = math.atan2(s5, m22)
+                if s5 > WRIST_SINGULAR_SIN:
+                    q4 = math.atan2(-m12, -m02)
+                    q6 = math.atan2(-m21, m20)
+                else:
+                    # Only q4 + q6 is defined: keep q4, give q6 the rest, exactly for this q5:
+                    # Rz(q6) = Ry(q5) Rz(-q4) M, so q6 = atan2(X10, X00) of that product.
+                    q4 = q4_seed
+                    c4, s4 = math.cos(q4), math.sin(q4)
+                    m00 = cb * a00 + sb * r20
+                    m10 = a10
+                    x00 = math.cos(q5) * (c4 * m00 + s4 * m10) + math.sin(q5) * m20
+                    x10 = c4 * m10 - s4 * m00
+                    q6 = math.atan2(x10, x00)
+                rows.append([q1, q2, q3, q4, q5, q6])
+                rows.append([q1, q2, q3, _wrap(q4 + PI), -q5, _wrap(q6 + PI)])
+                reach += [True, True]
+        return rows, reach
+
+    def ik(self, T: FloatArray, seed: FloatArray) -> FloatArray:
+        """The reachable solution within joint limits nearest ``seed`` (the current joints).
+
+        Raises ``UnreachablePose`` when no configuration reaches ``T`` and
+        ``JointLimitError`` when every one that does is past a limit.
+        """
+        rows, reach = self._solve(T, seed)
+        ref = [float(x) for x in seed]
+        best: list[float] | None = None
+        best_cost = math.inf
+        for row, ok in zip(rows, reach, strict=True):
+            fitted = self._fit_row(row, ref) if ok else None
+            if fitted is not None and fitted[1] < best_cost:
+                best, best_cost = fitted
+        if best is None:
+            p = np.round(T[:3, 3], 4).tolist()
+            if any(reach):
+                raise JointLimitError(f"every arm configuration reaching {p} m is past a joint limit")
+            raise UnreachablePose(f"the pose at {p} m is outside the PUMA 560's reach")
+        return np.array(best)
+
+    # ------------------------------------------------------------- labels
+    @staticmethod
+    def configuration(q: FloatArray) -> Configuration:
+        c2, s2 = math.cos(q[1]), math.sin(q[1])
+        c23, s23 = math.cos(q[1] + q[2]), math.sin(q[1] + q[2])
+        rho = A2 * c2 + A3 * c23 - D4 * s23
+        z = A2 * s2 + A3 * s23 + D4 * c23
+        cross = rho * (A2 * s2) - z * (A2 * c2)  # (wrist) × (elbow) in the arm plane
+        return Configuration(
+            arm="right" if rho >= 0 else "left",
+            elbow="up" if cross * rho > 0 else "down",
+            wrist="noflip" if q[4] >= 0 else "flip",
+        )

@@ -1,0 +1,94 @@
+"""``SimPuma``: a simulated PUMA 560 that moves as the real one does.
+
+Joints follow ``JointMotion`` (velocity and acceleration limits; a move takes the
+time it takes) on the injected clock. The arm reports where it is ("moved") every
+``report_period`` seconds while it moves and once when it stops, as a controller
+streaming its position would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+
+import numpy as np
+
+from drivers.base import FloatArray, RobotStatus
+from drivers.clock import Clock
+from drivers.robot.motion import PUMA_AMAX, PUMA_VMAX, JointMotion
+from drivers.robot.puma560.arm import PumaArm
+from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, check_vector
+
+
+class SimPuma(PumaArm):
+    name = "sim-puma560"
+
+    def __init__(
+        self,
+        *,
+        kinematics: Puma560Kinematics | None = None,
+        clock: Clock | None = None,
+        home: FloatArray | None = None,
+        joint_offsets: FloatArray | None = None,
+        start_joints: FloatArray | None = None,
+        vmax: FloatArray = PUMA_VMAX,
+        amax: FloatArray = PUMA_AMAX,
+        report_period: float = 0.02,
+    ) -> None:
+        super().__init__(kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets)
+        start = NAMED_POSES["qz"] if start_joints is None else check_vector("start_joints", start_joints, 6)
+        self._motion = JointMotion(start, vmax, amax)
+        self._updated_at = self.clock.now()
+        self.report_period = report_period
+        self._reporter: asyncio.Task[None] | None = None
+        self._wake = asyncio.Event()
+
+    def _sync(self) -> None:
+        now = self.clock.now()
+        self._motion.advance(now - self._updated_at)
+        self._updated_at = now
+
+    def _measured_raw(self) -> FloatArray:
+        self._sync()
+        return self._motion.q
+
+    @property
+    def joint_velocities(self) -> FloatArray:
+        self._sync()
+        return self._motion.v
+
+    async def _open(self) -> None:
+        self._sync()
+        self._reporter = asyncio.create_task(self._report_loop(), name="sim-puma-reporter")
+
+    async def _close(self) -> None:
+        if self._reporter is not None:
+            self._reporter.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._reporter
+            self._reporter = None
+
+    async def _prepare(self) -> None:
+        self._sync()
+
+    async def _send_target(self, raw_target: FloatArray) -> None:
+        self._sync()
+        self._motion.set_target(np.asarray(raw_target, dtype=float))
+        self._wake.set()
+
+    async def _halt(self) -> None:
+        self._sync()
+        self._motion.brake()
+        self._wake.set()
+
+    async def _report_loop(self) -> None:
+        while True:
+            if not self._motion.moving:
+                await self._wake.wait()
+            self._wake.clear()
+            await self.clock.sleep(self.report_period)
+            self._sync()
+            if self._motion.moving:
+                self._report_moved()
+            elif self._status is RobotStatus.MOVING:
+                self._motion_finished()

@@ -1,0 +1,258 @@
+"""An emulated Unimation controller that speaks the TRINC exchange
+(docs/val-protocol.md) on a pseudo-terminal or a TCP port and moves a simulated arm.
+
+``ValControllerEmulator`` is the protocol logic, fed lines with the time they
+arrive; ``EmulatorLink`` runs it on a real pty or socket in its own thread, so the
+driver under test goes through real file descriptors. ``fault`` lets tests make the
+controller go silent or garble a reply.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import select
+import socket
+import threading
+import time
+import tty
+from collections import deque
+from collections.abc import Callable
+from typing import Literal
+
+import numpy as np
+
+from drivers.robot.motion import PUMA_AMAX, PUMA_VMAX, move_duration
+from drivers.robot.puma560 import val_protocol as vp
+from drivers.robot.puma560.kinematics import NAMED_POSES, QLIM_DEG
+
+log = logging.getLogger(__name__)
+
+Fault = Literal["mute", "garble"] | None
+
+
+class ValControllerEmulator:
+    def __init__(
+        self,
+        start_deg: list[float] | None = None,
+        *,
+        time_scale: float = 1.0,
+        vmax: np.ndarray = PUMA_VMAX,
+        amax: np.ndarray = PUMA_AMAX,
+    ) -> None:
+        self.joints_deg = list(np.degrees(NAMED_POSES["qz"])) if start_deg is None else list(start_deg)
+        self.time_scale = time_scale
+        self.vmax, self.amax = vmax, amax
+        self.mode: Literal["monitor", "edit", "program"] = "monitor"
+        self.program: list[str] = []
+        self.loaded: dict[str, list[str]] = {}
+        self.fault: Fault = None
+        self.moves = 0
+        self._pending: tuple[float, int, list[float]] | None = None  # deadline, seq, target
+        self._queued: deque[str] = deque()
+
+    # ---------------------------------------------------------- lines in, lines out
+    def receive(self, line: str, now: float) -> list[str]:
+        line = line.strip()
+        if line.upper() == "ABORT":  # a monitor command: works even while the program runs
+            self.mode, self._pending = "monitor", None
+            self._queued.clear()
+            return self._out([vp.PROMPT])
+        if self._pending is not None:  # TRINC is inside MOVE: the line waits for PROMPT
+            self._queued.append(line)
+            return []
+        return self._out(self._handle(line, now))
+
+    def poll(self, now: float) -> list[str]:
+        """Lines due by ``now``: a move's DONE, then any lines that waited for it."""
+        out: list[str] = []
+        if self._pending is not None and now >= self._pending[0]:
+            _, seq, target = self._pending
+            self._pending = None
+            self.joints_deg = target
+            self.moves += 1
+            out += self._out([vp.done_line(seq, target)])
+            while self._queued and self._pending is None:
+                out += self._out(self._handle(self._queued.popleft(), now))
+        return out
+
+    def next_deadline(self) -> float | None:
+        return None if self._pending is None else self._pending[0]
+
+    def _out(self, lines: list[str]) -> list[str]:
+        if self.fault == "mute":
+            return []
+        if self.fault == "garble" and lines:
+            self.fault = None
+            return ["\x13#?~ POS 1.0 x", *lines[1:]]
+        return lines
+
+    def _handle(self, line: str, now: float) -> list[str]:
+        if self.mode == "edit":
+            if line.upper() == "E":
+                self.loaded[self._editing] = list(self.program)
+                self.mode = "monitor"
+                return [vp.PROMPT]
+            self.program.append(line)
+            return [f"{len(self.program) + 1}."]
+        if self.mode == "program":
+            return self._program_line(line, now)
+        return self._monitor_line(line)
+
+    def _monitor_line(self, line: str) -> list[str]:
+        words = line.upper().split()
+        if not words:
+            return [vp.PROMPT]
+        if words[0] == "EDIT" and len(words) == 2:
+            self.mode, self._editing, self.program = "edit", words[1], []
+            return ["1."]
+        if words[0] in ("EXECUTE", "EX") and len(words) == 2:
+            if words[1] not in self.loaded:
+                return [f"ERR program {words[1]} is not loaded", vp.PROMPT]
+            self.mode = "program"
+            return [vp.READY_BANNER]
+        if words[0] == "WHERE":
+            return [vp.position_line(self.joints_deg), vp.PROMPT]
+        return [f"ERR unknown command {words[0]}", vp.PROMPT]
+
+    def _program_line(self, line: str, now: float) -> list[str]:
+        if line.upper() == "W":
+            return [vp.position_line(self.joints_deg)]
+        if line.upper() == "Q":
+            self.mode = "monitor"
+            return [vp.END_BANNER, vp.PROMPT]
+        try:
+            seq, delta = vp.parse_increment(line)
+        except vp.ProtocolError:
+            return [f"ERR bad input {line[:40]!r}"]
+        target = [round(j + d, 4) for j, d in zip(self.joints_deg, delta, strict=True)]
+        for i, (lo, hi) in enumerate(QLIM_DEG):
+            if not lo - 1e-6 <= target[i] <= hi + 1e-6:
+                return [vp.nak_line(seq, f"joint {i + 1} limit")]
+        duration = self.time_scale * move_duration(
+            np.radians(self.joints_deg), np.radians(target), self.vmax, self.amax
+        )
+        self._pending = (now + duration, seq, target)
+        return [vp.ack_line(seq, duration)]
+
+
+class EmulatorLink:
+    """Runs an emulator on a pseudo-terminal (``url`` is the device path) or a TCP
+    port (``url`` is ``socket://host:port``), in a thread of its own."""
+
+    def __init__(self, emulator: ValControllerEmulator, clock: Callable[[], float] = time.monotonic) -> None:
+        self.emulator = emulator
+        self.clock = clock
+        self.url = ""
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._listener: socket.socket | None = None
+        self._client: socket.socket | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._buffer = b""
+
+    @classmethod
+    def on_pty(cls, emulator: ValControllerEmulator) -> EmulatorLink:
+        link = cls(emulator)
+        link._master, link._slave = os.openpty()
+        tty.setraw(link._master)
+        tty.setraw(link._slave)  # no echo, no line discipline: bytes pass as sent
+        link.url = os.ttyname(link._slave)
+        return link
+
+    @classmethod
+    def on_tcp(cls, emulator: ValControllerEmulator, host: str = "127.0.0.1", port: int = 0) -> EmulatorLink:
+        link = cls(emulator)
+        link._listener = socket.create_server((host, port))
+        h, p = link._listener.getsockname()[:2]
+        link.url = f"socket://{h}:{p}"
+        return link
+
+    def start(self) -> EmulatorLink:
+        self._thread = threading.Thread(target=self._run, name="val-emulator", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        for s in (self._client, self._listener):
+            if s is not None:
+                s.close()
+
+    def drop_client(self) -> None:
+        """Close the TCP connection, as a cable pulled out would."""
+        if self._client is not None:
+            with contextlib.suppress(OSError):
+                self._client.shutdown(socket.SHUT_RDWR)
+
+    def __enter__(self) -> EmulatorLink:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ---------------------------------------------------------- thread
+    def _write(self, lines: list[str]) -> None:
+        data = b"".join(line.encode("latin-1") + b"\r\n" for line in lines)
+        if not data:
+            return
+        try:
+            if self._master is not None:
+                os.write(self._master, data)
+            elif self._client is not None:
+                self._client.sendall(data)
+        except OSError as exc:
+            log.info("emulator could not write: %s", exc)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            deadline = self.emulator.next_deadline()
+            wait = 0.05 if deadline is None else min(0.05, max(0.0, deadline - self.clock()))
+            fds: list[int | socket.socket] = []
+            if self._master is not None:
+                fds.append(self._master)
+            if self._listener is not None:
+                fds.append(self._listener)
+            if self._client is not None:
+                fds.append(self._client)
+            readable, _, _ = select.select(fds, [], [], wait)
+            for r in readable:
+                if r is self._listener:
+                    self._accept()
+                else:
+                    self._read(r)
+            self._write(self.emulator.poll(self.clock()))
+
+    def _accept(self) -> None:
+        assert self._listener is not None
+        conn, _ = self._listener.accept()
+        if self._client is not None:
+            self._client.close()
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._client, self._buffer = conn, b""
+
+    def _read(self, r: int | socket.socket) -> None:
+        try:
+            data = os.read(r, 4096) if isinstance(r, int) else r.recv(4096)
+        except OSError:
+            data = b""
+        if not data:
+            if isinstance(r, socket.socket):
+                r.close()
+                self._client = None
+            else:
+                time.sleep(0.01)  # pty with no reader on the slave side yet
+            return
+        # A line ends with CR, LF or CR LF; an empty line asks for a prompt.
+        self._buffer += data.replace(b"\r\n", b"\r").replace(b"\n", b"\r")
+        *lines, self._buffer = self._buffer.split(b"\r")
+        for raw in lines:
+            self._write(self.emulator.receive(raw.decode("latin-1"), self.clock()))

@@ -1,0 +1,245 @@
+"""``ValSerialPuma``: a PUMA 560 on a Unimation controller over RS-232.
+
+As in the thesis (§4.3.1), initialisation uploads a small resident VAL program
+(``TRINC``) that reads joint increments from the terminal and executes them; the
+driver sends increments and reads positions back from the controller's replies.
+The exchange is in docs/val-protocol.md and in ``val_protocol``.
+
+The port is opened with ``serial.serial_for_url``, so a device path, a
+pseudo-terminal, ``socket://host:port`` (an emulator) or ``loop://`` all work.
+A reader thread turns bytes into lines; everything else runs on the event loop.
+A timeout, a garbled or unexpected reply, or a lost link puts the driver into
+ERROR with a message that says what happened; ``connect()`` again recovers.
+
+Targets coalesce: while a move is on the wire, newer targets replace each other
+and the next increment sent is (newest target − reported position), so a slow
+serial link never replays stale commands.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import threading
+from dataclasses import replace
+
+import numpy as np
+import serial
+
+from drivers.base import DeviceError, FloatArray, SerialSettings, TelerobotError
+from drivers.clock import Clock
+from drivers.robot.puma560 import val_protocol as vp
+from drivers.robot.puma560.arm import PumaArm
+from drivers.robot.puma560.kinematics import Puma560Kinematics
+
+log = logging.getLogger(__name__)
+
+_MIN_INCREMENT_DEG = 0.00005  # below VAL's 4-decimal resolution: nothing to send
+
+
+class ValSerialPuma(PumaArm):
+    name = "val-puma560"
+
+    def __init__(
+        self,
+        settings: SerialSettings | None = None,
+        *,
+        kinematics: Puma560Kinematics | None = None,
+        clock: Clock | None = None,
+        home: FloatArray | None = None,
+        joint_offsets: FloatArray | None = None,
+    ) -> None:
+        super().__init__(kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets)
+        self._settings = settings or SerialSettings()
+        self._serial: serial.SerialBase | None = None
+        self._reader: threading.Thread | None = None
+        self._reader_stop = threading.Event()
+        self._replies: asyncio.Queue[vp.Reply | TelerobotError] = asyncio.Queue()
+        self._raw = np.zeros(6)
+        self._raw_target: FloatArray | None = None
+        self._pump: asyncio.Task[None] | None = None
+        self._wake = asyncio.Event()
+        self._seq = 0
+        self._last_sent = ""
+
+    # ------------------------------------------------------------ settings
+    @property
+    def serial_settings(self) -> SerialSettings:
+        return self._settings
+
+    @serial_settings.setter
+    def serial_settings(self, settings: SerialSettings) -> None:
+        """Takes effect at the next ``connect()``."""
+        self._settings = replace(settings)
+
+    def _measured_raw(self) -> FloatArray:
+        return self._raw.copy()
+
+    # ------------------------------------------------------------ link
+    async def _open(self) -> None:
+        s = self._settings
+        try:
+            self._serial = await asyncio.to_thread(
+                serial.serial_for_url,
+                s.port,
+                baudrate=s.baudrate,
+                bytesize=s.bytesize,
+                parity=s.parity,
+                stopbits=s.stopbits,
+                timeout=0.05,
+                write_timeout=s.reply_timeout,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"cannot open serial port {s.port!r}: {exc}") from None
+        self._replies = asyncio.Queue()
+        self._reader_stop.clear()
+        loop = asyncio.get_running_loop()
+        self._reader = threading.Thread(
+            target=self._read_lines, args=(self._serial, loop), name="val-serial-reader", daemon=True
+        )
+        self._reader.start()
+        # ABORT returns any controller, even one still running TRINC from an earlier
+        # session, to the monitor prompt.
+        await self._request("ABORT", vp.Text(vp.PROMPT))
+
+    async def _close(self) -> None:
+        if self._pump is not None:
+            self._pump.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._pump
+            self._pump = None
+        self._reader_stop.set()
+        if self._reader is not None:
+            await asyncio.to_thread(self._reader.join, 1.0)
+            self._reader = None
+        if self._serial is not None:
+            with contextlib.suppress(Exception):
+                self._serial.close()
+            self._serial = None
+        self._raw_target = None
+
+    def _read_lines(self, port: serial.SerialBase, loop: asyncio.AbstractEventLoop) -> None:
+        buffer = b""
+        while not self._reader_stop.is_set():
+            try:
+                chunk = port.read(max(1, port.in_waiting))
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                if not self._reader_stop.is_set():
+                    err = DeviceError(f"serial link to {self._settings.port!r} lost: {exc}")
+                    loop.call_soon_threadsafe(self._on_reply, err)
+                return
+            if not chunk:
+                continue
+            buffer += chunk
+            while b"\n" in buffer:
+                raw, buffer = buffer.split(b"\n", 1)
+                text = raw.rstrip(b"\r").decode("latin-1")
+                loop.call_soon_threadsafe(self._on_line, text)
+
+    def _on_line(self, text: str) -> None:
+        self.events.data_received.emit(text)
+        try:
+            reply: vp.Reply | TelerobotError = vp.parse_reply(text)
+        except vp.ProtocolError as exc:
+            reply = DeviceError(f"{exc} (after {self._last_sent!r})")
+        self._on_reply(reply)
+
+    def _on_reply(self, reply: vp.Reply | TelerobotError) -> None:
+        self._replies.put_nowait(reply)
+
+    async def _send(self, line: str) -> None:
+        if self._serial is None:
+            raise DeviceError("serial port is not open")
+        self._last_sent = line
+        data = line.encode("latin-1") + b"\r"
+        try:
+            await asyncio.to_thread(self._serial.write, data)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(f"cannot write to {self._settings.port!r}: {exc}") from None
+
+    async def _next_reply(self, timeout: float, waiting_for: str) -> vp.Reply:
+        try:
+            reply = await asyncio.wait_for(self._replies.get(), timeout)
+        except TimeoutError:
+            raise DeviceError(
+                f"no {waiting_for} from the controller on {self._settings.port!r} within "
+                f"{timeout:g} s after {self._last_sent!r}: is it powered on and connected?"
+            ) from None
+        if isinstance(reply, TelerobotError):
+            raise reply
+        if isinstance(reply, vp.ControllerError):
+            raise DeviceError(f"controller error after {self._last_sent!r}: {reply.reason}")
+        return reply
+
+    async def _request(self, line: str, expected: vp.Text | type[vp.Reply]) -> vp.Reply:
+        """Send ``line`` and check that the next reply is ``expected`` (a literal
+        prompt/banner, or a reply type)."""
+        await self._send(line)
+        what = repr(expected.text) if isinstance(expected, vp.Text) else expected.__name__
+        reply = await self._next_reply(self._settings.reply_timeout, what)
+        ok = reply == expected if isinstance(expected, vp.Text) else isinstance(reply, expected)
+        if not ok:
+            raise DeviceError(f"controller answered {reply} to {line!r}; expected {what}")
+        return reply
+
+    # ------------------------------------------------------------ initialisation
+    async def _prepare(self) -> None:
+        if self._pump is not None:
+            self._pump.cancel()
+            self._pump = None
+        await self._request("ABORT", vp.Text(vp.PROMPT))
+        await self._request(f"EDIT {vp.PROGRAM_NAME}", vp.Text("1."))
+        for n, line in enumerate(vp.RESIDENT_PROGRAM, start=2):
+            await self._request(line, vp.Text(f"{n}."))
+        await self._request("E", vp.Text(vp.PROMPT))
+        await self._request(f"EXECUTE {vp.PROGRAM_NAME}", vp.Text(vp.READY_BANNER))
+        pos = await self._request("W", vp.Position)
+        assert isinstance(pos, vp.Position)
+        self._raw = np.radians(pos.joints_deg)
+        self._raw_target = None
+        self._pump = asyncio.create_task(self._pump_targets(), name="val-serial-pump")
+
+    # ------------------------------------------------------------ motion
+    async def _send_target(self, raw_target: FloatArray) -> None:
+        if self._pump is None or self._pump.done():
+            raise DeviceError("the resident program is not running: initialise the robot")
+        self._raw_target = np.asarray(raw_target, dtype=float).copy()
+        self._wake.set()
+
+    async def _halt(self) -> None:
+        # TRINC cannot be interrupted inside MOVE; drop everything not yet sent so
+        # the arm stops at the end of the increment on the wire.
+        self._raw_target = None
+        self._wake.set()
+
+    async def _pump_targets(self) -> None:
+        try:
+            while True:
+                await self._wake.wait()
+                self._wake.clear()
+                while self._raw_target is not None:
+                    delta = [round(math.degrees(d), 4) for d in self._raw_target - self._raw]
+                    if max(abs(d) for d in delta) < _MIN_INCREMENT_DEG:
+                        break
+                    await self._move_by(delta)
+                    self._report_moved()
+                self._motion_finished()
+        except TelerobotError as exc:
+            self._pump = None
+            self._fail(exc)
+
+    async def _move_by(self, delta_deg: list[float]) -> None:
+        self._seq += 1
+        seq = self._seq
+        await self._send(vp.increment_line(seq, delta_deg))
+        reply = await self._next_reply(self._settings.reply_timeout, f"ACK {seq}")
+        if isinstance(reply, vp.Nak):
+            raise DeviceError(f"controller refused increment {seq}: {reply.reason}")
+        if not isinstance(reply, vp.Ack) or reply.seq != seq:
+            raise DeviceError(f"controller answered {reply} to increment {seq}; expected ACK {seq}")
+        done = await self._next_reply(reply.duration + self._settings.move_margin, f"DONE {seq}")
+        if not isinstance(done, vp.Done) or done.seq != seq:
+            raise DeviceError(f"controller answered {done} while increment {seq} was moving")
+        self._raw = np.radians(done.joints_deg)
