@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import runpy
 import signal
@@ -36,16 +37,24 @@ def _serve(args: argparse.Namespace) -> int:
     app = create_app(settings)
     host = settings.host
     shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::") else host
-    where = "the simulation" if settings.robot == "sim" else f"the {settings.robot} robot on {settings.serial_port}"
+    where = (
+        "the simulation"
+        if settings.robot == "sim"
+        else f"the {settings.robot} robot on {settings.serial_port}"
+    )
     config = uvicorn.Config(app, host=host, port=settings.http_port, log_level="info")
     server = uvicorn.Server(config)
 
     async def run() -> None:
         task = asyncio.create_task(server.serve())
-        while not server.started and not task.done():
+        while not server.started and not task.done():  # noqa: ASYNC110 (uvicorn only has a flag)
             await asyncio.sleep(0.05)
         if server.started:
-            port = server.servers[0].sockets[0].getsockname()[1] if server.servers else settings.http_port
+            port = (
+                server.servers[0].sockets[0].getsockname()[1]
+                if server.servers
+                else settings.http_port
+            )
             print(f"\nTelerobot is running on {where}: http://{shown}:{port}/\n", flush=True)
         await task
 
@@ -67,10 +76,8 @@ def _val_emulator(args: argparse.Namespace) -> int:
     print(f"  run the server against it: telerobot serve --robot val --port {link.url}", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
+    with contextlib.suppress(KeyboardInterrupt):
         stop.wait()
-    except KeyboardInterrupt:
-        pass
     link.stop()
     return 0
 
@@ -82,7 +89,9 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="telerobot", description="Drive a robot arm from a browser.")
+    parser = argparse.ArgumentParser(
+        prog="telerobot", description="Drive a robot arm from a browser."
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -91,14 +100,24 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     serve.add_argument("--http-port", type=int, help="HTTP port (default 8000)")
     serve.add_argument("--robot", choices=["sim", "val"], help="robot driver (default sim)")
-    serve.add_argument("--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port")
+    serve.add_argument(
+        "--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port"
+    )
     serve.add_argument("--baudrate", type=int, help="serial baud rate (default 9600)")
-    serve.add_argument("--no-init", action="store_true", help="connect but do not initialise the robot")
+    serve.add_argument(
+        "--no-init", action="store_true", help="connect but do not initialise the robot"
+    )
     serve.set_defaults(func=_serve)
 
-    emu = sub.add_parser("val-emulator", help="emulate a Unimation VAL controller on a pty or TCP port")
-    emu.add_argument("--tcp", metavar="HOST:PORT", help="listen on TCP instead of a pseudo-terminal")
-    emu.add_argument("--time-scale", type=float, default=1.0, help="scale move durations (0.1 = 10× faster)")
+    emu = sub.add_parser(
+        "val-emulator", help="emulate a Unimation VAL controller on a pty or TCP port"
+    )
+    emu.add_argument(
+        "--tcp", metavar="HOST:PORT", help="listen on TCP instead of a pseudo-terminal"
+    )
+    emu.add_argument(
+        "--time-scale", type=float, default=1.0, help="scale move durations (0.1 = 10× faster)"
+    )
     emu.set_defaults(func=_val_emulator)
 
     bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")

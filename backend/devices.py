@@ -13,7 +13,9 @@ from drivers.sim.workcell import Workcell, default_workcell
 
 
 def build_workcell(settings: Settings) -> Workcell:
-    return default_workcell(camera_distance=settings.camera_distance, baseline=settings.camera_baseline)
+    return default_workcell(
+        camera_distance=settings.camera_distance, baseline=settings.camera_baseline
+    )
 
 
 def build_robot(settings: Settings, clock: Clock | None = None) -> Robot:

@@ -27,7 +27,12 @@ _STATUS: dict[type[TelerobotError], int] = {
 
 def problem(status: int, code: str, detail: str) -> JSONResponse:
     return JSONResponse(
-        {"type": f"urn:telerobot:error:{code}", "title": code.replace("_", " "), "status": status, "detail": detail},
+        {
+            "type": f"urn:telerobot:error:{code}",
+            "title": code.replace("_", " "),
+            "status": status,
+            "detail": detail,
+        },
         status_code=status,
         media_type="application/problem+json",
     )

@@ -34,8 +34,9 @@ def load_driver(kind: str, name: str) -> type:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
+        missing = exc.name or "a package"
         raise DriverUnavailable(
-            f"the {kind} driver {name!r} needs {exc.name or 'a package'} that is not installed: {exc}"
+            f"the {kind} driver {name!r} needs {missing} that is not installed: {exc}"
         ) from None
     cls: type = getattr(module, class_name)
     return cls

@@ -60,7 +60,11 @@ async def state(robot: RobotDep) -> RobotState:
 @router.get("/model")
 async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
     kin = getattr(robot, "kinematics", None)
-    tool = kin.tool.tolist() if kin is not None else [[float(i == j) for j in range(4)] for i in range(4)]
+    tool = (
+        kin.tool.tolist()
+        if kin is not None
+        else [[float(i == j) for j in range(4)] for i in range(4)]
+    )
     return RobotModel(
         name="PUMA 560",
         dh=[DHRow(d=d, a=a, alpha=alpha) for d, a, alpha in DH],

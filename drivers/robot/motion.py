@@ -32,10 +32,18 @@ def trapezoid_time(distance: float, vmax: float, amax: float) -> float:
     return d / vmax + vmax / amax
 
 
-def move_duration(q0: Sequence[float], q1: Sequence[float], vmax: FloatArray, amax: FloatArray) -> float:
+def move_duration(
+    q0: Sequence[float] | FloatArray,
+    q1: Sequence[float] | FloatArray,
+    vmax: FloatArray,
+    amax: FloatArray,
+) -> float:
     """Time of a synchronised rest-to-rest joint move: that of its slowest joint."""
     return max(
-        (trapezoid_time(b - a, float(v), float(ac)) for a, b, v, ac in zip(q0, q1, vmax, amax, strict=True)),
+        (
+            trapezoid_time(b - a, float(v), float(ac))
+            for a, b, v, ac in zip(q0, q1, vmax, amax, strict=True)
+        ),
         default=0.0,
     )
 
@@ -74,8 +82,12 @@ class JointMotion:
         self._target = [float(x) for x in target]
         err = [abs(t - q) for t, q in zip(self._target, self._q, strict=True)]
         # Scale every joint's limits by its share of the move so all arrive together.
-        vel_scale = min((v / e for v, e in zip(self.vmax, err, strict=True) if e > _EPS), default=0.0)
-        acc_scale = min((a / e for a, e in zip(self.amax, err, strict=True) if e > _EPS), default=0.0)
+        vel_scale = min(
+            (v / e for v, e in zip(self.vmax, err, strict=True) if e > _EPS), default=0.0
+        )
+        acc_scale = min(
+            (a / e for a, e in zip(self.amax, err, strict=True) if e > _EPS), default=0.0
+        )
         self._vlim = [min(v, e * vel_scale) for v, e in zip(self.vmax, err, strict=True)]
         self._alim = [min(a, e * acc_scale) for a, e in zip(self.amax, err, strict=True)]
         self.moving = True
@@ -92,7 +104,9 @@ class JointMotion:
             self._target = list(self._q)
 
     def remaining_time(self) -> float:
-        return move_duration(self._q, self._target, np.array(self._vlim) + _EPS, np.array(self._alim) + _EPS)
+        return move_duration(
+            self._q, self._target, np.array(self._vlim) + _EPS, np.array(self._alim) + _EPS
+        )
 
     def advance(self, duration: float) -> None:
         """Integrate ``duration`` seconds of motion in fixed steps (the last one partial)."""

@@ -42,7 +42,9 @@ class Box:
 
     def corners(self) -> FloatArray:
         lo, hi = self.lower, self.upper
-        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        return np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        )
 
     def penetration(self, point: FloatArray) -> tuple[float, FloatArray]:
         """How deep ``point`` is inside the box and the outward normal of the nearest
@@ -127,7 +129,12 @@ class PinholeCamera:
     def in_view(self, points: FloatArray) -> np.ndarray:
         uv = self.project(points)
         with np.errstate(invalid="ignore"):
-            return (uv[:, 0] >= 0) & (uv[:, 0] < self.width) & (uv[:, 1] >= 0) & (uv[:, 1] < self.height)
+            return (
+                (uv[:, 0] >= 0)
+                & (uv[:, 0] < self.width)
+                & (uv[:, 1] >= 0)
+                & (uv[:, 1] < self.height)
+            )
 
 
 @dataclass(frozen=True)
@@ -185,7 +192,12 @@ def stereo_rig(
     # Parallel optical axes (a rectified rig, like a stereo camera), both aimed along `forward`.
     cams = [
         PinholeCamera.look_at(
-            name, centre + s * half, centre + s * half + forward, width=width, height=height, hfov_deg=hfov_deg
+            name,
+            centre + s * half,
+            centre + s * half + forward,
+            width=width,
+            height=height,
+            hfov_deg=hfov_deg,
         )
         for name, s in (("left", -1.0), ("right", 1.0))
     ]
@@ -219,5 +231,7 @@ def default_workcell(
     origin = np.array([0.55, 0.05, table_top])
     fiducials = np.array([origin, origin + [0.2, 0, 0], origin + [0, 0.2, 0], origin + [0, 0, 0.2]])
     centre = np.array([0.65, -0.15, 0.55])
-    rig = stereo_rig(centre, distance=camera_distance, baseline=baseline, width=width, height=height)
+    rig = stereo_rig(
+        centre, distance=camera_distance, baseline=baseline, width=width, height=height
+    )
     return Workcell(table, block, fiducials, rig, centre, obstacles=(table, block))

@@ -62,7 +62,11 @@ class PumaArm(ABC):
         self.events = RobotEvents()
         self.frame = WorkingFrame.BASE
         self.home = NAMED_POSES["qn"].copy() if home is None else check_vector("home", home, 6)
-        self._offsets = np.zeros(6) if joint_offsets is None else check_vector("joint_offsets", joint_offsets, 6)
+        self._offsets = (
+            np.zeros(6)
+            if joint_offsets is None
+            else check_vector("joint_offsets", joint_offsets, 6)
+        )
         self._status = RobotStatus.NOT_CONNECTED
         self._status_message = "not connected"
         self._target: FloatArray | None = None  # model joints last commanded
@@ -97,6 +101,11 @@ class PumaArm(ABC):
     @property
     def status(self) -> RobotStatus:
         return self._status
+
+    def status_is(self, status: RobotStatus) -> bool:
+        # A method, not `self._status is …`, so type checkers do not carry a status
+        # narrowed before an `await` past it.
+        return self._status is status
 
     @property
     def status_message(self) -> str:
@@ -146,7 +155,9 @@ class PumaArm(ABC):
 
     def _report_moved(self) -> None:
         q = self.joints
-        self.events.moved.emit(RobotMoved(q, Pose.from_matrix(self.kinematics.fk(q)), self.clock.now()))
+        self.events.moved.emit(
+            RobotMoved(q, Pose.from_matrix(self.kinematics.fk(q)), self.clock.now())
+        )
 
     def _motion_finished(self) -> None:
         self._report_moved()
@@ -188,7 +199,7 @@ class PumaArm(ABC):
             self._fail(exc)
             raise
         await self.wait_idle()
-        if self._status is RobotStatus.ERROR:
+        if self.status_is(RobotStatus.ERROR):
             raise DeviceError(f"initialisation failed: {self._status_message}")
 
     # ------------------------------------------------------------ moves
@@ -231,7 +242,9 @@ class PumaArm(ABC):
         target = self.kinematics.ik(T, seed)
         return await self._go(target)
 
-    def cartesian_target(self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame) -> FloatArray:
+    def cartesian_target(
+        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
+    ) -> FloatArray:
         """The tool pose reached from ``T`` by the increment (dX, dM) in ``frame``."""
         delta = np.eye(4)
         delta[:3, :3], delta[:3, 3] = dM, dX

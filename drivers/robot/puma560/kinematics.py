@@ -189,12 +189,16 @@ class Puma560Kinematics:
         """Tool pose in the base frame as a 4×4 homogeneous matrix."""
         # Joint placements, then only the tool frame: half the cost of all frames.
         pin.forwardKinematics(self.model, self._data, q)
-        result: FloatArray = pin.updateFramePlacement(self.model, self._data, self._tool_id).homogeneous
+        result: FloatArray = pin.updateFramePlacement(
+            self.model, self._data, self._tool_id
+        ).homogeneous
         return result
 
     def fk_flange(self, q: FloatArray) -> FloatArray:
         pin.forwardKinematics(self.model, self._data, q)
-        result: FloatArray = pin.updateFramePlacement(self.model, self._data, self._flange_id).homogeneous
+        result: FloatArray = pin.updateFramePlacement(
+            self.model, self._data, self._flange_id
+        ).homogeneous
         return result
 
     def wrist_centre(self, q: FloatArray) -> FloatArray:
@@ -262,7 +266,9 @@ class Puma560Kinematics:
         rows, reach = self._solve(T, seed)
         return IKSolutions(q=np.array(rows), reachable=np.array(reach))
 
-    def _solve(self, T: FloatArray, seed: FloatArray | None) -> tuple[list[list[float]], list[bool]]:
+    def _solve(
+        self, T: FloatArray, seed: FloatArray | None
+    ) -> tuple[list[list[float]], list[bool]]:
         if not self._tool_is_identity:
             T = T @ self._tool_inv
         (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz) = T[:3].tolist()
@@ -283,7 +289,7 @@ class Puma560Kinematics:
             c1, s1 = math.cos(q1), math.sin(q1)
             # R' = Rz(-q1) R
             a00, a01, a02 = c1 * r00 + s1 * r10, c1 * r01 + s1 * r11, c1 * r02 + s1 * r12
-            a10, a11, a12 = c1 * r10 - s1 * r00, c1 * r11 - s1 * r01, c1 * r12 - s1 * r02
+            a10, a12 = c1 * r10 - s1 * r00, c1 * r12 - s1 * r02
             kk = (rho * rho + z * z - _K0) / (_TWO_A2 * _L)
             if kk > 1.0 + 1e-12 or kk < -1.0 - 1e-12:  # out of the arm's reach
                 rows += [nan6] * 4
@@ -293,7 +299,9 @@ class Puma560Kinematics:
             for elbow_sign in (1.0, -1.0):
                 q3 = _wrap(elbow_sign * acos_k - _PHI)
                 c3, s3 = math.cos(q3), math.sin(q3)
-                q2 = _wrap(math.atan2(z, rho) - math.atan2(A3 * s3 + D4 * c3, A2 + A3 * c3 - D4 * s3))
+                q2 = _wrap(
+                    math.atan2(z, rho) - math.atan2(A3 * s3 + D4 * c3, A2 + A3 * c3 - D4 * s3)
+                )
                 q23 = q2 + q3
                 cb, sb = math.cos(q23), math.sin(q23)
                 # M = Ry(q23) R' = R_36
@@ -339,7 +347,9 @@ class Puma560Kinematics:
         if best is None:
             p = np.round(T[:3, 3], 4).tolist()
             if any(reach):
-                raise JointLimitError(f"every arm configuration reaching {p} m is past a joint limit")
+                raise JointLimitError(
+                    f"every arm configuration reaching {p} m is past a joint limit"
+                )
             raise UnreachablePose(f"the pose at {p} m is outside the PUMA 560's reach")
         return np.array(best)
 

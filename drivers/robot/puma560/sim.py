@@ -36,7 +36,11 @@ class SimPuma(PumaArm):
         report_period: float = 0.02,
     ) -> None:
         super().__init__(kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets)
-        start = NAMED_POSES["qz"] if start_joints is None else check_vector("start_joints", start_joints, 6)
+        start = (
+            NAMED_POSES["qz"]
+            if start_joints is None
+            else check_vector("start_joints", start_joints, 6)
+        )
         self._motion = JointMotion(start, vmax, amax)
         self._updated_at = self.clock.now()
         self.report_period = report_period

@@ -41,7 +41,9 @@ class ValControllerEmulator:
         vmax: np.ndarray = PUMA_VMAX,
         amax: np.ndarray = PUMA_AMAX,
     ) -> None:
-        self.joints_deg = list(np.degrees(NAMED_POSES["qz"])) if start_deg is None else list(start_deg)
+        self.joints_deg = (
+            list(np.degrees(NAMED_POSES["qz"])) if start_deg is None else list(start_deg)
+        )
         self.time_scale = time_scale
         self.vmax, self.amax = vmax, amax
         self.mode: Literal["monitor", "edit", "program"] = "monitor"
@@ -54,8 +56,8 @@ class ValControllerEmulator:
 
     # ---------------------------------------------------------- lines in, lines out
     def receive(self, line: str, now: float) -> list[str]:
-        line = line.strip()
-        if line.upper() == "ABORT":  # a monitor command: works even while the program runs
+        line = line.rstrip()  # leading blanks are kept: they are program text in the editor
+        if line.strip().upper() == "ABORT":  # a monitor command: works even while the program runs
             self.mode, self._pending = "monitor", None
             self._queued.clear()
             return self._out([vp.PROMPT])
@@ -97,8 +99,8 @@ class ValControllerEmulator:
             self.program.append(line)
             return [f"{len(self.program) + 1}."]
         if self.mode == "program":
-            return self._program_line(line, now)
-        return self._monitor_line(line)
+            return self._program_line(line.strip(), now)
+        return self._monitor_line(line.strip())
 
     def _monitor_line(self, line: str) -> list[str]:
         words = line.upper().split()
@@ -141,7 +143,9 @@ class EmulatorLink:
     """Runs an emulator on a pseudo-terminal (``url`` is the device path) or a TCP
     port (``url`` is ``socket://host:port``), in a thread of its own."""
 
-    def __init__(self, emulator: ValControllerEmulator, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, emulator: ValControllerEmulator, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.emulator = emulator
         self.clock = clock
         self.url = ""
@@ -163,7 +167,9 @@ class EmulatorLink:
         return link
 
     @classmethod
-    def on_tcp(cls, emulator: ValControllerEmulator, host: str = "127.0.0.1", port: int = 0) -> EmulatorLink:
+    def on_tcp(
+        cls, emulator: ValControllerEmulator, host: str = "127.0.0.1", port: int = 0
+    ) -> EmulatorLink:
         link = cls(emulator)
         link._listener = socket.create_server((host, port))
         h, p = link._listener.getsockname()[:2]

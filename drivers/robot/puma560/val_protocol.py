@@ -34,7 +34,7 @@ RESIDENT_PROGRAM: tuple[str, ...] = (
     '      TYPE "TRINC END"',
     "      HALT",
     "   END",
-    "   seq = VAL($DECODE($cmd, \" \", 0))",
+    '   seq = VAL($DECODE($cmd, " ", 0))',
     "   FOR i = 1 TO 6",
     '      d[i] = VAL($DECODE($cmd, " ", 0))',
     "   END",

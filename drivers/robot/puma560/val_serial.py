@@ -53,7 +53,7 @@ class ValSerialPuma(PumaArm):
     ) -> None:
         super().__init__(kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets)
         self._settings = settings or SerialSettings()
-        self._serial: serial.SerialBase | None = None
+        self._serial: serial.Serial | None = None
         self._reader: threading.Thread | None = None
         self._reader_stop = threading.Event()
         self._replies: asyncio.Queue[vp.Reply | TelerobotError] = asyncio.Queue()
@@ -97,7 +97,10 @@ class ValSerialPuma(PumaArm):
         self._reader_stop.clear()
         loop = asyncio.get_running_loop()
         self._reader = threading.Thread(
-            target=self._read_lines, args=(self._serial, loop), name="val-serial-reader", daemon=True
+            target=self._read_lines,
+            args=(self._serial, loop),
+            name="val-serial-reader",
+            daemon=True,
         )
         self._reader.start()
         # ABORT returns any controller, even one still running TRINC from an earlier
@@ -120,7 +123,7 @@ class ValSerialPuma(PumaArm):
             self._serial = None
         self._raw_target = None
 
-    def _read_lines(self, port: serial.SerialBase, loop: asyncio.AbstractEventLoop) -> None:
+    def _read_lines(self, port: serial.Serial, loop: asyncio.AbstractEventLoop) -> None:
         buffer = b""
         while not self._reader_stop.is_set():
             try:
@@ -128,7 +131,8 @@ class ValSerialPuma(PumaArm):
             except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
                 if not self._reader_stop.is_set():
                     err = DeviceError(f"serial link to {self._settings.port!r} lost: {exc}")
-                    loop.call_soon_threadsafe(self._on_reply, err)
+                    with contextlib.suppress(RuntimeError):  # the event loop may be gone already
+                        loop.call_soon_threadsafe(self._on_reply, err)
                 return
             if not chunk:
                 continue
@@ -136,7 +140,10 @@ class ValSerialPuma(PumaArm):
             while b"\n" in buffer:
                 raw, buffer = buffer.split(b"\n", 1)
                 text = raw.rstrip(b"\r").decode("latin-1")
-                loop.call_soon_threadsafe(self._on_line, text)
+                try:
+                    loop.call_soon_threadsafe(self._on_line, text)
+                except RuntimeError:  # the event loop closed under us: nobody is listening
+                    return
 
     def _on_line(self, text: str) -> None:
         self.events.data_received.emit(text)

@@ -1,0 +1,71 @@
+"""``telerobot serve`` and ``telerobot val-emulator`` as a user runs them."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+
+import httpx
+
+from tests.servers import BIN, telerobot
+
+URL = r"(http://localhost:\d+/)"
+
+
+def wait_ready(base: str, timeout: float = 20.0) -> dict[str, object]:
+    deadline = time.monotonic() + timeout
+    while True:
+        state: dict[str, object] = httpx.get(base + "api/v1/robot/state").json()
+        if state["status"] == "READY" or time.monotonic() > deadline:
+            return state
+        time.sleep(0.1)
+
+
+def test_serve_prints_its_url_and_runs_the_simulation() -> None:
+    with telerobot("serve", "--http-port", "0", wait_for=URL) as (_, m):
+        state = wait_ready(m.group(1))
+        assert state["status"] == "READY" and state["driver"] == "sim-puma560"
+
+
+def test_serve_against_the_val_emulator_over_tcp() -> None:
+    with (
+        telerobot(
+            "val-emulator",
+            "--tcp",
+            "127.0.0.1:0",
+            "--time-scale",
+            "0.05",
+            wait_for=r"(socket://\S+)",
+        ) as (
+            _,
+            emu,
+        ),
+        telerobot(
+            "serve", "--robot", "val", "--port", emu.group(1), "--http-port", "0", wait_for=URL
+        ) as (_, m),
+    ):
+        state = wait_ready(m.group(1))
+        assert state["status"] == "READY" and state["driver"] == "val-puma560"
+
+
+def test_serve_against_the_val_emulator_on_a_pty() -> None:
+    with (
+        telerobot("val-emulator", "--time-scale", "0.05", wait_for=r"listening on (/dev/\S+)") as (
+            _,
+            emu,
+        ),
+        telerobot(
+            "serve", "--robot", "val", "--port", emu.group(1), "--http-port", "0", wait_for=URL
+        ) as (_, m),
+    ):
+        assert wait_ready(m.group(1))["status"] == "READY"
+
+
+def test_bad_settings_exit_with_a_message() -> None:
+    out = subprocess.run(
+        [str(BIN), "serve", "--config", "/nonexistent.toml"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert out.returncode == 2 and "settings file /nonexistent.toml does not exist" in out.stderr

@@ -1,0 +1,161 @@
+"""ValSerialPuma against the emulated controller over a real pseudo-terminal and a
+real TCP socket (ARCHITECTURE rule 4: the byte protocol against an emulator)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from drivers.base import DeviceError, NotReady, RobotStatus, SerialSettings
+from drivers.robot.puma560 import val_protocol as vp
+from drivers.robot.puma560.kinematics import NAMED_POSES
+from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+from drivers.robot.puma560.val_serial import ValSerialPuma
+
+FAST = 0.02  # emulated moves take 2 % of their real time
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def link(request: pytest.FixtureRequest) -> Iterator[EmulatorLink]:
+    emulator = ValControllerEmulator(time_scale=FAST)
+    make = EmulatorLink.on_pty if request.param == "pty" else EmulatorLink.on_tcp
+    with make(emulator) as running:
+        yield running
+
+
+def robot_on(link: EmulatorLink, **kw: float) -> ValSerialPuma:
+    return ValSerialPuma(
+        SerialSettings(port=link.url, reply_timeout=kw.get("reply_timeout", 1.0), move_margin=0.5)
+    )
+
+
+async def test_initialise_uploads_the_resident_program_and_moves_home(link: EmulatorLink) -> None:
+    robot = robot_on(link)
+    lines: list[str] = []
+    robot.events.data_received.subscribe(lines.append)
+    await robot.connect()
+    assert robot.status is RobotStatus.CONNECTED
+    await robot.initialize()
+    assert robot.status is RobotStatus.READY
+    assert link.emulator.loaded["TRINC"] == list(vp.RESIDENT_PROGRAM)
+    assert link.emulator.mode == "program"
+    np.testing.assert_allclose(robot.joints, NAMED_POSES["qn"], atol=1e-6)
+    np.testing.assert_allclose(np.radians(link.emulator.joints_deg), NAMED_POSES["qn"], atol=1e-6)
+    assert vp.READY_BANNER in lines and any(line.startswith("DONE") for line in lines)
+    await robot.disconnect()
+
+
+async def test_streamed_increments_coalesce_and_arrive(link: EmulatorLink) -> None:
+    robot = robot_on(link)
+    await robot.connect()
+    await robot.initialize()
+    moves_before = link.emulator.moves
+    for _ in range(25):
+        await robot.move_joints(np.array([0.004, 0, 0, 0, -0.002, 0]), relative=True)
+    assert robot.status is RobotStatus.MOVING
+    await robot.wait_idle(timeout=10)
+    assert robot.status is RobotStatus.READY
+    np.testing.assert_allclose(
+        robot.joints, NAMED_POSES["qn"] + [0.1, 0, 0, 0, -0.05, 0], atol=2e-6
+    )
+    # 25 commands, far fewer serial moves: newer targets replace older ones on a busy link.
+    assert 1 <= link.emulator.moves - moves_before < 25
+    await robot.disconnect()
+
+
+async def test_cartesian_move_through_the_controller(link: EmulatorLink) -> None:
+    robot = robot_on(link)
+    await robot.connect()
+    await robot.initialize()
+    p0 = robot.pose.position
+    await robot.move_cartesian(np.array([0, 0, 0.05]), np.eye(3), relative=True)
+    await robot.wait_idle(timeout=10)
+    np.testing.assert_allclose(robot.pose.position, p0 + [0, 0, 0.05], atol=1e-5)
+    await robot.disconnect()
+
+
+async def test_silent_controller_gives_error_then_reconnect_recovers(link: EmulatorLink) -> None:
+    robot = robot_on(link, reply_timeout=0.3)
+    await robot.connect()
+    await robot.initialize()
+    link.emulator.fault = "mute"
+    await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
+    await robot.wait_idle(timeout=5)
+    assert robot.status is RobotStatus.ERROR
+    assert "no ACK" in robot.status_message and link.url in robot.status_message
+    with pytest.raises(NotReady, match="reconnect"):
+        await robot.move_joints(np.zeros(6), relative=True)
+    link.emulator.fault = None
+    await robot.connect()
+    await robot.initialize()
+    assert robot.status is RobotStatus.READY
+    await robot.disconnect()
+
+
+async def test_garbled_reply_gives_a_clear_error(link: EmulatorLink) -> None:
+    robot = robot_on(link)
+    await robot.connect()
+    await robot.initialize()
+    link.emulator.fault = "garble"
+    await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
+    await robot.wait_idle(timeout=5)
+    assert robot.status is RobotStatus.ERROR
+    assert "unexpected reply" in robot.status_message
+    await robot.disconnect()
+
+
+async def test_controller_refusal_is_reported(link: EmulatorLink) -> None:
+    robot = robot_on(link)
+    await robot.connect()
+    await robot.initialize()
+    # Wrong zero offsets: our model thinks joint 5 has room, the controller does not.
+    link.emulator.joints_deg[4] = 99.0
+    robot.joint_offsets = np.radians([0, 0, 0, 0, -60.0, 0])
+    await robot.move_joints(np.radians([0, 0, 0, 0, 5.0, 0]), relative=True)
+    await robot.wait_idle(timeout=5)
+    assert robot.status is RobotStatus.ERROR
+    assert "refused" in robot.status_message and "joint 5 limit" in robot.status_message
+    await robot.disconnect()
+
+
+async def test_missing_port_is_a_clear_error() -> None:
+    robot = ValSerialPuma(SerialSettings(port="/dev/does-not-exist"))
+    with pytest.raises(DeviceError, match="cannot open serial port '/dev/does-not-exist'"):
+        await robot.connect()
+    assert robot.status is RobotStatus.ERROR
+
+
+async def test_nothing_listening_is_a_clear_error() -> None:
+    robot = ValSerialPuma(SerialSettings(port="socket://127.0.0.1:9"))
+    with pytest.raises(DeviceError, match="cannot open serial port"):
+        await robot.connect()
+
+
+async def test_dropped_tcp_link_puts_the_driver_in_error() -> None:
+    with EmulatorLink.on_tcp(ValControllerEmulator(time_scale=FAST)) as link:
+        robot = robot_on(link)
+        await robot.connect()
+        await robot.initialize()
+        link.drop_client()
+        await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
+        await robot.wait_idle(timeout=5)
+        assert robot.status is RobotStatus.ERROR
+        await robot.connect()  # the emulator accepts a new connection
+        await robot.initialize()
+        assert robot.status is RobotStatus.READY
+        await robot.disconnect()
+
+
+def test_emulator_holds_lines_while_moving() -> None:
+    emu = ValControllerEmulator()
+    emu.loaded["TRINC"] = []
+    assert emu.receive("EXECUTE TRINC", 0.0) == [vp.READY_BANNER]
+    ack = emu.receive(vp.increment_line(1, [10, 0, 0, 0, 0, 0]), 0.0)
+    duration = vp.parse_reply(ack[0])
+    assert isinstance(duration, vp.Ack) and duration.duration > 0.1
+    assert emu.receive("W", 0.01) == []  # TRINC is inside MOVE
+    assert emu.poll(0.01) == []
+    out = emu.poll(duration.duration + 0.001)
+    assert out[0].startswith("DONE 1 10.0000") and out[1].startswith("POS 10.0000")
