@@ -127,6 +127,19 @@ async def test_missing_port_is_a_clear_error() -> None:
     assert robot.status is RobotStatus.ERROR
 
 
+async def test_silent_controller_at_connect_is_a_clear_error(link: EmulatorLink) -> None:
+    link.emulator.fault = "mute"
+    robot = robot_on(link, reply_timeout=0.3)
+    with pytest.raises(DeviceError, match="no '.' from the controller .* after 'ABORT'"):
+        await robot.connect()
+    assert robot.status is RobotStatus.ERROR
+    assert robot._reader is None and robot._serial is None  # nothing left half open
+    link.emulator.fault = None
+    await robot.connect()
+    assert robot.status is RobotStatus.CONNECTED
+    await robot.disconnect()
+
+
 async def test_nothing_listening_is_a_clear_error() -> None:
     robot = ValSerialPuma(SerialSettings(port="socket://127.0.0.1:9"))
     with pytest.raises(DeviceError, match="cannot open serial port"):

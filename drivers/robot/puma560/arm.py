@@ -172,6 +172,7 @@ class PumaArm(ABC):
             await self._close()
             await self._open()
         except TelerobotError as exc:
+            await self._close()  # leave no half-open port or reader behind
             self._fail(exc)
             raise
         self._set_status(RobotStatus.CONNECTED, "connected, not initialised")
