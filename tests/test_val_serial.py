@@ -31,6 +31,15 @@ def robot_on(link: EmulatorLink, **kw: float) -> ValSerialPuma:
     )
 
 
+async def ready_robot(link: EmulatorLink, **kw: float) -> ValSerialPuma:
+    """A driver on ``link``, connected and initialised (at the home pose, READY)."""
+    robot = robot_on(link, **kw)
+    await robot.connect()
+    await robot.initialize()
+    assert robot.status is RobotStatus.READY
+    return robot
+
+
 async def test_initialise_uploads_the_resident_program_and_moves_home(link: EmulatorLink) -> None:
     robot = robot_on(link)
     lines: list[str] = []
@@ -48,9 +57,7 @@ async def test_initialise_uploads_the_resident_program_and_moves_home(link: Emul
 
 
 async def test_streamed_increments_coalesce_and_arrive(link: EmulatorLink) -> None:
-    robot = robot_on(link)
-    await robot.connect()
-    await robot.initialize()
+    robot = await ready_robot(link)
     moves_before = link.emulator.moves
     for _ in range(25):
         await robot.move_joints(np.array([0.004, 0, 0, 0, -0.002, 0]), relative=True)
@@ -66,9 +73,7 @@ async def test_streamed_increments_coalesce_and_arrive(link: EmulatorLink) -> No
 
 
 async def test_cartesian_move_through_the_controller(link: EmulatorLink) -> None:
-    robot = robot_on(link)
-    await robot.connect()
-    await robot.initialize()
+    robot = await ready_robot(link)
     p0 = robot.pose.position
     await robot.move_cartesian(np.array([0, 0, 0.05]), np.eye(3), relative=True)
     await robot.wait_idle(timeout=10)
@@ -77,9 +82,7 @@ async def test_cartesian_move_through_the_controller(link: EmulatorLink) -> None
 
 
 async def test_silent_controller_gives_error_then_reconnect_recovers(link: EmulatorLink) -> None:
-    robot = robot_on(link, reply_timeout=0.3)
-    await robot.connect()
-    await robot.initialize()
+    robot = await ready_robot(link, reply_timeout=0.3)
     link.emulator.fault = "mute"
     await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
     await robot.wait_idle(timeout=5)
@@ -95,9 +98,7 @@ async def test_silent_controller_gives_error_then_reconnect_recovers(link: Emula
 
 
 async def test_garbled_reply_gives_a_clear_error(link: EmulatorLink) -> None:
-    robot = robot_on(link)
-    await robot.connect()
-    await robot.initialize()
+    robot = await ready_robot(link)
     link.emulator.fault = "garble"
     await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
     await robot.wait_idle(timeout=5)
@@ -107,9 +108,7 @@ async def test_garbled_reply_gives_a_clear_error(link: EmulatorLink) -> None:
 
 
 async def test_controller_refusal_is_reported(link: EmulatorLink) -> None:
-    robot = robot_on(link)
-    await robot.connect()
-    await robot.initialize()
+    robot = await ready_robot(link)
     # Wrong zero offsets: our model thinks joint 5 has room, the controller does not.
     link.emulator.joints_deg[4] = 99.0
     robot.joint_offsets = np.radians([0, 0, 0, 0, -60.0, 0])
@@ -130,7 +129,7 @@ async def test_missing_port_is_a_clear_error() -> None:
 async def test_silent_controller_at_connect_is_a_clear_error(link: EmulatorLink) -> None:
     link.emulator.fault = "mute"
     robot = robot_on(link, reply_timeout=0.3)
-    with pytest.raises(DeviceError, match="no '.' from the controller .* after 'ABORT'"):
+    with pytest.raises(DeviceError, match=r"no '\.' from the controller .* after 'ABORT'"):
         await robot.connect()
     assert robot.status is RobotStatus.ERROR
     assert robot._reader is None and robot._serial is None  # nothing left half open
@@ -148,9 +147,7 @@ async def test_nothing_listening_is_a_clear_error() -> None:
 
 async def test_dropped_tcp_link_puts_the_driver_in_error() -> None:
     with EmulatorLink.on_tcp(ValControllerEmulator(time_scale=FAST)) as link:
-        robot = robot_on(link)
-        await robot.connect()
-        await robot.initialize()
+        robot = await ready_robot(link)
         link.drop_client()
         await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
         await robot.wait_idle(timeout=5)

@@ -136,6 +136,7 @@ class Puma560Kinematics:
 
     def __init__(self, tool: FloatArray | None = None) -> None:
         self.qlim = QLIM.copy()
+        self.qlim.setflags(write=False)  # the IK's fast path caches these limits as floats
         self._lo = [float(x) for x in QLIM[:, 0]]
         self._hi = [float(x) for x in QLIM[:, 1]]
         self.tool = np.eye(4) if tool is None else tool
