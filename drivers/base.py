@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -174,3 +175,41 @@ class Robot(Protocol):
     ) -> FloatArray: ...
     async def stop(self) -> None: ...
     async def wait_idle(self, timeout: float | None = None) -> None: ...
+
+
+# ---------------------------------------------------------------- force sensor
+FORCE_CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+
+
+@dataclass(frozen=True)
+class ForceSample:
+    """One 6-axis reading in the sensor frame: N and N·m."""
+
+    seq: int  # counts every sample taken; gaps mean samples withheld by the threshold
+    time: float  # sensor timestamp, seconds on the monotonic clock
+    values: tuple[float, float, float, float, float, float]
+
+
+@runtime_checkable
+class ForceSensor(Protocol):
+    """A 6-axis force/torque sensor sampled off the event loop.
+
+    Subscribers are called from the sampling thread: they must be quick and
+    thread-safe (hand the sample over, e.g. with ``loop.call_soon_threadsafe``).
+    """
+
+    name: str
+
+    @property
+    def running(self) -> bool: ...
+    @property
+    def latest(self) -> ForceSample | None: ...
+
+    rate_hz: float
+    threshold: float  # report only changes larger than this on some channel; 0 = every sample
+    filter_cutoff_hz: float | None  # first-order low-pass; None = off
+
+    def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]: ...
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+    def tare(self) -> None: ...

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,6 +19,16 @@ from drivers.clock import Clock
 from drivers.robot.motion import PUMA_AMAX, PUMA_VMAX, JointMotion
 from drivers.robot.puma560.arm import PumaArm
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, check_vector
+
+
+@dataclass(frozen=True)
+class ArmSnapshot:
+    """The arm's state at one instant, handed to other threads (the simulated force
+    sensor) by swapping one reference: readers never see a half-updated state."""
+
+    time: float
+    joints: FloatArray  # corrected, radians
+    velocities: FloatArray  # rad/s
 
 
 class SimPuma(PumaArm):
@@ -43,6 +54,9 @@ class SimPuma(PumaArm):
         )
         self._motion = JointMotion(start, vmax, amax)
         self._updated_at = self.clock.now()
+        self._snapshot = ArmSnapshot(
+            self._updated_at, self._motion.q + self._offsets, self._motion.v
+        )
         self.report_period = report_period
         self._reporter: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
@@ -51,6 +65,11 @@ class SimPuma(PumaArm):
         now = self.clock.now()
         self._motion.advance(now - self._updated_at)
         self._updated_at = now
+        self._snapshot = ArmSnapshot(now, self._motion.q + self._offsets, self._motion.v)
+
+    def snapshot(self) -> ArmSnapshot:
+        """The state at the last update (thread-safe; extrapolate with ``velocities``)."""
+        return self._snapshot
 
     def _measured_raw(self) -> FloatArray:
         self._sync()

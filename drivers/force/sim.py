@@ -1,0 +1,192 @@
+"""``SimForceSensor``: a 6-axis wrist sensor on the simulated arm.
+
+It reads the simulated workcell: when the gripper tip is pushed into the table or
+the block it feels a contact force (a spring of the obstacle's stiffness, a damper
+on the approach speed, a little noise), so what the operator does is what the
+sensor feels. Readings are in the sensor frame: origin at the flange, axes of the
+tool frame; torques are about the flange.
+
+Sampling runs in its own thread on an absolute schedule (no drift); subscribers are
+called from that thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from drivers.base import ForceSample
+from drivers.force.pipeline import ForcePipeline, Six
+from drivers.robot.puma560.kinematics import Puma560Kinematics
+from drivers.robot.puma560.sim import ArmSnapshot
+from drivers.sim.workcell import Workcell
+
+log = logging.getLogger(__name__)
+
+MAX_EXTRAPOLATION = 0.05  # s: the arm publishes its state at least every 20 ms while moving
+
+
+class SimForceSensor:
+    name = "sim-force"
+
+    def __init__(
+        self,
+        workcell: Workcell,
+        probe: Callable[[], ArmSnapshot],
+        kinematics: Puma560Kinematics,
+        *,
+        rate_hz: float = 1000.0,
+        noise_n: float = 0.02,
+        seed: int = 0,
+        time_source: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.workcell = workcell
+        self.probe = probe
+        self.kinematics = kinematics  # this sensor's own: Pinocchio data is not thread-safe
+        self.noise_n = noise_n
+        self._rng = np.random.default_rng(seed)
+        self._now = time_source
+        self._pipeline = ForcePipeline(ForcePipeline.check_rate(rate_hz))
+        self._lock = threading.Lock()  # pipeline settings vs the sampling thread
+        self._subscribers: list[Callable[[ForceSample], None]] = []
+        self._seq = 0
+        self._latest: ForceSample | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.overruns = 0  # samples whose slot had already passed (the thread was late)
+
+    # ------------------------------------------------------------ settings
+    @property
+    def rate_hz(self) -> float:
+        return self._pipeline.rate_hz
+
+    @rate_hz.setter
+    def rate_hz(self, value: float) -> None:
+        rate = ForcePipeline.check_rate(value)
+        with self._lock:
+            self._pipeline.rate_hz = rate
+            if (
+                self._pipeline.filter_cutoff_hz is not None
+                and self._pipeline.filter_cutoff_hz >= rate / 2
+            ):
+                self._pipeline.filter_cutoff_hz = None
+
+    @property
+    def threshold(self) -> float:
+        return self._pipeline.threshold
+
+    @threshold.setter
+    def threshold(self, value: float) -> None:
+        self._pipeline.threshold = ForcePipeline.check_threshold(value)
+
+    @property
+    def filter_cutoff_hz(self) -> float | None:
+        return self._pipeline.filter_cutoff_hz
+
+    @filter_cutoff_hz.setter
+    def filter_cutoff_hz(self, value: float | None) -> None:
+        with self._lock:
+            self._pipeline.filter_cutoff_hz = ForcePipeline.check_cutoff(
+                value, self._pipeline.rate_hz
+            )
+
+    def tare(self) -> None:
+        with self._lock:
+            self._pipeline.tare()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def latest(self) -> ForceSample | None:
+        return self._latest
+
+    def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]:
+        self._subscribers = [
+            *self._subscribers,
+            callback,
+        ]  # copy-on-write: the thread iterates safely
+
+        def unsubscribe() -> None:
+            self._subscribers = [c for c in self._subscribers if c is not callback]
+
+        return unsubscribe
+
+    # ------------------------------------------------------------ physics
+    def read_raw(self, t: float) -> Six:
+        """Contact force and torque at time ``t`` (no filter, tare or threshold)."""
+        snap = self.probe()
+        dt = min(max(t - snap.time, 0.0), MAX_EXTRAPOLATION)
+        q = snap.joints + snap.velocities * dt
+        T = self.kinematics.fk(q).copy()
+        flange = self.kinematics.fk_flange(q)[:3, 3].copy()
+        tip = T[:3, 3]
+        v_tip = (self.kinematics.jacobian(q) @ snap.velocities)[:3]
+        force = np.zeros(3)
+        for box in self.workcell.obstacles:
+            depth, normal = box.penetration(tip)
+            if depth > 0.0:
+                push = box.stiffness * depth - box.damping * float(v_tip @ normal)
+                force += normal * max(push, 0.0)  # a contact pushes, never pulls
+        if self.noise_n > 0:
+            force += self._rng.normal(0.0, self.noise_n, 3)
+        torque = np.cross(tip - flange, force)
+        R = T[:3, :3]  # sensor axes = tool axes
+        f_s, t_s = R.T @ force, R.T @ torque
+        return (
+            float(f_s[0]),
+            float(f_s[1]),
+            float(f_s[2]),
+            float(t_s[0]),
+            float(t_s[1]),
+            float(t_s[2]),
+        )
+
+    def sample_at(self, t: float) -> ForceSample | None:
+        """Take one sample at ``t``; deliver it unless the threshold withholds it."""
+        raw = self.read_raw(t)
+        with self._lock:
+            self._seq += 1
+            values = self._pipeline.process(raw)
+        if values is None:
+            return None
+        sample = ForceSample(self._seq, t, values)
+        self._latest = sample
+        for callback in self._subscribers:
+            try:
+                callback(sample)
+            except Exception:  # one subscriber's bug must not stop the sensor
+                log.exception("force subscriber failed")
+        return sample
+
+    # ------------------------------------------------------------ thread
+    def start(self) -> None:
+        if self.running:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="sim-force-sensor", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+            self._thread = None
+
+    def _run(self) -> None:
+        next_t = self._now()
+        while not self._stop.is_set():
+            next_t += 1.0 / self._pipeline.rate_hz
+            delay = next_t - self._now()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -0.1:  # far behind (the machine stalled): skip, do not burst
+                self.overruns += math.floor(-delay * self._pipeline.rate_hz)
+                next_t = self._now()
+            self.sample_at(self._now())

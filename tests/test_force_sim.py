@@ -1,0 +1,137 @@
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+import pytest
+
+from drivers.base import ForceSample, InvalidCommand
+from drivers.force.pipeline import ForcePipeline
+from drivers.force.sim import SimForceSensor
+from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
+from drivers.robot.puma560.sim import ArmSnapshot
+from drivers.sim.workcell import default_workcell
+
+TOOL = tool_transform(0.1)
+DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # tool z pointing down
+
+
+def joints_with_tip_at(point: np.ndarray) -> np.ndarray:
+    kin = Puma560Kinematics(TOOL)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = DOWN, point
+    return kin.ik(T, NAMED_POSES["qn"])
+
+
+class Arm:
+    """The state the sensor probes; tests set it directly."""
+
+    def __init__(self, q: np.ndarray, v: np.ndarray | None = None, t: float = 0.0) -> None:
+        self.snap = ArmSnapshot(t, q, np.zeros(6) if v is None else v)
+
+    def __call__(self) -> ArmSnapshot:
+        return self.snap
+
+
+def sensor_for(arm: Arm, noise: float = 0.0) -> SimForceSensor:
+    return SimForceSensor(default_workcell(), arm, Puma560Kinematics(TOOL), noise_n=noise)
+
+
+def test_free_space_reads_zero() -> None:
+    cell = default_workcell()
+    q = joints_with_tip_at(np.array([0.8, 0.2, cell.table.upper[2] + 0.05]))
+    assert sensor_for(Arm(q)).read_raw(0.0) == pytest.approx((0,) * 6, abs=1e-9)
+
+
+def test_pushing_into_the_table_gives_an_upward_force_proportional_to_depth() -> None:
+    cell = default_workcell()
+    top = cell.table.upper[2]
+    readings = []
+    for depth in (0.001, 0.002, 0.004):
+        q = joints_with_tip_at(np.array([0.8, 0.2, top - depth]))
+        readings.append(sensor_for(Arm(q)).read_raw(0.0))
+    for depth, r in zip((0.001, 0.002, 0.004), readings, strict=True):
+        # Tool z points down, so the table's upward push is −z in the sensor frame.
+        assert r[2] == pytest.approx(-cell.table.stiffness * depth, rel=1e-6)
+        assert r[0] == pytest.approx(0, abs=1e-6) and r[1] == pytest.approx(0, abs=1e-6)
+        assert r[3:] == pytest.approx((0, 0, 0), abs=1e-6)  # force along the tool axis: no torque
+
+
+def test_side_push_into_the_block_gives_torque_about_the_flange() -> None:
+    cell = default_workcell()
+    side = cell.block.lower[0]
+    q = joints_with_tip_at(
+        np.array([side + 0.003, cell.block.centre[1], cell.block.centre[2] + 0.02])
+    )
+    r = sensor_for(Arm(q)).read_raw(0.0)
+    f = np.array(r[:3])
+    assert np.linalg.norm(f) == pytest.approx(cell.block.stiffness * 0.003, rel=1e-6)
+    # Force applied 0.1 m down the tool axis: |τ| = 0.1 m × |F|, perpendicular to F.
+    assert np.linalg.norm(r[3:]) == pytest.approx(0.1 * np.linalg.norm(f), rel=1e-6)
+    assert abs(np.dot(f, r[3:])) < 1e-6
+
+
+def test_damping_resists_the_approach_and_extrapolates_motion() -> None:
+    cell = default_workcell()
+    q = joints_with_tip_at(np.array([0.8, 0.2, cell.table.upper[2] - 0.002]))
+    kin = Puma560Kinematics(TOOL)
+    J = kin.jacobian(q)
+    qd = np.linalg.lstsq(J, np.array([0, 0, -0.05, 0, 0, 0]), rcond=None)[0]  # tip down at 5 cm/s
+    still = sensor_for(Arm(q)).read_raw(0.0)[2]
+    moving = sensor_for(Arm(q, qd)).read_raw(0.0)[2]
+    assert moving == pytest.approx(still - cell.table.damping * 0.05, rel=1e-4)
+    later = sensor_for(Arm(q, qd)).read_raw(0.01)[2]  # 10 ms on: 0.5 mm deeper
+    assert later == pytest.approx(moving - cell.table.stiffness * 0.0005, rel=1e-3)
+
+
+def test_tare_threshold_and_filter() -> None:
+    p = ForcePipeline(1000.0)
+    assert p.process((1, 2, 3, 0, 0, 0)) == (1, 2, 3, 0, 0, 0)
+    p.tare()
+    assert p.process((1, 2, 3, 0, 0, 0)) == (0, 0, 0, 0, 0, 0)
+    p.threshold = 0.5
+    assert p.process((1.2, 2, 3, 0, 0, 0)) is None  # a change of 0.2 is withheld
+    assert p.process((1.6, 2, 3, 0, 0, 0)) == pytest.approx((0.6, 0, 0, 0, 0, 0))
+    p.threshold = 0.0
+    p.filter_cutoff_hz = 10.0
+    out = p.process((11.6, 2, 3, 0, 0, 0))  # a 10 N step through a 10 Hz low-pass at 1 kHz
+    a = 0.001 / (1 / (2 * math.pi * 10) + 0.001)
+    assert out is not None and out[0] == pytest.approx(0.6 + 10 * a)
+
+
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [
+        ("rate_hz", 0),
+        ("rate_hz", math.nan),
+        ("threshold", -1),
+        ("filter_cutoff_hz", 600.0),
+        ("threshold", math.inf),
+    ],
+)
+def test_bad_settings_are_refused(setting: str, value: float) -> None:
+    s = sensor_for(Arm(NAMED_POSES["qn"]))
+    with pytest.raises(InvalidCommand):
+        setattr(s, setting, value)
+
+
+def test_sampling_thread_delivers_numbered_samples_at_the_rate() -> None:
+    s = sensor_for(Arm(NAMED_POSES["qn"]), noise=0.01)
+    got: list[ForceSample] = []
+    enough = threading.Event()
+
+    def on_sample(sample: ForceSample) -> None:
+        got.append(sample)
+        if len(got) >= 200:
+            enough.set()
+
+    s.subscribe(on_sample)
+    s.start()
+    assert enough.wait(5.0), "fewer than 200 samples in 5 s"
+    s.stop()
+    assert not s.running
+    seqs = [g.seq for g in got]
+    assert seqs == list(range(1, len(seqs) + 1))  # threshold 0: every sample, none lost
+    span = got[199].time - got[0].time
+    assert 0.15 < span < 0.6  # 199 periods of 1 ms, on a shared machine
