@@ -6,9 +6,9 @@ asks which one it holds. Units are SI: metres, radians, seconds.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import numpy as np

@@ -68,8 +68,11 @@ class ForcePipeline:
             self._last_reported = None
         out: Six = tuple(f - b for f, b in zip(filtered, self._bias, strict=True))  # type: ignore[assignment]
         last = self._last_reported
-        if self.threshold > 0 and last is not None:
-            if max(abs(o - p) for o, p in zip(out, last, strict=True)) <= self.threshold:
-                return None
+        if (
+            self.threshold > 0
+            and last is not None
+            and max(abs(o - p) for o, p in zip(out, last, strict=True)) <= self.threshold
+        ):
+            return None
         self._last_reported = out
         return out
