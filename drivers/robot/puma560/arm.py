@@ -236,32 +236,14 @@ class PumaArm(ABC):
         R = check_rotation("orientation increment" if relative else "orientation", rotation)
         seed = self.target_joints
         if relative:
-            T = self.cartesian_target(self.kinematics.fk(seed).copy(), p, R, frame or self.frame)
+            T = self.kinematics.apply_increment(
+                self.kinematics.fk(seed).copy(), p, R, frame or self.frame
+            )
         else:
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R, p
         target = self.kinematics.ik(T, seed)
         return await self._go(target)
-
-    def cartesian_target(
-        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
-    ) -> FloatArray:
-        """The tool pose reached from ``T`` by the increment (dX, dM) in ``frame``."""
-        delta = np.eye(4)
-        delta[:3, :3], delta[:3, 3] = dM, dX
-        if frame is WorkingFrame.BASE:
-            out = T.copy()
-            out[:3, :3] = dM @ T[:3, :3]
-            out[:3, 3] = T[:3, 3] + dX
-            return out
-        if frame is WorkingFrame.TOOL:
-            result: FloatArray = T @ delta
-            return result
-        if frame is WorkingFrame.WRIST:
-            tool = self.kinematics.tool
-            result = T @ np.linalg.inv(tool) @ delta @ tool
-            return result
-        raise InvalidCommand(f"unknown working frame {frame!r}")
 
     async def _go(self, target: FloatArray) -> FloatArray:
         self.kinematics.check_joint_limits(target)

@@ -30,7 +30,7 @@ from typing import Final, Literal
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose
+from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose, WorkingFrame
 
 PI: Final = math.pi
 TWO_PI: Final = 2.0 * math.pi
@@ -219,6 +219,27 @@ class Puma560Kinematics:
             self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
         )
         return J
+
+    def apply_increment(
+        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
+    ) -> FloatArray:
+        """The tool pose reached from ``T`` by the increment (dX, dM) expressed in ``frame``:
+        base (translate along / rotate about base axes, pivot at the tool point), tool
+        (tool axes, pivot at the tool point) or wrist (flange axes, pivot at the wrist centre)."""
+        delta = np.eye(4)
+        delta[:3, :3], delta[:3, 3] = dM, dX
+        if frame is WorkingFrame.BASE:
+            out = T.copy()
+            out[:3, :3] = dM @ T[:3, :3]
+            out[:3, 3] = T[:3, 3] + dX
+            return out
+        if frame is WorkingFrame.TOOL:
+            result: FloatArray = T @ delta
+            return result
+        if frame is WorkingFrame.WRIST:
+            result = T @ self._tool_inv @ delta @ self._tool
+            return result
+        raise InvalidCommand(f"unknown working frame {frame!r}")
 
     # ------------------------------------------------------------- limits
     def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:

@@ -1,0 +1,1 @@
+"""The DecisionServer: one path for every motion command, whatever its source."""

@@ -1,0 +1,419 @@
+"""The DecisionServer (thesis §4.3.3, SPEC §5): holds the robot and the force sensor
+and applies every command, from any input or the REST API, through one path:
+
+    authorise (client, role, lease, e-stop) → validate → scale → step limit →
+    speed limit → frame → force guard → workspace → IK → joint-step limit → driver
+
+Every command ends as one absolute joint target that has passed every check; only
+then does it reach the driver. Pure logic: no sockets, no HTTP; time comes from the
+injected clock; ``tick()`` is called periodically by the server for the dead-man.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import secrets
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import pinocchio as pin
+
+from backend.control.limits import SafetyLimits
+from drivers.base import (
+    FloatArray,
+    ForceSample,
+    InvalidCommand,
+    NotReady,
+    Robot,
+    RobotStatus,
+    TelerobotError,
+    WorkingFrame,
+)
+from drivers.clock import Clock
+from drivers.events import Event
+from drivers.robot.puma560.kinematics import Puma560Kinematics, check_rotation, check_vector
+
+log = logging.getLogger(__name__)
+
+
+class NotAllowed(TelerobotError):
+    """The client may not do this (observer, or someone else holds the lease)."""
+
+    code = "not_allowed"
+
+
+class SafetyStop(TelerobotError):
+    """Motion is stopped by the e-stop or the force limit; nothing moved."""
+
+    code = "safety_stop"
+
+
+class LimitExceeded(InvalidCommand):
+    """The command would break a safety limit (workspace, step, singularity); nothing moved."""
+
+    code = "limit_exceeded"
+
+
+class Role(StrEnum):
+    OPERATOR = "operator"
+    OBSERVER = "observer"
+
+
+@dataclass
+class Client:
+    id: str
+    name: str
+    role: Role
+    last_seen: float
+    busy: int = 0  # requests in flight (a REST call waiting for its move counts as alive)
+    last_command_at: float | None = None
+
+
+@dataclass(frozen=True)
+class Applied:
+    """A command that reached the driver."""
+
+    client_id: str
+    seq: int
+    client_time: float | None  # the client's own clock, as sent
+    applied_at: float  # server clock when the driver took it
+    limited: bool  # the speed limit scaled it down
+    target: FloatArray
+
+
+@dataclass(frozen=True)
+class SafetyState:
+    estop: bool
+    estop_reason: str
+    force_limited: bool
+    lease_holder: str | None
+    lease_holder_name: str | None
+
+
+@dataclass
+class DecisionEvents:
+    lease_changed: Event[str | None] = field(default_factory=lambda: Event("lease_changed"))
+    safety_changed: Event[SafetyState] = field(default_factory=lambda: Event("safety_changed"))
+    applied: Event[Applied] = field(default_factory=lambda: Event("applied"))
+
+
+class DecisionServer:
+    def __init__(
+        self,
+        robot: Robot,
+        *,
+        kinematics: Puma560Kinematics,
+        clock: Clock,
+        operator_token: str,
+        limits: SafetyLimits | None = None,
+    ) -> None:
+        if len(operator_token) < 16:
+            raise ValueError("the operator token must have at least 16 characters")
+        self.robot = robot
+        self.kinematics = kinematics
+        self.clock = clock
+        self.limits = limits or SafetyLimits()
+        self.events = DecisionEvents()
+        self._token = operator_token
+        self._clients: dict[str, Client] = {}
+        self._lease: str | None = None
+        self._scale = 1.0
+        self.frame = WorkingFrame.BASE
+        self._estop = False
+        self._estop_reason = ""
+        self._force_limited = False
+        self._force_base = np.zeros(3)  # last contact force, base frame
+        self._lock = asyncio.Lock()  # one command at a time reaches the driver
+
+    # ------------------------------------------------------------ settings
+    @property
+    def scale(self) -> float:
+        """Master-to-slave motion scale applied to Cartesian increments."""
+        return self._scale
+
+    @scale.setter
+    def scale(self, value: float) -> None:
+        if not (isinstance(value, int | float) and math.isfinite(value) and 0.01 <= value <= 10.0):
+            raise InvalidCommand(f"scale must be between 0.01 and 10, got {value!r}")
+        self._scale = float(value)
+
+    def state(self) -> SafetyState:
+        holder = self._clients.get(self._lease) if self._lease else None
+        return SafetyState(
+            self._estop,
+            self._estop_reason,
+            self._force_limited,
+            self._lease,
+            holder.name if holder else None,
+        )
+
+    # ------------------------------------------------------------ clients
+    def check_token(self, token: str | None) -> bool:
+        return token is not None and secrets.compare_digest(token.encode(), self._token.encode())
+
+    def join(self, name: str, token: str | None) -> Client:
+        role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
+        client = Client(secrets.token_hex(8), name[:64], role, self.clock.now())
+        self._clients[client.id] = client
+        return client
+
+    async def leave(self, client_id: str) -> None:
+        if self._lease == client_id:
+            await self._lapse("controller disconnected")
+        self._clients.pop(client_id, None)
+
+    def client(self, client_id: str) -> Client:
+        try:
+            return self._clients[client_id]
+        except KeyError:
+            raise NotAllowed(f"unknown client {client_id!r}: join first") from None
+
+    def seen(self, client_id: str) -> None:
+        """A heartbeat: any message from a client counts as one."""
+        self.client(client_id).last_seen = self.clock.now()
+
+    @property
+    def lease_holder(self) -> str | None:
+        return self._lease
+
+    async def take_lease(self, client_id: str, *, force: bool = False) -> None:
+        client = self.client(client_id)
+        client.last_seen = self.clock.now()
+        if client.role is not Role.OPERATOR:
+            raise NotAllowed("observers cannot take control: connect with the operator token")
+        if self._lease == client_id:
+            return
+        if self._lease is not None:
+            holder = self._clients[self._lease]
+            if not force:
+                raise NotAllowed(
+                    f"{holder.name!r} has control; take it over explicitly (force) if you must"
+                )
+            log.warning("%s takes control from %s", client.name, holder.name)
+            await self.robot.stop()
+        self._lease = client_id
+        client.last_command_at = None
+        self._changed_lease()
+
+    async def release_lease(self, client_id: str) -> None:
+        if self._lease != client_id:
+            raise NotAllowed("you do not hold the lease")
+        await self._lapse("released")
+
+    async def _lapse(self, why: str) -> None:
+        log.info("lease lapses: %s", why)
+        self._lease = None
+        await self.robot.stop()
+        self._changed_lease()
+
+    def _changed_lease(self) -> None:
+        self.events.lease_changed.emit(self._lease)
+        self.events.safety_changed.emit(self.state())
+
+    async def tick(self) -> None:
+        """Dead-man: a lease holder silent for ``deadman_timeout_s`` loses the lease
+        and the arm stops. Called every ``tick_s``."""
+        if self._lease is None:
+            return
+        holder = self._clients.get(self._lease)
+        if holder is None:
+            await self._lapse("controller gone")
+        elif (
+            holder.busy == 0 and self.clock.now() - holder.last_seen > self.limits.deadman_timeout_s
+        ):
+            await self._lapse(
+                f"dead-man: no heartbeat from {holder.name!r} for {self.limits.deadman_timeout_s} s"
+            )
+
+    # ------------------------------------------------------------ safety
+    async def estop(self, client_id: str | None, reason: str = "e-stop pressed") -> None:
+        """Anyone may stop the arm; it stays stopped until an operator resets it."""
+        who = self._clients[client_id].name if client_id in self._clients else "server"
+        self._estop, self._estop_reason = True, f"{reason} ({who})"
+        await self.robot.stop()
+        self.events.safety_changed.emit(self.state())
+
+    async def reset(self, client_id: str) -> None:
+        client = self.client(client_id)
+        if client.role is not Role.OPERATOR:
+            raise NotAllowed("only an operator can reset the e-stop")
+        if self._lease not in (None, client_id):
+            raise NotAllowed("only the client in control can reset the e-stop")
+        self._estop, self._estop_reason = False, ""
+        self.events.safety_changed.emit(self.state())
+
+    def on_force(self, sample: ForceSample) -> None:
+        """Force limit: a contact force above the limit stops motion; only commands that
+        back away from the contact are taken until it falls below the release level."""
+        f = np.array(sample.values[:3])
+        magnitude = float(np.linalg.norm(f))
+        if magnitude > self.limits.force_limit_n:
+            self._force_base = self.robot.pose.rotation @ f
+            if not self._force_limited:
+                self._force_limited = True
+                log.warning(
+                    "force limit: %.1f N > %.1f N, stopping", magnitude, self.limits.force_limit_n
+                )
+                asyncio.get_running_loop().create_task(self.robot.stop())
+                self.events.safety_changed.emit(self.state())
+        elif (
+            self._force_limited
+            and magnitude < self.limits.force_limit_n * self.limits.force_release_ratio
+        ):
+            self._force_limited = False
+            self.events.safety_changed.emit(self.state())
+
+    def _authorise(self, client_id: str) -> Client:
+        client = self.client(client_id)
+        client.last_seen = self.clock.now()
+        if client.role is not Role.OPERATOR:
+            raise NotAllowed("observers cannot move the robot")
+        if self._lease != client_id:
+            raise NotAllowed("take the control lease before moving the robot")
+        if self._estop:
+            raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
+        return client
+
+    def _interval(self, client: Client, now: float) -> float:
+        """Time the speed limit allows for this increment: since the client's last
+        command, within [1 ms, 100 ms] so a pause does not bank a big jump."""
+        if client.last_command_at is None:
+            return 0.1
+        return min(max(now - client.last_command_at, 0.001), 0.1)
+
+    # ------------------------------------------------------------ commands
+    async def cartesian_increment(
+        self,
+        client_id: str,
+        dX: FloatArray,
+        rotvec: FloatArray,
+        *,
+        frame: WorkingFrame | None = None,
+        seq: int = 0,
+        client_time: float | None = None,
+    ) -> Applied:
+        """ΔX (m) and ΔM as a rotation vector (rad), in ``frame`` (default: the working frame)."""
+        client = self._authorise(client_id)
+        dX = check_vector("position increment", dX, 3) * self._scale
+        rv = check_vector("rotation increment", rotvec, 3) * self._scale
+        with np.errstate(over="ignore"):  # 1e300 is refused below, not a warning
+            step, angle = float(np.linalg.norm(dX)), float(np.linalg.norm(rv))
+        lim = self.limits
+        if step > lim.max_step_m or angle > lim.max_step_rad:
+            raise LimitExceeded(
+                f"increment of {step * 1000:.1f} mm / {math.degrees(angle):.1f}° (after scale "
+                f"{self._scale:g}) exceeds the per-command limit of "
+                f"{lim.max_step_m * 1000:.0f} mm / {math.degrees(lim.max_step_rad):.1f}°"
+            )
+        now = self.clock.now()
+        dt = self._interval(client, now)
+        factor = min(1.0, lim.max_speed_m_s * dt / step if step else 1.0)
+        factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
+        limited = factor < 1.0
+        dX, rv = dX * factor, rv * factor
+        seed = self.robot.target_joints
+        T0 = self.kinematics.fk(seed).copy()
+        T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame or self.frame)
+        if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
+            raise SafetyStop("force limit: only moves that back away from the contact are allowed")
+        self._check_workspace(T[:3, 3])
+        q = self.kinematics.ik(T, seed)
+        return await self._apply(client, q, seed, seq, client_time, limited)
+
+    async def joint_increment(
+        self, client_id: str, dq: FloatArray, *, seq: int = 0, client_time: float | None = None
+    ) -> Applied:
+        client = self._authorise(client_id)
+        dq = check_vector("joint increment", dq, 6)
+        lim = self.limits
+        biggest = float(np.max(np.abs(dq)))
+        if biggest > lim.max_joint_step_rad:
+            raise LimitExceeded(
+                f"joint increment of {math.degrees(biggest):.1f}° exceeds the per-command limit of "
+                f"{math.degrees(lim.max_joint_step_rad):.1f}°"
+            )
+        if self._force_limited:
+            raise SafetyStop("force limit: back away with a Cartesian move first")
+        now = self.clock.now()
+        allowed = lim.max_joint_speed_rad_s * self._interval(client, now)
+        limited = biggest > allowed
+        if limited:
+            dq = dq * (allowed / biggest)
+        seed = self.robot.target_joints
+        q = seed + dq
+        self.kinematics.check_joint_limits(q)
+        self._check_workspace(self.kinematics.fk(q)[:3, 3])
+        return await self._apply(client, q, seed, seq, client_time, limited)
+
+    async def move_joints(self, client_id: str, q: FloatArray, *, seq: int = 0) -> Applied:
+        """An absolute joint move (scripted): joint limits and the workspace apply; the
+        arm's own velocity limits pace it."""
+        client = self._authorise(client_id)
+        q = check_vector("joints", q, 6)
+        if self._force_limited:
+            raise SafetyStop("force limit: back away with a Cartesian move first")
+        self.kinematics.check_joint_limits(q)
+        self._check_workspace(self.kinematics.fk(q)[:3, 3])
+        return await self._apply(client, q, None, seq, None, False)
+
+    async def move_pose(
+        self, client_id: str, position: FloatArray, rotation: FloatArray, *, seq: int = 0
+    ) -> Applied:
+        client = self._authorise(client_id)
+        p = check_vector("position", position, 3)
+        R = check_rotation("orientation", rotation)
+        if self._force_limited:
+            raise SafetyStop("force limit: back away with a Cartesian move first")
+        self._check_workspace(p)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, p
+        q = self.kinematics.ik(T, self.robot.target_joints)
+        return await self._apply(client, q, None, seq, None, False)
+
+    async def initialize(self, client_id: str, q: FloatArray | None = None) -> None:
+        """Connect if needed and initialise (to ``q`` or the home pose); needs the lease."""
+        self._authorise(client_id)
+        if q is not None:
+            q = check_vector("joints", q, 6)
+            self.kinematics.check_joint_limits(q)
+            self._check_workspace(self.kinematics.fk(q)[:3, 3])
+        await self.robot.connect()
+        await self.robot.initialize(q)
+
+    def _check_workspace(self, p: FloatArray) -> None:
+        if not self.limits.in_workspace(p):
+            lo, hi = self.limits.workspace_min, self.limits.workspace_max
+            box = ", ".join(f"{a} {lo[i]:.2f}…{hi[i]:.2f}" for i, a in enumerate("xyz"))
+            raise LimitExceeded(
+                f"target {np.round(p, 3).tolist()} m is outside the workspace ({box} m)"
+            )
+
+    async def _apply(
+        self,
+        client: Client,
+        q: FloatArray,
+        seed: FloatArray | None,
+        seq: int,
+        client_time: float | None,
+        limited: bool,
+    ) -> Applied:
+        if seed is not None:
+            jump = np.abs(q - seed)
+            worst = int(np.argmax(jump))
+            if jump[worst] > self.limits.max_joint_step_rad:
+                raise LimitExceeded(
+                    f"too close to a singularity: joint {worst + 1} would turn "
+                    f"{math.degrees(jump[worst]):.1f}° for this small move"
+                )
+        async with self._lock:
+            if self.robot.status not in (RobotStatus.READY, RobotStatus.MOVING):
+                raise NotReady(f"robot is {self.robot.status}: initialise it first")
+            target = await self.robot.move_joints(q, relative=False)
+            now = self.clock.now()
+        client.last_command_at = now
+        applied = Applied(client.id, seq, client_time, now, limited, target)
+        self.events.applied.emit(applied)
+        return applied
