@@ -12,12 +12,19 @@ from pathlib import Path
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
 
-from backend.api import health, robot, workcell
-from backend.devices import build_robot, build_workcell
+from backend.api import control, force, health, robot, telemetry, workcell
+from backend.control.decision import DecisionServer
+from backend.control.limits import SafetyLimits
+from backend.devices import build_force_sensor, build_robot, build_workcell
 from backend.errors import install_error_handlers
+from backend.realtime import ws
+from backend.realtime.hub import RealtimeHub
+from backend.security import operator_token
 from backend.settings import Settings
+from backend.telemetry.stats import Telemetry
 from drivers.base import Robot, TelerobotError
-from drivers.clock import Clock
+from drivers.clock import Clock, MonotonicClock
+from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 
 log = logging.getLogger("telerobot")
 STATIC = Path(__file__).parent / "static"
@@ -37,21 +44,42 @@ async def bring_up_robot(robot: Robot, initialize: bool) -> None:
 
 def create_app(settings: Settings | None = None, *, clock: Clock | None = None) -> FastAPI:
     settings = settings or Settings()
+    clock = clock or MonotonicClock()
+    token, token_is_new = operator_token(settings)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        app.state.settings = settings
-        app.state.workcell = build_workcell(settings)
-        app.state.robot = build_robot(settings, clock)
-        bring_up = asyncio.create_task(bring_up_robot(app.state.robot, settings.auto_initialize))
-        app.state.robot_bring_up = bring_up
+        s = app.state
+        s.settings, s.token, s.token_is_new = settings, token, token_is_new
+        s.telemetry = Telemetry()
+        s.workcell = build_workcell(settings)
+        s.robot = build_robot(settings, clock)
+        s.force = build_force_sensor(settings, s.robot, s.workcell)
+        limits = SafetyLimits(
+            force_limit_n=settings.force_limit_n,
+            deadman_timeout_s=settings.deadman_timeout_s,
+            max_speed_m_s=settings.max_speed_m_s,
+        )
+        # The DecisionServer's own model (same tool): Pinocchio data is per instance.
+        kinematics = Puma560Kinematics(tool_transform(settings.tool_length))
+        s.decision = DecisionServer(
+            s.robot, kinematics=kinematics, clock=clock, operator_token=token, limits=limits
+        )
+        s.hub = RealtimeHub(
+            s.robot, s.decision, s.force, s.telemetry, clock, state_rate_hz=settings.state_rate_hz
+        )
+        s.hub.start()
+        s.force.start()
+        bring_up = asyncio.create_task(bring_up_robot(s.robot, settings.auto_initialize))
         try:
             yield
         finally:
             bring_up.cancel()
             with contextlib.suppress(asyncio.CancelledError, TelerobotError):
                 await bring_up
-            await app.state.robot.disconnect()
+            s.force.stop()
+            await s.hub.stop()
+            await s.robot.disconnect()
 
     app = FastAPI(
         title="Telerobot",
@@ -59,12 +87,13 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
         summary="Drive a robot arm from a browser, in stereo, with force feedback.",
         lifespan=lifespan,
     )
+    app.state.token, app.state.token_is_new = token, token_is_new
     install_error_handlers(app)
     api = APIRouter(prefix="/api/v1")
-    api.include_router(health.router)
-    api.include_router(robot.router)
-    api.include_router(workcell.router)
+    for module in (health, robot, control, force, telemetry, workcell):
+        api.include_router(module.router)
     app.include_router(api)
+    app.include_router(ws.router)
 
     @app.get("/", include_in_schema=False)
     async def status_page() -> FileResponse:

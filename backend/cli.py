@@ -30,11 +30,20 @@ def _serve(args: argparse.Namespace) -> int:
             serial_port=args.port,
             serial_baudrate=args.baudrate,
             auto_initialize=False if args.no_init else None,
+            tls=True if args.tls else None,
+            state_dir=args.state_dir,
         )
     except (ValidationError, FileNotFoundError, ValueError) as exc:
         print(f"telerobot: bad settings: {exc}", file=sys.stderr)
         return 2
+    from backend.security import ensure_certificate, state_dir
+
     app = create_app(settings)
+    ssl: dict[str, str] = {}
+    if settings.tls:
+        cert, key = ensure_certificate(settings)
+        ssl = {"ssl_certfile": str(cert), "ssl_keyfile": str(key)}
+    scheme = "https" if settings.tls else "http"
     host = settings.host
     shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::") else host
     where = (
@@ -42,7 +51,7 @@ def _serve(args: argparse.Namespace) -> int:
         if settings.robot == "sim"
         else f"the {settings.robot} robot on {settings.serial_port}"
     )
-    config = uvicorn.Config(app, host=host, port=settings.http_port, log_level="info")
+    config = uvicorn.Config(app, host=host, port=settings.http_port, log_level="info", **ssl)  # type: ignore[arg-type]
     server = uvicorn.Server(config)
 
     async def run() -> None:
@@ -55,7 +64,14 @@ def _serve(args: argparse.Namespace) -> int:
                 if server.servers
                 else settings.http_port
             )
-            print(f"\nTelerobot is running on {where}: http://{shown}:{port}/\n", flush=True)
+            print(f"\nTelerobot is running on {where}: {scheme}://{shown}:{port}/", flush=True)
+            if app.state.token_is_new:
+                path = state_dir(settings) / "operator-token"
+                print(
+                    f"Operator token (shown this once, kept in {path}): {app.state.token}",
+                    flush=True,
+                )
+            print(flush=True)
         await task
 
     asyncio.run(run())
@@ -106,6 +122,12 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument("--baudrate", type=int, help="serial baud rate (default 9600)")
     serve.add_argument(
         "--no-init", action="store_true", help="connect but do not initialise the robot"
+    )
+    serve.add_argument(
+        "--tls", action="store_true", help="HTTPS with a self-signed certificate made on first use"
+    )
+    serve.add_argument(
+        "--state-dir", type=Path, help="where the token and certificate live (~/.config/telerobot)"
     )
     serve.set_defaults(func=_serve)
 

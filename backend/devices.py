@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from backend.settings import Settings
-from drivers.base import Robot, SerialSettings
+from drivers.base import ArmSnapshot, ForceSensor, Robot, RobotMoved, SerialSettings
 from drivers.clock import Clock
 from drivers.registry import load_driver
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
@@ -37,3 +40,31 @@ def build_robot(settings: Settings, clock: Clock | None = None) -> Robot:
     }
     robot: Robot = cls(**common, **specific.get(settings.robot, {}))
     return robot
+
+
+def arm_probe(robot: Robot) -> Callable[[], ArmSnapshot]:
+    """A thread-safe view of the arm for sensors that simulate contact with it.
+
+    A simulated arm publishes snapshots with velocities; any other arm is followed
+    through its "moved" events (position only)."""
+    snapshot = getattr(robot, "snapshot", None)
+    if callable(snapshot):
+        return snapshot  # type: ignore[no-any-return]
+    latest = [ArmSnapshot(0.0, robot.joints, np.zeros(6))]
+
+    def on_moved(event: RobotMoved) -> None:
+        latest[0] = ArmSnapshot(event.time, event.joints, np.zeros(6))
+
+    robot.events.moved.subscribe(on_moved)
+    return lambda: latest[0]
+
+
+def build_force_sensor(settings: Settings, robot: Robot, workcell: Workcell) -> ForceSensor:
+    cls = load_driver("force", settings.force)
+    tool = getattr(
+        robot, "kinematics", Puma560Kinematics(tool_transform(settings.tool_length))
+    ).tool
+    sensor: ForceSensor = cls(
+        workcell, arm_probe(robot), Puma560Kinematics(tool), rate_hz=settings.force_rate_hz
+    )
+    return sensor

@@ -5,6 +5,7 @@ from __future__ import annotations
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
+from backend.control.decision import LimitExceeded, NotAllowed, SafetyStop
 from drivers.base import (
     DeviceError,
     DriverUnavailable,
@@ -15,7 +16,11 @@ from drivers.base import (
     UnreachablePose,
 )
 
+# Most specific first: the first class that matches gives the HTTP status.
 _STATUS: dict[type[TelerobotError], int] = {
+    NotAllowed: 403,
+    SafetyStop: 409,
+    LimitExceeded: 422,
     UnreachablePose: 422,
     JointLimitError: 422,
     InvalidCommand: 422,

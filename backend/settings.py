@@ -42,6 +42,21 @@ class Settings(BaseSettings):
     serial_baudrate: int = 9600
     serial_reply_timeout: float = Field(1.0, gt=0)
 
+    force: Literal["sim"] = "sim"
+    force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)
+    state_rate_hz: float = Field(50.0, ge=1.0, le=1000.0)
+
+    # Safety (the rest of SafetyLimits keeps its defaults)
+    force_limit_n: float = Field(60.0, gt=0)
+    deadman_timeout_s: float = Field(0.15, gt=0, le=0.18)
+    max_speed_m_s: float = Field(0.25, gt=0, le=2.0)
+
+    # Security: the operator token is generated into state_dir at first start unless given.
+    operator_token: str | None = Field(None, min_length=16)
+    state_dir: Path | None = None  # default: $XDG_CONFIG_HOME/telerobot or ~/.config/telerobot
+    allowed_origins: list[str] = []  # extra browser origins allowed on /ws (same host always is)
+    tls: bool = False  # HTTPS with a per-installation self-signed certificate (WebXR on a LAN)
+
     # Simulated workcell
     camera_distance: float = Field(1.8, ge=0.3, le=10.0)
     camera_baseline: float = Field(0.12, gt=0.0, lt=1.0)

@@ -139,6 +139,16 @@ class RobotEvents:
     status_changed: Event[StatusChanged] = field(default_factory=lambda: Event("status_changed"))
 
 
+@dataclass(frozen=True)
+class ArmSnapshot:
+    """The arm's state at one instant, handed to other threads (the simulated force
+    sensor) by swapping one reference: readers never see a half-updated state."""
+
+    time: float
+    joints: FloatArray  # corrected, radians
+    velocities: FloatArray  # rad/s
+
+
 @runtime_checkable
 class Robot(Protocol):
     """A 6-axis arm. Every move is validated before anything is sent; a refused

@@ -17,6 +17,9 @@ DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
         "sim": ("drivers.robot.puma560.sim", "SimPuma"),
         "val": ("drivers.robot.puma560.val_serial", "ValSerialPuma"),
     },
+    "force": {
+        "sim": ("drivers.force.sim", "SimForceSensor"),
+    },
 }
 
 

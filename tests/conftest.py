@@ -6,6 +6,16 @@ from typing import TypeVar
 
 from drivers.clock import ManualClock
 
+
+def pytest_configure() -> None:
+    # Tokens and certificates that servers under test create go to a throw-away
+    # folder, never into the developer's ~/.config (subprocesses inherit this).
+    import os
+    import tempfile
+
+    os.environ.setdefault("TELEROBOT_STATE_DIR", tempfile.mkdtemp(prefix="telerobot-test-state-"))
+
+
 T = TypeVar("T")
 
 

@@ -6,11 +6,10 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.base import ForceSample, InvalidCommand
+from drivers.base import ArmSnapshot, ForceSample, InvalidCommand
 from drivers.force.pipeline import ForcePipeline
 from drivers.force.sim import SimForceSensor
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import ArmSnapshot
 from drivers.sim.workcell import default_workcell
 
 TOOL = tool_transform(0.1)

@@ -1,15 +1,17 @@
-"""Robot state and model. Motion endpoints arrive with the DecisionServer, so that
-every motion command goes through one safety path."""
+"""Robot state, model, initialisation and scripted moves. Every move goes through
+the DecisionServer (lease, limits, e-stop), like the real-time channel's commands."""
 
 from __future__ import annotations
 
 import math
+from typing import Literal
 
+import numpy as np
 from fastapi import APIRouter
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
-from backend.api.deps import RobotDep, SettingsDep
-from drivers.base import RobotStatus, WorkingFrame
+from backend.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
+from drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
 from drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM_DEG
 
 router = APIRouter(prefix="/robot", tags=["robot"])
@@ -23,6 +25,8 @@ class RobotState(BaseModel):
     joints_deg: list[float]
     position: list[float]  # tool position in the base frame, metres
     rotation: list[list[float]]  # tool orientation matrix, base frame
+    target_joints: list[float]  # last commanded target, radians
+    joint_offsets: list[float]  # model angle = controller angle + offset, radians
     frame: WorkingFrame
 
 
@@ -41,8 +45,44 @@ class RobotModel(BaseModel):
     home_pose: str
 
 
-@router.get("/state")
-async def state(robot: RobotDep) -> RobotState:
+class InitializeRequest(BaseModel):
+    joints: list[float] | None = Field(None, description="radians; default: the home pose")
+
+
+class MoveRequest(BaseModel):
+    space: Literal["joint", "cartesian"]
+    mode: Literal["absolute", "incremental"]
+    joints: list[float] | None = Field(
+        None, description="joint space: 6 angles or increments, radians"
+    )
+    position: list[float] | None = Field(None, description="cartesian: position or ΔX, metres")
+    rotation: list[list[float]] | None = Field(
+        None,
+        description="cartesian absolute: 3×3 orientation matrix (default: keep the current one)",
+    )
+    rotvec: list[float] | None = Field(
+        None, description="cartesian incremental: ΔM as a rotation vector, radians"
+    )
+    frame: WorkingFrame | None = Field(
+        None, description="frame of an increment (default: the working frame)"
+    )
+    wait: bool = Field(
+        True, description="return when the motion has ended (else at once; poll /robot/state)"
+    )
+    timeout_s: float = Field(60.0, gt=0, le=600)
+
+
+class MoveResult(BaseModel):
+    limited: bool  # the speed limit scaled an increment down
+    target_joints: list[float]
+    state: RobotState
+
+
+class JointOffsets(BaseModel):
+    offsets: list[float] = Field(description="radians: model angle = controller angle + offset")
+
+
+def robot_state(robot: Robot, frame: WorkingFrame) -> RobotState:
     q = robot.joints
     pose = robot.pose
     return RobotState(
@@ -53,18 +93,21 @@ async def state(robot: RobotDep) -> RobotState:
         joints_deg=[math.degrees(a) for a in q],
         position=pose.position.tolist(),
         rotation=pose.rotation.tolist(),
-        frame=robot.frame,
+        target_joints=robot.target_joints.tolist(),
+        joint_offsets=robot.joint_offsets.tolist(),
+        frame=frame,
     )
+
+
+@router.get("/state")
+async def state(robot: RobotDep, decision: DecisionDep) -> RobotState:
+    return robot_state(robot, decision.frame)
 
 
 @router.get("/model")
 async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
     kin = getattr(robot, "kinematics", None)
-    tool = (
-        kin.tool.tolist()
-        if kin is not None
-        else [[float(i == j) for j in range(4)] for i in range(4)]
-    )
+    tool = kin.tool.tolist() if kin is not None else np.eye(4).tolist()
     return RobotModel(
         name="PUMA 560",
         dh=[DHRow(d=d, a=a, alpha=alpha) for d, a, alpha in DH],
@@ -73,3 +116,80 @@ async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
         tool=tool,
         home_pose=settings.home_pose,
     )
+
+
+@router.post("/initialize")
+async def initialize(
+    body: InitializeRequest, robot: RobotDep, decision: DecisionDep, client: ClientDep
+) -> RobotState:
+    """Connect if needed, prepare the arm and move it to ``joints`` (default: home).
+    Returns when the arm is READY."""
+    client.busy += 1
+    try:
+        await decision.initialize(
+            client.id, None if body.joints is None else np.array(body.joints, dtype=float)
+        )
+    finally:
+        client.busy -= 1
+        decision.seen(client.id)
+    return robot_state(robot, decision.frame)
+
+
+def _need(value: list[float] | None, what: str) -> np.ndarray:
+    if value is None:
+        raise InvalidCommand(f"this move needs {what}")
+    return np.array(value, dtype=float)
+
+
+@router.post("/move")
+async def move(
+    body: MoveRequest, robot: RobotDep, decision: DecisionDep, client: ClientDep
+) -> MoveResult:
+    """A scripted move, absolute or incremental, in joint or Cartesian space. With
+    ``wait`` it returns when the motion has ended (or fails); otherwise at once."""
+    if body.space == "joint" and body.mode == "absolute":
+        applied = await decision.move_joints(client.id, _need(body.joints, "joints"))
+    elif body.space == "joint":
+        applied = await decision.joint_increment(
+            client.id, _need(body.joints, "joints (increments)")
+        )
+    elif body.mode == "absolute":
+        rotation = (
+            robot.pose.rotation if body.rotation is None else np.array(body.rotation, dtype=float)
+        )
+        applied = await decision.move_pose(client.id, _need(body.position, "position"), rotation)
+    else:
+        dX = np.zeros(3) if body.position is None else np.array(body.position, dtype=float)
+        rv = np.zeros(3) if body.rotvec is None else np.array(body.rotvec, dtype=float)
+        applied = await decision.cartesian_increment(client.id, dX, rv, frame=body.frame)
+    if body.wait:
+        client.busy += 1
+        try:
+            await robot.wait_idle(body.timeout_s)
+        finally:
+            client.busy -= 1
+            decision.seen(client.id)
+        if robot.status is RobotStatus.ERROR:
+            raise DeviceError(f"the move failed: {robot.status_message}")
+    return MoveResult(
+        limited=applied.limited,
+        target_joints=applied.target.tolist(),
+        state=robot_state(robot, decision.frame),
+    )
+
+
+@router.post("/stop")
+async def stop(robot: RobotDep, decision: DecisionDep, client: ClientDep) -> RobotState:
+    """Stop the current motion (not latched; the e-stop is /safety/estop)."""
+    await robot.stop()
+    return robot_state(robot, decision.frame)
+
+
+@router.put("/joint-offsets")
+async def set_joint_offsets(
+    body: JointOffsets, robot: RobotDep, decision: DecisionDep, client: ClientDep
+) -> RobotState:
+    if decision.lease_holder != client.id:
+        raise InvalidCommand("take the control lease before changing joint corrections")
+    robot.joint_offsets = np.array(body.offsets, dtype=float)
+    return robot_state(robot, decision.frame)

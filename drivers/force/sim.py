@@ -20,10 +20,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.base import ForceSample
+from drivers.base import ArmSnapshot, ForceSample
 from drivers.force.pipeline import ForcePipeline, Six
 from drivers.robot.puma560.kinematics import Puma560Kinematics
-from drivers.robot.puma560.sim import ArmSnapshot
 from drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)

@@ -10,25 +10,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.base import FloatArray, RobotStatus
+from drivers.base import ArmSnapshot, FloatArray, RobotStatus
 from drivers.clock import Clock
 from drivers.robot.motion import PUMA_AMAX, PUMA_VMAX, JointMotion
 from drivers.robot.puma560.arm import PumaArm
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, check_vector
-
-
-@dataclass(frozen=True)
-class ArmSnapshot:
-    """The arm's state at one instant, handed to other threads (the simulated force
-    sensor) by swapping one reference: readers never see a half-updated state."""
-
-    time: float
-    joints: FloatArray  # corrected, radians
-    velocities: FloatArray  # rad/s
 
 
 class SimPuma(PumaArm):

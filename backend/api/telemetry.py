@@ -1,0 +1,68 @@
+"""Inter-arrival and latency statistics of every stream (SPEC §9)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from pydantic import BaseModel
+
+from backend.api.deps import TelemetryDep
+
+router = APIRouter(prefix="/telemetry", tags=["telemetry"])
+
+
+class StreamSummary(BaseModel):
+    name: str
+    unit: str
+    count: int
+    window: int
+    mean: float | None
+    p50: float | None
+    p99: float | None
+    max: float | None
+    histogram_edges: list[float]
+    histogram_counts: list[int]
+
+
+class ConnectionView(BaseModel):
+    client_id: str
+    operator: bool
+    every_force_sample: bool
+    forces_lost: int
+
+
+class TelemetryView(BaseModel):
+    streams: list[StreamSummary]
+    connections: list[ConnectionView]
+
+
+def _num(x: float) -> float | None:
+    return None if x != x else x  # NaN (no data yet) is not JSON
+
+
+@router.get("")
+async def telemetry(request: Request, stats: TelemetryDep) -> TelemetryView:
+    streams = [
+        StreamSummary(
+            name=s.name,
+            unit=s.unit,
+            count=s.count,
+            window=s.window,
+            mean=_num(s.mean),
+            p50=_num(s.p50),
+            p99=_num(s.p99),
+            max=_num(s.max),
+            histogram_edges=s.histogram_edges,
+            histogram_counts=s.histogram_counts,
+        )
+        for s in stats.summaries()
+    ]
+    conns = [
+        ConnectionView(
+            client_id=c.client_id,
+            operator=c.operator,
+            every_force_sample=c.every_force_sample,
+            forces_lost=c.outbox.forces_lost,
+        )
+        for c in request.app.state.hub.connections.values()
+    ]
+    return TelemetryView(streams=streams, connections=conns)

@@ -1,0 +1,1 @@
+"""The binary real-time channel: message layouts, WebSocket endpoint, fan-out."""

@@ -1,0 +1,247 @@
+"""Fan-out of state, forces and events to every WebSocket connection.
+
+Each connection has its own outbox with newest-wins slots (ARCHITECTURE rule 6):
+the robot state is one slot (a slow client never receives stale states), force
+samples a bounded buffer (every sample is delivered unless a client falls 2 s
+behind, which is counted as loss), control replies a small queue. One sender task
+per connection drains it in priority order: replies, forces, then state.
+
+Force samples come from the sensor's thread through ``call_soon_threadsafe``; for
+browsers they are batched (~10 ms), for clients that asked, sent one by one.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+
+from backend.control.decision import DecisionServer, SafetyState
+from backend.realtime import messages as m
+from backend.telemetry.stats import Telemetry
+from drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
+from drivers.clock import Clock
+
+log = logging.getLogger(__name__)
+
+STATUS_INDEX = {s: i for i, s in enumerate(RobotStatus)}
+FORCE_BATCH = 10  # samples per FORCE message for batching clients
+FORCE_BATCH_S = 0.010  # …or this long after the first buffered sample
+FORCE_BUFFER = 2000  # samples a client may fall behind before the oldest are dropped
+
+
+@dataclass
+class Outbox:
+    replies: deque[bytes] = field(default_factory=lambda: deque(maxlen=1000))
+    forces: deque[ForceSample] = field(default_factory=lambda: deque(maxlen=FORCE_BUFFER))
+    state: bytes | None = None
+    forces_lost: int = 0
+
+
+class Connection:
+    def __init__(
+        self,
+        send: Callable[[bytes], Awaitable[None]],
+        client_id: str,
+        *,
+        operator: bool,
+        every_force_sample: bool,
+    ) -> None:
+        self._send = send
+        self.client_id = client_id
+        self.operator = operator
+        self.every_force_sample = every_force_sample
+        self.outbox = Outbox()
+        self._ready = asyncio.Event()
+        self._flush_timer: asyncio.TimerHandle | None = None
+        self._task: asyncio.Task[None] | None = None
+        self.closed = False
+
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._run(), name=f"ws-sender-{self.client_id}")
+
+    async def close(self) -> None:
+        self.closed = True
+        if self._flush_timer is not None:
+            self._flush_timer.cancel()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+
+    def reply(self, data: bytes) -> None:
+        self.outbox.replies.append(data)
+        self._ready.set()
+
+    def set_state(self, data: bytes) -> None:
+        self.outbox.state = data
+        self._ready.set()
+
+    def add_force(self, sample: ForceSample) -> None:
+        box = self.outbox
+        if len(box.forces) == box.forces.maxlen:
+            box.forces_lost += 1
+        box.forces.append(sample)
+        if self.every_force_sample or len(box.forces) >= FORCE_BATCH:
+            self._ready.set()
+        elif self._flush_timer is None:
+            self._flush_timer = asyncio.get_running_loop().call_later(FORCE_BATCH_S, self._flush)
+
+    def _flush(self) -> None:
+        self._flush_timer = None
+        self._ready.set()
+
+    async def _run(self) -> None:
+        box = self.outbox
+        try:
+            while True:
+                await self._ready.wait()
+                self._ready.clear()
+                while box.replies:
+                    await self._send(box.replies.popleft())
+                if box.forces and (
+                    self.every_force_sample
+                    or len(box.forces) >= FORCE_BATCH
+                    or self._flush_timer is None
+                ):
+                    batch = [(s.seq, s.time, s.values) for s in box.forces]
+                    box.forces.clear()
+                    if self._flush_timer is not None:
+                        self._flush_timer.cancel()
+                        self._flush_timer = None
+                    for i in range(0, len(batch), 500):
+                        await self._send(m.encode_force(batch[i : i + 500]))
+                if box.state is not None:
+                    state, box.state = box.state, None
+                    await self._send(state)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # the socket went away: the receive loop will notice
+            log.info("sender for %s stopped: %s", self.client_id, exc)
+            self.closed = True
+
+
+class RealtimeHub:
+    def __init__(
+        self,
+        robot: Robot,
+        decision: DecisionServer,
+        force: ForceSensor | None,
+        telemetry: Telemetry,
+        clock: Clock,
+        *,
+        state_rate_hz: float = 50.0,
+    ) -> None:
+        self.robot = robot
+        self.decision = decision
+        self.force = force
+        self.telemetry = telemetry
+        self.clock = clock
+        self.state_period = 1.0 / state_rate_hz
+        self.connections: dict[str, Connection] = {}
+        self._state_seq = 0
+        self._tasks: list[asyncio.Task[None]] = []
+        self._unsubscribe: list[Callable[[], None]] = []
+        self._force_interarrival = telemetry.interarrival("force_at_server")
+        self._state_interarrival = telemetry.interarrival("state_broadcast")
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        if self.force is not None:
+
+            def from_sensor_thread(sample: ForceSample) -> None:
+                loop.call_soon_threadsafe(self._on_force, sample)
+
+            self._unsubscribe.append(self.force.subscribe(from_sensor_thread))
+        self._unsubscribe.append(self.robot.events.status_changed.subscribe(self._on_status))
+        self._unsubscribe.append(self.decision.events.safety_changed.subscribe(self._on_safety))
+        self._tasks.append(asyncio.create_task(self._broadcast_state(), name="state-broadcast"))
+        self._tasks.append(asyncio.create_task(self._deadman(), name="dead-man"))
+
+    async def stop(self) -> None:
+        for unsubscribe in self._unsubscribe:
+            unsubscribe()
+        for task in self._tasks:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        for conn in list(self.connections.values()):
+            await conn.close()
+
+    def add(self, conn: Connection) -> None:
+        self.connections[conn.client_id] = conn
+        conn.start()
+        conn.set_state(self.encode_state(conn))
+
+    async def remove(self, conn: Connection) -> None:
+        self.connections.pop(conn.client_id, None)
+        await conn.close()
+
+    # ------------------------------------------------------------ streams
+    def _on_force(self, sample: ForceSample) -> None:
+        self._force_interarrival.tick(self.clock.now())
+        self.decision.on_force(sample)
+        for conn in self.connections.values():
+            conn.add_force(sample)
+
+    def broadcast_event(self, kind: m.EventKind, text: str) -> None:
+        data = m.encode(m.EVENT, kind, self.clock.now(), text=text)
+        for conn in self.connections.values():
+            conn.reply(data)
+
+    def _on_status(self, change: StatusChanged) -> None:
+        self.broadcast_event(m.EventKind.STATUS, f"{change.new.value}: {change.message}")
+
+    def _on_safety(self, state: SafetyState) -> None:
+        parts = [f"control: {state.lease_holder_name or 'nobody'}"]
+        if state.estop:
+            parts.append(f"E-STOP: {state.estop_reason}")
+        if state.force_limited:
+            parts.append("FORCE LIMIT: back away from the contact")
+        self.broadcast_event(m.EventKind.SAFETY, "; ".join(parts))
+
+    def encode_state(self, conn: Connection) -> bytes:
+        q = self.robot.joints
+        pose = self.robot.pose
+        safety = self.decision.state()
+        flags = 0
+        if safety.lease_holder == conn.client_id:
+            flags |= m.StateFlags.YOU_HAVE_CONTROL
+        if safety.lease_holder is not None:
+            flags |= m.StateFlags.SOMEONE_HAS_CONTROL
+        if safety.estop:
+            flags |= m.StateFlags.ESTOP
+        if safety.force_limited:
+            flags |= m.StateFlags.FORCE_LIMITED
+        if conn.operator:
+            flags |= m.StateFlags.OPERATOR
+        return m.encode(
+            m.STATE,
+            self._state_seq,
+            self.clock.now(),
+            STATUS_INDEX[self.robot.status],
+            flags,
+            *q.tolist(),
+            *pose.position.tolist(),
+            *pose.rotation.ravel().tolist(),
+        )
+
+    async def _broadcast_state(self) -> None:
+        while True:
+            await self.clock.sleep(self.state_period)
+            self._state_interarrival.tick(self.clock.now())
+            self._state_seq += 1
+            for conn in list(self.connections.values()):
+                conn.set_state(self.encode_state(conn))
+
+    async def _deadman(self) -> None:
+        while True:
+            await self.clock.sleep(self.decision.limits.tick_s)
+            try:
+                await self.decision.tick()
+            except Exception:
+                log.exception("dead-man check failed")

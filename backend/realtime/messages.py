@@ -1,0 +1,279 @@
+"""Every binary WebSocket message, defined once (ARCHITECTURE rule 5).
+
+Little-endian, no padding. Byte 0 is the message type; the rest is a fixed layout
+given as a ``struct`` format, except where a message ends in UTF-8 text or a counted
+array. docs/protocol.md describes the same table (a test keeps them in step), and
+the TypeScript client will be generated from ``MESSAGES``.
+
+Client → server types are 0x01–0x7F, server → client 0x81–0xFF.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Final
+
+PROTOCOL_VERSION: Final = 1
+
+
+class Frame(IntEnum):
+    BASE = 0
+    WRIST = 1
+    TOOL = 2
+
+
+class LeaseAction(IntEnum):
+    RELEASE = 0
+    TAKE = 1
+    TAKE_OVER = 2  # forced: takes control from whoever holds it
+
+
+class HelloFlags(IntEnum):
+    EVERY_FORCE_SAMPLE = 1  # one FORCE message per sample instead of ~10 ms batches
+
+
+class StateFlags(IntEnum):
+    YOU_HAVE_CONTROL = 1
+    SOMEONE_HAS_CONTROL = 2
+    ESTOP = 4
+    FORCE_LIMITED = 8
+    OPERATOR = 16  # you joined with the operator token
+
+
+class Ack(IntEnum):
+    APPLIED = 0
+    LIMITED = 1  # applied, scaled down by the speed limit
+
+
+class EventKind(IntEnum):
+    STATUS = 1  # robot status changed: text is "STATUS: message"
+    LEASE = 2  # who has control changed
+    SAFETY = 3  # e-stop / force limit changed
+    INFO = 4
+
+
+@dataclass(frozen=True)
+class Message:
+    name: str
+    type_id: int
+    fields: tuple[str, ...]  # names of the struct fields after the type byte
+    fmt: str  # struct format of those fields (without the leading '<B')
+    tail: str = ""  # "text" (UTF-8 to the end) or "samples" (u16 count + FORCE_SAMPLE each)
+    doc: str = ""
+
+    @property
+    def struct(self) -> struct.Struct:
+        return struct.Struct("<B" + self.fmt)
+
+    @property
+    def size(self) -> int:
+        return self.struct.size
+
+
+# One force sample inside a FORCE message: seq, sensor time (s), Fx Fy Fz (N), Tx Ty Tz (N·m).
+FORCE_SAMPLE: Final = struct.Struct("<Id6d")
+
+HELLO = Message(
+    "HELLO",
+    0x01,
+    ("version", "flags", "token"),
+    "HH32s",
+    doc="first message; token zero-padded, empty for an observer",
+)
+CART_INC = Message(
+    "CART_INC",
+    0x02,
+    ("seq", "client_time", "frame", "dx", "dy", "dz", "rx", "ry", "rz"),
+    "IdB3d3d",
+    doc="ΔX (m) and ΔM as a rotation vector (rad) in the given frame",
+)
+JOINT_INC = Message(
+    "JOINT_INC",
+    0x03,
+    ("seq", "client_time", "dq1", "dq2", "dq3", "dq4", "dq5", "dq6"),
+    "Id6d",
+    doc="joint increments (rad)",
+)
+HEARTBEAT = Message(
+    "HEARTBEAT",
+    0x04,
+    ("seq", "client_time"),
+    "Id",
+    doc="keeps the dead-man satisfied (any message does)",
+)
+ESTOP = Message("ESTOP", 0x05, ("seq", "client_time"), "Id", doc="latched stop; anyone may send it")
+PING = Message("PING", 0x06, ("seq", "t0"), "Id", doc="clock sync: the client's send time")
+LEASE = Message("LEASE", 0x07, ("seq", "action"), "IB", doc="take, release or take over control")
+RESET = Message("RESET", 0x08, ("seq",), "I", doc="clear a latched e-stop (the client in control)")
+
+WELCOME = Message(
+    "WELCOME",
+    0x81,
+    ("version", "role", "server_time"),
+    "HBd",
+    tail="text",
+    doc="role 1 = operator; text = client id",
+)
+STATE = Message(
+    "STATE",
+    0x82,
+    (
+        "seq",
+        "server_time",
+        "status",
+        "flags",
+        "q1",
+        "q2",
+        "q3",
+        "q4",
+        "q5",
+        "q6",
+        "x",
+        "y",
+        "z",
+        "r00",
+        "r01",
+        "r02",
+        "r10",
+        "r11",
+        "r12",
+        "r20",
+        "r21",
+        "r22",
+    ),
+    "IdBB6d3d9d",
+    doc="robot state; status: index in RobotStatus order; flags: StateFlags",
+)
+FORCE = Message(
+    "FORCE",
+    0x83,
+    (),
+    "",
+    tail="samples",
+    doc="u16 count, then count × (u32 seq, f64 time, 6 × f64)",
+)
+EVENT = Message(
+    "EVENT",
+    0x84,
+    ("kind", "server_time"),
+    "Bd",
+    tail="text",
+    doc="something happened; text says what",
+)
+ERROR = Message(
+    "ERROR",
+    0x85,
+    ("seq", "code"),
+    "IH",
+    tail="text",
+    doc="the command with this seq was refused; nothing moved",
+)
+ACK = Message(
+    "ACK",
+    0x86,
+    ("seq", "result", "server_time"),
+    "IBd",
+    doc="the command reached the driver at server_time",
+)
+PONG = Message(
+    "PONG",
+    0x87,
+    ("seq", "t0", "t1", "t2"),
+    "Iddd",
+    doc="t0 echoed, t1 server receive, t2 server send",
+)
+
+MESSAGES: Final[tuple[Message, ...]] = (
+    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET,
+    WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG,
+)  # fmt: skip
+BY_ID: Final = {m.type_id: m for m in MESSAGES}
+
+# ERROR codes: stable numbers for the error kinds a client may see.
+ERROR_CODES: Final = {
+    "malformed": 1,
+    "unknown_type": 2,
+    "invalid_command": 3,
+    "unreachable_pose": 4,
+    "joint_limit": 5,
+    "limit_exceeded": 6,
+    "not_ready": 7,
+    "not_allowed": 8,
+    "safety_stop": 9,
+    "device_error": 10,
+    "telerobot_error": 11,
+}
+
+
+class MalformedMessage(ValueError):
+    def __init__(self, message: str, code: str = "malformed", seq: int = 0) -> None:
+        super().__init__(message)
+        self.code = code
+        self.seq = seq
+
+
+def encode(msg: Message, *values: object, text: str = "") -> bytes:
+    body = msg.struct.pack(msg.type_id, *values)
+    return body + text.encode("utf-8") if msg.tail == "text" else body
+
+
+def encode_force(samples: Sequence[tuple[int, float, tuple[float, ...]]]) -> bytes:
+    out = bytearray(struct.pack("<BH", FORCE.type_id, len(samples)))
+    for seq, t, values in samples:
+        out += FORCE_SAMPLE.pack(seq & 0xFFFFFFFF, t, *values)
+    return bytes(out)
+
+
+def decode_force(data: bytes) -> list[tuple[int, float, tuple[float, ...]]]:
+    if len(data) < 3 or data[0] != FORCE.type_id:
+        raise MalformedMessage("not a FORCE message")
+    (count,) = struct.unpack_from("<H", data, 1)
+    if len(data) != 3 + count * FORCE_SAMPLE.size:
+        raise MalformedMessage(
+            f"FORCE with {count} samples must be {3 + count * FORCE_SAMPLE.size} bytes"
+        )
+    return [
+        (s[0], s[1], tuple(s[2:]))
+        for s in (FORCE_SAMPLE.unpack_from(data, 3 + i * FORCE_SAMPLE.size) for i in range(count))
+    ]
+
+
+def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
+    """Parse one message: its definition, its fields by name, and its text tail.
+
+    Raises ``MalformedMessage`` (with the seq when it can be read) for an empty frame,
+    an unknown type, a wrong size, or a NaN/infinite number.
+    """
+    if not data:
+        raise MalformedMessage("empty message")
+    msg = BY_ID.get(data[0])
+    if msg is None:
+        raise MalformedMessage(f"unknown message type 0x{data[0]:02x}", "unknown_type")
+    if msg.tail == "samples":
+        decode_force(data)
+        return msg, {}, ""
+    size = msg.size
+    if len(data) < size or (msg.tail != "text" and len(data) != size):
+        seq = (
+            struct.unpack_from("<I", data, 1)[0]
+            if len(data) >= 5 and "seq" in msg.fields[:1]
+            else 0
+        )
+        raise MalformedMessage(f"{msg.name} must be {size} bytes, got {len(data)}", seq=seq)
+    values = msg.struct.unpack_from(data)[1:]
+    fields = dict(zip(msg.fields, values, strict=True))
+    for name, v in fields.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            seq = fields.get("seq", 0)
+            raise MalformedMessage(
+                f"{msg.name}.{name} is {v}", "invalid_command", seq if isinstance(seq, int) else 0
+            )
+    try:
+        text = data[size:].decode("utf-8") if msg.tail == "text" else ""
+    except UnicodeDecodeError:
+        raise MalformedMessage(f"{msg.name} text is not UTF-8") from None
+    return msg, fields, text

@@ -1,0 +1,112 @@
+"""The operator token, WebSocket Origin checks and the per-installation TLS certificate.
+
+Everything secret lives in the state directory (``$XDG_CONFIG_HOME/telerobot`` or
+``~/.config/telerobot``, or ``state_dir``), outside the repository and the package,
+with owner-only permissions.
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import os
+import secrets
+import socket
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from backend.settings import Settings
+
+
+def state_dir(settings: Settings) -> Path:
+    if settings.state_dir is not None:
+        return settings.state_dir
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "telerobot"
+
+
+def _write_private(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+
+
+def operator_token(settings: Settings) -> tuple[str, bool]:
+    """The configured token, or the one stored at first start; True when it was just made."""
+    if settings.operator_token:
+        return settings.operator_token, False
+    path = state_dir(settings) / "operator-token"
+    if path.is_file():
+        token = path.read_text().strip()
+        if len(token) >= 16:
+            return token, False
+    token = secrets.token_hex(16)
+    _write_private(path, token.encode() + b"\n")
+    return token, True
+
+
+def origin_allowed(origin: str | None, host: str | None, allowed: list[str]) -> bool:
+    """A browser may open /ws only from a page of this server (or a listed origin).
+    Clients that send no Origin (scripts, the master-arm bridge) are not browsers."""
+    if origin is None:
+        return True
+    if origin in allowed:
+        return True
+    netloc = urlsplit(origin).netloc
+    return bool(host) and netloc == host
+
+
+def _local_addresses() -> set[str]:
+    addresses = {"127.0.0.1", "::1"}
+    try:
+        for info in socket.getaddrinfo(socket.gethostname(), None):
+            addresses.add(str(info[4][0]))
+    except OSError:
+        pass
+    return addresses
+
+
+def ensure_certificate(settings: Settings) -> tuple[Path, Path]:
+    """A self-signed certificate for this installation, made on first use."""
+    directory = state_dir(settings) / "tls"
+    cert_path, key_path = directory / "cert.pem", directory / "key.pem"
+    if cert_path.is_file() and key_path.is_file():
+        return cert_path, key_path
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    hostname = socket.gethostname()
+    names: list[x509.GeneralName] = [x509.DNSName("localhost"), x509.DNSName(hostname)]
+    for a in sorted(_local_addresses()):
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(a.split("%")[0])))
+        except ValueError:
+            continue
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, f"Telerobot on {hostname}")])
+    now = datetime.datetime.now(datetime.UTC)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=825))
+        .add_extension(x509.SubjectAlternativeName(names), critical=False)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .sign(key, hashes.SHA256())
+    )
+    _write_private(
+        key_path,
+        key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        ),
+    )
+    _write_private(cert_path, cert.public_bytes(serialization.Encoding.PEM))
+    return cert_path, key_path

@@ -1,0 +1,1 @@
+"""Inter-arrival and latency statistics for every stream (SPEC §9)."""
