@@ -52,7 +52,9 @@ class Settings(BaseSettings):
     max_speed_m_s: float = Field(0.25, gt=0, le=2.0)
 
     # Security: the operator token is generated into state_dir at first start unless given.
-    operator_token: str | None = Field(None, min_length=16)
+    operator_token: str | None = Field(
+        None, min_length=16, max_length=64, pattern=r"^[\x21-\x7e]+$"
+    )
     state_dir: Path | None = None  # default: $XDG_CONFIG_HOME/telerobot or ~/.config/telerobot
     allowed_origins: list[str] = []  # extra browser origins allowed on /ws (same host always is)
     tls: bool = False  # HTTPS with a per-installation self-signed certificate (WebXR on a LAN)

@@ -81,8 +81,8 @@ HELLO = Message(
     "HELLO",
     0x01,
     ("version", "flags", "token"),
-    "HH32s",
-    doc="first message; token zero-padded, empty for an observer",
+    "HH64s",
+    doc="first message; the operator token (printable ASCII, ≤ 64 bytes) zero-padded, or empty",
 )
 CART_INC = Message(
     "CART_INC",
@@ -277,3 +277,22 @@ def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
     except UnicodeDecodeError:
         raise MalformedMessage(f"{msg.name} text is not UTF-8") from None
     return msg, fields, text
+
+
+def markdown_table() -> str:
+    """The message table of docs/protocol.md: ``python -m backend.realtime.messages``."""
+    rows = [
+        "| message | type | layout (struct) | bytes | fields | meaning |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for msg in MESSAGES:
+        size = {"text": f"{msg.size} + text", "samples": "3 + 60 × n"}.get(msg.tail, str(msg.size))
+        fields = ", ".join(msg.fields) or "count: u16, samples"
+        rows.append(
+            f"| `{msg.name}` | 0x{msg.type_id:02x} | `<B{msg.fmt}` | {size} | {fields} | {msg.doc} |"
+        )
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    print(markdown_table())

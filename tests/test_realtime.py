@@ -1,0 +1,217 @@
+"""The binary WebSocket channel against the real app (in-process ASGI), in virtual time."""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterator
+
+import pytest
+from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
+
+from backend.app import create_app
+from backend.realtime import messages as m
+from backend.settings import Settings
+from drivers.clock import ManualClock
+from tests.test_decision import TOKEN
+
+
+@pytest.fixture
+def clock() -> ManualClock:
+    return ManualClock()
+
+
+@pytest.fixture
+def client(clock: ManualClock) -> Iterator[TestClient]:
+    settings = Settings(home_pose="qz", operator_token=TOKEN)  # the sim starts at qz: READY at once
+    with TestClient(create_app(settings, clock=clock)) as tc:
+        tc.portal.call(clock.advance, 0.1)  # type: ignore[union-attr]
+        yield tc
+
+
+def hello(token: str = "", flags: int = 0) -> bytes:
+    return m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode())
+
+
+def receive_until(
+    ws, wanted: m.Message, limit: int = 200
+) -> tuple[dict[str, object], str, list[bytes]]:  # type: ignore[no-untyped-def]
+    """Read messages until one of type ``wanted``; returns its fields, text and what came before."""
+    skipped = []
+    for _ in range(limit):
+        data = ws.receive_bytes()
+        if data[0] == wanted.type_id:
+            if wanted is m.FORCE:
+                return {"samples": m.decode_force(data)}, "", skipped
+            _, fields, text = m.decode(data)
+            return fields, text, skipped
+        skipped.append(data)
+    raise AssertionError(f"no {wanted.name} in {limit} messages")
+
+
+def cart(seq: int, dx: float = 0.001, frame: int = 0, nan: bool = False) -> bytes:
+    return m.encode(m.CART_INC, seq, 1.0, frame, math.nan if nan else dx, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def test_observer_is_welcomed_sees_state_and_cannot_move(
+    client: TestClient, clock: ManualClock
+) -> None:
+    with client.websocket_connect("/ws") as ws:
+        ws.send_bytes(hello())
+        welcome, client_id, _ = receive_until(ws, m.WELCOME)
+        assert welcome["role"] == 0 and welcome["version"] == m.PROTOCOL_VERSION and client_id
+        state, _, _ = receive_until(ws, m.STATE)
+        assert state["status"] == 3  # READY
+        assert not int(state["flags"]) & m.StateFlags.OPERATOR  # type: ignore[call-overload]
+        ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        err, text, _ = receive_until(ws, m.ERROR)
+        assert (
+            err["seq"] == 1
+            and err["code"] == m.ERROR_CODES["not_allowed"]
+            and "operator token" in text
+        )
+        ws.send_bytes(cart(2))
+        err, _, _ = receive_until(ws, m.ERROR)
+        assert err["seq"] == 2 and err["code"] == m.ERROR_CODES["not_allowed"]
+    assert client.get("/api/v1/robot/state").json()["target_joints"] == pytest.approx([0] * 6)
+
+
+def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock) -> None:
+    with client.websocket_connect("/ws") as ws:
+        ws.send_bytes(hello(TOKEN))
+        welcome, _, _ = receive_until(ws, m.WELCOME)
+        assert welcome["role"] == 1
+        ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        ack, _, _ = receive_until(ws, m.ACK)
+        assert ack["seq"] == 1
+        x0 = client.get("/api/v1/robot/state").json()["position"][0]
+        ws.send_bytes(cart(2, dx=0.004))
+        ack, _, _ = receive_until(ws, m.ACK)
+        assert ack["seq"] == 2 and ack["result"] == m.Ack.APPLIED
+        client.portal.call(clock.advance, 1.0)  # type: ignore[union-attr]
+        ws.send_bytes(m.encode(m.HEARTBEAT, 3, 0.0))
+        state, _, _ = receive_until(ws, m.STATE)
+        assert int(state["flags"]) & m.StateFlags.YOU_HAVE_CONTROL  # type: ignore[call-overload]
+        assert client.get("/api/v1/robot/state").json()["position"][0] == pytest.approx(
+            x0 + 0.004, abs=1e-6
+        )
+
+
+@pytest.mark.parametrize(
+    ("frame", "why"),
+    [
+        (b"", "empty"),
+        (b"\x7f\x00\x00", "unknown message type 0x7f"),
+        (cart(5)[:-1], "CART_INC must be 62 bytes, got 61"),
+        (cart(5) + b"\x00", "CART_INC must be 62 bytes, got 63"),
+        (cart(5, nan=True), "CART_INC.dx is nan"),
+        (cart(5, frame=9), "unknown frame 9"),
+        (m.encode(m.LEASE, 5, 7), "unknown lease action 7"),
+        (m.encode(m.ACK, 5, 0, 0.0), "ACK is not a client message"),
+    ],
+)
+def test_malformed_frames_get_an_error_and_nothing_moves(
+    client: TestClient, frame: bytes, why: str
+) -> None:
+    with client.websocket_connect("/ws") as ws:
+        ws.send_bytes(hello(TOKEN))
+        ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(ws, m.ACK)
+        ws.send_bytes(frame)
+        err, text, _ = receive_until(ws, m.ERROR)
+        assert why in text
+        # The connection is still up and serving.
+        ws.send_bytes(m.encode(m.PING, 6, 123.5))
+        pong, _, _ = receive_until(ws, m.PONG)
+        assert pong["seq"] == 6 and pong["t0"] == 123.5
+    assert client.get("/api/v1/robot/state").json()["target_joints"] == pytest.approx([0] * 6)
+
+
+def test_text_frames_are_refused_politely(client: TestClient) -> None:
+    with client.websocket_connect("/ws") as ws:
+        ws.send_bytes(hello())
+        ws.send_text("move please")
+        _, text, _ = receive_until(ws, m.ERROR)
+        assert "binary messages only" in text
+
+
+def test_a_client_that_does_not_say_hello_is_closed(client: TestClient) -> None:
+    with client.websocket_connect("/ws") as ws:
+        ws.send_bytes(m.encode(m.PING, 1, 0.0))
+        _, text, _ = receive_until(ws, m.ERROR)
+        assert "first message must be HELLO" in text
+        with pytest.raises(WebSocketDisconnect):
+            ws.receive_bytes()
+
+
+def test_foreign_origin_is_refused(client: TestClient) -> None:
+    with (
+        pytest.raises(WebSocketDisconnect) as exc,
+        client.websocket_connect("/ws", headers={"origin": "https://evil.example"}) as ws,
+    ):
+        ws.receive_bytes()
+    assert exc.value.code == 1008
+    with client.websocket_connect(
+        "/ws", headers={"origin": "http://testserver"}
+    ) as ws:  # same host
+        ws.send_bytes(hello())
+        receive_until(ws, m.WELCOME)
+
+
+def test_estop_from_an_observer_latches_until_the_operator_resets(client: TestClient) -> None:
+    with client.websocket_connect("/ws") as op, client.websocket_connect("/ws") as watcher:
+        op.send_bytes(hello(TOKEN))
+        op.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(op, m.ACK)
+        watcher.send_bytes(hello())
+        receive_until(watcher, m.WELCOME)
+        watcher.send_bytes(m.encode(m.ESTOP, 1, 0.0))
+        receive_until(watcher, m.ACK)
+        op.send_bytes(cart(2))
+        err, text, _ = receive_until(op, m.ERROR)
+        assert err["code"] == m.ERROR_CODES["safety_stop"] and "e-stop is latched" in text
+        op.send_bytes(m.encode(m.RESET, 3))
+        ack, _, _ = receive_until(op, m.ACK)
+        assert ack["seq"] == 3
+        op.send_bytes(cart(4))
+        ack, _, _ = receive_until(op, m.ACK)
+        assert ack["seq"] == 4
+
+
+def test_force_samples_one_by_one_or_batched(client: TestClient) -> None:
+    with client.websocket_connect("/ws") as every, client.websocket_connect("/ws") as batched:
+        every.send_bytes(hello(flags=m.HelloFlags.EVERY_FORCE_SAMPLE))
+        batched.send_bytes(hello())
+        seqs: list[int] = []
+        while len(seqs) < 30:
+            fields, _, _ = receive_until(every, m.FORCE)
+            samples = fields["samples"]
+            assert isinstance(samples, list) and len(samples) >= 1
+            seqs += [s[0] for s in samples]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # consecutive: none lost
+        sizes = [len(receive_until(batched, m.FORCE)[0]["samples"]) for _ in range(5)]  # type: ignore[arg-type]
+        assert max(sizes) > 1
+
+
+def test_ping_reports_server_receive_and_send_times(client: TestClient, clock: ManualClock) -> None:
+    with client.websocket_connect("/ws") as ws:
+        ws.send_bytes(hello())
+        ws.send_bytes(m.encode(m.PING, 9, 42.0))
+        pong, _, _ = receive_until(ws, m.PONG)
+        assert (
+            pong["t0"] == 42.0
+            and pong["t1"] == pytest.approx(clock.now())
+            and pong["t2"] >= pong["t1"]
+        )  # type: ignore[operator]
+
+
+def test_every_message_layout_is_documented() -> None:
+    from pathlib import Path
+
+    doc = (Path(__file__).parent.parent / "docs" / "protocol.md").read_text()
+    for msg in m.MESSAGES:
+        row = f"| `{msg.name}` | 0x{msg.type_id:02x} |"
+        assert row in doc, f"docs/protocol.md lacks the row for {msg.name}: {row}"
+        assert f"`<B{msg.fmt}`" in doc, f"docs/protocol.md has a stale layout for {msg.name}"
+    assert struct.calcsize("<Id6d") == m.FORCE_SAMPLE.size == 60
