@@ -288,8 +288,9 @@ def markdown_table() -> str:
     for msg in MESSAGES:
         size = {"text": f"{msg.size} + text", "samples": "3 + 60 × n"}.get(msg.tail, str(msg.size))
         fields = ", ".join(msg.fields) or "count: u16, samples"
+        layout = f"`<B{msg.fmt}`"
         rows.append(
-            f"| `{msg.name}` | 0x{msg.type_id:02x} | `<B{msg.fmt}` | {size} | {fields} | {msg.doc} |"
+            f"| `{msg.name}` | 0x{msg.type_id:02x} | {layout} | {size} | {fields} | {msg.doc} |"
         )
     return "\n".join(rows)
 
