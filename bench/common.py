@@ -4,12 +4,18 @@ and the one JSON line every ``--json`` run ends with."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
+import re
 import statistics
+import subprocess
+import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 
@@ -51,3 +57,59 @@ def emit(figures: dict[str, Any], as_json: bool) -> None:
             print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
     if as_json:
         print(json.dumps(figures))
+
+
+@contextlib.contextmanager
+def telerobot_process(
+    *args: str,
+    wait_for: str,
+    env: dict[str, str] | None = None,
+    timeout: float = 60.0,
+    drain: bool = True,
+) -> Iterator[tuple[subprocess.Popen[str], re.Match[str]]]:
+    """Run ``telerobot ARGS`` as its own process; yield once a line of its output
+    matches ``wait_for`` (the benchmarks and the end-to-end tests use it)."""
+    exe = Path(sys.executable).parent / "telerobot"
+    proc = subprocess.Popen(
+        [str(exe), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+    )
+    assert proc.stdout is not None
+    seen: list[str] = []
+    deadline = time.monotonic() + timeout
+    match = None
+    try:
+        while match is None:
+            line = proc.stdout.readline()
+            if not line and proc.poll() is not None:
+                raise RuntimeError(f"telerobot {' '.join(args)} exited:\n{''.join(seen)}")
+            seen.append(line)
+            match = re.search(wait_for, line)
+            if time.monotonic() > deadline:
+                raise RuntimeError(
+                    f"no line matching {wait_for!r} within {timeout} s:\n{''.join(seen)}"
+                )
+        if drain:  # keep reading its output so a chatty server never blocks on a full pipe
+            threading.Thread(target=lambda: [None for _ in proc.stdout or []], daemon=True).start()
+        yield proc, match
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def percentiles_ms(values_s: list[float]) -> dict[str, float]:
+    import numpy as np
+
+    v = np.array(values_s) * 1000.0
+    return {
+        "p50_ms": float(np.percentile(v, 50)),
+        "p99_ms": float(np.percentile(v, 99)),
+        "max_ms": float(v.max()),
+        "mean_ms": float(v.mean()),
+    }

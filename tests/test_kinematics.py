@@ -199,3 +199,16 @@ def test_bad_rotations_are_refused() -> None:
     with pytest.raises(InvalidCommand, match="3x3"):
         check_rotation("R", np.eye(4))
     check_rotation("R", np.eye(3))
+
+
+def test_fast_path_picks_the_same_solution_as_comparing_all_eight() -> None:
+    kin = Puma560Kinematics(tool_transform(0.1))
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        q = rng.uniform(QLIM[:, 0], QLIM[:, 1])
+        dq = rng.normal(0, 0.02 if _ % 2 else 0.6, 6)  # teleoperation steps, and big jumps
+        T = kin.fk(np.clip(q + dq, QLIM[:, 0], QLIM[:, 1])).copy()
+        sols = kin.ik_all(T, q)
+        fitted = [kin.fit_limits(s, q) for s in sols.q[sols.reachable]]
+        best = min((f for f in fitted if f is not None), key=lambda f: float(np.sum((f - q) ** 2)))
+        np.testing.assert_allclose(kin.ik(T, q), best, atol=1e-9)

@@ -248,10 +248,10 @@ class DecisionServer:
     def on_force(self, sample: ForceSample) -> None:
         """Force limit: a contact force above the limit stops motion; only commands that
         back away from the contact are taken until it falls below the release level."""
-        f = np.array(sample.values[:3])
-        magnitude = float(np.linalg.norm(f))
+        fx, fy, fz = sample.values[:3]
+        magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
         if magnitude > self.limits.force_limit_n:
-            self._force_base = self.robot.pose.rotation @ f
+            self._force_base = self.robot.pose.rotation @ np.array([fx, fy, fz])
             if not self._force_limited:
                 self._force_limited = True
                 log.warning(

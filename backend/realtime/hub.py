@@ -147,6 +147,8 @@ class RealtimeHub:
         self._unsubscribe: list[Callable[[], None]] = []
         self._force_interarrival = telemetry.interarrival("force_at_server")
         self._state_interarrival = telemetry.interarrival("state_broadcast")
+        # Frame received on /ws → command taken by the driver (server side of the latency).
+        self.command_processing = telemetry.stats("command_processing")
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:

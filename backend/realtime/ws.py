@@ -15,7 +15,7 @@ import logging
 import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from backend.control.decision import DecisionServer
+from backend.control.decision import Applied, DecisionServer
 from backend.realtime import messages as m
 from backend.realtime.hub import Connection, RealtimeHub
 from backend.security import origin_allowed
@@ -95,6 +95,12 @@ async def realtime(websocket: WebSocket) -> None:
         await decision.leave(client.id)
 
 
+def acknowledge(conn: Connection, hub: RealtimeHub, applied: Applied, received: float) -> None:
+    result = m.Ack.LIMITED if applied.limited else m.Ack.APPLIED
+    conn.reply(m.encode(m.ACK, applied.seq, result, applied.applied_at))
+    hub.command_processing.record((applied.applied_at - received) * 1000.0)
+
+
 async def handle(
     data: bytes,
     received: float,
@@ -119,27 +125,13 @@ async def handle(
                 seq=seq,
                 client_time=float(f["client_time"]),
             )
-            conn.reply(
-                m.encode(
-                    m.ACK,
-                    seq,
-                    m.Ack.LIMITED if applied.limited else m.Ack.APPLIED,
-                    applied.applied_at,
-                )
-            )
+            acknowledge(conn, hub, applied, received)
         elif msg is m.JOINT_INC:
             dq = np.array([f[f"dq{i}"] for i in range(1, 7)], dtype=float)
             applied = await decision.joint_increment(
                 client_id, dq, seq=seq, client_time=float(f["client_time"])
             )
-            conn.reply(
-                m.encode(
-                    m.ACK,
-                    seq,
-                    m.Ack.LIMITED if applied.limited else m.Ack.APPLIED,
-                    applied.applied_at,
-                )
-            )
+            acknowledge(conn, hub, applied, received)
         elif msg is m.HEARTBEAT:
             pass  # `seen` above is the heartbeat
         elif msg is m.ESTOP:

@@ -58,6 +58,11 @@ class SimForceSensor:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self.overruns = 0  # samples whose slot had already passed (the thread was late)
+        self._boxes = [(b, b.lower.tolist(), b.upper.tolist()) for b in workcell.obstacles]
+        # The tip in the flange frame; the tool's rotation is the sensor's frame too, so
+        # the offset is expressed in tool axes: R_toolᵀ p_tool.
+        tool = kinematics.tool
+        self._tool_offset = (tool[:3, :3].T @ tool[:3, 3]).tolist()
 
     # ------------------------------------------------------------ settings
     @property
@@ -119,33 +124,36 @@ class SimForceSensor:
 
     # ------------------------------------------------------------ physics
     def read_raw(self, t: float) -> Six:
-        """Contact force and torque at time ``t`` (no filter, tare or threshold)."""
+        """Contact force and torque at time ``t`` (no filter, tare or threshold).
+
+        Runs 1000 times a second beside the event loop, holding the GIL: plain floats
+        and a broad-phase box test keep free-space samples to a few microseconds."""
         snap = self.probe()
         dt = min(max(t - snap.time, 0.0), MAX_EXTRAPOLATION)
-        q = snap.joints + snap.velocities * dt
-        T = self.kinematics.fk(q).copy()
-        flange = self.kinematics.fk_flange(q)[:3, 3].copy()
-        tip = T[:3, 3]
-        v_tip = (self.kinematics.jacobian(q) @ snap.velocities)[:3]
-        force = np.zeros(3)
-        for box in self.workcell.obstacles:
-            depth, normal = box.penetration(tip)
-            if depth > 0.0:
-                push = box.stiffness * depth - box.damping * float(v_tip @ normal)
-                force += normal * max(push, 0.0)  # a contact pushes, never pulls
+        q = snap.joints + snap.velocities * dt if dt > 0.0 else snap.joints
+        (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz) = self.kinematics.fk(q)[
+            :3
+        ].tolist()
+        fx = fy = fz = 0.0
+        for box, (lx, ly, lz), (hx, hy, hz) in self._boxes:
+            if not (lx < px < hx and ly < py < hy and lz < pz < hz):
+                continue  # broad phase: the tip is not inside this box
+            depth, normal = box.penetration(np.array([px, py, pz]))
+            v_tip = (self.kinematics.jacobian(q) @ snap.velocities)[:3]
+            push = max(
+                box.stiffness * depth - box.damping * float(v_tip @ normal), 0.0
+            )  # never pulls
+            fx, fy, fz = fx + push * normal[0], fy + push * normal[1], fz + push * normal[2]
         if self.noise_n > 0:
-            force += self._rng.normal(0.0, self.noise_n, 3)
-        torque = np.cross(tip - flange, force)
-        R = T[:3, :3]  # sensor axes = tool axes
-        f_s, t_s = R.T @ force, R.T @ torque
-        return (
-            float(f_s[0]),
-            float(f_s[1]),
-            float(f_s[2]),
-            float(t_s[0]),
-            float(t_s[1]),
-            float(t_s[2]),
-        )
+            nx, ny, nz = self._rng.normal(0.0, self.noise_n, 3).tolist()
+            fx, fy, fz = fx + nx, fy + ny, fz + nz
+        # Sensor frame = tool axes at the flange: F_s = Rᵀ F; the force acts at the tip,
+        # which sits at `tool_offset` (tool frame) from the flange, so τ_s = offset × F_s.
+        sx = r00 * fx + r10 * fy + r20 * fz
+        sy = r01 * fx + r11 * fy + r21 * fz
+        sz = r02 * fx + r12 * fy + r22 * fz
+        ox, oy, oz = self._tool_offset
+        return (sx, sy, sz, oy * sz - oz * sy, oz * sx - ox * sz, ox * sy - oy * sx)
 
     def sample_at(self, t: float) -> ForceSample | None:
         """Take one sample at ``t``; deliver it unless the threshold withholds it."""

@@ -93,6 +93,18 @@ def _wrap(a: float) -> float:
     return (a + PI) % TWO_PI - PI
 
 
+def _branch(q: list[float]) -> tuple[float, float, bool]:
+    """Which `_solve` branch ``q`` is on: shoulder sign of rho, elbow sign, wrist flipped."""
+    rho = _rho(q[1], q[2])
+    elbow = _wrap(q[2] + _PHI)
+    return (1.0 if rho >= 0 else -1.0), (1.0 if elbow >= 0 else -1.0), q[4] < 0
+
+
+def _rho(q2: float, q3: float) -> float:
+    """Horizontal reach of the wrist centre in the arm's plane (negative: behind)."""
+    return A2 * math.cos(q2) + A3 * math.cos(q2 + q3) - D4 * math.sin(q2 + q3)
+
+
 def check_vector(name: str, v: object, size: int) -> FloatArray:
     """A finite float vector of the given size, or a clear ``InvalidCommand``."""
     try:
@@ -289,8 +301,13 @@ class Puma560Kinematics:
         return IKSolutions(q=np.array(rows), reachable=np.array(reach))
 
     def _solve(
-        self, T: FloatArray, seed: FloatArray | None
+        self,
+        T: FloatArray,
+        seed: FloatArray | None,
+        rho_signs: tuple[float, ...] = (1.0, -1.0),
+        elbow_signs: tuple[float, ...] = (1.0, -1.0),
     ) -> tuple[list[list[float]], list[bool]]:
+        """Rows for the chosen shoulder and elbow branches, each with its two wrists."""
         if not self._tool_is_identity:
             T = T @ self._tool_inv
         (r00, r01, r02, px), (r10, r11, r12, py), (r20, r21, r22, pz) = T[:3].tolist()
@@ -301,10 +318,11 @@ class Puma560Kinematics:
         rr = px * px + py * py - D3 * D3
         z = pz - D1
         base = math.atan2(py, px)
-        for rho_sign in (1.0, -1.0):
+        per_shoulder = 2 * len(elbow_signs)
+        for rho_sign in rho_signs:
             if rr < 0.0:  # wrist centre inside the cylinder of radius d3: nothing reaches it
-                rows += [nan6] * 4
-                reach += [False] * 4
+                rows += [nan6] * per_shoulder
+                reach += [False] * per_shoulder
                 continue
             rho = rho_sign * math.sqrt(rr)
             q1 = _wrap(base - math.atan2(-D3, rho))
@@ -314,11 +332,11 @@ class Puma560Kinematics:
             a10, a12 = c1 * r10 - s1 * r00, c1 * r12 - s1 * r02
             kk = (rho * rho + z * z - _K0) / (_TWO_A2 * _L)
             if kk > 1.0 + 1e-12 or kk < -1.0 - 1e-12:  # out of the arm's reach
-                rows += [nan6] * 4
-                reach += [False] * 4
+                rows += [nan6] * per_shoulder
+                reach += [False] * per_shoulder
                 continue
             acos_k = math.acos(min(1.0, max(-1.0, kk)))
-            for elbow_sign in (1.0, -1.0):
+            for elbow_sign in elbow_signs:
                 q3 = _wrap(elbow_sign * acos_k - _PHI)
                 c3, s3 = math.cos(q3), math.sin(q3)
                 q2 = _wrap(
@@ -358,12 +376,42 @@ class Puma560Kinematics:
         Raises ``UnreachablePose`` when no configuration reaches ``T`` and
         ``JointLimitError`` when every one that does is past a limit.
         """
-        rows, reach = self._solve(T, seed)
         ref = [float(x) for x in seed]
+        # Fast path, exact: solve only the seed's shoulder/elbow branch (both wrists),
+        # then bound the other branches from below by one angle each (the other elbow's
+        # q3, the other shoulder's q1, both derived from this solution). When neither
+        # bound can beat the best found, that solution is the nearest of all eight.
+        rho_s, elbow_s, _ = _branch(ref)
+        rows, reach = self._solve(T, seed, (rho_s,), (elbow_s,))
+        if reach[0]:
+            best_fast: list[float] | None = None
+            cost = math.inf
+            for row in rows:
+                fitted = self._fit_row(row, ref)
+                if fitted is not None and fitted[1] < cost:
+                    best_fast, cost = fitted
+            q1, q2, q3 = rows[0][0], rows[0][1], rows[0][2]
+            q3_other = _wrap(-_wrap(q3 + _PHI) - _PHI)
+            rho = _rho(q2, q3)
+            q1_other = q1 + math.atan2(-D3, rho) - math.atan2(-D3, -rho)
+            bound = min(_wrap(q3_other - ref[2]) ** 2, _wrap(q1_other - ref[0]) ** 2)
+            if best_fast is not None and bound >= cost:
+                return np.array(best_fast)
+        rows, reach = self._solve(T, seed)
+        # Each row's distance to the seed with every angle wrapped is a lower bound of
+        # its distance once fitted into the limits: fit the rows in that order and stop
+        # when no remaining row can win (usually after one).
+        bounded = sorted(
+            (sum(((a - r + PI) % TWO_PI - PI) ** 2 for a, r in zip(row, ref, strict=True)), i)
+            for i, (row, ok) in enumerate(zip(rows, reach, strict=True))
+            if ok
+        )
         best: list[float] | None = None
         best_cost = math.inf
-        for row, ok in zip(rows, reach, strict=True):
-            fitted = self._fit_row(row, ref) if ok else None
+        for bound, i in bounded:
+            if bound >= best_cost:
+                break
+            fitted = self._fit_row(rows[i], ref)
             if fitted is not None and fitted[1] < best_cost:
                 best, best_cost = fitted
         if best is None:
@@ -380,7 +428,7 @@ class Puma560Kinematics:
     def configuration(q: FloatArray) -> Configuration:
         c2, s2 = math.cos(q[1]), math.sin(q[1])
         c23, s23 = math.cos(q[1] + q[2]), math.sin(q[1] + q[2])
-        rho = A2 * c2 + A3 * c23 - D4 * s23
+        rho = _rho(q[1], q[2])
         z = A2 * s2 + A3 * s23 + D4 * c23
         cross = rho * (A2 * s2) - z * (A2 * c2)  # (wrist) × (elbow) in the arm plane
         return Configuration(

@@ -1,0 +1,65 @@
+"""A minimal client of the binary protocol, for the benchmarks (and the master-arm
+bridge to come): hello, lease, clock sync, commands, force reception."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+import websockets
+
+from backend.realtime import messages as m
+
+
+class RealtimeClient:
+    def __init__(self, ws: Any) -> None:
+        self.ws = ws
+        self.offset = 0.0  # server clock − client clock, seconds
+        self.seq = 0
+
+    @classmethod
+    async def connect(cls, url: str, token: str = "", flags: int = 0) -> RealtimeClient:
+        ws = await websockets.connect(url, max_size=None, compression=None)
+        client = cls(ws)
+        await ws.send(m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode()))
+        await client.expect(m.WELCOME)
+        return client
+
+    def next_seq(self) -> int:
+        self.seq += 1
+        return self.seq
+
+    async def expect(self, wanted: m.Message, timeout: float = 5.0) -> dict[str, Any]:
+        """Read until a message of type ``wanted``; an ERROR on the way raises."""
+        async with asyncio.timeout(timeout):
+            while True:
+                data = await self.ws.recv()
+                if data[0] == wanted.type_id:
+                    return m.decode(data)[1]
+                if data[0] == m.ERROR.type_id:
+                    _, fields, text = m.decode(data)
+                    raise RuntimeError(
+                        f"server error {fields['code']} for seq {fields['seq']}: {text}"
+                    )
+
+    async def take_lease(self) -> None:
+        await self.ws.send(m.encode(m.LEASE, self.next_seq(), m.LeaseAction.TAKE))
+        await self.expect(m.ACK)
+
+    async def sync_clock(self, rounds: int = 50) -> float:
+        """NTP-style offset from the ping with the shortest round trip; returns that RTT."""
+        best_rtt, best_offset = float("inf"), 0.0
+        for _ in range(rounds):
+            t0 = time.monotonic()
+            await self.ws.send(m.encode(m.PING, self.next_seq(), t0))
+            pong = await self.expect(m.PONG)
+            t3 = time.monotonic()
+            rtt = (t3 - t0) - (pong["t2"] - pong["t1"])
+            if rtt < best_rtt:
+                best_rtt, best_offset = rtt, ((pong["t1"] - t0) + (pong["t2"] - t3)) / 2
+        self.offset = best_offset
+        return best_rtt
+
+    async def close(self) -> None:
+        await self.ws.close()
