@@ -401,8 +401,8 @@ class DecisionServer:
         limited: bool,
     ) -> Applied:
         if seed is not None:
-            jump = np.abs(q - seed)
-            worst = int(np.argmax(jump))
+            jump = [abs(a - b) for a, b in zip(q.tolist(), seed.tolist(), strict=True)]
+            worst = max(range(6), key=jump.__getitem__)
             if jump[worst] > self.limits.max_joint_step_rad:
                 raise LimitExceeded(
                     f"too close to a singularity: joint {worst + 1} would turn "

@@ -53,4 +53,5 @@ class SafetyLimits:
             )
 
     def in_workspace(self, p: FloatArray, tol: float = 1e-9) -> bool:
-        return bool(np.all(p >= self.workspace_min - tol) and np.all(p <= self.workspace_max + tol))
+        lo, hi = self.workspace_min.tolist(), self.workspace_max.tolist()  # floats: a hot path
+        return all(a - tol <= x <= b + tol for x, a, b in zip(p.tolist(), lo, hi, strict=True))

@@ -196,7 +196,11 @@ class RealtimeHub:
             conn.reply(data)
 
     def _on_status(self, change: StatusChanged) -> None:
-        self.broadcast_event(m.EventKind.STATUS, f"{change.new.value}: {change.message}")
+        # READY ↔ MOVING flips with every teleoperation command; STATE carries it at
+        # 50 Hz. Events are for what a person should read: errors, (re)initialisation.
+        routine = {change.old, change.new} <= {RobotStatus.READY, RobotStatus.MOVING}
+        if not routine:
+            self.broadcast_event(m.EventKind.STATUS, f"{change.new.value}: {change.message}")
 
     def _on_safety(self, state: SafetyState) -> None:
         parts = [f"control: {state.lease_holder_name or 'nobody'}"]

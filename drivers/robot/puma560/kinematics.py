@@ -107,6 +107,14 @@ def _rho(q2: float, q3: float) -> float:
 
 def check_vector(name: str, v: object, size: int) -> FloatArray:
     """A finite float vector of the given size, or a clear ``InvalidCommand``."""
+    # Fast path (every command passes here): a float64 vector whose sum is finite.
+    if (
+        isinstance(v, np.ndarray)
+        and v.dtype == np.float64
+        and v.shape == (size,)
+        and math.isfinite(v.sum())
+    ):
+        return v.copy()  # callers may keep it: never alias theirs
     try:
         arr = np.asarray(v, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -283,6 +291,11 @@ class Puma560Kinematics:
         return out, cost
 
     def check_joint_limits(self, q: FloatArray) -> None:
+        if all(
+            lo - 1e-9 <= a <= hi + 1e-9
+            for a, lo, hi in zip(q.tolist(), self._lo, self._hi, strict=True)
+        ):
+            return
         bad = [
             f"joint {i + 1} = {math.degrees(q[i]):.2f}° (limits {lo:g}…{hi:g}°)"
             for i, (lo, hi) in enumerate(QLIM_DEG)
