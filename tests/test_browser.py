@@ -57,6 +57,11 @@ def test_status_page_shows_the_robot_moving_then_ready(browser: Browser, tmp_pat
         assert status.get_attribute("class") == "status READY"
         assert page.locator("#driver").text_content() == "sim-puma560"
         assert page.locator("#j2").text_content() == "-180.00"  # qn's joint 3
+        assert page.locator("#f2").text_content() not in ("", None)  # force values stream in
+        page.locator("#estop").click()
+        page.wait_for_function(
+            "document.getElementById('safety').textContent.includes('E-STOP latched')"
+        )
         page.screenshot(path=os.environ.get("TELEROBOT_SCREENSHOT", str(tmp_path / "status.png")))
         assert errors == []
         page.close()
