@@ -7,7 +7,8 @@ lease too (``X-Client-Id`` from ``POST /api/v1/lease``). The e-stop is open to a
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Callable
+from typing import Annotated, Any
 
 from fastapi import Depends, Header, Request
 
@@ -18,42 +19,22 @@ from drivers.base import ForceSensor, Robot
 from drivers.sim.workcell import Workcell
 
 
-def get_robot(request: Request) -> Robot:
-    robot: Robot = request.app.state.robot
-    return robot
+def from_state(name: str) -> Callable[[Request], Any]:
+    """A dependency that reads ``app.state.<name>`` (its type is the alias's)."""
+
+    def dependency(request: Request) -> Any:
+        return getattr(request.app.state, name)
+
+    dependency.__name__ = f"get_{name}"
+    return dependency
 
 
-def get_settings(request: Request) -> Settings:
-    settings: Settings = request.app.state.settings
-    return settings
-
-
-def get_workcell(request: Request) -> Workcell:
-    workcell: Workcell = request.app.state.workcell
-    return workcell
-
-
-def get_decision(request: Request) -> DecisionServer:
-    decision: DecisionServer = request.app.state.decision
-    return decision
-
-
-def get_force(request: Request) -> ForceSensor:
-    force: ForceSensor = request.app.state.force
-    return force
-
-
-def get_telemetry(request: Request) -> Telemetry:
-    telemetry: Telemetry = request.app.state.telemetry
-    return telemetry
-
-
-RobotDep = Annotated[Robot, Depends(get_robot)]
-SettingsDep = Annotated[Settings, Depends(get_settings)]
-WorkcellDep = Annotated[Workcell, Depends(get_workcell)]
-DecisionDep = Annotated[DecisionServer, Depends(get_decision)]
-ForceDep = Annotated[ForceSensor, Depends(get_force)]
-TelemetryDep = Annotated[Telemetry, Depends(get_telemetry)]
+RobotDep = Annotated[Robot, Depends(from_state("robot"))]
+SettingsDep = Annotated[Settings, Depends(from_state("settings"))]
+WorkcellDep = Annotated[Workcell, Depends(from_state("workcell"))]
+DecisionDep = Annotated[DecisionServer, Depends(from_state("decision"))]
+ForceDep = Annotated[ForceSensor, Depends(from_state("force"))]
+TelemetryDep = Annotated[Telemetry, Depends(from_state("telemetry"))]
 
 
 def bearer_token(authorization: Annotated[str | None, Header()] = None) -> str | None:
