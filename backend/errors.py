@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
-from backend.control.decision import LimitExceeded, NotAllowed, SafetyStop
+from backend.control.decision import LimitExceeded, NotAllowed, SafetyStop, StillMoving
 from drivers.base import (
     DeviceError,
     DriverUnavailable,
@@ -19,6 +19,7 @@ from drivers.base import (
 # Most specific first: the first class that matches gives the HTTP status.
 _STATUS: dict[type[TelerobotError], int] = {
     NotAllowed: 403,
+    StillMoving: 504,
     SafetyStop: 409,
     LimitExceeded: 422,
     UnreachablePose: 422,

@@ -103,6 +103,14 @@ def test_move_without_waiting_can_be_polled(client: TestClient) -> None:
     assert client.get("/api/v1/robot/state").json()["joints"][0] == pytest.approx(0.3)
 
 
+def test_a_move_longer_than_the_caller_waits_is_reported_and_goes_on(client: TestClient) -> None:
+    h = lease(client)
+    body = {"space": "joint", "mode": "absolute", "joints": [1.0, 0, 0, 0, 0, 0], "timeout_s": 0.05}
+    r = client.post("/api/v1/robot/move", json=body, headers=h)
+    assert r.status_code == 504 and "still moving after 0.05 s" in r.json()["detail"]
+    assert client.get("/api/v1/robot/state").json()["status"] == "MOVING"
+
+
 @pytest.mark.parametrize(
     ("body", "status", "detail"),
     [

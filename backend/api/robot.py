@@ -11,6 +11,7 @@ from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
+from backend.control.decision import StillMoving
 from drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
 from drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM_DEG
 
@@ -166,6 +167,11 @@ async def move(
         client.busy += 1
         try:
             await robot.wait_idle(body.timeout_s)
+        except TimeoutError:
+            raise StillMoving(
+                f"the arm is still moving after {body.timeout_s:g} s; poll /api/v1/robot/state "
+                "or stop it with /api/v1/robot/stop"
+            ) from None
         finally:
             client.busy -= 1
             decision.seen(client.id)

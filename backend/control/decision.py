@@ -57,6 +57,12 @@ class LimitExceeded(InvalidCommand):
     code = "limit_exceeded"
 
 
+class StillMoving(TelerobotError):
+    """A scripted move did not end within the time its caller would wait; it goes on."""
+
+    code = "still_moving"
+
+
 class Role(StrEnum):
     OPERATOR = "operator"
     OBSERVER = "observer"
