@@ -223,3 +223,52 @@ class ForceSensor(Protocol):
     def start(self) -> None: ...
     def stop(self) -> None: ...
     def tare(self) -> None: ...
+
+
+# ---------------------------------------------------------------- stereo camera
+class CameraStatus(StrEnum):
+    STOPPED = "STOPPED"
+    RUNNING = "RUNNING"
+    FAILED = "FAILED"  # capture failed; the driver keeps retrying
+
+
+@dataclass(frozen=True)
+class StereoFrame:
+    """Left and right images taken together, side by side in one RGB array
+    (H × 2W × 3): one capture time, one sequence number, never mixed with another
+    frame's partner. ``left``/``right`` are views, not copies."""
+
+    seq: int
+    time: float  # capture time, seconds on the monotonic clock
+    sbs: np.ndarray  # uint8, H × 2W × 3, RGB
+    skew: float = 0.0  # seconds between the two sensors' exposures, where known
+
+    @property
+    def left(self) -> np.ndarray:
+        return self.sbs[:, : self.sbs.shape[1] // 2]
+
+    @property
+    def right(self) -> np.ndarray:
+        return self.sbs[:, self.sbs.shape[1] // 2 :]
+
+
+@runtime_checkable
+class StereoCamera(Protocol):
+    """Captures in its own thread into a newest-wins slot: capture never waits for
+    the network, and a reader never gets the same frame twice."""
+
+    name: str
+    width: int  # of one eye
+    height: int
+    fps: float
+
+    @property
+    def status(self) -> CameraStatus: ...
+    @property
+    def status_message(self) -> str: ...
+
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+    def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
+        """The newest frame newer than ``after_seq``, waiting up to ``timeout`` s."""
+        ...

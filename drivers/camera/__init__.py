@@ -1,0 +1,1 @@
+"""Stereo cameras: the simulated pair and OpenCV devices."""

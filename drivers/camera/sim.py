@@ -1,0 +1,267 @@
+"""``SimStereoCamera``: renders the simulated workcell through the ground-truth
+stereo pair (drivers/sim/workcell.py), so calibration and AR can be checked against
+known projections.
+
+The static scene (background, table, block, fiducials, pedestal) is rendered once
+per eye; each frame copies it and draws the arm at its current joints, plus an
+optional visual timecode. Rendering runs in its own thread on an absolute schedule
+and hands frames over through a newest-wins slot.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+from drivers.base import ArmSnapshot, CameraStatus, StereoFrame
+from drivers.camera import timecode
+from drivers.camera.slot import FrameSlot
+from drivers.robot.puma560.kinematics import Puma560Kinematics
+from drivers.sim.workcell import Box, PinholeCamera, Workcell
+
+log = logging.getLogger(__name__)
+
+FIDUCIAL_RADIUS = 0.015  # m
+FIDUCIAL_COLOURS = ((255, 220, 0), (0, 200, 80), (40, 120, 255), (230, 0, 200))  # RGB, in order
+LINK_RADIUS = 0.045  # m
+GRIPPER_COLOUR = (255, 140, 0)
+
+
+def _shade(colour: tuple[int, int, int], k: float) -> tuple[int, int, int]:
+    return (int(colour[0] * k), int(colour[1] * k), int(colour[2] * k))
+
+
+class SimStereoCamera:
+    name = "sim-stereo"
+
+    def __init__(
+        self,
+        workcell: Workcell,
+        probe: Callable[[], ArmSnapshot],
+        kinematics: Puma560Kinematics,
+        *,
+        fps: float = 30.0,
+        show_timecode: bool = True,
+        time_source: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.workcell = workcell
+        self.cameras = (workcell.rig.left, workcell.rig.right)
+        self.width, self.height = self.cameras[0].width, self.cameras[0].height
+        self.fps = fps
+        self.probe = probe
+        self.kinematics = kinematics  # this camera's own (Pinocchio data is per thread)
+        self.show_timecode = show_timecode
+        self._now = time_source
+        self._slot = FrameSlot()
+        self._seq = 0
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._status = CameraStatus.STOPPED
+        self._background = np.concatenate([self._render_static(c) for c in self.cameras], axis=1)
+        self.render_ms = 0.0  # last frame's render time
+
+    # ------------------------------------------------------------ status
+    @property
+    def status(self) -> CameraStatus:
+        return self._status
+
+    @property
+    def status_message(self) -> str:
+        return {CameraStatus.RUNNING: f"rendering {self.fps:g} fps"}.get(
+            self._status, self._status.value.lower()
+        )
+
+    # ------------------------------------------------------------ rendering
+    def _render_static(self, cam: PinholeCamera) -> np.ndarray:
+        h, w = cam.height, cam.width
+        img = np.empty((h, w, 3), np.uint8)
+        ramp = np.linspace(0, 1, h)[:, None]
+        img[:] = (np.array([200, 205, 212]) * (1 - ramp) + np.array([120, 124, 130]) * ramp).astype(
+            np.uint8
+        )[:, None]
+        # The pedestal first: seen from the cameras it stands behind the table.
+        self._draw_link(img, cam, np.zeros(3), np.array([0.0, 0.0, 0.6]), 0.09, (90, 90, 96))
+        # The table, its grid, then what stands on it. A box's visible faces never
+        # overlap each other, so they need no sorting.
+        for i, box in enumerate(self.workcell.obstacles):
+            for _, pts, colour in self._box_faces(cam, box):
+                cv2.fillConvexPoly(img, pts, colour, lineType=cv2.LINE_AA)
+            if i == 0:
+                self._draw_table_grid(img, cam)
+        for colour, p in zip(FIDUCIAL_COLOURS, self.workcell.fiducials, strict=True):
+            self._draw_ball(img, cam, p, FIDUCIAL_RADIUS, colour)
+        return img
+
+    def _box_faces(
+        self, cam: PinholeCamera, box: Box
+    ) -> list[tuple[float, np.ndarray, tuple[int, int, int]]]:
+        lo, hi = box.lower, box.upper
+        faces = []
+        for axis in range(3):
+            for side, value in ((-1, lo[axis]), (1, hi[axis])):
+                normal = np.zeros(3)
+                normal[axis] = side
+                centre = (lo + hi) / 2
+                centre[axis] = value
+                if (cam.position - centre) @ normal <= 0:
+                    continue  # back face
+                u, v = [a for a in range(3) if a != axis]
+                corners = []
+                for a, b in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    c = centre.copy()
+                    c[u] = (lo[u], hi[u])[a]
+                    c[v] = (lo[v], hi[v])[b]
+                    corners.append(c)
+                pts = cam.project(np.array(corners))
+                if np.isnan(pts).any():
+                    continue
+                shade = 1.0 if axis == 2 else (0.75 if axis == 0 else 0.6)
+                depth = float(cam.to_camera(centre[None])[0, 2])
+                faces.append((depth, np.round(pts).astype(np.int32), _shade(box.colour, shade)))
+        return faces
+
+    def _draw_table_grid(self, img: np.ndarray, cam: PinholeCamera) -> None:
+        table = self.workcell.table
+        z = table.upper[2] + 1e-4
+        lo, hi = table.lower, table.upper
+        colour = _shade(table.colour, 0.8)
+        for x in np.arange(lo[0], hi[0] + 1e-9, 0.05):
+            self._line(img, cam, np.array([x, lo[1], z]), np.array([x, hi[1], z]), colour, 1)
+        for y in np.arange(lo[1], hi[1] + 1e-9, 0.05):
+            self._line(img, cam, np.array([lo[0], y, z]), np.array([hi[0], y, z]), colour, 1)
+
+    @staticmethod
+    def _line(
+        img: np.ndarray,
+        cam: PinholeCamera,
+        a: np.ndarray,
+        b: np.ndarray,
+        colour: tuple[int, int, int],
+        width: int,
+    ) -> None:
+        pa, pb = cam.project(np.array([a, b]))
+        if not (np.isnan(pa).any() or np.isnan(pb).any()):
+            cv2.line(
+                img,
+                tuple(np.round(pa).astype(int)),
+                tuple(np.round(pb).astype(int)),
+                colour,
+                width,
+                cv2.LINE_AA,
+            )
+
+    @staticmethod
+    def _radius_px(cam: PinholeCamera, p: np.ndarray, radius: float) -> int:
+        z = float(cam.to_camera(p[None])[0, 2])
+        return max(1, round(cam.K[0, 0] * radius / z)) if z > 0 else 1
+
+    def _draw_link(
+        self,
+        img: np.ndarray,
+        cam: PinholeCamera,
+        a: np.ndarray,
+        b: np.ndarray,
+        radius: float,
+        colour: tuple[int, int, int],
+    ) -> None:
+        width = 2 * self._radius_px(cam, (a + b) / 2, radius)
+        self._line(img, cam, a, b, colour, width)
+
+    def _draw_ball(
+        self,
+        img: np.ndarray,
+        cam: PinholeCamera,
+        p: np.ndarray,
+        radius: float,
+        colour: tuple[int, int, int],
+    ) -> None:
+        uv = cam.project(p[None])[0]
+        if not np.isnan(uv).any():
+            cv2.circle(
+                img,
+                tuple(np.round(uv).astype(int)),
+                self._radius_px(cam, p, radius),
+                colour,
+                -1,
+                cv2.LINE_AA,
+            )
+
+    def _draw_arm(self, img: np.ndarray, cam: PinholeCamera, q: np.ndarray) -> None:
+        pts = self.kinematics.link_origins(q)
+        for a, b in itertools.pairwise(pts[1:-1]):  # base … joint 6 origins
+            if np.linalg.norm(b - a) > 1e-6:
+                self._draw_link(img, cam, a, b, LINK_RADIUS, (160, 162, 170))
+        for p in pts[1:-1]:
+            self._draw_ball(img, cam, p, LINK_RADIUS * 1.1, (110, 112, 120))
+        self._draw_link(img, cam, pts[-2], pts[-1], 0.012, GRIPPER_COLOUR)
+        self._draw_ball(img, cam, pts[-1], 0.018, GRIPPER_COLOUR)
+
+    def render(self, t: float) -> np.ndarray:
+        """The side-by-side image at time ``t`` (arm at its extrapolated joints)."""
+        snap = self.probe()
+        dt = min(max(t - snap.time, 0.0), 0.05)
+        q = snap.joints + snap.velocities * dt
+        sbs = self._background.copy()
+        for i, cam in enumerate(self.cameras):
+            self._draw_arm(sbs[:, i * self.width : (i + 1) * self.width], cam, q)
+        if self.show_timecode:
+            timecode.draw(sbs[:, : self.width], t)
+        return sbs
+
+    # ------------------------------------------------------------ capture thread
+    def start(self) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="sim-stereo-camera", daemon=True)
+        self._thread.start()
+        self._status = CameraStatus.RUNNING
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+            self._thread = None
+        self._status = CameraStatus.STOPPED
+
+    def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
+        return self._slot.next_frame(after_seq, timeout)
+
+    @property
+    def dropped(self) -> int:
+        return self._slot.dropped
+
+    def capture(self) -> StereoFrame:
+        """Render one frame now and publish it (the thread calls this at ``fps``)."""
+        t = self._now()
+        started = time.perf_counter()
+        sbs = self.render(t)
+        self.render_ms = (time.perf_counter() - started) * 1000
+        self._seq += 1
+        frame = StereoFrame(self._seq, t, sbs)
+        self._slot.put(frame)
+        return frame
+
+    def _run(self) -> None:
+        period = 1.0 / self.fps
+        next_t = self._now()
+        while not self._stop.is_set():
+            try:
+                self.capture()
+            except Exception:  # keep going: a bad frame must not end the stream
+                log.exception("simulated camera failed to render")
+                self._status = CameraStatus.FAILED
+                time.sleep(0.5)
+                continue
+            next_t += period
+            delay = next_t - self._now()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_t = self._now()  # behind: skip, never burst
