@@ -77,6 +77,11 @@ class SimStereoCamera:
             self._status, self._status.value.lower()
         )
 
+    @property
+    def background(self) -> np.ndarray:
+        """The static scene, side by side, as every frame starts from it."""
+        return self._background.copy()
+
     # ------------------------------------------------------------ rendering
     def _render_static(self, cam: PinholeCamera) -> np.ndarray:
         h, w = cam.height, cam.width

@@ -1,0 +1,110 @@
+"""One H.264 encoder for every viewer (PyAV / libx264).
+
+Low-latency settings: ``ultrafast`` preset, ``zerolatency`` tune (no lookahead, no
+frame threads' delay), no B-frames, a VBV cap so a keyframe cannot flood the link, a
+keyframe every ``keyframe_interval`` seconds and whenever a viewer asks (a new peer,
+a PLI). The level is chosen for the frame size (2560×720 needs level 4.0, beyond the
+3.1 WebRTC stacks default to). Timestamps come from the capture time (90 kHz).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from fractions import Fraction
+from typing import Any, cast
+
+import av
+import cv2
+import numpy as np
+
+from drivers.base import StereoFrame
+
+VIDEO_CLOCK = 90_000
+
+
+def h264_level(width: int, height: int, fps: float) -> str:
+    """The lowest H.264 level whose frame size and macroblock rate fit."""
+    mbs = ((width + 15) // 16) * ((height + 15) // 16)
+    for level, max_fs, max_mbps in (
+        ("3.1", 3600, 108_000),
+        ("3.2", 5120, 216_000),
+        ("4.0", 8192, 245_760),
+        ("4.2", 8704, 522_240),
+        ("5.1", 36_864, 983_040),
+    ):
+        if mbs <= max_fs and mbs * fps <= max_mbps:
+            return level
+    return "5.1"
+
+
+@dataclass(frozen=True)
+class EncodedFrame:
+    packet: Any  # av.Packet, handed to aiortc as is
+    keyframe: bool
+    size: int
+    capture_time: float
+    seq: int
+    encode_ms: float
+
+
+class H264Encoder:
+    def __init__(
+        self, width: int, height: int, fps: float, bitrate: int, keyframe_interval: float = 2.0
+    ) -> None:
+        self.width, self.height, self.fps, self.bitrate = width, height, fps, bitrate
+        ctx = av.CodecContext.create("libx264", "w")
+        ctx.width, ctx.height = width, height
+        ctx.pix_fmt = "yuv420p"
+        ctx.time_base = Fraction(1, VIDEO_CLOCK)
+        ctx.framerate = Fraction(round(fps * 1000), 1000)
+        ctx.bit_rate = bitrate
+        kbps = bitrate // 1000
+        keyint = max(1, round(keyframe_interval * fps))
+        # VBV: at most ~4 frames' worth of bits in flight, so a keyframe stays bounded.
+        bufsize = max(kbps // max(1, round(fps)) * 4, 1)
+        ctx.options = {
+            "preset": "ultrafast",
+            "tune": "zerolatency",
+            "profile": "baseline",
+            "level": h264_level(width, height, fps),
+            "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:scenecut=0:"
+            f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1",
+        }
+        ctx.open()
+        self.ctx = ctx
+        self._keyframe = threading.Event()
+        self._keyframe.set()  # the first frame is one anyway
+        self.frames = 0
+
+    def request_keyframe(self) -> None:
+        self._keyframe.set()
+
+    def encode(self, frame: StereoFrame) -> list[EncodedFrame]:
+        started = time.perf_counter()
+        yuv = cast(
+            "np.ndarray[Any, np.dtype[np.uint8]]",
+            cv2.cvtColor(np.ascontiguousarray(frame.sbs), cv2.COLOR_RGB2YUV_I420),
+        )
+        video = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+        video.pts = round(frame.time * VIDEO_CLOCK)
+        video.time_base = Fraction(1, VIDEO_CLOCK)
+        if self._keyframe.is_set():
+            self._keyframe.clear()
+            video.pict_type = av.video.frame.PictureType.I
+        out = []
+        for packet in self.ctx.encode(video):
+            packet.time_base = Fraction(1, VIDEO_CLOCK)
+            out.append(
+                EncodedFrame(
+                    packet,
+                    bool(packet.is_keyframe),
+                    packet.size,
+                    frame.time,
+                    frame.seq,
+                    (time.perf_counter() - started) * 1000,
+                )
+            )
+        self.frames += 1
+        return out
