@@ -127,3 +127,62 @@ async def test_bad_offers_are_refused_with_the_reason(sdp: str, kind: str, reaso
     with pytest.raises(BadOffer, match=reason):
         await pipeline.answer(sdp, kind)
     assert pipeline.peers == {}
+
+
+# ---------------------------------------------------------------- OpenCV cameras
+def _numbered_video(path: str, frames: int, offset: int = 0, size: tuple[int, int] = (640, 360)) -> None:
+    import cv2
+
+    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), 30, size)
+    assert writer.isOpened()
+    for i in range(frames):
+        img = np.zeros((size[1], size[0], 3), np.uint8)
+        timecode.draw(img, (i + offset) * timecode.UNIT)
+        writer.write(img)
+    writer.release()
+
+
+def test_two_device_camera_never_mixes_partners(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from drivers.camera.opencv import OpenCVStereoCamera
+
+    left, right = str(tmp_path / "left.avi"), str(tmp_path / "right.avi")
+    _numbered_video(left, 60)
+    _numbered_video(right, 60)
+    cam = OpenCVStereoCamera(left, right, width=640, height=360, fps=200)
+    cam.start()
+    seen = 0
+    seq = 0
+    try:
+        for _ in range(25):
+            frame = cam.next_frame(seq, timeout=2.0)
+            assert frame is not None
+            seq = frame.seq
+            assert timecode.read(frame.left) == timecode.read(frame.right)  # same instant
+            assert frame.skew >= 0
+            seen += 1
+            time.sleep(0.004)  # a slow reader: frames are skipped, never mixed
+    finally:
+        cam.stop()
+    assert seen == 25
+
+
+def test_a_missing_camera_is_reported_and_retried(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from drivers.base import CameraStatus
+    from drivers.camera.opencv import OpenCVSideBySideCamera
+
+    path = str(tmp_path / "later.avi")
+    cam = OpenCVSideBySideCamera(path, width=320, height=360, fps=100, retry_s=0.05)
+    cam.start()
+    try:
+        deadline = time.monotonic() + 5
+        while cam.retries < 2:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert cam.status is CameraStatus.FAILED and "cannot open camera" in cam.status_message
+        assert cam.next_frame(0, timeout=0.05) is None
+        _numbered_video(path, 30)  # the device appears
+        frame = cam.next_frame(0, timeout=5)
+        assert frame is not None and frame.sbs.shape == (360, 640, 3)
+        assert cam.status is CameraStatus.RUNNING
+    finally:
+        cam.stop()

@@ -1,0 +1,205 @@
+"""Real stereo cameras through OpenCV: two devices, or one side-by-side device.
+
+Two devices are grabbed back to back and only then retrieved (decoded), which keeps
+the exposure skew to the time between two grabs; the skew is reported with every
+frame. A device that fails or disappears puts the camera in FAILED with the reason;
+the capture thread keeps retrying and resumes on its own.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+from drivers.base import CameraStatus, StereoFrame
+from drivers.camera.slot import FrameSlot
+
+log = logging.getLogger(__name__)
+
+Device = int | str  # a device index, a /dev/video path, or a video file/URL
+
+
+class _OpenCVCapture:
+    name = "opencv"
+
+    def __init__(
+        self,
+        *,
+        width: int,
+        height: int,
+        fps: float,
+        retry_s: float = 2.0,
+        time_source: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.width, self.height, self.fps = width, height, fps
+        self.retry_s = retry_s
+        self._now = time_source
+        self._slot = FrameSlot()
+        self._seq = 0
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._status = CameraStatus.STOPPED
+        self._message = "stopped"
+        self.retries = 0
+        self.last_skew = 0.0
+
+    @property
+    def status(self) -> CameraStatus:
+        return self._status
+
+    @property
+    def status_message(self) -> str:
+        return self._message
+
+    def _fail(self, message: str) -> None:
+        if self._status is not CameraStatus.FAILED or self._message != message:
+            log.warning("%s: %s", self.name, message)
+        self._status, self._message = CameraStatus.FAILED, message
+
+    # subclasses -----------------------------------------------------------
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        raise NotImplementedError
+
+    def _read(self) -> tuple[np.ndarray, float, float] | None:
+        """One side-by-side RGB frame, its capture time and the skew; None on failure."""
+        raise NotImplementedError
+
+    # thread ---------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"{self.name}-capture", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+            self._thread = None
+        self._status, self._message = CameraStatus.STOPPED, "stopped"
+
+    def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
+        return self._slot.next_frame(after_seq, timeout)
+
+    def _run(self) -> None:
+        period = 1.0 / self.fps
+        while not self._stop.is_set():
+            try:
+                self._open()
+            except OSError as exc:
+                self._fail(str(exc))
+                self.retries += 1
+                self._stop.wait(self.retry_s)
+                continue
+            self._status, self._message = CameraStatus.RUNNING, f"capturing {self.fps:g} fps"
+            next_t = self._now()
+            while not self._stop.is_set():
+                got = self._read()
+                if got is None:
+                    self._fail("the camera stopped delivering frames; retrying")
+                    break
+                sbs, t, skew = got
+                self._seq += 1
+                self.last_skew = skew
+                self._slot.put(StereoFrame(self._seq, t, sbs, skew))
+                next_t += period
+                delay = next_t - self._now()
+                if delay > 0:
+                    self._stop.wait(delay)  # real devices block in read; files are paced here
+                else:
+                    next_t = self._now()
+            self._close()
+            if not self._stop.is_set():
+                self.retries += 1
+                self._stop.wait(self.retry_s)
+
+
+def _to_rgb(bgr: np.ndarray, width: int, height: int) -> np.ndarray:
+    if bgr.shape[1] != width or bgr.shape[0] != height:
+        bgr = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
+    result: np.ndarray = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return result
+
+
+def _open_capture(device: Device, width: int, height: int, fps: float) -> cv2.VideoCapture:
+    cap = cv2.VideoCapture(device)
+    if not cap.isOpened():
+        cap.release()
+        raise OSError(f"cannot open camera {device!r}: not found or busy")
+    cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+    cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+    cap.set(cv2.CAP_PROP_FPS, fps)
+    cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # newest frame, not a queue of old ones
+    return cap
+
+
+class OpenCVStereoCamera(_OpenCVCapture):
+    """Two cameras, left and right."""
+
+    name = "opencv-stereo"
+
+    def __init__(self, left: Device, right: Device, *, width: int = 1280, height: int = 720, fps: float = 30.0, **kw: object) -> None:
+        super().__init__(width=width, height=height, fps=fps, **kw)  # type: ignore[arg-type]
+        self.devices = (left, right)
+        self._caps: list[cv2.VideoCapture] = []
+
+    def _open(self) -> None:
+        self._close()
+        self._caps = [_open_capture(d, self.width, self.height, self.fps) for d in self.devices]
+
+    def _close(self) -> None:
+        for cap in self._caps:
+            cap.release()
+        self._caps = []
+
+    def _read(self) -> tuple[np.ndarray, float, float] | None:
+        left, right = self._caps
+        t0 = self._now()
+        if not left.grab():
+            return None
+        t1 = self._now()
+        if not right.grab():
+            return None
+        ok_l, img_l = left.retrieve()
+        ok_r, img_r = right.retrieve()
+        if not (ok_l and ok_r):
+            return None
+        sbs = np.concatenate([_to_rgb(img_l, self.width, self.height), _to_rgb(img_r, self.width, self.height)], axis=1)
+        return sbs, (t0 + t1) / 2, t1 - t0
+
+
+class OpenCVSideBySideCamera(_OpenCVCapture):
+    """One device that delivers both eyes side by side (e.g. a USB stereo camera)."""
+
+    name = "opencv-sbs"
+
+    def __init__(self, device: Device, *, width: int = 1280, height: int = 720, fps: float = 30.0, **kw: object) -> None:
+        super().__init__(width=width, height=height, fps=fps, **kw)  # type: ignore[arg-type]
+        self.device = device
+        self._cap: cv2.VideoCapture | None = None
+
+    def _open(self) -> None:
+        self._close()
+        self._cap = _open_capture(self.device, 2 * self.width, self.height, self.fps)
+
+    def _close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def _read(self) -> tuple[np.ndarray, float, float] | None:
+        assert self._cap is not None
+        ok, img = self._cap.read()
+        t = self._now()
+        if not ok:
+            return None
+        return _to_rgb(img, 2 * self.width, self.height), t, 0.0
