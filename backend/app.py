@@ -12,11 +12,12 @@ from pathlib import Path
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
 
-from backend.api import control, force, health, robot, telemetry, workcell
+from backend.api import control, force, health, robot, telemetry, video, workcell
 from backend.control.decision import DecisionServer
 from backend.control.limits import SafetyLimits
 from backend.devices import build_force_sensor, build_robot, build_workcell
 from backend.errors import install_error_handlers
+from backend.media.supervisor import MediaSupervisor
 from backend.realtime import ws
 from backend.realtime.hub import RealtimeHub
 from backend.security import operator_token
@@ -70,6 +71,10 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
         )
         s.hub.start()
         s.force.start()
+        s.alignments = {}
+        s.media = MediaSupervisor(settings, s.robot) if settings.video else None
+        if s.media is not None:
+            await s.media.start()
         bring_up = asyncio.create_task(bring_up_robot(s.robot, settings.auto_initialize))
         try:
             yield
@@ -78,6 +83,8 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             with contextlib.suppress(asyncio.CancelledError, TelerobotError):
                 await bring_up
             s.force.stop()
+            if s.media is not None:
+                await s.media.stop()
             await s.hub.stop()
             await s.robot.disconnect()
 
@@ -90,7 +97,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
     app.state.token, app.state.token_is_new = token, token_is_new
     install_error_handlers(app)
     api = APIRouter(prefix="/api/v1")
-    for module in (health, robot, control, force, telemetry, workcell):
+    for module in (health, robot, control, force, telemetry, video, workcell):
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(ws.router)

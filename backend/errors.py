@@ -6,6 +6,8 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from backend.control.decision import LimitExceeded, NotAllowed, SafetyStop, StillMoving
+from backend.media.pipeline import BadOffer
+from backend.media.supervisor import MediaRequestFailed, MediaUnavailable
 from drivers.base import (
     DeviceError,
     DriverUnavailable,
@@ -19,6 +21,8 @@ from drivers.base import (
 # Most specific first: the first class that matches gives the HTTP status.
 _STATUS: dict[type[TelerobotError], int] = {
     NotAllowed: 403,
+    BadOffer: 400,
+    MediaUnavailable: 503,
     StillMoving: 504,
     SafetyStop: 409,
     LimitExceeded: 422,
@@ -48,6 +52,8 @@ def install_error_handlers(app: FastAPI) -> None:
     async def on_telerobot_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, TelerobotError)
         status = next((s for cls, s in _STATUS.items() if isinstance(exc, cls)), 500)
+        if isinstance(exc, MediaRequestFailed):  # the worker's error, by its code
+            status = 400 if exc.code == BadOffer.code else 502
         return problem(status, exc.code, str(exc))
 
     app.add_exception_handler(TelerobotError, on_telerobot_error)

@@ -59,6 +59,18 @@ class Settings(BaseSettings):
     allowed_origins: list[str] = []  # extra browser origins allowed on /ws (same host always is)
     tls: bool = False  # HTTPS with a per-installation self-signed certificate (WebXR on a LAN)
 
+    # Stereo video (a media worker process: capture → one encoder → every WebRTC viewer)
+    video: bool = True
+    camera: Literal["sim", "opencv", "opencv-sbs"] = "sim"
+    camera_devices: list[str] = ["0", "1"]  # opencv: left, right; opencv-sbs: the first
+    video_width: int = Field(1280, ge=160, le=3840)  # of one eye
+    video_height: int = Field(720, ge=120, le=2160)
+    video_fps: float = Field(30.0, ge=1.0, le=120.0)
+    video_bitrate: int = Field(8_000_000, ge=100_000, le=100_000_000)
+    keyframe_interval_s: float = Field(2.0, gt=0.0, le=60.0)
+    ice_servers: list[str] = []  # "stun:host:port", "turn:user:pass@host:port"
+    alignment_px: tuple[int, int] = (0, 0)  # default shift of the right image vs the left (x, y)
+
     # Simulated workcell
     camera_distance: float = Field(1.8, ge=0.3, le=10.0)
     camera_baseline: float = Field(0.12, gt=0.0, lt=1.0)

@@ -14,6 +14,9 @@ def pytest_configure() -> None:
     import tempfile
 
     os.environ.setdefault("TELEROBOT_STATE_DIR", tempfile.mkdtemp(prefix="telerobot-test-state-"))
+    # Servers under test run without the media worker unless a test turns it on
+    # (it renders and encodes 2×1280×720 at 30 fps: the video tests say so explicitly).
+    os.environ.setdefault("TELEROBOT_VIDEO", "false")
 
 
 T = TypeVar("T")

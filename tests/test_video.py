@@ -130,7 +130,9 @@ async def test_bad_offers_are_refused_with_the_reason(sdp: str, kind: str, reaso
 
 
 # ---------------------------------------------------------------- OpenCV cameras
-def _numbered_video(path: str, frames: int, offset: int = 0, size: tuple[int, int] = (640, 360)) -> None:
+def _numbered_video(
+    path: str, frames: int, offset: int = 0, size: tuple[int, int] = (640, 360)
+) -> None:
     import cv2
 
     writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), 30, size)

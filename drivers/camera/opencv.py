@@ -147,7 +147,16 @@ class OpenCVStereoCamera(_OpenCVCapture):
 
     name = "opencv-stereo"
 
-    def __init__(self, left: Device, right: Device, *, width: int = 1280, height: int = 720, fps: float = 30.0, **kw: object) -> None:
+    def __init__(
+        self,
+        left: Device,
+        right: Device,
+        *,
+        width: int = 1280,
+        height: int = 720,
+        fps: float = 30.0,
+        **kw: object,
+    ) -> None:
         super().__init__(width=width, height=height, fps=fps, **kw)  # type: ignore[arg-type]
         self.devices = (left, right)
         self._caps: list[cv2.VideoCapture] = []
@@ -173,7 +182,10 @@ class OpenCVStereoCamera(_OpenCVCapture):
         ok_r, img_r = right.retrieve()
         if not (ok_l and ok_r):
             return None
-        sbs = np.concatenate([_to_rgb(img_l, self.width, self.height), _to_rgb(img_r, self.width, self.height)], axis=1)
+        sbs = np.concatenate(
+            [_to_rgb(img_l, self.width, self.height), _to_rgb(img_r, self.width, self.height)],
+            axis=1,
+        )
         return sbs, (t0 + t1) / 2, t1 - t0
 
 
@@ -182,7 +194,15 @@ class OpenCVSideBySideCamera(_OpenCVCapture):
 
     name = "opencv-sbs"
 
-    def __init__(self, device: Device, *, width: int = 1280, height: int = 720, fps: float = 30.0, **kw: object) -> None:
+    def __init__(
+        self,
+        device: Device,
+        *,
+        width: int = 1280,
+        height: int = 720,
+        fps: float = 30.0,
+        **kw: object,
+    ) -> None:
         super().__init__(width=width, height=height, fps=fps, **kw)  # type: ignore[arg-type]
         self.device = device
         self._cap: cv2.VideoCapture | None = None

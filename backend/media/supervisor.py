@@ -1,0 +1,156 @@
+"""The server's side of the media worker: starts it, restarts it if it dies, forwards
+signalling to it, and publishes the arm's state into shared memory for it."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import multiprocessing
+from typing import Any
+
+import numpy as np
+
+from backend.media.worker import ARM_FIELDS, worker_main
+from backend.settings import Settings
+from drivers.base import Robot, TelerobotError
+
+log = logging.getLogger(__name__)
+
+
+class MediaUnavailable(TelerobotError):
+    code = "media_unavailable"
+
+
+class MediaRequestFailed(TelerobotError):
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class MediaSupervisor:
+    def __init__(self, settings: Settings, robot: Robot) -> None:
+        self.settings = settings
+        self.robot = robot
+        self._ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
+        self._arm: Any = self._ctx.Array("d", ARM_FIELDS, lock=True)
+        self._proc: Any = None
+        self._conn: Any = None
+        self._ids = itertools.count(1)
+        self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
+        self._ready = asyncio.Event()
+        self._tasks: list[asyncio.Task[None]] = []
+        self.restarts = 0
+        self.started_at = 0.0
+        self._stopping = False
+
+    @property
+    def alive(self) -> bool:
+        return self._proc is not None and self._proc.is_alive() and self._ready.is_set()
+
+    async def start(self) -> None:
+        self._publish_arm()
+        self._spawn()
+        self._tasks = [
+            asyncio.create_task(self._publish_loop(), name="media-arm-state"),
+            asyncio.create_task(self._watch(), name="media-watchdog"),
+        ]
+
+    def _spawn(self) -> None:
+        parent, child = self._ctx.Pipe()
+        self._conn = parent
+        self._ready.clear()
+        self._proc = self._ctx.Process(
+            target=worker_main,
+            args=(child, self.settings.model_dump_json(), self._arm),
+            name="telerobot-media",
+            daemon=True,
+        )
+        self._proc.start()
+        child.close()
+        asyncio.get_running_loop().add_reader(parent.fileno(), self._readable)
+
+    def _readable(self) -> None:
+        try:
+            msg = self._conn.recv()
+        except (EOFError, OSError):
+            asyncio.get_running_loop().remove_reader(self._conn.fileno())
+            return
+        if msg.get("event") == "ready":
+            self._ready.set()
+            return
+        future = self._pending.pop(msg.get("id"), None)
+        if future is not None and not future.done():
+            future.set_result(msg)
+
+    def _publish_arm(self) -> None:
+        snapshot = getattr(self.robot, "snapshot", None)
+        if callable(snapshot):
+            s = snapshot()
+            values = [s.time, *s.joints.tolist(), *s.velocities.tolist()]
+        else:
+            values = [asyncio.get_running_loop().time(), *self.robot.joints.tolist(), *([0.0] * 6)]
+        with self._arm.get_lock():
+            np.frombuffer(self._arm.get_obj(), dtype=np.float64)[:] = values
+
+    async def _publish_loop(self) -> None:
+        while True:
+            await asyncio.sleep(0.01)
+            self._publish_arm()
+
+    async def _watch(self) -> None:
+        while True:
+            await asyncio.sleep(1.0)
+            if self._stopping or (self._proc is not None and self._proc.is_alive()):
+                continue
+            log.error(
+                "media worker died (exit code %s); restarting it",
+                self._proc.exitcode if self._proc else None,
+            )
+            for future in self._pending.values():
+                if not future.done():
+                    future.set_exception(MediaUnavailable("the media worker restarted; try again"))
+            self._pending.clear()
+            with contextlib.suppress(Exception):
+                asyncio.get_running_loop().remove_reader(self._conn.fileno())
+            self.restarts += 1
+            self._spawn()
+
+    async def request(self, op: str, timeout: float = 15.0, **fields: Any) -> dict[str, Any]:
+        try:
+            await asyncio.wait_for(self._ready.wait(), timeout)
+        except TimeoutError:
+            raise MediaUnavailable("the media worker is not running (see the server log)") from None
+        req_id = next(self._ids)
+        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._pending[req_id] = future
+        self._conn.send({"id": req_id, "op": op, **fields})
+        try:
+            reply = await asyncio.wait_for(future, timeout)
+        except TimeoutError:
+            self._pending.pop(req_id, None)
+            raise MediaUnavailable(
+                f"the media worker did not answer {op!r} within {timeout:g} s"
+            ) from None
+        if not reply.get("ok"):
+            raise MediaRequestFailed(
+                reply.get("code", "media_error"), reply.get("error", "unknown error")
+            )
+        return reply
+
+    async def stop(self) -> None:
+        self._stopping = True
+        for task in self._tasks:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        if self._conn is not None:
+            with contextlib.suppress(Exception):
+                asyncio.get_running_loop().remove_reader(self._conn.fileno())
+            with contextlib.suppress(Exception):
+                self._conn.send({"op": "shutdown"})
+        if self._proc is not None:
+            await asyncio.get_running_loop().run_in_executor(None, self._proc.join, 5)
+            if self._proc.is_alive():
+                self._proc.terminate()

@@ -1,0 +1,138 @@
+"""The media worker: a process of its own running capture, the encoder and every
+WebRTC peer, so video can never stall the control and force channel on the server's
+event loop. The server talks to it over a pipe (``MediaSupervisor``) and shares the
+arm's state with it through shared memory (for the simulated camera).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import multiprocessing
+import multiprocessing.connection
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from backend.settings import Settings
+from drivers.base import ArmSnapshot, StereoCamera, TelerobotError
+
+log = logging.getLogger(__name__)
+
+ARM_FIELDS = 13  # time, 6 joints, 6 velocities
+
+
+def shared_arm_probe(arm: Any) -> Callable[[], ArmSnapshot]:
+    def probe() -> ArmSnapshot:
+        with arm.get_lock():
+            values = np.frombuffer(arm.get_obj(), dtype=np.float64).copy()
+        return ArmSnapshot(float(values[0]), values[1:7], values[7:13])
+
+    return probe
+
+
+def build_camera(settings: Settings, probe: Callable[[], ArmSnapshot]) -> StereoCamera:
+    w, h, fps = settings.video_width, settings.video_height, settings.video_fps
+    devices: list[int | str] = [int(d) if d.isdigit() else d for d in settings.camera_devices]
+    if settings.camera == "opencv":
+        from drivers.camera.opencv import OpenCVStereoCamera
+
+        return OpenCVStereoCamera(devices[0], devices[1], width=w, height=h, fps=fps)
+    if settings.camera == "opencv-sbs":
+        from drivers.camera.opencv import OpenCVSideBySideCamera
+
+        return OpenCVSideBySideCamera(devices[0], width=w, height=h, fps=fps)
+    from drivers.camera.sim import SimStereoCamera
+    from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
+    from drivers.sim.workcell import default_workcell
+
+    cell = default_workcell(
+        camera_distance=settings.camera_distance,
+        baseline=settings.camera_baseline,
+        width=w,
+        height=h,
+    )
+    return SimStereoCamera(
+        cell, probe, Puma560Kinematics(tool_transform(settings.tool_length)), fps=fps
+    )
+
+
+def worker_main(conn: multiprocessing.connection.Connection, settings_json: str, arm: Any) -> None:
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(levelname)s media-worker: %(message)s"
+    )
+    try:
+        import uvloop
+
+        uvloop.install()
+    except ImportError:
+        pass
+    asyncio.run(_serve(conn, Settings.model_validate_json(settings_json), arm))
+
+
+async def _serve(conn: multiprocessing.connection.Connection, settings: Settings, arm: Any) -> None:
+    from backend.media.pipeline import VideoPipeline, VideoSettings
+
+    camera = build_camera(settings, shared_arm_probe(arm))
+    pipeline = VideoPipeline(
+        camera,
+        VideoSettings(
+            fps=settings.video_fps,
+            bitrate=settings.video_bitrate,
+            keyframe_interval=settings.keyframe_interval_s,
+            ice_servers=tuple(settings.ice_servers),
+        ),
+    )
+    pipeline.start()
+    loop = asyncio.get_running_loop()
+    requests: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+
+    def readable() -> None:
+        try:
+            requests.put_nowait(conn.recv())
+        except EOFError:  # the server is gone
+            loop.remove_reader(conn.fileno())
+            requests.put_nowait({"op": "shutdown"})
+
+    loop.add_reader(conn.fileno(), readable)
+    conn.send({"event": "ready", "time": time.monotonic()})
+
+    async def handle(req: dict[str, Any]) -> None:
+        reply: dict[str, Any] = {"id": req.get("id")}
+        try:
+            op = req["op"]
+            if op == "answer":
+                reply.update(await pipeline.answer(req["sdp"], req["type"]))
+            elif op == "offer":
+                reply.update(await pipeline.offer())
+            elif op == "accept":
+                reply.update(await pipeline.accept(req["peer_id"], req["sdp"], req["type"]))
+            elif op == "close_peer":
+                await pipeline.close_peer(req["peer_id"])
+            elif op == "stats":
+                reply["stats"] = pipeline.stats()
+            elif op == "keyframe":
+                pipeline.encoder.request_keyframe()
+            else:
+                raise TelerobotError(f"unknown media request {op!r}")
+            reply["ok"] = True
+        except TelerobotError as exc:
+            reply.update(ok=False, code=exc.code, error=str(exc))
+        except Exception as exc:  # a bug must not take the worker down with it
+            log.exception("media request failed")
+            reply.update(ok=False, code="media_error", error=f"{type(exc).__name__}: {exc}")
+        with contextlib.suppress(OSError):
+            conn.send(reply)
+
+    tasks: set[asyncio.Task[None]] = set()
+    while True:
+        req = await requests.get()
+        if req.get("op") == "shutdown":
+            break
+        task = asyncio.create_task(handle(req))
+        tasks.add(task)
+        task.add_done_callback(tasks.discard)
+    await pipeline.close()
