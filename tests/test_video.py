@@ -63,10 +63,17 @@ def test_no_signal_frame_says_why() -> None:
     assert f.sbs.shape == (180, 640, 3) and f.sbs.mean() > 40  # grey plus white text
 
 
-async def _receive(pipeline: VideoPipeline, frames: int) -> list[float]:
+async def _receive(pipeline: VideoPipeline, frames: int, codec: str = "") -> list[float]:
     """A real WebRTC viewer: offer, answer, decode ``frames`` frames, read each timecode."""
+    from aiortc import RTCRtpSender
+
     pc = RTCPeerConnection()
-    pc.addTransceiver("video", direction="recvonly")
+    transceiver = pc.addTransceiver("video", direction="recvonly")
+    if codec:  # a viewer that only takes this codec
+        caps = RTCRtpSender.getCapabilities("video").codecs
+        transceiver.setCodecPreferences(
+            [c for c in caps if c.mimeType in (f"video/{codec}", "video/rtx")]
+        )
     received: asyncio.Queue[object] = asyncio.Queue()
     pc.on("track", lambda track: received.put_nowait(track))
     await pc.setLocalDescription(await pc.createOffer())
@@ -95,6 +102,19 @@ async def test_a_webrtc_peer_receives_frames_and_decodes_the_timecode() -> None:
     assert pipeline.frames_encoded >= 20 and pipeline.stats()["encode_ms_p50"] > 0
 
 
+async def test_a_viewer_without_h264_gets_vp8_from_a_second_encoder() -> None:
+    pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=2_000_000))
+    pipeline.start()
+    try:
+        latencies = await _receive(pipeline, 10, codec="VP8")
+    finally:
+        await pipeline.close()
+    assert all(0 <= x < 1.0 for x in latencies)
+    assert (
+        set(pipeline.encoders) == {"H264", "VP8"} and pipeline.frames_encoded == 0
+    )  # no H.264 viewer
+
+
 async def test_two_viewers_share_one_encoder() -> None:
     pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=2_000_000))
     pipeline.start()
@@ -116,9 +136,9 @@ async def test_two_viewers_share_one_encoder() -> None:
         ("garbage m=video H264", "offer", "cannot use this offer"),
         ("v=0 m=video", "answer", "expected an SDP of type 'offer'"),
         (
-            "v=0\r\nm=video 9 UDP/TLS/RTP/SAVPF 96\r\na=rtpmap:96 VP8/90000\r\n",
+            "v=0\r\nm=video 9 UDP/TLS/RTP/SAVPF 96\r\na=rtpmap:96 AV1/90000\r\n",
             "offer",
-            "does not accept H.264",
+            "neither H.264 nor VP8",
         ),
     ],
 )

@@ -36,6 +36,8 @@ async def receive(base: str, frames: int) -> tuple[list[object], dict[str, objec
             frame = await asyncio.wait_for(track.recv(), 20)  # type: ignore[attr-defined]
             out.append((frame.to_ndarray(format="rgb24"), time.monotonic()))
         status = (await http.get("api/v1/video")).json()
+        telemetry = (await http.get("api/v1/telemetry")).json()
+        assert telemetry["video"]["frames_encoded"] > 0 and telemetry["video"]["encode_ms_p50"] > 0
     await pc.close()
     return out, status
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
@@ -33,6 +35,7 @@ class ConnectionView(BaseModel):
 class TelemetryView(BaseModel):
     streams: list[StreamSummary]
     connections: list[ConnectionView]
+    video: dict[str, Any] | None = None  # capture fps, encode ms, frame/keyframe sizes, viewers
 
 
 def _num(x: float) -> float | None:
@@ -65,4 +68,10 @@ async def telemetry(request: Request, stats: TelemetryDep) -> TelemetryView:
         )
         for c in request.app.state.hub.connections.values()
     ]
-    return TelemetryView(streams=streams, connections=conns)
+    media = request.app.state.media
+    video = (
+        (await media.request("stats", timeout=5))["stats"]
+        if media is not None and media.alive
+        else None
+    )
+    return TelemetryView(streams=streams, connections=conns, video=video)

@@ -18,6 +18,7 @@ from typing import Any, cast
 import av
 import cv2
 import numpy as np
+from av.video.codeccontext import VideoCodecContext
 
 from drivers.base import StereoFrame
 
@@ -49,34 +50,31 @@ class EncodedFrame:
     encode_ms: float
 
 
-class H264Encoder:
+class PacketEncoder:
+    """Encodes ``StereoFrame``s into packets that aiortc sends as they are."""
+
+    codec = ""  # the SDP name: "H264", "VP8"
+    library = ""  # the FFmpeg encoder
+
     def __init__(
         self, width: int, height: int, fps: float, bitrate: int, keyframe_interval: float = 2.0
     ) -> None:
         self.width, self.height, self.fps, self.bitrate = width, height, fps, bitrate
-        ctx = av.CodecContext.create("libx264", "w")
+        ctx = cast(VideoCodecContext, av.CodecContext.create(self.library, "w"))
         ctx.width, ctx.height = width, height
         ctx.pix_fmt = "yuv420p"
         ctx.time_base = Fraction(1, VIDEO_CLOCK)
         ctx.framerate = Fraction(round(fps * 1000), 1000)
         ctx.bit_rate = bitrate
-        kbps = bitrate // 1000
-        keyint = max(1, round(keyframe_interval * fps))
-        # VBV: at most ~4 frames' worth of bits in flight, so a keyframe stays bounded.
-        bufsize = max(kbps // max(1, round(fps)) * 4, 1)
-        ctx.options = {
-            "preset": "ultrafast",
-            "tune": "zerolatency",
-            "profile": "baseline",
-            "level": h264_level(width, height, fps),
-            "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:scenecut=0:"
-            f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1",
-        }
+        ctx.options = self.options(max(1, round(keyframe_interval * fps)))
         ctx.open()
         self.ctx = ctx
         self._keyframe = threading.Event()
         self._keyframe.set()  # the first frame is one anyway
         self.frames = 0
+
+    def options(self, keyint: int) -> dict[str, str]:
+        raise NotImplementedError
 
     def request_keyframe(self) -> None:
         self._keyframe.set()
@@ -108,3 +106,39 @@ class H264Encoder:
             )
         self.frames += 1
         return out
+
+
+class H264Encoder(PacketEncoder):
+    codec, library = "H264", "libx264"
+
+    def options(self, keyint: int) -> dict[str, str]:
+        kbps = self.bitrate // 1000
+        # VBV: at most ~4 frames' worth of bits in flight, so a keyframe stays bounded.
+        bufsize = max(kbps // max(1, round(self.fps)) * 4, 1)
+        return {
+            "preset": "ultrafast",
+            "tune": "zerolatency",
+            "profile": "baseline",
+            "level": h264_level(self.width, self.height, self.fps),
+            "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:scenecut=0:"
+            f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1",
+        }
+
+
+class Vp8Encoder(PacketEncoder):
+    """The fallback for viewers without H.264: libvpx in real-time mode, no lag."""
+
+    codec, library = "VP8", "libvpx"
+
+    def options(self, keyint: int) -> dict[str, str]:
+        return {
+            "deadline": "realtime",
+            "cpu-used": "8",
+            "lag-in-frames": "0",
+            "error-resilient": "1",
+            "auto-alt-ref": "0",
+            "g": str(keyint),
+        }
+
+
+ENCODERS: dict[str, type[PacketEncoder]] = {"H264": H264Encoder, "VP8": Vp8Encoder}

@@ -27,7 +27,7 @@ from aiortc import (
     RTCSessionDescription,
 )
 
-from backend.media.encoder import EncodedFrame, H264Encoder
+from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from backend.media.fanout import Broadcaster, SharedVideoTrack
 from backend.telemetry.stats import InterArrival, StreamStats
 from drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
@@ -91,11 +91,11 @@ class VideoPipeline:
     def __init__(self, camera: StereoCamera, settings: VideoSettings | None = None) -> None:
         self.camera = camera
         self.settings = settings or VideoSettings()
-        s = self.settings
-        self.encoder = H264Encoder(
-            2 * camera.width, camera.height, s.fps, s.bitrate, s.keyframe_interval
-        )
-        self.broadcaster = Broadcaster(self.encoder.request_keyframe)
+        # One encoder per codec in use (H.264; VP8 only while a viewer needs it), each
+        # shared by all of that codec's viewers.
+        self.encoders: dict[str, PacketEncoder] = {}
+        self.broadcasters: dict[str, Broadcaster] = {}
+        self.encoder = self._encoder("H264")
         self.peers: dict[str, Peer] = {}
         self._grab = ThreadPoolExecutor(1, thread_name_prefix="video-grab")
         self._encode = ThreadPoolExecutor(1, thread_name_prefix="video-encode")
@@ -106,6 +106,24 @@ class VideoPipeline:
         self.keyframe_bytes = StreamStats("video_keyframe_bytes", "B", capacity=100)
         self.frames_encoded = 0
         self._no_signal_seq = 0
+
+    def _encoder(self, codec: str) -> PacketEncoder:
+        if codec not in self.encoders:
+            s = self.settings
+            enc = ENCODERS[codec](
+                2 * self.camera.width, self.camera.height, s.fps, s.bitrate, s.keyframe_interval
+            )
+            self.encoders[codec] = enc
+            self.broadcasters[codec] = Broadcaster(enc.request_keyframe)
+        return self.encoders[codec]
+
+    @property
+    def broadcaster(self) -> Broadcaster:
+        return self.broadcasters["H264"]
+
+    @property
+    def viewers(self) -> int:
+        return sum(b.viewers for b in self.broadcasters.values())
 
     # ------------------------------------------------------------ capture → encode
     def start(self) -> None:
@@ -141,11 +159,14 @@ class VideoPipeline:
             else:
                 seq = frame.seq
                 self.capture_interarrival.tick(frame.time)
-            if self.broadcaster.viewers == 0:
-                continue  # nobody watching: no encoding
-            for encoded in await loop.run_in_executor(self._encode, self.encoder.encode, frame):
-                self._record(encoded)
-                self.broadcaster.publish(encoded)
+            for codec, broadcaster in list(self.broadcasters.items()):
+                if broadcaster.viewers == 0:
+                    continue  # nobody watching in this codec: no encoding
+                encoder = self.encoders[codec]
+                for encoded in await loop.run_in_executor(self._encode, encoder.encode, frame):
+                    if codec == "H264":
+                        self._record(encoded)
+                    broadcaster.publish(encoded)
 
     def _record(self, e: EncodedFrame) -> None:
         self.frames_encoded += 1
@@ -155,14 +176,14 @@ class VideoPipeline:
             self.keyframe_bytes.record(e.size)
 
     # ------------------------------------------------------------ signalling
-    def _new_peer(self) -> tuple[str, Peer]:
+    def _new_peer(self, codec: str = "H264") -> tuple[str, Peer]:
         pc = RTCPeerConnection(_ice(self.settings.ice_servers))
-        track = self.broadcaster.new_track()
+        self._encoder(codec)
+        track = self.broadcasters[codec].new_track()
         transceiver = pc.addTransceiver(track, direction="sendonly")
-        h264 = [
-            c for c in RTCRtpSender.getCapabilities("video").codecs if c.mimeType == "video/H264"
-        ]
-        transceiver.setCodecPreferences(h264)
+        wanted = f"video/{codec}"
+        caps = RTCRtpSender.getCapabilities("video").codecs
+        transceiver.setCodecPreferences([c for c in caps if c.mimeType == wanted])
         sender = transceiver.sender
         resend = (
             sender._send_keyframe
@@ -196,9 +217,14 @@ class VideoPipeline:
             raise BadOffer(f"expected an SDP of type 'offer', got {kind!r}")
         if "m=video" not in sdp:
             raise BadOffer("the offer has no video section: add a recvonly video transceiver")
-        if "H264" not in sdp.upper():
-            raise BadOffer("the offer does not accept H.264 video")
-        peer_id, peer = self._new_peer()
+        upper = sdp.upper()
+        if "H264" in upper:
+            codec = "H264"
+        elif "VP8" in upper:
+            codec = "VP8"  # the fallback: a second encoder, only while such viewers watch
+        else:
+            raise BadOffer("the offer accepts neither H.264 nor VP8 video")
+        peer_id, peer = self._new_peer(codec)
         try:
             await peer.pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
             await peer.pc.setLocalDescription(await peer.pc.createAnswer())
@@ -247,6 +273,7 @@ class VideoPipeline:
             "bytes_per_frame_mean": size.mean if size.count else None,
             "keyframe_bytes_last": keys[-10:].tolist(),
             "frames_encoded": self.frames_encoded,
+            "codecs": {codec: b.viewers for codec, b in self.broadcasters.items()},
             "viewers": [
                 {
                     "peer_id": pid,
