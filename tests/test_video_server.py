@@ -117,3 +117,28 @@ def test_a_missing_real_camera_shows_no_signal_and_the_server_keeps_serving(came
         rgb = received[-1][0]
         assert 30 < rgb.mean() < 90  # type: ignore[union-attr]  # the grey NO SIGNAL card
         assert httpx.get(base + "api/v1/health").json()["status"] == "ok"
+
+
+def test_a_crashed_media_worker_is_restarted_and_control_never_stops() -> None:
+    import psutil
+
+    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (proc, m):
+        base = m.group(1)
+        deadline = time.monotonic() + 30
+        while not httpx.get(base + "api/v1/video", timeout=10).json()["worker_alive"]:
+            assert time.monotonic() < deadline
+            time.sleep(0.2)
+        workers = [p for p in psutil.Process(proc.pid).children() if "python" in p.name().lower()]
+        assert workers, "no media worker process"
+        for w in workers:
+            w.kill()
+        assert (
+            httpx.get(base + "api/v1/robot/state", timeout=5).status_code == 200
+        )  # control keeps serving
+        while True:
+            status = httpx.get(base + "api/v1/video", timeout=10).json()
+            if status["worker_restarts"] >= 1 and status["worker_alive"]:
+                break
+            assert time.monotonic() < deadline + 30, status
+            time.sleep(0.2)
+        asyncio.run(watch(base, 5))  # and the stream is back
