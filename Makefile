@@ -4,7 +4,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint typecheck unit browser-deps bench clean
+.PHONY: run test lint typecheck unit browser-deps web web-check bench clean
+
+WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/vite.config.ts web/tsconfig.json
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -12,12 +14,25 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
+web/node_modules/.installed: web/package.json web/package-lock.json
+	cd web && npm ci --no-audit --no-fund --loglevel=error
+	@touch $@
+
+web/dist/index.html: web/node_modules/.installed $(WEB_SOURCES)
+	cd web && npm run --silent build
+
+## make web: build the operator client (TypeScript + three.js) into web/dist
+web: web/dist/index.html
+
 ## make run: start the server on the simulation and print its URL
-run: $(STAMP)
+run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser included)
-test: $(STAMP) browser-deps lint typecheck unit
+test: $(STAMP) browser-deps lint typecheck web-check web unit
+
+web-check: web/node_modules/.installed
+	cd web && npm run --silent lint && npm run --silent typecheck && npm run --silent test
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
 
 from backend.api import control, force, health, robot, telemetry, video, workcell
 from backend.control.decision import DecisionServer
@@ -29,6 +30,7 @@ from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 
 log = logging.getLogger("telerobot")
 STATIC = Path(__file__).parent / "static"
+WEB_DIST = Path(__file__).resolve().parents[1] / "web" / "dist"  # built by `make web`
 
 
 async def bring_up_robot(robot: Robot, initialize: bool) -> None:
@@ -102,8 +104,18 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
     app.include_router(api)
     app.include_router(ws.router)
 
-    @app.get("/", include_in_schema=False)
+    @app.get("/status", include_in_schema=False)
     async def status_page() -> FileResponse:
         return FileResponse(STATIC / "index.html")
+
+    if (WEB_DIST / "index.html").is_file():
+        # The operator client; mounted last, so the API and /ws routes win.
+        app.mount("/", StaticFiles(directory=WEB_DIST, html=True), name="web")
+    else:
+
+        @app.get("/", include_in_schema=False)
+        async def no_client() -> FileResponse:
+            log.warning("web/dist is missing (run `make web`): serving the status page")
+            return FileResponse(STATIC / "index.html")
 
     return app

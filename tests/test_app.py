@@ -31,7 +31,7 @@ def client() -> Iterator[TestClient]:
 def test_health_and_status_page(client: TestClient) -> None:
     r = client.get("/api/v1/health")
     assert r.status_code == 200 and r.json()["status"] == "ok"
-    page = client.get("/")
+    page = client.get("/status")
     assert (
         page.status_code == 200 and "Telerobot" in page.text and "/api/v1/robot/state" in page.text
     )

@@ -45,7 +45,7 @@ def test_status_page_shows_the_robot_moving_then_ready(browser: Browser, tmp_pat
         errors: list[str] = []
         page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
         page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(m.group(1))
+        page.goto(m.group(1) + "status")
         status = page.locator("#status")
         # The sim starts at qz and initialises to qn, which takes ~3.6 s.
         page.wait_for_function(

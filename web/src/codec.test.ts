@@ -1,0 +1,33 @@
+import { describe, expect, it } from "vitest";
+import { decode, decodeForce, encode } from "./transport/codec";
+import { CART_INC, ERROR } from "./transport/messages";
+
+// Byte vectors made by the Python definitions (backend/realtime/messages.py).
+const hex = (s: string) => new Uint8Array(s.match(/../g)!.map((b) => parseInt(b, 16))).buffer;
+const CART =
+  "0207000000000000000000f83f02fca9f1d24d62503ffca9f1d24d6260bffa7e6abc7493683f00000000000000009a9999999999b93f9a9999999999b9bf";
+const ERR = "850900000006006f7574736964652074686520776f726b7370616365";
+const FORCE =
+  "830100050000000000000000000240000000000000f03f00000000000000400000000000000840000000000000104000000000000014400000000000001840";
+
+describe("binary protocol", () => {
+  it("encodes exactly as the server does", () => {
+    const out = encode(CART_INC, { seq: 7, client_time: 1.5, frame: 2, dx: 0.001, dy: -0.002, dz: 0.003, rx: 0, ry: 0.1, rz: -0.1 });
+    expect(new Uint8Array(out)).toEqual(new Uint8Array(hex(CART)));
+  });
+
+  it("decodes the server's messages", () => {
+    const e = decode(hex(ERR));
+    expect(e.spec).toBe(ERROR);
+    expect(e.fields).toEqual({ seq: 9, code: 6 });
+    expect(e.text).toBe("outside the workspace");
+    expect(decodeForce(hex(FORCE))).toEqual([{ seq: 5, time: 2.25, values: [1, 2, 3, 4, 5, 6] }]);
+  });
+
+  it("refuses what it cannot read", () => {
+    expect(() => decode(new ArrayBuffer(0))).toThrow("empty");
+    expect(() => decode(new Uint8Array([0x7f]).buffer)).toThrow("unknown message type");
+    expect(() => decode(new Uint8Array([0x86, 1]).buffer)).toThrow("too short");
+    expect(() => decodeForce(new Uint8Array([0x83, 2, 0]).buffer)).toThrow("wrong size");
+  });
+});

@@ -1,0 +1,49 @@
+// A WebXR controller as a 6-DoF master: while the grip is held, the controller's
+// motion since the last frame moves the gripper (a clutch: releasing and gripping
+// again re-anchors). Jumps in tracking are ignored rather than sent.
+import type { Vec3 } from "../robot/math";
+
+export interface XRDelta {
+  dX: Vec3; // robot base frame, metres
+  rotvec: Vec3;
+}
+
+const MAX_STEP = 0.05; // m per frame: more is a tracking jump
+
+export class XRMaster {
+  private last: { p: Vec3; q: [number, number, number, number] } | null = null;
+
+  /** Feed the grip state and the controller pose (XR space: y up, −z forward). */
+  update(gripping: boolean, position: Vec3, orientation: [number, number, number, number]): XRDelta | null {
+    if (!gripping) {
+      this.last = null;
+      return null;
+    }
+    const prev = this.last;
+    this.last = { p: position, q: orientation };
+    if (!prev) return null; // the clutch re-anchors on each press
+    const d: Vec3 = [position[0] - prev.p[0], position[1] - prev.p[1], position[2] - prev.p[2]];
+    if (Math.hypot(...d) > MAX_STEP) return null;
+    // XR (x right, y up, z back) → robot base (x forward, y left, z up).
+    const dX: Vec3 = [-d[2], -d[0], d[1]];
+    const rel = quatMul(orientation, quatConj(prev.q));
+    const angle = 2 * Math.acos(Math.max(-1, Math.min(1, rel[3])));
+    const s = Math.sqrt(Math.max(1e-12, 1 - rel[3] * rel[3]));
+    const axis: Vec3 = [rel[0] / s, rel[1] / s, rel[2] / s];
+    const rv: Vec3 = [-axis[2] * angle, -axis[0] * angle, axis[1] * angle];
+    return { dX, rotvec: angle > 1e-6 ? rv : [0, 0, 0] };
+  }
+}
+
+function quatConj(q: [number, number, number, number]): [number, number, number, number] {
+  return [-q[0], -q[1], -q[2], q[3]];
+}
+
+function quatMul(a: [number, number, number, number], b: [number, number, number, number]): [number, number, number, number] {
+  return [
+    a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1],
+    a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
+    a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3],
+    a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2],
+  ];
+}

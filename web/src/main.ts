@@ -1,0 +1,296 @@
+// The operator's page: stereo video with the AR ball, inputs, panels.
+import { project, type Projection } from "./ar/projection";
+import { combine } from "./input/motion";
+import { GamepadInput } from "./input/gamepad";
+import { KeyboardInput } from "./input/keyboard";
+import { position, type Vec3 } from "./robot/math";
+import { PredictedArm, type FrameName, type RobotModelInfo } from "./robot/model";
+import { Rolling } from "./stats";
+import { type ForceSample } from "./transport/codec";
+import { Frame, LeaseAction, StateFlags } from "./transport/messages";
+import { RealtimeClient, type RobotState } from "./transport/realtime";
+import { connectVideo } from "./transport/video";
+import { MODES, StereoView, type ViewMode } from "./view/stereo";
+
+const $ = <T extends HTMLElement = HTMLElement>(id: string) => document.getElementById(id) as T;
+const base = `${location.origin}/`;
+const params = new URLSearchParams(location.search);
+if (params.get("token")) localStorage.setItem("telerobot.token", params.get("token")!);
+const token = localStorage.getItem("telerobot.token") ?? "";
+const viewerName = localStorage.getItem("telerobot.viewer") ?? `viewer-${Math.random().toString(36).slice(2, 8)}`;
+localStorage.setItem("telerobot.viewer", viewerName);
+
+const MAX_LINEAR = 0.1; // m/s at full deflection and speed 1
+const MAX_ANGULAR = 0.5; // rad/s
+const FRAMES: Record<FrameName, number> = { base: Frame.BASE, wrist: Frame.WRIST, tool: Frame.TOOL };
+
+function message(text: string, error = false): void {
+  const li = document.createElement("li");
+  li.textContent = `${new Date().toLocaleTimeString()} ${text}`;
+  if (error) li.style.color = "#f88";
+  $("messages").prepend(li);
+  while ($("messages").childElementCount > 50) $("messages").lastElementChild?.remove();
+}
+
+async function getJSON<T>(path: string): Promise<T> {
+  const r = await fetch(base + path, { cache: "no-store" });
+  if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
+  return (await r.json()) as T;
+}
+
+interface Camera {
+  name: string;
+  P: Projection;
+}
+
+async function main(): Promise<void> {
+  const [model, cell, safety] = await Promise.all([
+    getJSON<RobotModelInfo>("api/v1/robot/model"),
+    getJSON<{ cameras: Camera[] }>("api/v1/workcell"),
+    getJSON<{ force_limit_n: number }>("api/v1/safety"),
+  ]);
+  const [camL, camR] = cell.cameras;
+  const arm = new PredictedArm(model);
+  const video = $<HTMLVideoElement>("video");
+  const view = new StereoView($<HTMLCanvasElement>("view"), video);
+  const glass = new Rolling(900); // capture → presented, ms
+  const videoInterval = new Rolling(900);
+  let state: RobotState | null = null;
+  let lastForce: ForceSample | null = null;
+  let frameName: FrameName = "base";
+
+  // ---- view settings, remembered
+  const modeSelect = $<HTMLSelectElement>("mode");
+  for (const m of MODES) modeSelect.add(new Option(m, m));
+  modeSelect.value = localStorage.getItem("telerobot.mode") ?? "side-by-side";
+  view.setMode(modeSelect.value as ViewMode);
+  modeSelect.onchange = () => {
+    view.setMode(modeSelect.value as ViewMode);
+    localStorage.setItem("telerobot.mode", modeSelect.value);
+  };
+  let align = await getJSON<{ dx: number; dy: number }>(`api/v1/video/alignment?viewer=${viewerName}`).catch(() => ({ dx: 0, dy: 0 }));
+  const showAlign = () => {
+    $("align").textContent = `${align.dx}, ${align.dy}`;
+    view.setAlignment(align.dx, align.dy);
+  };
+  showAlign();
+  $("xr").onclick = () => view.enterXR().catch((e: Error) => message(e.message, true));
+
+  // ---- real-time channel
+  const client = new RealtimeClient(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, token, {
+    state: (s) => {
+      state = s;
+      arm.report(s.joints, s.status === "MOVING", performance.now());
+    },
+    forces: (samples) => {
+      lastForce = samples[samples.length - 1] ?? lastForce;
+    },
+    event: (text) => message(text),
+    error: (text) => message(text, true),
+    connection: (up, why) => {
+      $("banner").hidden = up;
+      $("banner").className = "error";
+      $("banner").textContent = up ? "" : `Disconnected: ${why}`;
+    },
+  });
+  client.connect();
+  const hasControl = () => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0;
+
+  $("take").onclick = () => client.lease(((state?.flags ?? 0) & StateFlags.SOMEONE_HAS_CONTROL) ? LeaseAction.TAKE_OVER : LeaseAction.TAKE);
+  $("release").onclick = () => client.lease(LeaseAction.RELEASE);
+  $("estop").onclick = () => client.estop();
+  $("reset").onclick = () => client.reset();
+  $<HTMLInputElement>("token").onchange = (e) => {
+    localStorage.setItem("telerobot.token", (e.target as HTMLInputElement).value);
+    location.reload();
+  };
+  $<HTMLSelectElement>("frame").onchange = (e) => {
+    frameName = (e.target as HTMLSelectElement).value as FrameName;
+  };
+
+  // ---- video
+  connectVideo(base, (stream) => {
+    video.srcObject = stream;
+    void video.play();
+  }).catch((e: Error) => message(`video: ${e.message}`, true));
+  view.onFrame = (meta) => {
+    videoInterval.tick(meta.expectedDisplayTime);
+    const code = readTimecode(video);
+    if (code !== null && client.bestRtt < Infinity) {
+      const presented = meta.expectedDisplayTime / 1000 + client.offset; // on the server's clock
+      const delta = (Math.round(presented / 1e-4) - code) % 2 ** 32;
+      glass.add(((delta + 2 ** 32) % 2 ** 32) / 10);
+    }
+  };
+
+  // ---- inputs
+  const gamepad = new GamepadInput();
+  const keyboard = new KeyboardInput(window);
+  keyboard.onKey = (key, e) => {
+    if (key === "Escape") client.estop();
+    if (key === "Digit1" || key === "Digit2" || key === "Digit3") {
+      frameName = (["base", "wrist", "tool"] as const)[Number(key.slice(5)) - 1]!;
+      $<HTMLSelectElement>("frame").value = frameName;
+    }
+    if (e.altKey && key.startsWith("Arrow")) {
+      const d = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, -1], ArrowDown: [0, 1] }[key] ?? [0, 0];
+      align = { dx: align.dx + d[0]!, dy: align.dy + d[1]! };
+      showAlign();
+      void fetch(`${base}api/v1/video/alignment?viewer=${viewerName}`, {
+        method: "PUT",
+        headers: { "Content-Type": "application/json" },
+        body: JSON.stringify(align),
+      });
+    }
+  };
+
+  let last = performance.now();
+  const tick = () => {
+    const now = performance.now();
+    const dt = Math.min(0.1, (now - last) / 1000);
+    last = now;
+    const pad = gamepad.read();
+    if (pad.cycleFrame) {
+      frameName = frameName === "base" ? "wrist" : frameName === "wrist" ? "tool" : "base";
+      $<HTMLSelectElement>("frame").value = frameName;
+    }
+    const cmd = combine(pad.command, keyboard.read());
+    const speed = Number($<HTMLInputElement>("speed").value);
+    const moving = cmd.linear.some((v) => v !== 0) || cmd.angular.some((v) => v !== 0);
+    $("input-state").textContent = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
+    if (hasControl()) {
+      if (cmd.deadman && moving) {
+        const dX = cmd.linear.map((v) => v * MAX_LINEAR * speed * dt) as Vec3;
+        const rv = cmd.angular.map((v) => v * MAX_ANGULAR * speed * dt) as Vec3;
+        client.cartesian(dX, rv, FRAMES[frameName]);
+        arm.commandCartesian(dX, rv, frameName, now);
+      } else {
+        client.heartbeat();
+      }
+    }
+    const force = lastForce ? Math.hypot(...lastForce.values.slice(0, 3)) : 0;
+    if ($<HTMLInputElement>("rumble").checked) gamepad.rumble(pad.pad, force / safety.force_limit_n);
+    updateBall();
+    requestAnimationFrame(tick);
+  };
+  requestAnimationFrame(tick);
+
+  const ball = { left: null as [number, number] | null, right: null as [number, number] | null };
+  function updateBall(): void {
+    const T = arm.pose;
+    if (T && camL && camR) {
+      const p = position(T);
+      ball.left = project(camL.P, p);
+      ball.right = project(camR.P, p);
+    }
+    view.setBall(ball, $<HTMLInputElement>("ar").checked, $<HTMLInputElement>("ar-colour").value, Number($<HTMLInputElement>("ar-size").value));
+  }
+
+  // ---- panels, 5 Hz
+  setInterval(() => {
+    const s = state;
+    const flags = s?.flags ?? 0;
+    $("status").textContent = s?.status ?? "…";
+    $("status").className = `badge ${s?.status ?? ""}`;
+    $("role").textContent = client.operator ? "operator" : "observer (watching only)";
+    $("token-row").hidden = client.operator;
+    $("take").hidden = !client.operator || hasControl();
+    $("release").hidden = !hasControl();
+    $("reset").hidden = (flags & StateFlags.ESTOP) === 0;
+    $("control-owner").textContent = hasControl() ? "you have control" : flags & StateFlags.SOMEONE_HAS_CONTROL ? "someone else has control" : "nobody has control";
+    if (flags & StateFlags.ESTOP) showBanner("E-STOP latched: reset it to move again");
+    else if (flags & StateFlags.FORCE_LIMITED) showBanner("Force limit: back away from the contact");
+    else if (client.open) $("banner").hidden = true;
+    if (s) {
+      $("joints").innerHTML = `<tr>${s.joints.map((q) => `<td>${((q * 180) / Math.PI).toFixed(1)}°</td>`).join("")}</tr>`;
+      $("pose").textContent = `tool at ${s.position.map((v) => v.toFixed(3)).join(", ")} m`;
+    }
+    const f = lastForce?.values ?? [0, 0, 0, 0, 0, 0];
+    $("force-bars").innerHTML = f
+      .map((v, i) => `<div title="${["Fx", "Fy", "Fz", "Tx", "Ty", "Tz"][i]} ${v.toFixed(2)}"><div class="bar" style="width:${Math.min(100, (Math.abs(v) / safety.force_limit_n) * 100)}%"></div></div>`)
+      .join("");
+    drawArrow($<HTMLCanvasElement>("force-arrow"), f.slice(0, 3) as Vec3, safety.force_limit_n);
+    $("latency").textContent =
+      `glass-to-glass p50 ${glass.percentile(50).toFixed(0)} ms · command p50 ${client.commandLatency.percentile(50).toFixed(2)} ms · ` +
+      `video ${(1000 / videoInterval.percentile(50)).toFixed(1)} fps · force ${client.forceInterval.percentile(50).toFixed(2)} ms`;
+    drawHistogram($<HTMLCanvasElement>("hist-force"), client.forceInterval, 5, "force inter-arrival (0–5 ms)");
+    drawHistogram($<HTMLCanvasElement>("hist-state"), client.stateInterval, 60, "state inter-arrival (0–60 ms)");
+    drawHistogram($<HTMLCanvasElement>("hist-video"), videoInterval, 100, "video inter-arrival (0–100 ms)");
+  }, 200);
+
+  function showBanner(text: string): void {
+    $("banner").hidden = false;
+    $("banner").className = "";
+    $("banner").textContent = text;
+  }
+
+  // For tests and benchmarks (read-only figures and a few switches).
+  Object.assign(window, {
+    telerobot: { view, client, glass, videoInterval, ball, arm, get state() { return state; }, setMode: (m: ViewMode) => { modeSelect.value = m; view.setMode(m); } },
+  });
+}
+
+const probe = document.createElement("canvas");
+function readTimecode(video: HTMLVideoElement): number | null {
+  // The capture time drawn as 32 blocks of 16 px at (8, 8) in the left image.
+  probe.width = 32 * 16;
+  probe.height = 1;
+  const ctx = probe.getContext("2d", { willReadFrequently: true });
+  if (!ctx || video.videoWidth === 0) return null;
+  ctx.drawImage(video, 8, 16, 32 * 16, 1, 0, 0, 32 * 16, 1);
+  const px = ctx.getImageData(0, 0, 32 * 16, 1).data;
+  let value = 0;
+  for (let i = 0; i < 32; i++) {
+    const o = (i * 16 + 8) * 4;
+    value = value * 2 + ((px[o] ?? 0) > 128 ? 1 : 0);
+  }
+  return value;
+}
+
+function drawHistogram(canvas: HTMLCanvasElement, stats: Rolling, max: number, label: string): void {
+  const ctx = canvas.getContext("2d");
+  if (!ctx) return;
+  const bins = stats.histogram(40, max);
+  const top = Math.max(1, ...bins);
+  ctx.fillStyle = "#111";
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  ctx.fillStyle = "#4a8";
+  bins.forEach((n, i) => {
+    const h = (n / top) * (canvas.height - 14);
+    ctx.fillRect((i * canvas.width) / bins.length, canvas.height - h, canvas.width / bins.length - 1, h);
+  });
+  ctx.fillStyle = "#ccc";
+  ctx.font = "10px sans-serif";
+  ctx.fillText(`${label} · p50 ${stats.percentile(50).toFixed(2)} p99 ${stats.percentile(99).toFixed(2)}`, 2, 10);
+}
+
+function drawArrow(canvas: HTMLCanvasElement, f: Vec3, limit: number): void {
+  const ctx = canvas.getContext("2d");
+  if (!ctx) return;
+  ctx.fillStyle = "#111";
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  const cx = canvas.width / 2;
+  const cy = canvas.height / 2;
+  const k = 50 / limit;
+  // An oblique view of the sensor frame: x right, y up-right, z up.
+  const ex = [1, 0];
+  const ey = [0.5, -0.35];
+  const ez = [0, -1];
+  const tip = [cx + k * (f[0] * ex[0]! + f[1] * ey[0]! + f[2] * ez[0]!), cy + k * (f[0] * ex[1]! + f[1] * ey[1]! + f[2] * ez[1]!)];
+  ctx.strokeStyle = "#555";
+  for (const e of [ex, ey, ez]) {
+    ctx.beginPath();
+    ctx.moveTo(cx, cy);
+    ctx.lineTo(cx + 40 * e[0]!, cy + 40 * e[1]!);
+    ctx.stroke();
+  }
+  ctx.strokeStyle = "#f84";
+  ctx.lineWidth = 3;
+  ctx.beginPath();
+  ctx.moveTo(cx, cy);
+  ctx.lineTo(tip[0]!, tip[1]!);
+  ctx.stroke();
+  ctx.lineWidth = 1;
+}
+
+main().catch((e: Error) => message(`start-up failed: ${e.message}`, true));

@@ -1,0 +1,83 @@
+import { describe, expect, it } from "vitest";
+import { project } from "./ar/projection";
+import { deadzone } from "./input/motion";
+import { XRMaster } from "./input/xr";
+import { identity4, position } from "./robot/math";
+import { PredictedArm, applyIncrement, forwardKinematics, type RobotModelInfo } from "./robot/model";
+import { Rolling } from "./stats";
+
+const PUMA: RobotModelInfo = {
+  dh: [
+    { d: 0.67183, a: 0, alpha: Math.PI / 2 },
+    { d: 0, a: 0.4318, alpha: 0 },
+    { d: 0.15005, a: 0.0203, alpha: -Math.PI / 2 },
+    { d: 0.4318, a: 0, alpha: Math.PI / 2 },
+    { d: 0, a: 0, alpha: -Math.PI / 2 },
+    { d: 0, a: 0, alpha: 0 },
+  ],
+  tool: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.1], [0, 0, 0, 1]],
+};
+const near = (a: number[], b: number[], tol = 1e-4) => a.forEach((v, i) => expect(Math.abs(v - (b[i] ?? NaN))).toBeLessThan(tol));
+
+describe("robot model", () => {
+  it("matches the server's reference poses", () => {
+    const noTool = { ...PUMA, tool: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]] };
+    near(position(forwardKinematics(noTool, [0, 0, 0, 0, 0, 0])), [0.4521, -0.15005, 1.1036]);
+    near(position(forwardKinematics(noTool, [0, Math.PI / 4, -Math.PI, 0, Math.PI / 4, 0])), [0.5963, -0.15005, 0.6575]);
+    near(position(forwardKinematics(PUMA, [0, 0, 0, 0, 0, 0])), [0.4521, -0.15005, 1.2036]);
+  });
+
+  it("applies increments in the base, tool and wrist frames", () => {
+    const T = forwardKinematics(PUMA, [0, Math.PI / 4, -Math.PI, 0, Math.PI / 4, 0]);
+    const p = position(T);
+    near(position(applyIncrement(PUMA, T, [0.01, 0, 0], [0, 0, 0], "base")), [p[0] + 0.01, p[1], p[2]], 1e-12);
+    // A rotation about the tool axis keeps the tool point, but swings it about the wrist.
+    near(position(applyIncrement(PUMA, T, [0, 0, 0], [0.3, 0, 0], "tool")), p, 1e-12);
+    const swung = position(applyIncrement(PUMA, T, [0, 0, 0], [0.3, 0, 0], "wrist"));
+    expect(Math.hypot(swung[0] - p[0], swung[1] - p[1], swung[2] - p[2])).toBeCloseTo(2 * 0.1 * Math.sin(0.15), 6);
+  });
+
+  it("predicts from commands and snaps back to the reported arm when idle", () => {
+    const arm = new PredictedArm(PUMA, 300);
+    const q = [0, Math.PI / 4, -Math.PI, 0, Math.PI / 4, 0];
+    arm.report(q, false, 0);
+    const p0 = position(arm.pose!);
+    arm.commandCartesian([0.02, 0, 0], [0, 0, 0], "base", 1000);
+    near(position(arm.pose!), [p0[0] + 0.02, p0[1], p0[2]], 1e-12);
+    arm.report(q, true, 1100); // still moving: keep the prediction
+    near(position(arm.pose!), [p0[0] + 0.02, p0[1], p0[2]], 1e-12);
+    arm.report(q, false, 1500); // settled: trust the robot
+    near(position(arm.pose!), p0, 1e-12);
+  });
+});
+
+describe("inputs and projection", () => {
+  it("projects with a 3×4 matrix and refuses points behind the camera", () => {
+    const P = [[100, 0, 50, 0], [0, 100, 40, 0], [0, 0, 1, 0]];
+    expect(project(P, [0.1, 0.2, 1])).toEqual([60, 60]);
+    expect(project(P, [0, 0, -1])).toBeNull();
+    expect(position(identity4())).toEqual([0, 0, 0]);
+  });
+
+  it("applies a dead-zone and rescales beyond it", () => {
+    expect(deadzone(0.1, 0.15)).toBe(0);
+    expect(deadzone(1, 0.15)).toBe(1);
+    expect(deadzone(-0.575, 0.15)).toBeCloseTo(-0.5);
+  });
+
+  it("XR clutch re-anchors and ignores tracking jumps", () => {
+    const xr = new XRMaster();
+    const q: [number, number, number, number] = [0, 0, 0, 1];
+    expect(xr.update(true, [0, 1, 0], q)).toBeNull(); // anchor
+    near(xr.update(true, [0, 1, -0.01], q)!.dX, [0.01, 0, 0], 1e-12); // forward in XR is +x for the robot
+    expect(xr.update(true, [0, 2, 0], q)).toBeNull(); // a 1 m jump
+    expect(xr.update(false, [0, 2, 0], q)).toBeNull();
+  });
+
+  it("keeps rolling percentiles", () => {
+    const r = new Rolling(5);
+    [5, 1, 4, 2, 3, 100].forEach((v) => r.add(v));
+    expect(r.count).toBe(5);
+    expect(r.percentile(50)).toBe(3); // the oldest (5) fell out: 1 2 3 4 100
+  });
+});
