@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 web/node_modules/.installed: web/package.json web/package-lock.json
-	cd web && npm ci --no-audit --no-fund --loglevel=error
+	cd web && npm install --no-audit --no-fund --loglevel=error  # (npm ci trips over optional native bindings)
 	@touch $@
 
 web/dist/index.html: web/node_modules/.installed $(WEB_SOURCES)
