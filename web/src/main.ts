@@ -115,12 +115,12 @@ async function main(): Promise<void> {
   }).catch((e: Error) => message(`video: ${e.message}`, true));
   view.onFrame = (meta) => {
     videoInterval.tick(meta.expectedDisplayTime);
-    const code = readTimecode(video);
-    if (code !== null && client.bestRtt < Infinity) {
+    void view.readTimecode().then((code) => {
+      if (code === null || client.bestRtt === Infinity) return;
       const presented = meta.expectedDisplayTime / 1000 + client.offset; // on the server's clock
-      const delta = (Math.round(presented / 1e-4) - code) % 2 ** 32;
-      glass.add(((delta + 2 ** 32) % 2 ** 32) / 10);
-    }
+      const delta = (((Math.round(presented / 1e-4) - code) % 2 ** 32) + 2 ** 32) % 2 ** 32;
+      glass.add(delta / 10); // 0.1 ms units → ms
+    });
   };
 
   // ---- inputs
@@ -228,23 +228,6 @@ async function main(): Promise<void> {
   Object.assign(window, {
     telerobot: { view, client, glass, videoInterval, ball, arm, get state() { return state; }, setMode: (m: ViewMode) => { modeSelect.value = m; view.setMode(m); } },
   });
-}
-
-const probe = document.createElement("canvas");
-function readTimecode(video: HTMLVideoElement): number | null {
-  // The capture time drawn as 32 blocks of 16 px at (8, 8) in the left image.
-  probe.width = 32 * 16;
-  probe.height = 1;
-  const ctx = probe.getContext("2d", { willReadFrequently: true });
-  if (!ctx || video.videoWidth === 0) return null;
-  ctx.drawImage(video, 8, 16, 32 * 16, 1, 0, 0, 32 * 16, 1);
-  const px = ctx.getImageData(0, 0, 32 * 16, 1).data;
-  let value = 0;
-  for (let i = 0; i < 32; i++) {
-    const o = (i * 16 + 8) * 4;
-    value = value * 2 + ((px[o] ?? 0) > 128 ? 1 : 0);
-  }
-  return value;
 }
 
 function drawHistogram(canvas: HTMLCanvasElement, stats: Rolling, max: number, label: string): void {
