@@ -112,16 +112,10 @@ async function main(): Promise<void> {
   connectVideo(base, (stream) => {
     video.srcObject = stream;
     void video.play();
+    const track = stream.getVideoTracks()[0];
+    if (track) void measureGlass(track.clone(), client, glass);
   }).catch((e: Error) => message(`video: ${e.message}`, true));
-  view.onFrame = (meta) => {
-    videoInterval.tick(meta.expectedDisplayTime);
-    void view.readTimecode().then((code) => {
-      if (code === null || client.bestRtt === Infinity) return;
-      const presented = meta.expectedDisplayTime / 1000 + client.offset; // on the server's clock
-      const delta = (((Math.round(presented / 1e-4) - code) % 2 ** 32) + 2 ** 32) % 2 ** 32;
-      glass.add(delta / 10); // 0.1 ms units → ms
-    });
-  };
+  view.onFrame = (meta) => videoInterval.tick(meta.expectedDisplayTime);
 
   // ---- inputs
   const gamepad = new GamepadInput();
@@ -228,6 +222,41 @@ async function main(): Promise<void> {
   Object.assign(window, {
     telerobot: { view, client, glass, videoInterval, ball, arm, get state() { return state; }, setMode: (m: ViewMode) => { modeSelect.value = m; view.setMode(m); } },
   });
+}
+
+/** Capture → decoded frame in this page, for every frame: each decoded frame carries its
+ * capture time as a timecode (32 blocks of 16 px at (8, 8) in the left image), read from
+ * the decoder's own frame (a 512×2 luma copy; no GPU read-back), on the server's clock
+ * through the ping offset. */
+async function measureGlass(track: MediaStreamTrack, client: RealtimeClient, glass: Rolling): Promise<void> {
+  const Processor = (window as unknown as { MediaStreamTrackProcessor?: new (i: { track: MediaStreamTrack }) => { readable: ReadableStream<VideoFrame> } })
+    .MediaStreamTrackProcessor;
+  if (!Processor) return; // not Chromium: the panel shows no glass-to-glass figure
+  const reader = new Processor({ track }).readable.getReader();
+  const rect = { x: 8, y: 16, width: 512, height: 2 };
+  for (;;) {
+    const { value: frame, done } = await reader.read();
+    if (done || !frame) return;
+    const now = performance.now() / 1000;
+    try {
+      const buffer = new Uint8Array(frame.allocationSize({ rect }));
+      const layout = await frame.copyTo(buffer, { rect });
+      const rgb = (frame.format ?? "").startsWith("RGB") || (frame.format ?? "").startsWith("BGR");
+      let code = 0;
+      for (let i = 0; i < 32; i++) {
+        const x = i * 16 + 8;
+        code = code * 2 + ((buffer[(layout[0]?.offset ?? 0) + (rgb ? x * 4 + 1 : x)] ?? 0) > 128 ? 1 : 0);
+      }
+      if (client.bestRtt < Infinity) {
+        const wrap = 2 ** 32;
+        const server = now + client.offset;
+        const behind = ((((Math.round(server / 1e-4) - code) % wrap) + wrap) % wrap) / 10; // ms
+        if (behind < 5000) glass.add(behind);
+      }
+    } finally {
+      frame.close();
+    }
+  }
 }
 
 function drawHistogram(canvas: HTMLCanvasElement, stats: Rolling, max: number, label: string): void {

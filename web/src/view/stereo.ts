@@ -187,6 +187,12 @@ export class StereoView {
     }
   }
 
+  /** Upload the video's current frame and draw it now (e.g. after pausing). */
+  redraw(): void {
+    this.texture.needsUpdate = true;
+    this.render();
+  }
+
   render(): void {
     this.layout();
     this.renderer.render(this.scene, this.camera);
@@ -200,32 +206,6 @@ export class StereoView {
       this.onFrame?.(metadata);
       this.scheduleFrame();
     });
-  }
-
-  /** The capture-time counter drawn in the current frame (see drivers/camera/timecode.py):
-   * 32 blocks of 16 px at (8, 8) in the left image. Read with WebCodecs from the decoded
-   * frame (a 512×2 luma copy), not through the GPU: a read-back would stall rendering. */
-  async readTimecode(): Promise<number | null> {
-    if (this.video.videoWidth === 0 || typeof VideoFrame === "undefined") return null;
-    const frame = new VideoFrame(this.video);
-    try {
-      const rect = { x: 8, y: 16, width: 512, height: 2 };
-      const size = frame.allocationSize({ rect });
-      const buffer = new Uint8Array(size);
-      const layout = await frame.copyTo(buffer, { rect });
-      const format = frame.format ?? "";
-      const offset = layout[0]?.offset ?? 0;
-      const rgb = format.startsWith("RGB") || format.startsWith("BGR");
-      let value = 0;
-      for (let i = 0; i < 32; i++) {
-        const x = i * 16 + 8;
-        const level = rgb ? (buffer[offset + x * 4 + 1] ?? 0) : (buffer[offset + x] ?? 0); // luma, or green
-        value = value * 2 + (level > 128 ? 1 : 0);
-      }
-      return value;
-    } finally {
-      frame.close();
-    }
   }
 
   async enterXR(): Promise<void> {
