@@ -17,7 +17,10 @@ from drivers.sim.workcell import Workcell, default_workcell
 
 def build_workcell(settings: Settings) -> Workcell:
     return default_workcell(
-        camera_distance=settings.camera_distance, baseline=settings.camera_baseline
+        camera_distance=settings.camera_distance,
+        baseline=settings.camera_baseline,
+        width=settings.video_width,  # the cameras' ground truth is for the video's size
+        height=settings.video_height,
     )
 
 

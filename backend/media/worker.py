@@ -45,16 +45,11 @@ def build_camera(settings: Settings, probe: Callable[[], ArmSnapshot]) -> Stereo
         from drivers.camera.opencv import OpenCVSideBySideCamera
 
         return OpenCVSideBySideCamera(devices[0], width=w, height=h, fps=fps)
+    from backend.devices import build_workcell
     from drivers.camera.sim import SimStereoCamera
     from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
-    from drivers.sim.workcell import default_workcell
 
-    cell = default_workcell(
-        camera_distance=settings.camera_distance,
-        baseline=settings.camera_baseline,
-        width=w,
-        height=h,
-    )
+    cell = build_workcell(settings)
     return SimStereoCamera(
         cell, probe, Puma560Kinematics(tool_transform(settings.tool_length)), fps=fps
     )

@@ -96,8 +96,19 @@ async function main(): Promise<void> {
   client.connect();
   const hasControl = () => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0;
 
-  $("take").onclick = () => client.lease(((state?.flags ?? 0) & StateFlags.SOMEONE_HAS_CONTROL) ? LeaseAction.TAKE_OVER : LeaseAction.TAKE);
-  $("release").onclick = () => client.lease(LeaseAction.RELEASE);
+  // Heartbeats start the moment we ask for control, before a STATE confirms it: the
+  // dead-man allows 150 ms after the take.
+  let wantControl = false;
+  $("take").onclick = () => {
+    wantControl = true;
+    client.lease(((state?.flags ?? 0) & StateFlags.SOMEONE_HAS_CONTROL) ? LeaseAction.TAKE_OVER : LeaseAction.TAKE);
+    client.heartbeat();
+    setTimeout(() => (wantControl = hasControl()), 2000); // refused or lapsed: stop asking
+  };
+  $("release").onclick = () => {
+    wantControl = false;
+    client.lease(LeaseAction.RELEASE);
+  };
   $("estop").onclick = () => client.estop();
   $("reset").onclick = () => client.reset();
   $<HTMLInputElement>("token").onchange = (e) => {
@@ -138,6 +149,16 @@ async function main(): Promise<void> {
     }
   };
 
+  // The dead-man heartbeat runs on its own timer (rendering may be slow, a heartbeat
+  // must not be): 20 Hz while we hold control.
+  let lastSent = 0;
+  setInterval(() => {
+    // (A background tab's timers slow to 1 Hz, so its lease lapses: as it should.)
+    if ((wantControl || hasControl()) && performance.now() - lastSent > 40) {
+      client.heartbeat();
+    }
+  }, 50);
+
   let last = performance.now();
   const tick = () => {
     const now = performance.now();
@@ -152,15 +173,12 @@ async function main(): Promise<void> {
     const speed = Number($<HTMLInputElement>("speed").value);
     const moving = cmd.linear.some((v) => v !== 0) || cmd.angular.some((v) => v !== 0);
     $("input-state").textContent = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
-    if (hasControl()) {
-      if (cmd.deadman && moving) {
-        const dX = cmd.linear.map((v) => v * MAX_LINEAR * speed * dt) as Vec3;
-        const rv = cmd.angular.map((v) => v * MAX_ANGULAR * speed * dt) as Vec3;
-        client.cartesian(dX, rv, FRAMES[frameName]);
-        arm.commandCartesian(dX, rv, frameName, now);
-      } else {
-        client.heartbeat();
-      }
+    if (hasControl() && cmd.deadman && moving) {
+      const dX = cmd.linear.map((v) => v * MAX_LINEAR * speed * dt) as Vec3;
+      const rv = cmd.angular.map((v) => v * MAX_ANGULAR * speed * dt) as Vec3;
+      client.cartesian(dX, rv, FRAMES[frameName]);
+      arm.commandCartesian(dX, rv, frameName, now);
+      lastSent = now;
     }
     const force = lastForce ? Math.hypot(...lastForce.values.slice(0, 3)) : 0;
     if ($<HTMLInputElement>("rumble").checked) gamepad.rumble(pad.pad, force / safety.force_limit_n);

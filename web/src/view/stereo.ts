@@ -161,7 +161,8 @@ export class StereoView {
       m.uniforms.showBall!.value = show && ball.left !== null;
       if (ball.left) (m.uniforms.ballL!.value as THREE.Vector2).set(...ball.left);
       if (ball.right) (m.uniforms.ballR!.value as THREE.Vector2).set(...ball.right);
-      (m.uniforms.ballColor!.value as THREE.Color).set(colour);
+      // Our pixels bypass colour management, so the picked colour is used as it is.
+      (m.uniforms.ballColor!.value as THREE.Color).setStyle(colour, THREE.LinearSRGBColorSpace);
       m.uniforms.radius!.value = radius;
     }
   }
