@@ -126,7 +126,7 @@ async function main(): Promise<void> {
     const track = stream.getVideoTracks()[0];
     if (track) void measureGlass(track.clone(), client, glass);
   }).catch((e: Error) => message(`video: ${e.message}`, true));
-  view.onFrame = (meta) => videoInterval.tick(meta.expectedDisplayTime);
+  view.onFrame = () => videoInterval.tick(performance.now());
 
   // ---- inputs
   const gamepad = new GamepadInput();
@@ -225,7 +225,7 @@ async function main(): Promise<void> {
     $("latency").textContent =
       `glass-to-glass p50 ${glass.percentile(50).toFixed(0)} ms · command p50 ${client.commandLatency.percentile(50).toFixed(2)} ms · ` +
       `video ${(1000 / videoInterval.percentile(50)).toFixed(1)} fps · force ${client.forceInterval.percentile(50).toFixed(2)} ms`;
-    drawHistogram($<HTMLCanvasElement>("hist-force"), client.forceInterval, 5, "force inter-arrival (0–5 ms)");
+    drawHistogram($<HTMLCanvasElement>("hist-force"), client.forceInterval, 30, "force message inter-arrival (0–30 ms)");
     drawHistogram($<HTMLCanvasElement>("hist-state"), client.stateInterval, 60, "state inter-arrival (0–60 ms)");
     drawHistogram($<HTMLCanvasElement>("hist-video"), videoInterval, 100, "video inter-arrival (0–100 ms)");
   }, 200);

@@ -1,0 +1,104 @@
+"""The stereo video in a real browser: Debian's headless Chromium receives it from
+``telerobot serve`` (simulation, 2×1280×720 at 30 fps by default) for 60 s.
+
+    python -m bench.browser [--json] [--seconds 60] [--width 1280 --height 720]
+
+fps: video frames the page rendered per second (requestVideoFrameCallback).
+Latency: capture → the decoded frame in the page, for every frame, from the timecode
+in the picture (read from the decoder's own frame) on the server's clock through the
+page's ping clock sync. Headless Chromium presents frames without a display, so
+"presented" is not measurable here; a real display adds up to one refresh.
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+import tempfile
+import time
+
+import numpy as np
+from playwright.sync_api import sync_playwright
+
+from bench.common import emit, machine, parser, telerobot_process
+
+ARGS = [
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--autoplay-policy=no-user-gesture-required",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--disable-gpu-vsync",
+    "--disable-frame-rate-limit",
+]
+
+
+def main() -> None:
+    p = parser(__doc__ or "")
+    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--width", type=int, default=1280)
+    p.add_argument("--height", type=int, default=720)
+    args = p.parse_args()
+    token = secrets.token_hex(16)
+    env = {
+        "TELEROBOT_VIDEO": "true",
+        "TELEROBOT_VIDEO_WIDTH": str(args.width),
+        "TELEROBOT_VIDEO_HEIGHT": str(args.height),
+        "TELEROBOT_OPERATOR_TOKEN": token,
+    }
+    with (
+        tempfile.TemporaryDirectory() as state,
+        telerobot_process(
+            "serve",
+            "--http-port",
+            "0",
+            "--state-dir",
+            state,
+            wait_for=r"(http://localhost:\d+/)",
+            env=env,
+        ) as (_, m),
+        sync_playwright() as pw,
+    ):
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        page = browser.new_page(viewport={"width": 1600, "height": 900})
+        page.goto(m.group(1) + f"?token={token}")
+        page.wait_for_function(
+            "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
+        )
+        time.sleep(3)  # past the first keyframe and the clock sync
+        f0, n0, t0 = (
+            page.evaluate("window.telerobot.view.frames"),
+            page.evaluate("window.telerobot.glass.count"),
+            time.monotonic(),
+        )
+        latencies: list[float] = []
+        while time.monotonic() - t0 < args.seconds:
+            time.sleep(min(5.0, args.seconds))
+            # The page keeps the last 900 figures; collect them in pieces, without repeats.
+            snap = page.evaluate("window.telerobot.glass.snapshot()")
+            count = page.evaluate("window.telerobot.glass.count")
+            latencies += (
+                snap[-min(len(snap), max(0, count - n0 - len(latencies))) :] if count > n0 else []
+            )
+        frames = page.evaluate("window.telerobot.view.frames") - f0
+        elapsed = time.monotonic() - t0
+        browser.close()
+    lat = np.array(latencies)
+    figures = {
+        "fps": frames / elapsed,
+        "latency_p50_ms": float(np.percentile(lat, 50)),
+        "latency_p99_ms": float(np.percentile(lat, 99)),
+        "latency_samples": len(lat),
+        "width": args.width,
+        "height": args.height,
+    }
+    emit(figures, False)
+    if args.json:
+        print(json.dumps({**figures, "machine": machine()}))
+
+
+if __name__ == "__main__":
+    main()
