@@ -25,6 +25,9 @@ ENV = {
     "TELEROBOT_VIDEO_FPS": "20",
     "TELEROBOT_OPERATOR_TOKEN": TOKEN,
     "TELEROBOT_HOME_POSE": "qn",
+    # The longest dead-man the spec allows (stop within 200 ms): a software-rendered
+    # page on this loaded 2-core machine can stall its timers for 150 ms.
+    "TELEROBOT_DEADMAN_TIMEOUT_S": "0.18",
 }
 ARGS = [
     "--no-sandbox",
@@ -71,12 +74,6 @@ def server() -> Iterator[str]:
     yield from _serve()
 
 
-@pytest.fixture
-def fresh_server() -> Iterator[str]:
-    """A server no earlier page has streamed from (closed pages' peers linger a while)."""
-    yield from _serve()
-
-
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Browser]:
     with sync_playwright() as p:
@@ -96,6 +93,69 @@ def open_page(browser: Browser, base: str, token: str = TOKEN) -> tuple[Page, li
         "window.telerobot && window.telerobot.view.frames > 10", timeout=30_000, polling=100
     )
     return page, errors
+
+
+def wait(page: Page, expression: str, timeout: float = 10_000) -> None:
+    """Wait for ``expression`` in the page; on timeout, say what the page said."""
+    try:
+        page.wait_for_function(expression, timeout=timeout, polling=100)
+    except Exception:
+        said = page.locator("#messages").inner_text()
+        flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
+        raise AssertionError(
+            f"{expression} never held; flags {flags}; page messages:\n{said}"
+        ) from None
+
+
+def target(server: str) -> list[float]:
+    return httpx.get(server + "api/v1/robot/state").json()["target_joints"]
+
+
+def test_gamepad_dead_man_drives_releasing_stops_estop_stops_observer_cannot(
+    browser: Browser, server: str
+) -> None:
+    # First in this file: no earlier page has streamed from this server yet.
+    page, errors = open_page(browser, server)
+    page.click("#take")
+    wait(page, "(window.telerobot.state.flags & 1) !== 0")
+    start = target(server)
+    page.evaluate("window.__pad.axes[1] = -0.8")  # stick forward, dead-man not held
+    page.wait_for_timeout(500)
+    assert target(server) == start  # nothing moves without the dead-man
+    page.evaluate("window.__pad.pressed.add(5)")
+    deadline = time.monotonic() + 10
+    while target(server) == start:  # the dead-man is held: the arm goes
+        assert time.monotonic() < deadline, "the arm did not move with the dead-man held"
+        time.sleep(0.1)
+    page.evaluate("window.__pad.pressed.delete(5)")  # release: the arm stops
+    page.wait_for_timeout(300)
+    held = target(server)
+    page.wait_for_timeout(600)
+    assert target(server) == held
+    page.click("#estop")
+    wait(page, "(window.telerobot.state.flags & 4) !== 0")
+    page.evaluate("window.__pad.pressed.add(5)")
+    page.wait_for_timeout(600)
+    assert target(server) == held  # e-stop latched: nothing moves
+    assert httpx.get(server + "api/v1/safety").json()["estop"] is True
+    page.evaluate("window.__pad.pressed.delete(5)")
+    page.click("#reset")
+    wait(page, "(window.telerobot.state.flags & 4) === 0")
+    if page.locator("#release").is_visible():
+        page.click("#release")
+    assert errors == []
+    page.close()  # one video page at a time on this machine
+    # An observer page: no take-control button, and its dead-man moves nothing.
+    observer, errors = open_page(browser, server, token="")
+    observer.evaluate("localStorage.removeItem('telerobot.token')")
+    assert observer.locator("#take").is_hidden()
+    assert "observer" in (observer.locator("#role").text_content() or "")
+    before = target(server)
+    observer.evaluate("window.__pad.axes[1] = -0.8; window.__pad.pressed.add(5)")
+    observer.wait_for_timeout(600)
+    assert target(server) == before
+    assert errors == []
+    observer.close()
 
 
 def test_page_plays_the_stereo_video_and_reports_glass_to_glass_latency(
@@ -175,69 +235,6 @@ def test_the_ar_ball_sits_where_the_ground_truth_camera_sees_the_gripper(
     for rgba in colours:
         assert rgba[:3] == [0, 255, 102], (colours, ball)  # #00ff66
     page.close()
-
-
-def wait(page: Page, expression: str, timeout: float = 10_000) -> None:
-    """Wait for ``expression`` in the page; on timeout, say what the page said."""
-    try:
-        page.wait_for_function(expression, timeout=timeout, polling=100)
-    except Exception:
-        said = page.locator("#messages").inner_text()
-        flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
-        raise AssertionError(
-            f"{expression} never held; flags {flags}; page messages:\n{said}"
-        ) from None
-
-
-def target(server: str) -> list[float]:
-    return httpx.get(server + "api/v1/robot/state").json()["target_joints"]
-
-
-def test_gamepad_dead_man_drives_releasing_stops_estop_stops_observer_cannot(
-    browser: Browser, fresh_server: str
-) -> None:
-    server = fresh_server
-    page, errors = open_page(browser, server)
-    page.click("#take")
-    wait(page, "(window.telerobot.state.flags & 1) !== 0")
-    start = target(server)
-    page.evaluate("window.__pad.axes[1] = -0.8")  # stick forward, dead-man not held
-    page.wait_for_timeout(500)
-    assert target(server) == start  # nothing moves without the dead-man
-    page.evaluate("window.__pad.pressed.add(5)")
-    deadline = time.monotonic() + 10
-    while target(server) == start:  # the dead-man is held: the arm goes
-        assert time.monotonic() < deadline, "the arm did not move with the dead-man held"
-        time.sleep(0.1)
-    page.evaluate("window.__pad.pressed.delete(5)")  # release: the arm stops
-    page.wait_for_timeout(300)
-    held = target(server)
-    page.wait_for_timeout(600)
-    assert target(server) == held
-    page.click("#estop")
-    wait(page, "(window.telerobot.state.flags & 4) !== 0")
-    page.evaluate("window.__pad.pressed.add(5)")
-    page.wait_for_timeout(600)
-    assert target(server) == held  # e-stop latched: nothing moves
-    assert httpx.get(server + "api/v1/safety").json()["estop"] is True
-    page.evaluate("window.__pad.pressed.delete(5)")
-    page.click("#reset")
-    wait(page, "(window.telerobot.state.flags & 4) === 0")
-    if page.locator("#release").is_visible():
-        page.click("#release")
-    assert errors == []
-    page.close()  # one video page at a time on this machine
-    # An observer page: no take-control button, and its dead-man moves nothing.
-    observer, errors = open_page(browser, server, token="")
-    observer.evaluate("localStorage.removeItem('telerobot.token')")
-    assert observer.locator("#take").is_hidden()
-    assert "observer" in (observer.locator("#role").text_content() or "")
-    before = target(server)
-    observer.evaluate("window.__pad.axes[1] = -0.8; window.__pad.pressed.add(5)")
-    observer.wait_for_timeout(600)
-    assert target(server) == before
-    assert errors == []
-    observer.close()
 
 
 @pytest.mark.parametrize(
