@@ -21,5 +21,10 @@ export async function connectVideo(base: string, onStream: (stream: MediaStream)
   const body = await response.json();
   if (!response.ok) throw new Error(body.detail ?? `video offer refused (${response.status})`);
   await pc.setRemoteDescription({ sdp: body.sdp, type: body.type });
+  // Leaving the page frees the server's peer at once, not after ICE gives up.
+  window.addEventListener("pagehide", () => {
+    pc.close();
+    void fetch(`${base}api/v1/webrtc/${body.peer_id}`, { method: "DELETE", keepalive: true });
+  });
   return pc;
 }
