@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint typecheck unit browser-deps web web-check bench clean
+.PHONY: run test test-web lint typecheck unit browser-deps web web-check bench clean
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/vite.config.ts web/tsconfig.json
 
@@ -30,6 +30,10 @@ run: $(STAMP) web
 
 ## make test: install what is missing, then lint, type-check and run every test (browser included)
 test: $(STAMP) browser-deps lint typecheck web-check web unit
+
+## make test-web: the operator page with live video in Chromium (issue 5; not yet stable in the full run)
+test-web: $(STAMP) browser-deps web
+	$(BIN)/python -m pytest -q -m heavy_browser tests/test_web.py
 
 web-check: web/node_modules/.installed
 	cd web && npm run --silent lint && npm run --silent typecheck && npm run --silent test
