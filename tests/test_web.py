@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page, sync_playwright
 
+from bench.browser import ARGS  # the same Chromium flags as the browser benchmark
 from tests.servers import telerobot
 from tests.test_browser import CHROMIUM
 
@@ -33,18 +34,6 @@ ENV = {
     # page on this loaded 2-core machine can stall its timers for 150 ms.
     "TELEROBOT_DEADMAN_TIMEOUT_S": "0.18",
 }
-ARGS = [
-    "--no-sandbox",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--autoplay-policy=no-user-gesture-required",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--disable-gpu-vsync",
-    "--disable-frame-rate-limit",
-]
 SHOTS = Path(__file__).resolve().parents[1] / "docs" / "img"
 
 # A gamepad the test holds: standard mapping, R1 (button 5) is the dead-man.
