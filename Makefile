@@ -31,9 +31,9 @@ run: $(STAMP) web
 ## make test: install what is missing, then lint, type-check and run every test (browser included)
 test: $(STAMP) browser-deps lint typecheck web-check web unit
 
-## make test-web: the operator page with live video in Chromium (issue 5; not yet stable in the full run)
+## make test-web: only the browser tests (the operator page with live video, the status page)
 test-web: $(STAMP) browser-deps web
-	$(BIN)/python -m pytest -q -m heavy_browser tests/test_web.py
+	$(BIN)/python -m pytest -q -m browser
 
 web-check: web/node_modules/.installed
 	cd web && npm run --silent lint && npm run --silent typecheck && npm run --silent test

@@ -3,12 +3,15 @@ import { project, type Projection } from "./ar/projection";
 import { combine } from "./input/motion";
 import { GamepadInput } from "./input/gamepad";
 import { KeyboardInput } from "./input/keyboard";
+import { Rumble, rumbleStrength } from "./input/rumble";
+import { XRMaster } from "./input/xr";
 import { position, type Vec3 } from "./robot/math";
 import { PredictedArm, type FrameName, type RobotModelInfo } from "./robot/model";
 import { Rolling } from "./stats";
 import { type ForceSample } from "./transport/codec";
 import { Frame, LeaseAction, StateFlags } from "./transport/messages";
-import { RealtimeClient, type RobotState } from "./transport/realtime";
+import { RealtimeLink } from "./transport/link";
+import type { RobotState } from "./transport/realtime";
 import { connectVideo } from "./transport/video";
 import { MODES, StereoView, type ViewMode } from "./view/stereo";
 
@@ -77,7 +80,7 @@ async function main(): Promise<void> {
   $("xr").onclick = () => view.enterXR().catch((e: Error) => message(e.message, true));
 
   // ---- real-time channel
-  const client = new RealtimeClient(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, token, {
+  const client = new RealtimeLink(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, token, {
     state: (s) => {
       state = s;
       arm.report(s.joints, s.status === "MOVING", performance.now());
@@ -96,17 +99,15 @@ async function main(): Promise<void> {
   client.connect();
   const hasControl = () => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0;
 
-  // Heartbeats start the moment we ask for control, before a STATE confirms it: the
-  // dead-man allows 150 ms after the take.
-  let wantControl = false;
+  // Heartbeats (sent by the realtime worker) start the moment we ask for control,
+  // before a STATE confirms it, and go on while we hold it.
   $("take").onclick = () => {
-    wantControl = true;
     client.lease(((state?.flags ?? 0) & StateFlags.SOMEONE_HAS_CONTROL) ? LeaseAction.TAKE_OVER : LeaseAction.TAKE);
-    client.heartbeat();
-    setTimeout(() => (wantControl = hasControl()), 2000); // refused or lapsed: stop asking
+    client.wantControl(true);
+    setTimeout(() => client.wantControl(false), 2000); // from then on: only while we hold it
   };
   $("release").onclick = () => {
-    wantControl = false;
+    client.wantControl(false);
     client.lease(LeaseAction.RELEASE);
   };
   $("estop").onclick = () => client.estop();
@@ -149,17 +150,44 @@ async function main(): Promise<void> {
     }
   };
 
-  // The dead-man heartbeat runs on its own timer (rendering may be slow, a heartbeat
-  // must not be): 20 Hz while we hold control.
-  let lastSent = 0;
-  setInterval(() => {
-    // (A background tab's timers slow to 1 Hz, so its lease lapses: as it should.)
-    if ((wantControl || hasControl()) && performance.now() - lastSent > 40) {
-      client.heartbeat();
+  // ---- rumble in proportion to the contact force (gamepad and XR controllers)
+  const rumble = { pad: new Rumble(), xr: new Rumble() }; // each paced on its own
+  const rumbleBox = $<HTMLInputElement>("rumble");
+  const rumbleSwitch = () => (rumble.pad.enabled = rumble.xr.enabled = rumbleBox.checked);
+  rumbleSwitch();
+  rumbleBox.onchange = rumbleSwitch;
+  const contactStrength = () =>
+    lastForce ? rumbleStrength(Math.hypot(...lastForce.values.slice(0, 3)), safety.force_limit_n) : 0;
+
+  // ---- a WebXR controller as a 6-DoF master: while its grip (squeeze) is held, its
+  // motion moves the gripper, scaled by the speed setting; the grip is the dead-man.
+  const xrMaster = new XRMaster();
+  view.onXRFrame = (frame, space) => {
+    const sources = Array.from(frame.session.inputSources).filter((s) => s.gripSpace && s.gamepad);
+    const source = sources.find((s) => s.handedness === "right") ?? sources[0];
+    if (!source?.gripSpace || !source.gamepad) {
+      xrMaster.update(false, [0, 0, 0], [0, 0, 0, 1]);
+      return;
     }
-  }, 50);
+    const pose = frame.getPose(source.gripSpace, space);
+    // xr-standard mapping: button 1 is the squeeze. An emulated (lost) position is no grip.
+    const gripping = (source.gamepad.buttons[1]?.pressed ?? false) && !!pose && !pose.emulatedPosition;
+    const p = pose?.transform.position ?? { x: 0, y: 0, z: 0 };
+    const o = pose?.transform.orientation ?? { x: 0, y: 0, z: 0, w: 1 };
+    const delta = xrMaster.update(gripping, [p.x, p.y, p.z], [o.x, o.y, o.z, o.w]);
+    const now = performance.now();
+    if (delta && hasControl()) {
+      const speed = Number($<HTMLInputElement>("speed").value);
+      const dX = delta.dX.map((v) => v * speed) as Vec3;
+      const rv = delta.rotvec.map((v) => v * speed) as Vec3;
+      client.cartesian(dX, rv, Frame.BASE);
+      arm.commandCartesian(dX, rv, "base", now);
+    }
+    rumble.xr.drive(now, contactStrength(), [source.gamepad]);
+  };
 
   let last = performance.now();
+  let shownInputState = "";
   const tick = () => {
     const now = performance.now();
     const dt = Math.min(0.1, (now - last) / 1000);
@@ -172,16 +200,17 @@ async function main(): Promise<void> {
     const cmd = combine(pad.command, keyboard.read());
     const speed = Number($<HTMLInputElement>("speed").value);
     const moving = cmd.linear.some((v) => v !== 0) || cmd.angular.some((v) => v !== 0);
-    $("input-state").textContent = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
+    // Written only when it changes: a DOM write every animation frame costs a layout and
+    // a paint each time, which a software-rendered page cannot afford.
+    const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
+    if (inputState !== shownInputState) $("input-state").textContent = shownInputState = inputState;
     if (hasControl() && cmd.deadman && moving) {
       const dX = cmd.linear.map((v) => v * MAX_LINEAR * speed * dt) as Vec3;
       const rv = cmd.angular.map((v) => v * MAX_ANGULAR * speed * dt) as Vec3;
       client.cartesian(dX, rv, FRAMES[frameName]);
       arm.commandCartesian(dX, rv, frameName, now);
-      lastSent = now;
     }
-    const force = lastForce ? Math.hypot(...lastForce.values.slice(0, 3)) : 0;
-    if ($<HTMLInputElement>("rumble").checked) gamepad.rumble(pad.pad, force / safety.force_limit_n);
+    rumble.pad.drive(now, contactStrength(), [pad.pad]);
     updateBall();
     requestAnimationFrame(tick);
   };
@@ -238,7 +267,7 @@ async function main(): Promise<void> {
 
   // For tests and benchmarks (read-only figures and a few switches).
   Object.assign(window, {
-    telerobot: { view, client, glass, videoInterval, ball, arm, get state() { return state; }, setMode: (m: ViewMode) => { modeSelect.value = m; view.setMode(m); } },
+    telerobot: { view, client, glass, rumble, videoInterval, ball, arm, get state() { return state; }, get force() { return lastForce; }, setMode: (m: ViewMode) => { modeSelect.value = m; view.setMode(m); } },
   });
 }
 
@@ -246,7 +275,7 @@ async function main(): Promise<void> {
  * capture time as a timecode (32 blocks of 16 px at (8, 8) in the left image), read from
  * the decoder's own frame (a 512×2 luma copy; no GPU read-back), on the server's clock
  * through the ping offset. */
-async function measureGlass(track: MediaStreamTrack, client: RealtimeClient, glass: Rolling): Promise<void> {
+async function measureGlass(track: MediaStreamTrack, client: { bestRtt: number; offset: number }, glass: Rolling): Promise<void> {
   const Processor = (window as unknown as { MediaStreamTrackProcessor?: new (i: { track: MediaStreamTrack }) => { readable: ReadableStream<VideoFrame> } })
     .MediaStreamTrackProcessor;
   if (!Processor) return; // not Chromium: the panel shows no glass-to-glass figure

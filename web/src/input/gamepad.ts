@@ -32,13 +32,4 @@ export class GamepadInput {
       },
     };
   }
-
-  /** Rumble in proportion to the contact force (0…1). */
-  rumble(pad: Gamepad | null, strength: number): void {
-    const actuator = (pad as (Gamepad & { vibrationActuator?: { playEffect(t: string, p: object): Promise<unknown> } }) | null)
-      ?.vibrationActuator;
-    if (actuator && strength > 0.02) {
-      void actuator.playEffect("dual-rumble", { duration: 60, strongMagnitude: Math.min(1, strength), weakMagnitude: 0 });
-    }
-  }
 }

@@ -18,6 +18,8 @@ export interface RealtimeHandlers {
   event?: (text: string) => void;
   error?: (text: string, seq: number) => void;
   connection?: (up: boolean, why: string) => void;
+  /** A command's latency (ms): sent here → taken by the server's driver. */
+  ack?: (latencyMs: number) => void;
 }
 
 export class RealtimeClient {
@@ -63,8 +65,14 @@ export class RealtimeClient {
     return performance.now() / 1000;
   }
 
+  /** When the last message went out (ms, performance.now()). */
+  lastSent = 0;
+
   private send(data: ArrayBuffer): void {
-    if (this.ws?.readyState === WebSocket.OPEN) this.ws.send(data);
+    if (this.ws?.readyState === WebSocket.OPEN) {
+      this.ws.send(data);
+      this.lastSent = performance.now();
+    }
   }
 
   private nextSeq(): number {
@@ -150,7 +158,9 @@ export class RealtimeClient {
         const sent = this.sentAt.get(f.seq ?? 0);
         if (sent !== undefined) {
           this.sentAt.delete(f.seq ?? 0);
-          this.commandLatency.add(((f.server_time ?? 0) - this.offset - sent) * 1000);
+          const latency = ((f.server_time ?? 0) - this.offset - sent) * 1000;
+          this.commandLatency.add(latency);
+          this.handlers.ack?.(latency);
         }
         break;
       }

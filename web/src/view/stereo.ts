@@ -86,6 +86,9 @@ export class StereoView {
   mode: ViewMode = "side-by-side";
   frames = 0;
   onFrame: ((metadata: VideoFrameCallbackMetadata) => void) | null = null;
+  /** Each XR frame, before it is drawn: read the controllers here. */
+  onXRFrame: ((frame: XRFrame, space: XRReferenceSpace) => void) | null = null;
+  xrFrames = 0;
 
   constructor(
     readonly canvas: HTMLCanvasElement,
@@ -115,8 +118,14 @@ export class StereoView {
     this.scene.add(this.xrGroup);
     this.renderer.xr.addEventListener("sessionstart", () => this.setXR(true));
     this.renderer.xr.addEventListener("sessionend", () => this.setXR(false));
-    this.renderer.setAnimationLoop(() => {
-      if (this.renderer.xr.isPresenting) this.render();
+    // In XR the headset's frame loop draws (the page's own frames pause there); input
+    // from the XR controllers is read in the same frame, before drawing.
+    this.renderer.setAnimationLoop((_time, frame) => {
+      if (!this.renderer.xr.isPresenting) return;
+      const space = this.renderer.xr.getReferenceSpace();
+      if (frame && space) this.onXRFrame?.(frame, space);
+      this.xrFrames += 1;
+      this.render();
     });
     this.scheduleFrame();
   }
@@ -178,7 +187,10 @@ export class StereoView {
     const eyeH = this.video.videoHeight || 720;
     const wide = this.mode === "side-by-side" || this.mode === "cross-eye";
     const w = wide ? 2 * eyeW : eyeW;
-    if (this.canvas.width !== w || this.canvas.height !== eyeH) this.renderer.setSize(w, eyeH, false);
+    // (In XR the session's layer sizes the canvas.)
+    if (!this.renderer.xr.isPresenting && (this.canvas.width !== w || this.canvas.height !== eyeH)) {
+      this.renderer.setSize(w, eyeH, false);
+    }
     this.material.uniforms.mode!.value = MODE_INDEX[this.mode];
     (this.material.uniforms.eye!.value as THREE.Vector2).set(eyeW, eyeH);
     (this.material.uniforms.outSize!.value as THREE.Vector2).set(w, eyeH);

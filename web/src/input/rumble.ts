@@ -1,0 +1,38 @@
+// Rumble proportional to the contact force, on a gamepad (vibrationActuator) and on
+// XR controllers (hapticActuators). Each pulse is short and renewed every PERIOD_MS
+// while the force lasts, so the rumble ends within one period of leaving the contact.
+export const RUMBLE_PERIOD_MS = 50;
+const PULSE_MS = 60; // a little longer than the period: no gaps while the force lasts
+const FLOOR = 0.02; // below 2 % of the force limit: sensor noise, not contact
+
+/** 0…1 of the force limit; 0 under the noise floor or for a reading that is not a number. */
+export function rumbleStrength(forceN: number, limitN: number): number {
+  if (!(limitN > 0) || !Number.isFinite(forceN)) return 0;
+  const s = Math.min(1, Math.abs(forceN) / limitN);
+  return s > FLOOR ? s : 0;
+}
+
+type Vibrating = { vibrationActuator?: { playEffect(type: string, params: object): Promise<unknown> } | null };
+type Haptic = { hapticActuators?: readonly { pulse(value: number, duration: number): Promise<boolean> }[] };
+
+/** Paces the pulses: at most one every RUMBLE_PERIOD_MS. */
+export class Rumble {
+  private next = 0;
+  enabled = true;
+
+  /** Pulse ``pads`` (gamepads or XR controllers' gamepads) at ``strength`` if one is due. */
+  drive(now: number, strength: number, pads: readonly (Gamepad | null | undefined)[]): void {
+    if (!this.enabled || strength <= 0 || now < this.next) return;
+    this.next = now + RUMBLE_PERIOD_MS;
+    for (const pad of pads) {
+      // An XR controller's gamepad pulses (WebXR Gamepads Module); a gamepad plays an
+      // effect (Gamepad API). Some expose both names for one motor: use one, never both.
+      const h = (pad as (Gamepad & Haptic) | null | undefined)?.hapticActuators?.[0];
+      const v = (pad as (Gamepad & Vibrating) | null | undefined)?.vibrationActuator;
+      if (typeof h?.pulse === "function") void h.pulse(strength, PULSE_MS);
+      else if (typeof v?.playEffect === "function") {
+        void v.playEffect("dual-rumble", { duration: PULSE_MS, strongMagnitude: strength, weakMagnitude: 0 });
+      }
+    }
+  }
+}

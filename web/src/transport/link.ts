@@ -1,0 +1,115 @@
+// The page's side of the realtime channel: the same calls as RealtimeClient, carried
+// out by the realtime worker (realtime.worker.ts), with the figures the panels show
+// mirrored here on the page's clock.
+import type { ForceSample } from "./codec";
+import { PAGE_CHECK_IN_MS } from "./heartbeat";
+import type { RealtimeHandlers, RobotState } from "./realtime";
+import { Rolling } from "../stats";
+
+export type ToWorker =
+  | { op: "connect"; url: string; token: string; timeOrigin: number }
+  | { op: "alive" }
+  | { op: "want-control"; on: boolean }
+  | { op: "visible"; on: boolean }
+  | { op: "lease"; action: number }
+  | { op: "estop" }
+  | { op: "reset" }
+  | { op: "cartesian"; dX: number[]; rotvec: number[]; frame: number };
+
+export interface LinkMeta {
+  operator: boolean;
+  clientId: string;
+  open: boolean;
+  bestRtt: number;
+  offset: number;
+}
+
+export type FromWorker =
+  | { kind: "state"; state: RobotState; at: number; meta: LinkMeta }
+  | { kind: "forces"; samples: ForceSample[]; at: number }
+  | { kind: "event"; text: string }
+  | { kind: "error"; text: string; seq: number }
+  | { kind: "connection"; up: boolean; why: string; meta: LinkMeta }
+  | { kind: "ack"; latencyMs: number; meta: LinkMeta };
+
+export class RealtimeLink implements LinkMeta {
+  operator = false;
+  clientId = "";
+  open = false;
+  bestRtt = Infinity;
+  offset = 0; // server − page clock (s)
+  readonly stateInterval = new Rolling();
+  readonly forceInterval = new Rolling(2000);
+  readonly commandLatency = new Rolling();
+  private readonly worker: Worker;
+
+  constructor(
+    private readonly url: string,
+    private readonly token: string,
+    private readonly handlers: RealtimeHandlers,
+  ) {
+    this.worker = new Worker(new URL("./realtime.worker.ts", import.meta.url), { type: "module" });
+    this.worker.onmessage = (e: MessageEvent<FromWorker>) => this.receive(e.data);
+    this.worker.onerror = (e) => handlers.error?.(`the realtime worker failed: ${e.message}`, 0);
+  }
+
+  connect(): void {
+    this.post({ op: "connect", url: this.url, token: this.token, timeOrigin: performance.timeOrigin });
+    setInterval(() => this.post({ op: "alive" }), PAGE_CHECK_IN_MS);
+    // A hidden page (another tab in front, a minimised window) lets its lease lapse.
+    const visible = () => this.post({ op: "visible", on: document.visibilityState === "visible" });
+    document.addEventListener("visibilitychange", visible);
+    visible();
+  }
+
+  /** Ask for heartbeats while we want control (the worker also beats while we hold it). */
+  wantControl(on: boolean): void {
+    this.post({ op: "want-control", on });
+  }
+
+  lease(action: number): void {
+    this.post({ op: "lease", action });
+  }
+
+  estop(): void {
+    this.post({ op: "estop" });
+  }
+
+  reset(): void {
+    this.post({ op: "reset" });
+  }
+
+  cartesian(dX: number[], rotvec: number[], frame: number): void {
+    this.post({ op: "cartesian", dX, rotvec, frame });
+  }
+
+  private post(m: ToWorker): void {
+    this.worker.postMessage(m);
+  }
+
+  private receive(m: FromWorker): void {
+    if ("meta" in m) Object.assign(this, m.meta);
+    switch (m.kind) {
+      case "state":
+        this.stateInterval.tick(m.at);
+        this.handlers.state?.(m.state);
+        break;
+      case "forces":
+        this.forceInterval.tick(m.at); // per message, timed where it arrived
+        this.handlers.forces?.(m.samples);
+        break;
+      case "event":
+        this.handlers.event?.(m.text);
+        break;
+      case "error":
+        this.handlers.error?.(m.text, m.seq);
+        break;
+      case "connection":
+        this.handlers.connection?.(m.up, m.why);
+        break;
+      case "ack":
+        this.commandLatency.add(m.latencyMs);
+        break;
+    }
+  }
+}

@@ -1,0 +1,84 @@
+// The realtime channel in its own thread: the WebSocket, the clock sync, the arrival
+// times of state and forces, and the dead-man heartbeat run here, where the page's
+// rendering cannot stall them. The page talks to it through RealtimeLink (link.ts).
+import { HEARTBEAT_PERIOD_MS, heartbeatDue } from "./heartbeat";
+import type { FromWorker, ToWorker } from "./link";
+import { StateFlags } from "./messages";
+import { RealtimeClient } from "./realtime";
+
+const port = self as unknown as {
+  onmessage: ((e: MessageEvent<ToWorker>) => void) | null;
+  postMessage(message: FromWorker): void;
+};
+let client: RealtimeClient | null = null;
+let mainOrigin = 0; // the page's performance.timeOrigin: times go back on its clock
+let wantControl = false;
+let hasControl = false;
+let visible = true;
+let pageSeen = performance.now();
+
+const pageNow = () => performance.now() + performance.timeOrigin - mainOrigin;
+
+function meta(c: RealtimeClient) {
+  return {
+    operator: c.operator,
+    clientId: c.clientId,
+    open: c.open,
+    bestRtt: c.bestRtt,
+    // server − page clock (s): the worker's offset moved onto the page's clock
+    offset: c.offset + (mainOrigin - performance.timeOrigin) / 1000,
+  };
+}
+
+function beat(): void {
+  if (client && heartbeatDue({ now: performance.now(), wanted: visible && (wantControl || hasControl), lastSent: client.lastSent, pageSeen })) {
+    client.heartbeat();
+  }
+}
+
+port.onmessage = (e) => {
+  const m = e.data;
+  pageSeen = performance.now();
+  if (m.op === "connect") {
+    if (client) return;
+    mainOrigin = m.timeOrigin;
+    const c = (client = new RealtimeClient(m.url, m.token, {
+      state: (state) => {
+        hasControl = (state.flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
+        port.postMessage({ kind: "state", state, at: pageNow(), meta: meta(c) });
+      },
+      forces: (samples) => port.postMessage({ kind: "forces", samples, at: pageNow() }),
+      event: (text) => port.postMessage({ kind: "event", text }),
+      error: (text, seq) => port.postMessage({ kind: "error", text, seq }),
+      connection: (up, why) => port.postMessage({ kind: "connection", up, why, meta: meta(c) }),
+      ack: (latencyMs) => port.postMessage({ kind: "ack", latencyMs, meta: meta(c) }),
+    }));
+    c.connect();
+    setInterval(beat, HEARTBEAT_PERIOD_MS);
+    return;
+  }
+  if (!client) return;
+  switch (m.op) {
+    case "alive":
+      break;
+    case "want-control":
+      wantControl = m.on;
+      if (m.on) client.heartbeat();
+      break;
+    case "visible":
+      visible = m.on;
+      break;
+    case "lease":
+      client.lease(m.action);
+      break;
+    case "estop":
+      client.estop();
+      break;
+    case "reset":
+      client.reset();
+      break;
+    case "cartesian":
+      client.cartesian(m.dX, m.rotvec, m.frame);
+      break;
+  }
+};
