@@ -117,6 +117,24 @@ def _val_emulator(args: argparse.Namespace) -> int:
     return 0
 
 
+def _netft_emulator(args: argparse.Namespace) -> int:
+    from drivers.force.netft_emulator import NetFtEmulator
+
+    emulator = NetFtEmulator(args.host, args.port, rate_hz=args.rate).start()
+    print(f"Net F/T emulator listening on udp://{emulator.url}", flush=True)
+    print(
+        f"  run the server against it: TELEROBOT_FORCE=netft TELEROBOT_NETFT_ADDRESS={emulator.url}"
+        " telerobot serve",
+        flush=True,
+    )
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with contextlib.suppress(KeyboardInterrupt):
+        stop.wait()
+    emulator.close()
+    return 0
+
+
 def _bench(args: argparse.Namespace) -> int:
     sys.argv = [f"bench.{args.name}", *args.rest]
     runpy.run_module(f"bench.{args.name}", run_name="__main__", alter_sys=True)
@@ -160,6 +178,12 @@ def main(argv: list[str] | None = None) -> int:
         "--time-scale", type=float, default=1.0, help="scale move durations (0.1 = 10× faster)"
     )
     emu.set_defaults(func=_val_emulator)
+
+    netft = sub.add_parser("netft-emulator", help="emulate an ATI Net F/T sensor (RDT over UDP)")
+    netft.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    netft.add_argument("--port", type=int, default=49152, help="UDP port (0: any free port)")
+    netft.add_argument("--rate", type=float, default=1000.0, help="samples per second")
+    netft.set_defaults(func=_netft_emulator)
 
     bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")
     bench.add_argument("name")

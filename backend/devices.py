@@ -64,6 +64,14 @@ def arm_probe(robot: Robot) -> Callable[[], ArmSnapshot]:
 
 def build_force_sensor(settings: Settings, robot: Robot, workcell: Workcell) -> ForceSensor:
     cls = load_driver("force", settings.force)
+    if settings.force == "netft":
+        real: ForceSensor = cls(
+            settings.netft_address,
+            counts_per_force=settings.netft_counts_per_force,
+            counts_per_torque=settings.netft_counts_per_torque,
+            rate_hz=settings.force_rate_hz,
+        )
+        return real
     tool = getattr(
         robot, "kinematics", Puma560Kinematics(tool_transform(settings.tool_length))
     ).tool

@@ -42,8 +42,12 @@ class Settings(BaseSettings):
     serial_baudrate: int = 9600
     serial_reply_timeout: float = Field(1.0, gt=0)
 
-    force: Literal["sim"] = "sim"
+    force: Literal["sim", "netft"] = "sim"
     force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)
+    # NetFtSensor: the sensor's address and its calibration (from its web page)
+    netft_address: str = "192.168.1.1:49152"
+    netft_counts_per_force: float = Field(1_000_000.0, gt=0)
+    netft_counts_per_torque: float = Field(1_000_000.0, gt=0)
     state_rate_hz: float = Field(50.0, ge=1.0, le=1000.0)
 
     # Safety (the rest of SafetyLimits keeps its defaults)

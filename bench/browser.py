@@ -71,18 +71,19 @@ def main() -> None:
         time.sleep(3)  # past the first keyframe and the clock sync
         f0, n0, t0 = (
             page.evaluate("window.telerobot.view.frames"),
-            page.evaluate("window.telerobot.glass.count"),
+            page.evaluate("window.telerobot.glass.total"),
             time.monotonic(),
         )
         latencies: list[float] = []
         while time.monotonic() - t0 < args.seconds:
             time.sleep(min(5.0, args.seconds))
-            # The page keeps the last 900 figures; collect them in pieces, without repeats.
-            snap = page.evaluate("window.telerobot.glass.snapshot()")
-            count = page.evaluate("window.telerobot.glass.count")
-            latencies += (
-                snap[-min(len(snap), max(0, count - n0 - len(latencies))) :] if count > n0 else []
+            # The page keeps the last 900 figures: collect the new ones every 5 s (at
+            # most 150 at 30 fps), read together with the running total.
+            snap, total = page.evaluate(
+                "[window.telerobot.glass.snapshot(), window.telerobot.glass.total]"
             )
+            new = total - n0 - len(latencies)
+            latencies += snap[len(snap) - min(len(snap), new) :] if new > 0 else []
         frames = page.evaluate("window.telerobot.view.frames") - f0
         elapsed = time.monotonic() - t0
         browser.close()

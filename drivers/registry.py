@@ -19,6 +19,7 @@ DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
     },
     "force": {
         "sim": ("drivers.force.sim", "SimForceSensor"),
+        "netft": ("drivers.force.netft", "NetFtSensor"),
     },
 }
 

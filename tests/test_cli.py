@@ -69,3 +69,23 @@ def test_bad_settings_exit_with_a_message() -> None:
         timeout=30,
     )
     assert out.returncode == 2 and "settings file /nonexistent.toml does not exist" in out.stderr
+
+
+def test_serve_reads_forces_from_the_netft_emulator() -> None:
+    with (
+        telerobot("netft-emulator", "--port", "0", wait_for=r"udp://(\S+)") as (_, emu),
+        telerobot(
+            "serve",
+            "--http-port",
+            "0",
+            wait_for=URL,
+            env={"TELEROBOT_FORCE": "netft", "TELEROBOT_NETFT_ADDRESS": emu.group(1)},
+        ) as (_, m),
+    ):
+        deadline = time.monotonic() + 10
+        while (force := httpx.get(m.group(1) + "api/v1/force").json())["latest"] is None:
+            assert time.monotonic() < deadline, force
+            time.sleep(0.1)
+        assert force["driver"] == "netft" and force["error"] is None
+        assert force["latest"]["values"][0] == 0.5  # the emulator's Fx, in newtons
+        assert force["counters"]["received"] > 0 and force["counters"]["bad_packets"] == 0

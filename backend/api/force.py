@@ -25,6 +25,10 @@ class ForceState(BaseModel):
     threshold: float
     filter_cutoff_hz: float | None
     latest: Sample | None
+    counters: dict[str, int] = Field(
+        default_factory=dict, description="driver counters (received, lost, bad packets…)"
+    )
+    error: str | None = Field(None, description="what is wrong with the sensor now, if anything")
 
 
 class ForceUpdate(BaseModel):
@@ -42,6 +46,8 @@ def _state(sensor: ForceSensor) -> ForceState:
         threshold=sensor.threshold,
         filter_cutoff_hz=sensor.filter_cutoff_hz,
         latest=None if s is None else Sample(seq=s.seq, time=s.time, values=list(s.values)),
+        counters=dict(getattr(sensor, "counters", {})),
+        error=getattr(sensor, "error", None),
     )
 
 

@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
 
 from drivers.base import ArmSnapshot, ForceSample
-from drivers.force.pipeline import ForcePipeline, Six
+from drivers.force.pipeline import Six
+from drivers.force.sampled import SampledForceSensor
 from drivers.robot.puma560.kinematics import Puma560Kinematics
 from drivers.sim.workcell import Workcell
 
@@ -30,8 +30,9 @@ log = logging.getLogger(__name__)
 MAX_EXTRAPOLATION = 0.05  # s: the arm publishes its state at least every 20 ms while moving
 
 
-class SimForceSensor:
+class SimForceSensor(SampledForceSensor):
     name = "sim-force"
+    thread_name = "sim-force-sensor"
 
     def __init__(
         self,
@@ -50,77 +51,14 @@ class SimForceSensor:
         self.noise_n = noise_n
         self._rng = np.random.default_rng(seed)
         self._now = time_source
-        self._pipeline = ForcePipeline(ForcePipeline.check_rate(rate_hz))
-        self._lock = threading.Lock()  # pipeline settings vs the sampling thread
-        self._subscribers: list[Callable[[ForceSample], None]] = []
+        super().__init__(rate_hz)
         self._seq = 0
-        self._latest: ForceSample | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
         self.overruns = 0  # samples whose slot had already passed (the thread was late)
         self._boxes = [(b, b.lower.tolist(), b.upper.tolist()) for b in workcell.obstacles]
         # The tip in the flange frame; the tool's rotation is the sensor's frame too, so
         # the offset is expressed in tool axes: R_toolᵀ p_tool.
         tool = kinematics.tool
         self._tool_offset = (tool[:3, :3].T @ tool[:3, 3]).tolist()
-
-    # ------------------------------------------------------------ settings
-    @property
-    def rate_hz(self) -> float:
-        return self._pipeline.rate_hz
-
-    @rate_hz.setter
-    def rate_hz(self, value: float) -> None:
-        rate = ForcePipeline.check_rate(value)
-        with self._lock:
-            self._pipeline.rate_hz = rate
-            if (
-                self._pipeline.filter_cutoff_hz is not None
-                and self._pipeline.filter_cutoff_hz >= rate / 2
-            ):
-                self._pipeline.filter_cutoff_hz = None
-
-    @property
-    def threshold(self) -> float:
-        return self._pipeline.threshold
-
-    @threshold.setter
-    def threshold(self, value: float) -> None:
-        self._pipeline.threshold = ForcePipeline.check_threshold(value)
-
-    @property
-    def filter_cutoff_hz(self) -> float | None:
-        return self._pipeline.filter_cutoff_hz
-
-    @filter_cutoff_hz.setter
-    def filter_cutoff_hz(self, value: float | None) -> None:
-        with self._lock:
-            self._pipeline.filter_cutoff_hz = ForcePipeline.check_cutoff(
-                value, self._pipeline.rate_hz
-            )
-
-    def tare(self) -> None:
-        with self._lock:
-            self._pipeline.tare()
-
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
-
-    @property
-    def latest(self) -> ForceSample | None:
-        return self._latest
-
-    def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]:
-        self._subscribers = [
-            *self._subscribers,
-            callback,
-        ]  # copy-on-write: the thread iterates safely
-
-        def unsubscribe() -> None:
-            self._subscribers = [c for c in self._subscribers if c is not callback]
-
-        return unsubscribe
 
     # ------------------------------------------------------------ physics
     def read_raw(self, t: float) -> Six:
@@ -158,33 +96,8 @@ class SimForceSensor:
     def sample_at(self, t: float) -> ForceSample | None:
         """Take one sample at ``t``; deliver it unless the threshold withholds it."""
         raw = self.read_raw(t)
-        with self._lock:
-            self._seq += 1
-            values = self._pipeline.process(raw)
-        if values is None:
-            return None
-        sample = ForceSample(self._seq, t, values)
-        self._latest = sample
-        for callback in self._subscribers:
-            try:
-                callback(sample)
-            except Exception:  # one subscriber's bug must not stop the sensor
-                log.exception("force subscriber failed")
-        return sample
-
-    # ------------------------------------------------------------ thread
-    def start(self) -> None:
-        if self.running:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sim-force-sensor", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-            self._thread = None
+        self._seq += 1
+        return self._deliver(self._seq, t, raw)
 
     def _run(self) -> None:
         next_t = self._now()

@@ -5,7 +5,11 @@ export class Rolling {
 
   constructor(private readonly capacity = 600) {}
 
+  /** Values ever added (``count`` stops at the capacity). */
+  total = 0;
+
   add(v: number): void {
+    this.total += 1;
     this.values.push(v);
     if (this.values.length > this.capacity) this.values.shift();
   }

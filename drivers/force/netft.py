@@ -1,0 +1,185 @@
+"""``NetFtSensor``: an ATI Net F/T (or anything that speaks its RDT protocol over UDP).
+
+A receiving thread asks the sensor to stream, turns counts into newtons and
+newton-metres, and hands each record to the shared pipeline (filter, threshold) and
+to subscribers. Lost packets are counted from gaps in the RDT sequence; short,
+malformed or stale (re-ordered) packets are counted and dropped. When the sensor
+falls silent (unplugged, rebooting) the driver says so and keeps asking it to stream,
+so it resumes by itself. Timestamps are the receive time on the monotonic clock: the
+RDT record carries none.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+from collections.abc import Callable
+
+from drivers.base import InvalidCommand
+from drivers.force import netft_protocol as rdt
+from drivers.force.pipeline import Six
+from drivers.force.sampled import SampledForceSensor
+
+log = logging.getLogger(__name__)
+
+SEQ_MOD = 1 << 32
+
+
+def parse_address(address: str) -> tuple[str, int]:
+    host, _, port = address.rpartition(":") if ":" in address else (address, "", "")
+    try:
+        number = int(port) if port else rdt.RDT_PORT
+    except ValueError:
+        number = -1
+    if not host or not 0 < number < 65536:
+        raise InvalidCommand(f"Net F/T address must be HOST or HOST:PORT, got {address!r}")
+    return host, number
+
+
+class NetFtSensor(SampledForceSensor):
+    name = "netft"
+    thread_name = "netft-receiver"
+
+    def __init__(
+        self,
+        address: str = f"192.168.1.1:{rdt.RDT_PORT}",
+        *,
+        counts_per_force: float = rdt.COUNTS_PER_FORCE,
+        counts_per_torque: float = rdt.COUNTS_PER_TORQUE,
+        rate_hz: float = 1000.0,
+        silence_s: float = 0.5,
+        time_source: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not (counts_per_force > 0 and counts_per_torque > 0):
+            raise InvalidCommand("counts per force and per torque must be positive")
+        super().__init__(rate_hz)  # the rate the sensor is set to stream at (filter maths)
+        self.address = parse_address(address)
+        self.counts_per_force = float(counts_per_force)
+        self.counts_per_torque = float(counts_per_torque)
+        self.silence_s = silence_s
+        self._now = time_source
+        self._sock: socket.socket | None = None
+        self._last_rdt: int | None = None
+        self.received = 0
+        self.lost = 0  # gaps in the RDT sequence
+        self.bad_packets = 0  # wrong size
+        self.stale = 0  # older than one already delivered
+        self.sensor_status = 0  # the last non-zero status word the sensor reported
+        self.silences = 0  # times the sensor fell silent
+        self.error: str | None = None  # what is wrong now (None once data flows again)
+        self.last_error: str | None = None
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return {
+            "received": self.received,
+            "lost": self.lost,
+            "bad_packets": self.bad_packets,
+            "stale": self.stale,
+            "silences": self.silences,
+        }
+
+    def _send(self, command: int) -> None:
+        if self._sock is not None:
+            try:
+                self._sock.send(rdt.request(command))
+            except OSError as exc:  # e.g. no route: the receive loop reports silence
+                log.debug("Net F/T request %#x failed: %s", command, exc)
+
+    def tare(self) -> None:
+        """The sensor biases itself (RDT command 0x0042); without a link, the pipeline."""
+        if self._sock is not None:
+            self._send(rdt.CMD_BIAS)
+        else:
+            super().tare()
+
+    def start(self) -> None:
+        """Start receiving. Never raises for the network: an unknown host or a missing
+        route is reported in ``error`` and retried every second."""
+        if self.running:
+            return
+        self._last_rdt = None
+        super().start()
+
+    def stop(self) -> None:
+        self._send(rdt.CMD_STOP)
+        super().stop()
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def _where(self) -> str:
+        return f"udp://{self.address[0]}:{self.address[1]}"
+
+    def _open(self) -> socket.socket | None:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.settimeout(0.05)
+        try:
+            sock.connect(self.address)
+        except OSError as exc:
+            sock.close()
+            self._fail(f"cannot reach the Net F/T at {self._where()}: {exc}")
+            return None
+        return sock
+
+    def _run(self) -> None:
+        while self._sock is None and not self._stop.is_set():
+            self._sock = self._open()
+            if self._sock is None:
+                self._stop.wait(1.0)
+        if self._sock is not None:
+            self._receive(self._sock)
+
+    def _receive(self, sock: socket.socket) -> None:
+        self._send(rdt.CMD_STREAM)
+        last_rx = asked = self._now()
+        while not self._stop.is_set():
+            try:
+                data = sock.recv(2048)
+            except TimeoutError:
+                now = self._now()
+                if now - last_rx > self.silence_s and now - asked > self.silence_s:
+                    if self.error is None:
+                        self.silences += 1
+                    self._fail(
+                        f"no data from the Net F/T at {self._where()} for "
+                        f"{now - last_rx:.1f} s: is it powered and on the network?"
+                    )
+                    self._send(rdt.CMD_STREAM)  # it may have rebooted: ask again
+                    asked = now
+                continue
+            except OSError as exc:  # ICMP port unreachable and the like
+                self._fail(f"Net F/T at {self._where()}: {exc}")
+                self._stop.wait(0.05)
+                continue
+            now = self._now()
+            self.on_packet(data, now)
+            last_rx = now
+
+    def _fail(self, message: str) -> None:
+        if message != self.error:
+            log.warning("%s", message)
+        self.error = self.last_error = message
+
+    def on_packet(self, data: bytes, now: float) -> None:
+        """One datagram from the sensor (the receiving thread calls this)."""
+        record = rdt.parse_record(data)
+        if record is None:
+            self.bad_packets += 1
+            return
+        if self._last_rdt is not None:
+            gap = (record.rdt_seq - self._last_rdt) % SEQ_MOD
+            if gap == 0 or gap >= SEQ_MOD // 2:  # a repeat or an older packet
+                self.stale += 1
+                return
+            self.lost += gap - 1
+        self._last_rdt = record.rdt_seq
+        self.received += 1
+        self.error = None
+        if record.status:
+            self.sensor_status = record.status
+        f, t = self.counts_per_force, self.counts_per_torque
+        c = record.counts
+        raw: Six = (c[0] / f, c[1] / f, c[2] / f, c[3] / t, c[4] / t, c[5] / t)
+        self._deliver(record.rdt_seq, now, raw)
