@@ -21,10 +21,11 @@ from backend.errors import install_error_handlers
 from backend.media.supervisor import MediaSupervisor
 from backend.realtime import ws
 from backend.realtime.hub import RealtimeHub
+from backend.realtime.priority import PriorityChannel
 from backend.security import operator_token
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
-from drivers.base import Robot, TelerobotError
+from drivers.base import DeviceError, Robot, TelerobotError
 from drivers.clock import Clock, MonotonicClock
 from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 
@@ -72,6 +73,17 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             s.robot, s.decision, s.force, s.telemetry, clock, state_rate_hz=settings.state_rate_hz
         )
         s.hub.start()
+        try:
+            s.priority = PriorityChannel(
+                settings.host, settings.priority_port, s.hub, s.decision, s.force
+            )
+        except OSError as exc:
+            await s.hub.stop()
+            raise DeviceError(
+                f"the priority channel cannot listen on {settings.host}:{settings.priority_port}"
+                f" ({exc.strerror}): set TELEROBOT_PRIORITY_PORT or --priority-port"
+            ) from None
+        s.priority.start()
         s.force.start()
         s.alignments = {}
         s.media = MediaSupervisor(settings, s.robot) if settings.video else None
@@ -87,6 +99,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             s.force.stop()
             if s.media is not None:
                 await s.media.stop()
+            await s.priority.stop()
             await s.hub.stop()
             await s.robot.disconnect()
 

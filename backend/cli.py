@@ -26,6 +26,7 @@ def _serve(args: argparse.Namespace) -> int:
             args.config,
             host=args.host,
             http_port=args.http_port,
+            priority_port=args.priority_port,
             robot=args.robot,
             serial_port=args.port,
             serial_baudrate=args.baudrate,
@@ -65,6 +66,10 @@ def _serve(args: argparse.Namespace) -> int:
                 else settings.http_port
             )
             print(f"\nTelerobot is running on {where}: {scheme}://{shown}:{port}/", flush=True)
+            print(
+                f"Priority channel (forces, master arm): tcp://{shown}:{app.state.priority.port}",
+                flush=True,
+            )
             if app.state.token_is_new:
                 path = state_dir(settings) / "operator-token"
                 print(
@@ -152,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument("--config", type=Path, help="TOML settings file")
     serve.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     serve.add_argument("--http-port", type=int, help="HTTP port (default 8000)")
+    serve.add_argument(
+        "--priority-port", type=int, help="TCP port of the priority channel (default 8001)"
+    )
     serve.add_argument("--robot", choices=["sim", "val"], help="robot driver (default sim)")
     serve.add_argument(
         "--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port"

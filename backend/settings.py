@@ -31,6 +31,8 @@ class Settings(BaseSettings):
 
     host: str = "127.0.0.1"
     http_port: int = Field(8000, ge=0, le=65535)
+    # The priority channel (forces out, commands in; the master-arm bridge): TCP, 0 = any
+    priority_port: int = Field(8001, ge=0, le=65535)
 
     robot: Literal["sim", "val"] = "sim"
     auto_initialize: bool = True  # connect and initialise the robot at start-up

@@ -17,6 +17,8 @@ def pytest_configure() -> None:
     # Servers under test run without the media worker unless a test turns it on
     # (it renders and encodes 2×1280×720 at 30 fps: the video tests say so explicitly).
     os.environ.setdefault("TELEROBOT_VIDEO", "false")
+    # Many servers run side by side: each takes a free port for its priority channel.
+    os.environ.setdefault("TELEROBOT_PRIORITY_PORT", "0")
 
 
 T = TypeVar("T")

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 from fastapi import Depends, Header, Request
 
 from backend.control.decision import Client, DecisionServer, NotAllowed
+from backend.realtime.priority import PriorityChannel
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
 from drivers.base import ForceSensor, Robot
@@ -34,6 +35,7 @@ SettingsDep = Annotated[Settings, Depends(from_state("settings"))]
 WorkcellDep = Annotated[Workcell, Depends(from_state("workcell"))]
 DecisionDep = Annotated[DecisionServer, Depends(from_state("decision"))]
 ForceDep = Annotated[ForceSensor, Depends(from_state("force"))]
+PriorityDep = Annotated[PriorityChannel, Depends(from_state("priority"))]
 TelemetryDep = Annotated[Telemetry, Depends(from_state("telemetry"))]
 
 

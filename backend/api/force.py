@@ -6,7 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ForceDep, OperatorDep
+from backend.api.deps import ForceDep, OperatorDep, PriorityDep
 from drivers.base import FORCE_CHANNELS, ForceSensor
 
 router = APIRouter(prefix="/force", tags=["force"])
@@ -48,6 +48,25 @@ def _state(sensor: ForceSensor) -> ForceState:
         latest=None if s is None else Sample(seq=s.seq, time=s.time, values=list(s.values)),
         counters=dict(getattr(sensor, "counters", {})),
         error=getattr(sensor, "error", None),
+    )
+
+
+class ChannelState(BaseModel):
+    port: int = Field(description="TCP port of the priority channel (docs/protocol.md)")
+    clients: int
+    samples_sent: int
+    forces_dropped: int = Field(description="samples dropped for clients that fell behind")
+
+
+@router.get("/channel")
+async def channel(priority: PriorityDep) -> ChannelState:
+    """Where the priority channel listens: forces at full rate, commands, for the
+    master-arm bridge (`telerobot master`)."""
+    return ChannelState(
+        port=priority.port,
+        clients=sum(c.conn is not None for c in list(priority.clients)),
+        samples_sent=priority.samples_sent,
+        forces_dropped=sum(c.forces_dropped for c in list(priority.clients)),
     )
 
 

@@ -29,6 +29,7 @@ from aiortc import (
 
 from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from backend.media.fanout import Broadcaster, SharedVideoTrack
+from backend.netprio import mark_peer_low_priority
 from backend.telemetry.stats import InterArrival, StreamStats
 from drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
 
@@ -200,6 +201,8 @@ class VideoPipeline:
 
         @pc.on("connectionstatechange")
         async def on_state() -> None:
+            if pc.connectionState == "connected":
+                mark_peer_low_priority(pc)  # forces and commands go first
             if pc.connectionState in ("failed", "closed"):
                 await self.close_peer(peer_id)
 

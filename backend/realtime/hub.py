@@ -49,8 +49,11 @@ class Connection:
         *,
         operator: bool,
         every_force_sample: bool,
+        direct_forces: bool = False,
     ) -> None:
         self._send = send
+        # The priority channel writes forces from the sensor's thread itself.
+        self.direct_forces = direct_forces
         self.client_id = client_id
         self.operator = operator
         self.every_force_sample = every_force_sample
@@ -81,6 +84,8 @@ class Connection:
         self._ready.set()
 
     def add_force(self, sample: ForceSample) -> None:
+        if self.direct_forces:
+            return
         box = self.outbox
         if len(box.forces) == box.forces.maxlen:
             box.forces_lost += 1
