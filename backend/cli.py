@@ -1,4 +1,4 @@
-"""``telerobot`` subcommands: serve, val-emulator, bench."""
+"""``telerobot`` subcommands: serve, master, val-emulator, netft-emulator, bench."""
 
 from __future__ import annotations
 
@@ -186,6 +186,14 @@ def main(argv: list[str] | None = None) -> int:
         "--time-scale", type=float, default=1.0, help="scale move durations (0.1 = 10× faster)"
     )
     emu.set_defaults(func=_val_emulator)
+
+    master = sub.add_parser(
+        "master", help="bridge a haptic master arm to a server (sim or a 3D Systems Touch)"
+    )
+    from backend.master.cli import add_arguments, run
+
+    add_arguments(master)
+    master.set_defaults(func=run)
 
     netft = sub.add_parser("netft-emulator", help="emulate an ATI Net F/T sensor (RDT over UDP)")
     netft.add_argument("--host", default="127.0.0.1", help="address to listen on")

@@ -272,3 +272,33 @@ class StereoCamera(Protocol):
     def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
         """The newest frame newer than ``after_seq``, waiting up to ``timeout`` s."""
         ...
+
+
+# ---------------------------------------------------------------- master arm
+@dataclass(frozen=True)
+class MasterState:
+    """One reading of a master device, in the device's own frame."""
+
+    time: float  # seconds on the monotonic clock
+    position: FloatArray  # metres
+    rotation: FloatArray  # 3×3
+    clutch: bool  # held: the arm follows (it is also the dead-man)
+
+
+@runtime_checkable
+class MasterArm(Protocol):
+    """A haptic master device read at 1 kHz by the master-arm bridge.
+
+    ``to_base`` turns the device's axes into the robot base's (a rotation), so the
+    same bridge drives any device; ``max_force_n`` is what the device can render."""
+
+    name: str
+    to_base: FloatArray
+    max_force_n: float
+
+    def open(self) -> None: ...
+    def close(self) -> None: ...
+    def read(self) -> MasterState: ...
+    def set_force(self, force: FloatArray) -> None:
+        """Render ``force`` (N, device frame) until the next call."""
+        ...

@@ -21,6 +21,10 @@ DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
         "sim": ("drivers.force.sim", "SimForceSensor"),
         "netft": ("drivers.force.netft", "NetFtSensor"),
     },
+    "master": {
+        "sim": ("drivers.master.sim", "SimMaster"),
+        "touch": ("drivers.master.touch", "TouchMaster"),
+    },
 }
 
 

@@ -1,0 +1,252 @@
+"""The master-arm bridge (``telerobot master``), the thesis's MasterArm component.
+
+It runs on the operator's machine, beside the haptic device, and talks to the server
+over the priority channel. Every millisecond it reads the device and
+
+- while the clutch is held, adds the handle's motion since the last reading (mapped
+  to the robot base and scaled) to an increment, sent as one CART_INC every command
+  period: the server applies it through the same lease, limits and dead-man as any
+  other input. Releasing the clutch and gripping again re-anchors, so the operator
+  can re-centre their hand; a jump larger than ``max_step_m`` is dropped, not sent;
+- renders the newest remote force on the device: the sensor's reading rotated into
+  the base frame with the arm's reported orientation, then into the device's frame,
+  scaled and clamped (switchable);
+- adds local impedance compensation f = αv + βa from the device's own motion, so the
+  device feels lighter (switchable).
+
+Heartbeats keep the lease while the bridge runs. An optional constant virtual delay
+holds each force sample until its sensor time plus T_v (Kosuge's virtual time delay),
+so the feedback loop sees one constant delay instead of a jittering one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from backend.master.link import PriorityLink, Reply
+from backend.realtime import messages as m
+from drivers.base import FloatArray, ForceSample, InvalidCommand, MasterArm
+from drivers.master.impedance import ImpedanceCompensator
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class BridgeSettings:
+    rate_hz: float = 1000.0  # device reads per second
+    command_rate_hz: float = 100.0  # CART_INC per second while the clutch is held and moving
+    motion_scale: float = 1.0  # robot metres per device metre
+    render_force: bool = True
+    force_scale: float = 0.05  # device newtons per remote newton (60 N → 3 N)
+    compensation: bool = True
+    alpha: float = 0.0  # N·s/m: compensates the device's viscous friction
+    beta: float = 0.0  # kg: compensates part of its mass
+    virtual_delay_s: float = 0.0  # constant delay for force feedback; 0 = render at once
+    max_step_m: float = 0.01  # a larger jump between two readings is a tracking glitch
+    heartbeat_s: float = 0.05
+
+    def check(self) -> BridgeSettings:
+        positive = ("rate_hz", "command_rate_hz")
+        for name in (*positive, "motion_scale", "force_scale", "alpha", "beta"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0) or (name in positive and value <= 0):
+                raise InvalidCommand(f"{name} must be a finite number > 0, got {value!r}")
+        if not (0 <= self.virtual_delay_s <= 1.0):
+            raise InvalidCommand("virtual_delay_s must be between 0 and 1 s")
+        return self
+
+
+def rotvec(R: FloatArray) -> FloatArray:
+    """The rotation vector of a rotation matrix (small and large angles)."""
+    angle = math.acos(max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0)))
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = 2.0 * math.sin(angle)
+    if abs(s) < 1e-9:
+        return np.asarray(axis / 2.0, dtype=float)  # ~0 rad (π is out of reach in 1 ms)
+    return np.asarray(axis * (angle / s), dtype=float)
+
+
+class MasterBridge:
+    def __init__(
+        self,
+        device: MasterArm,
+        link: PriorityLink,
+        settings: BridgeSettings | None = None,
+        *,
+        time_source: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.device = device
+        self.link = link
+        self.settings = (settings or BridgeSettings()).check()
+        self.compensator = ImpedanceCompensator(
+            self.settings.alpha,
+            self.settings.beta,
+            enabled=self.settings.compensation,
+            max_force_n=device.max_force_n,
+        )
+        self._now = time_source
+        self._lock = threading.Lock()
+        self._force: ForceSample | None = None  # the newest sample to render
+        self._delayed: deque[tuple[float, ForceSample]] = deque()
+        self._tool_rotation: FloatArray = np.eye(3)
+        self.flags = 0
+        self._anchor: tuple[FloatArray, FloatArray] | None = None  # last (p, R) while clutched
+        self._pending_dx = np.zeros(3)
+        self._pending_rv = np.zeros(3)
+        self._next_command = 0.0
+        self._last_heartbeat = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        # What happened, for the status line, tests and the benchmark.
+        self.ticks = 0
+        self.overruns = 0
+        self.commands_sent = 0
+        self.jumps_dropped = 0
+        self.forces_received = 0
+        self.forces_stale = 0
+        self.last_rendered: FloatArray = np.zeros(3)
+        self.last_error: str | None = None
+        self.on_sample: Callable[[ForceSample, float], None] | None = None  # benchmarks
+        link.on_force = self._on_force
+        link.on_state = self._on_state
+        link.on_reply = self._on_reply
+
+    # ------------------------------------------------------------ from the link's thread
+    def _on_force(self, sample: ForceSample, received: float) -> None:
+        self.forces_received += 1
+        if self.on_sample is not None:
+            self.on_sample(sample, received)
+        with self._lock:
+            newest = self._delayed[-1][1] if self._delayed else self._force
+            if newest is not None and sample.seq <= newest.seq:
+                self.forces_stale += 1  # newest wins
+                return
+            if self.settings.virtual_delay_s > 0:
+                due = sample.time - self.link.offset + self.settings.virtual_delay_s
+                self._delayed.append((due, sample))
+            else:
+                self._force = sample
+
+    def _on_state(self, fields: dict[str, Any]) -> None:
+        R = np.array([[fields[f"r{i}{j}"] for j in range(3)] for i in range(3)], dtype=float)
+        with self._lock:
+            self._tool_rotation = R
+            self.flags = int(fields["flags"])
+
+    def _on_reply(self, reply: Reply) -> None:
+        if reply.name == "ERROR":
+            self.last_error = reply.text
+            log.warning("server: %s", reply.text)
+
+    @property
+    def has_control(self) -> bool:
+        return bool(self.flags & m.StateFlags.YOU_HAVE_CONTROL)
+
+    # ------------------------------------------------------------ one device cycle
+    def remote_force_device_frame(self, now: float) -> FloatArray:
+        """The force to render now (N, the device's frame), before clamping."""
+        with self._lock:
+            while self._delayed and self._delayed[0][0] <= now:
+                self._force = self._delayed.popleft()[1]
+            sample, R = self._force, self._tool_rotation
+        if sample is None:
+            return np.zeros(3)
+        f_base = R @ np.asarray(sample.values[:3], dtype=float)  # sensor (tool axes) → base
+        return np.asarray(self.device.to_base.T @ f_base * self.settings.force_scale, dtype=float)
+
+    def tick(self) -> None:
+        s = self.settings
+        state = self.device.read()
+        now = state.time
+        self.ticks += 1
+        # Forces: the remote contact, plus the compensation of the device's own dynamics.
+        force = self.compensator.update(now, state.position)
+        if s.render_force:
+            remote = self.remote_force_device_frame(now)
+            norm = float(np.linalg.norm(remote))
+            if norm > self.device.max_force_n:
+                remote = remote * (self.device.max_force_n / norm)
+            force = force + remote
+        self.last_rendered = force
+        self.device.set_force(force)
+        # Motion: increments while the clutch is held.
+        if state.clutch:
+            if self._anchor is not None:
+                p0, R0 = self._anchor
+                dp = state.position - p0
+                if float(np.linalg.norm(dp)) > s.max_step_m:
+                    self.jumps_dropped += 1
+                else:
+                    to_base = self.device.to_base
+                    self._pending_dx += to_base @ dp * s.motion_scale
+                    self._pending_rv += to_base @ rotvec(state.rotation @ R0.T) * s.motion_scale
+            self._anchor = (state.position, state.rotation)
+        else:
+            self._anchor = None
+            self._pending_dx[:] = 0.0
+            self._pending_rv[:] = 0.0
+        if now >= self._next_command:
+            self._next_command = now + 1.0 / s.command_rate_hz
+            moved = bool(np.any(self._pending_dx) or np.any(self._pending_rv))
+            if moved and self.has_control:
+                dx, rv = self._pending_dx.tolist(), self._pending_rv.tolist()
+                self.link.cartesian((dx[0], dx[1], dx[2]), (rv[0], rv[1], rv[2]))
+                self.commands_sent += 1
+                self._last_heartbeat = now  # any command keeps the dead-man satisfied
+            self._pending_dx[:] = 0.0
+            self._pending_rv[:] = 0.0
+        if now - self._last_heartbeat >= s.heartbeat_s:
+            self.link.heartbeat()
+            self._last_heartbeat = now
+
+    # ------------------------------------------------------------ running
+    def start(self, take_control: bool = True, take_over: bool = False) -> None:
+        self.device.open()
+        self.link.ping()
+        if take_control:
+            self.link.lease(m.LeaseAction.TAKE_OVER if take_over else m.LeaseAction.TAKE)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="master-bridge", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+            self._thread = None
+        self.device.set_force(np.zeros(3))
+        self.device.close()
+        if self.has_control:
+            self.link.lease(m.LeaseAction.RELEASE)
+
+    def _run(self) -> None:
+        period = 1.0 / self.settings.rate_hz
+        next_t = self._now()
+        pings = 0
+        while not self._stop.is_set():
+            next_t += period
+            delay = next_t - self._now()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -0.05:  # far behind: skip the missed cycles, do not burst
+                self.overruns += 1
+                next_t = self._now()
+            try:
+                self.tick()
+            except OSError as exc:  # the link went away
+                self.last_error = f"the priority channel closed: {exc}"
+                log.error("%s", self.last_error)
+                self.device.set_force(np.zeros(3))
+                return
+            if pings < 5 and self.ticks % 100 == 0:  # a few more for a good clock offset
+                self.link.ping()
+                pings += 1

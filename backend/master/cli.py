@@ -1,0 +1,97 @@
+"""``telerobot master``: the master-arm bridge as a command."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import signal
+import sys
+import threading
+from urllib.parse import urlsplit
+
+import httpx
+import numpy as np
+
+from backend.master.bridge import BridgeSettings, MasterBridge
+from backend.master.link import PriorityLink
+from drivers.base import FloatArray, MasterArm, TelerobotError
+from drivers.registry import driver_names, load_driver
+
+
+def demo_hand(t: float) -> tuple[FloatArray, bool]:
+    """The simulated operator: after 1 s, grips and draws a 3 cm circle every 5 s."""
+    if t < 1.0:
+        return np.zeros(3), False
+    a = 2 * math.pi * 0.2 * (t - 1.0)
+    return np.array([0.03 * (math.cos(a) - 1.0), 0.03 * math.sin(a), 0.0]), True
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--server", default="http://localhost:8000/", help="the server's URL")
+    p.add_argument("--token", help="operator token (default: $TELEROBOT_OPERATOR_TOKEN)")
+    p.add_argument("--device", default="sim", choices=driver_names("master"))
+    p.add_argument("--motion-scale", type=float, default=1.0, help="robot m per device m")
+    p.add_argument("--force-scale", type=float, default=0.05, help="device N per remote N")
+    p.add_argument("--no-force", action="store_true", help="do not render the remote force")
+    p.add_argument("--alpha", type=float, default=0.0, help="compensation α (N·s/m)")
+    p.add_argument("--beta", type=float, default=0.0, help="compensation β (kg)")
+    p.add_argument("--no-compensation", action="store_true")
+    p.add_argument("--virtual-delay-ms", type=float, default=0.0, help="constant force delay")
+    p.add_argument("--command-rate", type=float, default=100.0, help="commands per second")
+    p.add_argument("--take-over", action="store_true", help="take control from whoever has it")
+
+
+def open_link(server: str, token: str) -> PriorityLink:
+    """Find the server's priority channel (GET /api/v1/force/channel) and connect."""
+    base = server if server.endswith("/") else server + "/"
+    try:
+        channel = httpx.get(base + "api/v1/force/channel", timeout=5, verify=False).json()
+    except (httpx.HTTPError, ValueError) as exc:
+        raise TelerobotError(f"cannot ask {base} for its priority channel: {exc}") from None
+    host = urlsplit(base).hostname or "localhost"
+    return PriorityLink(host, int(channel["port"]), token)
+
+
+def run(args: argparse.Namespace) -> int:
+    token = args.token or os.environ.get("TELEROBOT_OPERATOR_TOKEN", "")
+    try:
+        settings = BridgeSettings(
+            command_rate_hz=args.command_rate,
+            motion_scale=args.motion_scale,
+            render_force=not args.no_force,
+            force_scale=args.force_scale,
+            compensation=not args.no_compensation,
+            alpha=args.alpha,
+            beta=args.beta,
+            virtual_delay_s=args.virtual_delay_ms / 1000.0,
+        ).check()
+        cls = load_driver("master", args.device)
+        device: MasterArm = cls(demo_hand) if args.device == "sim" else cls()
+        link = open_link(args.server, token)
+        bridge = MasterBridge(device, link, settings)
+        bridge.start(take_control=bool(token), take_over=args.take_over)
+    except TelerobotError as exc:
+        print(f"telerobot master: {exc}", file=sys.stderr)
+        return 1
+    role = "operator" if link.operator else "observer (no token: watching only)"
+    print(f"Master arm {device.name} bridged to {args.server} as {role}", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with contextlib.suppress(KeyboardInterrupt):
+        while not stop.wait(1.0):
+            f = bridge.last_rendered
+            print(
+                f"control {'yes' if bridge.has_control else 'no '}"
+                f" · commands {bridge.commands_sent}"
+                f" · forces {bridge.forces_received} · rendering {np.linalg.norm(f):.2f} N"
+                + (f" · last error: {bridge.last_error}" if bridge.last_error else ""),
+                flush=True,
+            )
+            if link.closed_reason:
+                print(f"telerobot master: {link.closed_reason}", file=sys.stderr)
+                break
+    bridge.stop()
+    link.close()
+    return 0

@@ -1,0 +1,184 @@
+"""The master arm: impedance compensation maths, the simulated device, and the bridge
+driving the simulated arm into the table through a real server and priority channel."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+
+import httpx
+import numpy as np
+import pytest
+
+from backend.master.bridge import BridgeSettings, MasterBridge, rotvec
+from backend.master.cli import open_link
+from drivers.base import DriverUnavailable, FloatArray, InvalidCommand
+from drivers.master.impedance import ImpedanceCompensator
+from drivers.master.sim import SimMaster
+from drivers.registry import load_driver
+from tests.servers import telerobot
+from tests.test_priority_channel import until
+
+TOKEN = "master-bridge-token-0123456789"
+
+
+def test_compensation_is_alpha_v_plus_beta_a_from_the_motion_history() -> None:
+    A, w = 0.02, 2 * math.pi * 1.0
+    comp = ImpedanceCompensator(alpha=3.0, beta=0.1, cutoff_hz=100.0, max_force_n=100.0)
+    for i in range(3000):  # 3 s at 1 kHz
+        t = i / 1000
+        f = comp.update(t, np.array([A * math.sin(w * t), 0.0, 0.0]))
+    v, a = A * w * math.cos(w * t), -A * w * w * math.sin(w * t)
+    assert comp.velocity[0] == pytest.approx(v, abs=0.03 * A * w)
+    assert comp.acceleration[0] == pytest.approx(a, abs=0.05 * A * w * w)
+    assert f[0] == pytest.approx(3.0 * comp.velocity[0] + 0.1 * comp.acceleration[0])
+    assert f[1] == f[2] == 0.0
+
+
+def test_compensation_is_clamped_switchable_and_checked() -> None:
+    comp = ImpedanceCompensator(alpha=1000.0, max_force_n=2.0)
+    comp.update(0.0, np.zeros(3))
+    assert np.linalg.norm(comp.update(0.001, np.array([0.01, 0, 0]))) == pytest.approx(2.0)
+    comp.enabled = False
+    assert not np.any(comp.update(0.002, np.array([0.02, 0, 0])))
+    for bad in ({"alpha": -1.0}, {"beta": math.nan}, {"cutoff_hz": 0.0}):
+        with pytest.raises(InvalidCommand):
+            ImpedanceCompensator(**bad)  # type: ignore[arg-type]
+
+
+def hand_force_rms(compensate: bool) -> float:
+    """The operator's hand moves the simulated master through 2 cm at 2 Hz."""
+    clock = [0.0]
+    device = SimMaster(
+        lambda t: (np.array([0.02 * math.sin(2 * math.pi * 2.0 * t), 0, 0]), False),
+        time_source=lambda: clock[0],
+    )
+    comp = ImpedanceCompensator(
+        alpha=device.damping, beta=0.5 * device.mass, max_force_n=device.max_force_n
+    )
+    comp.enabled = compensate
+    device.open()
+    forces = []
+    for i in range(1, 4001):
+        clock[0] = i / 1000
+        state = device.read()
+        device.set_force(comp.update(state.time, state.position))
+        if i > 1000:
+            forces.append(device.hand_force[0])
+    return float(np.sqrt(np.mean(np.square(forces))))
+
+
+def test_compensation_makes_the_master_feel_lighter() -> None:
+    without, with_ = hand_force_rms(False), hand_force_rms(True)
+    assert with_ < 0.7 * without, (without, with_)
+
+
+def test_the_simulated_master_follows_the_hand_and_feels_rendered_force() -> None:
+    clock = [0.0]
+    device = SimMaster(lambda t: (np.array([0.0, 0.0, 0.01]), True), time_source=lambda: clock[0])
+    device.open()
+    clock[0] = 2.0
+    state = device.read()
+    assert state.clutch and state.position[2] == pytest.approx(0.01, abs=1e-4)
+    device.set_force(np.array([0.0, 0.0, 10.0]))  # more than it can render: clamped
+    assert np.linalg.norm(device.rendered) == pytest.approx(device.max_force_n)
+    clock[0] = 4.0
+    state = device.read()
+    # The rendered push moves the handle until the hand's spring holds it.
+    assert device.hand_force[2] == pytest.approx(-device.max_force_n, rel=0.01)
+    assert state.position[2] > 0.01
+
+
+def test_rotation_vectors() -> None:
+    for axis, angle in (([0, 0, 1], 0.3), ([1, 0, 0], -1.2), ([0, 1, 0], 1e-7)):
+        a = np.array(axis, dtype=float)
+        K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+        R = np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+        assert rotvec(R) == pytest.approx(a * angle, abs=1e-9)
+
+
+def test_the_touch_without_its_vendor_library_says_what_to_install() -> None:
+    cls = load_driver("master", "touch")
+    with pytest.raises(DriverUnavailable, match="pyOpenHaptics"):
+        cls().open()
+
+
+def test_bridge_settings_are_checked() -> None:
+    for bad in ({"rate_hz": 0.0}, {"force_scale": -1.0}, {"virtual_delay_s": 5.0}):
+        with pytest.raises(InvalidCommand):
+            BridgeSettings(**bad).check()  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[str]:
+    env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_HOME_POSE": "qn"}
+    with telerobot("serve", "--http-port", "0", wait_for=r"(http://localhost:\d+/)", env=env) as (
+        _,
+        match,
+    ):
+        base = match.group(1)
+        until(lambda: httpx.get(base + "api/v1/robot/state").json()["status"] == "READY")
+        yield base
+
+
+def place_tool_above_the_table(base: str, height: float) -> float:
+    rest = httpx.Client(base_url=base + "api/v1/", headers={"Authorization": f"Bearer {TOKEN}"})
+    boxes = httpx.get(base + "api/v1/workcell").json()["boxes"]
+    table = next(b for b in boxes if b["name"] == "table")
+    top: float = table["centre"][2] + table["size"][2] / 2
+    lease = rest.post("lease", json={"name": "setup", "force": True}).json()
+    rest.headers["X-Client-Id"] = lease["client_id"]
+    r = rest.post(
+        "robot/move",
+        json={"space": "cartesian", "mode": "absolute", "position": [0.8, 0.2, top + height]},
+    )
+    assert r.status_code == 200, r.text
+    rest.delete("lease")
+    return top
+
+
+def test_the_bridge_drives_the_arm_into_the_table_and_feels_it(server: str) -> None:
+    top = place_tool_above_the_table(server, 0.02)
+
+    def hand(t: float) -> tuple[FloatArray, bool]:
+        # Still and not gripping for 0.5 s; then grip and push down 2 cm/s for 3 s.
+        if t < 0.5:
+            return np.zeros(3), False
+        return np.array([0.0, 0.0, -0.02 * min(t - 0.5, 3.0)]), True
+
+    device = SimMaster(hand)
+    link = open_link(server, TOKEN)
+    bridge = MasterBridge(device, link, BridgeSettings(force_scale=0.05))
+    start = httpx.get(server + "api/v1/robot/state").json()
+    felt: list[float] = []
+    hand_push: list[float] = []
+    bridge.start()
+    try:
+        until(lambda: bridge.has_control, timeout=5)
+        time.sleep(0.3)  # clutch not held yet: nothing moves
+        assert (
+            httpx.get(server + "api/v1/robot/state").json()["target_joints"]
+            == start["target_joints"]
+        )
+        deadline = time.monotonic() + 6
+        while time.monotonic() < deadline:
+            felt.append(float(bridge.last_rendered[2]))
+            hand_push.append(float(device.hand_force[2]))
+            time.sleep(0.02)
+        state = httpx.get(server + "api/v1/robot/state").json()
+        safety = httpx.get(server + "api/v1/safety").json()
+    finally:
+        bridge.stop()
+        link.close()
+    # It went down to the table and pressed on it, and the force limit stopped it.
+    assert state["position"][2] < top + 0.002
+    assert top - state["position"][2] < 0.01
+    assert safety["force_limited"] or (bridge.last_error and "back away" in bridge.last_error)
+    # Forces arrived at 1 kHz and the table's push was rendered upward on the device,
+    # against the operator's hand.
+    assert bridge.forces_received > 3000
+    assert max(felt) > 0.5 * device.max_force_n
+    assert min(hand_push) < -0.5 * device.max_force_n
+    assert bridge.commands_sent > 50 and bridge.overruns < 50
+    until(lambda: httpx.get(server + "api/v1/safety").json()["controller"] is None)
