@@ -73,6 +73,8 @@ class Settings(BaseSettings):
     video_height: int = Field(720, ge=120, le=2160)
     video_fps: float = Field(30.0, ge=1.0, le=120.0)
     video_bitrate: int = Field(8_000_000, ge=100_000, le=100_000_000)
+    video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
+    video_cbr: bool = False  # constant bitrate (filler data) instead of "at most"
     keyframe_interval_s: float = Field(2.0, gt=0.0, le=60.0)
     ice_servers: list[str] = []  # "stun:host:port", "turn:user:pass@host:port"
     alignment_px: tuple[int, int] = (0, 0)  # default shift of the right image vs the left (x, y)

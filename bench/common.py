@@ -66,12 +66,14 @@ def telerobot_process(
     env: dict[str, str] | None = None,
     timeout: float = 60.0,
     drain: bool = True,
+    prefix: tuple[str, ...] = (),
 ) -> Iterator[tuple[subprocess.Popen[str], re.Match[str]]]:
     """Run ``telerobot ARGS`` as its own process; yield once a line of its output
-    matches ``wait_for`` (the benchmarks and the end-to-end tests use it)."""
+    matches ``wait_for`` (the benchmarks and the end-to-end tests use it). ``prefix``
+    runs it through another command (``ip netns exec NAME``)."""
     exe = Path(sys.executable).parent / "telerobot"
     proc = subprocess.Popen(
-        [str(exe), *args],
+        [*prefix, str(exe), *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -208,3 +208,19 @@ def test_a_missing_camera_is_reported_and_retried(tmp_path) -> None:  # type: ig
         assert cam.status is CameraStatus.RUNNING
     finally:
         cam.stop()
+
+
+def test_constant_bitrate_fills_the_budget_even_for_a_still_scene() -> None:
+    from backend.media.encoder import H264Encoder
+    from drivers.base import StereoFrame
+
+    still = np.full((360, 1280, 3), 120, np.uint8)
+    sizes = {}
+    for cbr in (False, True):
+        enc = H264Encoder(1280, 360, 30.0, 4_000_000, cbr=cbr)
+        sizes[cbr] = sum(
+            e.size for i in range(60) for e in enc.encode(StereoFrame(i, i / 30, still))
+        )
+    mbps = {k: v * 8 / 2.0 / 1e6 for k, v in sizes.items()}  # 60 frames = 2 s
+    assert mbps[False] < 0.5  # "at most" 4 Mbit/s: a still scene needs next to nothing
+    assert 3.6 < mbps[True] < 4.4  # constant: the budget, filled

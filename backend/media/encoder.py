@@ -57,9 +57,16 @@ class PacketEncoder:
     library = ""  # the FFmpeg encoder
 
     def __init__(
-        self, width: int, height: int, fps: float, bitrate: int, keyframe_interval: float = 2.0
+        self,
+        width: int,
+        height: int,
+        fps: float,
+        bitrate: int,
+        keyframe_interval: float = 2.0,
+        cbr: bool = False,
     ) -> None:
         self.width, self.height, self.fps, self.bitrate = width, height, fps, bitrate
+        self.cbr = cbr
         ctx = cast(VideoCodecContext, av.CodecContext.create(self.library, "w"))
         ctx.width, ctx.height = width, height
         ctx.pix_fmt = "yuv420p"
@@ -121,7 +128,10 @@ class H264Encoder(PacketEncoder):
             "profile": "baseline",
             "level": h264_level(self.width, self.height, self.fps),
             "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:scenecut=0:"
-            f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1",
+            f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1"
+            # Constant bitrate: filler data tops every second up to the bitrate (a fixed
+            # link budget, and the load the force-under-video benchmark needs).
+            + (":nal-hrd=cbr:filler=1" if self.cbr else ""),
         }
 
 

@@ -47,6 +47,7 @@ class VideoSettings:
     fps: float = 30.0
     bitrate: int = 8_000_000
     keyframe_interval: float = 2.0
+    cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
     ice_servers: tuple[str, ...] = ()  # "stun:host:port" or "turn:user:pass@host:port"
 
 
@@ -112,7 +113,12 @@ class VideoPipeline:
         if codec not in self.encoders:
             s = self.settings
             enc = ENCODERS[codec](
-                2 * self.camera.width, self.camera.height, s.fps, s.bitrate, s.keyframe_interval
+                2 * self.camera.width,
+                self.camera.height,
+                s.fps,
+                s.bitrate,
+                s.keyframe_interval,
+                cbr=s.cbr,
             )
             self.encoders[codec] = enc
             self.broadcasters[codec] = Broadcaster(enc.request_keyframe)

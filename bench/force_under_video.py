@@ -1,0 +1,259 @@
+"""Force samples on time while stereo video fills the link (SPEC §4, §9). The thesis
+saw its force packets go from 0.68 ms mean inter-arrival to 5.4 ms mean and ~20 ms
+worst while a stereo frame was on the wire.
+
+    python -m bench.force_under_video [--json] [--seconds 20]
+
+The server runs on the simulation with the stereo camera at 2×1280×720, 30 fps,
+H.264 at a constant 9 Mbit/s (filler data tops a still scene up to the budget, so
+the link carries all of it). In a separate client process the master-arm bridge
+(simulated master, as an observer) receives every 1 kHz force sample on the priority
+channel. One-way latency = receive time − the sample's sensor time: both are the same
+machine's CLOCK_MONOTONIC, also across network namespaces. Each run measures without
+video, then with an aiortc viewer receiving the video (not decoding it: the link and
+the server are under test, not the viewer's CPU).
+
+Links: loopback; and, when run as root, a veth pair between two network namespaces
+this benchmark creates and removes, the server's side shaped to 100 Mbit/s by HTB
+with DSCP EF (the priority channel's mark) in its own class ahead of the rest, as a
+DiffServ-aware router would.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import multiprocessing
+import os
+import secrets
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any
+
+import httpx
+import numpy as np
+
+from bench.common import emit, machine, parser, telerobot_process
+
+RATE_MBIT = 100
+VIDEO_BITRATE = 9_000_000
+NS_SERVER, NS_CLIENT = "trbench-srv", "trbench-cli"
+ADDR_SERVER, ADDR_CLIENT = "10.231.0.1", "10.231.0.2"
+URL = r"(https?://\S+?:\d+/)"
+
+
+# ---------------------------------------------------------------- the client process
+def _phase(records: list[tuple[int, float, float]]) -> dict[str, float]:
+    seq = np.array([r[0] for r in records], dtype=np.int64)
+    latency = np.array([r[2] - r[1] for r in records]) * 1000
+    arrivals = np.array([r[2] for r in records])
+    gaps = np.diff(arrivals) * 1000
+    return {
+        "samples": len(records),
+        "p50_ms": float(np.percentile(latency, 50)),
+        "p99_ms": float(np.percentile(latency, 99)),
+        "max_ms": float(latency.max()),
+        "interarrival_p50_ms": float(np.percentile(gaps, 50)),
+        "interarrival_p99_ms": float(np.percentile(gaps, 99)),
+        "interarrival_max_ms": float(gaps.max()),
+        "lost": int(seq[-1] - seq[0] + 1 - len(np.unique(seq))),
+    }
+
+
+async def _view(base: str, seconds: float) -> float:
+    """A viewer (its own process, as a browser would be) that receives the stereo video
+    like a browser, acknowledging RTP, without decoding it. Returns Mbit/s received."""
+    import aiortc.rtcrtpreceiver as receiver
+    from aiortc import RTCPeerConnection, RTCSessionDescription
+
+    received = [0]
+    original = receiver.RTCRtpReceiver._handle_rtp_packet
+
+    async def count(self: Any, packet: Any, arrival_time_ms: int) -> None:
+        received[0] += len(packet.payload) + 12  # the RTP header too
+        await original(self, packet, arrival_time_ms)
+
+    receiver.RTCRtpReceiver._handle_rtp_packet = count  # type: ignore[method-assign]
+    pc = RTCPeerConnection()
+    pc.addTransceiver("video", direction="recvonly")
+    tracks: asyncio.Queue[Any] = asyncio.Queue()
+    pc.on("track", tracks.put_nowait)
+    await pc.setLocalDescription(await pc.createOffer())
+    async with httpx.AsyncClient(base_url=base, timeout=30) as http:
+        r = await http.post(
+            "api/v1/webrtc/offer", json={"sdp": pc.localDescription.sdp, "type": "offer"}
+        )
+        r.raise_for_status()
+        await pc.setRemoteDescription(RTCSessionDescription(r.json()["sdp"], r.json()["type"]))
+    await asyncio.wait_for(tracks.get(), 30)
+    await asyncio.sleep(5.0)  # the first keyframe, the rate settles
+    b0, t0 = received[0], time.monotonic()
+    await asyncio.sleep(seconds)
+    mbps = (received[0] - b0) * 8 / (time.monotonic() - t0) / 1e6
+    await pc.close()
+    return mbps
+
+
+def viewer(base: str, seconds: float, out: Any) -> None:
+    from bench.video import _disable_decoding
+
+    _disable_decoding()
+    out.put(asyncio.run(_view(base, seconds)))
+
+
+def client(base: str, seconds: float) -> dict[str, Any]:
+    from backend.cli import tune_for_realtime
+    from backend.master.bridge import BridgeSettings, MasterBridge
+    from backend.master.cli import open_link
+    from drivers.master.sim import SimMaster
+
+    tune_for_realtime()  # as `telerobot master` does
+    link = open_link(base, "")
+    bridge = MasterBridge(SimMaster(), link, BridgeSettings())
+    records: list[tuple[int, float, float]] = []
+    bridge.on_sample = lambda s, at: records.append((s.seq, s.time, at))
+    bridge.start(take_control=False)
+    time.sleep(2.0)  # connected, past the start-up
+    records.clear()
+    time.sleep(seconds)
+    quiet = _phase(list(records))
+    ctx = multiprocessing.get_context("spawn")
+    out = ctx.Queue()
+    view = ctx.Process(target=viewer, args=(base, seconds, out), daemon=True)
+    view.start()
+    time.sleep(8.0)  # the viewer starts, connects, the first keyframe, the rate settles
+    records.clear()
+    time.sleep(seconds)
+    busy = _phase(list(records))
+    mbps = float(out.get(timeout=60))
+    view.join(timeout=10)
+    bridge.stop()
+    link.close()
+    channel = httpx.get(base + "api/v1/force/channel", timeout=10).json()
+    return {"no_video": quiet, "video": busy, "video_mbps": mbps, **channel}
+
+
+# ---------------------------------------------------------------- the network namespaces
+def _sh(command: str) -> None:
+    subprocess.run(command.split(), check=True, capture_output=True, text=True)
+
+
+def netns_available() -> str | None:
+    """Why the shaped-link run cannot happen here, or None if it can."""
+    if os.geteuid() != 0:
+        return "not root"
+    for tool in ("ip", "tc"):
+        if shutil.which(tool) is None:
+            return f"no `{tool}` command"
+    return None
+
+
+def netns_up() -> None:
+    netns_down()
+    _sh(f"ip netns add {NS_SERVER}")
+    _sh(f"ip netns add {NS_CLIENT}")
+    _sh(f"ip link add trb0 netns {NS_SERVER} type veth peer trb1 netns {NS_CLIENT}")
+    for ns, dev, addr in ((NS_SERVER, "trb0", ADDR_SERVER), (NS_CLIENT, "trb1", ADDR_CLIENT)):
+        _sh(f"ip -n {ns} addr add {addr}/24 dev {dev}")
+        _sh(f"ip -n {ns} link set {dev} up")
+        _sh(f"ip -n {ns} link set lo up")
+    # The server's way out: 100 Mbit/s; EF (forces) in class 1:10 ahead of 1:20 (the rest).
+    tc = f"ip netns exec {NS_SERVER} tc"
+    rate = f"{RATE_MBIT}mbit"
+    _sh(f"{tc} qdisc add dev trb0 root handle 1: htb default 20 r2q 100")
+    _sh(f"{tc} class add dev trb0 parent 1: classid 1:1 htb rate {rate}")
+    _sh(f"{tc} class add dev trb0 parent 1:1 classid 1:10 htb rate 10mbit ceil {rate} prio 0")
+    _sh(f"{tc} class add dev trb0 parent 1:1 classid 1:20 htb rate 90mbit ceil {rate} prio 1")
+    _sh(
+        f"{tc} filter add dev trb0 parent 1: protocol ip prio 1 u32"
+        " match ip dsfield 0xb8 0xfc flowid 1:10"
+    )
+
+
+def netns_down() -> None:
+    for ns in (NS_SERVER, NS_CLIENT):
+        subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+
+
+# ---------------------------------------------------------------- one measurement
+def measure(seconds: float, netns: bool) -> dict[str, Any]:
+    env = {
+        "TELEROBOT_VIDEO": "true",
+        "TELEROBOT_VIDEO_WIDTH": "1280",
+        "TELEROBOT_VIDEO_HEIGHT": "720",
+        "TELEROBOT_VIDEO_FPS": "30",
+        "TELEROBOT_VIDEO_BITRATE": str(VIDEO_BITRATE),
+        "TELEROBOT_VIDEO_CBR": "true",
+        "TELEROBOT_OPERATOR_TOKEN": secrets.token_hex(16),
+    }
+    host = ADDR_SERVER if netns else "127.0.0.1"
+    server_prefix = ("ip", "netns", "exec", NS_SERVER) if netns else ()
+    client_prefix = ["ip", "netns", "exec", NS_CLIENT] if netns else []
+    with (
+        tempfile.TemporaryDirectory() as state,
+        telerobot_process(
+            "serve", "--host", host, "--http-port", "0", "--priority-port", "0",
+            "--state-dir", state, wait_for=URL, env=env, prefix=server_prefix,
+        ) as (_, m),
+    ):  # fmt: skip
+        port = m.group(1).rsplit(":", 1)[1].rstrip("/")
+        base = f"http://{host}:{port}/"
+        out = subprocess.run(
+            [*client_prefix, sys.executable, "-m", "bench.force_under_video",
+             "--client", base, "--seconds", str(seconds)],
+            capture_output=True, text=True, timeout=seconds * 2 + 120,
+        )  # fmt: skip
+        if out.returncode != 0:
+            raise RuntimeError(f"the client failed:\n{out.stderr[-3000:]}")
+        result: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
+    quiet, busy = result["no_video"], result["video"]
+    return {
+        "p50_ms_no_video": quiet["p50_ms"],
+        "p99_ms_no_video": quiet["p99_ms"],
+        "max_ms_no_video": quiet["max_ms"],
+        "p50_ms_video": busy["p50_ms"],
+        "p99_ms_video": busy["p99_ms"],
+        "max_ms_video": busy["max_ms"],
+        "interarrival_p50_ms_video": busy["interarrival_p50_ms"],
+        "interarrival_p99_ms_video": busy["interarrival_p99_ms"],
+        "interarrival_max_ms_video": busy["interarrival_max_ms"],
+        "p99_ratio_video_vs_none": busy["p99_ms"] / quiet["p99_ms"],
+        "lost": quiet["lost"] + busy["lost"] + result["forces_dropped"],
+        "samples": quiet["samples"] + busy["samples"],
+        "video_mbps": result["video_mbps"],
+    }
+
+
+def main() -> None:
+    p = parser(__doc__ or "")
+    p.add_argument("--seconds", type=float, default=20.0, help="per phase")
+    p.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.client:
+        print(json.dumps(client(args.client, args.seconds)))
+        return
+    figures: dict[str, Any] = {"loopback": measure(args.seconds, netns=False)}
+    why_not = netns_available()
+    if why_not is None:
+        try:
+            netns_up()
+            figures["netns"] = measure(args.seconds, netns=True)
+        finally:
+            netns_down()
+    else:
+        figures["netns"] = None
+        figures["netns_skipped"] = why_not
+    for link in ("loopback", "netns"):
+        if figures.get(link):
+            print(f"-- {link}")
+            emit(figures[link], False)
+    if args.json:
+        print(json.dumps({**figures, "machine": machine()}))
+
+
+if __name__ == "__main__":
+    main()
