@@ -128,8 +128,13 @@ def test_a_crashed_media_worker_is_restarted_and_control_never_stops() -> None:
         while not httpx.get(base + "api/v1/video", timeout=10).json()["worker_alive"]:
             assert time.monotonic() < deadline
             time.sleep(0.2)
-        workers = [p for p in psutil.Process(proc.pid).children() if "python" in p.name().lower()]
+        workers = [
+            p for p in psutil.Process(proc.pid).children() if "spawn_main" in " ".join(p.cmdline())
+        ]
         assert workers, "no media worker process"
+        # Video yields the CPU to forces and control (setting video_nice, default 10).
+        assert {w.nice() for w in workers} == {10}
+        assert psutil.Process(proc.pid).nice() == 0
         for w in workers:
             w.kill()
         assert (

@@ -113,6 +113,7 @@ class MasterBridge:
         self.jumps_dropped = 0
         self.forces_received = 0
         self.forces_stale = 0
+        self.states_received = 0
         self.last_rendered: FloatArray = np.zeros(3)
         self.last_error: str | None = None
         self.on_sample: Callable[[ForceSample, float], None] | None = None  # benchmarks
@@ -141,6 +142,7 @@ class MasterBridge:
         with self._lock:
             self._tool_rotation = R
             self.flags = int(fields["flags"])
+            self.states_received += 1
 
     def _on_reply(self, reply: Reply) -> None:
         if reply.name == "ERROR":
