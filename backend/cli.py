@@ -102,6 +102,14 @@ def tune_for_realtime() -> None:
     gc.freeze()
 
 
+def wait_until_stopped() -> None:
+    """Block until Ctrl-C or SIGTERM."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with contextlib.suppress(KeyboardInterrupt):
+        stop.wait()
+
+
 def _val_emulator(args: argparse.Namespace) -> int:
     from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
 
@@ -114,10 +122,7 @@ def _val_emulator(args: argparse.Namespace) -> int:
     link.start()
     print(f"VAL controller emulator listening on {link.url}", flush=True)
     print(f"  run the server against it: telerobot serve --robot val --port {link.url}", flush=True)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with contextlib.suppress(KeyboardInterrupt):
-        stop.wait()
+    wait_until_stopped()
     link.stop()
     return 0
 
@@ -132,10 +137,7 @@ def _netft_emulator(args: argparse.Namespace) -> int:
         " telerobot serve",
         flush=True,
     )
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with contextlib.suppress(KeyboardInterrupt):
-        stop.wait()
+    wait_until_stopped()
     emulator.close()
     return 0
 

@@ -115,3 +115,27 @@ def percentiles_ms(values_s: list[float]) -> dict[str, float]:
         "max_ms": float(v.max()),
         "mean_ms": float(v.mean()),
     }
+
+
+async def open_viewer(base: str, timeout: float = 30.0) -> tuple[Any, Any]:
+    """An aiortc peer that asks ``base`` for the stereo video (one POST, as a browser
+    does): returns the peer connection and its video track once the track is up."""
+    import asyncio
+
+    import httpx
+    from aiortc import RTCPeerConnection, RTCSessionDescription
+
+    pc = RTCPeerConnection()
+    pc.addTransceiver("video", direction="recvonly")
+    tracks: asyncio.Queue[Any] = asyncio.Queue()
+    pc.on("track", tracks.put_nowait)
+    await pc.setLocalDescription(await pc.createOffer())
+    async with httpx.AsyncClient(base_url=base, timeout=timeout) as http:
+        r = await http.post(
+            "api/v1/webrtc/offer", json={"sdp": pc.localDescription.sdp, "type": "offer"}
+        )
+        if r.status_code != 200:
+            await pc.close()
+            raise RuntimeError(f"the server refused the offer: HTTP {r.status_code} {r.text}")
+        await pc.setRemoteDescription(RTCSessionDescription(r.json()["sdp"], r.json()["type"]))
+    return pc, await asyncio.wait_for(tracks.get(), timeout)

@@ -37,7 +37,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from bench.common import emit, machine, parser, telerobot_process
+from bench.common import emit, machine, open_viewer, parser, telerobot_process
 
 RATE_MBIT = 100
 VIDEO_BITRATE = 9_000_000
@@ -68,7 +68,6 @@ async def _view(base: str, seconds: float) -> float:
     """A viewer (its own process, as a browser would be) that receives the stereo video
     like a browser, acknowledging RTP, without decoding it. Returns Mbit/s received."""
     import aiortc.rtcrtpreceiver as receiver
-    from aiortc import RTCPeerConnection, RTCSessionDescription
 
     received = [0]
     original = receiver.RTCRtpReceiver._handle_rtp_packet
@@ -78,18 +77,7 @@ async def _view(base: str, seconds: float) -> float:
         await original(self, packet, arrival_time_ms)
 
     receiver.RTCRtpReceiver._handle_rtp_packet = count  # type: ignore[method-assign]
-    pc = RTCPeerConnection()
-    pc.addTransceiver("video", direction="recvonly")
-    tracks: asyncio.Queue[Any] = asyncio.Queue()
-    pc.on("track", tracks.put_nowait)
-    await pc.setLocalDescription(await pc.createOffer())
-    async with httpx.AsyncClient(base_url=base, timeout=30) as http:
-        r = await http.post(
-            "api/v1/webrtc/offer", json={"sdp": pc.localDescription.sdp, "type": "offer"}
-        )
-        r.raise_for_status()
-        await pc.setRemoteDescription(RTCSessionDescription(r.json()["sdp"], r.json()["type"]))
-    await asyncio.wait_for(tracks.get(), 30)
+    pc, _ = await open_viewer(base)
     await asyncio.sleep(5.0)  # the first keyframe, the rate settles
     b0, t0 = received[0], time.monotonic()
     await asyncio.sleep(seconds)

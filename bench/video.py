@@ -30,7 +30,7 @@ import httpx
 import numpy as np
 import psutil
 
-from bench.common import emit, machine, parser, telerobot_process
+from bench.common import emit, machine, open_viewer, parser, telerobot_process
 
 URL = r"http://localhost:(\d+)/"
 WIDTH, HEIGHT, FPS = 1280, 720, 30.0
@@ -67,22 +67,9 @@ def _note_last_packets(arrivals: dict[int, float]) -> None:
 
 
 async def _viewer(base: str, decode: bool, seconds: float, out: dict[str, Any]) -> None:
-    from aiortc import RTCPeerConnection, RTCSessionDescription
-
     from drivers.camera import timecode
 
-    pc = RTCPeerConnection()
-    pc.addTransceiver("video", direction="recvonly")
-    tracks: asyncio.Queue[Any] = asyncio.Queue()
-    pc.on("track", tracks.put_nowait)
-    await pc.setLocalDescription(await pc.createOffer())
-    async with httpx.AsyncClient(base_url=base, timeout=30) as http:
-        r = await http.post(
-            "api/v1/webrtc/offer", json={"sdp": pc.localDescription.sdp, "type": "offer"}
-        )
-        r.raise_for_status()
-        await pc.setRemoteDescription(RTCSessionDescription(r.json()["sdp"], r.json()["type"]))
-    track = await asyncio.wait_for(tracks.get(), 30)
+    pc, track = await open_viewer(base)
     if not decode:
         await asyncio.sleep(seconds)
         await pc.close()

@@ -8,8 +8,8 @@ import time
 
 import httpx
 import pytest
-from aiortc import RTCPeerConnection, RTCSessionDescription
 
+from bench.common import open_viewer
 from drivers.camera import timecode
 from tests.servers import telerobot
 
@@ -19,18 +19,8 @@ SMALL = {"TELEROBOT_VIDEO": "true", "TELEROBOT_VIDEO_WIDTH": "640", "TELEROBOT_V
 
 async def receive(base: str, frames: int) -> tuple[list[object], dict[str, object]]:
     """A viewer over real HTTP signalling: decoded RGB frames and the video status."""
-    pc = RTCPeerConnection()
-    pc.addTransceiver("video", direction="recvonly")
-    tracks: asyncio.Queue[object] = asyncio.Queue()
-    pc.on("track", tracks.put_nowait)
-    await pc.setLocalDescription(await pc.createOffer())
+    pc, track = await open_viewer(base, timeout=20)
     async with httpx.AsyncClient(base_url=base, timeout=30) as http:
-        r = await http.post(
-            "api/v1/webrtc/offer", json={"sdp": pc.localDescription.sdp, "type": "offer"}
-        )
-        assert r.status_code == 200, r.text
-        await pc.setRemoteDescription(RTCSessionDescription(r.json()["sdp"], r.json()["type"]))
-        track = await asyncio.wait_for(tracks.get(), 20)
         out = []
         for _ in range(frames):
             frame = await asyncio.wait_for(track.recv(), 20)  # type: ignore[attr-defined]

@@ -36,6 +36,7 @@ from backend.master.link import PriorityLink, Reply
 from backend.realtime import messages as m
 from drivers.base import FloatArray, ForceSample, InvalidCommand, MasterArm
 from drivers.master.impedance import ImpedanceCompensator
+from drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 
@@ -104,8 +105,8 @@ class MasterBridge:
         self._pending_rv = np.zeros(3)
         self._next_command = 0.0
         self._last_heartbeat = 0.0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._worker = WorkerThread(self._run, "master-bridge")
+        self._stop = self._worker.stopping
         # What happened, for the status line, tests and the benchmark.
         self.ticks = 0
         self.overruns = 0
@@ -216,15 +217,10 @@ class MasterBridge:
         self.link.ping()
         if take_control:
             self.link.lease(m.LeaseAction.TAKE_OVER if take_over else m.LeaseAction.TAKE)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="master-bridge", daemon=True)
-        self._thread.start()
+        self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-            self._thread = None
+        self._worker.stop()
         self.device.set_force(np.zeros(3))
         self.device.close()
         if self.has_control:

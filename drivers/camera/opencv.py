@@ -9,7 +9,6 @@ the capture thread keeps retrying and resumes on its own.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Callable
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from drivers.base import CameraStatus, StereoFrame
 from drivers.camera.slot import FrameSlot
+from drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +41,8 @@ class _OpenCVCapture:
         self._now = time_source
         self._slot = FrameSlot()
         self._seq = 0
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._worker = WorkerThread(self._run, f"{self.name}-capture")
+        self._stop = self._worker.stopping
         self._status = CameraStatus.STOPPED
         self._message = "stopped"
         self.retries = 0
@@ -74,17 +74,10 @@ class _OpenCVCapture:
 
     # thread ---------------------------------------------------------------
     def start(self) -> None:
-        if self._thread is not None and self._thread.is_alive():
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"{self.name}-capture", daemon=True)
-        self._thread.start()
+        self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-            self._thread = None
+        self._worker.stop(timeout=5)
         self._status, self._message = CameraStatus.STOPPED, "stopped"
 
     def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:

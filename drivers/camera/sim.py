@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import threading
 import time
 from collections.abc import Callable
 
@@ -24,6 +23,7 @@ from drivers.camera import timecode
 from drivers.camera.slot import FrameSlot
 from drivers.robot.puma560.kinematics import Puma560Kinematics
 from drivers.sim.workcell import Box, PinholeCamera, Workcell
+from drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 
@@ -60,8 +60,8 @@ class SimStereoCamera:
         self._now = time_source
         self._slot = FrameSlot()
         self._seq = 0
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._worker = WorkerThread(self._run, "sim-stereo-camera")
+        self._stop = self._worker.stopping
         self._status = CameraStatus.STOPPED
         self._background = np.concatenate([self._render_static(c) for c in self.cameras], axis=1)
         self.render_ms = 0.0  # last frame's render time
@@ -221,18 +221,11 @@ class SimStereoCamera:
 
     # ------------------------------------------------------------ capture thread
     def start(self) -> None:
-        if self._thread is not None and self._thread.is_alive():
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sim-stereo-camera", daemon=True)
-        self._thread.start()
+        self._worker.start()
         self._status = CameraStatus.RUNNING
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-            self._thread = None
+        self._worker.stop()
         self._status = CameraStatus.STOPPED
 
     def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:

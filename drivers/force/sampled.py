@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 from drivers.base import ForceSample
 from drivers.force.pipeline import ForcePipeline, Six
+from drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 
@@ -25,8 +26,8 @@ class SampledForceSensor:
         self._lock = threading.Lock()  # pipeline settings vs the sampling thread
         self._subscribers: list[Callable[[ForceSample], None]] = []
         self._latest: ForceSample | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._worker = WorkerThread(self._run, self.thread_name)
+        self._stop = self._worker.stopping
 
     # ------------------------------------------------------------ settings
     @property
@@ -99,20 +100,13 @@ class SampledForceSensor:
     # ------------------------------------------------------------ thread
     @property
     def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        return self._worker.running
 
     def start(self) -> None:
-        if self.running:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=self.thread_name, daemon=True)
-        self._thread.start()
+        self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-            self._thread = None
+        self._worker.stop()
 
     def _run(self) -> None:
         raise NotImplementedError
