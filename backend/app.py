@@ -13,7 +13,7 @@ from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from backend.api import control, force, health, robot, telemetry, video, workcell
+from backend.api import calibration, control, force, health, robot, telemetry, video, workcell
 from backend.control.decision import DecisionServer
 from backend.control.limits import SafetyLimits
 from backend.devices import build_force_sensor, build_robot, build_workcell
@@ -22,9 +22,11 @@ from backend.media.supervisor import MediaSupervisor
 from backend.realtime import ws
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
-from backend.security import operator_token
+from backend.security import operator_token, state_dir
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
+from calibration.model import CalibrationError
+from calibration.store import CalibrationStore
 from drivers.base import DeviceError, Robot, TelerobotError
 from drivers.clock import Clock, MonotonicClock
 from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
@@ -46,6 +48,17 @@ async def bring_up_robot(robot: Robot, initialize: bool) -> None:
         log.error("robot %s could not be brought up: %s", robot.name, exc)
 
 
+def load_calibration(settings: Settings) -> tuple[CalibrationStore, str | None]:
+    """The saved calibration; a file that cannot be read is kept as it is, reported,
+    and the cameras' ground truth stands in."""
+    store = CalibrationStore(state_dir(settings) / "calibration.json")
+    try:
+        return store.load(), None
+    except CalibrationError as exc:
+        log.error("%s", exc)
+        return store, str(exc)
+
+
 def create_app(settings: Settings | None = None, *, clock: Clock | None = None) -> FastAPI:
     settings = settings or Settings()
     clock = clock or MonotonicClock()
@@ -57,6 +70,8 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
         s.settings, s.token, s.token_is_new = settings, token, token_is_new
         s.telemetry = Telemetry()
         s.workcell = build_workcell(settings)
+        s.calibration, s.calibration_error = load_calibration(settings)
+        s.intrinsics = {}  # camera → (K, dist) from a ChArUco capture, until its fit
         s.robot = build_robot(settings, clock)
         s.force = build_force_sensor(settings, s.robot, s.workcell)
         limits = SafetyLimits(
@@ -112,7 +127,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
     app.state.token, app.state.token_is_new = token, token_is_new
     install_error_handlers(app)
     api = APIRouter(prefix="/api/v1")
-    for module in (health, robot, control, force, telemetry, video, workcell):
+    for module in (health, robot, control, force, telemetry, video, workcell, calibration):
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(ws.router)

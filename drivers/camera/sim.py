@@ -28,7 +28,16 @@ from drivers.threads import WorkerThread
 log = logging.getLogger(__name__)
 
 FIDUCIAL_RADIUS = 0.015  # m
-FIDUCIAL_COLOURS = ((255, 220, 0), (0, 200, 80), (40, 120, 255), (230, 0, 200))  # RGB, in order
+FIDUCIAL_COLOURS = (  # RGB, in the workcell's order: the affine basis first
+    (255, 220, 0),
+    (0, 200, 80),
+    (40, 120, 255),
+    (230, 0, 200),
+    (0, 220, 220),
+    (255, 255, 255),
+    (120, 60, 220),
+    (255, 110, 110),
+)
 LINK_RADIUS = 0.045  # m
 GRIPPER_COLOUR = (255, 140, 0)
 

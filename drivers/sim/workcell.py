@@ -2,9 +2,10 @@
 
 One scene: the PUMA 560 on its pedestal at the world origin (the robot's base
 frame *is* the world frame), a table in front of it, a stiff block on the table to
-push against, a frame of four non-coplanar fiducial points near the work area
-(thesis §5.3.1), and a stereo pair of pinhole cameras 1.5–2 m away with a
-configurable baseline. The cameras' ground-truth projections are exact, so
+push against, fiducial points near the work area (the thesis's four non-coplanar
+ones, §5.3.1, and the rest of the 0.2 m cube they span, for perspective fits), and
+a stereo pair of pinhole cameras 1.5–2 m away with a configurable baseline. The
+cameras' ground-truth projections are exact, so
 calibration and AR can be checked against them.
 
 Camera convention: OpenCV's (x right, y down, z forward); pixels (u, v) with the
@@ -151,7 +152,7 @@ class StereoRig:
 class Workcell:
     table: Box
     block: Box
-    fiducials: FloatArray  # (4, 3): origin, then 0.2 m along x, y and z from it
+    fiducials: FloatArray  # (8, 3): origin, 0.2 m along x, y, z; the cube's other corners
     rig: StereoRig
     work_centre: FloatArray  # (3,) where the cameras look
     obstacles: tuple[Box, ...] = field(default=())
@@ -229,7 +230,12 @@ def default_workcell(
         damping=80.0,
     )
     origin = np.array([0.55, 0.05, table_top])
-    fiducials = np.array([origin, origin + [0.2, 0, 0], origin + [0, 0.2, 0], origin + [0, 0, 0.2]])
+    # The thesis's affine basis first (origin, then 0.2 m along x, y, z), then the other
+    # corners of that 0.2 m cube (balls on posts): 8 points for a perspective fit.
+    fiducials = origin + 0.2 * np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, 1], [0, 1, 1], [1, 1, 1]],
+        dtype=float,
+    )
     centre = np.array([0.65, -0.15, 0.55])
     rig = stereo_rig(
         centre, distance=camera_distance, baseline=baseline, width=width, height=height

@@ -1,0 +1,199 @@
+"""Camera calibration: the models the AR ball projects with, and how to make them.
+
+Until a camera is calibrated the simulated camera's ground truth stands in (marked
+as such). Fits are made from fiducials clicked in the camera's image (the browser's
+calibration page, or a script), persist in the state folder and load at start.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Annotated, Literal
+
+import numpy as np
+from fastapi import APIRouter, Depends, Query, Request
+from pydantic import BaseModel, Field
+
+from backend.api.deps import OperatorDep, WorkcellDep
+from calibration.affine import fit_affine
+from calibration.charuco import (
+    BoardSpec,
+    board_poses,
+    calibrate_intrinsics,
+    fit_charuco,
+    render_view,
+    stereo_pose,
+)
+from calibration.dlt import fit_dlt
+from calibration.model import CalibrationError, CameraModel
+from calibration.store import CalibrationStore
+from drivers.sim.workcell import Workcell
+
+log = logging.getLogger(__name__)
+router = APIRouter(prefix="/calibration", tags=["calibration"])
+
+CameraName = Literal["left", "right"]
+
+
+def store_of(request: Request) -> CalibrationStore:
+    store: CalibrationStore = request.app.state.calibration
+    return store
+
+
+StoreDep = Annotated[CalibrationStore, Depends(store_of)]
+
+
+class CameraCalibration(BaseModel):
+    name: str
+    source: Literal["calibrated", "ground truth (simulation)"]
+    method: str | None
+    P: list[list[float]] = Field(description="3×4: pixel ~ P · [x, y, z, 1] (world = robot base)")
+    width: int
+    height: int
+    rms_px: float | None
+    max_px: float | None
+    residuals_px: list[float] = []
+    K: list[list[float]] | None = None
+    dist: list[float] | None = None
+    created: float | None = None
+
+
+class CalibrationState(BaseModel):
+    rig: str
+    cameras: list[CameraCalibration]
+    fiducials: list[list[float]] = Field(description="default 3D positions, in clicking order")
+    baseline_m: float | None = Field(None, description="from the two cameras, when both have K")
+    intrinsics_pending: list[str] = Field(
+        [], description="cameras with ChArUco intrinsics waiting for a fiducial fit"
+    )
+    error: str | None = None
+
+
+class FitRequest(BaseModel):
+    camera: CameraName
+    method: Literal["affine", "dlt", "charuco"] = "dlt"
+    points: list[list[float]] = Field(description="fiducials' 3D positions (m, robot base)")
+    pixels: list[list[float]] = Field(description="where they were clicked, same order (u, v)")
+
+
+class IntrinsicsResult(BaseModel):
+    camera: CameraName
+    K: list[list[float]]
+    dist: list[float]
+    rms_px: float
+    views_used: int
+
+
+def _camera(cell: Workcell, name: str) -> tuple[int, int]:
+    cam = cell.rig.left if name == "left" else cell.rig.right
+    return cam.width, cam.height
+
+
+def state(store: CalibrationStore, cell: Workcell, request: Request) -> CalibrationState:
+    cameras = []
+    for truth in (cell.rig.left, cell.rig.right):
+        model = store.cameras.get(truth.name)
+        if model is None:
+            cameras.append(
+                CameraCalibration(
+                    name=truth.name,
+                    source="ground truth (simulation)",
+                    method=None,
+                    P=truth.P.tolist(),
+                    width=truth.width,
+                    height=truth.height,
+                    rms_px=None,
+                    max_px=None,
+                )
+            )
+        else:
+            d = model.to_json()
+            cameras.append(CameraCalibration(name=truth.name, source="calibrated", **{
+                k: d[k] for k in ("method", "P", "width", "height", "rms_px", "max_px",
+                                  "residuals_px", "K", "dist", "created")
+            }))  # fmt: skip
+    baseline = None
+    left, right = store.cameras.get("left"), store.cameras.get("right")
+    if left is not None and right is not None and left.K is not None and right.K is not None:
+        baseline = stereo_pose(left, right)[2]
+    return CalibrationState(
+        rig=store.rig,
+        cameras=cameras,
+        fiducials=cell.fiducials.tolist(),
+        baseline_m=baseline,
+        intrinsics_pending=sorted(request.app.state.intrinsics),
+        error=request.app.state.calibration_error,
+    )
+
+
+@router.get("")
+async def get_calibration(store: StoreDep, cell: WorkcellDep, request: Request) -> CalibrationState:
+    return state(store, cell, request)
+
+
+@router.post("/fit")
+async def fit(
+    body: FitRequest, store: StoreDep, cell: WorkcellDep, request: Request, _op: OperatorDep
+) -> CalibrationState:
+    """Fit one camera from clicked fiducials: ``affine`` (the thesis's 4 points),
+    ``dlt`` (≥ 6 points, perspective), ``charuco`` (≥ 4 points, after
+    /calibration/intrinsics). The result is kept and used by the AR view at once."""
+    width, height = _camera(cell, body.camera)
+    points, pixels = np.array(body.points, dtype=float), np.array(body.pixels, dtype=float)
+    model: CameraModel
+    if body.method == "affine":
+        model = fit_affine(points, pixels, body.camera, width, height)
+    elif body.method == "dlt":
+        model = fit_dlt(points, pixels, body.camera, width, height)
+    else:
+        intrinsics = request.app.state.intrinsics.get(body.camera)
+        if intrinsics is None:
+            raise CalibrationError(
+                f"no intrinsics for the {body.camera} camera yet: run the ChArUco capture "
+                "(POST /api/v1/calibration/intrinsics) first"
+            )
+        K, dist = intrinsics
+        model = fit_charuco(K, dist, points, pixels, body.camera, width, height)
+    await asyncio.to_thread(store.put, model)
+    return state(store, cell, request)
+
+
+@router.post("/intrinsics")
+async def intrinsics(
+    store: StoreDep,
+    cell: WorkcellDep,
+    request: Request,
+    _op: OperatorDep,
+    camera: CameraName,
+    views: Annotated[int, Query(ge=4, le=40)] = 12,
+    distance_m: Annotated[float, Query(gt=0.2, le=3.0)] = 0.9,
+) -> IntrinsicsResult:
+    """ChArUco intrinsics for one camera. On the simulation the camera is shown the
+    board at ``views`` poses ``distance_m`` away and calibrated from what it sees."""
+    truth = cell.rig.left if camera == "left" else cell.rig.right
+    spec = BoardSpec()
+
+    def run() -> tuple[np.ndarray, np.ndarray, float, int]:
+        frames = [
+            render_view(truth.K, truth.R, truth.t, (truth.width, truth.height), bR, bt, spec)
+            for bR, bt in board_poses(truth.R, truth.t, distance_m, spec, views)
+        ]
+        return calibrate_intrinsics(frames, spec, (truth.width, truth.height))
+
+    K, dist, rms, used = await asyncio.to_thread(run)
+    request.app.state.intrinsics[camera] = (K, dist)
+    return IntrinsicsResult(
+        camera=camera, K=K.tolist(), dist=dist.tolist(), rms_px=rms, views_used=used
+    )
+
+
+@router.delete("")
+async def clear(
+    store: StoreDep, cell: WorkcellDep, request: Request, _op: OperatorDep
+) -> CalibrationState:
+    """Forget the calibration: the simulated ground truth stands in again."""
+    await asyncio.to_thread(store.clear)
+    request.app.state.intrinsics.clear()
+    request.app.state.calibration_error = None
+    return state(store, cell, request)

@@ -1,0 +1,172 @@
+"""ChArUco calibration with OpenCV: intrinsics and distortion from views of a board,
+then each camera's pose from the fiducials (solvePnP), and the stereo pair's relative
+pose and baseline.
+
+A ChArUco board is a chessboard whose white squares hold ArUco markers: every corner
+found is identified, so partly hidden or tilted boards still give exact
+correspondences. The simulation renders the board into a camera's view for any pose
+(a homography: the board is a plane), so the whole flow runs without hardware.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from calibration.model import CalibrationError, CameraModel, check_correspondences
+from drivers.base import FloatArray
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    squares_x: int = 9
+    squares_y: int = 6
+    square_m: float = 0.04
+    marker_m: float = 0.03
+    dictionary: int = cv2.aruco.DICT_4X4_50
+
+    def board(self) -> cv2.aruco.CharucoBoard:
+        return cv2.aruco.CharucoBoard(
+            (self.squares_x, self.squares_y),
+            self.square_m,
+            self.marker_m,
+            cv2.aruco.getPredefinedDictionary(self.dictionary),
+        )
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        return self.squares_x * self.square_m, self.squares_y * self.square_m
+
+
+def board_image(spec: BoardSpec, px_per_square: int = 100) -> np.ndarray:
+    """The printable board, grey levels, one pixel = square_m / px_per_square."""
+    size = (spec.squares_x * px_per_square, spec.squares_y * px_per_square)
+    return np.asarray(spec.board().generateImage(size, marginSize=0, borderBits=1))
+
+
+def render_view(
+    K: FloatArray,
+    R: FloatArray,
+    t: FloatArray,
+    size: tuple[int, int],
+    board_R: FloatArray,
+    board_t: FloatArray,
+    spec: BoardSpec,
+    background: int = 110,
+) -> np.ndarray:
+    """What a pinhole camera (K, world→camera R, t) sees of the board lying at world pose
+    (board_R, board_t): its x, y axes along the printed image's columns and rows, z
+    into the print (so the printed side faces −z)."""
+    px = 100
+    image = board_image(spec, px)
+    metres_per_px = spec.square_m / px
+    S = np.diag([metres_per_px, metres_per_px, 1.0])  # board pixels → board metres
+    Rc = R @ board_R  # board → camera
+    tc = R @ board_t + t
+    H = K @ np.column_stack([Rc[:, 0], Rc[:, 1], tc]) @ S
+    return np.asarray(
+        cv2.warpPerspective(image, H, size, flags=cv2.INTER_AREA, borderValue=(background,))
+    )
+
+
+def _rotation(rx: float, ry: float, rz: float) -> FloatArray:
+    R, _ = cv2.Rodrigues(np.array([rx, ry, rz], dtype=float))
+    return np.asarray(R, dtype=float)
+
+
+def board_poses(
+    R: FloatArray, t: FloatArray, distance: float, spec: BoardSpec, views: int = 12, seed: int = 0
+) -> list[tuple[FloatArray, FloatArray]]:
+    """World poses that put the board ~``distance`` in front of a camera (R, t), facing it,
+    tilted up to ±35° and spread over the image: a good set of calibration views."""
+    rng = np.random.default_rng(seed)
+    w, h = spec.size_m
+    poses = []
+    for i in range(views):
+        tilt = _rotation(
+            math.radians(rng.uniform(-35, 35)),
+            math.radians(rng.uniform(-35, 35)),
+            math.radians(rng.uniform(-20, 20)),
+        )
+        Rc = tilt  # board x right, y down, z into the print: the print faces the camera
+        centre = np.array(
+            [rng.uniform(-0.25, 0.25) * distance, rng.uniform(-0.15, 0.15) * distance,
+             distance * rng.uniform(0.8, 1.2)]
+        )  # fmt: skip
+        tc = centre - Rc @ np.array([w / 2, h / 2, 0.0])
+        # camera pose → world: board_R = Rᵀ Rc, board_t = Rᵀ (tc − t)
+        poses.append((R.T @ Rc, R.T @ (tc - t)))
+        del i
+    return poses
+
+
+def detect(image: np.ndarray, spec: BoardSpec) -> tuple[FloatArray, FloatArray] | None:
+    """The board corners found in ``image``: (N, 3) board points and (N, 2) pixels."""
+    board = spec.board()
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(image)
+    if ids is None or len(ids) < 6:
+        return None
+    obj, img = board.matchImagePoints(corners, ids)  # type: ignore[call-overload]
+    return np.asarray(obj, dtype=float).reshape(-1, 3), np.asarray(img, dtype=float).reshape(-1, 2)
+
+
+def calibrate_intrinsics(
+    views: list[np.ndarray], spec: BoardSpec, size: tuple[int, int]
+) -> tuple[FloatArray, FloatArray, float, int]:
+    """K, distortion, RMS reprojection error (px) and the number of views used."""
+    obj, img = [], []
+    for view in views:
+        found = detect(view, spec)
+        if found is not None:
+            obj.append(found[0].astype(np.float32))
+            img.append(found[1].astype(np.float32))
+    if len(obj) < 4:
+        raise CalibrationError(
+            f"the board was found in {len(obj)} of {len(views)} views; at least 4 are needed "
+            "(show the whole board, tilted differently each time)"
+        )
+    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, None, None)
+    return np.asarray(K, dtype=float), np.asarray(dist, dtype=float).ravel(), float(rms), len(obj)
+
+
+def fit_charuco(
+    K: FloatArray,
+    dist: FloatArray,
+    points: FloatArray,
+    pixels: FloatArray,
+    camera: str,
+    width: int,
+    height: int,
+) -> CameraModel:
+    """The camera's pose from ≥ 4 fiducials with known intrinsics (solvePnP)."""
+    X, uv = check_correspondences(points, pixels, at_least=4)
+    ok, rvec, tvec = cv2.solvePnP(X, uv, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        raise CalibrationError("solvePnP found no pose for these fiducials: check the clicks")
+    R, _ = cv2.Rodrigues(rvec)
+    P = K @ np.hstack([R, tvec.reshape(3, 1)])
+    model = CameraModel(camera, "charuco", P, np.zeros(len(X)), width, height, K=K, dist=dist)
+    projected, _ = cv2.projectPoints(X, rvec, tvec, K, dist)
+    model.residuals_px = np.linalg.norm(projected.reshape(-1, 2) - uv, axis=1)
+    return model
+
+
+def extrinsics(model: CameraModel) -> tuple[FloatArray, FloatArray]:
+    """World → camera R, t of a perspective model with known K."""
+    if model.K is None:
+        raise CalibrationError(f"the {model.method} model has no intrinsics")
+    Rt = np.linalg.inv(model.K) @ model.P
+    Rt = Rt / np.cbrt(np.linalg.det(Rt[:, :3]))
+    return Rt[:, :3], Rt[:, 3]
+
+
+def stereo_pose(left: CameraModel, right: CameraModel) -> tuple[FloatArray, FloatArray, float]:
+    """The right camera's pose in the left camera's frame and the baseline (m)."""
+    Rl, tl = extrinsics(left)
+    Rr, tr = extrinsics(right)
+    R = Rr @ Rl.T
+    t = tr - R @ tl
+    return R, t, float(np.linalg.norm(t))
