@@ -49,7 +49,7 @@ interface Camera {
 async function main(): Promise<void> {
   const [model, cell, safety] = await Promise.all([
     getJSON<RobotModelInfo>("api/v1/robot/model"),
-    getJSON<{ cameras: Camera[] }>("api/v1/calibration") // the calibration, or the ground truth until there is one,
+    getJSON<{ cameras: Camera[] }>("api/v1/calibration"), // calibrated, or the ground truth until then
     getJSON<{ force_limit_n: number }>("api/v1/safety"),
   ]);
   const [camL, camR] = cell.cameras;
