@@ -51,7 +51,7 @@ def test_model_and_workcell_for_the_clients(client: TestClient) -> None:
     assert model["joint_limits_deg"][1] == [-45, 225] and model["home_pose"] == "qz"
     cell = client.get("/api/v1/workcell").json()
     assert [c["name"] for c in cell["cameras"]] == ["left", "right"]
-    assert len(cell["fiducials"]) == 8 and cell["baseline"] == pytest.approx(0.12)
+    assert len(cell["fiducials"]) == 12 and cell["baseline"] == pytest.approx(0.12)
 
 
 def test_openapi_schema_lists_the_endpoints(client: TestClient) -> None:

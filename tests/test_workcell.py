@@ -23,7 +23,8 @@ def test_fiducials_are_non_coplanar_and_about_20_cm_apart() -> None:
     volume = abs(np.linalg.det(np.vstack([f[1] - f[0], f[2] - f[0], f[3] - f[0]])))
     assert volume > 1e-3
     assert np.linalg.norm(f[1:4] - f[0], axis=1) == pytest.approx([0.2, 0.2, 0.2])
-    assert len(f) == 8 and np.ptp(f, axis=0) == pytest.approx([0.2, 0.2, 0.2])  # a cube
+    assert np.ptp(f[:8], axis=0) == pytest.approx([0.2, 0.2, 0.2])  # then the cube's corners
+    assert len(f) == 12 and np.ptp(f[8:], axis=0)[:2] == pytest.approx([0.56, 0.9])
 
 
 @pytest.mark.parametrize("baseline", [0.065, 0.12, 0.3])

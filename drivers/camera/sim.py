@@ -37,6 +37,10 @@ FIDUCIAL_COLOURS = (  # RGB, in the workcell's order: the affine basis first
     (255, 255, 255),
     (120, 60, 220),
     (255, 110, 110),
+    (150, 255, 0),
+    (0, 90, 160),
+    (255, 150, 200),
+    (200, 200, 90),
 )
 LINK_RADIUS = 0.045  # m
 GRIPPER_COLOUR = (255, 140, 0)
