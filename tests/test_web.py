@@ -461,3 +461,73 @@ def test_webxr_each_eye_sees_its_camera_the_grip_drives_the_arm_and_contact_puls
     rest.delete("lease")
     assert errors == []
     page.close()
+
+
+def test_the_calibration_page_fits_both_cameras_from_clicks_and_the_ar_view_follows(
+    browser: Browser, server: str
+) -> None:
+    page = browser.new_page(viewport={"width": 1700, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+    page.goto(server + f"calibration.html?token={TOKEN}")
+    page.wait_for_function(
+        "window.calibration && document.getElementById('video').videoWidth > 0", timeout=60_000
+    )
+    page.wait_for_timeout(500)
+    page.click("#freeze")
+    cell = httpx.get(server + "api/v1/workcell").json()
+    assert "Click fiducial 1 of 12 in the LEFT image" in page.locator("#prompt").inner_text()
+    for cam in cell["cameras"]:  # click every fiducial where the camera sees it
+        P = np.array(cam["P"])
+        box = page.locator(f"#{cam['name']}").bounding_box()
+        assert box is not None
+        scale = box["width"] / cam["width"]
+        for X in cell["fiducials"]:
+            u, v, w = P @ np.array([*X, 1.0])
+            page.mouse.click(box["x"] + u / w * scale, box["y"] + v / w * scale)
+    assert page.locator("#prompt").inner_text() == "All fiducials clicked: compute."
+    page.click("#compute")
+    wait(page, "window.calibration.state.cameras.every((c) => c.source === 'calibrated')")
+    state = httpx.get(server + "api/v1/calibration").json()
+    assert [c["method"] for c in state["cameras"]] == ["dlt", "dlt"]
+    assert all(c["rms_px"] < 1.5 for c in state["cameras"]), state["cameras"]
+    assert "rms" in page.locator("#results").inner_text()
+    # The fitted frame is drawn over the image: the x axis (red) from fiducial 1 to 2.
+    P = np.array(state["cameras"][0]["P"])
+    (u0, v0, w0), (u1, v1, w1) = (P @ np.array([*cell["fiducials"][i], 1.0]) for i in (0, 1))
+    mid = ((u0 / w0 + u1 / w1) / 2, (v0 / w0 + v1 / w1) / 2)
+    rgba = page.evaluate(
+        "([u, v]) => Array.from(document.getElementById('left').getContext('2d')"
+        ".getImageData(Math.round(u) - 1, Math.round(v) - 1, 3, 3).data)",
+        list(mid),
+    )
+    assert any(rgba[i] > 200 and rgba[i + 1] < 100 for i in range(0, len(rgba), 4)), rgba
+    assert errors == []
+    page.close()
+    # The operator page projects the AR ball with the calibration: a fit whose clicks
+    # sit 20 px to the right puts the ball 20 px to the right.
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    try:
+        for cam in cell["cameras"]:
+            P = np.array(cam["P"])
+            uvw = np.hstack([cell["fiducials"], np.ones((12, 1))]) @ P.T
+            pixels = uvw[:, :2] / uvw[:, 2:] + [20.0, 0.0]
+            r = httpx.post(
+                server + "api/v1/calibration/fit",
+                json={"camera": cam["name"], "method": "dlt", "points": cell["fiducials"],
+                      "pixels": pixels.tolist()},
+                headers=auth,
+            )  # fmt: skip
+            assert r.status_code == 200, r.text
+        page, _ = open_page(browser, server)
+        page.wait_for_timeout(300)
+        ball = page.evaluate("window.telerobot.ball")
+        tool = np.array(httpx.get(server + "api/v1/robot/state").json()["position"] + [1.0])
+        for cam, got in zip(cell["cameras"], (ball["left"], ball["right"]), strict=True):
+            u, v, w = np.array(cam["P"]) @ tool
+            assert got[0] - u / w == pytest.approx(20.0, abs=2.0)
+            assert got[1] - v / w == pytest.approx(0.0, abs=2.0)
+        page.close()
+    finally:
+        httpx.delete(server + "api/v1/calibration", headers=auth)

@@ -3,7 +3,14 @@ import { defineConfig } from "vitest/config";
 // Built into web/dist, which the backend serves at "/". During development
 // `npx vite` proxies the API and the WebSocket to a running `telerobot serve`.
 export default defineConfig({
-  build: { outDir: "dist", emptyOutDir: true, sourcemap: true, chunkSizeWarningLimit: 1200 },
+  build: {
+    outDir: "dist",
+    emptyOutDir: true,
+    sourcemap: true,
+    chunkSizeWarningLimit: 1200,
+    // Two pages: the operator's and the camera calibration.
+    rollupOptions: { input: { main: "index.html", calibration: "calibration.html" } },
+  },
   server: {
     proxy: {
       "/api": "http://127.0.0.1:8000",
