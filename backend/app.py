@@ -8,12 +8,23 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from backend.api import calibration, control, force, health, robot, telemetry, video, workcell
+from backend.api import (
+    calibration,
+    control,
+    force,
+    health,
+    robot,
+    telemetry,
+    video,
+    viewer,
+    workcell,
+)
 from backend.control.decision import DecisionServer
 from backend.control.limits import SafetyLimits
 from backend.devices import build_force_sensor, build_robot, build_workcell
@@ -25,6 +36,7 @@ from backend.realtime.priority import PriorityChannel
 from backend.security import operator_token, state_dir
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
+from backend.viewer3d import Workcell3DView
 from calibration.model import CalibrationError
 from calibration.store import CalibrationStore
 from drivers.base import DeviceError, Robot, TelerobotError
@@ -57,6 +69,28 @@ def load_calibration(settings: Settings) -> tuple[CalibrationStore, str | None]:
     except CalibrationError as exc:
         log.error("%s", exc)
         return store, str(exc)
+
+
+def start_viewer(settings: Settings, s: Any) -> tuple[Workcell3DView | None, str | None]:
+    """The 3D view, if on; a view that cannot start (port taken) is reported, and the
+    server runs without it."""
+    if not settings.viewer:
+        return None, "the 3D view is off (setting viewer)"
+    try:
+        view = Workcell3DView(
+            settings.host,
+            settings.viewer_port,
+            s.workcell,
+            s.robot,
+            s.force,
+            s.calibration,
+            Puma560Kinematics(tool_transform(settings.tool_length)),
+        )
+    except (OSError, ImportError) as exc:
+        log.error("the 3D view cannot start on port %s: %s", settings.viewer_port, exc)
+        return None, f"the 3D view cannot start on port {settings.viewer_port}: {exc}"
+    view.start()
+    return view, None
 
 
 def create_app(settings: Settings | None = None, *, clock: Clock | None = None) -> FastAPI:
@@ -100,6 +134,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             ) from None
         s.priority.start()
         s.force.start()
+        s.viewer, s.viewer_error = start_viewer(settings, s)
         s.alignments = {}
         s.media = MediaSupervisor(settings, s.robot) if settings.video else None
         if s.media is not None:
@@ -112,6 +147,8 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             with contextlib.suppress(asyncio.CancelledError, TelerobotError):
                 await bring_up
             s.force.stop()
+            if s.viewer is not None:
+                await s.viewer.stop()
             if s.media is not None:
                 await s.media.stop()
             await s.priority.stop()
@@ -127,7 +164,9 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
     app.state.token, app.state.token_is_new = token, token_is_new
     install_error_handlers(app)
     api = APIRouter(prefix="/api/v1")
-    for module in (health, robot, control, force, telemetry, video, workcell, calibration):
+    for module in (
+        health, robot, control, force, telemetry, video, workcell, calibration, viewer
+    ):  # fmt: skip
         api.include_router(module.router)
     app.include_router(api)
     app.include_router(ws.router)

@@ -70,6 +70,8 @@ def _serve(args: argparse.Namespace) -> int:
                 f"Priority channel (forces, master arm): tcp://{shown}:{app.state.priority.port}",
                 flush=True,
             )
+            if app.state.viewer is not None:
+                print(f"3D view: http://{shown}:{app.state.viewer.port}/", flush=True)
             if app.state.token_is_new:
                 path = state_dir(settings) / "operator-token"
                 print(

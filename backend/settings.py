@@ -33,6 +33,9 @@ class Settings(BaseSettings):
     http_port: int = Field(8000, ge=0, le=65535)
     # The priority channel (forces out, commands in; the master-arm bridge): TCP, 0 = any
     priority_port: int = Field(8001, ge=0, le=65535)
+    # The 3D view of the workcell (viser), on its own HTTP port; 0 = any free port
+    viewer: bool = True
+    viewer_port: int = Field(8002, ge=0, le=65535)
 
     robot: Literal["sim", "val"] = "sim"
     auto_initialize: bool = True  # connect and initialise the robot at start-up

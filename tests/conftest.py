@@ -19,6 +19,9 @@ def pytest_configure() -> None:
     os.environ.setdefault("TELEROBOT_VIDEO", "false")
     # Many servers run side by side: each takes a free port for its priority channel.
     os.environ.setdefault("TELEROBOT_PRIORITY_PORT", "0")
+    # …and no 3D view unless a test asks for it (viser starts its own server).
+    os.environ.setdefault("TELEROBOT_VIEWER", "false")
+    os.environ.setdefault("TELEROBOT_VIEWER_PORT", "0")
 
 
 T = TypeVar("T")

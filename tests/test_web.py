@@ -503,6 +503,17 @@ def test_the_calibration_page_fits_both_cameras_from_clicks_and_the_ar_view_foll
         list(mid),
     )
     assert any(rgba[i] > 200 and rgba[i + 1] < 100 for i in range(0, len(rgba), 4)), rgba
+    # The ChArUco flow: the simulated cameras are shown a board, then the same clicks
+    # give each camera's pose with those intrinsics.
+    page.click("#charuco")
+    wait(page, "window.calibration.state.intrinsics_pending.length === 2", timeout=60_000)
+    assert page.locator("input[value=charuco]").is_checked()
+    page.click("#compute")
+    wait(page, "window.calibration.state.cameras.every((c) => c.method === 'charuco')")
+    state = httpx.get(server + "api/v1/calibration").json()
+    assert all(c["rms_px"] < 1.5 for c in state["cameras"]), state["cameras"]
+    assert state["baseline_m"] == pytest.approx(0.12, rel=0.1)
+    assert "stereo baseline" in page.locator("#results").inner_text()
     assert errors == []
     page.close()
     # The operator page projects the AR ball with the calibration: a fit whose clicks

@@ -78,6 +78,15 @@ async function main(): Promise<void> {
   };
   showAlign();
   $("xr").onclick = () => view.enterXR().catch((e: Error) => message(e.message, true));
+  // The 3D view (viser) is served on its own port of this host.
+  getJSON<{ port: number | null; error: string | null }>("api/v1/viewer")
+    .then((v) => {
+      const link = $<HTMLAnchorElement>("view3d");
+      if (v.port === null) return;
+      link.href = `http://${location.hostname}:${v.port}/`;
+      link.hidden = false;
+    })
+    .catch(() => undefined);
 
   // ---- real-time channel
   const client = new RealtimeLink(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, token, {

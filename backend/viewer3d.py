@@ -1,0 +1,167 @@
+"""A 3D view of the workcell (viser), served on its own port and linked from the
+operator page: the arm as it is (live), the predicted gripper (where the commanded
+target puts it), the cameras as frusta from the calibration (or the simulated ground
+truth), the fiducials, the table and block, and the contact force as an arrow.
+
+viser runs its own server thread; the scene is refreshed from the event loop at
+20 Hz with what changed (the arm, the target, the force).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from typing import Any
+
+import numpy as np
+
+from calibration.model import CameraModel
+from calibration.store import CalibrationStore
+from drivers.base import FloatArray, ForceSensor, Robot
+from drivers.robot.puma560.kinematics import Puma560Kinematics
+from drivers.sim.workcell import Workcell
+
+log = logging.getLogger(__name__)
+
+FORCE_M_PER_N = 0.005  # arrow length: 60 N → 0.3 m
+REFRESH_S = 0.05
+
+
+def camera_pose(
+    K: FloatArray, R: FloatArray, t: FloatArray, height: int
+) -> tuple[FloatArray, FloatArray, float]:
+    """Camera-to-world rotation, position, and vertical field of view (rad)."""
+    return R.T, -R.T @ t, 2 * math.atan(height / (2 * K[1, 1]))
+
+
+def decompose(P: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """K, R, t of a perspective 3×4 projection (RQ decomposition); None for an affine one."""
+    M = P[:, :3]
+    if abs(np.linalg.det(M)) < 1e-12 or np.allclose(P[2, :3], 0):
+        return None
+    # RQ via QR of the reversed, transposed matrix.
+    flip = np.eye(3)[::-1]
+    q, r = np.linalg.qr((flip @ M).T)
+    K = flip @ r.T @ flip
+    R = flip @ q.T
+    signs = np.diag(np.sign(np.diag(K)))
+    K, R = K @ signs, signs @ R
+    t = np.linalg.solve(K, P[:, 3])
+    if np.linalg.det(R) < 0:
+        R, t = -R, -t
+    return K / K[2, 2], R, t
+
+
+class Workcell3DView:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        workcell: Workcell,
+        robot: Robot,
+        force: ForceSensor | None,
+        calibration: CalibrationStore,
+        kinematics: Puma560Kinematics,
+    ) -> None:
+        import viser  # an optional part of the server: imported when the view is on
+
+        self.workcell = workcell
+        self.robot = robot
+        self.force = force
+        self.calibration = calibration
+        self.kinematics = kinematics
+        self.server: Any = viser.ViserServer(host=host, port=port, label="Telerobot", verbose=False)
+        self.port: int = self.server.get_port()
+        self._task: asyncio.Task[None] | None = None
+        self._calibration_seen: dict[str, float] | None = None
+        self.refreshes = 0
+        self.camera_updates = 0
+        self._static()
+
+    # ------------------------------------------------------------ the scene
+    def _static(self) -> None:
+        scene = self.server.scene
+        scene.add_grid("/floor", width=3.0, height=3.0, cell_size=0.1, section_size=0.5)
+        for box in (self.workcell.table, self.workcell.block):
+            scene.add_box(
+                f"/workcell/{box.name}",
+                color=box.colour,
+                dimensions=tuple(box.size),
+                position=tuple(box.centre),
+            )
+        f = self.workcell.fiducials
+        scene.add_point_cloud(
+            "/workcell/fiducials", f, np.tile([[255, 220, 0]], (len(f), 1)), point_size=0.02
+        )
+        for i, p in enumerate(f):
+            scene.add_label(f"/workcell/fiducials/{i + 1}", str(i + 1), position=tuple(p))
+        scene.add_frame("/base", axes_length=0.2, axes_radius=0.008)
+
+    def _cameras(self) -> None:
+        """Frusta from the calibration (perspective models) or the simulated ground truth."""
+        import viser.transforms as tf
+
+        self.camera_updates += 1
+        for truth in (self.workcell.rig.left, self.workcell.rig.right):
+            model: CameraModel | None = self.calibration.cameras.get(truth.name)
+            parts = (truth.K, truth.R, truth.t) if model is None else decompose(model.P)
+            name = f"/cameras/{truth.name}"
+            if parts is None:  # an affine model has no centre: no frustum to draw
+                self.server.scene.add_label(name, f"{truth.name}: affine model (no frustum)")
+                continue
+            R_cw, position, fov = camera_pose(*parts, truth.height)
+            self.server.scene.add_camera_frustum(
+                name,
+                fov=fov,
+                aspect=truth.width / truth.height,
+                scale=0.15,
+                color=(40, 160, 255) if model is not None else (120, 120, 120),
+                wxyz=tf.SO3.from_matrix(R_cw).wxyz,
+                position=tuple(position),
+            )
+
+    def refresh(self) -> None:
+        """The arm, the predicted gripper, the force; the cameras when the calibration changed."""
+        seen = {name: m.created for name, m in self.calibration.cameras.items()}
+        if seen != self._calibration_seen:
+            self._calibration_seen = seen
+            self._cameras()
+        scene = self.server.scene
+        pts = self.kinematics.link_origins(self.robot.joints)
+        segments = np.stack([pts[:-1], pts[1:]], axis=1)
+        scene.add_line_segments("/arm", segments, (110, 110, 120), thickness=0.04)
+        tool = pts[-1]
+        scene.add_icosphere("/arm/gripper", radius=0.02, color=(255, 140, 0), position=tuple(tool))
+        target = self.kinematics.fk(self.robot.target_joints)[:3, 3]
+        scene.add_icosphere(
+            "/predicted", radius=0.025, color=(0, 255, 102), opacity=0.6, position=tuple(target)
+        )
+        sample = self.force.latest if self.force is not None else None
+        if sample is not None:
+            f_base = self.robot.pose.rotation @ np.array(sample.values[:3])
+            end = tool + f_base * FORCE_M_PER_N
+            scene.add_line_segments(
+                "/force", np.array([[tool, end]]), (255, 40, 40), thickness=0.012
+            )
+        self.refreshes += 1
+
+    # ------------------------------------------------------------ running
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._run(), name="viewer3d")
+
+    async def _run(self) -> None:
+        while True:
+            try:
+                self.refresh()
+            except Exception:  # a view must never take the server down
+                log.exception("3D view refresh failed")
+            await asyncio.sleep(REFRESH_S)
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        await asyncio.to_thread(self.server.stop)
