@@ -47,6 +47,39 @@ def board_image(spec: BoardSpec, px_per_square: int = 100) -> np.ndarray:
     return np.asarray(spec.board().generateImage(size, marginSize=0, borderBits=1))
 
 
+def _board_homography(
+    K: FloatArray, R: FloatArray, t: FloatArray, board_R: FloatArray, board_t: FloatArray,
+    spec: BoardSpec, px: int,
+) -> FloatArray:  # fmt: skip
+    metres_per_px = spec.square_m / px
+    S = np.diag([metres_per_px, metres_per_px, 1.0])  # board pixels → board metres
+    Rc = R @ board_R  # board → camera
+    tc = R @ board_t + t
+    return np.asarray(K @ np.column_stack([Rc[:, 0], Rc[:, 1], tc]) @ S, dtype=float)
+
+
+def draw_board(
+    image: np.ndarray,
+    K: FloatArray,
+    R: FloatArray,
+    t: FloatArray,
+    board_R: FloatArray,
+    board_t: FloatArray,
+    spec: BoardSpec,
+) -> None:
+    """Paint the board, as a pinhole camera (K, world→camera R, t) sees it, into
+    ``image`` (grey or RGB, in place). The board lies at world pose (board_R, board_t):
+    its x, y axes along the printed image's columns and rows, z into the print (so the
+    printed side faces −z)."""
+    px = 100
+    board = board_image(spec, px)
+    H = _board_homography(K, R, t, board_R, board_t, spec, px)
+    size = (image.shape[1], image.shape[0])
+    warped = cv2.warpPerspective(board, H, size, flags=cv2.INTER_AREA)
+    mask = cv2.warpPerspective(np.full_like(board, 255), H, size, flags=cv2.INTER_NEAREST) > 0
+    image[mask] = warped[mask][:, None] if image.ndim == 3 else warped[mask]
+
+
 def render_view(
     K: FloatArray,
     R: FloatArray,
@@ -57,19 +90,15 @@ def render_view(
     spec: BoardSpec,
     background: int = 110,
 ) -> np.ndarray:
-    """What a pinhole camera (K, world→camera R, t) sees of the board lying at world pose
-    (board_R, board_t): its x, y axes along the printed image's columns and rows, z
-    into the print (so the printed side faces −z)."""
-    px = 100
-    image = board_image(spec, px)
-    metres_per_px = spec.square_m / px
-    S = np.diag([metres_per_px, metres_per_px, 1.0])  # board pixels → board metres
-    Rc = R @ board_R  # board → camera
-    tc = R @ board_t + t
-    H = K @ np.column_stack([Rc[:, 0], Rc[:, 1], tc]) @ S
-    return np.asarray(
-        cv2.warpPerspective(image, H, size, flags=cv2.INTER_AREA, borderValue=(background,))
-    )
+    """The board alone on a grey background, as the camera sees it (see draw_board)."""
+    image = np.full((size[1], size[0]), background, np.uint8)
+    draw_board(image, K, R, t, board_R, board_t, spec)
+    return image
+
+
+def view_distance(K: FloatArray, width: int, spec: BoardSpec, fill: float = 0.45) -> float:
+    """How far from the camera the board spans ``fill`` of the image's width."""
+    return float(K[0, 0] * spec.size_m[0] / (fill * width))
 
 
 def _rotation(rx: float, ry: float, rz: float) -> FloatArray:

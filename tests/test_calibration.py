@@ -209,3 +209,43 @@ def test_an_unreadable_calibration_file_is_kept_reported_and_the_server_serves(
         assert state["cameras"][0]["source"] == "ground truth (simulation)"
         assert client.get("/api/v1/robot/state").status_code == 200
     assert (state_dir / "calibration.json").read_text() == "{broken"  # nothing lost
+
+
+def _jpeg(image: np.ndarray) -> str:
+    import base64
+
+    import cv2
+
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return "data:image/jpeg;base64," + base64.b64encode(data.tobytes()).decode()
+
+
+def test_intrinsics_from_uploaded_views_and_their_checks(state_dir: Path) -> None:
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    cam = CELL.rig.left
+    spec = BoardSpec()
+    size = (cam.width, cam.height)
+    images = [
+        _jpeg(render_view(cam.K, cam.R, cam.t, size, bR, bt, spec))
+        for bR, bt in board_poses(cam.R, cam.t, 0.9, spec, 6)
+    ]
+    url = "/api/v1/calibration/intrinsics/views"
+    with serve(state_dir) as client:
+        r = client.post(url, json={"camera": "left", "images": images}, headers=auth)
+        assert r.status_code == 200, r.text
+        assert r.json()["views_used"] == 6
+        assert np.array(r.json()["K"]) == pytest.approx(cam.K, rel=0.01, abs=3.0)
+        assert client.get("/api/v1/calibration").json()["intrinsics_pending"] == ["left"]
+        for bad, why in (
+            (["not base64!"] * 4, "base64"),
+            (["aGVsbG8="] * 4, "PNG or JPEG"),
+            ([_jpeg(np.zeros((10, 10), np.uint8))] * 4, "must be 1280×720"),
+        ):
+            r = client.post(url, json={"camera": "left", "images": bad}, headers=auth)
+            assert r.status_code == 422 and why in r.json()["detail"], r.text
+        r = client.post(url, json={"camera": "left", "images": images[:2]}, headers=auth)
+        assert r.status_code == 422  # fewer than 4 views
+        # No video on this server: no board to show, and it says why.
+        r = client.post("/api/v1/calibration/board", json={"view": 0}, headers=auth)
+        assert r.status_code == 503 and "video is turned off" in r.json()["detail"]

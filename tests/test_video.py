@@ -224,3 +224,20 @@ def test_constant_bitrate_fills_the_budget_even_for_a_still_scene() -> None:
     mbps = {k: v * 8 / 2.0 / 1e6 for k, v in sizes.items()}  # 60 frames = 2 s
     assert mbps[False] < 0.5  # "at most" 4 Mbit/s: a still scene needs next to nothing
     assert 3.6 < mbps[True] < 4.4  # constant: the budget, filled
+
+
+def test_the_simulated_cameras_can_hold_up_a_charuco_board_for_calibration() -> None:
+    import cv2
+
+    from calibration.charuco import BoardSpec, detect
+
+    cam = camera()
+    w = cam.width
+    for view in range(0, 12, 3):
+        cam.show_board(view)
+        grey = cv2.cvtColor(cam.render(0.0), cv2.COLOR_RGB2GRAY)
+        for eye in (grey[:, :w], grey[:, w:]):
+            found = detect(eye, BoardSpec())
+            assert found is not None and len(found[0]) > 20, view  # most corners, both eyes
+    cam.show_board(None)
+    assert detect(cv2.cvtColor(cam.render(0.0), cv2.COLOR_RGB2GRAY)[:, :w], BoardSpec()) is None

@@ -188,6 +188,70 @@ async def intrinsics(
     )
 
 
+class BoardRequest(BaseModel):
+    view: int | None = Field(
+        None, ge=0, le=99, description="which calibration pose; null puts the board away"
+    )
+
+
+@router.post("/board")
+async def board(body: BoardRequest, request: Request, _op: OperatorDep) -> BoardRequest:
+    """On the simulation: hold the ChArUco board up in front of both cameras (in the
+    live video) at calibration pose ``view``, for the page to capture. Real cameras:
+    hold a printed board instead (this answers with an error saying so)."""
+    from backend.api.video import media_supervisor
+
+    await media_supervisor(request).request("board", view=body.view)
+    return body
+
+
+class ViewsRequest(BaseModel):
+    camera: CameraName
+    images: list[str] = Field(
+        description="views of the board from this camera: PNG or JPEG, base64 or data URLs",
+        min_length=4,
+        max_length=60,
+    )
+
+
+def decode_image(data: str) -> np.ndarray:
+    import base64
+    import binascii
+
+    import cv2
+
+    try:
+        raw = base64.b64decode(data.split(",", 1)[-1], validate=True)
+    except (binascii.Error, ValueError):
+        raise CalibrationError("an image is not valid base64") from None
+    image = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise CalibrationError("an image is not a PNG or JPEG the server can read")
+    return np.asarray(image)
+
+
+@router.post("/intrinsics/views")
+async def intrinsics_from_views(
+    body: ViewsRequest, cell: WorkcellDep, request: Request, _op: OperatorDep
+) -> IntrinsicsResult:
+    """ChArUco intrinsics and distortion from views captured by the page (real or
+    simulated cameras alike); the fiducial fit with method ``charuco`` uses them."""
+    width, height = _camera(cell, body.camera)
+    views = [decode_image(i) for i in body.images]
+    sizes = {v.shape[::-1] for v in views}
+    if sizes != {(width, height)}:
+        raise CalibrationError(
+            f"views must be {width}×{height} (the {body.camera} camera's image), got {sizes}"
+        )
+    K, dist, rms, used = await asyncio.to_thread(
+        calibrate_intrinsics, views, BoardSpec(), (width, height)
+    )
+    request.app.state.intrinsics[body.camera] = (K, dist)
+    return IntrinsicsResult(
+        camera=body.camera, K=K.tolist(), dist=dist.tolist(), rms_px=rms, views_used=used
+    )
+
+
 @router.delete("")
 async def clear(
     store: StoreDep, cell: WorkcellDep, request: Request, _op: OperatorDep

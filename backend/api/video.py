@@ -47,7 +47,7 @@ class VideoStatus(BaseModel):
     stats: dict[str, Any] | None
 
 
-def _media(request: Request) -> MediaSupervisor:
+def media_supervisor(request: Request) -> MediaSupervisor:
     media: MediaSupervisor | None = request.app.state.media
     if media is None:
         raise MediaUnavailable("video is turned off on this server (setting video = false)")
@@ -58,26 +58,28 @@ def _media(request: Request) -> MediaSupervisor:
 async def offer(body: SessionDescription, request: Request) -> PeerDescription:
     """Send the browser's offer (with a recvonly video transceiver); get the answer.
     ICE candidates are in the SDP (no trickle)."""
-    reply = await _media(request).request("answer", sdp=body.sdp, type=body.type)
+    reply = await media_supervisor(request).request("answer", sdp=body.sdp, type=body.type)
     return PeerDescription(peer_id=reply["peer_id"], sdp=reply["sdp"], type=reply["type"])
 
 
 @router.post("/webrtc/server-offer")
 async def server_offer(request: Request) -> PeerDescription:
     """For browsers that need the server to offer: answer it with /webrtc/answer."""
-    reply = await _media(request).request("offer")
+    reply = await media_supervisor(request).request("offer")
     return PeerDescription(peer_id=reply["peer_id"], sdp=reply["sdp"], type=reply["type"])
 
 
 @router.post("/webrtc/answer")
 async def answer(body: Answer, request: Request) -> dict[str, str]:
-    await _media(request).request("accept", peer_id=body.peer_id, sdp=body.sdp, type=body.type)
+    await media_supervisor(request).request(
+        "accept", peer_id=body.peer_id, sdp=body.sdp, type=body.type
+    )
     return {"peer_id": body.peer_id}
 
 
 @router.delete("/webrtc/{peer_id}")
 async def close_peer(peer_id: str, request: Request) -> dict[str, str]:
-    await _media(request).request("close_peer", peer_id=peer_id)
+    await media_supervisor(request).request("close_peer", peer_id=peer_id)
     return {"peer_id": peer_id}
 
 

@@ -119,6 +119,14 @@ async def _serve(conn: multiprocessing.connection.Connection, settings: Settings
                 reply["stats"] = pipeline.stats()
             elif op == "keyframe":
                 pipeline.encoder.request_keyframe()
+            elif op == "board":
+                show = getattr(camera, "show_board", None)
+                if show is None:
+                    raise TelerobotError(
+                        "only the simulated camera can show a board: hold a printed ChArUco "
+                        "board in front of the real cameras instead"
+                    )
+                show(req.get("view"))
             else:
                 raise TelerobotError(f"unknown media request {op!r}")
             reply["ok"] = True

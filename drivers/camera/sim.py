@@ -18,6 +18,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from calibration.charuco import BoardSpec, board_poses, draw_board, view_distance
 from drivers.base import ArmSnapshot, CameraStatus, StereoFrame
 from drivers.camera import timecode
 from drivers.camera.slot import FrameSlot
@@ -43,6 +44,7 @@ FIDUCIAL_COLOURS = (  # RGB, in the workcell's order: the affine basis first
     (200, 200, 90),
 )
 LINK_RADIUS = 0.045  # m
+BOARD = BoardSpec()  # the ChArUco board the calibration page asks for
 GRIPPER_COLOUR = (255, 140, 0)
 
 
@@ -73,6 +75,7 @@ class SimStereoCamera:
         self._now = time_source
         self._slot = FrameSlot()
         self._seq = 0
+        self.board: tuple[np.ndarray, np.ndarray] | None = None  # pose, while shown
         self._worker = WorkerThread(self._run, "sim-stereo-camera")
         self._stop = self._worker.stopping
         self._status = CameraStatus.STOPPED
@@ -226,11 +229,27 @@ class SimStereoCamera:
         dt = min(max(t - snap.time, 0.0), 0.05)
         q = snap.joints + snap.velocities * dt
         sbs = self._background.copy()
+        board = self.board
         for i, cam in enumerate(self.cameras):
-            self._draw_arm(sbs[:, i * self.width : (i + 1) * self.width], cam, q)
+            eye = sbs[:, i * self.width : (i + 1) * self.width]
+            self._draw_arm(eye, cam, q)
+            if board is not None:  # held up in front of the cameras, for calibration
+                draw_board(eye, cam.K, cam.R, cam.t, board[0], board[1], BOARD)
         if self.show_timecode:
             timecode.draw(sbs[:, : self.width], t)
         return sbs
+
+    # ------------------------------------------------------------ calibration board
+    def show_board(self, view: int | None, views: int = 12) -> None:
+        """Hold the ChArUco board up in front of both cameras, at the ``view``-th of
+        ``views`` calibration poses (tilted, spread over the image); None puts it away."""
+        if view is None:
+            self.board = None
+            return
+        left = self.cameras[0]
+        distance = view_distance(left.K, self.width, BOARD)
+        poses = board_poses(left.R, left.t, distance, BOARD, views=views, seed=7)
+        self.board = poses[view % views]
 
     # ------------------------------------------------------------ capture thread
     def start(self) -> None:

@@ -223,18 +223,57 @@ async function main(): Promise<void> {
     }
     showState();
   };
+  // ---- ChArUco: views of the board from both cameras → intrinsics, then the fit
+  const views: Record<CameraName, string[]> = { left: [], right: [] };
+  const nextFrames = (n: number) =>
+    new Promise<void>((resolve) => {
+      const step = (left: number) => (left <= 0 ? resolve() : video.requestVideoFrameCallback(() => step(left - 1)));
+      step(n);
+    });
+  function addView(): void {
+    if (!video.videoWidth) return message("no video yet", true);
+    const w = video.videoWidth / 2;
+    const h = video.videoHeight;
+    const eye = document.createElement("canvas");
+    eye.width = w;
+    eye.height = h;
+    const g = eye.getContext("2d")!;
+    CAMERAS.forEach((cam, i) => {
+      g.drawImage(video, i * w, 0, w, h, 0, 0, w, h);
+      views[cam].push(eye.toDataURL("image/jpeg", 0.95));
+    });
+    $("view-count").textContent = String(views.left.length);
+    $<HTMLButtonElement>("use-views").disabled = views.left.length < 4;
+  }
+  async function useViews(): Promise<void> {
+    for (const cam of CAMERAS) {
+      const r = await call<{ rms_px: number; views_used: number }>("POST", "api/v1/calibration/intrinsics/views", { camera: cam, images: views[cam] });
+      message(`${cam}: intrinsics from ${r.views_used} of ${views[cam].length} views, rms ${r.rms_px.toFixed(2)} px`);
+    }
+    views.left = [];
+    views.right = [];
+    $("view-count").textContent = "0";
+    $<HTMLButtonElement>("use-views").disabled = true;
+    state = await call<CalibrationState>("GET", "api/v1/calibration");
+    document.querySelector<HTMLInputElement>("input[value=charuco]")!.checked = true;
+    prompt();
+  }
+  $("add-view").onclick = addView;
+  $("use-views").onclick = () => useViews().catch((e: Error) => message(e.message, true)).finally(showState);
   $("charuco").onclick = async () => {
+    // On the simulation the server holds the board up at 12 poses in the live video;
+    // with real cameras, hold a printed board and use "Add view" instead.
     try {
-      for (const cam of CAMERAS) {
-        message(`showing the ${cam} camera a ChArUco board at 12 poses…`);
-        const r = await call<{ rms_px: number; views_used: number }>("POST", `api/v1/calibration/intrinsics?camera=${cam}&views=12`);
-        message(`${cam}: intrinsics from ${r.views_used} views, rms ${r.rms_px.toFixed(2)} px`);
+      for (let view = 0; view < 12; view++) {
+        await call("POST", "api/v1/calibration/board", { view });
+        await nextFrames(4); // the new pose has reached the decoder
+        addView();
       }
-      state = await call<CalibrationState>("GET", "api/v1/calibration");
-      document.querySelector<HTMLInputElement>("input[value=charuco]")!.checked = true;
-      prompt();
+      await call("POST", "api/v1/calibration/board", { view: null });
+      await useViews();
     } catch (e) {
       message((e as Error).message, true);
+      await call("POST", "api/v1/calibration/board", { view: null }).catch(() => undefined);
     }
     showState();
   };
