@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -16,12 +17,15 @@ from drivers.sim.workcell import Workcell, default_workcell
 
 
 def build_workcell(settings: Settings) -> Workcell:
-    return default_workcell(
+    cell = default_workcell(
         camera_distance=settings.camera_distance,
         baseline=settings.camera_baseline,
         width=settings.video_width,  # the cameras' ground truth is for the video's size
         height=settings.video_height,
     )
+    if settings.fiducials is not None:  # where they really are (a real workcell)
+        cell = dataclasses.replace(cell, fiducials=np.array(settings.fiducials, dtype=float))
+    return cell
 
 
 def build_robot(settings: Settings, clock: Clock | None = None) -> Robot:

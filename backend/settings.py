@@ -8,6 +8,7 @@ simulation.
 
 from __future__ import annotations
 
+import math
 import os
 from contextvars import ContextVar
 from pathlib import Path
@@ -83,8 +84,22 @@ class Settings(BaseSettings):
     alignment_px: tuple[int, int] = (0, 0)  # default shift of the right image vs the left (x, y)
 
     # Simulated workcell
+    # Where the fiducials are (m, robot base), in clicking order; the thesis's affine
+    # basis first (origin, then along x, y, z). Default: the simulated workcell's.
+    fiducials: list[list[float]] | None = None
     camera_distance: float = Field(1.8, ge=0.3, le=10.0)
     camera_baseline: float = Field(0.12, gt=0.0, lt=1.0)
+
+    @field_validator("fiducials")
+    @classmethod
+    def _fiducials(cls, v: list[list[float]] | None) -> list[list[float]] | None:
+        if v is None:
+            return v
+        if len(v) < 4 or any(len(p) != 3 for p in v):
+            raise ValueError("fiducials must be at least 4 points of [x, y, z] (metres)")
+        if not all(math.isfinite(c) for p in v for c in p):
+            raise ValueError("fiducials must be finite numbers")
+        return v
 
     @field_validator("home_pose")
     @classmethod

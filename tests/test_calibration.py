@@ -249,3 +249,16 @@ def test_intrinsics_from_uploaded_views_and_their_checks(state_dir: Path) -> Non
         # No video on this server: no board to show, and it says why.
         r = client.post("/api/v1/calibration/board", json={"view": 0}, headers=auth)
         assert r.status_code == 503 and "video is turned off" in r.json()["detail"]
+
+
+def test_the_fiducials_come_from_the_settings_when_given(state_dir: Path) -> None:
+    from pydantic import ValidationError
+
+    mine = [[0.5, 0.0, 0.4], [0.7, 0.0, 0.4], [0.5, 0.2, 0.4], [0.5, 0.0, 0.6], [0.7, 0.2, 0.6]]
+    with TestClient(
+        create_app(Settings(operator_token=TOKEN, state_dir=state_dir, fiducials=mine))
+    ) as client:
+        assert client.get("/api/v1/calibration").json()["fiducials"] == mine
+    for bad in ([[0, 0, 0]] * 3, [[0, 0]] * 4, [[0, 0, float("nan")]] * 4):
+        with pytest.raises(ValidationError, match="fiducials"):
+            Settings(fiducials=bad)

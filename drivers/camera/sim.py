@@ -115,7 +115,7 @@ class SimStereoCamera:
                 cv2.fillConvexPoly(img, pts, colour, lineType=cv2.LINE_AA)
             if i == 0:
                 self._draw_table_grid(img, cam)
-        for colour, p in zip(FIDUCIAL_COLOURS, self.workcell.fiducials, strict=True):
+        for colour, p in zip(itertools.cycle(FIDUCIAL_COLOURS), self.workcell.fiducials):
             self._draw_ball(img, cam, p, FIDUCIAL_RADIUS, colour)
         return img
 
