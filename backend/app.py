@@ -63,7 +63,8 @@ async def bring_up_robot(robot: Robot, initialize: bool) -> None:
 def load_calibration(settings: Settings) -> tuple[CalibrationStore, str | None]:
     """The saved calibration; a file that cannot be read is kept as it is, reported,
     and the cameras' ground truth stands in."""
-    store = CalibrationStore(state_dir(settings) / "calibration.json")
+    rig = settings.rig_name
+    store = CalibrationStore(state_dir(settings) / f"calibration-{rig}.json", rig)
     try:
         return store.load(), None
     except CalibrationError as exc:

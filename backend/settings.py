@@ -73,6 +73,19 @@ class Settings(BaseSettings):
     video: bool = True
     camera: Literal["sim", "opencv", "opencv-sbs"] = "sim"
     camera_devices: list[str] = ["0", "1"]  # opencv: left, right; opencv-sbs: the first
+    # The rig's name: each rig keeps its own calibration (calibration-<rig>.json).
+    # Default: "sim" for the simulation, else the camera driver and its devices.
+    camera_rig: str | None = Field(None, pattern=r"^[A-Za-z0-9._-]{1,64}$")
+
+    @property
+    def rig_name(self) -> str:
+        if self.camera_rig:
+            return self.camera_rig
+        if self.camera == "sim":
+            return "sim"
+        devices = "-".join(d.strip("/").replace("/", "_") for d in self.camera_devices)
+        return f"{self.camera}-{devices}"[:64]
+
     video_width: int = Field(1280, ge=160, le=3840)  # of one eye
     video_height: int = Field(720, ge=120, le=2160)
     video_fps: float = Field(30.0, ge=1.0, le=120.0)

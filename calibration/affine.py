@@ -12,21 +12,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.model import CalibrationError, CameraModel, check_correspondences, spread
+from calibration.model import CameraModel, check_correspondences, require_volume
 from drivers.base import FloatArray
-
-MIN_SPREAD = 0.02  # below this the points are (nearly) coplanar: the basis has no volume
 
 
 def fit_affine(
     points: FloatArray, pixels: FloatArray, camera: str, width: int, height: int
 ) -> CameraModel:
     X, uv = check_correspondences(points, pixels, at_least=4)
-    if spread(X) < MIN_SPREAD:
-        raise CalibrationError(
-            "the fiducials are (nearly) coplanar: the affine method needs four points that "
-            "span a volume (the origin and one point along each of x, y and z)"
-        )
+    require_volume(
+        X,
+        "the affine method needs four points that span a volume (the origin and one "
+        "point along each of x, y and z)",
+    )
     if len(X) == 4:
         basis = (X[1:] - X[0]).T  # columns: P1−P0, P2−P0, P3−P0
         image = (uv[1:] - uv[0]).T
@@ -37,6 +35,4 @@ def fit_affine(
         sol, *_ = np.linalg.lstsq(A, uv, rcond=None)  # (4, 2): [Mᵀ; p0]
         M, p0 = sol[:3].T, sol[3]
     P = np.vstack([np.hstack([M, p0[:, None]]), [0.0, 0.0, 0.0, 1.0]])
-    model = CameraModel(camera, "affine", P, np.zeros(len(X)), width, height)
-    model.residuals_px = np.linalg.norm(model.project(X) - uv, axis=1)
-    return model
+    return CameraModel.fitted(camera, "affine", P, X, uv, width, height)

@@ -177,10 +177,7 @@ def fit_charuco(
         raise CalibrationError("solvePnP found no pose for these fiducials: check the clicks")
     R, _ = cv2.Rodrigues(rvec)
     P = K @ np.hstack([R, tvec.reshape(3, 1)])
-    model = CameraModel(camera, "charuco", P, np.zeros(len(X)), width, height, K=K, dist=dist)
-    projected, _ = cv2.projectPoints(X, rvec, tvec, K, dist)
-    model.residuals_px = np.linalg.norm(projected.reshape(-1, 2) - uv, axis=1)
-    return model
+    return CameraModel.fitted(camera, "charuco", P, X, uv, width, height, K=K, dist=dist)
 
 
 def extrinsics(model: CameraModel) -> tuple[FloatArray, FloatArray]:

@@ -11,10 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.model import CalibrationError, CameraModel, check_correspondences, project, spread
+from calibration.model import (
+    CalibrationError,
+    CameraModel,
+    check_correspondences,
+    project,
+    require_volume,
+)
 from drivers.base import FloatArray
-
-MIN_SPREAD = 0.02
 
 
 def _normaliser(points: FloatArray) -> FloatArray:
@@ -82,10 +86,7 @@ def fit_dlt(
     points: FloatArray, pixels: FloatArray, camera: str, width: int, height: int
 ) -> CameraModel:
     X, uv = check_correspondences(points, pixels, at_least=6)
-    if spread(X) < MIN_SPREAD:
-        raise CalibrationError(
-            "the points are (nearly) coplanar: a perspective fit needs points off one plane"
-        )
+    require_volume(X, "a perspective fit needs points off one plane")
     P = refine(dlt(X, uv), X, uv)
     # Points in front of the camera have w > 0 (the sign of P is free: fix it).
     w = np.hstack([X, np.ones((len(X), 1))]) @ P[2]
@@ -93,6 +94,4 @@ def fit_dlt(
         P = -P
     elif not np.all(w > 0):
         raise CalibrationError("the fit puts some points behind the camera: check the clicks")
-    model = CameraModel(camera, "dlt", P, np.zeros(len(X)), width, height)
-    model.residuals_px = np.linalg.norm(model.project(X) - uv, axis=1)
-    return model
+    return CameraModel.fitted(camera, "dlt", P, X, uv, width, height)

@@ -42,6 +42,16 @@ class CameraModel:
     def max_px(self) -> float:
         return float(np.max(self.residuals_px))
 
+    @classmethod
+    def fitted(
+        cls, camera: str, method: str, P: FloatArray, X: FloatArray, uv: FloatArray,
+        width: int, height: int, K: FloatArray | None = None, dist: FloatArray | None = None,
+    ) -> CameraModel:  # fmt: skip
+        """The model, with its residuals at the points it was fitted to."""
+        model = cls(camera, method, P, np.zeros(len(X)), width, height, K=K, dist=dist)
+        model.residuals_px = np.linalg.norm(model.project(X) - uv, axis=1)
+        return model
+
     def project(self, points: FloatArray) -> FloatArray:
         """(N, 3) world points → (N, 2) pixels, through the lens distortion if known."""
         if self.K is None or self.dist is None or not np.any(self.dist):
@@ -111,6 +121,12 @@ def check_correspondences(
     if not (np.isfinite(X).all() and np.isfinite(uv).all()):
         raise CalibrationError("points and pixels must be finite numbers (no NaN)")
     return X, uv
+
+
+def require_volume(points: FloatArray, why: str, at_least: float = 0.02) -> None:
+    """Refuse points that (nearly) lie in one plane: ``why`` says what the method needs."""
+    if spread(points) < at_least:
+        raise CalibrationError(f"the points are (nearly) coplanar: {why}")
 
 
 def spread(points: FloatArray) -> float:

@@ -171,7 +171,7 @@ def test_the_api_fits_persists_serves_and_forgets(state_dir: Path) -> None:
         assert again["source"] == "calibrated" and again["P"] == right["P"]
         r = client.delete("/api/v1/calibration", headers=auth)
         assert [c["source"] for c in r.json()["cameras"]] == ["ground truth (simulation)"] * 2
-    assert not (state_dir / "calibration.json").exists()
+    assert not (state_dir / "calibration-sim.json").exists()
 
 
 def test_the_api_runs_the_charuco_flow_on_the_simulation(state_dir: Path) -> None:
@@ -202,13 +202,13 @@ def test_the_api_runs_the_charuco_flow_on_the_simulation(state_dir: Path) -> Non
 def test_an_unreadable_calibration_file_is_kept_reported_and_the_server_serves(
     state_dir: Path,
 ) -> None:
-    (state_dir / "calibration.json").write_text("{broken")
+    (state_dir / "calibration-sim.json").write_text("{broken")
     with serve(state_dir) as client:
         state = client.get("/api/v1/calibration").json()
         assert "cannot read" in state["error"]
         assert state["cameras"][0]["source"] == "ground truth (simulation)"
         assert client.get("/api/v1/robot/state").status_code == 200
-    assert (state_dir / "calibration.json").read_text() == "{broken"  # nothing lost
+    assert (state_dir / "calibration-sim.json").read_text() == "{broken"  # nothing lost
 
 
 def _jpeg(image: np.ndarray) -> str:
@@ -262,3 +262,11 @@ def test_the_fiducials_come_from_the_settings_when_given(state_dir: Path) -> Non
     for bad in ([[0, 0, 0]] * 3, [[0, 0]] * 4, [[0, 0, float("nan")]] * 4):
         with pytest.raises(ValidationError, match="fiducials"):
             Settings(fiducials=bad)
+
+
+def test_each_camera_rig_keeps_its_own_calibration() -> None:
+    assert Settings().rig_name == "sim"
+    assert Settings(camera="opencv", camera_devices=["/dev/video0", "/dev/video2"]).rig_name == (
+        "opencv-dev_video0-dev_video2"
+    )
+    assert Settings(camera="opencv", camera_rig="bench-a").rig_name == "bench-a"
