@@ -37,6 +37,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from backend.realtime import messages as m
 from bench.common import emit, machine, open_viewer, parser, telerobot_process
 
 RATE_MBIT = 100
@@ -86,6 +87,27 @@ async def _view(base: str, seconds: float) -> float:
     return mbps
 
 
+def ws_listener(base: str, seconds: float, out: Any) -> None:
+    """For comparison: the same force samples over /ws (the server's event loop), one
+    FORCE message per sample, in a process of its own. Returns (seq, time, received)."""
+    from bench.wsclient import RealtimeClient
+
+    async def listen() -> list[tuple[int, float, float]]:
+        url = base.replace("http", "ws", 1) + "ws"
+        client = await RealtimeClient.connect(url, flags=m.HelloFlags.EVERY_FORCE_SAMPLE)
+        records: list[tuple[int, float, float]] = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            data = await client.ws.recv()
+            now = time.monotonic()
+            if data[0] == m.FORCE.type_id:
+                records.extend((seq, t, now) for seq, t, _ in m.decode_force(data))
+        await client.close()
+        return records
+
+    out.put(asyncio.run(listen()))
+
+
 def viewer(base: str, seconds: float, out: Any) -> None:
     from bench.video import _disable_decoding
 
@@ -93,7 +115,7 @@ def viewer(base: str, seconds: float, out: Any) -> None:
     out.put(asyncio.run(_view(base, seconds)))
 
 
-def client(base: str, seconds: float) -> dict[str, Any]:
+def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any]:
     from backend.cli import tune_for_realtime
     from backend.master.bridge import BridgeSettings, MasterBridge
     from backend.master.cli import open_link
@@ -105,24 +127,38 @@ def client(base: str, seconds: float) -> dict[str, Any]:
     records: list[tuple[int, float, float]] = []
     bridge.on_sample = lambda s, at: records.append((s.seq, s.time, at))
     bridge.start(take_control=False)
+    ctx = multiprocessing.get_context("spawn")
+    ws_out = ctx.Queue()
+    ws = ctx.Process(target=ws_listener, args=(base, 2 * seconds + 14, ws_out), daemon=True)
+    if compare_ws:
+        ws.start()
     time.sleep(2.0)  # connected, past the start-up
     records.clear()
+    quiet_window = (time.monotonic(), time.monotonic() + seconds)
     time.sleep(seconds)
     quiet = _phase(list(records))
-    ctx = multiprocessing.get_context("spawn")
     out = ctx.Queue()
     view = ctx.Process(target=viewer, args=(base, seconds, out), daemon=True)
     view.start()
     time.sleep(8.0)  # the viewer starts, connects, the first keyframe, the rate settles
     records.clear()
+    busy_window = (time.monotonic(), time.monotonic() + seconds)
     time.sleep(seconds)
     busy = _phase(list(records))
     mbps = float(out.get(timeout=60))
+    ws_figures = None
+    if compare_ws:
+        ws_records = ws_out.get(timeout=60)
+        ws.join(timeout=10)
+        ws_figures = {
+            name: _phase([r for r in ws_records if lo <= r[2] <= hi])
+            for name, (lo, hi) in (("no_video", quiet_window), ("video", busy_window))
+        }
     view.join(timeout=10)
     bridge.stop()
     link.close()
     channel = httpx.get(base + "api/v1/force/channel", timeout=10).json()
-    return {"no_video": quiet, "video": busy, "video_mbps": mbps, **channel}
+    return {"no_video": quiet, "video": busy, "video_mbps": mbps, "ws": ws_figures, **channel}
 
 
 # ---------------------------------------------------------------- the network namespaces
@@ -168,7 +204,7 @@ def netns_down() -> None:
 
 
 # ---------------------------------------------------------------- one measurement
-def measure(seconds: float, netns: bool) -> dict[str, Any]:
+def measure(seconds: float, netns: bool, compare_ws: bool = False) -> dict[str, Any]:
     env = {
         "TELEROBOT_VIDEO": "true",
         "TELEROBOT_VIDEO_WIDTH": "1280",
@@ -192,7 +228,8 @@ def measure(seconds: float, netns: bool) -> dict[str, Any]:
         base = f"http://{host}:{port}/"
         out = subprocess.run(
             [*client_prefix, sys.executable, "-m", "bench.force_under_video",
-             "--client", base, "--seconds", str(seconds)],
+             "--client", base, "--seconds", str(seconds),
+             *(["--compare-ws"] if compare_ws else [])],
             capture_output=True, text=True, timeout=seconds * 2 + 120,
         )  # fmt: skip
         if out.returncode != 0:
@@ -213,23 +250,37 @@ def measure(seconds: float, netns: bool) -> dict[str, Any]:
         "lost": quiet["lost"] + busy["lost"] + result["forces_dropped"],
         "samples": quiet["samples"] + busy["samples"],
         "video_mbps": result["video_mbps"],
+        **(
+            {
+                "ws_p99_ms_no_video": result["ws"]["no_video"]["p99_ms"],
+                "ws_p99_ms_video": result["ws"]["video"]["p99_ms"],
+                "ws_max_ms_video": result["ws"]["video"]["max_ms"],
+            }
+            if result.get("ws")
+            else {}
+        ),
     }
 
 
 def main() -> None:
     p = parser(__doc__ or "")
     p.add_argument("--seconds", type=float, default=20.0, help="per phase")
+    p.add_argument(
+        "--compare-ws",
+        action="store_true",
+        help="also receive the samples over /ws in another process (for comparison)",
+    )
     p.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.client:
-        print(json.dumps(client(args.client, args.seconds)))
+        print(json.dumps(client(args.client, args.seconds, args.compare_ws)))
         return
-    figures: dict[str, Any] = {"loopback": measure(args.seconds, netns=False)}
+    figures: dict[str, Any] = {"loopback": measure(args.seconds, False, args.compare_ws)}
     why_not = netns_available()
     if why_not is None:
         try:
             netns_up()
-            figures["netns"] = measure(args.seconds, netns=True)
+            figures["netns"] = measure(args.seconds, True, args.compare_ws)
         finally:
             netns_down()
     else:
