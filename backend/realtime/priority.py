@@ -25,6 +25,7 @@ import socket
 import struct
 import threading
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from backend.control.decision import DecisionServer
@@ -127,7 +128,7 @@ class PriorityChannel:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="priority-channel", daemon=True)
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._unsubscribe: list[object] = []
+        self._unsubscribe: list[Callable[[], None]] = []
         self.samples_sent = 0
 
     # ------------------------------------------------------------ lifecycle
@@ -141,7 +142,7 @@ class PriorityChannel:
 
     async def stop(self) -> None:
         for unsubscribe in self._unsubscribe:
-            unsubscribe()  # type: ignore[operator]
+            unsubscribe()
         self._stop.set()
         self._wake()
         await asyncio.to_thread(self._thread.join, 2)
