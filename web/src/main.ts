@@ -260,9 +260,10 @@ async function main(): Promise<void> {
       .map((v, i) => `<div title="${["Fx", "Fy", "Fz", "Tx", "Ty", "Tz"][i]} ${v.toFixed(2)}"><div class="bar" style="width:${Math.min(100, (Math.abs(v) / safety.force_limit_n) * 100)}%"></div></div>`)
       .join("");
     drawArrow($<HTMLCanvasElement>("force-arrow"), f.slice(0, 3) as Vec3, safety.force_limit_n);
+    const fmt = (v: number, digits: number) => (Number.isFinite(v) ? v.toFixed(digits) : "—"); // nothing measured yet
     $("latency").textContent =
-      `glass-to-glass p50 ${glass.percentile(50).toFixed(0)} ms · command p50 ${client.commandLatency.percentile(50).toFixed(2)} ms · ` +
-      `video ${(1000 / videoInterval.percentile(50)).toFixed(1)} fps · force ${client.forceInterval.percentile(50).toFixed(2)} ms`;
+      `glass-to-glass p50 ${fmt(glass.percentile(50), 0)} ms · command p50 ${fmt(client.commandLatency.percentile(50), 2)} ms · ` +
+      `video ${fmt(1000 / videoInterval.percentile(50), 1)} fps · force ${fmt(client.forceInterval.percentile(50), 2)} ms`;
     drawHistogram($<HTMLCanvasElement>("hist-force"), client.forceInterval, 30, "force message inter-arrival (0–30 ms)");
     drawHistogram($<HTMLCanvasElement>("hist-state"), client.stateInterval, 60, "state inter-arrival (0–60 ms)");
     drawHistogram($<HTMLCanvasElement>("hist-video"), videoInterval, 100, "video inter-arrival (0–100 ms)");
