@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-web lint typecheck unit browser-deps web web-check bench clean
+.PHONY: run test test-web screenshots lint typecheck unit browser-deps web web-check bench clean
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/vite.config.ts web/tsconfig.json
 
@@ -34,6 +34,10 @@ test: $(STAMP) browser-deps lint typecheck web-check web unit
 ## make test-web: only the browser tests (the operator page with live video, the status page)
 test-web: $(STAMP) browser-deps web
 	$(BIN)/python -m pytest -q -m browser
+
+## make screenshots: the operator page's views, saved into docs/img for the README
+screenshots: $(STAMP) browser-deps web
+	TELEROBOT_SCREENSHOTS=docs/img $(BIN)/python -m pytest -q tests/test_web.py -k screenshots
 
 web-check: web/node_modules/.installed
 	cd web && npm run --silent lint && npm run --silent typecheck && npm run --silent test
