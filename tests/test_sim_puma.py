@@ -75,6 +75,25 @@ async def test_a_move_takes_time_and_reports_moving(robot: SimPuma, clock: Manua
     np.testing.assert_allclose(robot.joints, target, atol=1e-9)
 
 
+async def test_a_motion_that_ends_while_it_is_being_reported_still_ends_ready(
+    robot: SimPuma, clock: ManualClock
+) -> None:
+    # Reading the joints to report a move syncs the motion; when a thread switch lets
+    # time pass right there, the motion can end inside the report. The status must
+    # still return to READY (it used to stay MOVING for good: a rare CI failure).
+    report = robot._report_moved
+
+    def report_and_finish() -> None:
+        robot._motion.advance(10.0)  # the motion ends during the report
+        report()
+
+    robot._report_moved = report_and_finish  # type: ignore[method-assign]
+    await robot.move_joints(robot.joints + np.array([0.5, 0, 0, 0, 0, 0]), relative=False)
+    assert robot.status is RobotStatus.MOVING
+    await clock.advance(0.1)
+    assert robot.status is RobotStatus.READY
+
+
 async def test_increments_accumulate_on_the_commanded_target(
     robot: SimPuma, clock: ManualClock
 ) -> None:

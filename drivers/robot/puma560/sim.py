@@ -95,7 +95,10 @@ class SimPuma(PumaArm):
 
     async def _report_loop(self) -> None:
         while True:
-            if not self._motion.moving:
+            # Wait only when at rest *and* reported at rest: the motion may end inside
+            # _report_moved (reading the joints syncs the motion), and the status
+            # must still go back to READY then.
+            if not self._motion.moving and self._status is not RobotStatus.MOVING:
                 await self._wake.wait()
             self._wake.clear()
             await self.clock.sleep(self.report_period)
