@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import json
 import secrets
-import tempfile
 import time
 
 import numpy as np
 from playwright.sync_api import sync_playwright
 
-from bench.common import emit, machine, parser, telerobot_process
+from bench.common import emit, machine, parser, serve_for_bench
 
 # Frame pacing stays on: without vsync and with the frame-rate limit off, headless
 # Chromium composites as fast as it can and its software GPU takes both cores.
@@ -49,22 +48,10 @@ def main() -> None:
         "TELEROBOT_VIDEO_HEIGHT": str(args.height),
         "TELEROBOT_OPERATOR_TOKEN": token,
     }
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
-            "serve",
-            "--http-port",
-            "0",
-            "--state-dir",
-            state,
-            wait_for=r"(http://localhost:\d+/)",
-            env=env,
-        ) as (_, m),
-        sync_playwright() as pw,
-    ):
+    with serve_for_bench(env=env) as (_, base), sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
         page = browser.new_page(viewport={"width": 1600, "height": 900})
-        page.goto(m.group(1) + f"?token={token}")
+        page.goto(base + f"?token={token}")
         page.wait_for_function(
             "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
         )

@@ -16,17 +16,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import secrets
-import tempfile
 import time
 
 import httpx
 import numpy as np
 
 from backend.realtime import messages as m
-from bench.common import emit, machine, parser, percentiles_ms, telerobot_process
+from bench.common import emit, machine, parser, percentiles_ms, serve_for_bench
 from bench.wsclient import RealtimeClient
-
-URL = r"http://localhost:(\d+)/"
 
 
 async def drain_forces(client: RealtimeClient, counter: list[int]) -> None:
@@ -88,19 +85,13 @@ def main() -> None:
     args = p.parse_args()
     token = secrets.token_hex(16)
     with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
-            "serve",
-            "--http-port",
-            "0",
-            "--state-dir",
-            state,
-            wait_for=URL,
-            env={"TELEROBOT_OPERATOR_TOKEN": token, "TELEROBOT_HOME_POSE": "qn"},
-        ) as (_, match),
+        serve_for_bench(env={"TELEROBOT_OPERATOR_TOKEN": token, "TELEROBOT_HOME_POSE": "qn"}) as (
+            _,
+            base,
+        ),
     ):
         time.sleep(5.0)  # the simulated arm initialises (qz → qn takes ~3.6 s)
-        port = int(match.group(1))
+        port = int(base.rstrip("/").rsplit(":", 1)[1])
         figures = asyncio.run(
             measure(port, token, args.commands, args.period_ms / 1000, not args.batched_forces)
         )

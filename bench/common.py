@@ -105,6 +105,29 @@ def telerobot_process(
             proc.kill()
 
 
+SERVED = r"https?://(\S+?):(\d+)/"  # the URL `telerobot serve` prints: host, port
+
+
+@contextlib.contextmanager
+def serve_for_bench(
+    *args: str, env: dict[str, str] | None = None, prefix: tuple[str, ...] = ()
+) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """`telerobot serve ARGS` for a benchmark: any free HTTP and priority ports (so a
+    running `make run` is never in the way), a throw-away state folder, no 3D view.
+    Yields the process and its base URL (http://host:port/)."""
+    import tempfile
+
+    with (
+        tempfile.TemporaryDirectory() as state,
+        telerobot_process(
+            "serve", "--http-port", "0", "--priority-port", "0", "--state-dir", state, *args,
+            wait_for=SERVED, env={"TELEROBOT_VIEWER": "false", **(env or {})}, prefix=prefix,
+        ) as (proc, m),
+    ):  # fmt: skip
+        host = "127.0.0.1" if m.group(1) == "localhost" else m.group(1)
+        yield proc, f"http://{host}:{m.group(2)}/"
+
+
 def percentiles_ms(values_s: list[float]) -> dict[str, float]:
     import numpy as np
 

@@ -11,16 +11,13 @@ Thesis reference (§4.7, 100 Mbps LAN, 2003): 0.679 ms mean inter-arrival alone.
 from __future__ import annotations
 
 import asyncio
-import tempfile
 import time
 
 import numpy as np
 
 from backend.realtime import messages as m
-from bench.common import emit, machine, parser, telerobot_process
+from bench.common import emit, machine, parser, serve_for_bench
 from bench.wsclient import RealtimeClient
-
-URL = r"http://localhost:(\d+)/"
 
 
 async def measure(port: int, samples: int) -> dict[str, float | int]:
@@ -56,14 +53,8 @@ def main() -> None:
     p = parser(__doc__ or "")
     p.add_argument("--samples", type=int, default=10_000)
     args = p.parse_args()
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process("serve", "--http-port", "0", "--state-dir", state, wait_for=URL) as (
-            _,
-            match,
-        ),
-    ):
-        figures = asyncio.run(measure(int(match.group(1)), args.samples))
+    with serve_for_bench() as (_, base):
+        figures = asyncio.run(measure(int(base.rstrip("/").rsplit(":", 1)[1]), args.samples))
     emit({**figures, "thesis_mean_ms_alone": 0.679}, False)
     if args.json:
         import json

@@ -30,7 +30,6 @@ import secrets
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from typing import Any
 
@@ -38,13 +37,12 @@ import httpx
 import numpy as np
 
 from backend.realtime import messages as m
-from bench.common import emit, machine, open_viewer, parser, telerobot_process
+from bench.common import emit, machine, open_viewer, parser, serve_for_bench
 
 RATE_MBIT = 100
 VIDEO_BITRATE = 9_000_000
 NS_SERVER, NS_CLIENT = "trbench-srv", "trbench-cli"
 ADDR_SERVER, ADDR_CLIENT = "10.231.0.1", "10.231.0.2"
-URL = r"(https?://\S+?:\d+/)"
 
 
 # ---------------------------------------------------------------- the client process
@@ -217,15 +215,7 @@ def measure(seconds: float, netns: bool, compare_ws: bool = False) -> dict[str, 
     host = ADDR_SERVER if netns else "127.0.0.1"
     server_prefix = ("ip", "netns", "exec", NS_SERVER) if netns else ()
     client_prefix = ["ip", "netns", "exec", NS_CLIENT] if netns else []
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
-            "serve", "--host", host, "--http-port", "0", "--priority-port", "0",
-            "--state-dir", state, wait_for=URL, env=env, prefix=server_prefix,
-        ) as (_, m),
-    ):  # fmt: skip
-        port = m.group(1).rsplit(":", 1)[1].rstrip("/")
-        base = f"http://{host}:{port}/"
+    with serve_for_bench("--host", host, env=env, prefix=server_prefix) as (_, base):
         out = subprocess.run(
             [*client_prefix, sys.executable, "-m", "bench.force_under_video",
              "--client", base, "--seconds", str(seconds),

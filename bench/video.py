@@ -21,7 +21,6 @@ import os
 import secrets
 import socket
 import struct
-import tempfile
 import threading
 import time
 from typing import Any
@@ -30,9 +29,8 @@ import httpx
 import numpy as np
 import psutil
 
-from bench.common import emit, machine, open_viewer, parser, telerobot_process
+from bench.common import emit, machine, open_viewer, parser, serve_for_bench
 
-URL = r"http://localhost:(\d+)/"
 WIDTH, HEIGHT, FPS = 1280, 720, 30.0
 
 
@@ -147,13 +145,7 @@ def measure_ours(seconds: float) -> dict[str, Any]:
         "TELEROBOT_VIDEO_FPS": str(FPS),
         "TELEROBOT_OPERATOR_TOKEN": token,
     }
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
-            "serve", "--http-port", "0", "--state-dir", state, wait_for=URL, env=env
-        ) as (proc, m),
-    ):
-        base = f"http://127.0.0.1:{m.group(1)}/"
+    with serve_for_bench(env=env) as (proc, base):
         time.sleep(5)  # the arm initialises, the media worker starts
         stop = threading.Event()
         driver = threading.Thread(target=_drive_arm, args=(base, token, stop), daemon=True)
