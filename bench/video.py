@@ -284,9 +284,6 @@ def _summary(latencies: list[float], arrivals: list[float], nbytes: int) -> dict
 
 
 def measure_bmp_tcp(seconds: float) -> dict[str, float]:
-    import cv2
-
-    from drivers.camera import timecode
 
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
@@ -303,23 +300,29 @@ def measure_bmp_tcp(seconds: float) -> dict[str, float]:
         view, got = memoryview(buf), 0
         while got < size:
             got += sock.recv_into(view[got:], size - got)
-        img = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_COLOR)
-        now = time.monotonic()
-        code = timecode.read(img[:, :WIDTH])
-        if code is not None:
-            latencies.append(timecode.elapsed(code, now))
-            arrivals.append(now)
+        _record(buf, latencies, arrivals)
         nbytes += size
     sock.close()
     server.terminate()
     return _summary(latencies, arrivals, nbytes)
 
 
-def measure_jpeg_ws(seconds: float) -> dict[str, float]:
+def _record(encoded: bytes | bytearray, latencies: list[float], arrivals: list[float]) -> None:
+    """Decode a baseline's frame and note its age from the timecode, if readable."""
     import cv2
-    import websockets
 
     from drivers.camera import timecode
+
+    img = cv2.imdecode(np.frombuffer(encoded, np.uint8), cv2.IMREAD_COLOR)
+    now = time.monotonic()
+    code = timecode.read(img[:, :WIDTH])
+    if code is not None:
+        latencies.append(timecode.elapsed(code, now))
+        arrivals.append(now)
+
+
+def measure_jpeg_ws(seconds: float) -> dict[str, float]:
+    import websockets
 
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
@@ -335,12 +338,7 @@ def measure_jpeg_ws(seconds: float) -> dict[str, float]:
             end = time.monotonic() + seconds
             while time.monotonic() < end:
                 data = await ws.recv()
-                img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-                now = time.monotonic()
-                code = timecode.read(img[:, :WIDTH])
-                if code is not None:
-                    latencies.append(timecode.elapsed(code, now))
-                    arrivals.append(now)
+                _record(data, latencies, arrivals)
                 nbytes += len(data)
         return _summary(latencies, arrivals, nbytes)
 
