@@ -13,10 +13,12 @@ page's ping clock sync. Headless Chromium presents frames without a display, so
 from __future__ import annotations
 
 import json
+import os
 import secrets
 import time
 
 import numpy as np
+import psutil
 from playwright.sync_api import sync_playwright
 
 from bench.common import emit, machine, parser, serve_for_bench
@@ -34,6 +36,29 @@ ARGS = [
     "--no-first-run",
 ]
 
+GPU_NICE = 10
+
+
+def yield_software_gpu(nice: int = GPU_NICE) -> int:
+    """Lower the priority of every thread of the Chromium GPU processes started by this
+    process; returns how many threads. With no GPU, Chromium draws with SwiftShader, and
+    its GPU process takes 1.2 cores of this 2-core machine for a page with video: at the
+    same priority it starves the page's realtime worker (dead-man heartbeats 185 ms
+    apart) and the server. Real graphics hardware takes no CPU for it; here it gets
+    what is left. (Niceness is per thread on Linux, hence every thread.)"""
+    done = 0
+    for process in psutil.Process().children(recursive=True):
+        try:
+            if "--type=gpu-process" not in process.cmdline():
+                continue
+            for thread in process.threads():
+                if os.getpriority(os.PRIO_PROCESS, thread.id) < nice:
+                    os.setpriority(os.PRIO_PROCESS, thread.id, nice)
+                    done += 1
+        except (psutil.Error, OSError):
+            continue  # gone meanwhile
+    return done
+
 
 def main() -> None:
     p = parser(__doc__ or "")
@@ -47,11 +72,15 @@ def main() -> None:
         "TELEROBOT_VIDEO_WIDTH": str(args.width),
         "TELEROBOT_VIDEO_HEIGHT": str(args.height),
         "TELEROBOT_OPERATOR_TOKEN": token,
+        # Server and browser share this machine's CPU here: a media worker at nice 10
+        # (the robot side's default) would wait behind the browser's software GPU.
+        "TELEROBOT_VIDEO_NICE": "0",
     }
     with serve_for_bench(env=env) as (_, base), sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
         page = browser.new_page(viewport={"width": 1600, "height": 900})
         page.goto(base + f"?token={token}")
+        yield_software_gpu()
         page.wait_for_function(
             "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
         )

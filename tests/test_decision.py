@@ -119,6 +119,39 @@ async def test_dead_man_stops_motion_within_200_ms(clock: ManualClock) -> None:
     ticker.cancel()
 
 
+async def test_a_stalled_server_reads_the_heartbeats_that_waited_before_judging(
+    clock: ManualClock,
+) -> None:
+    ds, _ = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    await ds.tick()
+    # The server's loop stalls for 250 ms while the client keeps beating: the tick that
+    # comes first after the stall has not seen the heartbeats waiting in the socket yet.
+    await clock.advance(0.25)
+    await ds.tick()
+    assert ds.lease_holder == a.id  # a late tick leaves the verdict to the next one
+    ds.seen(a.id)  # the loop reads the heartbeat that waited
+    await clock.advance(ds.limits.tick_s)
+    await ds.tick()
+    assert ds.lease_holder == a.id
+
+
+async def test_a_server_whose_ticks_are_always_late_still_stops_a_silent_client(
+    clock: ManualClock,
+) -> None:
+    ds, _ = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    await ds.tick()
+    t_quiet = clock.now()
+    while ds.lease_holder is not None:  # every tick 100 ms late, the client silent
+        await clock.advance(0.1)
+        await ds.tick()
+    # Deferred once at most: the verdict comes on the next late tick.
+    assert clock.now() - t_quiet <= ds.limits.deadman_timeout_s + 2 * 0.1
+
+
 async def _tick_forever(ds: DecisionServer, clock: ManualClock) -> None:
     while True:
         await clock.sleep(ds.limits.tick_s)

@@ -133,6 +133,8 @@ class DecisionServer:
         self._force_limited = False
         self._force_base = np.zeros(3)  # last contact force, base frame
         self._lock = asyncio.Lock()  # one command at a time reaches the driver
+        self._last_tick: float | None = None
+        self._deferred = False  # the last tick left its verdict to this one
 
     # ------------------------------------------------------------ settings
     @property
@@ -221,17 +223,34 @@ class DecisionServer:
 
     async def tick(self) -> None:
         """Dead-man: a lease holder silent for ``deadman_timeout_s`` loses the lease
-        and the arm stops. Called every ``tick_s``."""
+        and the arm stops. Called every ``tick_s``.
+
+        A tick that comes late says the *server* stalled (its event loop busy, or the
+        machine's CPU taken elsewhere), not that the client went quiet: the client's
+        heartbeats may be sitting unread in the socket. Such a tick leaves its verdict
+        to the next one, after the loop has read what arrived. Never twice in a row: a
+        loop that is always late still stops the arm, one tick later at most."""
+        now = self.clock.now()
+        gap = now - (self._last_tick if self._last_tick is not None else now)
+        late = gap > 2 * self.limits.tick_s
+        self._last_tick = now
         if self._lease is None:
             return
         holder = self._clients.get(self._lease)
         if holder is None:
             await self._lapse("controller gone")
-        elif (
-            holder.busy == 0 and self.clock.now() - holder.last_seen > self.limits.deadman_timeout_s
-        ):
+            return
+        silent = now - holder.last_seen
+        if holder.busy > 0 or silent <= self.limits.deadman_timeout_s:
+            self._deferred = False
+        elif late and not self._deferred:
+            self._deferred = True
+            log.info("dead-man verdict deferred: this server stalled for %.0f ms", gap * 1000)
+        else:
+            self._deferred = False
             await self._lapse(
-                f"dead-man: no heartbeat from {holder.name!r} for {self.limits.deadman_timeout_s} s"
+                f"dead-man: no heartbeat from {holder.name!r} for {silent * 1000:.0f} ms"
+                f" (the limit is {self.limits.deadman_timeout_s * 1000:.0f} ms)"
             )
 
     # ------------------------------------------------------------ safety

@@ -175,7 +175,7 @@ async function main(): Promise<void> {
     const sources = Array.from(frame.session.inputSources).filter((s) => s.gripSpace && s.gamepad);
     const source = sources.find((s) => s.handedness === "right") ?? sources[0];
     if (!source?.gripSpace || !source.gamepad) {
-      xrMaster.update(false, [0, 0, 0], [0, 0, 0, 1]);
+      xrMaster.update(false, [0, 0, 0], [0, 0, 0, 1], 0);
       return;
     }
     const pose = frame.getPose(source.gripSpace, space);
@@ -183,8 +183,8 @@ async function main(): Promise<void> {
     const gripping = (source.gamepad.buttons[1]?.pressed ?? false) && !!pose && !pose.emulatedPosition;
     const p = pose?.transform.position ?? { x: 0, y: 0, z: 0 };
     const o = pose?.transform.orientation ?? { x: 0, y: 0, z: 0, w: 1 };
-    const delta = xrMaster.update(gripping, [p.x, p.y, p.z], [o.x, o.y, o.z, o.w]);
     const now = performance.now();
+    const delta = xrMaster.update(gripping, [p.x, p.y, p.z], [o.x, o.y, o.z, o.w], now / 1000);
     if (delta && hasControl()) {
       const speed = Number($<HTMLInputElement>("speed").value);
       const dX = delta.dX.map((v) => v * speed) as Vec3;

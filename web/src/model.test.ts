@@ -68,10 +68,22 @@ describe("inputs and projection", () => {
   it("XR clutch re-anchors and ignores tracking jumps", () => {
     const xr = new XRMaster();
     const q: [number, number, number, number] = [0, 0, 0, 1];
-    expect(xr.update(true, [0, 1, 0], q)).toBeNull(); // anchor
-    near(xr.update(true, [0, 1, -0.01], q)!.dX, [0.01, 0, 0], 1e-12); // forward in XR is +x for the robot
-    expect(xr.update(true, [0, 2, 0], q)).toBeNull(); // a 1 m jump
-    expect(xr.update(false, [0, 2, 0], q)).toBeNull();
+    expect(xr.update(true, [0, 1, 0], q, 0)).toBeNull(); // anchor
+    near(xr.update(true, [0, 1, -0.01], q, 0.011)!.dX, [0.01, 0, 0], 1e-12); // forward in XR is +x for the robot
+    expect(xr.update(true, [0, 2, 0], q, 0.022)).toBeNull(); // a 1 m jump in one 90 Hz frame
+    expect(xr.update(true, [0, 2, -0.06], q, 0.033)).toBeNull(); // 6 cm in 11 ms: a jump too
+    expect(xr.update(false, [0, 2, 0], q, 0.044)).toBeNull();
+    expect(xr.update(true, [0, 2, 0], q, 0.055)).toBeNull(); // gripped again: a new anchor, no step
+  });
+
+  it("XR clutch keeps a slow page's hand motion: the jump guard is a speed, not a step", () => {
+    const xr = new XRMaster();
+    const q: [number, number, number, number] = [0, 0, 0, 1];
+    xr.update(true, [0, 1, 0], q, 0);
+    // Frames 0.5 s apart: a 10 cm step is 0.2 m/s, a hand's pace, and it is sent.
+    near(xr.update(true, [0, 1, -0.1], q, 0.5)!.dX, [0.1, 0, 0], 1e-12);
+    // 1.5 m in 0.5 s (3 m/s) is not a hand.
+    expect(xr.update(true, [0, 1, -1.6], q, 1.0)).toBeNull();
   });
 
   it("keeps rolling percentiles", () => {

@@ -8,22 +8,28 @@ export interface XRDelta {
   rotvec: Vec3;
 }
 
-const MAX_STEP = 0.05; // m per frame: more is a tracking jump
+// A tracking jump is a step faster than a hand: more than MAX_SPEED over the time since
+// the last frame (at least MAX_STEP, for tracking noise at a headset's 72–120 Hz). Per
+// frame alone would drop every step of a page whose frames come slowly (a busy or
+// software-rendered page: 1–9 XR frames/s), and the hand's motion would be lost.
+const MAX_STEP = 0.05; // m
+const MAX_SPEED = 2; // m/s
 
 export class XRMaster {
-  private last: { p: Vec3; q: [number, number, number, number] } | null = null;
+  private last: { p: Vec3; q: [number, number, number, number]; t: number } | null = null;
 
-  /** Feed the grip state and the controller pose (XR space: y up, −z forward). */
-  update(gripping: boolean, position: Vec3, orientation: [number, number, number, number]): XRDelta | null {
+  /** Feed the grip state and the controller pose (XR space: y up, −z forward) at time
+   * `t` (seconds, the XR frame's time). */
+  update(gripping: boolean, position: Vec3, orientation: [number, number, number, number], t: number): XRDelta | null {
     if (!gripping) {
       this.last = null;
       return null;
     }
     const prev = this.last;
-    this.last = { p: position, q: orientation };
+    this.last = { p: position, q: orientation, t };
     if (!prev) return null; // the clutch re-anchors on each press
     const d: Vec3 = [position[0] - prev.p[0], position[1] - prev.p[1], position[2] - prev.p[2]];
-    if (Math.hypot(...d) > MAX_STEP) return null;
+    if (Math.hypot(...d) > Math.max(MAX_STEP, MAX_SPEED * (t - prev.t))) return null;
     // XR (x right, y up, z back) → robot base (x forward, y left, z up).
     const dX: Vec3 = [-d[2], -d[0], d[1]];
     const rel = quatMul(orientation, quatConj(prev.q));

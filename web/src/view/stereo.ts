@@ -1,7 +1,10 @@
 // The stereo views: mono, side-by-side, cross-eye, anaglyph (colour and Dubois),
 // and WebXR immersive-vr where each eye sees its half of the side-by-side video.
-// One shader does it all, so the AR ball and the alignment shift are drawn the same
-// way in every view. Frames are rendered as they arrive (requestVideoFrameCallback).
+// One shader source does it all, so the AR ball and the alignment shift are drawn the
+// same way in every view; each mode compiles its own program (the MODE define) because
+// a software GPU (SwiftShader, no GPU here) runs every branch of a per-pixel `if`,
+// uniform or not: one program for all five modes cost it 2.5× the time per frame.
+// Frames are rendered as they arrive (requestVideoFrameCallback).
 import * as THREE from "three";
 
 export const MODES = ["mono", "side-by-side", "cross-eye", "anaglyph", "anaglyph-dubois"] as const;
@@ -22,7 +25,6 @@ const DUBOIS_RIGHT = new THREE.Matrix3().set(-0.043, -0.088, -0.002, 0.378, 0.73
 
 const FRAGMENT = /* glsl */ `
 uniform sampler2D tex;
-uniform int mode;
 uniform vec2 eye;       // one eye's size in pixels
 uniform vec2 outSize;   // this quad's size in pixels
 uniform vec2 shift;     // right image moved by this many pixels (x right, y down)
@@ -51,18 +53,19 @@ vec3 sampleEye(int which, vec2 px) {
 
 void main() {
   vec2 p = vec2(vUv.x * outSize.x, (1.0 - vUv.y) * outSize.y);
-  vec3 c;
-  if (mode == 0 || mode == 5) c = sampleEye(0, p);
-  else if (mode == 6) c = sampleEye(1, p);
-  else if (mode == 1 || mode == 2) {
-    int half_ = p.x < eye.x ? 0 : 1;
-    int which = mode == 1 ? half_ : 1 - half_;
-    c = sampleEye(which, p - vec2(float(half_) * eye.x, 0.0));
-  } else {
-    vec3 l = sampleEye(0, p);
-    vec3 r = sampleEye(1, p);
-    c = mode == 3 ? vec3(l.r, r.g, r.b) : clamp(duboisL * l + duboisR * r, 0.0, 1.0);
-  }
+#if MODE == 0 || MODE == 5
+  vec3 c = sampleEye(0, p);
+#elif MODE == 6
+  vec3 c = sampleEye(1, p);
+#elif MODE == 1 || MODE == 2
+  int half_ = p.x < eye.x ? 0 : 1;
+  int which = MODE == 1 ? half_ : 1 - half_;
+  vec3 c = sampleEye(which, p - vec2(float(half_) * eye.x, 0.0));
+#elif MODE == 3
+  vec3 c = vec3(sampleEye(0, p).r, sampleEye(1, p).gb);
+#else
+  vec3 c = clamp(duboisL * sampleEye(0, p) + duboisR * sampleEye(1, p), 0.0, 1.0);
+#endif
   gl_FragColor = vec4(c, 1.0);
 }`;
 
@@ -106,8 +109,7 @@ export class StereoView {
     this.camera.position.z = 1;
     // WebXR: one quad per eye, 2 m ahead; three.js shows layer 1 to the left eye, 2 to the right.
     for (const [eye, layer] of [["left-only", 1], ["right-only", 2]] as const) {
-      const m = this.makeMaterial();
-      m.uniforms.mode!.value = MODE_INDEX[eye];
+      const m = this.makeMaterial(MODE_INDEX[eye]);
       this.xrMaterials.push(m);
       const quad = new THREE.Mesh(new THREE.PlaneGeometry(1.6 * (16 / 9), 1.6), m);
       quad.position.set(0, 1.6, -2);
@@ -130,13 +132,13 @@ export class StereoView {
     this.scheduleFrame();
   }
 
-  private makeMaterial(): THREE.ShaderMaterial {
+  private makeMaterial(mode = MODE_INDEX["side-by-side"]): THREE.ShaderMaterial {
     return new THREE.ShaderMaterial({
       vertexShader: VERTEX,
       fragmentShader: FRAGMENT,
+      defines: { MODE: mode },
       uniforms: {
         tex: { value: this.texture },
-        mode: { value: 1 },
         eye: { value: new THREE.Vector2(1280, 720) },
         outSize: { value: new THREE.Vector2(2560, 720) },
         shift: { value: new THREE.Vector2(0, 0) },
@@ -191,7 +193,10 @@ export class StereoView {
     if (!this.renderer.xr.isPresenting && (this.canvas.width !== w || this.canvas.height !== eyeH)) {
       this.renderer.setSize(w, eyeH, false);
     }
-    this.material.uniforms.mode!.value = MODE_INDEX[this.mode];
+    if (this.material.defines.MODE !== MODE_INDEX[this.mode]) {
+      this.material.defines.MODE = MODE_INDEX[this.mode];
+      this.material.needsUpdate = true; // another program (three.js keeps each one built)
+    }
     (this.material.uniforms.eye!.value as THREE.Vector2).set(eyeW, eyeH);
     (this.material.uniforms.outSize!.value as THREE.Vector2).set(w, eyeH);
     for (const m of this.xrMaterials) {
