@@ -3,7 +3,8 @@
 // One shader source does it all, so the AR ball and the alignment shift are drawn the
 // same way in every view; each mode compiles its own program (the MODE define) because
 // a software GPU (SwiftShader, no GPU here) runs every branch of a per-pixel `if`,
-// uniform or not: one program for all five modes cost it 2.5× the time per frame.
+// uniform or not: with one program for all modes it drew 5.7–7.4 side-by-side frames/s
+// of 2×640×360 video, with one per mode 10.8–11.4, on the same 1.2 cores.
 // Frames are rendered as they arrive (requestVideoFrameCallback).
 import * as THREE from "three";
 
