@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import httpx
@@ -146,6 +146,22 @@ def tool_position(server: str) -> np.ndarray:
     return np.array(httpx.get(server + "api/v1/robot/state").json()["position"])
 
 
+def until(
+    page: Page, condition: Callable[[], bool], what: str | Callable[[], str], timeout: float = 10
+) -> None:
+    """Poll the server until ``condition`` holds; on timeout, say what the page said."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            said = page.locator("#messages").inner_text()
+            flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
+            raise AssertionError(
+                f"never: {what if isinstance(what, str) else what()}; flags {flags}; "
+                f"page messages:\n{said}"
+            )
+        time.sleep(0.1)
+
+
 def xr_frames_pass(page: Page, n: int = 2) -> None:
     """Wait until the XR session has drawn ``n`` more frames: the page has read the
     controllers' state as it is now (a busy page draws 1–9 XR frames/s here)."""
@@ -170,10 +186,7 @@ def test_gamepad_dead_man_drives_releasing_stops_estop_stops_observer_cannot(
     page.wait_for_timeout(500)
     assert target(server) == start  # nothing moves without the dead-man
     page.evaluate("window.__pad.pressed.add(5)")
-    deadline = time.monotonic() + 10
-    while target(server) == start:  # the dead-man is held: the arm goes
-        assert time.monotonic() < deadline, "the arm did not move with the dead-man held"
-        time.sleep(0.1)
+    until(page, lambda: target(server) != start, "the arm moves with the dead-man held")
     page.evaluate("window.__pad.pressed.delete(5)")  # release: the arm stops
     page.wait_for_timeout(300)
     held = target(server)
@@ -317,10 +330,8 @@ def test_keyboard_space_is_the_dead_man_w_drives_escape_stops_alt_arrows_align(
     assert target(server) == start  # W alone: nothing moves
     x0 = tool_position(server)[0]
     page.keyboard.down("Space")
-    deadline = time.monotonic() + 10
-    while tool_position(server)[0] < x0 + 0.005:  # W with Space held: forward along base x
-        assert time.monotonic() < deadline, "the arm did not move with Space held"
-        time.sleep(0.1)
+    # W with Space held: forward along base x
+    until(page, lambda: tool_position(server)[0] >= x0 + 0.005, "the arm moves with Space held")
     page.keyboard.up("Space")
     page.wait_for_timeout(300)
     held = target(server)
@@ -422,10 +433,11 @@ def test_webxr_each_eye_sees_its_camera_the_grip_drives_the_arm_and_contact_puls
     for _ in range(20):
         page.evaluate(f"{hand}.position.z -= 0.004")  # 8 cm forward in all
         page.wait_for_timeout(50)
-    deadline = time.monotonic() + 10
-    while (tool_position(server) - p0)[0] < 0.02:
-        assert time.monotonic() < deadline, (tool_position(server) - p0).tolist()
-        time.sleep(0.1)
+    until(
+        page,
+        lambda: (tool_position(server) - p0)[0] >= 0.02,
+        lambda: f"the gripper follows the hand 2 cm forward: moved {tool_position(server) - p0}",
+    )
     page.evaluate(tracked, False)  # tracking lost, grip still held
     xr_frames_pass(page)
     page.wait_for_timeout(500)  # the commands already sent reach their targets

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Request
 from pydantic import BaseModel, Field
 
 from backend.api.deps import SettingsDep
-from backend.media.supervisor import MediaSupervisor, MediaUnavailable
+from backend.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaUnavailable
 
 router = APIRouter(tags=["video"])
 
@@ -45,6 +45,7 @@ class VideoStatus(BaseModel):
     bitrate: int
     layout: str = "side-by-side: left eye in the left half"
     stats: dict[str, Any] | None
+    error: str | None = Field(None, description="why there are no stats right now")
 
 
 def media_supervisor(request: Request) -> MediaSupervisor:
@@ -86,9 +87,14 @@ async def close_peer(peer_id: str, request: Request) -> dict[str, str]:
 @router.get("/video")
 async def video_status(request: Request, settings: SettingsDep) -> VideoStatus:
     media: MediaSupervisor | None = request.app.state.media
-    stats = None
+    stats, error = None, None
     if media is not None and media.alive:
-        stats = (await media.request("stats", timeout=5))["stats"]
+        # The worker can die between the check and the answer (it is then restarted):
+        # the status still answers, and says so.
+        try:
+            stats = (await media.request("stats", timeout=5))["stats"]
+        except (MediaUnavailable, MediaRequestFailed, OSError) as exc:
+            error = str(exc) or type(exc).__name__
     return VideoStatus(
         enabled=media is not None,
         worker_alive=media is not None and media.alive,
@@ -98,6 +104,7 @@ async def video_status(request: Request, settings: SettingsDep) -> VideoStatus:
         fps=settings.video_fps,
         bitrate=settings.video_bitrate,
         stats=stats,
+        error=error,
     )
 
 
