@@ -219,7 +219,9 @@ def test_telemetry_reports_the_force_stream(client: TestClient) -> None:
     time.sleep(0.05)  # let some samples arrive
     streams = {s["name"]: s for s in client.get("/api/v1/telemetry").json()["streams"]}
     force = streams["force_at_server"]
-    assert force["count"] > 10 and 0.2 < force["p50"] < 5.0
+    # A 1 kHz stream: a sensor thread that was held up delivers its samples back to
+    # back (p50 of a few µs on a busy machine), so only the upper side is a check.
+    assert force["count"] > 10 and 0 <= force["p50"] < 5.0, force
 
 
 def test_openapi_documents_the_control_plane(client: TestClient) -> None:
