@@ -208,6 +208,33 @@ async def test_force_limit_stops_and_only_retreat_is_allowed(clock: ManualClock)
     assert not ds.state().force_limited
 
 
+async def test_after_a_contact_approaching_it_again_is_slow_and_leaving_is_not(
+    clock: ManualClock,
+) -> None:
+    ds, robot = await make(clock)
+    lim = ds.limits
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    # A 30 N contact (below the force limit) pushing the tool back along base −x.
+    f_sensor = robot.pose.rotation.T @ np.array([-30.0, 0, 0])
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    assert not ds.state().force_limited
+
+    async def step(dx: float) -> float:
+        """Command dx along base x 50 ms after the last; how far the target moved."""
+        await clock.advance(0.05)
+        before = robot.kinematics.fk(robot.target_joints)[0, 3]
+        await ds.cartesian_increment(a.id, np.array([dx, 0, 0]), np.zeros(3))
+        return float(robot.kinematics.fk(robot.target_joints)[0, 3] - before)
+
+    await step(-0.001)  # (the first command of a stream has its own window)
+    # Toward the contact (+x): at most contact_speed × 50 ms = 1 mm, not 5 mm.
+    assert await step(0.005) == pytest.approx(lim.contact_speed_m_s * 0.05, abs=1e-6)
+    assert await step(-0.005) == pytest.approx(-0.005, abs=1e-6)  # away: full speed
+    await clock.advance(lim.contact_memory_s)  # the contact is forgotten
+    assert await step(0.005) == pytest.approx(0.005, abs=1e-6)
+
+
 @pytest.mark.parametrize("frame", list(WorkingFrame))
 async def test_scaled_increment_in_each_frame(clock: ManualClock, frame: WorkingFrame) -> None:
     ds, robot = await make(clock)

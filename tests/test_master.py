@@ -177,11 +177,14 @@ def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) 
     finally:
         bridge.stop()
         link.close()
-    # It went down to the block and pressed into it, and the force limit stopped it.
-    # (Then the rendered push lifts the operator's hand a little, backing away is
-    # allowed, and hand and arm settle into pressing and backing off.)
-    assert top - 0.01 < min(heights) < top, (min(heights), top, bridge.last_error)
-    assert any(limited) or (bridge.last_error and "back away" in bridge.last_error)
+    # It went down to the block and pressed into it. The rendered push lifts the
+    # operator's hand off the block and the hand comes back down: after the first
+    # contact the server slows every approach to contact_speed_m_s (2 cm/s), so the arm
+    # never strikes the block (5·10⁴ N/m) hard. Before that rule it came back at
+    # 7.5 cm/s and went 9.5 mm deep: 469 N against the 60 N limit.
+    assert top - 0.003 < min(heights) < top, (min(heights), top, bridge.last_error)
+    if any(limited):  # a stop on the force limit, if any, left only backing away
+        assert bridge.last_error is None or "back away" in bridge.last_error
     # Forces arrived at 1 kHz and the block's push was rendered upward on the device,
     # against the operator's hand.
     assert bridge.forces_received > 3000

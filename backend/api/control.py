@@ -34,6 +34,9 @@ class SafetyView(BaseModel):
     max_step_rad: float
     max_speed_m_s: float
     force_limit_n: float
+    contact_force_n: float = Field(description="a force above this marks a contact")
+    contact_speed_m_s: float = Field(description="approach speed toward a recent contact")
+    contact_memory_s: float = Field(description="how long a contact slows approaches")
     deadman_timeout_s: float
 
 
@@ -60,6 +63,9 @@ def _safety(decision: DecisionDep) -> SafetyView:
         max_step_rad=lim.max_step_rad,
         max_speed_m_s=lim.max_speed_m_s,
         force_limit_n=lim.force_limit_n,
+        contact_force_n=lim.contact_force_n,
+        contact_speed_m_s=lim.contact_speed_m_s,
+        contact_memory_s=lim.contact_memory_s,
         deadman_timeout_s=lim.deadman_timeout_s,
     )
 

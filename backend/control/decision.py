@@ -132,6 +132,8 @@ class DecisionServer:
         self._estop_reason = ""
         self._force_limited = False
         self._force_base = np.zeros(3)  # last contact force, base frame
+        self._contact_at: float | None = None  # when a contact force was last felt
+        self._contact_force = np.zeros(3)  # and that force, base frame
         self._lock = asyncio.Lock()  # one command at a time reaches the driver
         self._last_tick: float | None = None
         self._deferred = False  # the last tick left its verdict to this one
@@ -272,11 +274,16 @@ class DecisionServer:
 
     def on_force(self, sample: ForceSample) -> None:
         """Force limit: a contact force above the limit stops motion; only commands that
-        back away from the contact are taken until it falls below the release level."""
+        back away from the contact are taken until it falls below the release level.
+        Any contact (above ``contact_force_n``) is remembered: approaching it again is
+        slowed to ``contact_speed_m_s`` for ``contact_memory_s``."""
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
+        if magnitude > self.limits.contact_force_n:
+            self._contact_force = self.robot.pose.rotation @ np.array([fx, fy, fz])
+            self._contact_at = self.clock.now()
         if magnitude > self.limits.force_limit_n:
-            self._force_base = self.robot.pose.rotation @ np.array([fx, fy, fz])
+            self._force_base = self._contact_force
             if not self._force_limited:
                 self._force_limited = True
                 log.warning(
@@ -301,6 +308,15 @@ class DecisionServer:
         if self._estop:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         return client
+
+    def _approaches_last_contact(self, moved: FloatArray, now: float) -> bool:
+        """Whether ``moved`` (base frame) heads back into a surface the tool pressed on
+        (above ``contact_force_n``) within the last ``contact_memory_s``: the contact
+        force pushes the tool away from the surface, so moving against it approaches."""
+        recent = (
+            self._contact_at is not None and now - self._contact_at < self.limits.contact_memory_s
+        )
+        return recent and float(moved @ self._contact_force) < 0.0
 
     def _interval(self, client: Client, now: float) -> float:
         """Time the speed limit allows for this increment: since the client's last
@@ -335,13 +351,19 @@ class DecisionServer:
             )
         now = self.clock.now()
         dt = self._interval(client, now)
-        factor = min(1.0, lim.max_speed_m_s * dt / step if step else 1.0)
+        frame = frame or self.frame
+        seed = self.robot.target_joints
+        T0 = self.kinematics.fk(seed).copy()
+        # Where the tool would go, in the base frame, before the speed limit scales it.
+        moved = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
+        speed = lim.max_speed_m_s
+        if self._approaches_last_contact(moved, now):
+            speed = min(speed, lim.contact_speed_m_s)
+        factor = min(1.0, speed * dt / step if step else 1.0)
         factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
         limited = factor < 1.0
         dX, rv = dX * factor, rv * factor
-        seed = self.robot.target_joints
-        T0 = self.kinematics.fk(seed).copy()
-        T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame or self.frame)
+        T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
         if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
             raise SafetyStop("force limit: only moves that back away from the contact are allowed")
         self._check_workspace(T[:3, 3])

@@ -23,6 +23,13 @@ class SafetyLimits:
     max_joint_speed_rad_s: float = 1.0  # for joint increments
     force_limit_n: float = 60.0  # contact force that stops motion
     force_release_ratio: float = 0.8  # the force stop clears below this share of the limit
+    # A force above contact_force_n marks a contact: for contact_memory_s, moving back
+    # toward it goes no faster than contact_speed_m_s. At full speed the arm strikes the
+    # surface again before a force stop can act (a master arm bouncing off the simulated
+    # block hit it at 7.5 cm/s: 469 N against the 60 N limit, 9.5 mm deep).
+    contact_force_n: float = 15.0
+    contact_speed_m_s: float = 0.02
+    contact_memory_s: float = 2.0
     deadman_timeout_s: float = 0.15  # quiet controller → stop (checked every tick)
     tick_s: float = 0.02  # how often the dead-man is checked
 
@@ -41,6 +48,9 @@ class SafetyLimits:
             "max_angular_speed_rad_s",
             "max_joint_speed_rad_s",
             "force_limit_n",
+            "contact_force_n",
+            "contact_speed_m_s",
+            "contact_memory_s",
             "deadman_timeout_s",
             "tick_s",
         ):
