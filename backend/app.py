@@ -113,6 +113,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             force_limit_n=settings.force_limit_n,
             deadman_timeout_s=settings.deadman_timeout_s,
             max_speed_m_s=settings.max_speed_m_s,
+            contact_speed_m_s=settings.contact_speed_m_s,
         )
         # The DecisionServer's own model (same tool): Pinocchio data is per instance.
         kinematics = Puma560Kinematics(tool_transform(settings.tool_length))

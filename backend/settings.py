@@ -60,6 +60,7 @@ class Settings(BaseSettings):
     force_limit_n: float = Field(60.0, gt=0)
     deadman_timeout_s: float = Field(0.15, gt=0, le=0.18)
     max_speed_m_s: float = Field(0.25, gt=0, le=2.0)
+    contact_speed_m_s: float = Field(0.02, gt=0, le=2.0)  # toward a recent contact
 
     # Security: the operator token is generated into state_dir at first start unless given.
     operator_token: str | None = Field(
