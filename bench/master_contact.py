@@ -26,7 +26,7 @@ import numpy as np
 from backend.master.bridge import BridgeSettings, MasterBridge
 from backend.master.cli import open_link
 from bench.common import emit, machine, parser, serve_for_bench
-from drivers.base import FloatArray
+from drivers.base import FloatArray, ForceSample
 from drivers.master.sim import SimMaster
 
 FORCE_LIMIT_N = 60.0
@@ -70,7 +70,7 @@ def one_run(contact_speed: float) -> dict[str, float]:
         on_force = link.on_force
         assert on_force is not None
 
-        def keep(sample, received):  # type: ignore[no-untyped-def]
+        def keep(sample: ForceSample, received: float) -> None:
             forces.append(float(np.linalg.norm(sample.values[:3])))
             on_force(sample, received)
 
