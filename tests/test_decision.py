@@ -11,7 +11,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend.control.decision import DecisionServer, LimitExceeded, NotAllowed, SafetyStop
+from backend.control.decision import (
+    Client,
+    DecisionServer,
+    LimitExceeded,
+    NotAllowed,
+    SafetyStop,
+)
 from backend.control.limits import SafetyLimits
 from drivers.base import (
     FloatArray,
@@ -58,6 +64,14 @@ async def make(
         limits=limits,
     )
     return ds, robot
+
+
+async def in_control(clock: ManualClock) -> tuple[DecisionServer, RecordingPuma, Client]:
+    """A DecisionServer with one operator, "alice", holding the lease."""
+    ds, robot = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    return ds, robot, a
 
 
 @pytest.fixture
@@ -122,9 +136,7 @@ async def test_dead_man_stops_motion_within_200_ms(clock: ManualClock) -> None:
 async def test_a_stalled_server_reads_the_heartbeats_that_waited_before_judging(
     clock: ManualClock,
 ) -> None:
-    ds, _ = await make(clock)
-    a = ds.join("alice", TOKEN)
-    await ds.take_lease(a.id)
+    ds, _, a = await in_control(clock)
     await ds.tick()
     # The server's loop stalls for 250 ms while the client keeps beating: the tick that
     # comes first after the stall has not seen the heartbeats waiting in the socket yet.
@@ -140,9 +152,7 @@ async def test_a_stalled_server_reads_the_heartbeats_that_waited_before_judging(
 async def test_a_server_whose_ticks_are_always_late_still_stops_a_silent_client(
     clock: ManualClock,
 ) -> None:
-    ds, _ = await make(clock)
-    a = ds.join("alice", TOKEN)
-    await ds.take_lease(a.id)
+    ds, _, _ = await in_control(clock)
     await ds.tick()
     t_quiet = clock.now()
     while ds.lease_holder is not None:  # every tick 100 ms late, the client silent
@@ -211,10 +221,8 @@ async def test_force_limit_stops_and_only_retreat_is_allowed(clock: ManualClock)
 async def test_after_a_contact_approaching_it_again_is_slow_and_leaving_is_not(
     clock: ManualClock,
 ) -> None:
-    ds, robot = await make(clock)
+    ds, robot, a = await in_control(clock)
     lim = ds.limits
-    a = ds.join("alice", TOKEN)
-    await ds.take_lease(a.id)
     # A 30 N contact (below the force limit) pushing the tool back along base −x.
     f_sensor = robot.pose.rotation.T @ np.array([-30.0, 0, 0])
     ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
