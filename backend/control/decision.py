@@ -133,7 +133,7 @@ class DecisionServer:
         self._force_limited = False
         self._force_base = np.zeros(3)  # last contact force, base frame
         self._contact_at: float | None = None  # when a contact force was last felt
-        self._contact_force = np.zeros(3)  # and that force, base frame
+        self._contact_sensor = (0.0, 0.0, 0.0)  # and that force, sensor frame
         self._lock = asyncio.Lock()  # one command at a time reaches the driver
         self._last_tick: float | None = None
         self._deferred = False  # the last tick left its verdict to this one
@@ -280,10 +280,11 @@ class DecisionServer:
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
         if magnitude > self.limits.contact_force_n:
-            self._contact_force = self.robot.pose.rotation @ np.array([fx, fy, fz])
+            # Kept in the sensor frame: rotated only when a command asks (100 Hz, not 1 kHz).
+            self._contact_sensor = (fx, fy, fz)
             self._contact_at = self.clock.now()
         if magnitude > self.limits.force_limit_n:
-            self._force_base = self._contact_force
+            self._force_base = self.robot.pose.rotation @ np.array([fx, fy, fz])
             if not self._force_limited:
                 self._force_limited = True
                 log.warning(
@@ -316,7 +317,10 @@ class DecisionServer:
         recent = (
             self._contact_at is not None and now - self._contact_at < self.limits.contact_memory_s
         )
-        return recent and float(moved @ self._contact_force) < 0.0
+        if not recent:
+            return False
+        contact = self.robot.pose.rotation @ np.array(self._contact_sensor)
+        return float(moved @ contact) < 0.0
 
     def _interval(self, client: Client, now: float) -> float:
         """Time the speed limit allows for this increment: since the client's last
