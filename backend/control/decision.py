@@ -310,15 +310,16 @@ class DecisionServer:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         return client
 
-    def _approaches_last_contact(self, moved: FloatArray, now: float) -> bool:
-        """Whether ``moved`` (base frame) heads back into a surface the tool pressed on
-        (above ``contact_force_n``) within the last ``contact_memory_s``: the contact
-        force pushes the tool away from the surface, so moving against it approaches."""
-        recent = (
-            self._contact_at is not None and now - self._contact_at < self.limits.contact_memory_s
-        )
-        if not recent:
+    def _approaches_last_contact(
+        self, T0: FloatArray, dX: FloatArray, rv: FloatArray, frame: WorkingFrame, now: float
+    ) -> bool:
+        """Whether the increment (``dX``, ``rv`` in ``frame`` from ``T0``) heads back into
+        a surface the tool pressed on (above ``contact_force_n``) within the last
+        ``contact_memory_s``: the contact force pushes the tool away from the surface,
+        so moving against it approaches. With no recent contact nothing is computed."""
+        if self._contact_at is None or now - self._contact_at >= self.limits.contact_memory_s:
             return False
+        moved = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
         contact = self.robot.pose.rotation @ np.array(self._contact_sensor)
         return float(moved @ contact) < 0.0
 
@@ -358,10 +359,8 @@ class DecisionServer:
         frame = frame or self.frame
         seed = self.robot.target_joints
         T0 = self.kinematics.fk(seed).copy()
-        # Where the tool would go, in the base frame, before the speed limit scales it.
-        moved = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
         speed = lim.max_speed_m_s
-        if self._approaches_last_contact(moved, now):
+        if self._approaches_last_contact(T0, dX, rv, frame, now):
             speed = min(speed, lim.contact_speed_m_s)
         factor = min(1.0, speed * dt / step if step else 1.0)
         factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
