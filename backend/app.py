@@ -13,6 +13,8 @@ from typing import Any
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.routing import Match, Mount
+from starlette.types import Scope
 
 from backend.api import (
     calibration,
@@ -28,12 +30,13 @@ from backend.api import (
 from backend.control.decision import DecisionServer
 from backend.control.limits import SafetyLimits
 from backend.devices import build_force_sensor, build_robot, build_workcell
+from backend.edge import install_edge
 from backend.errors import install_error_handlers
 from backend.media.supervisor import MediaSupervisor
 from backend.realtime import ws
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
-from backend.security import operator_token, state_dir
+from backend.security import allowed_host_names, operator_token, state_dir
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
 from backend.viewer3d import Workcell3DView
@@ -44,6 +47,7 @@ from drivers.clock import Clock, MonotonicClock
 from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 
 log = logging.getLogger("telerobot")
+API_PREFIXES = ("/api/", "/ws/")
 STATIC = Path(__file__).parent / "static"
 WEB_DIST = Path(__file__).resolve().parents[1] / "web" / "dist"  # built by `make web`
 
@@ -94,6 +98,21 @@ def start_viewer(settings: Settings, s: Any) -> tuple[Workcell3DView | None, str
     return view, None
 
 
+class ClientFiles(Mount):
+    """The operator client's files at ``/``, but never for the API's or /ws's paths: a
+    GET on a POST-only API path answers 405 from its route, an unknown API path 404,
+    rather than the client's files answering 404 for everything."""
+
+    def __init__(self, path: str, files: StaticFiles) -> None:
+        super().__init__(path, app=files, name="web")
+
+    def matches(self, scope: Scope) -> tuple[Match, Scope]:
+        path = scope.get("path", "")
+        if path.startswith(API_PREFIXES) or path in ("/api", "/ws"):
+            return Match.NONE, {}
+        return super().matches(scope)
+
+
 def create_app(settings: Settings | None = None, *, clock: Clock | None = None) -> FastAPI:
     settings = settings or Settings()
     clock = clock or MonotonicClock()
@@ -118,8 +137,14 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
         # The DecisionServer's own model (same tool): Pinocchio data is per instance.
         kinematics = Puma560Kinematics(tool_transform(settings.tool_length))
         s.decision = DecisionServer(
-            s.robot, kinematics=kinematics, clock=clock, operator_token=token, limits=limits
+            s.robot,
+            kinematics=kinematics,
+            clock=clock,
+            operator_token=token,
+            limits=limits,
+            force=s.force,
         )
+        s.decision.start()  # the force limit and the dead-man, whatever transports run
         s.hub = RealtimeHub(
             s.robot, s.decision, s.force, s.telemetry, clock, state_rate_hz=settings.state_rate_hz
         )
@@ -130,6 +155,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
             )
         except OSError as exc:
             await s.hub.stop()
+            await s.decision.stop()
             raise DeviceError(
                 f"the priority channel cannot listen on {settings.host}:{settings.priority_port}"
                 f" ({exc.strerror}): set TELEROBOT_PRIORITY_PORT or --priority-port"
@@ -155,6 +181,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
                 await s.media.stop()
             await s.priority.stop()
             await s.hub.stop()
+            await s.decision.stop()
             await s.robot.disconnect()
 
     app = FastAPI(
@@ -165,6 +192,8 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
     )
     app.state.token, app.state.token_is_new = token, token_is_new
     install_error_handlers(app)
+    certificate = state_dir(settings) / "tls" / "cert.pem" if settings.tls else None
+    install_edge(app, allowed_host_names(settings, certificate), settings.allowed_origins, token)
     api = APIRouter(prefix="/api/v1")
     for module in (
         health, robot, control, force, telemetry, video, workcell, calibration, viewer
@@ -179,7 +208,7 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
 
     if (WEB_DIST / "index.html").is_file():
         # The operator client; mounted last, so the API and /ws routes win.
-        app.mount("/", StaticFiles(directory=WEB_DIST, html=True), name="web")
+        app.router.routes.append(ClientFiles("/", StaticFiles(directory=WEB_DIST, html=True)))
     else:
 
         @app.get("/", include_in_schema=False)

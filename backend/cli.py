@@ -14,6 +14,10 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+# The largest /ws message the server reads: a FORCE batch from a client is the largest
+# legitimate one (< 16 kB); uvicorn's default (16 MiB) let one message hold 16 MiB.
+WS_MAX_MESSAGE = 64 * 1024
+
 
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
@@ -37,7 +41,7 @@ def _serve(args: argparse.Namespace) -> int:
     except (ValidationError, FileNotFoundError, ValueError) as exc:
         print(f"telerobot: bad settings: {exc}", file=sys.stderr)
         return 2
-    from backend.security import ensure_certificate, state_dir
+    from backend.security import ensure_certificate, redact_server_logs, state_dir
 
     app = create_app(settings)
     ssl: dict[str, str] = {}
@@ -52,7 +56,15 @@ def _serve(args: argparse.Namespace) -> int:
         if settings.robot == "sim"
         else f"the {settings.robot} robot on {settings.serial_port}"
     )
-    config = uvicorn.Config(app, host=host, port=settings.http_port, log_level="info", **ssl)  # type: ignore[arg-type]
+    config = uvicorn.Config(
+        app,
+        host=host,
+        port=settings.http_port,
+        log_level="info",
+        ws_max_size=WS_MAX_MESSAGE,
+        **ssl,  # type: ignore[arg-type]
+    )
+    redact_server_logs()  # after uvicorn has configured its loggers
     server = uvicorn.Server(config)
 
     async def run() -> None:

@@ -7,9 +7,12 @@ with owner-only permissions.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import ipaddress
+import logging
 import os
+import re
 import secrets
 import socket
 from pathlib import Path
@@ -55,6 +58,66 @@ def origin_allowed(origin: str | None, host: str | None, allowed: list[str]) -> 
         return True
     netloc = urlsplit(origin).netloc
     return bool(host) and netloc == host
+
+
+def allowed_host_names(settings: Settings, certificate: Path | None = None) -> set[str]:
+    """The names a request's ``Host`` may carry: the configured host, loopback, this
+    machine's names and addresses (when listening on all of them), ``allowed_hosts``
+    and the names in the TLS certificate."""
+    names = {"localhost", "127.0.0.1", "::1", settings.host.lower()}
+    names.update(h.lower() for h in settings.allowed_hosts)
+    if settings.host in ("0.0.0.0", "::", ""):
+        names.update(a.split("%")[0].lower() for a in _local_addresses())
+        hostname = socket.gethostname().lower()
+        names.update({hostname, f"{hostname}.local"})
+        with contextlib.suppress(OSError):
+            names.add(socket.getfqdn().lower())
+    if certificate is not None and certificate.is_file():
+        names.update(certificate_names(certificate))
+    names.discard("")
+    return names
+
+
+def certificate_names(path: Path) -> set[str]:
+    from cryptography import x509
+
+    cert = x509.load_pem_x509_certificate(path.read_bytes())
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return set()
+    return {n.lower() for n in san.get_values_for_type(x509.DNSName)} | {
+        str(a) for a in san.get_values_for_type(x509.IPAddress)
+    }
+
+
+_TOKEN_IN_QUERY = re.compile(r"((?:^|[?&;])(?:token|access_token)=)[^&\s\"']*", re.IGNORECASE)
+
+
+def redact_query_tokens(text: str) -> str:
+    """``/?token=abc&x=1`` → ``/?token=[redacted]&x=1``."""
+    return _TOKEN_IN_QUERY.sub(r"\1[redacted]", text)
+
+
+class RedactTokens(logging.Filter):
+    """Keeps the operator token out of the logs: uvicorn logs each request's path with
+    its query string (the page may be opened with ``?token=``)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.args, tuple) and record.args:
+            record.args = tuple(
+                redact_query_tokens(a) if isinstance(a, str) else a for a in record.args
+            )
+        if isinstance(record.msg, str) and "token=" in record.msg.lower():
+            record.msg = redact_query_tokens(record.msg)
+        return True
+
+
+def redact_server_logs() -> None:
+    for name in ("uvicorn.access", "uvicorn.error", "uvicorn"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, RedactTokens) for f in logger.filters):
+            logger.addFilter(RedactTokens())
 
 
 def _local_addresses() -> set[str]:

@@ -68,6 +68,9 @@ class Settings(BaseSettings):
     )
     state_dir: Path | None = None  # default: $XDG_CONFIG_HOME/telerobot or ~/.config/telerobot
     allowed_origins: list[str] = []  # extra browser origins allowed on /ws (same host always is)
+    # Extra names this server answers to (a DNS name on the LAN); its host, loopback and
+    # this machine's names and addresses always are. Anything else gets 400 (DNS rebinding).
+    allowed_hosts: list[str] = []
     tls: bool = False  # HTTPS with a per-installation self-signed certificate (WebXR on a LAN)
 
     # Stereo video (a media worker process: capture → one encoder → every WebRTC viewer)

@@ -24,7 +24,8 @@ def wait_for_status(client: TestClient, wanted: str, timeout: float = 10.0) -> d
 
 @pytest.fixture
 def client() -> Iterator[TestClient]:
-    with TestClient(create_app(Settings(home_pose="qz"))) as c:  # the sim starts at qz: no wait
+    # the sim starts at qz: no wait
+    with TestClient(create_app(Settings(home_pose="qz")), base_url="http://localhost") as c:
         yield c
 
 
@@ -70,7 +71,7 @@ def test_unknown_route_is_404(client: TestClient) -> None:
 
 def test_server_keeps_serving_when_the_robot_cannot_connect() -> None:
     settings = Settings(robot="val", serial_port="/dev/no-such-port")
-    with TestClient(create_app(settings)) as c:
+    with TestClient(create_app(settings), base_url="http://localhost") as c:
         state = wait_for_status(c, "ERROR")
         assert state["status"] == "ERROR"
         assert "cannot open serial port '/dev/no-such-port'" in str(state["message"])
@@ -80,7 +81,7 @@ def test_server_keeps_serving_when_the_robot_cannot_connect() -> None:
 def test_server_drives_the_val_emulator() -> None:
     with EmulatorLink.on_tcp(ValControllerEmulator(time_scale=0.02)) as link:
         settings = Settings(robot="val", serial_port=link.url)
-        with TestClient(create_app(settings)) as c:
+        with TestClient(create_app(settings), base_url="http://localhost") as c:
             state = wait_for_status(c, "READY")
             assert state["status"] == "READY" and state["driver"] == "val-puma560"
             assert state["joints_deg"] == pytest.approx([0, 45, -180, 0, 45, 0], abs=1e-3)

@@ -134,7 +134,9 @@ def state_dir(tmp_path: Path) -> Path:
 
 
 def serve(state: Path) -> TestClient:
-    return TestClient(create_app(Settings(operator_token=TOKEN, state_dir=state)))
+    return TestClient(
+        create_app(Settings(operator_token=TOKEN, state_dir=state)), base_url="http://localhost"
+    )
 
 
 def test_the_api_fits_persists_serves_and_forgets(state_dir: Path) -> None:
@@ -256,7 +258,8 @@ def test_the_fiducials_come_from_the_settings_when_given(state_dir: Path) -> Non
 
     mine = [[0.5, 0.0, 0.4], [0.7, 0.0, 0.4], [0.5, 0.2, 0.4], [0.5, 0.0, 0.6], [0.7, 0.2, 0.6]]
     with TestClient(
-        create_app(Settings(operator_token=TOKEN, state_dir=state_dir, fiducials=mine))
+        create_app(Settings(operator_token=TOKEN, state_dir=state_dir, fiducials=mine)),
+        base_url="http://localhost",
     ) as client:
         assert client.get("/api/v1/calibration").json()["fiducials"] == mine
     for bad in ([[0, 0, 0]] * 3, [[0, 0]] * 4, [[0, 0, float("nan")]] * 4):

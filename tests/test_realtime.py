@@ -16,6 +16,8 @@ from backend.settings import Settings
 from drivers.clock import ManualClock
 from tests.test_decision import TOKEN
 
+WS = "ws://localhost/ws"  # TestClient says "testserver" unless told: not a name we answer to
+
 
 @pytest.fixture
 def clock() -> ManualClock:
@@ -25,7 +27,7 @@ def clock() -> ManualClock:
 @pytest.fixture
 def client(clock: ManualClock) -> Iterator[TestClient]:
     settings = Settings(home_pose="qz", operator_token=TOKEN)  # the sim starts at qz: READY at once
-    with TestClient(create_app(settings, clock=clock)) as tc:
+    with TestClient(create_app(settings, clock=clock), base_url="http://localhost") as tc:
         tc.portal.call(clock.advance, 0.1)  # type: ignore[union-attr]
         yield tc
 
@@ -57,7 +59,7 @@ def cart(seq: int, dx: float = 0.001, frame: int = 0, nan: bool = False) -> byte
 def test_observer_is_welcomed_sees_state_and_cannot_move(
     client: TestClient, clock: ManualClock
 ) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_bytes(hello())
         welcome, client_id, _ = receive_until(ws, m.WELCOME)
         assert welcome["role"] == 0 and welcome["version"] == m.PROTOCOL_VERSION and client_id
@@ -78,7 +80,7 @@ def test_observer_is_welcomed_sees_state_and_cannot_move(
 
 
 def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_bytes(hello(TOKEN))
         welcome, _, _ = receive_until(ws, m.WELCOME)
         assert welcome["role"] == 1
@@ -114,7 +116,7 @@ def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock
 def test_malformed_frames_get_an_error_and_nothing_moves(
     client: TestClient, frame: bytes, why: str
 ) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_bytes(hello(TOKEN))
         ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
         receive_until(ws, m.ACK)
@@ -129,7 +131,7 @@ def test_malformed_frames_get_an_error_and_nothing_moves(
 
 
 def test_text_frames_are_refused_politely(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_bytes(hello())
         ws.send_text("move please")
         _, text, _ = receive_until(ws, m.ERROR)
@@ -137,7 +139,7 @@ def test_text_frames_are_refused_politely(client: TestClient) -> None:
 
 
 def test_a_client_that_does_not_say_hello_is_closed(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_bytes(m.encode(m.PING, 1, 0.0))
         _, text, _ = receive_until(ws, m.ERROR)
         assert "first message must be HELLO" in text
@@ -148,19 +150,17 @@ def test_a_client_that_does_not_say_hello_is_closed(client: TestClient) -> None:
 def test_foreign_origin_is_refused(client: TestClient) -> None:
     with (
         pytest.raises(WebSocketDisconnect) as exc,
-        client.websocket_connect("/ws", headers={"origin": "https://evil.example"}) as ws,
+        client.websocket_connect(WS, headers={"origin": "https://evil.example"}) as ws,
     ):
         ws.receive_bytes()
     assert exc.value.code == 1008
-    with client.websocket_connect(
-        "/ws", headers={"origin": "http://testserver"}
-    ) as ws:  # same host
+    with client.websocket_connect(WS, headers={"origin": "http://localhost"}) as ws:  # same host
         ws.send_bytes(hello())
         receive_until(ws, m.WELCOME)
 
 
 def test_estop_from_an_observer_latches_until_the_operator_resets(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as op, client.websocket_connect("/ws") as watcher:
+    with client.websocket_connect(WS) as op, client.websocket_connect(WS) as watcher:
         op.send_bytes(hello(TOKEN))
         op.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
         receive_until(op, m.ACK)
@@ -180,7 +180,7 @@ def test_estop_from_an_observer_latches_until_the_operator_resets(client: TestCl
 
 
 def test_force_samples_one_by_one_or_batched(client: TestClient) -> None:
-    with client.websocket_connect("/ws") as every, client.websocket_connect("/ws") as batched:
+    with client.websocket_connect(WS) as every, client.websocket_connect(WS) as batched:
         every.send_bytes(hello(flags=m.HelloFlags.EVERY_FORCE_SAMPLE))
         batched.send_bytes(hello())
         seqs: list[int] = []
@@ -195,7 +195,7 @@ def test_force_samples_one_by_one_or_batched(client: TestClient) -> None:
 
 
 def test_ping_reports_server_receive_and_send_times(client: TestClient, clock: ManualClock) -> None:
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_bytes(hello())
         ws.send_bytes(m.encode(m.PING, 9, 42.0))
         pong, _, _ = receive_until(ws, m.PONG)

@@ -33,7 +33,7 @@ def test_a_perspective_projection_decomposes_into_the_camera() -> None:
 
 def test_the_view_is_served_refreshes_and_follows_the_calibration(tmp_path: Path) -> None:
     settings = Settings(operator_token=TOKEN, state_dir=tmp_path, viewer=True, viewer_port=0)
-    with TestClient(create_app(settings)) as client:
+    with TestClient(create_app(settings), base_url="http://localhost") as client:
         state = client.get("/api/v1/viewer").json()
         assert state["error"] is None and state["port"] > 0
         page = httpx.get(f"http://127.0.0.1:{state['port']}/", timeout=10)
@@ -72,7 +72,7 @@ def test_a_taken_port_moves_the_view_to_a_free_one_and_the_api_says_where(
         settings = Settings(
             operator_token=TOKEN, state_dir=tmp_path, viewer=True, viewer_port=taken
         )
-        with TestClient(create_app(settings)) as client:
+        with TestClient(create_app(settings), base_url="http://localhost") as client:
             state = client.get("/api/v1/viewer").json()
             assert state["port"] not in (None, taken)
             page = httpx.get(f"http://127.0.0.1:{state['port']}/", timeout=10)

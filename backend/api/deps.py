@@ -10,7 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import Depends, Header, Request
+from fastapi import Depends, Header, Request, Security
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from backend.control.decision import Client, DecisionServer, NotAllowed
 from backend.realtime.priority import PriorityChannel
@@ -45,9 +46,20 @@ def bearer_token(authorization: Annotated[str | None, Header()] = None) -> str |
     return None
 
 
+# Declared as a security scheme, so the OpenAPI schema says which operations need the
+# token (``security: [{"OperatorToken": []}]``): the HTTP edge checks it there before
+# a body is read, and /docs offers "Authorize".
+OPERATOR_SCHEME = "OperatorToken"
+operator_bearer = HTTPBearer(
+    auto_error=False, scheme_name=OPERATOR_SCHEME, description="the operator token"
+)
+
+
 def require_operator(
-    decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]
+    decision: DecisionDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Security(operator_bearer)],
 ) -> str:
+    token = credentials.credentials.strip() if credentials is not None else None
     if not decision.check_token(token):
         raise NotAllowed("this needs the operator token: send 'Authorization: Bearer <token>'")
     assert token is not None

@@ -7,6 +7,7 @@ from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ForceDep, OperatorDep, PriorityDep
+from backend.api.requests import StrictRequest
 from drivers.base import FORCE_CHANNELS, ForceSensor
 
 router = APIRouter(prefix="/force", tags=["force"])
@@ -31,7 +32,7 @@ class ForceState(BaseModel):
     error: str | None = Field(None, description="what is wrong with the sensor now, if anything")
 
 
-class ForceUpdate(BaseModel):
+class ForceUpdate(StrictRequest):
     rate_hz: float | None = None
     threshold: float | None = None
     filter_cutoff_hz: float | None = Field(None, description="null turns the filter off")

@@ -11,6 +11,7 @@ from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
+from backend.api.requests import StrictRequest
 from backend.control.decision import StillMoving
 from drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
 from drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM_DEG
@@ -46,11 +47,11 @@ class RobotModel(BaseModel):
     home_pose: str
 
 
-class InitializeRequest(BaseModel):
+class InitializeRequest(StrictRequest):
     joints: list[float] | None = Field(None, description="radians; default: the home pose")
 
 
-class MoveRequest(BaseModel):
+class MoveRequest(StrictRequest):
     space: Literal["joint", "cartesian"]
     mode: Literal["absolute", "incremental"]
     joints: list[float] | None = Field(
@@ -79,7 +80,7 @@ class MoveResult(BaseModel):
     state: RobotState
 
 
-class JointOffsets(BaseModel):
+class JointOffsets(StrictRequest):
     offsets: list[float] = Field(description="radians: model angle = controller angle + offset")
 
 

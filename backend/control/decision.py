@@ -6,15 +6,22 @@ and applies every command, from any input or the REST API, through one path:
 
 Every command ends as one absolute joint target that has passed every check; only
 then does it reach the driver. Pure logic: no sockets, no HTTP; time comes from the
-injected clock; ``tick()`` is called periodically by the server for the dead-man.
+injected clock.
+
+Safety owns its loop (ARCHITECTURE rule 15): ``start()`` subscribes to the force
+sensor itself and runs the dead-man watchdog (``tick()`` every ``tick_s``) as its own
+task, so the force limit and the dead-man act whatever transports (``/ws``, the
+priority channel, REST) are running, or none.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import secrets
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -25,6 +32,7 @@ from backend.control.limits import SafetyLimits
 from drivers.base import (
     FloatArray,
     ForceSample,
+    ForceSensor,
     InvalidCommand,
     NotReady,
     Robot,
@@ -61,6 +69,9 @@ class StillMoving(TelerobotError):
     """A scripted move did not end within the time its caller would wait; it goes on."""
 
     code = "still_moving"
+
+
+MAX_CLIENTS = 512  # joined clients (every /ws, priority or REST-lease client is one)
 
 
 class Role(StrEnum):
@@ -115,6 +126,8 @@ class DecisionServer:
         clock: Clock,
         operator_token: str,
         limits: SafetyLimits | None = None,
+        force: ForceSensor | None = None,
+        max_clients: int = MAX_CLIENTS,
     ) -> None:
         if len(operator_token) < 16:
             raise ValueError("the operator token must have at least 16 characters")
@@ -137,6 +150,44 @@ class DecisionServer:
         self._lock = asyncio.Lock()  # one command at a time reaches the driver
         self._last_tick: float | None = None
         self._deferred = False  # the last tick left its verdict to this one
+        self.force = force
+        self.max_clients = max_clients
+        self._watchdog: asyncio.Task[None] | None = None
+        self._unsubscribe: Callable[[], None] | None = None
+
+    # ------------------------------------------------------------ its own loop
+    def start(self) -> None:
+        """Subscribe to the force sensor and start the dead-man watchdog (on the
+        running event loop). Force samples arrive on the sensor's thread and are
+        judged on the loop, in order, like every command."""
+        loop = asyncio.get_running_loop()
+        if self.force is not None and self._unsubscribe is None:
+
+            def from_sensor_thread(sample: ForceSample) -> None:
+                with contextlib.suppress(RuntimeError):  # the loop is closing
+                    loop.call_soon_threadsafe(self.on_force, sample)
+
+            self._unsubscribe = self.force.subscribe(from_sensor_thread)
+        if self._watchdog is None:
+            self._watchdog = loop.create_task(self._run_watchdog(), name="dead-man")
+
+    async def stop(self) -> None:
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._watchdog
+            self._watchdog = None
+
+    async def _run_watchdog(self) -> None:
+        while True:
+            await self.clock.sleep(self.limits.tick_s)
+            try:
+                await self.tick()
+            except Exception:  # a failing check must not end the watchdog
+                log.exception("dead-man check failed")
 
     # ------------------------------------------------------------ settings
     @property
@@ -166,6 +217,10 @@ class DecisionServer:
 
     def join(self, name: str, token: str | None) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
+        if len(self._clients) >= self.max_clients:
+            raise NotAllowed(
+                f"this server already has {self.max_clients} clients: try again when one leaves"
+            )
         client = Client(secrets.token_hex(8), name[:64], role, self.clock.now())
         self._clients[client.id] = client
         return client

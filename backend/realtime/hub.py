@@ -167,7 +167,6 @@ class RealtimeHub:
         self._unsubscribe.append(self.robot.events.status_changed.subscribe(self._on_status))
         self._unsubscribe.append(self.decision.events.safety_changed.subscribe(self._on_safety))
         self._tasks.append(asyncio.create_task(self._broadcast_state(), name="state-broadcast"))
-        self._tasks.append(asyncio.create_task(self._deadman(), name="dead-man"))
 
     async def stop(self) -> None:
         for unsubscribe in self._unsubscribe:
@@ -191,7 +190,6 @@ class RealtimeHub:
     # ------------------------------------------------------------ streams
     def _on_force(self, sample: ForceSample) -> None:
         self._force_interarrival.tick(self.clock.now())
-        self.decision.on_force(sample)
         for conn in self.connections.values():
             conn.add_force(sample)
 
@@ -248,11 +246,3 @@ class RealtimeHub:
             self._state_seq += 1
             for conn in list(self.connections.values()):
                 conn.set_state(self.encode_state(conn))
-
-    async def _deadman(self) -> None:
-        while True:
-            await self.clock.sleep(self.decision.limits.tick_s)
-            try:
-                await self.decision.tick()
-            except Exception:
-                log.exception("dead-man check failed")

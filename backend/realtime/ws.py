@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
@@ -30,6 +31,20 @@ FRAMES: dict[int, WorkingFrame] = {
     m.Frame.WRIST: WorkingFrame.WRIST,
     m.Frame.TOOL: WorkingFrame.TOOL,
 }
+
+
+def check_hello(data: bytes) -> dict[str, Any]:
+    """The first message's fields, if it is a HELLO this server speaks."""
+    msg, fields, _ = m.decode(data)
+    if msg is not m.HELLO:
+        raise m.MalformedMessage(f"the first message must be HELLO, got {msg.name}")
+    version = int(fields["version"])
+    if version != m.PROTOCOL_VERSION:
+        raise m.MalformedMessage(
+            f"protocol version {version} is not spoken here: this server speaks"
+            f" {m.PROTOCOL_VERSION} (update the client)"
+        )
+    return dict(fields)
 
 
 def error(seq: int, code: str, text: str) -> bytes:
@@ -53,9 +68,7 @@ async def realtime(websocket: WebSocket) -> None:
     decision: DecisionServer = app.state.decision
     try:
         hello = await asyncio.wait_for(websocket.receive_bytes(), HELLO_TIMEOUT_S)
-        msg, fields, _ = m.decode(hello)
-        if msg is not m.HELLO:
-            raise m.MalformedMessage(f"the first message must be HELLO, got {msg.name}")
+        fields = check_hello(hello)
     except (TimeoutError, m.MalformedMessage, KeyError) as exc:
         reason = "no HELLO within 5 s" if isinstance(exc, TimeoutError) else str(exc)
         await websocket.send_bytes(error(0, "malformed", reason))

@@ -1,0 +1,91 @@
+"""Safety owns its loop (ARCHITECTURE rule 15): with no transport at all — no hub,
+no /ws, no priority channel — the DecisionServer still stops the arm on a force
+above the limit and on a silent lease holder."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import numpy as np
+
+from backend.control.decision import SafetyStop
+from drivers.base import ForceSample
+from drivers.clock import ManualClock
+from drivers.force.sampled import SampledForceSensor
+from tests.test_decision import TOKEN, make
+
+
+class ThreadedForceSource(SampledForceSensor):
+    """A force sensor whose samples are delivered from a thread of its own, as every
+    real one does; the test says what it measures."""
+
+    def __init__(self) -> None:
+        super().__init__(1000.0)
+
+    def _run(self) -> None:
+        self._stop.wait()
+
+    def press(self, values: tuple[float, ...], seq: int = 1) -> None:
+        thread = threading.Thread(target=self._deliver, args=(seq, 0.0, values))
+        thread.start()
+        thread.join()
+
+
+async def test_the_force_limit_stops_the_arm_with_no_transport_running() -> None:
+    clock = ManualClock()
+    ds, _ = await make(clock)
+    sensor = ThreadedForceSource()
+    ds.force = sensor
+    ds.start()
+    try:
+        op = ds.join("script", TOKEN)
+        await ds.take_lease(op.id)
+        await ds.cartesian_increment(op.id, np.array([0.005, 0, 0]), np.zeros(3))
+        sensor.press((0.0, 0.0, 100.0, 0.0, 0.0, 0.0))
+        for _ in range(20):  # the sample crosses from the sensor's thread to the loop
+            await asyncio.sleep(0.005)
+            if ds.state().force_limited:
+                break
+        assert ds.state().force_limited
+        refused = None
+        try:
+            await ds.cartesian_increment(op.id, np.array([0, 0, -0.005]), np.zeros(3))
+        except SafetyStop as exc:
+            refused = exc
+        assert refused is not None and "back away" in str(refused)
+    finally:
+        await ds.stop()
+    assert sensor._subscribers == []  # stop() unsubscribed
+
+
+async def test_the_dead_man_lapses_a_silent_lease_with_no_transport_running() -> None:
+    clock = ManualClock()
+    ds, robot = await make(clock)
+    ds.start()
+    try:
+        op = ds.join("script", TOKEN)
+        await ds.take_lease(op.id)
+        await clock.advance(ds.limits.deadman_timeout_s / 2)
+        assert ds.lease_holder == op.id
+        for _ in range(20):  # 0.4 s of silence, in the watchdog's own ticks
+            await clock.advance(ds.limits.tick_s)
+        assert ds.lease_holder is None
+        assert robot.status.value in ("READY", "MOVING")  # stopped, not broken
+    finally:
+        await ds.stop()
+
+
+async def test_a_sample_below_the_limit_changes_nothing() -> None:
+    clock = ManualClock()
+    ds, _ = await make(clock)
+    sensor = ThreadedForceSource()
+    ds.force = sensor
+    ds.start()
+    try:
+        sensor.press((0.0, 0.0, 5.0, 0.0, 0.0, 0.0))
+        await asyncio.sleep(0.02)
+        assert not ds.state().force_limited
+        assert isinstance(sensor.latest, ForceSample)
+    finally:
+        await ds.stop()
