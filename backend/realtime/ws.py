@@ -19,6 +19,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from backend.control.decision import Applied, DecisionServer
 from backend.realtime import messages as m
 from backend.realtime.hub import Connection, RealtimeHub
+from backend.realtime.ratelimit import MalformedRun, TokenBucket
 from backend.security import origin_allowed
 from drivers.base import TelerobotError, WorkingFrame
 
@@ -78,7 +79,12 @@ async def realtime(websocket: WebSocket) -> None:
         return
     token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
     peer = websocket.client
-    client = decision.join(f"ws {peer.host}:{peer.port}" if peer else "ws", token or None)
+    try:
+        client = decision.join(f"ws {peer.host}:{peer.port}" if peer else "ws", token or None)
+    except TelerobotError as exc:  # the server is full
+        await websocket.send_bytes(error(0, exc.code, str(exc)))
+        await websocket.close(code=1013, reason=str(exc)[:120])
+        return
     conn = Connection(
         websocket.send_bytes,
         client.id,
@@ -89,18 +95,29 @@ async def realtime(websocket: WebSocket) -> None:
         m.encode(m.WELCOME, m.PROTOCOL_VERSION, int(conn.operator), hub.clock.now(), text=client.id)
     )
     hub.add(conn)
+    bucket, garbage = TokenBucket(), MalformedRun()
     try:
         while not conn.closed:
             frame = await websocket.receive()
             if frame["type"] == "websocket.disconnect":
                 break
+            wait = bucket.take(hub.clock.now())
+            if wait > 0:  # over its rate: read nothing more until it is back within it
+                await hub.clock.sleep(wait)
             data = frame.get("bytes")
             if data is None:
                 conn.reply(error(0, "malformed", "binary messages only (see docs/protocol.md)"))
-                continue
-            received = hub.clock.now()
-            decision.seen(client.id)
-            await handle(data, received, client.id, conn, decision, hub)
+                ok = False
+            else:
+                received = hub.clock.now()
+                decision.seen(client.id)
+                ok = await handle(data, received, client.id, conn, decision, hub)
+            if garbage.note(not ok):
+                reason = f"{garbage.limit} malformed messages in a row: closing"
+                await conn.close()  # its sender first: one writer on the socket
+                await websocket.send_bytes(error(0, "malformed", reason))
+                await websocket.close(code=1008, reason=reason)
+                break
     except WebSocketDisconnect:
         pass
     finally:
@@ -121,7 +138,9 @@ async def handle(
     conn: Connection,
     decision: DecisionServer,
     hub: RealtimeHub,
-) -> None:
+) -> bool:
+    """Decode and carry out one client message; False if it was malformed (an ERROR
+    has been queued for the client either way something went wrong)."""
     seq = 0
     try:
         msg, f, _ = m.decode(data)
@@ -168,5 +187,7 @@ async def handle(
             raise m.MalformedMessage(f"{msg.name} is not a client message", "unknown_type", seq)
     except m.MalformedMessage as exc:
         conn.reply(error(exc.seq or seq, exc.code, str(exc)))
+        return False
     except TelerobotError as exc:
         conn.reply(error(seq, exc.code, str(exc)))
+    return True
