@@ -50,6 +50,20 @@ def test_a_browser_like_viewer_gets_the_stream_from_the_media_worker() -> None:
     assert sorted(ages)[len(ages) // 2] < 0.5  # capture → decoded, on loopback
 
 
+TOKEN = "video-test-operator-token-0123456789"
+OPERATOR = {"Authorization": f"Bearer {TOKEN}"}
+# A header no cross-site form can set: what a script sends with requests that change
+# something (the browser's page sends JSON).
+TOOL = {"X-Telerobot-Client": "tests"}
+
+
+def server_offer(base: str) -> dict[str, str]:
+    r = httpx.post(base + "api/v1/webrtc/server-offer", headers=TOOL, timeout=30)
+    assert r.status_code == 200, r.text
+    reply: dict[str, str] = r.json()
+    return reply
+
+
 def test_video_api_errors_and_alignment() -> None:
     with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
         base = m.group(1)
@@ -63,26 +77,89 @@ def test_video_api_errors_and_alignment() -> None:
             timeout=30,
         )
         assert r.status_code == 400 and "no pending offer" in r.json()["detail"]
-        r = httpx.post(base + "api/v1/webrtc/server-offer", timeout=30)
-        assert r.status_code == 200 and r.json()["type"] == "offer" and "H264" in r.json()["sdp"]
-        assert httpx.get(base + "api/v1/video/alignment?viewer=alice").json() == {"dx": 0, "dy": 0}
-        assert (
-            httpx.put(
-                base + "api/v1/video/alignment?viewer=alice", json={"dx": 4, "dy": -2}
-            ).status_code
-            == 200
+        offer = server_offer(base)
+        assert offer["type"] == "offer" and "H264" in offer["sdp"] and offer["peer_secret"]
+        r = httpx.post(  # someone else's offer cannot be answered
+            base + "api/v1/webrtc/answer",
+            json={"peer_id": offer["peer_id"], "sdp": "x", "type": "answer"},
+            timeout=30,
         )
-        assert httpx.get(base + "api/v1/video/alignment?viewer=alice").json() == {"dx": 4, "dy": -2}
+        assert r.status_code == 403 and r.json()["title"] == "not your peer"
+        # The alignment is read by anyone, saved only through the viewer's own live peer.
+        alice = base + "api/v1/video/alignment?viewer=alice"
+        own = {"X-Peer-Id": offer["peer_id"], "X-Peer-Secret": offer["peer_secret"]}
+        assert httpx.get(alice).json() == {"dx": 0, "dy": 0}
+        r = httpx.put(alice, json={"dx": 4, "dy": -2})
+        assert r.status_code == 403 and "X-Peer-Secret" in r.json()["detail"]
+        r = httpx.put(alice, json={"dx": 4, "dy": -2}, headers={**own, "X-Peer-Secret": "x"})
+        assert r.status_code == 403
+        assert httpx.put(alice, json={"dx": 4, "dy": -2}, headers=own).status_code == 200
+        assert httpx.get(alice).json() == {"dx": 4, "dy": -2}
         assert httpx.get(base + "api/v1/video/alignment?viewer=bob").json() == {"dx": 0, "dy": 0}
-        assert (
-            httpx.put(base + "api/v1/video/alignment?viewer=alice", json={"dx": 9999}).status_code
-            == 422
+        r = httpx.put(base + "api/v1/video/alignment?viewer=bob", json={"dx": 1}, headers=own)
+        assert r.status_code == 403 and "viewer 'alice' only" in r.json()["detail"]
+        assert httpx.put(alice, json={"dx": 9999}, headers=own).status_code == 422
+        # The peer closes with its secret (a no-op once it is gone); then it saves nothing.
+        peer = base + f"api/v1/webrtc/{offer['peer_id']}"
+        closed = httpx.delete(peer, headers={**TOOL, "X-Peer-Secret": offer["peer_secret"]})
+        assert closed.status_code == 200
+        assert httpx.put(alice, json={"dx": 5}, headers=own).status_code == 403
+
+
+def viewers(base: str, headers: dict[str, str] | None = None) -> list[dict[str, object]]:
+    status = httpx.get(base + "api/v1/video", headers=headers, timeout=10).json()
+    listed: list[dict[str, object]] = status["stats"]["viewers"]
+    return listed
+
+
+def test_only_a_peers_owner_or_the_operator_closes_it_and_only_the_operator_sees_ids() -> None:
+    env = {**SMALL, "TELEROBOT_OPERATOR_TOKEN": TOKEN}
+    with telerobot("serve", "--http-port", "0", wait_for=URL, env=env) as (_, m):
+        base = m.group(1)
+        mine, theirs = server_offer(base), server_offer(base)
+        # Observers see how many viewers there are and their figures, never their ids.
+        for path in ("api/v1/video", "api/v1/telemetry"):
+            seen = httpx.get(base + path, timeout=10).text
+            assert mine["peer_id"] not in seen and theirs["peer_id"] not in seen, path
+        assert len(viewers(base)) == 2 and all("peer_id" not in v for v in viewers(base))
+        telemetry = httpx.get(base + "api/v1/telemetry", headers=OPERATOR, timeout=10).json()
+        ids = {v["peer_id"] for v in telemetry["video"]["viewers"]}
+        assert ids == {mine["peer_id"], theirs["peer_id"]}
+        # Closing someone else's peer: refused without its secret, or with another's.
+        url = base + f"api/v1/webrtc/{theirs['peer_id']}"
+        for headers in ({}, {"X-Peer-Secret": mine["peer_secret"]}, {"X-Peer-Secret": ""}):
+            r = httpx.delete(url, headers={**TOOL, **headers}, timeout=30)
+            assert r.status_code == 403 and "not your peer" in r.json()["detail"], headers
+        assert len(viewers(base)) == 2
+        r = httpx.delete(
+            base + f"api/v1/webrtc/{mine['peer_id']}",
+            headers={**TOOL, "X-Peer-Secret": mine["peer_secret"]},
+            timeout=30,
         )
+        assert r.status_code == 200
+        assert [v["peer_id"] for v in viewers(base, OPERATOR)] == [theirs["peer_id"]]
+        assert httpx.delete(url, headers=OPERATOR, timeout=30).status_code == 200  # any peer
+        assert viewers(base, OPERATOR) == []
+
+
+def test_connecting_viewers_are_capped_with_a_message_a_person_can_act_on() -> None:
+    from backend.media.pipeline import MAX_PENDING
+
+    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
+        base = m.group(1)
+        for _ in range(MAX_PENDING):
+            server_offer(base)
+        r = httpx.post(base + "api/v1/webrtc/server-offer", headers=TOOL, timeout=30)
+        assert r.status_code == 503 and r.json()["title"] == "viewer limit"
+        assert "connecting right now: try again in a few seconds" in r.json()["detail"]
+        status = httpx.get(base + "api/v1/video", timeout=10).json()["stats"]
+        assert status["pending"] == MAX_PENDING and status["keyframes_forced"] == 0
+        assert status["frames_encoded"] == 0  # nobody connected: nothing is encoded
 
 
 def test_video_off_says_so() -> None:
     with telerobot("serve", "--http-port", "0", wait_for=URL) as (_, m):
-        r = httpx.post(m.group(1) + "api/v1/webrtc/server-offer", timeout=30)
+        r = httpx.post(m.group(1) + "api/v1/webrtc/server-offer", headers=TOOL, timeout=30)
         assert r.status_code == 503 and "video is turned off" in r.json()["detail"]
 
 

@@ -8,6 +8,7 @@ from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
 from backend.api.deps import TelemetryDep
+from backend.api.video import OperatorOrNot, video_stats
 
 router = APIRouter(prefix="/telemetry", tags=["telemetry"])
 
@@ -35,7 +36,8 @@ class ConnectionView(BaseModel):
 class TelemetryView(BaseModel):
     streams: list[StreamSummary]
     connections: list[ConnectionView]
-    video: dict[str, Any] | None = None  # capture fps, encode ms, frame/keyframe sizes, viewers
+    # capture fps, encode ms, frame/keyframe sizes, viewers (their peer ids: operator only)
+    video: dict[str, Any] | None = None
 
 
 def _num(x: float) -> float | None:
@@ -43,7 +45,9 @@ def _num(x: float) -> float | None:
 
 
 @router.get("")
-async def telemetry(request: Request, stats: TelemetryDep) -> TelemetryView:
+async def telemetry(
+    request: Request, stats: TelemetryDep, operator: OperatorOrNot
+) -> TelemetryView:
     streams = [
         StreamSummary(
             name=s.name,
@@ -69,9 +73,8 @@ async def telemetry(request: Request, stats: TelemetryDep) -> TelemetryView:
         for c in request.app.state.hub.connections.values()
     ]
     media = request.app.state.media
+    # Video peers' ids only to the operator: a peer id is what closing a viewer names.
     video = (
-        (await media.request("stats", timeout=5))["stats"]
-        if media is not None and media.alive
-        else None
+        await video_stats(media, peer_ids=operator) if media is not None and media.alive else None
     )
     return TelemetryView(streams=streams, connections=conns, video=video)

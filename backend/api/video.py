@@ -1,36 +1,70 @@
 """Stereo video over WebRTC: signalling (one POST), status and telemetry, and the
 per-viewer alignment of the right image against the left (the thesis's keyboard
-adjustment; applied by each viewer, since all share one encoded stream)."""
+adjustment; applied by each viewer, since all share one encoded stream).
+
+Each peer belongs to the viewer that opened it: its offer's reply carries a
+``peer_secret``, needed to answer a server offer, to close the peer (header
+``X-Peer-Secret``; the operator token closes any) and to save that viewer's alignment.
+Peer ids are listed only to the operator.
+"""
 
 from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Depends, Header, Path, Query, Request
 from pydantic import BaseModel, Field
 
-from backend.api.deps import SettingsDep
+from backend.api.deps import DecisionDep, SettingsDep, bearer_token
+from backend.api.requests import StrictRequest
+from backend.control.decision import NotAllowed
+from backend.media.pipeline import NotYourPeer, ViewerLimitReached
 from backend.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaUnavailable
+from drivers.base import TelerobotError
 
 router = APIRouter(tags=["video"])
 
+# Saved alignments, one per viewer name, newest kept: each entry is ~0.5 kB, so the
+# table stays under 1 MB. A viewer name is written only through a live peer (one name
+# per peer), and the page keeps its own copy, so an evicted entry costs nothing.
+MAX_ALIGNMENTS = 1000
+SECRET_MAX = 64  # a peer secret is 22 characters; anything longer is not one
 
-class SessionDescription(BaseModel):
+
+class PeerNotAllowed(NotAllowed):
+    """403: the peer is someone else's (the worker's ``NotYourPeer``)."""
+
+    code = NotYourPeer.code
+
+
+# The worker's errors that have a class (and so an HTTP status) of their own here.
+_WORKER_ERRORS: dict[str, type[TelerobotError]] = {
+    NotYourPeer.code: PeerNotAllowed,
+    ViewerLimitReached.code: ViewerLimitReached,  # 503
+}
+
+
+class SessionDescription(StrictRequest):
     sdp: str = Field(max_length=100_000)
     type: str = Field(description="'offer' (to /webrtc/offer) or 'answer' (to /webrtc/answer)")
 
 
 class PeerDescription(BaseModel):
     peer_id: str
+    peer_secret: str = Field(
+        description="this viewer's proof that the peer is its own: keep it; send it to close"
+        " the peer (header X-Peer-Secret) and to save the alignment"
+    )
     sdp: str
     type: str
 
 
 class Answer(SessionDescription):
-    peer_id: str
+    peer_id: str = Field(max_length=64)
+    peer_secret: str = Field("", max_length=SECRET_MAX, description="from the server's offer")
 
 
-class Alignment(BaseModel):
+class Alignment(StrictRequest):
     dx: int = Field(0, ge=-400, le=400, description="pixels the right image moves right")
     dy: int = Field(0, ge=-400, le=400, description="pixels the right image moves down")
 
@@ -55,44 +89,89 @@ def media_supervisor(request: Request) -> MediaSupervisor:
     return media
 
 
+async def ask(media: MediaSupervisor, op: str, **fields: Any) -> dict[str, Any]:
+    """A media worker request, its refusals raised as their own classes (403, 503)."""
+    try:
+        return await media.request(op, **fields)
+    except MediaRequestFailed as exc:
+        cls = _WORKER_ERRORS.get(exc.code)
+        if cls is None:
+            raise
+        raise cls(str(exc)) from None
+
+
+def is_operator(decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]) -> bool:
+    return decision.check_token(token)
+
+
+OperatorOrNot = Annotated[bool, Depends(is_operator)]
+PeerSecret = Annotated[str | None, Header(max_length=SECRET_MAX)]
+
+
+async def video_stats(media: MediaSupervisor, peer_ids: bool) -> dict[str, Any]:
+    """The worker's figures; peer ids only for the operator (``peer_ids``)."""
+    stats: dict[str, Any] = (await media.request("stats", timeout=5, peer_ids=peer_ids))["stats"]
+    return stats
+
+
 @router.post("/webrtc/offer")
 async def offer(body: SessionDescription, request: Request) -> PeerDescription:
     """Send the browser's offer (with a recvonly video transceiver); get the answer.
-    ICE candidates are in the SDP (no trickle)."""
-    reply = await media_supervisor(request).request("answer", sdp=body.sdp, type=body.type)
-    return PeerDescription(peer_id=reply["peer_id"], sdp=reply["sdp"], type=reply["type"])
+    ICE candidates are in the SDP (no trickle). Keep ``peer_secret``."""
+    reply = await ask(media_supervisor(request), "answer", sdp=body.sdp, type=body.type)
+    return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/server-offer")
 async def server_offer(request: Request) -> PeerDescription:
-    """For browsers that need the server to offer: answer it with /webrtc/answer."""
-    reply = await media_supervisor(request).request("offer")
-    return PeerDescription(peer_id=reply["peer_id"], sdp=reply["sdp"], type=reply["type"])
+    """For browsers that need the server to offer: answer it with /webrtc/answer (with
+    the ``peer_secret``) within a few seconds, or the offer is dropped."""
+    reply = await ask(media_supervisor(request), "offer")
+    return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/answer")
 async def answer(body: Answer, request: Request) -> dict[str, str]:
-    await media_supervisor(request).request(
-        "accept", peer_id=body.peer_id, sdp=body.sdp, type=body.type
+    await ask(
+        media_supervisor(request),
+        "accept",
+        peer_id=body.peer_id,
+        sdp=body.sdp,
+        type=body.type,
+        peer_secret=body.peer_secret,
     )
     return {"peer_id": body.peer_id}
 
 
 @router.delete("/webrtc/{peer_id}")
-async def close_peer(peer_id: str, request: Request) -> dict[str, str]:
-    await media_supervisor(request).request("close_peer", peer_id=peer_id)
+async def close_peer(
+    peer_id: Annotated[str, Path(max_length=64)],
+    request: Request,
+    operator: OperatorOrNot,
+    x_peer_secret: PeerSecret = None,
+) -> dict[str, str]:
+    """Close your own peer (header ``X-Peer-Secret``), or any (the operator token)."""
+    await ask(
+        media_supervisor(request),
+        "close_peer",
+        peer_id=peer_id,
+        peer_secret=x_peer_secret,
+        operator=operator,
+    )
     return {"peer_id": peer_id}
 
 
 @router.get("/video")
-async def video_status(request: Request, settings: SettingsDep) -> VideoStatus:
+async def video_status(
+    request: Request, settings: SettingsDep, operator: OperatorOrNot
+) -> VideoStatus:
     media: MediaSupervisor | None = request.app.state.media
     stats, error = None, None
     if media is not None and media.alive:
         # The worker can die between the check and the answer (it is then restarted):
         # the status still answers, and says so.
         try:
-            stats = (await media.request("stats", timeout=5))["stats"]
+            stats = await video_stats(media, peer_ids=operator)
         except (MediaUnavailable, MediaRequestFailed, OSError) as exc:
             error = str(exc) or type(exc).__name__
     return VideoStatus(
@@ -108,6 +187,16 @@ async def video_status(request: Request, settings: SettingsDep) -> VideoStatus:
     )
 
 
+def remember(
+    saved: dict[str, Alignment], viewer: str, alignment: Alignment, limit: int = MAX_ALIGNMENTS
+) -> None:
+    """Save ``viewer``'s alignment, dropping the longest-unwritten beyond ``limit``."""
+    saved.pop(viewer, None)  # re-inserted last: the dict's order is the write order
+    saved[viewer] = alignment
+    while len(saved) > limit:
+        del saved[next(iter(saved))]
+
+
 @router.get("/video/alignment")
 async def get_alignment(
     request: Request, settings: SettingsDep, viewer: Annotated[str, Query(max_length=64)] = ""
@@ -119,7 +208,25 @@ async def get_alignment(
 
 @router.put("/video/alignment")
 async def put_alignment(
-    body: Alignment, request: Request, viewer: Annotated[str, Query(min_length=1, max_length=64)]
+    body: Alignment,
+    request: Request,
+    viewer: Annotated[str, Query(min_length=1, max_length=64)],
+    x_peer_id: Annotated[str | None, Header(max_length=64)] = None,
+    x_peer_secret: PeerSecret = None,
 ) -> Alignment:
-    request.app.state.alignments[viewer] = body
+    """Save this viewer's shift: with the ``X-Peer-Id`` and ``X-Peer-Secret`` of its
+    live video peer (each peer saves one viewer name)."""
+    if not x_peer_id or not x_peer_secret:
+        raise PeerNotAllowed(
+            "saving an alignment needs this page's video connection: send the headers"
+            " X-Peer-Id and X-Peer-Secret with the peer_id and peer_secret of its offer"
+        )
+    await ask(
+        media_supervisor(request),
+        "claim_viewer",
+        peer_id=x_peer_id,
+        peer_secret=x_peer_secret,
+        viewer=viewer,
+    )
+    remember(request.app.state.alignments, viewer, body)
     return body

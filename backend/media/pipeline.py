@@ -29,9 +29,11 @@ from aiortc import (
 
 from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from backend.media.fanout import Broadcaster, SharedVideoTrack
+from backend.media.supervisor import MediaUnavailable
 from backend.netprio import mark_peer_low_priority
 from backend.telemetry.stats import InterArrival, StreamStats
 from drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
+from drivers.clock import Clock, MonotonicClock
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +42,32 @@ class BadOffer(TelerobotError):
     """The session description cannot be used; the reason says why."""
 
     code = "bad_offer"
+
+
+class ViewerLimitReached(MediaUnavailable):
+    """Every viewer place (or every place for a viewer still connecting) is taken."""
+
+    code = "viewer_limit"
+
+
+class NotYourPeer(TelerobotError):
+    """The peer secret does not match: only the viewer that opened a peer may use it
+    (or the operator, with the operator token). The server answers 403."""
+
+    code = "not_your_peer"
+
+
+# Limits on the peers one media worker holds (ARCHITECTURE rule 18). Each peer costs
+# ~0.6 MB of worker memory and, once connected, its share of the uplink (up to the
+# bitrate, 8 Mbit/s by default) and of packetising; the lab's use is an operator and a
+# few observers (the benchmark runs 6 viewers).
+MAX_VIEWERS = 16  # peers in all, connected or connecting
+MAX_PENDING = 8  # peers still connecting: page loads at the same moment
+# A peer that has not connected by then is closed: ICE with host candidates takes well
+# under a second, through TURN a few; an unanswered server offer is dropped.
+PENDING_EXPIRY_S = 10.0
+EXPIRY_CHECK_S = 1.0  # how often the worker looks for expired peers
+PEER_SECRET_BYTES = 16  # 128 bits, sent back once with the answer
 
 
 @dataclass(frozen=True)
@@ -55,7 +83,14 @@ class VideoSettings:
 class Peer:
     pc: RTCPeerConnection
     track: SharedVideoTrack
-    created: float = field(default_factory=time.monotonic)
+    created: float
+    secret: str = field(default_factory=lambda: secrets.token_urlsafe(PEER_SECRET_BYTES))
+    connected: bool = False
+    viewer: str | None = None  # the one viewer name whose alignment this peer may save
+
+    def owned_by(self, secret: str | None) -> bool:
+        """Constant-time comparison with the peer's secret."""
+        return secret is not None and secrets.compare_digest(self.secret.encode(), secret.encode())
 
 
 def no_signal_frame(width: int, height: int, message: str, seq: int, t: float) -> StereoFrame:
@@ -90,9 +125,22 @@ def _ice(servers: tuple[str, ...]) -> RTCConfiguration:
 
 
 class VideoPipeline:
-    def __init__(self, camera: StereoCamera, settings: VideoSettings | None = None) -> None:
+    def __init__(
+        self,
+        camera: StereoCamera,
+        settings: VideoSettings | None = None,
+        *,
+        clock: Clock | None = None,
+        max_viewers: int = MAX_VIEWERS,
+        max_pending: int = MAX_PENDING,
+        pending_expiry_s: float = PENDING_EXPIRY_S,
+    ) -> None:
         self.camera = camera
         self.settings = settings or VideoSettings()
+        self.clock: Clock = clock or MonotonicClock()
+        self.max_viewers = max_viewers
+        self.max_pending = max_pending
+        self.pending_expiry_s = pending_expiry_s
         # One encoder per codec in use (H.264; VP8 only while a viewer needs it), each
         # shared by all of that codec's viewers.
         self.encoders: dict[str, PacketEncoder] = {}
@@ -101,7 +149,8 @@ class VideoPipeline:
         self.peers: dict[str, Peer] = {}
         self._grab = ThreadPoolExecutor(1, thread_name_prefix="video-grab")
         self._encode = ThreadPoolExecutor(1, thread_name_prefix="video-encode")
-        self._task: asyncio.Task[None] | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._closing: set[asyncio.Task[None]] = set()  # expired peers' connections
         self.capture_interarrival = InterArrival("video_capture")
         self.encode_ms = StreamStats("video_encode", "ms")
         self.frame_bytes = StreamStats("video_frame_bytes", "B")
@@ -121,7 +170,7 @@ class VideoPipeline:
                 cbr=s.cbr,
             )
             self.encoders[codec] = enc
-            self.broadcasters[codec] = Broadcaster(enc.request_keyframe)
+            self.broadcasters[codec] = Broadcaster(enc.request_keyframe, self.clock.now)
         return self.encoders[codec]
 
     @property
@@ -135,14 +184,19 @@ class VideoPipeline:
     # ------------------------------------------------------------ capture → encode
     def start(self) -> None:
         self.camera.start()
-        self._task = asyncio.create_task(self._run(), name="video-pipeline")
+        self._tasks = [
+            asyncio.create_task(self._run(), name="video-pipeline"),
+            asyncio.create_task(self._expire_loop(), name="video-peer-expiry"),
+        ]
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
+        for task in self._tasks:
+            task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-        await asyncio.gather(*(p.pc.close() for p in self.peers.values()), return_exceptions=True)
+                await task
+        await asyncio.gather(
+            *(p.pc.close() for p in self.peers.values()), *self._closing, return_exceptions=True
+        )
         self.peers.clear()
         await asyncio.get_running_loop().run_in_executor(self._grab, self.camera.stop)
         self._grab.shutdown(wait=False)
@@ -167,8 +221,8 @@ class VideoPipeline:
                 seq = frame.seq
                 self.capture_interarrival.tick(frame.time)
             for codec, broadcaster in list(self.broadcasters.items()):
-                if broadcaster.viewers == 0:
-                    continue  # nobody watching in this codec: no encoding
+                if broadcaster.sending == 0:
+                    continue  # nobody connected in this codec: no encoding
                 encoder = self.encoders[codec]
                 for encoded in await loop.run_in_executor(self._encode, encoder.encode, frame):
                     if codec == "H264":
@@ -181,6 +235,61 @@ class VideoPipeline:
         self.frame_bytes.record(e.size)
         if e.keyframe:
             self.keyframe_bytes.record(e.size)
+
+    # ------------------------------------------------------------ peers and their limits
+    @property
+    def pending(self) -> int:
+        return sum(1 for p in self.peers.values() if not p.connected)
+
+    async def _expire_loop(self) -> None:
+        while True:
+            await self.clock.sleep(EXPIRY_CHECK_S)
+            self.expire_pending()
+
+    def expire_pending(self) -> list[str]:
+        """Drop the peers that have not connected within ``pending_expiry_s``: they
+        leave ``peers`` (and their tracks the fan-out) at once; their connections close
+        in the background."""
+        now = self.clock.now()
+        expired = [
+            pid
+            for pid, p in self.peers.items()
+            if not p.connected and now - p.created >= self.pending_expiry_s
+        ]
+        for pid in expired:
+            peer = self._detach(pid)
+            if peer is not None:
+                task = asyncio.create_task(peer.pc.close(), name=f"video-peer-expired-{pid}")
+                self._closing.add(task)
+                task.add_done_callback(self._closing.discard)
+        if expired:
+            log.info("dropped %d peer(s) that did not connect in time", len(expired))
+        return expired
+
+    def _make_room(self) -> None:
+        """Refuse a new peer (before any work) when the limits are reached."""
+        self.expire_pending()
+        if len(self.peers) >= self.max_viewers:
+            raise ViewerLimitReached(
+                f"all {self.max_viewers} viewer places are taken: close a video page"
+                " (or ask the operator to) and try again"
+            )
+        if self.pending >= self.max_pending:
+            raise ViewerLimitReached(
+                f"{self.max_pending} viewers are connecting right now: try again in a few"
+                f" seconds (a viewer that does not connect within {self.pending_expiry_s:g} s"
+                " is dropped)"
+            )
+
+    def _own(self, peer_id: str, secret: str | None) -> Peer | None:
+        """The peer, if ``secret`` is its own; None if there is no such peer."""
+        peer = self.peers.get(peer_id)
+        if peer is not None and not peer.owned_by(secret):
+            raise NotYourPeer(
+                "this is not your peer: send the peer_secret your offer's answer carried"
+                " (header X-Peer-Secret), or the operator token"
+            )
+        return peer
 
     # ------------------------------------------------------------ signalling
     def _new_peer(self, codec: str = "H264") -> tuple[str, Peer]:
@@ -202,23 +311,46 @@ class VideoPipeline:
 
         sender._send_keyframe = on_keyframe_request  # type: ignore[method-assign]
         peer_id = secrets.token_hex(8)
-        peer = Peer(pc, track)
+        peer = Peer(pc, track, created=self.clock.now())
         self.peers[peer_id] = peer
 
         @pc.on("connectionstatechange")
         async def on_state() -> None:
             if pc.connectionState == "connected":
+                peer.connected = True  # no longer pending: it stays until it closes
                 mark_peer_low_priority(pc)  # forces and commands go first
             if pc.connectionState in ("failed", "closed"):
                 await self.close_peer(peer_id)
 
         return peer_id, peer
 
-    async def close_peer(self, peer_id: str) -> None:
+    def _detach(self, peer_id: str) -> Peer | None:
         peer = self.peers.pop(peer_id, None)
         if peer is not None:
             peer.track.stop()
+        return peer
+
+    async def close_peer(self, peer_id: str) -> None:
+        peer = self._detach(peer_id)
+        if peer is not None:
             await peer.pc.close()
+
+    async def close_own_peer(self, peer_id: str, secret: str | None) -> None:
+        """A viewer closes its peer (with the secret it got); a gone peer is no error."""
+        if self._own(peer_id, secret) is not None:
+            await self.close_peer(peer_id)
+
+    def claim_viewer(self, peer_id: str, secret: str | None, viewer: str) -> None:
+        """May this live peer save ``viewer``'s alignment? One viewer name per peer."""
+        peer = self._own(peer_id, secret)
+        if peer is None:
+            raise NotYourPeer(
+                f"no live peer {peer_id!r}: the alignment is saved with the peer_id and"
+                " peer_secret of this page's video connection"
+            )
+        if peer.viewer is not None and peer.viewer != viewer:
+            raise NotYourPeer(f"this peer saves the alignment of viewer {peer.viewer!r} only")
+        peer.viewer = viewer
 
     async def answer(self, sdp: str, kind: str) -> dict[str, str]:
         """The browser offers, we answer (the usual way)."""
@@ -233,6 +365,7 @@ class VideoPipeline:
             codec = "VP8"  # the fallback: a second encoder, only while such viewers watch
         else:
             raise BadOffer("the offer accepts neither H.264 nor VP8 video")
+        self._make_room()
         peer_id, peer = self._new_peer(codec)
         try:
             await peer.pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
@@ -240,20 +373,34 @@ class VideoPipeline:
         except Exception as exc:
             await self.close_peer(peer_id)
             raise BadOffer(f"cannot use this offer: {exc}") from None
-        local = peer.pc.localDescription
-        return {"peer_id": peer_id, "sdp": local.sdp, "type": local.type}
+        return self._description(peer_id, peer)
 
     async def offer(self) -> dict[str, str]:
         """We offer (for browsers that need the server to): answer with ``accept``."""
+        self._make_room()
         peer_id, peer = self._new_peer()
         await peer.pc.setLocalDescription(await peer.pc.createOffer())
-        local = peer.pc.localDescription
-        return {"peer_id": peer_id, "sdp": local.sdp, "type": local.type}
+        return self._description(peer_id, peer)
 
-    async def accept(self, peer_id: str, sdp: str, kind: str) -> dict[str, str]:
-        peer = self.peers.get(peer_id)
+    @staticmethod
+    def _description(peer_id: str, peer: Peer) -> dict[str, str]:
+        local = peer.pc.localDescription
+        return {
+            "peer_id": peer_id,
+            "peer_secret": peer.secret,
+            "sdp": local.sdp,
+            "type": local.type,
+        }
+
+    async def accept(
+        self, peer_id: str, sdp: str, kind: str, secret: str | None = None
+    ) -> dict[str, str]:
+        peer = self._own(peer_id, secret)
         if peer is None:
-            raise BadOffer(f"no pending offer {peer_id!r} (it may have expired)")
+            raise BadOffer(
+                f"no pending offer {peer_id!r} (it may have expired: answer within"
+                f" {self.pending_expiry_s:g} s)"
+            )
         if kind != "answer":
             raise BadOffer(f"expected an SDP of type 'answer', got {kind!r}")
         try:
@@ -264,12 +411,13 @@ class VideoPipeline:
         return {"peer_id": peer_id}
 
     # ------------------------------------------------------------ telemetry
-    def stats(self) -> dict[str, Any]:
+    def stats(self, peer_ids: bool = False) -> dict[str, Any]:
+        """Figures for everyone; the peers' ids only if ``peer_ids`` (the operator's)."""
         cap = self.capture_interarrival.summary()
         enc = self.encode_ms.summary()
         size = self.frame_bytes.summary()
         keys = self.keyframe_bytes.values()
-        now = time.monotonic()
+        now = self.clock.now()
         return {
             "camera": {
                 "name": self.camera.name,
@@ -283,9 +431,14 @@ class VideoPipeline:
             "keyframe_bytes_last": keys[-10:].tolist(),
             "frames_encoded": self.frames_encoded,
             "codecs": {codec: b.viewers for codec, b in self.broadcasters.items()},
+            "keyframes_forced": sum(b.keyframes.forced for b in self.broadcasters.values()),
+            "viewer_count": len(self.peers),
+            "pending": self.pending,
+            "max_viewers": self.max_viewers,
+            "max_pending": self.max_pending,
             "viewers": [
                 {
-                    "peer_id": pid,
+                    **({"peer_id": pid} if peer_ids else {}),
                     "state": p.pc.connectionState,
                     "frames": p.track.sent_frames,
                     "bytes": p.track.sent_bytes,

@@ -112,13 +112,23 @@ async def _serve(conn: multiprocessing.connection.Connection, settings: Settings
             elif op == "offer":
                 reply.update(await pipeline.offer())
             elif op == "accept":
-                reply.update(await pipeline.accept(req["peer_id"], req["sdp"], req["type"]))
+                reply.update(
+                    await pipeline.accept(
+                        req["peer_id"], req["sdp"], req["type"], req.get("peer_secret")
+                    )
+                )
             elif op == "close_peer":
-                await pipeline.close_peer(req["peer_id"])
+                # The server checked the operator token; anyone else shows the secret.
+                if req.get("operator"):
+                    await pipeline.close_peer(req["peer_id"])
+                else:
+                    await pipeline.close_own_peer(req["peer_id"], req.get("peer_secret"))
+            elif op == "claim_viewer":
+                pipeline.claim_viewer(req["peer_id"], req.get("peer_secret"), req["viewer"])
             elif op == "stats":
-                reply["stats"] = pipeline.stats()
+                reply["stats"] = pipeline.stats(peer_ids=bool(req.get("peer_ids")))
             elif op == "keyframe":
-                pipeline.encoder.request_keyframe()
+                pipeline.broadcaster.request_keyframe()  # shared and rate-limited like any
             elif op == "board":
                 show = getattr(camera, "show_board", None)
                 if show is None:

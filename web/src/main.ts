@@ -12,7 +12,7 @@ import { type ForceSample } from "./transport/codec";
 import { Frame, LeaseAction, StateFlags } from "./transport/messages";
 import { RealtimeLink } from "./transport/link";
 import type { RobotState } from "./transport/realtime";
-import { connectVideo } from "./transport/video";
+import { connectVideo, saveAlignment } from "./transport/video";
 import { MODES, StereoView, type ViewMode } from "./view/stereo";
 
 const $ = <T extends HTMLElement = HTMLElement>(id: string) => document.getElementById(id) as T;
@@ -71,7 +71,11 @@ async function main(): Promise<void> {
     view.setMode(modeSelect.value as ViewMode);
     localStorage.setItem("telerobot.mode", modeSelect.value);
   };
-  let align = await getJSON<{ dx: number; dy: number }>(`api/v1/video/alignment?viewer=${viewerName}`).catch(() => ({ dx: 0, dy: 0 }));
+  // This page's own copy first (the server keeps a bounded table); re-sent once the video peer is up.
+  const savedAlign = localStorage.getItem("telerobot.align");
+  let align: { dx: number; dy: number } = savedAlign
+    ? JSON.parse(savedAlign)
+    : await getJSON<{ dx: number; dy: number }>(`api/v1/video/alignment?viewer=${viewerName}`).catch(() => ({ dx: 0, dy: 0 }));
   const showAlign = () => {
     $("align").textContent = `${align.dx}, ${align.dy}`;
     view.setAlignment(align.dx, align.dy);
@@ -130,12 +134,23 @@ async function main(): Promise<void> {
   };
 
   // ---- video
-  connectVideo(base, (stream) => {
+  const videoPeer = connectVideo(base, (stream) => {
     video.srcObject = stream;
     void video.play();
     const track = stream.getVideoTracks()[0];
     if (track) void measureGlass(track.clone(), client, glass);
-  }).catch((e: Error) => message(`video: ${e.message}`, true));
+  });
+  videoPeer.catch((e: Error) => message(`video: ${e.message}`, true));
+  // The alignment is saved with this page's video peer's secret, one PUT at a time (the last wins).
+  let alignSaved = Promise.resolve();
+  const saveAlign = () => {
+    localStorage.setItem("telerobot.align", JSON.stringify(align));
+    alignSaved = alignSaved.then(async () => {
+      const peer = await videoPeer.catch(() => null);
+      if (peer) await saveAlignment(base, peer, viewerName, align).catch((e: Error) => message(`alignment: ${e.message}`, true));
+    });
+  };
+  if (savedAlign) saveAlign();
   view.onFrame = () => videoInterval.tick(performance.now());
 
   // ---- inputs
@@ -151,11 +166,7 @@ async function main(): Promise<void> {
       const d = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, -1], ArrowDown: [0, 1] }[key] ?? [0, 0];
       align = { dx: align.dx + d[0]!, dy: align.dy + d[1]! };
       showAlign();
-      void fetch(`${base}api/v1/video/alignment?viewer=${viewerName}`, {
-        method: "PUT",
-        headers: { "Content-Type": "application/json" },
-        body: JSON.stringify(align),
-      });
+      saveAlign();
     }
   };
 
