@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from fastapi import APIRouter, Request
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from backend.api.deps import TelemetryDep
 from backend.api.video import OperatorOrNot, video_stats
@@ -27,7 +27,7 @@ class StreamSummary(BaseModel):
 
 
 class ConnectionView(BaseModel):
-    client_id: str
+    client_id: str | None = Field(description="shown to the operator only")
     operator: bool
     every_force_sample: bool
     forces_lost: int
@@ -65,7 +65,7 @@ async def telemetry(
     ]
     conns = [
         ConnectionView(
-            client_id=c.client_id,
+            client_id=c.client_id if operator else None,
             operator=c.operator,
             every_force_sample=c.every_force_sample,
             forces_lost=c.outbox.forces_lost,
