@@ -4,6 +4,7 @@ sockets marked ahead of video."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import struct
@@ -145,3 +146,52 @@ def test_forces_are_marked_ahead_of_video() -> None:
         mark_low_priority(video)
         assert video.getsockopt(socket.IPPROTO_IP, socket.IP_TOS) == DSCP_CS1
         assert video.getsockopt(socket.SOL_SOCKET, socket.SO_PRIORITY) == 1
+
+
+def read_messages(sock: socket.socket, count: int, name: str) -> list[dict[str, object]]:
+    """Read until ``count`` messages called ``name`` have come (the rest skipped)."""
+    buf, found = b"", []
+    while len(found) < count:
+        chunk = sock.recv(65536)
+        assert chunk, f"closed after {len(found)} {name}s"
+        buf += chunk
+        while len(buf) >= 2 and len(buf) >= 2 + struct.unpack_from("<H", buf)[0]:
+            (size,) = struct.unpack_from("<H", buf)
+            message, buf = buf[2 : 2 + size], buf[2 + size :]
+            if message[0] != m.FORCE.type_id:
+                msg, fields, _ = m.decode(message)
+                if msg.name == name:
+                    found.append(fields)
+    return found
+
+
+def test_messages_sent_in_the_same_write_as_hello_are_all_answered(
+    server: tuple[str, int],
+) -> None:
+    _, port = server
+    hello = m.encode(m.HELLO, m.PROTOCOL_VERSION, 0, b"")
+    pings = [m.encode(m.PING, seq, 0.0) for seq in range(1, 201)]
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        sock.sendall(b"".join(struct.pack("<H", len(x)) + x for x in [hello, *pings]))
+        pongs = read_messages(sock, 200, "PONG")
+    assert [f["seq"] for f in pongs] == list(range(1, 201))
+
+
+def test_sockets_that_never_say_hello_are_shed_then_closed(server: tuple[str, int]) -> None:
+    """More idle sockets than may wait for HELLO: the oldest go first; the rest go
+    when their time is up (HELLO_TIMEOUT_S); a client that says HELLO is served."""
+    _, port = server
+    idle = [socket.create_connection(("127.0.0.1", port), timeout=10) for _ in range(12)]
+    try:
+        link, _ = connect(port, token="")  # served all the same
+        link.close()
+        for sock in idle:  # each gets ERROR, then the end
+            data = b""
+            with contextlib.suppress(ConnectionResetError):
+                while chunk := sock.recv(4096):
+                    data += chunk
+            msg, _, text = m.decode(data[2 : 2 + struct.unpack_from("<H", data)[0]])
+            assert msg is m.ERROR and ("HELLO" in text), text
+    finally:
+        for sock in idle:
+            sock.close()
