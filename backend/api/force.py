@@ -57,6 +57,11 @@ class ChannelState(BaseModel):
     clients: int
     samples_sent: int
     forces_dropped: int = Field(description="samples dropped for clients that fell behind")
+    limits: dict[str, int] = Field(
+        default_factory=dict,
+        description="what the channel refused: connections refused or shed, HELLO timeouts,"
+        " clients over the message rate, oversized messages, accept errors, thread restarts",
+    )
 
 
 @router.get("/channel")
@@ -68,6 +73,7 @@ async def channel(priority: PriorityDep) -> ChannelState:
         clients=sum(c.conn is not None for c in list(priority.clients)),
         samples_sent=priority.samples_sent,
         forces_dropped=sum(c.forces_dropped for c in list(priority.clients)),
+        limits=priority.stats(),
     )
 
 

@@ -64,7 +64,7 @@ from backend.control.decision import DecisionServer
 from backend.netprio import mark_high_priority
 from backend.realtime import messages as m
 from backend.realtime.hub import Connection, RealtimeHub
-from backend.realtime.ws import error, handle
+from backend.realtime.ws import check_hello, error, handle
 from drivers.base import ForceSample, ForceSensor, TelerobotError
 
 log = logging.getLogger(__name__)
@@ -382,7 +382,8 @@ class PriorityChannel:
         if self._accept_paused_until is not None:
             if now >= self._accept_paused_until:
                 self._accept_paused_until = None
-                self._selector.register(self._listener, selectors.EVENT_READ, _ACCEPT)
+                with contextlib.suppress(KeyError):  # (already, after a failed step)
+                    self._selector.register(self._listener, selectors.EVENT_READ, _ACCEPT)
             else:
                 timeout = min(timeout, self._accept_paused_until - now)
         for client in list(self.clients):
@@ -660,9 +661,7 @@ class PriorityChannel:
 
     def _welcome(self, client: PriorityClient, message: bytes) -> None:
         try:
-            msg, fields, _ = m.decode(message)
-            if msg is not m.HELLO:
-                raise m.MalformedMessage(f"the first message must be HELLO, got {msg.name}")
+            fields = check_hello(message)
         except (m.MalformedMessage, KeyError) as exc:
             self._close_soon(client, "malformed", str(exc))
             return
