@@ -8,8 +8,9 @@ import asyncio
 import threading
 
 import numpy as np
+import pytest
 
-from backend.control.decision import SafetyStop
+from backend.control.decision import NotAllowed, SafetyStop
 from drivers.base import ForceSample
 from drivers.clock import ManualClock
 from drivers.force.sampled import SampledForceSensor
@@ -87,5 +88,32 @@ async def test_a_sample_below_the_limit_changes_nothing() -> None:
         await asyncio.sleep(0.02)
         assert not ds.state().force_limited
         assert isinstance(sensor.latest, ForceSample)
+    finally:
+        await ds.stop()
+
+
+async def test_the_client_table_is_bounded_and_idle_rest_clients_are_forgotten() -> None:
+    clock = ManualClock()
+    ds, _ = await make(clock)
+    ds.max_clients = 4
+    scripts = [ds.join(f"script {i}", TOKEN, idle_expiry_s=60.0) for i in range(3)]
+    watcher = ds.join("ws observer", None)  # a connection: never expires
+    refused = None
+    try:
+        ds.join("one too many", None)
+    except NotAllowed as exc:
+        refused = exc
+    assert refused is not None and "4 clients" in str(refused)
+    await ds.take_lease(scripts[0].id)
+    ds.start()
+    try:
+        for _ in range(int(61 / ds.limits.tick_s) + 60):
+            await clock.advance(ds.limits.tick_s)
+            ds.seen(scripts[0].id)  # the lease holder keeps talking
+        late = ds.join("a later script", TOKEN, idle_expiry_s=60.0)
+        assert ds.client(late.id) and ds.client(watcher.id) and ds.client(scripts[0].id)
+        for gone in scripts[1:]:
+            with pytest.raises(NotAllowed):
+                ds.client(gone.id)
     finally:
         await ds.stop()

@@ -87,6 +87,10 @@ class Client:
     last_seen: float
     busy: int = 0  # requests in flight (a REST call waiting for its move counts as alive)
     last_command_at: float | None = None
+    # A client with no connection of its own (a REST script's lease) is forgotten after
+    # this long without a request, unless it holds the lease: a script that crashes
+    # without DELETE /lease must not fill the table for good. None: while connected.
+    idle_expiry_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -150,6 +154,7 @@ class DecisionServer:
         self._lock = asyncio.Lock()  # one command at a time reaches the driver
         self._last_tick: float | None = None
         self._deferred = False  # the last tick left its verdict to this one
+        self._last_sweep = clock.now()
         self.force = force
         self.max_clients = max_clients
         self._watchdog: asyncio.Task[None] | None = None
@@ -215,15 +220,29 @@ class DecisionServer:
     def check_token(self, token: str | None) -> bool:
         return token is not None and secrets.compare_digest(token.encode(), self._token.encode())
 
-    def join(self, name: str, token: str | None) -> Client:
+    def join(self, name: str, token: str | None, *, idle_expiry_s: float | None = None) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
+        if len(self._clients) >= self.max_clients:
+            self._forget_idle(self.clock.now())
         if len(self._clients) >= self.max_clients:
             raise NotAllowed(
                 f"this server already has {self.max_clients} clients: try again when one leaves"
             )
-        client = Client(secrets.token_hex(8), name[:64], role, self.clock.now())
+        client = Client(
+            secrets.token_hex(8), name[:64], role, self.clock.now(), idle_expiry_s=idle_expiry_s
+        )
         self._clients[client.id] = client
         return client
+
+    def _forget_idle(self, now: float) -> None:
+        for client in list(self._clients.values()):
+            if (
+                client.idle_expiry_s is not None
+                and client.id != self._lease
+                and client.busy == 0
+                and now - client.last_seen > client.idle_expiry_s
+            ):
+                del self._clients[client.id]
 
     async def leave(self, client_id: str) -> None:
         if self._lease == client_id:
@@ -291,6 +310,9 @@ class DecisionServer:
         gap = now - (self._last_tick if self._last_tick is not None else now)
         late = gap > 2 * self.limits.tick_s
         self._last_tick = now
+        if now - self._last_sweep >= 1.0:
+            self._last_sweep = now
+            self._forget_idle(now)
         if self._lease is None:
             return
         holder = self._clients.get(self._lease)
