@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import StrEnum
+from enum import IntEnum, StrEnum
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -149,6 +149,27 @@ class ArmSnapshot:
     velocities: FloatArray  # rad/s
 
 
+class StopCategory(IntEnum):
+    """Stop categories of IEC 60204-1 §9.2.2 (ISO 10218-1 asks a robot to state which
+    stop it makes)."""
+
+    UNCONTROLLED = 0  # power to the drives cut at once; the brakes stop the arm
+    CONTROLLED_THEN_UNPOWERED = 1  # the drives brake the arm, power is cut at rest
+    CONTROLLED_HOLDING = 2  # the drives brake the arm, then hold it at rest, powered
+
+
+@dataclass(frozen=True)
+class StopSpec:
+    """How ``Robot.stop()`` brings the arm to rest: the server states it (GET
+    /api/v1/safety) and computes stopping times and distances from it."""
+
+    category: StopCategory
+    decel: FloatArray  # rad/s² per joint: a stop's deceleration, the slowest joint's limit
+    vmax: FloatArray  # rad/s per joint: the fastest each joint moves
+    reaction_s: float  # worst time from stop() to the deceleration starting
+    summary: str  # how this driver stops the arm, in a sentence
+
+
 @runtime_checkable
 class Robot(Protocol):
     """A 6-axis arm. Every move is validated before anything is sent; a refused
@@ -167,6 +188,10 @@ class Robot(Protocol):
     def pose(self) -> Pose: ...
     @property
     def target_joints(self) -> FloatArray: ...
+    @property
+    def stop_spec(self) -> StopSpec:
+        """How ``stop()`` brings the arm to rest (a controlled stop at the drives' limit)."""
+        ...
 
     frame: WorkingFrame
     joint_offsets: FloatArray
@@ -183,7 +208,12 @@ class Robot(Protocol):
         relative: bool,
         frame: WorkingFrame | None = None,
     ) -> FloatArray: ...
-    async def stop(self) -> None: ...
+    async def stop(self) -> None:
+        """Bring the arm to rest now, decelerating at the drives' limit (``stop_spec``)
+        with power kept on; the target becomes where it comes to rest. Returns at once:
+        the arm is at rest ``stop_spec``'s time later."""
+        ...
+
     async def wait_idle(self, timeout: float | None = None) -> None: ...
 
 

@@ -214,7 +214,7 @@ def test_a_get_on_a_post_only_path_is_405_and_unknown_api_paths_404(client: Test
 
 def test_booleans_are_not_numbers(client: TestClient) -> None:
     r = client.post("/api/v1/calibration/board", json={"view": True}, headers=AUTH)
-    assert r.status_code == 422 and "integer" in r.json()["detail"]
+    assert r.status_code == 422 and "a number is expected" in r.json()["detail"]
     r = client.put("/api/v1/force", json={"rate_hz": True}, headers=AUTH)
     assert r.status_code == 422
 
@@ -286,3 +286,17 @@ def test_the_token_bucket_makes_a_flood_wait_and_lets_a_burst_through() -> None:
     assert bucket.take(1.0) == 0.0  # a second later it is full again
     flood = [bucket.take(2.0) for _ in range(1000)]
     assert flood[-1] == pytest.approx((1000 - 10) / 1000.0, rel=0.01)  # 1000 msg/s at most
+
+
+def test_numbers_enums_and_tuples_are_read_as_json_gives_them() -> None:
+    from backend.api.robot import MoveRequest
+
+    move = MoveRequest.model_validate(
+        {"space": "cartesian", "mode": "incremental", "position": [1, 0, 0.5], "frame": "tool"}
+    )
+    assert move.position == [1.0, 0.0, 0.5] and move.frame is not None
+    with pytest.raises(ValueError, match="a number is expected"):
+        MoveRequest.model_validate(
+            {"space": "cartesian", "mode": "incremental", "position": [True, 0, 0]}
+        )
+    assert MoveRequest.model_validate({"space": "joint", "mode": "absolute", "wait": False})

@@ -12,10 +12,12 @@ from drivers.base import (
     RobotMoved,
     RobotStatus,
     StatusChanged,
+    StopCategory,
     UnreachablePose,
     WorkingFrame,
 )
 from drivers.clock import ManualClock
+from drivers.robot.motion import PUMA_STOP_DECEL, stop_distance, stop_time
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.robot.puma560.sim import SimPuma
 from tests.conftest import run_with_clock
@@ -196,6 +198,29 @@ async def test_stop_brakes_and_the_arm_comes_to_rest(robot: SimPuma, clock: Manu
     await robot.move_joints(np.array([0.05, 0, 0, 0, 0, 0]), relative=True)
     await run_with_clock(clock, robot.wait_idle())
     assert robot.joints[0] == pytest.approx(stopped[0] + 0.05)
+
+
+async def test_a_stop_from_full_speed_brakes_at_the_limit_within_its_time_and_distance(
+    robot: SimPuma, clock: ManualClock
+) -> None:
+    spec = robot.stop_spec
+    assert spec.category is StopCategory.CONTROLLED_HOLDING and spec.reaction_s == 0.0
+    np.testing.assert_array_equal(spec.decel, PUMA_STOP_DECEL)
+    await robot.move_joints(np.array([1.5, 0, 0, 2.0, 0, 0]), relative=True)
+    await clock.advance(0.8)  # joint 1 cruising at 1 rad/s, joint 4 at 4/3 rad/s
+    q0, v0 = robot.joints, robot.joint_velocities
+    assert v0[0] == pytest.approx(1.0)
+    T, d = stop_time(v0, spec.decel), stop_distance(v0, spec.decel)
+    assert pytest.approx(0.1) == T and d[0] == pytest.approx(0.05)
+    await robot.stop()
+    await clock.advance(T / 2)
+    np.testing.assert_allclose(robot.joint_velocities, v0 / 2, atol=1e-9)  # at the limit
+    await clock.advance(T / 2)
+    assert not np.any(robot.joint_velocities)
+    np.testing.assert_allclose(robot.joints, q0 + d, atol=1e-9)
+    await clock.advance(robot.report_period)
+    assert robot.status is RobotStatus.READY
+    np.testing.assert_allclose(robot.target_joints, q0 + d, atol=1e-9)
 
 
 async def test_wait_idle_times_out_in_clock_time(robot: SimPuma, clock: ManualClock) -> None:

@@ -3,12 +3,16 @@ real TCP socket (ARCHITECTURE rule 4: the byte protocol against an emulator)."""
 
 from __future__ import annotations
 
+import asyncio
+import math
+import time
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
-from drivers.base import DeviceError, NotReady, RobotStatus, SerialSettings
+from drivers.base import DeviceError, NotReady, RobotStatus, SerialSettings, StopCategory
+from drivers.robot.motion import PUMA_STOP_DECEL, stop_time
 from drivers.robot.puma560 import val_protocol as vp
 from drivers.robot.puma560.kinematics import NAMED_POSES
 from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
@@ -20,6 +24,16 @@ FAST = 0.02  # emulated moves take 2 % of their real time
 @pytest.fixture(params=["pty", "tcp"])
 def link(request: pytest.FixtureRequest) -> Iterator[EmulatorLink]:
     emulator = ValControllerEmulator(time_scale=FAST)
+    make = EmulatorLink.on_pty if request.param == "pty" else EmulatorLink.on_tcp
+    with make(emulator) as running:
+        yield running
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def slow_link(request: pytest.FixtureRequest) -> Iterator[EmulatorLink]:
+    """Moves at a quarter of their real time, from the home pose: long enough to be
+    stopped part-way."""
+    emulator = ValControllerEmulator(list(np.degrees(NAMED_POSES["qn"])), time_scale=0.25)
     make = EmulatorLink.on_pty if request.param == "pty" else EmulatorLink.on_tcp
     with make(emulator) as running:
         yield running
@@ -169,3 +183,64 @@ def test_emulator_holds_lines_while_moving() -> None:
     assert emu.poll(0.01) == []
     out = emu.poll(duration.duration + 0.001)
     assert out[0].startswith("DONE 1 10.0000") and out[1].startswith("POS 10.0000")
+
+
+def test_emulator_abort_brakes_at_the_limit_and_prompts_at_rest() -> None:
+    emu = ValControllerEmulator()
+    emu.loaded["TRINC"] = []
+    assert emu.receive("EXECUTE TRINC", 0.0) == [vp.READY_BANNER]
+    ack = vp.parse_reply(emu.receive(vp.increment_line(1, [90, 0, 0, 0, 0, 0]), 0.0)[0])
+    assert isinstance(ack, vp.Ack) and ack.duration == pytest.approx(math.pi / 2 + 0.5, abs=1e-3)
+    q0, v0 = emu.state_at(1.0)  # cruising at 1 rad/s
+    assert v0[0] == pytest.approx(1.0) and q0[0] == pytest.approx(0.75)
+    assert emu.receive("ABORT", 1.0) == []  # the prompt comes at rest
+    T = stop_time(v0, PUMA_STOP_DECEL)
+    assert pytest.approx(0.1) == T
+    assert emu.state_at(1.0 + T / 2)[1][0] == pytest.approx(0.5)  # braking at 10 rad/s²
+    assert emu.receive("W", 1.01) == []  # lines wait until the arm is at rest
+    assert emu.poll(1.0 + T - 1e-3) == []
+    assert emu.next_deadline() == pytest.approx(1.0 + T)
+    assert emu.poll(1.0 + T) == [vp.PROMPT, "ERR unknown command W", vp.PROMPT]
+    assert emu.mode == "monitor" and emu.aborted == 1 and emu.moves == 0
+    assert emu.joints_deg[0] == pytest.approx(math.degrees(0.75 + 1.0 * T / 2), abs=1e-4)
+    assert emu.receive("ABORT", 2.0) == [vp.PROMPT]  # at rest: at once
+
+
+async def test_stop_aborts_the_move_on_the_wire_and_the_arm_brakes_to_rest(
+    slow_link: EmulatorLink,
+) -> None:
+    robot = await ready_robot(slow_link)
+    spec = robot.stop_spec
+    assert spec.category is StopCategory.CONTROLLED_HOLDING
+    assert 0.0 < spec.reaction_s < 0.12  # 9600 baud: a line and ABORT, one VAL cycle
+    start = robot.joints
+    await robot.move_joints(np.array([2.5, 0, 0, 0, 0, 0]), relative=True)  # 0.75 s here
+    await asyncio.sleep(0.3)  # joint 1 cruising at 1 rad/s (4 rad/s on this clock)
+    t0 = time.monotonic()
+    await robot.stop()
+    await robot.wait_idle(timeout=2)
+    elapsed = time.monotonic() - t0
+    # The increment on the wire did not run to its end (0.45 s more): the arm braked
+    # (0.1 s at 10 rad/s², 25 ms on this clock) and the driver read where it stopped.
+    assert elapsed < 0.25
+    assert robot.status is RobotStatus.READY and slow_link.emulator.aborted == 1
+    np.testing.assert_allclose(robot.joints, np.radians(slow_link.emulator.joints_deg), atol=2e-6)
+    assert start[0] + 0.3 < robot.joints[0] < start[0] + 2.0  # well short of +2.5
+    # And it moves on from there.
+    stopped = robot.joints
+    await robot.move_joints(np.array([0.05, 0, 0, 0, 0, 0]), relative=True)
+    await robot.wait_idle(timeout=2)
+    assert robot.status is RobotStatus.READY
+    assert robot.joints[0] == pytest.approx(stopped[0] + 0.05, abs=2e-6)
+    await robot.disconnect()
+
+
+async def test_stop_between_increments_sends_no_abort(link: EmulatorLink) -> None:
+    robot = await ready_robot(link)
+    lines: list[str] = []
+    robot.events.data_received.subscribe(lines.append)
+    await robot.stop()  # READY: nothing to stop
+    await robot.move_joints(np.array([0.01, 0, 0, 0, 0, 0]), relative=True)
+    await robot.wait_idle(timeout=5)
+    assert robot.status is RobotStatus.READY and link.emulator.aborted == 0
+    await robot.disconnect()

@@ -8,8 +8,13 @@ from fastapi import APIRouter, Header, Request
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ClientDep, DecisionDep, OperatorDep
-from backend.control.decision import NotAllowed
-from drivers.base import WorkingFrame
+from backend.control.decision import DecisionServer, NotAllowed
+from backend.control.limits import full_speed_stop_s, stopping
+from drivers.base import StopCategory, WorkingFrame
+
+# A script's client (no connection of its own) is forgotten this long after its last
+# request, unless it holds the lease (whose dead-man is 150 ms).
+REST_CLIENT_IDLE_S = 60.0
 
 router = APIRouter(tags=["control"])
 
@@ -21,6 +26,35 @@ class LeaseRequest(BaseModel):
 
 class LeaseGranted(BaseModel):
     client_id: str = Field(description="send it as X-Client-Id with every command")
+
+
+STOP_CATEGORY_TEXT = {
+    StopCategory.UNCONTROLLED: "IEC 60204-1 stop category 0: power removed at once",
+    StopCategory.CONTROLLED_THEN_UNPOWERED: (
+        "IEC 60204-1 stop category 1: a controlled stop, power removed at rest"
+    ),
+    StopCategory.CONTROLLED_HOLDING: (
+        "IEC 60204-1 stop category 2: a controlled stop; the drives brake the arm at their "
+        "limit and stay powered, holding it where it stopped, so an operator can take "
+        "control again without anyone at the controller. Every stop this server makes is "
+        "one: lease lost or released, dead-man, e-stop (page, REST, /ws), force limit. "
+        "It is no safety-rated stop: the controller's hardware e-stop (category 0) stays "
+        "the one a person relies on"
+    ),
+}
+
+
+class StoppingView(BaseModel):
+    speed_m_s: float = Field(description="tool speed, straight line, worst direction")
+    time_s: float = Field(description="from the stop to the arm at rest")
+    distance_m: float = Field(description="tool travel in that time")
+    after_silence_time_s: float = Field(
+        description="from a silent controller's last message: the dead-man's detection, "
+        "then the stop"
+    )
+    after_silence_distance_m: float = Field(
+        description="tool travel in that time, at full speed until the stop"
+    )
 
 
 class SafetyView(BaseModel):
@@ -38,6 +72,18 @@ class SafetyView(BaseModel):
     contact_speed_m_s: float = Field(description="approach speed toward a recent contact")
     contact_memory_s: float = Field(description="how long a contact slows approaches")
     deadman_timeout_s: float
+    stop_category: int = Field(description="IEC 60204-1 stop category of every stop it makes")
+    stop_category_text: str
+    stop: str = Field(description="how the driver stops the arm")
+    stop_decel_rad_s2: list[float] = Field(description="deceleration of a stop, per joint")
+    stop_reaction_s: float = Field(description="from a stop to the deceleration starting")
+    stopping: list[StoppingView] = Field(
+        description="time and distance to rest from each tool speed (up to the limit) at "
+        "the arm's current pose, in the worst direction"
+    )
+    stopping_full_speed_s: float = Field(
+        description="time to rest from every joint at its speed limit (scripted moves)"
+    )
 
 
 class ControlSettings(BaseModel):
@@ -50,8 +96,24 @@ class ControlSettingsUpdate(BaseModel):
     frame: WorkingFrame | None = None
 
 
+def _stopping(decision: DecisionServer) -> list[StoppingView]:
+    spec = decision.robot.stop_spec
+    jacobian = decision.kinematics.jacobian(decision.robot.joints)
+    return [
+        StoppingView(
+            speed_m_s=row.speed_m_s,
+            time_s=row.time_s,
+            distance_m=row.distance_m,
+            after_silence_time_s=row.after_silence_time_s,
+            after_silence_distance_m=row.after_silence_distance_m,
+        )
+        for row in stopping(decision.limits, spec, jacobian)
+    ]
+
+
 def _safety(decision: DecisionDep) -> SafetyView:
     s, lim = decision.state(), decision.limits
+    spec = decision.robot.stop_spec
     return SafetyView(
         estop=s.estop,
         estop_reason=s.estop_reason,
@@ -67,6 +129,13 @@ def _safety(decision: DecisionDep) -> SafetyView:
         contact_speed_m_s=lim.contact_speed_m_s,
         contact_memory_s=lim.contact_memory_s,
         deadman_timeout_s=lim.deadman_timeout_s,
+        stop_category=int(spec.category),
+        stop_category_text=STOP_CATEGORY_TEXT[spec.category],
+        stop=spec.summary,
+        stop_decel_rad_s2=spec.decel.tolist(),
+        stop_reaction_s=spec.reaction_s,
+        stopping=_stopping(decision),
+        stopping_full_speed_s=full_speed_stop_s(spec),
     )
 
 
@@ -80,7 +149,11 @@ async def take_lease(
     """Take control (the operator token is required). Keep it with a heartbeat at
     least every dead-man timeout, or any command; a move waiting with ``wait``
     counts as alive."""
-    client = decision.client(x_client_id) if x_client_id else decision.join(body.name, token)
+    client = (
+        decision.client(x_client_id)
+        if x_client_id
+        else decision.join(body.name, token, idle_expiry_s=REST_CLIENT_IDLE_S)
+    )
     await decision.take_lease(client.id, force=body.force)
     return LeaseGranted(client_id=client.id)
 

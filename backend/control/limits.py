@@ -1,4 +1,5 @@
-"""Safety limits the DecisionServer enforces on every command."""
+"""Safety limits the DecisionServer enforces on every command, and how far the arm
+goes before it is at rest once a stop is called (``stopping``)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.base import FloatArray, InvalidCommand
+from drivers.base import FloatArray, InvalidCommand, StopSpec
+from drivers.robot.motion import cartesian_stop, stop_time
+
+# Tool speeds (m/s) GET /api/v1/safety states stopping figures for, besides the limit.
+STOPPING_SPEEDS_M_S = (0.05, 0.1)
 
 
 @dataclass(frozen=True)
@@ -59,9 +64,48 @@ class SafetyLimits:
                 raise InvalidCommand(f"{name} must be a positive number, got {v!r}")
         if self.deadman_timeout_s + self.tick_s > 0.2:
             raise InvalidCommand(
-                "deadman_timeout_s + tick_s must stay within 0.2 s (motion stops within 200 ms)"
+                "deadman_timeout_s + tick_s must stay within 0.2 s (a silent client's arm "
+                "starts stopping within 200 ms)"
             )
 
     def in_workspace(self, p: FloatArray, tol: float = 1e-9) -> bool:
         lo, hi = self.workspace_min.tolist(), self.workspace_max.tolist()  # floats: a hot path
         return all(a - tol <= x <= b + tol for x, a, b in zip(p.tolist(), lo, hi, strict=True))
+
+
+@dataclass(frozen=True)
+class Stopping:
+    """Time and distance to rest from one tool speed, at one pose, worst direction."""
+
+    speed_m_s: float
+    time_s: float  # from the stop (lease lapse, e-stop, force limit) to the arm at rest
+    distance_m: float  # the tool's travel in that time
+    # From a controller's last message, when it goes silent: the dead-man's detection
+    # time (the arm assumed to go on at full speed meanwhile), then the stop.
+    after_silence_time_s: float
+    after_silence_distance_m: float
+
+
+def stopping(
+    limits: SafetyLimits,
+    spec: StopSpec,
+    jacobian: FloatArray,
+    speeds: tuple[float, ...] = STOPPING_SPEEDS_M_S,
+) -> list[Stopping]:
+    """Stopping time and distance for each of ``speeds`` below the speed limit and
+    the limit itself, at the pose whose tool Jacobian is given: ``spec``'s reaction
+    time at full speed, then a synchronised stop at the drives' limit
+    (``cartesian_stop``)."""
+    detect = limits.deadman_timeout_s + limits.tick_s
+    table = []
+    for v in sorted({*(v for v in speeds if v < limits.max_speed_m_s), limits.max_speed_m_s}):
+        braking_s, braking_m = cartesian_stop(jacobian, v, spec.decel, spec.vmax)
+        time_s = spec.reaction_s + braking_s
+        distance_m = v * spec.reaction_s + braking_m
+        table.append(Stopping(v, time_s, distance_m, detect + time_s, v * detect + distance_m))
+    return table
+
+
+def full_speed_stop_s(spec: StopSpec) -> float:
+    """Time to rest from every joint at its speed limit (a scripted move at full speed)."""
+    return spec.reaction_s + stop_time(spec.vmax, spec.decel)

@@ -4,6 +4,10 @@ Joints follow ``JointMotion`` (velocity and acceleration limits; a move takes th
 time it takes) on the injected clock. The arm reports where it is ("moved") every
 ``report_period`` seconds while it moves and once when it stops, as a controller
 streaming its position would.
+
+``stop()`` is a controlled stop at the drives' limit (``stop_decel``): every joint
+decelerates together, the slowest at its limit, so the tool stops on its path; the
+arm is then held where it stopped (IEC 60204-1 stop category 2).
 """
 
 from __future__ import annotations
@@ -13,9 +17,9 @@ import contextlib
 
 import numpy as np
 
-from drivers.base import ArmSnapshot, FloatArray, RobotStatus
+from drivers.base import ArmSnapshot, FloatArray, RobotStatus, StopCategory, StopSpec
 from drivers.clock import Clock
-from drivers.robot.motion import PUMA_AMAX, PUMA_VMAX, JointMotion
+from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX, JointMotion
 from drivers.robot.puma560.arm import PumaArm
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, check_vector
 
@@ -33,6 +37,7 @@ class SimPuma(PumaArm):
         start_joints: FloatArray | None = None,
         vmax: FloatArray = PUMA_VMAX,
         amax: FloatArray = PUMA_AMAX,
+        stop_decel: FloatArray = PUMA_STOP_DECEL,
         report_period: float = 0.02,
     ) -> None:
         super().__init__(kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets)
@@ -41,7 +46,7 @@ class SimPuma(PumaArm):
             if start_joints is None
             else check_vector("start_joints", start_joints, 6)
         )
-        self._motion = JointMotion(start, vmax, amax)
+        self._motion = JointMotion(start, vmax, amax, stop_decel=stop_decel)
         self._updated_at = self.clock.now()
         self._snapshot = ArmSnapshot(
             self._updated_at, self._motion.q + self._offsets, self._motion.v
@@ -55,6 +60,19 @@ class SimPuma(PumaArm):
         self._motion.advance(now - self._updated_at)
         self._updated_at = now
         self._snapshot = ArmSnapshot(now, self._motion.q + self._offsets, self._motion.v)
+
+    @property
+    def stop_spec(self) -> StopSpec:
+        return StopSpec(
+            category=StopCategory.CONTROLLED_HOLDING,
+            decel=self._motion.stop_decel.copy(),
+            vmax=np.array(self._motion.vmax),
+            reaction_s=0.0,
+            summary=(
+                "the simulated drives brake every joint together, the slowest at its limit, "
+                "and hold the arm where it stopped"
+            ),
+        )
 
     def snapshot(self) -> ArmSnapshot:
         """The state at the last update (thread-safe; extrapolate with ``velocities``)."""

@@ -5,12 +5,18 @@
 arrive; ``EmulatorLink`` runs it on a real pty or socket in its own thread, so the
 driver under test goes through real file descriptors. ``fault`` lets tests make the
 controller go silent or garble a reply.
+
+A move follows the controller's synchronised trapezoid (``SyncMove``), so where the
+arm is at any instant is known. ``ABORT`` during a move stops it as the controller's
+drives do: every joint decelerates together, the slowest at the arm's stop
+deceleration (``StopRamp``), and the monitor prompt comes when the arm is at rest.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import select
 import socket
@@ -19,17 +25,39 @@ import time
 import tty
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from drivers.robot.motion import PUMA_AMAX, PUMA_VMAX, move_duration
+from drivers.base import FloatArray
+from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX, StopRamp, SyncMove
 from drivers.robot.puma560 import val_protocol as vp
 from drivers.robot.puma560.kinematics import NAMED_POSES, QLIM_DEG
 
 log = logging.getLogger(__name__)
 
 Fault = Literal["mute", "garble"] | None
+
+
+@dataclass(frozen=True)
+class _Move:
+    """A MOVE under way: started at ``start`` (emulator clock), ends at ``deadline``."""
+
+    start: float
+    deadline: float
+    seq: int
+    target_deg: list[float]
+    profile: SyncMove  # radians, in unscaled time
+
+
+@dataclass(frozen=True)
+class _Stop:
+    """An aborted MOVE decelerating to rest: at rest at ``deadline``."""
+
+    start: float
+    deadline: float
+    ramp: StopRamp  # radians, in unscaled time
 
 
 class ValControllerEmulator:
@@ -40,47 +68,83 @@ class ValControllerEmulator:
         time_scale: float = 1.0,
         vmax: np.ndarray = PUMA_VMAX,
         amax: np.ndarray = PUMA_AMAX,
+        stop_decel: np.ndarray = PUMA_STOP_DECEL,
     ) -> None:
         self.joints_deg = (
             list(np.degrees(NAMED_POSES["qz"])) if start_deg is None else list(start_deg)
         )
         self.time_scale = time_scale
-        self.vmax, self.amax = vmax, amax
+        self.vmax, self.amax, self.stop_decel = vmax, amax, stop_decel
         self.mode: Literal["monitor", "edit", "program"] = "monitor"
         self.program: list[str] = []
         self.loaded: dict[str, list[str]] = {}
         self.fault: Fault = None
         self.moves = 0
-        self._pending: tuple[float, int, list[float]] | None = None  # deadline, seq, target
+        self.aborted = 0  # moves stopped by ABORT
+        self._pending: _Move | None = None
+        self._stopping: _Stop | None = None
         self._queued: deque[str] = deque()
+
+    # ---------------------------------------------------------- where the arm is
+    def state_at(self, now: float) -> tuple[FloatArray, FloatArray]:
+        """Joint angles (rad) and velocities (rad/s) at ``now``, mid-move or mid-stop."""
+        ts = self.time_scale
+        if self._pending is not None:
+            q, v = self._pending.profile.at((now - self._pending.start) / ts)
+            return q, v / ts
+        if self._stopping is not None:
+            ql, vl = self._stopping.ramp.at((now - self._stopping.start) / ts)
+            return np.array(ql), np.array(vl) / ts
+        return np.radians(self.joints_deg), np.zeros(6)
 
     # ---------------------------------------------------------- lines in, lines out
     def receive(self, line: str, now: float) -> list[str]:
         line = line.rstrip()  # leading blanks are kept: they are program text in the editor
-        if line.strip().upper() == "ABORT":  # a monitor command: works even while the program runs
-            self.mode, self._pending = "monitor", None
+        if line.strip().upper() == "ABORT" and self._stopping is None:
+            # A monitor command: it works even while the program is inside MOVE.
+            self.mode = "monitor"
             self._queued.clear()
+            if self._pending is not None:
+                self._abort(now)
+                return []  # the prompt comes when the arm is at rest
             return self._out([vp.PROMPT])
-        if self._pending is not None:  # TRINC is inside MOVE: the line waits for PROMPT
-            self._queued.append(line)
+        if self._pending is not None or self._stopping is not None:
+            self._queued.append(line)  # inside MOVE, or stopping: the line waits
             return []
         return self._out(self._handle(line, now))
 
+    def _abort(self, now: float) -> None:
+        """Stop the move under way as the drives do: decelerate to rest at the limit."""
+        assert self._pending is not None
+        move, self._pending = self._pending, None
+        q, v = move.profile.at((now - move.start) / self.time_scale)
+        ramp = StopRamp(q, v, self.stop_decel)
+        self._stopping = _Stop(now, now + ramp.duration * self.time_scale, ramp)
+        self.aborted += 1
+
     def poll(self, now: float) -> list[str]:
-        """Lines due by ``now``: a move's DONE, then any lines that waited for it."""
+        """Lines due by ``now``: a move's DONE, or the prompt once an aborted move is at
+        rest, then any lines that waited for it."""
         out: list[str] = []
-        if self._pending is not None and now >= self._pending[0]:
-            _, seq, target = self._pending
-            self._pending = None
-            self.joints_deg = target
+        if self._pending is not None and now >= self._pending.deadline:
+            move, self._pending = self._pending, None
+            self.joints_deg = move.target_deg
             self.moves += 1
-            out += self._out([vp.done_line(seq, target)])
-            while self._queued and self._pending is None:
-                out += self._out(self._handle(self._queued.popleft(), now))
+            out += self._out([vp.done_line(move.seq, move.target_deg)])
+        elif self._stopping is not None and now >= self._stopping.deadline:
+            stop, self._stopping = self._stopping, None
+            self.joints_deg = [round(math.degrees(a), 4) for a in stop.ramp.end]
+            out += self._out([vp.PROMPT])
+        else:
+            return out
+        while self._queued and self._pending is None and self._stopping is None:
+            out += self.receive(self._queued.popleft(), now)
         return out
 
     def next_deadline(self) -> float | None:
-        return None if self._pending is None else self._pending[0]
+        if self._pending is not None:
+            return self._pending.deadline
+        return None if self._stopping is None else self._stopping.deadline
 
     def _out(self, lines: list[str]) -> list[str]:
         if self.fault == "mute":
@@ -132,10 +196,9 @@ class ValControllerEmulator:
         for i, (lo, hi) in enumerate(QLIM_DEG):
             if not lo - 1e-6 <= target[i] <= hi + 1e-6:
                 return [vp.nak_line(seq, f"joint {i + 1} limit")]
-        duration = self.time_scale * move_duration(
-            np.radians(self.joints_deg), np.radians(target), self.vmax, self.amax
-        )
-        self._pending = (now + duration, seq, target)
+        profile = SyncMove(np.radians(self.joints_deg), np.radians(target), self.vmax, self.amax)
+        duration = self.time_scale * profile.duration
+        self._pending = _Move(now, now + duration, seq, target, profile)
         return [vp.ack_line(seq, duration)]
 
 

@@ -14,6 +14,13 @@ ERROR with a message that says what happened; ``connect()`` again recovers.
 Targets coalesce: while a move is on the wire, newer targets replace each other
 and the next increment sent is (newest target − reported position), so a slow
 serial link never replays stale commands.
+
+``stop()`` does not wait for the increment on the wire to end: it sends ``ABORT``
+at once (VAL's monitor takes it even while ``TRINC`` is inside ``MOVE``), the
+controller's drives bring the arm to rest at their deceleration limit and show the
+monitor prompt, and the driver starts ``TRINC`` again and reads where the arm
+stopped. A category 2 stop (IEC 60204-1): arm power stays on and the servos hold
+the arm; the controller's hardware e-stop remains the category 0 stop.
 """
 
 from __future__ import annotations
@@ -28,8 +35,16 @@ from dataclasses import replace
 import numpy as np
 import serial
 
-from drivers.base import DeviceError, FloatArray, SerialSettings, TelerobotError
+from drivers.base import (
+    DeviceError,
+    FloatArray,
+    SerialSettings,
+    StopCategory,
+    StopSpec,
+    TelerobotError,
+)
 from drivers.clock import Clock
+from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX
 from drivers.robot.puma560 import val_protocol as vp
 from drivers.robot.puma560.arm import PumaArm
 from drivers.robot.puma560.kinematics import Puma560Kinematics
@@ -37,6 +52,8 @@ from drivers.robot.puma560.kinematics import Puma560Kinematics
 log = logging.getLogger(__name__)
 
 _MIN_INCREMENT_DEG = 0.00005  # below VAL's 4-decimal resolution: nothing to send
+# VAL sends the joint servos a new set point every 28 ms: an ABORT acts within one.
+VAL_TRAJECTORY_CYCLE_S = 0.028
 
 
 class ValSerialPuma(PumaArm):
@@ -50,8 +67,13 @@ class ValSerialPuma(PumaArm):
         clock: Clock | None = None,
         home: FloatArray | None = None,
         joint_offsets: FloatArray | None = None,
+        stop_decel: FloatArray = PUMA_STOP_DECEL,
     ) -> None:
+        """``stop_decel``: how fast the controller brakes each joint on ``ABORT``
+        (rad/s²), as measured on the arm; it is what the server states, not a setting
+        sent to the controller."""
         super().__init__(kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets)
+        self._stop_decel = np.asarray(stop_decel, dtype=float).copy()
         self._settings = settings or SerialSettings()
         self._serial: serial.Serial | None = None
         self._reader: threading.Thread | None = None
@@ -63,6 +85,31 @@ class ValSerialPuma(PumaArm):
         self._wake = asyncio.Event()
         self._seq = 0
         self._last_sent = ""
+        self._send_lock = asyncio.Lock()  # one line at a time, whole, in order
+        self._write_lock = threading.Lock()
+        self._on_wire: int | None = None  # seq of the increment sent and not yet DONE
+        self._aborting = False  # ABORT sent; its prompt not yet handled
+        self._abort_prompt = False  # …and its prompt has arrived
+
+    @property
+    def stop_spec(self) -> StopSpec:
+        """``ABORT`` is sent within one line's time (a line being written is finished
+        first: the longest increment line plus ``ABORT`` at the baud rate) and acts
+        within one VAL trajectory cycle; then the controller's drives brake."""
+        s = self._settings
+        bits = 1 + s.bytesize + (0 if s.parity == "N" else 1) + s.stopbits
+        longest = len(vp.increment_line(10**9, [-999.9999] * 6)) + len("\rABORT\r")
+        return StopSpec(
+            category=StopCategory.CONTROLLED_HOLDING,
+            decel=self._stop_decel.copy(),
+            vmax=PUMA_VMAX.copy(),
+            reaction_s=longest * bits / s.baudrate + VAL_TRAJECTORY_CYCLE_S,
+            summary=(
+                "ABORT is sent at once: the controller's drives brake every joint together "
+                "at their limit and keep arm power on, holding the arm where it stopped "
+                "(the controller's hardware e-stop is the category 0 stop)"
+            ),
+        )
 
     # ------------------------------------------------------------ settings
     @property
@@ -122,6 +169,11 @@ class ValSerialPuma(PumaArm):
                 self._serial.close()
             self._serial = None
         self._raw_target = None
+        self._reset_abort()
+
+    def _reset_abort(self) -> None:
+        self._on_wire = None
+        self._aborting = self._abort_prompt = False
 
     def _read_lines(self, port: serial.Serial, loop: asyncio.AbstractEventLoop) -> None:
         buffer = b""
@@ -162,9 +214,13 @@ class ValSerialPuma(PumaArm):
         self._last_sent = line
         data = line.encode("latin-1") + b"\r"
         try:
-            await asyncio.to_thread(self._serial.write, data)
+            await asyncio.to_thread(self._write, self._serial, data)
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(f"cannot write to {self._settings.port!r}: {exc}") from None
+
+    def _write(self, port: serial.Serial, data: bytes) -> None:
+        with self._write_lock:  # a line is never interleaved with another
+            port.write(data)
 
     async def _next_reply(self, timeout: float, waiting_for: str) -> vp.Reply:
         try:
@@ -196,6 +252,7 @@ class ValSerialPuma(PumaArm):
         if self._pump is not None:
             self._pump.cancel()
             self._pump = None
+        self._reset_abort()
         await self._request("ABORT", vp.Text(vp.PROMPT))
         await self._request(f"EDIT {vp.PROGRAM_NAME}", vp.Text("1."))
         for n, line in enumerate(vp.RESIDENT_PROGRAM, start=2):
@@ -216,9 +273,16 @@ class ValSerialPuma(PumaArm):
         self._wake.set()
 
     async def _halt(self) -> None:
-        # TRINC cannot be interrupted inside MOVE; drop everything not yet sent so
-        # the arm stops at the end of the increment on the wire.
+        """Drop every target not yet sent and, if an increment is moving, ``ABORT`` it
+        at once: the controller brakes the arm to rest at its limit."""
         self._raw_target = None
+        async with self._send_lock:  # a line being written is finished first
+            if self._on_wire is not None and not self._aborting:
+                self._aborting = True
+                try:
+                    await self._send("ABORT")
+                except TelerobotError as exc:
+                    self._fail(exc)
         self._wake.set()
 
     async def _pump_targets(self) -> None:
@@ -226,27 +290,70 @@ class ValSerialPuma(PumaArm):
             while True:
                 await self._wake.wait()
                 self._wake.clear()
-                while self._raw_target is not None:
-                    delta = [round(math.degrees(d), 4) for d in self._raw_target - self._raw]
-                    if max(abs(d) for d in delta) < _MIN_INCREMENT_DEG:
+                while self._raw_target is not None and not self._aborting:
+                    if not await self._move_toward_target():
                         break
-                    await self._move_by(delta)
                     self._report_moved()
+                if self._aborting:
+                    await self._resume_after_abort()
                 self._motion_finished()
         except TelerobotError as exc:
             self._pump = None
             self._fail(exc)
 
-    async def _move_by(self, delta_deg: list[float]) -> None:
-        self._seq += 1
-        seq = self._seq
-        await self._send(vp.increment_line(seq, delta_deg))
-        reply = await self._next_reply(self._settings.reply_timeout, f"ACK {seq}")
-        if isinstance(reply, vp.Nak):
-            raise DeviceError(f"controller refused increment {seq}: {reply.reason}")
-        if not isinstance(reply, vp.Ack) or reply.seq != seq:
-            raise DeviceError(f"controller answered {reply} to increment {seq}; expected ACK {seq}")
-        done = await self._next_reply(reply.duration + self._settings.move_margin, f"DONE {seq}")
-        if not isinstance(done, vp.Done) or done.seq != seq:
-            raise DeviceError(f"controller answered {done} while increment {seq} was moving")
-        self._raw = np.radians(done.joints_deg)
+    def _aborted(self, reply: vp.Reply) -> bool:
+        """Whether ``reply`` is the monitor's prompt after our ABORT (the arm at rest)."""
+        if self._aborting and reply == vp.Text(vp.PROMPT):
+            self._abort_prompt = True
+        return self._abort_prompt
+
+    async def _move_toward_target(self) -> bool:
+        """Send one increment toward the newest target and wait for it to end (or to
+        be aborted); False if there was nothing to send."""
+        async with self._send_lock:
+            # Computed here, under the lock: a stop or a newer target that came while
+            # the last line was being written is never overtaken by a stale increment.
+            if self._raw_target is None or self._aborting:
+                return False
+            delta = [round(math.degrees(d), 4) for d in self._raw_target - self._raw]
+            if max(abs(d) for d in delta) < _MIN_INCREMENT_DEG:
+                return False
+            self._seq += 1
+            seq = self._seq
+            self._on_wire = seq
+            await self._send(vp.increment_line(seq, delta))
+        try:
+            reply = await self._next_reply(self._settings.reply_timeout, f"ACK {seq}")
+            if self._aborted(reply):
+                return True
+            if isinstance(reply, vp.Nak):
+                raise DeviceError(f"controller refused increment {seq}: {reply.reason}")
+            if not isinstance(reply, vp.Ack) or reply.seq != seq:
+                raise DeviceError(
+                    f"controller answered {reply} to increment {seq}; expected ACK {seq}"
+                )
+            done = await self._next_reply(
+                reply.duration + self._settings.move_margin, f"DONE {seq}"
+            )
+            if self._aborted(done):
+                return True
+            if not isinstance(done, vp.Done) or done.seq != seq:
+                raise DeviceError(f"controller answered {done} while increment {seq} was moving")
+            self._raw = np.radians(done.joints_deg)
+        finally:
+            self._on_wire = None
+        return True
+
+    async def _resume_after_abort(self) -> None:
+        """After ``ABORT``: wait for the prompt (the arm at rest), start ``TRINC``
+        again and read where the arm stopped."""
+        while not self._abort_prompt:
+            reply = await self._next_reply(self._settings.reply_timeout, "'.' after ABORT")
+            if isinstance(reply, vp.Done):  # the move ended before ABORT arrived
+                self._raw = np.radians(reply.joints_deg)
+            self._aborted(reply)
+        await self._request(f"EXECUTE {vp.PROGRAM_NAME}", vp.Text(vp.READY_BANNER))
+        pos = await self._request("W", vp.Position)
+        assert isinstance(pos, vp.Position)
+        self._raw = np.radians(pos.joints_deg)
+        self._aborting = self._abort_prompt = False
