@@ -14,6 +14,8 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from backend.tuning import tune_for_realtime
+
 # The largest /ws message the server reads: a FORCE batch from a client is the largest
 # legitimate one (< 16 kB); uvicorn's default (16 MiB) let one message hold 16 MiB.
 WS_MAX_MESSAGE = 64 * 1024
@@ -96,24 +98,6 @@ def _serve(args: argparse.Namespace) -> int:
     tune_for_realtime()
     asyncio.run(run())
     return 0
-
-
-def tune_for_realtime() -> None:
-    """Settings that keep the 1 kHz paths on time (measured in bench/command_latency):
-    uvloop's faster event loop, a shorter GIL switch interval so the sensor thread
-    and the event loop hand over quickly, and no collection pauses of objects made
-    at start-up."""
-    import gc
-
-    try:
-        import uvloop
-
-        asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())
-    except ImportError:  # optional: plain asyncio works, a little slower
-        pass
-    sys.setswitchinterval(0.0005)
-    gc.collect()
-    gc.freeze()
 
 
 def wait_until_stopped() -> None:

@@ -114,9 +114,9 @@ def viewer(base: str, seconds: float, out: Any) -> None:
 
 
 def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any]:
-    from backend.cli import tune_for_realtime
     from backend.master.bridge import BridgeSettings, MasterBridge
     from backend.master.cli import open_link
+    from backend.tuning import tune_for_realtime
     from drivers.master.sim import SimMaster
 
     tune_for_realtime()  # as `telerobot master` does

@@ -70,7 +70,7 @@ async def channel(priority: PriorityDep) -> ChannelState:
     master-arm bridge (`telerobot master`)."""
     return ChannelState(
         port=priority.port,
-        clients=sum(c.conn is not None for c in list(priority.clients)),
+        clients=sum(c.session is not None for c in list(priority.clients)),
         samples_sent=priority.samples_sent,
         forces_dropped=sum(c.forces_dropped for c in list(priority.clients)),
         limits=priority.stats(),

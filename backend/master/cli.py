@@ -55,7 +55,7 @@ def open_link(server: str, token: str) -> PriorityLink:
 
 
 def run(args: argparse.Namespace) -> int:
-    from backend.cli import tune_for_realtime
+    from backend.tuning import tune_for_realtime
 
     tune_for_realtime()  # a short GIL switch interval: the reader thread gets each sample at once
     token = args.token or os.environ.get("TELEROBOT_OPERATOR_TOKEN", "")

@@ -15,7 +15,6 @@ from typing import Any
 
 from backend.netprio import mark_high_priority
 from backend.realtime import messages as m
-from backend.realtime.priority import LENGTH
 from drivers.base import DeviceError, ForceSample
 
 ForceCallback = Callable[[ForceSample, float], None]  # sample, receive time (monotonic)
@@ -79,7 +78,7 @@ class PriorityLink:
 
     def _send(self, message: bytes) -> None:
         with self._send_lock:
-            self.sock.sendall(LENGTH.pack(len(message)) + message)
+            self.sock.sendall(m.LENGTH.pack(len(message)) + message)
 
     def lease(self, action: m.LeaseAction) -> int:
         seq = self._next()
@@ -126,12 +125,12 @@ class PriorityLink:
                     return
                 now = time.monotonic()
                 buf += data
-                while len(buf) >= LENGTH.size:
-                    (size,) = LENGTH.unpack_from(buf)
-                    if len(buf) < LENGTH.size + size:
+                while len(buf) >= m.LENGTH.size:
+                    (size,) = m.LENGTH.unpack_from(buf)
+                    if len(buf) < m.LENGTH.size + size:
                         break
-                    message = bytes(buf[LENGTH.size : LENGTH.size + size])
-                    del buf[: LENGTH.size + size]
+                    message = bytes(buf[m.LENGTH.size : m.LENGTH.size + size])
+                    del buf[: m.LENGTH.size + size]
                     self._dispatch(message, now)
         except OSError as exc:
             self.closed_reason = self.closed_reason or str(exc)

@@ -19,6 +19,16 @@ from typing import Any, Final
 
 PROTOCOL_VERSION: Final = 1
 
+# Stream framing (the priority channel, any TCP transport): every message preceded by
+# its length, u16 little-endian. Here with the messages, so a client (the master-arm
+# bridge) imports the protocol without the server.
+LENGTH: Final = struct.Struct("<H")
+
+
+def frame(message: bytes) -> bytes:
+    """One message framed for a stream socket."""
+    return LENGTH.pack(len(message)) + message
+
 
 class Frame(IntEnum):
     BASE = 0

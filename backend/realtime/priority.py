@@ -6,7 +6,7 @@ data channel would share the video's congestion control. Here every force sample
 written from the sensor's own thread the moment it is taken (no hop through the
 event loop), and the socket is marked high priority (SO_PRIORITY 6, DSCP EF), so a
 DiffServ-aware queue on the way sends it ahead of the video (which the media worker
-marks low). Commands take the same path as /ws ones (``ws.handle``: lease, limits,
+marks low). Commands take the same path as /ws ones (``session.Session``: lease, limits,
 dead-man), in order, on the event loop.
 
 Framing: every message (layouts in ``messages``) is preceded by its length, u16
@@ -51,7 +51,6 @@ import logging
 import resource
 import selectors
 import socket
-import struct
 import threading
 import time
 from collections import deque
@@ -63,13 +62,13 @@ from typing import Any
 from backend.control.decision import DecisionServer
 from backend.netprio import mark_high_priority
 from backend.realtime import messages as m
-from backend.realtime.hub import Connection, RealtimeHub
-from backend.realtime.ws import check_hello, error, handle
+from backend.realtime.hub import RealtimeHub
+from backend.realtime.session import Session, error
 from drivers.base import ForceSample, ForceSensor, TelerobotError
 
 log = logging.getLogger(__name__)
 
-LENGTH = struct.Struct("<H")
+LENGTH = m.LENGTH
 
 # The limits are module constants rather than settings: they protect the server from
 # its clients and need no tuning per deployment (settings.py stays for what an
@@ -96,8 +95,7 @@ _ACCEPT = "accept"
 _WAKE = "wake"
 
 
-def frame(message: bytes) -> bytes:
-    return LENGTH.pack(len(message)) + message
+frame = m.frame
 
 
 def connection_cap(wanted: int) -> int:
@@ -145,8 +143,7 @@ class PriorityClient:
     forces_dropped: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     events: int = 0  # what the selector watches for this socket (0: not registered)
-    client_id: str | None = None
-    conn: Connection | None = None
+    session: Session | None = None  # once HELLO has been answered
     worker: asyncio.Task[None] | None = None
     closed: bool = False
     close_reason: str | None = None
@@ -660,54 +657,40 @@ class PriorityChannel:
             self._close_soon(client, "telerobot_error", f"the server failed: {exc}")
 
     def _welcome(self, client: PriorityClient, message: bytes) -> None:
-        try:
-            fields = check_hello(message)
-        except (m.MalformedMessage, KeyError) as exc:
-            self._close_soon(client, "malformed", str(exc))
-            return
-        token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
-        try:
-            joined = self.decision.join(f"priority {client.peer}", token or None)
-        except TelerobotError as exc:
-            self._close_soon(client, exc.code, str(exc))
-            return
-
         async def send(data: bytes) -> None:
             self._send_soon(client, data)
 
-        conn = Connection(
-            send,
-            joined.id,
-            operator=joined.role.value == "operator",
-            every_force_sample=True,
-            direct_forces=True,  # written by the sensor's thread, above
-        )
-        client.client_id = joined.id
-        client.conn = conn
+        try:
+            session = Session.open(
+                message,
+                decision=self.decision,
+                hub=self.hub,
+                peer=f"priority {client.peer}",
+                send=send,
+                every_force_sample=True,
+                direct_forces=True,  # written by the sensor's thread, above
+            )
+        except (m.MalformedMessage, KeyError) as exc:
+            self._close_soon(client, "malformed", str(exc))
+            return
+        except TelerobotError as exc:
+            self._close_soon(client, exc.code, str(exc))
+            return
+        client.session = session
         client.ready = asyncio.Event()
         # WELCOME first on the wire: before the state (hub) and the forces (sensor).
-        self._send_soon(
-            client,
-            m.encode(
-                m.WELCOME,
-                m.PROTOCOL_VERSION,
-                int(conn.operator),
-                self.hub.clock.now(),
-                text=joined.id,
-            ),
-        )
-        self.hub.add(conn)
+        self._send_soon(client, session.welcome)
+        session.attach()
         client.stage = Stage.OPEN
         with self._subscribers_lock:  # from now on the sensor's thread sends it forces
             self._subscribers = (*self._subscribers, client)
-        client.worker = asyncio.create_task(self._serve(client), name=f"priority-{joined.id}")
+        client.worker = asyncio.create_task(self._serve(client), name=f"priority-{session.id}")
         self._wake()  # read on: what came after HELLO waits in the socket
 
     async def _serve(self, client: PriorityClient) -> None:
         """Every command in order, like /ws; the loop gets a turn between two."""
-        assert client.ready is not None and client.conn is not None
-        assert client.client_id is not None
-        conn, client_id, inbox = client.conn, client.client_id, client.inbox
+        assert client.ready is not None and client.session is not None
+        session, inbox = client.session, client.inbox
         try:
             while not client.closed:
                 if not inbox:
@@ -719,8 +702,7 @@ class PriorityChannel:
                 if client.read_blocked and len(inbox) <= self.max_inbox // 2:
                     client.read_blocked = False
                     self._wake()  # room again: read on
-                self.decision.seen(client_id)
-                await handle(message, received, client_id, conn, self.decision, self.hub)
+                await session.receive(message, received)
                 await asyncio.sleep(0)
         except asyncio.CancelledError:
             raise
@@ -735,12 +717,9 @@ class PriorityChannel:
             client.worker.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await client.worker
-        if client.conn is not None:
-            await self.hub.remove(client.conn)
-            client.conn = None
-        if client.client_id is not None:
-            await self.decision.leave(client.client_id)
-            client.client_id = None
+        if client.session is not None:
+            session, client.session = client.session, None
+            await session.close()
 
 
 def _close_socket(sock: socket.socket, last: bytes = b"") -> None:

@@ -1,0 +1,189 @@
+"""One client of the real-time protocol, whatever carries its bytes (ARCHITECTURE
+rule 16): HELLO checked, the client joined to the DecisionServer, its WELCOME, its
+place in the hub's fan-out, every later message decoded, checked and carried out,
+and its leaving. ``/ws`` (``ws.py``) and the priority channel (``priority.py``) are
+framings around it: they move bytes, this decides what they mean.
+
+Anything malformed, unknown, of the wrong size or carrying NaN gets an ERROR back
+and nothing moves; the session and the server stay up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import numpy as np
+
+from backend.control.decision import Applied, Client, DecisionServer
+from backend.realtime import messages as m
+from backend.realtime.hub import Connection, RealtimeHub
+from drivers.base import TelerobotError, WorkingFrame
+
+FRAMES: dict[int, WorkingFrame] = {
+    m.Frame.BASE: WorkingFrame.BASE,
+    m.Frame.WRIST: WorkingFrame.WRIST,
+    m.Frame.TOOL: WorkingFrame.TOOL,
+}
+
+
+def check_hello(data: bytes) -> dict[str, Any]:
+    """The first message's fields, if it is a HELLO this server speaks."""
+    msg, fields, _ = m.decode(data)
+    if msg is not m.HELLO:
+        raise m.MalformedMessage(f"the first message must be HELLO, got {msg.name}")
+    version = int(fields["version"])
+    if version != m.PROTOCOL_VERSION:
+        raise m.MalformedMessage(
+            f"protocol version {version} is not spoken here: this server speaks"
+            f" {m.PROTOCOL_VERSION} (update the client)"
+        )
+    return dict(fields)
+
+
+def error(seq: int, code: str, text: str) -> bytes:
+    return m.encode(
+        m.ERROR, seq, m.ERROR_CODES.get(code, m.ERROR_CODES["telerobot_error"]), text=text
+    )
+
+
+class Session:
+    """A joined client: open it from its HELLO (``open`` raises ``MalformedMessage``
+    or the DecisionServer's ``TelerobotError`` when it cannot join), send ``welcome``
+    the way the framing must (first on the wire), ``attach`` it to the fan-out, hand
+    it every later message with ``receive``, and ``close`` it once."""
+
+    def __init__(
+        self, decision: DecisionServer, hub: RealtimeHub, client: Client, conn: Connection
+    ) -> None:
+        self.decision = decision
+        self.hub = hub
+        self.client = client
+        self.conn = conn
+        self._closed = False
+
+    @classmethod
+    def open(
+        cls,
+        hello: bytes,
+        *,
+        decision: DecisionServer,
+        hub: RealtimeHub,
+        peer: str,
+        send: Callable[[bytes], Awaitable[None]],
+        every_force_sample: bool | None = None,
+        direct_forces: bool = False,
+    ) -> Session:
+        """``every_force_sample`` None: as the HELLO's flags ask."""
+        fields = check_hello(hello)
+        token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
+        client = decision.join(peer, token or None)
+        if every_force_sample is None:
+            every_force_sample = bool(int(fields["flags"]) & m.HelloFlags.EVERY_FORCE_SAMPLE)
+        conn = Connection(
+            send,
+            client.id,
+            operator=client.role.value == "operator",
+            every_force_sample=every_force_sample,
+            direct_forces=direct_forces,
+        )
+        return cls(decision, hub, client, conn)
+
+    @property
+    def id(self) -> str:
+        return self.client.id
+
+    @property
+    def welcome(self) -> bytes:
+        return m.encode(
+            m.WELCOME,
+            m.PROTOCOL_VERSION,
+            int(self.conn.operator),
+            self.hub.clock.now(),
+            text=self.client.id,
+        )
+
+    def attach(self) -> None:
+        """From now on the client gets states, forces and events."""
+        self.hub.add(self.conn)
+
+    async def receive(self, data: bytes, received: float) -> bool:
+        """One message from the client (any message is a heartbeat); False if it was
+        malformed."""
+        self.decision.seen(self.client.id)
+        return await handle(data, received, self.client.id, self.conn, self.decision, self.hub)
+
+    async def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        await self.hub.remove(self.conn)
+        await self.decision.leave(self.client.id)
+
+
+def acknowledge(conn: Connection, hub: RealtimeHub, applied: Applied, received: float) -> None:
+    result = m.Ack.LIMITED if applied.limited else m.Ack.APPLIED
+    conn.reply(m.encode(m.ACK, applied.seq, result, applied.applied_at))
+    hub.command_processing.record((applied.applied_at - received) * 1000.0)
+
+
+async def handle(
+    data: bytes,
+    received: float,
+    client_id: str,
+    conn: Connection,
+    decision: DecisionServer,
+    hub: RealtimeHub,
+) -> bool:
+    """Decode and carry out one client message; False if it was malformed (an ERROR
+    has been queued for the client either way something went wrong)."""
+    seq = 0
+    try:
+        msg, f, _ = m.decode(data)
+        seq = int(f.get("seq", 0))
+        if msg is m.CART_INC:
+            frame = FRAMES.get(int(f["frame"]))
+            if frame is None:
+                raise m.MalformedMessage(f"unknown frame {f['frame']}", "invalid_command", seq)
+            applied = await decision.cartesian_increment(
+                client_id,
+                np.array([f["dx"], f["dy"], f["dz"]], dtype=float),
+                np.array([f["rx"], f["ry"], f["rz"]], dtype=float),
+                frame=frame,
+                seq=seq,
+                client_time=float(f["client_time"]),
+            )
+            acknowledge(conn, hub, applied, received)
+        elif msg is m.JOINT_INC:
+            dq = np.array([f[f"dq{i}"] for i in range(1, 7)], dtype=float)
+            applied = await decision.joint_increment(
+                client_id, dq, seq=seq, client_time=float(f["client_time"])
+            )
+            acknowledge(conn, hub, applied, received)
+        elif msg is m.HEARTBEAT:
+            pass  # `seen` above is the heartbeat
+        elif msg is m.ESTOP:
+            await decision.estop(client_id)
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+        elif msg is m.RESET:
+            await decision.reset(client_id)
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+        elif msg is m.PING:
+            conn.reply(m.encode(m.PONG, seq, f["t0"], received, hub.clock.now()))
+        elif msg is m.LEASE:
+            action = int(f["action"])
+            if action == m.LeaseAction.RELEASE:
+                await decision.release_lease(client_id)
+            elif action in (m.LeaseAction.TAKE, m.LeaseAction.TAKE_OVER):
+                await decision.take_lease(client_id, force=action == m.LeaseAction.TAKE_OVER)
+            else:
+                raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+        else:
+            raise m.MalformedMessage(f"{msg.name} is not a client message", "unknown_type", seq)
+    except m.MalformedMessage as exc:
+        conn.reply(error(exc.seq or seq, exc.code, str(exc)))
+        return False
+    except TelerobotError as exc:
+        conn.reply(error(seq, exc.code, str(exc)))
+    return True
