@@ -24,7 +24,7 @@ WS_MAX_MESSAGE = 64 * 1024
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from backend.app import create_app
+    from backend.app import create_app, services_of
     from backend.settings import load_settings
 
     try:
@@ -80,16 +80,17 @@ def _serve(args: argparse.Namespace) -> int:
                 else settings.http_port
             )
             print(f"\nTelerobot is running on {where}: {scheme}://{shown}:{port}/", flush=True)
+            services = services_of(app)
             print(
-                f"Priority channel (forces, master arm): tcp://{shown}:{app.state.priority.port}",
+                f"Priority channel (forces, master arm): tcp://{shown}:{services.priority.port}",
                 flush=True,
             )
-            if app.state.viewer is not None:
-                print(f"3D view: http://{shown}:{app.state.viewer.port}/", flush=True)
-            if app.state.token_is_new:
+            if services.viewer.view is not None:
+                print(f"3D view: http://{shown}:{services.viewer.view.port}/", flush=True)
+            if services.token.is_new:
                 path = state_dir(settings) / "operator-token"
                 print(
-                    f"Operator token (shown this once, kept in {path}): {app.state.token}",
+                    f"Operator token (shown this once, kept in {path}): {services.token.value}",
                     flush=True,
                 )
             print(flush=True)

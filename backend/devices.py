@@ -16,6 +16,12 @@ from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, too
 from drivers.sim.workcell import Workcell, default_workcell
 
 
+def make_kinematics(settings: Settings) -> Puma560Kinematics:
+    """The arm's model with the configured tool: the one place it is made (each user
+    gets its own: Pinocchio's data is per instance, not thread-safe)."""
+    return Puma560Kinematics(tool_transform(settings.tool_length))
+
+
 def build_workcell(settings: Settings) -> Workcell:
     cell = default_workcell(
         camera_distance=settings.camera_distance,
@@ -31,7 +37,7 @@ def build_workcell(settings: Settings) -> Workcell:
 def build_robot(settings: Settings, clock: Clock | None = None) -> Robot:
     cls = load_driver("robot", settings.robot)
     common: dict[str, Any] = {
-        "kinematics": Puma560Kinematics(tool_transform(settings.tool_length)),
+        "kinematics": make_kinematics(settings),
         "clock": clock,
         "home": NAMED_POSES[settings.home_pose],
     }
@@ -76,10 +82,7 @@ def build_force_sensor(settings: Settings, robot: Robot, workcell: Workcell) -> 
             rate_hz=settings.force_rate_hz,
         )
         return real
-    tool = getattr(
-        robot, "kinematics", Puma560Kinematics(tool_transform(settings.tool_length))
-    ).tool
     sensor: ForceSensor = cls(
-        workcell, arm_probe(robot), Puma560Kinematics(tool), rate_hz=settings.force_rate_hz
+        workcell, arm_probe(robot), make_kinematics(settings), rate_hz=settings.force_rate_hz
     )
     return sensor

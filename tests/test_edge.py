@@ -213,7 +213,8 @@ def test_a_get_on_a_post_only_path_is_405_and_unknown_api_paths_404(client: Test
 
 
 def test_booleans_are_not_numbers(client: TestClient) -> None:
-    r = client.post("/api/v1/calibration/board", json={"view": True}, headers=AUTH)
+    fit = {"camera": "left", "points": [[True, 0, 0]] * 6, "pixels": [[0, 0]] * 6}
+    r = client.post("/api/v1/calibration/fit", json=fit, headers=AUTH)
     assert r.status_code == 422 and "a number is expected" in r.json()["detail"]
     r = client.put("/api/v1/force", json={"rate_hz": True}, headers=AUTH)
     assert r.status_code == 422

@@ -9,7 +9,6 @@ import asyncio
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.api.video import Alignment, remember
 from backend.media.encoder import EncodedFrame
 from backend.media.fanout import KEYFRAME_MIN_INTERVAL_S, TRACK_QUEUE, Broadcaster
 from backend.media.pipeline import (
@@ -19,6 +18,7 @@ from backend.media.pipeline import (
     VideoSettings,
     ViewerLimitReached,
 )
+from backend.services import Alignments
 from drivers.clock import ManualClock
 from tests.test_video import SMALL, camera
 
@@ -207,10 +207,11 @@ async def test_the_stats_name_peers_only_when_asked() -> None:
 
 
 def test_saved_alignments_are_capped_newest_kept() -> None:
-    saved: dict[str, Alignment] = {}
+    saved = Alignments(limit=3)
     for i in range(10):
-        remember(saved, f"viewer-{i}", Alignment(dx=i), limit=3)
-    assert list(saved) == ["viewer-7", "viewer-8", "viewer-9"]
-    remember(saved, "viewer-7", Alignment(dx=70), limit=3)  # rewritten: newest again
-    remember(saved, "viewer-10", Alignment(dx=10), limit=3)
-    assert list(saved) == ["viewer-9", "viewer-7", "viewer-10"] and saved["viewer-7"].dx == 70
+        saved.remember(f"viewer-{i}", (i, 0))
+    assert len(saved) == 3 and saved.get("viewer-6") is None and saved.get("viewer-7") == (7, 0)
+    saved.remember("viewer-7", (70, 0))  # rewritten: newest again
+    saved.remember("viewer-10", (10, 0))
+    assert saved.get("viewer-8") is None  # the oldest written went
+    assert saved.get("viewer-7") == (70, 0) and saved.get("viewer-9") == (9, 0)

@@ -10,7 +10,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
+from backend.app import create_app, services_of
 from backend.settings import Settings
 from backend.viewer3d import decompose
 from calibration.affine import fit_affine
@@ -38,7 +38,7 @@ def test_the_view_is_served_refreshes_and_follows_the_calibration(tmp_path: Path
         assert state["error"] is None and state["port"] > 0
         page = httpx.get(f"http://127.0.0.1:{state['port']}/", timeout=10)
         assert page.status_code == 200 and "<html" in page.text.lower()
-        view = client.app.state.viewer  # type: ignore[attr-defined]
+        view = services_of(client.app).viewer.view  # type: ignore[arg-type]
         r0 = view.refreshes
         deadline = time.monotonic() + 5
         while view.refreshes < r0 + 3:  # 20 Hz

@@ -12,11 +12,18 @@ import logging
 from typing import Annotated, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Query, Request
+from fastapi import APIRouter, Query
 from pydantic import BaseModel, Field, field_validator
 
-from backend.api.deps import OperatorDep, WorkcellDep
+from backend.api.deps import (
+    CalibrationDep,
+    IntrinsicsDep,
+    MediaDep,
+    OperatorDep,
+    WorkcellDep,
+)
 from backend.api.requests import StrictRequest
+from backend.services import CalibrationRecord, CameraName, Intrinsics
 from calibration.affine import fit_affine
 from calibration.charuco import (
     BoardSpec,
@@ -28,21 +35,10 @@ from calibration.charuco import (
 )
 from calibration.dlt import fit_dlt
 from calibration.model import CalibrationError, CameraModel
-from calibration.store import CalibrationStore
 from drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/calibration", tags=["calibration"])
-
-CameraName = Literal["left", "right"]
-
-
-def store_of(request: Request) -> CalibrationStore:
-    store: CalibrationStore = request.app.state.calibration
-    return store
-
-
-StoreDep = Annotated[CalibrationStore, Depends(store_of)]
 
 
 class CameraCalibration(BaseModel):
@@ -112,7 +108,8 @@ def _camera(cell: Workcell, name: str) -> tuple[int, int]:
     return cam.width, cam.height
 
 
-def state(store: CalibrationStore, cell: Workcell, request: Request) -> CalibrationState:
+def state(record: CalibrationRecord, cell: Workcell, intrinsics: Intrinsics) -> CalibrationState:
+    store = record.store
     cameras = []
     for truth in (cell.rig.left, cell.rig.right):
         model = store.cameras.get(truth.name)
@@ -144,19 +141,25 @@ def state(store: CalibrationStore, cell: Workcell, request: Request) -> Calibrat
         cameras=cameras,
         fiducials=cell.fiducials.tolist(),
         baseline_m=baseline,
-        intrinsics_pending=sorted(request.app.state.intrinsics),
-        error=request.app.state.calibration_error,
+        intrinsics_pending=intrinsics.pending(),
+        error=record.load_error,
     )
 
 
 @router.get("")
-async def get_calibration(store: StoreDep, cell: WorkcellDep, request: Request) -> CalibrationState:
-    return state(store, cell, request)
+async def get_calibration(
+    record: CalibrationDep, cell: WorkcellDep, intrinsics: IntrinsicsDep
+) -> CalibrationState:
+    return state(record, cell, intrinsics)
 
 
 @router.post("/fit")
 async def fit(
-    body: FitRequest, store: StoreDep, cell: WorkcellDep, request: Request, _op: OperatorDep
+    body: FitRequest,
+    record: CalibrationDep,
+    cell: WorkcellDep,
+    intrinsics: IntrinsicsDep,
+    _op: OperatorDep,
 ) -> CalibrationState:
     """Fit one camera from clicked fiducials: ``affine`` (the thesis's 4 points),
     ``dlt`` (≥ 6 points, perspective), ``charuco`` (≥ 4 points, after
@@ -169,23 +172,22 @@ async def fit(
     elif body.method == "dlt":
         model = fit_dlt(points, pixels, body.camera, width, height)
     else:
-        intrinsics = request.app.state.intrinsics.get(body.camera)
-        if intrinsics is None:
+        captured = intrinsics.get(body.camera)
+        if captured is None:
             raise CalibrationError(
                 f"no intrinsics for the {body.camera} camera yet: run the ChArUco capture "
                 "(POST /api/v1/calibration/intrinsics) first"
             )
-        K, dist = intrinsics
+        K, dist = captured
         model = fit_charuco(K, dist, points, pixels, body.camera, width, height)
-    await asyncio.to_thread(store.put, model)
-    return state(store, cell, request)
+    await asyncio.to_thread(record.store.put, model)
+    return state(record, cell, intrinsics)
 
 
 @router.post("/intrinsics")
 async def intrinsics(
-    store: StoreDep,
     cell: WorkcellDep,
-    request: Request,
+    captured: IntrinsicsDep,
     _op: OperatorDep,
     camera: CameraName,
     views: Annotated[int, Query(ge=4, le=40)] = 12,
@@ -204,7 +206,7 @@ async def intrinsics(
         return calibrate_intrinsics(frames, spec, (truth.width, truth.height))
 
     K, dist, rms, used = await asyncio.to_thread(run)
-    request.app.state.intrinsics[camera] = (K, dist)
+    captured.put(camera, K, dist)
     return IntrinsicsResult(
         camera=camera, K=K.tolist(), dist=dist.tolist(), rms_px=rms, views_used=used
     )
@@ -217,13 +219,11 @@ class BoardRequest(StrictRequest):
 
 
 @router.post("/board")
-async def board(body: BoardRequest, request: Request, _op: OperatorDep) -> BoardRequest:
+async def board(body: BoardRequest, media: MediaDep, _op: OperatorDep) -> BoardRequest:
     """On the simulation: hold the ChArUco board up in front of both cameras (in the
     live video) at calibration pose ``view``, for the page to capture. Real cameras:
     hold a printed board instead (this answers with an error saying so)."""
-    from backend.api.video import media_supervisor
-
-    await media_supervisor(request).request("board", view=body.view)
+    await media.request("board", view=body.view)
     return body
 
 
@@ -259,7 +259,7 @@ def decode_image(data: str) -> np.ndarray:
 
 @router.post("/intrinsics/views")
 async def intrinsics_from_views(
-    body: ViewsRequest, cell: WorkcellDep, request: Request, _op: OperatorDep
+    body: ViewsRequest, cell: WorkcellDep, captured: IntrinsicsDep, _op: OperatorDep
 ) -> IntrinsicsResult:
     """ChArUco intrinsics and distortion from views captured by the page (real or
     simulated cameras alike); the fiducial fit with method ``charuco`` uses them."""
@@ -274,7 +274,7 @@ async def intrinsics_from_views(
     K, dist, rms, used = await asyncio.to_thread(
         calibrate_intrinsics, views, BoardSpec(), (width, height)
     )
-    request.app.state.intrinsics[body.camera] = (K, dist)
+    captured.put(body.camera, K, dist)
     return IntrinsicsResult(
         camera=body.camera, K=K.tolist(), dist=dist.tolist(), rms_px=rms, views_used=used
     )
@@ -282,10 +282,10 @@ async def intrinsics_from_views(
 
 @router.delete("")
 async def clear(
-    store: StoreDep, cell: WorkcellDep, request: Request, _op: OperatorDep
+    record: CalibrationDep, cell: WorkcellDep, intrinsics: IntrinsicsDep, _op: OperatorDep
 ) -> CalibrationState:
     """Forget the calibration: the simulated ground truth stands in again."""
-    await asyncio.to_thread(store.clear)
-    request.app.state.intrinsics.clear()
-    request.app.state.calibration_error = None
-    return state(store, cell, request)
+    await asyncio.to_thread(record.store.clear)
+    intrinsics.clear()
+    record.load_error = None
+    return state(record, cell, intrinsics)

@@ -1,4 +1,6 @@
-"""``Annotated`` dependency aliases: devices live on ``app.state``, never in globals.
+"""Typed ``Annotated`` dependencies: the only way routers reach the services
+(ARCHITECTURE rule 13). The services are built once by ``backend/services.py`` and
+kept on the application; nothing here is a module global.
 
 Who may do what: reading is open to every client; changing anything needs the
 operator token (``Authorization: Bearer …``); moving the robot needs the control
@@ -7,37 +9,104 @@ lease too (``X-Client-Id`` from ``POST /api/v1/lease``). The e-stop is open to a
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Annotated, Any
+from typing import Annotated
 
-from fastapi import Depends, Header, Request, Security
+from fastapi import Depends, Header, Security
+from fastapi.requests import HTTPConnection
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from backend.control.decision import Client, DecisionServer, NotAllowed
+from backend.media.supervisor import MediaSupervisor, MediaUnavailable
+from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
+from backend.services import Alignments, CalibrationRecord, Intrinsics, Services, Viewer3D
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
 from drivers.base import ForceSensor, Robot
 from drivers.sim.workcell import Workcell
 
 
-def from_state(name: str) -> Callable[[Request], Any]:
-    """A dependency that reads ``app.state.<name>`` (its type is the alias's)."""
-
-    def dependency(request: Request) -> Any:
-        return getattr(request.app.state, name)
-
-    dependency.__name__ = f"get_{name}"
-    return dependency
+def get_services(connection: HTTPConnection) -> Services:
+    """The services of this application (HTTP requests and WebSockets alike)."""
+    services: Services = connection.app.state.services
+    return services
 
 
-RobotDep = Annotated[Robot, Depends(from_state("robot"))]
-SettingsDep = Annotated[Settings, Depends(from_state("settings"))]
-WorkcellDep = Annotated[Workcell, Depends(from_state("workcell"))]
-DecisionDep = Annotated[DecisionServer, Depends(from_state("decision"))]
-ForceDep = Annotated[ForceSensor, Depends(from_state("force"))]
-PriorityDep = Annotated[PriorityChannel, Depends(from_state("priority"))]
-TelemetryDep = Annotated[Telemetry, Depends(from_state("telemetry"))]
+ServicesDep = Annotated[Services, Depends(get_services)]
+
+
+def _settings(s: ServicesDep) -> Settings:
+    return s.settings
+
+
+def _robot(s: ServicesDep) -> Robot:
+    return s.robot
+
+
+def _workcell(s: ServicesDep) -> Workcell:
+    return s.workcell
+
+
+def _decision(s: ServicesDep) -> DecisionServer:
+    return s.decision
+
+
+def _force(s: ServicesDep) -> ForceSensor:
+    return s.force
+
+
+def _priority(s: ServicesDep) -> PriorityChannel:
+    return s.priority
+
+
+def _telemetry(s: ServicesDep) -> Telemetry:
+    return s.telemetry
+
+
+def _hub(s: ServicesDep) -> RealtimeHub:
+    return s.hub
+
+
+def _calibration(s: ServicesDep) -> CalibrationRecord:
+    return s.calibration
+
+
+def _intrinsics(s: ServicesDep) -> Intrinsics:
+    return s.intrinsics
+
+
+def _alignments(s: ServicesDep) -> Alignments:
+    return s.alignments
+
+
+def _viewer(s: ServicesDep) -> Viewer3D:
+    return s.viewer
+
+
+def _media_or_none(s: ServicesDep) -> MediaSupervisor | None:
+    return s.media
+
+
+def _media(s: ServicesDep) -> MediaSupervisor:
+    if s.media is None:
+        raise MediaUnavailable("video is turned off on this server (setting video = false)")
+    return s.media
+
+
+SettingsDep = Annotated[Settings, Depends(_settings)]
+RobotDep = Annotated[Robot, Depends(_robot)]
+WorkcellDep = Annotated[Workcell, Depends(_workcell)]
+DecisionDep = Annotated[DecisionServer, Depends(_decision)]
+ForceDep = Annotated[ForceSensor, Depends(_force)]
+PriorityDep = Annotated[PriorityChannel, Depends(_priority)]
+TelemetryDep = Annotated[Telemetry, Depends(_telemetry)]
+HubDep = Annotated[RealtimeHub, Depends(_hub)]
+CalibrationDep = Annotated[CalibrationRecord, Depends(_calibration)]
+IntrinsicsDep = Annotated[Intrinsics, Depends(_intrinsics)]
+AlignmentsDep = Annotated[Alignments, Depends(_alignments)]
+ViewerDep = Annotated[Viewer3D, Depends(_viewer)]
+MediaOrNoneDep = Annotated[MediaSupervisor | None, Depends(_media_or_none)]
+MediaDep = Annotated[MediaSupervisor, Depends(_media)]
 
 
 def bearer_token(authorization: Annotated[str | None, Header()] = None) -> str | None:

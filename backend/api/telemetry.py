@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from backend.api.deps import TelemetryDep
+from backend.api.deps import HubDep, MediaOrNoneDep, TelemetryDep
 from backend.api.video import OperatorOrNot, video_stats
 
 router = APIRouter(prefix="/telemetry", tags=["telemetry"])
@@ -46,7 +46,7 @@ def _num(x: float) -> float | None:
 
 @router.get("")
 async def telemetry(
-    request: Request, stats: TelemetryDep, operator: OperatorOrNot
+    stats: TelemetryDep, hub: HubDep, media: MediaOrNoneDep, operator: OperatorOrNot
 ) -> TelemetryView:
     streams = [
         StreamSummary(
@@ -70,9 +70,8 @@ async def telemetry(
             every_force_sample=c.every_force_sample,
             forces_lost=c.outbox.forces_lost,
         )
-        for c in request.app.state.hub.connections.values()
+        for c in hub.connections.values()
     ]
-    media = request.app.state.media
     # Video peers' ids only to the operator: a peer id is what closing a viewer names.
     video = (
         await video_stats(media, peer_ids=operator) if media is not None and media.alive else None

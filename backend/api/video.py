@@ -12,10 +12,17 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Header, Path, Query, Request
+from fastapi import APIRouter, Depends, Header, Path, Query
 from pydantic import BaseModel, Field
 
-from backend.api.deps import DecisionDep, SettingsDep, bearer_token
+from backend.api.deps import (
+    AlignmentsDep,
+    DecisionDep,
+    MediaDep,
+    MediaOrNoneDep,
+    SettingsDep,
+    bearer_token,
+)
 from backend.api.requests import StrictRequest
 from backend.control.decision import NotAllowed
 from backend.media.pipeline import NotYourPeer, ViewerLimitReached
@@ -24,10 +31,6 @@ from drivers.base import TelerobotError
 
 router = APIRouter(tags=["video"])
 
-# Saved alignments, one per viewer name, newest kept: each entry is ~0.5 kB, so the
-# table stays under 1 MB. A viewer name is written only through a live peer (one name
-# per peer), and the page keeps its own copy, so an evicted entry costs nothing.
-MAX_ALIGNMENTS = 1000
 SECRET_MAX = 64  # a peer secret is 22 characters; anything longer is not one
 
 
@@ -82,13 +85,6 @@ class VideoStatus(BaseModel):
     error: str | None = Field(None, description="why there are no stats right now")
 
 
-def media_supervisor(request: Request) -> MediaSupervisor:
-    media: MediaSupervisor | None = request.app.state.media
-    if media is None:
-        raise MediaUnavailable("video is turned off on this server (setting video = false)")
-    return media
-
-
 async def ask(media: MediaSupervisor, op: str, **fields: Any) -> dict[str, Any]:
     """A media worker request, its refusals raised as their own classes (403, 503)."""
     try:
@@ -115,25 +111,25 @@ async def video_stats(media: MediaSupervisor, peer_ids: bool) -> dict[str, Any]:
 
 
 @router.post("/webrtc/offer")
-async def offer(body: SessionDescription, request: Request) -> PeerDescription:
+async def offer(body: SessionDescription, media: MediaDep) -> PeerDescription:
     """Send the browser's offer (with a recvonly video transceiver); get the answer.
     ICE candidates are in the SDP (no trickle). Keep ``peer_secret``."""
-    reply = await ask(media_supervisor(request), "answer", sdp=body.sdp, type=body.type)
+    reply = await ask(media, "answer", sdp=body.sdp, type=body.type)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/server-offer")
-async def server_offer(request: Request) -> PeerDescription:
+async def server_offer(media: MediaDep) -> PeerDescription:
     """For browsers that need the server to offer: answer it with /webrtc/answer (with
     the ``peer_secret``) within a few seconds, or the offer is dropped."""
-    reply = await ask(media_supervisor(request), "offer")
+    reply = await ask(media, "offer")
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/answer")
-async def answer(body: Answer, request: Request) -> dict[str, str]:
+async def answer(body: Answer, media: MediaDep) -> dict[str, str]:
     await ask(
-        media_supervisor(request),
+        media,
         "accept",
         peer_id=body.peer_id,
         sdp=body.sdp,
@@ -146,13 +142,13 @@ async def answer(body: Answer, request: Request) -> dict[str, str]:
 @router.delete("/webrtc/{peer_id}")
 async def close_peer(
     peer_id: Annotated[str, Path(max_length=64)],
-    request: Request,
+    media: MediaDep,
     operator: OperatorOrNot,
     x_peer_secret: PeerSecret = None,
 ) -> dict[str, str]:
     """Close your own peer (header ``X-Peer-Secret``), or any (the operator token)."""
     await ask(
-        media_supervisor(request),
+        media,
         "close_peer",
         peer_id=peer_id,
         peer_secret=x_peer_secret,
@@ -163,9 +159,8 @@ async def close_peer(
 
 @router.get("/video")
 async def video_status(
-    request: Request, settings: SettingsDep, operator: OperatorOrNot
+    media: MediaOrNoneDep, settings: SettingsDep, operator: OperatorOrNot
 ) -> VideoStatus:
-    media: MediaSupervisor | None = request.app.state.media
     stats, error = None, None
     if media is not None and media.alive:
         # The worker can die between the check and the answer (it is then restarted):
@@ -187,29 +182,24 @@ async def video_status(
     )
 
 
-def remember(
-    saved: dict[str, Alignment], viewer: str, alignment: Alignment, limit: int = MAX_ALIGNMENTS
-) -> None:
-    """Save ``viewer``'s alignment, dropping the longest-unwritten beyond ``limit``."""
-    saved.pop(viewer, None)  # re-inserted last: the dict's order is the write order
-    saved[viewer] = alignment
-    while len(saved) > limit:
-        del saved[next(iter(saved))]
-
-
 @router.get("/video/alignment")
 async def get_alignment(
-    request: Request, settings: SettingsDep, viewer: Annotated[str, Query(max_length=64)] = ""
+    saved: AlignmentsDep,
+    settings: SettingsDep,
+    viewer: Annotated[str, Query(max_length=64)] = "",
 ) -> Alignment:
     """The viewer's shift of the right image, or the server's default."""
-    saved: dict[str, Alignment] = request.app.state.alignments
-    return saved.get(viewer) or Alignment(dx=settings.alignment_px[0], dy=settings.alignment_px[1])
+    shift = saved.get(viewer)
+    if shift is not None:
+        return Alignment(dx=shift[0], dy=shift[1])
+    return Alignment(dx=settings.alignment_px[0], dy=settings.alignment_px[1])
 
 
 @router.put("/video/alignment")
 async def put_alignment(
     body: Alignment,
-    request: Request,
+    media: MediaDep,
+    saved: AlignmentsDep,
     viewer: Annotated[str, Query(min_length=1, max_length=64)],
     x_peer_id: Annotated[str | None, Header(max_length=64)] = None,
     x_peer_secret: PeerSecret = None,
@@ -222,11 +212,11 @@ async def put_alignment(
             " X-Peer-Id and X-Peer-Secret with the peer_id and peer_secret of its offer"
         )
     await ask(
-        media_supervisor(request),
+        media,
         "claim_viewer",
         peer_id=x_peer_id,
         peer_secret=x_peer_secret,
         viewer=viewer,
     )
-    remember(request.app.state.alignments, viewer, body)
+    saved.remember(viewer, (body.dx, body.dy))
     return body

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from pydantic import BaseModel, Field
+
+from backend.api.deps import ViewerDep
 
 router = APIRouter(prefix="/viewer", tags=["viewer"])
 
@@ -14,8 +16,6 @@ class ViewerState(BaseModel):
 
 
 @router.get("")
-async def viewer(request: Request) -> ViewerState:
-    view = request.app.state.viewer
-    return ViewerState(
-        port=None if view is None else view.port, error=request.app.state.viewer_error
-    )
+async def viewer(viewer: ViewerDep) -> ViewerState:
+    view = viewer.view
+    return ViewerState(port=None if view is None else view.port, error=viewer.error)

@@ -11,9 +11,8 @@ import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from backend.control.decision import DecisionServer
+from backend.api.deps import ServicesDep
 from backend.realtime import messages as m
-from backend.realtime.hub import RealtimeHub
 from backend.realtime.ratelimit import MalformedRun, TokenBucket
 from backend.realtime.session import Session, error
 from backend.security import origin_allowed
@@ -26,18 +25,17 @@ HELLO_TIMEOUT_S = 5.0
 
 
 @router.websocket("/ws")
-async def realtime(websocket: WebSocket) -> None:
-    app = websocket.app
-    settings = app.state.settings
+async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
     if not origin_allowed(
-        websocket.headers.get("origin"), websocket.headers.get("host"), settings.allowed_origins
+        websocket.headers.get("origin"),
+        websocket.headers.get("host"),
+        services.settings.allowed_origins,
     ):
         log.warning("refused /ws from origin %s", websocket.headers.get("origin"))
         await websocket.close(code=1008, reason="origin not allowed")
         return
     await websocket.accept()
-    hub: RealtimeHub = app.state.hub
-    decision: DecisionServer = app.state.decision
+    hub, decision = services.hub, services.decision
     peer = websocket.client
     try:
         hello = await asyncio.wait_for(websocket.receive_bytes(), HELLO_TIMEOUT_S)

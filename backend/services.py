@@ -1,0 +1,259 @@
+"""The composition root (ARCHITECTURE rule 13): every service the server runs, built
+once from the settings and a clock into a frozen, typed ``Services``; routers get
+them only through the typed dependencies in ``backend/api/deps.py``.
+
+``build_services`` makes them (devices, safety, transports, video, the 3D view);
+``start_services`` and ``stop_services`` run them on the event loop, in order. The
+small stores a client can write to (captured intrinsics, per-viewer alignments) are
+classes here that own their data and its limit.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from backend.control.decision import DecisionServer
+from backend.control.limits import SafetyLimits
+from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
+from backend.media.supervisor import MediaSupervisor
+from backend.realtime.hub import RealtimeHub
+from backend.realtime.priority import PriorityChannel
+from backend.security import state_dir
+from backend.settings import Settings
+from backend.telemetry.stats import Telemetry
+from backend.viewer3d import Workcell3DView
+from calibration.model import CalibrationError
+from calibration.store import CalibrationStore
+from drivers.base import DeviceError, ForceSensor, Robot, TelerobotError
+from drivers.clock import Clock
+from drivers.sim.workcell import Workcell
+
+log = logging.getLogger("telerobot")
+
+CameraName = Literal["left", "right"]
+MAX_ALIGNMENTS = 1000  # viewer names with a saved shift; the oldest written goes first
+
+
+@dataclass(frozen=True)
+class OperatorToken:
+    value: str
+    is_new: bool  # made at this start: printed once
+
+
+@dataclass
+class CalibrationRecord:
+    """The rig's saved calibration and, if its file could not be read, why (the file
+    is kept as it is and the cameras' ground truth stands in)."""
+
+    store: CalibrationStore
+    load_error: str | None = None
+
+    @classmethod
+    def load(cls, settings: Settings) -> CalibrationRecord:
+        rig = settings.rig_name
+        store = CalibrationStore(state_dir(settings) / f"calibration-{rig}.json", rig)
+        try:
+            return cls(store.load())
+        except CalibrationError as exc:
+            log.error("%s", exc)
+            return cls(store, str(exc))
+
+
+@dataclass
+class Intrinsics:
+    """Each camera's K and distortion from a ChArUco capture, kept until its fiducial
+    fit uses them: one entry per camera at most."""
+
+    _by_camera: dict[CameraName, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def get(self, camera: CameraName) -> tuple[np.ndarray, np.ndarray] | None:
+        return self._by_camera.get(camera)
+
+    def put(self, camera: CameraName, K: np.ndarray, dist: np.ndarray) -> None:
+        self._by_camera[camera] = (K, dist)
+
+    def pending(self) -> list[str]:
+        return sorted(self._by_camera)
+
+    def clear(self) -> None:
+        self._by_camera.clear()
+
+
+@dataclass
+class Alignments:
+    """Each viewer's shift of the right image (dx, dy pixels), bounded: writing one
+    beyond ``limit`` drops the one written longest ago."""
+
+    limit: int = MAX_ALIGNMENTS
+    _saved: OrderedDict[str, tuple[int, int]] = field(default_factory=OrderedDict)
+
+    def get(self, viewer: str) -> tuple[int, int] | None:
+        return self._saved.get(viewer)
+
+    def remember(self, viewer: str, shift: tuple[int, int]) -> None:
+        self._saved.pop(viewer, None)
+        self._saved[viewer] = shift
+        while len(self._saved) > self.limit:
+            self._saved.popitem(last=False)
+
+    def __len__(self) -> int:
+        return len(self._saved)
+
+
+@dataclass
+class Viewer3D:
+    """The 3D view, or why there is none (off, or its port taken)."""
+
+    view: Workcell3DView | None
+    error: str | None
+
+
+@dataclass(frozen=True)
+class Services:
+    settings: Settings
+    clock: Clock
+    token: OperatorToken
+    telemetry: Telemetry
+    workcell: Workcell
+    calibration: CalibrationRecord
+    intrinsics: Intrinsics
+    alignments: Alignments
+    robot: Robot
+    force: ForceSensor
+    decision: DecisionServer
+    hub: RealtimeHub
+    priority: PriorityChannel
+    media: MediaSupervisor | None
+    viewer: Viewer3D
+    tasks: list[asyncio.Task[None]] = field(default_factory=list)
+
+
+def safety_limits(settings: Settings) -> SafetyLimits:
+    """The settings' limits; the rest of ``SafetyLimits`` keeps its defaults."""
+    return SafetyLimits(
+        force_limit_n=settings.force_limit_n,
+        deadman_timeout_s=settings.deadman_timeout_s,
+        max_speed_m_s=settings.max_speed_m_s,
+        contact_speed_m_s=settings.contact_speed_m_s,
+    )
+
+
+def build_viewer(
+    settings: Settings,
+    workcell: Workcell,
+    robot: Robot,
+    force: ForceSensor,
+    calibration: CalibrationStore,
+) -> Viewer3D:
+    """The 3D view, if on; one that cannot start (port taken) is reported, and the
+    server runs without it."""
+    if not settings.viewer:
+        return Viewer3D(None, "the 3D view is off (setting viewer)")
+    try:
+        view = Workcell3DView(
+            settings.host,
+            settings.viewer_port,
+            workcell,
+            robot,
+            force,
+            calibration,
+            make_kinematics(settings),
+        )
+    except (OSError, ImportError) as exc:
+        log.error("the 3D view cannot start on port %s: %s", settings.viewer_port, exc)
+        return Viewer3D(None, f"the 3D view cannot start on port {settings.viewer_port}: {exc}")
+    return Viewer3D(view, None)
+
+
+def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Services:
+    """Every service, made once; nothing runs until ``start_services``."""
+    telemetry = Telemetry()
+    workcell = build_workcell(settings)
+    robot = build_robot(settings, clock)
+    force = build_force_sensor(settings, robot, workcell)
+    # The DecisionServer's own model (same tool): Pinocchio data is per instance.
+    decision = DecisionServer(
+        robot,
+        kinematics=make_kinematics(settings),
+        clock=clock,
+        operator_token=token.value,
+        limits=safety_limits(settings),
+        force=force,
+    )
+    hub = RealtimeHub(
+        robot, decision, force, telemetry, clock, state_rate_hz=settings.state_rate_hz
+    )
+    try:
+        priority = PriorityChannel(settings.host, settings.priority_port, hub, decision, force)
+    except OSError as exc:
+        raise DeviceError(
+            f"the priority channel cannot listen on {settings.host}:{settings.priority_port}"
+            f" ({exc.strerror}): set TELEROBOT_PRIORITY_PORT or --priority-port"
+        ) from None
+    calibration = CalibrationRecord.load(settings)
+    return Services(
+        settings=settings,
+        clock=clock,
+        token=token,
+        telemetry=telemetry,
+        workcell=workcell,
+        calibration=calibration,
+        intrinsics=Intrinsics(),
+        alignments=Alignments(),
+        robot=robot,
+        force=force,
+        decision=decision,
+        hub=hub,
+        priority=priority,
+        media=MediaSupervisor(settings, robot) if settings.video else None,
+        viewer=build_viewer(settings, workcell, robot, force, calibration.store),
+    )
+
+
+async def bring_up_robot(robot: Robot, initialize: bool) -> None:
+    """Connect and initialise; a failure leaves the robot in ERROR with its reason
+    (shown by the state endpoint) and the server keeps serving."""
+    try:
+        await robot.connect()
+        if initialize:
+            await robot.initialize()
+        log.info("robot %s is %s", robot.name, robot.status)
+    except TelerobotError as exc:
+        log.error("robot %s could not be brought up: %s", robot.name, exc)
+
+
+async def start_services(s: Services) -> None:
+    s.hub.start()
+    s.decision.start()  # the force limit and the dead-man, whatever transports run
+    s.priority.start()
+    s.force.start()
+    if s.viewer.view is not None:
+        s.viewer.view.start()
+    if s.media is not None:
+        await s.media.start()
+    s.tasks.append(
+        asyncio.create_task(bring_up_robot(s.robot, s.settings.auto_initialize), name="bring-up")
+    )
+
+
+async def stop_services(s: Services) -> None:
+    for task in s.tasks:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, TelerobotError):
+            await task
+    s.force.stop()
+    if s.viewer.view is not None:
+        await s.viewer.view.stop()
+    if s.media is not None:
+        await s.media.stop()
+    await s.priority.stop()
+    await s.hub.stop()
+    await s.decision.stop()
+    await s.robot.disconnect()
