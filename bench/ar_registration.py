@@ -25,15 +25,10 @@ import numpy as np
 
 from bench.common import emit, machine, parser
 from calibration.affine import fit_affine
-from calibration.charuco import (
-    BoardSpec,
-    board_poses,
-    calibrate_intrinsics,
-    fit_charuco,
-    render_view,
-)
+from calibration.charuco import calibrate_intrinsics, fit_charuco
 from calibration.dlt import fit_dlt
 from calibration.model import CameraModel
+from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
 from drivers.sim.workcell import PinholeCamera, default_workcell
 
 DISTANCES = (1.5, 2.5, 4.0)

@@ -14,17 +14,11 @@ from backend.app import create_app
 from backend.settings import Settings
 from bench.ar_registration import work_area
 from calibration.affine import fit_affine
-from calibration.charuco import (
-    BoardSpec,
-    board_poses,
-    calibrate_intrinsics,
-    fit_charuco,
-    render_view,
-    stereo_pose,
-)
+from calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
 from calibration.dlt import fit_dlt
 from calibration.model import CalibrationError, CameraModel
 from calibration.store import CalibrationStore
+from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
 from drivers.sim.workcell import default_workcell
 
 CELL = default_workcell()

@@ -229,7 +229,8 @@ def test_constant_bitrate_fills_the_budget_even_for_a_still_scene() -> None:
 def test_the_simulated_cameras_can_hold_up_a_charuco_board_for_calibration() -> None:
     import cv2
 
-    from calibration.charuco import BoardSpec, detect
+    from calibration.charuco import detect
+    from drivers.camera.charuco_board import BoardSpec
 
     cam = camera()
     w = cam.width

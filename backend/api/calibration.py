@@ -25,16 +25,10 @@ from backend.api.deps import (
 from backend.api.requests import StrictRequest
 from backend.services import CalibrationRecord, CameraName, Intrinsics
 from calibration.affine import fit_affine
-from calibration.charuco import (
-    BoardSpec,
-    board_poses,
-    calibrate_intrinsics,
-    fit_charuco,
-    render_view,
-    stereo_pose,
-)
+from calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
 from calibration.dlt import fit_dlt
 from calibration.model import CalibrationError, CameraModel
+from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
 from drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)

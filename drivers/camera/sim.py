@@ -18,9 +18,9 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from calibration.charuco import BoardSpec, board_poses, draw_board, view_distance
 from drivers.base import ArmSnapshot, CameraStatus, StereoFrame
 from drivers.camera import timecode
+from drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
 from drivers.camera.slot import FrameSlot
 from drivers.robot.puma560.kinematics import Puma560Kinematics
 from drivers.sim.workcell import Box, PinholeCamera, Workcell
