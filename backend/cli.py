@@ -15,6 +15,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from backend.tuning import tune_for_realtime
+from drivers.registry import driver_names
 
 # The largest /ws message the server reads: a FORCE batch from a client is the largest
 # legitimate one (< 16 kB); uvicorn's default (16 MiB) let one message hold 16 MiB.
@@ -25,6 +26,7 @@ def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from backend.app import create_app, services_of
+    from backend.devices import describe_robot
     from backend.settings import load_settings
 
     try:
@@ -53,11 +55,7 @@ def _serve(args: argparse.Namespace) -> int:
     scheme = "https" if settings.tls else "http"
     host = settings.host
     shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::") else host
-    where = (
-        "the simulation"
-        if settings.robot == "sim"
-        else f"the {settings.robot} robot on {settings.serial_port}"
-    )
+    where = describe_robot(settings)
     config = uvicorn.Config(
         app,
         host=host,
@@ -161,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument(
         "--priority-port", type=int, help="TCP port of the priority channel (default 8001)"
     )
-    serve.add_argument("--robot", choices=["sim", "val"], help="robot driver (default sim)")
+    serve.add_argument("--robot", choices=driver_names("robot"), help="robot driver (default sim)")
     serve.add_argument(
         "--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port"
     )

@@ -1,18 +1,22 @@
-"""Builds the devices the settings name, through the driver registry."""
+"""Builds the devices the settings name, through the driver registry.
+
+The server never asks which driver it holds: each driver class reads its own keys
+from the settings in its ``from_settings`` and takes the rest from a ``DeviceContext``
+made here (ARCHITECTURE rule 14).
+"""
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
 from backend.settings import Settings
-from drivers.base import ArmSnapshot, ForceSensor, Robot, RobotMoved, SerialSettings
+from drivers.base import ArmSnapshot, DeviceContext, ForceSensor, Robot, StereoCamera
 from drivers.clock import Clock
 from drivers.registry import load_driver
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
+from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 from drivers.sim.workcell import Workcell, default_workcell
 
 
@@ -34,55 +38,45 @@ def build_workcell(settings: Settings) -> Workcell:
     return cell
 
 
+def device_context(
+    settings: Settings,
+    *,
+    clock: Clock | None = None,
+    workcell: Workcell | None = None,
+    arm_probe: Callable[[], ArmSnapshot] | None = None,
+) -> DeviceContext:
+    """What the server gives every driver besides the settings: the kinematics factory,
+    the workcell (this one, else built on first need), the arm to follow, the clock."""
+
+    def the_workcell() -> Workcell:
+        return workcell if workcell is not None else build_workcell(settings)
+
+    context = DeviceContext(
+        kinematics=lambda: make_kinematics(settings), workcell=the_workcell, clock=clock
+    )
+    return context if arm_probe is None else dataclasses.replace(context, arm_probe=arm_probe)
+
+
 def build_robot(settings: Settings, clock: Clock | None = None) -> Robot:
     cls = load_driver("robot", settings.robot)
-    common: dict[str, Any] = {
-        "kinematics": make_kinematics(settings),
-        "clock": clock,
-        "home": NAMED_POSES[settings.home_pose],
-    }
-    # Driver-specific options; the drivers themselves never branch on which one they are.
-    specific: dict[str, dict[str, Any]] = {
-        "val": {
-            "settings": SerialSettings(
-                port=settings.serial_port,
-                baudrate=settings.serial_baudrate,
-                reply_timeout=settings.serial_reply_timeout,
-            )
-        },
-    }
-    robot: Robot = cls(**common, **specific.get(settings.robot, {}))
-    return robot
+    return cls.from_settings(settings.model_dump(), device_context(settings, clock=clock))
 
 
-def arm_probe(robot: Robot) -> Callable[[], ArmSnapshot]:
-    """A thread-safe view of the arm for sensors that simulate contact with it.
-
-    A simulated arm publishes snapshots with velocities; any other arm is followed
-    through its "moved" events (position only)."""
-    snapshot = getattr(robot, "snapshot", None)
-    if callable(snapshot):
-        return snapshot  # type: ignore[no-any-return]
-    latest = [ArmSnapshot(0.0, robot.joints, np.zeros(6))]
-
-    def on_moved(event: RobotMoved) -> None:
-        latest[0] = ArmSnapshot(event.time, event.joints, np.zeros(6))
-
-    robot.events.moved.subscribe(on_moved)
-    return lambda: latest[0]
+def describe_robot(settings: Settings) -> str:
+    """What the settings drive, for a person: "the simulation", "the val robot on …"."""
+    return load_driver("robot", settings.robot).describe(settings.model_dump())
 
 
 def build_force_sensor(settings: Settings, robot: Robot, workcell: Workcell) -> ForceSensor:
+    """The sensor the settings name; a simulated one feels ``robot`` in ``workcell``."""
     cls = load_driver("force", settings.force)
-    if settings.force == "netft":
-        real: ForceSensor = cls(
-            settings.netft_address,
-            counts_per_force=settings.netft_counts_per_force,
-            counts_per_torque=settings.netft_counts_per_torque,
-            rate_hz=settings.force_rate_hz,
-        )
-        return real
-    sensor: ForceSensor = cls(
-        workcell, arm_probe(robot), make_kinematics(settings), rate_hz=settings.force_rate_hz
-    )
-    return sensor
+    context = device_context(settings, workcell=workcell, arm_probe=robot.snapshot)
+    return cls.from_settings(settings.model_dump(), context)
+
+
+def build_camera(settings: Settings, arm_probe: Callable[[], ArmSnapshot]) -> StereoCamera:
+    """The stereo camera the settings name (in the media worker, which follows the arm
+    through ``arm_probe``)."""
+    cls = load_driver("camera", settings.camera)
+    context = device_context(settings, arm_probe=arm_probe)
+    return cls.from_settings(settings.model_dump(), context)

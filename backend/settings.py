@@ -12,9 +12,9 @@ import math
 import os
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -22,6 +22,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from drivers.registry import driver_names, load_driver
 from drivers.robot.puma560.kinematics import NAMED_POSES
 
 _config_file: ContextVar[Path | None] = ContextVar("telerobot_config_file", default=None)
@@ -38,7 +39,8 @@ class Settings(BaseSettings):
     viewer: bool = True
     viewer_port: int = Field(8002, ge=0, le=65535)
 
-    robot: Literal["sim", "val"] = "sim"
+    # Drivers by their name in drivers/registry.py (each reads its own settings below)
+    robot: str = "sim"
     auto_initialize: bool = True  # connect and initialise the robot at start-up
     home_pose: str = "qn"  # a named pose (qz, qr, qs, qn) the robot initialises to
     tool_length: float = Field(0.10, ge=0.0, le=0.5)  # gripper length along the flange z axis, m
@@ -48,7 +50,7 @@ class Settings(BaseSettings):
     serial_baudrate: int = 9600
     serial_reply_timeout: float = Field(1.0, gt=0)
 
-    force: Literal["sim", "netft"] = "sim"
+    force: str = "sim"
     force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)
     # NetFtSensor: the sensor's address and its calibration (from its web page)
     netft_address: str = "192.168.1.1:49152"
@@ -75,20 +77,18 @@ class Settings(BaseSettings):
 
     # Stereo video (a media worker process: capture → one encoder → every WebRTC viewer)
     video: bool = True
-    camera: Literal["sim", "opencv", "opencv-sbs"] = "sim"
+    camera: str = "sim"
     camera_devices: list[str] = ["0", "1"]  # opencv: left, right; opencv-sbs: the first
     # The rig's name: each rig keeps its own calibration (calibration-<rig>.json).
-    # Default: "sim" for the simulation, else the camera driver and its devices.
+    # Default: the camera driver's (the simulation's is "sim"; real cameras': the
+    # driver and its devices).
     camera_rig: str | None = Field(None, pattern=r"^[A-Za-z0-9._-]{1,64}$")
 
     @property
     def rig_name(self) -> str:
         if self.camera_rig:
             return self.camera_rig
-        if self.camera == "sim":
-            return "sim"
-        devices = "-".join(d.strip("/").replace("/", "_") for d in self.camera_devices)
-        return f"{self.camera}-{devices}"[:64]
+        return load_driver("camera", self.camera).default_rig(self.model_dump())
 
     video_width: int = Field(1280, ge=160, le=3840)  # of one eye
     video_height: int = Field(720, ge=120, le=2160)
@@ -116,6 +116,15 @@ class Settings(BaseSettings):
             raise ValueError("fiducials must be at least 4 points of [x, y, z] (metres)")
         if not all(math.isfinite(c) for p in v for c in p):
             raise ValueError("fiducials must be finite numbers")
+        return v
+
+    @field_validator("robot", "force", "camera")
+    @classmethod
+    def _known_driver(cls, v: str, info: ValidationInfo) -> str:
+        kind = str(info.field_name)  # the field is named after its kind in the registry
+        known = driver_names(kind)
+        if v not in known:
+            raise ValueError(f"unknown {kind} driver {v!r} (known: {', '.join(known)})")
         return v
 
     @field_validator("home_pose")

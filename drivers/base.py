@@ -1,20 +1,31 @@
 """Device interfaces and typed errors shared by every driver (ARCHITECTURE rule 1).
 
 Simulated and real devices implement the same small interface; the server never
-asks which one it holds. Units are SI: metres, radians, seconds.
+asks which one it holds (rule 14: what it needs is on the interface). Units are SI:
+metres, radians, seconds.
+
+Every driver class is built the same way: ``from_settings(settings, context)`` reads
+its own keys from the server's settings (a plain mapping: drivers never import the
+server) through a small config class beside it, and takes what the server makes once
+and shares from the ``DeviceContext``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.clock import Clock
 from drivers.events import Event
+
+if TYPE_CHECKING:  # both import this module
+    from drivers.robot.puma560.kinematics import Puma560Kinematics
+    from drivers.sim.workcell import Workcell
 
 FloatArray = NDArray[np.float64]
 
@@ -149,6 +160,19 @@ class ArmSnapshot:
     velocities: FloatArray  # rad/s
 
 
+class Kinematics(Protocol):
+    """The arm's kinematic model, as far as the server reads it from a robot."""
+
+    @property
+    def tool(self) -> FloatArray:
+        """The tool's 4×4 transform in the flange frame."""
+        ...
+
+    def fk(self, q: FloatArray) -> FloatArray:
+        """The tool's 4×4 pose in the base frame at joint angles ``q``."""
+        ...
+
+
 class StopCategory(IntEnum):
     """Stop categories of IEC 60204-1 §9.2.2 (ISO 10218-1 asks a robot to state which
     stop it makes)."""
@@ -216,6 +240,23 @@ class Robot(Protocol):
 
     async def wait_idle(self, timeout: float | None = None) -> None: ...
 
+    @property
+    def kinematics(self) -> Kinematics:
+        """The model the arm moves by (its tool included)."""
+        ...
+
+    def snapshot(self) -> ArmSnapshot:
+        """The arm's state, safe to call from any thread (one reference swapped);
+        velocities are zero where the arm does not report them."""
+        ...
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self: ...
+    @classmethod
+    def describe(cls, settings: Mapping[str, Any]) -> str:
+        """What this driver drives, for a person ("the simulation")."""
+        ...
+
 
 # ---------------------------------------------------------------- force sensor
 FORCE_CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
@@ -249,10 +290,23 @@ class ForceSensor(Protocol):
     threshold: float  # report only changes larger than this on some channel; 0 = every sample
     filter_cutoff_hz: float | None  # first-order low-pass; None = off
 
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """The driver's counters (received, lost, bad packets …); empty if it keeps none."""
+        ...
+
+    @property
+    def error(self) -> str | None:
+        """What is wrong with the sensor now, if anything (None for a simulated one)."""
+        ...
+
     def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]: ...
     def start(self) -> None: ...
     def stop(self) -> None: ...
     def tare(self) -> None: ...
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self: ...
 
 
 # ---------------------------------------------------------------- stereo camera
@@ -303,6 +357,18 @@ class StereoCamera(Protocol):
         """The newest frame newer than ``after_seq``, waiting up to ``timeout`` s."""
         ...
 
+    def show_board(self, view: int | None) -> None:
+        """Show the ChArUco calibration board at the ``view``-th calibration pose (None
+        puts it away); a camera that cannot raises ``TelerobotError`` saying what to do."""
+        ...
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self: ...
+    @classmethod
+    def default_rig(cls, settings: Mapping[str, Any]) -> str:
+        """The rig's name when the settings give none (each rig keeps its calibration)."""
+        ...
+
 
 # ---------------------------------------------------------------- master arm
 @dataclass(frozen=True)
@@ -332,3 +398,21 @@ class MasterArm(Protocol):
     def set_force(self, force: FloatArray) -> None:
         """Render ``force`` (N, device frame) until the next call."""
         ...
+
+
+# ---------------------------------------------------------------- construction
+def _no_arm() -> ArmSnapshot:
+    raise DriverUnavailable("this driver follows the arm, but it was built without one")
+
+
+@dataclass(frozen=True)
+class DeviceContext:
+    """What the server hands a driver's ``from_settings`` besides the settings: what it
+    makes once and shares, or makes one way for every device."""
+
+    # A new model of the arm with the configured tool at each call (Pinocchio's data is
+    # per instance: each user, each thread, gets its own).
+    kinematics: Callable[[], Puma560Kinematics]
+    workcell: Callable[[], Workcell]  # the simulated workcell every sim device reads
+    arm_probe: Callable[[], ArmSnapshot] = _no_arm  # the arm's state, from any thread
+    clock: Clock | None = None  # None: the driver's own monotonic clock

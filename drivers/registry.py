@@ -1,15 +1,17 @@
 """Driver name → implementation, imported only when chosen (ARCHITECTURE rule 2).
 
 A driver whose SDK is missing fails when, and only when, it is selected, with one
-message that says what to install.
+message that says what to install. The names here are the names the settings accept
+(``robot``, ``force``, ``camera``): adding a device is its folder, its class (built by
+its ``from_settings``) and one line below.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Final
+from typing import Final, Literal, overload
 
-from drivers.base import DriverUnavailable
+from drivers.base import DriverUnavailable, ForceSensor, Robot, StereoCamera
 
 # kind → name → (module, class)
 DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
@@ -20,6 +22,11 @@ DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
     "force": {
         "sim": ("drivers.force.sim", "SimForceSensor"),
         "netft": ("drivers.force.netft", "NetFtSensor"),
+    },
+    "camera": {
+        "sim": ("drivers.camera.sim", "SimStereoCamera"),
+        "opencv": ("drivers.camera.opencv", "OpenCVStereoCamera"),
+        "opencv-sbs": ("drivers.camera.opencv", "OpenCVSideBySideCamera"),
     },
     "master": {
         "sim": ("drivers.master.sim", "SimMaster"),
@@ -32,6 +39,14 @@ def driver_names(kind: str) -> list[str]:
     return sorted(DRIVERS.get(kind, {}))
 
 
+@overload
+def load_driver(kind: Literal["robot"], name: str) -> type[Robot]: ...
+@overload
+def load_driver(kind: Literal["force"], name: str) -> type[ForceSensor]: ...
+@overload
+def load_driver(kind: Literal["camera"], name: str) -> type[StereoCamera]: ...
+@overload
+def load_driver(kind: str, name: str) -> type: ...
 def load_driver(kind: str, name: str) -> type:
     """The class implementing driver ``name`` of ``kind`` (robot, force, camera …)."""
     try:

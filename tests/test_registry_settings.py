@@ -45,7 +45,7 @@ def test_settings_from_env_toml_and_overrides(
 def test_bad_settings_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ValidationError, match="home_pose must be one of"):
         Settings(home_pose="qx")
-    with pytest.raises(ValidationError):
-        Settings(robot="kuka")  # type: ignore[arg-type]
+    with pytest.raises(ValidationError, match=r"unknown robot driver 'kuka' \(known: sim, val\)"):
+        Settings(robot="kuka")
     with pytest.raises(FileNotFoundError):
         load_settings(tmp_path / "missing.toml")

@@ -47,8 +47,8 @@ def _state(sensor: ForceSensor) -> ForceState:
         threshold=sensor.threshold,
         filter_cutoff_hz=sensor.filter_cutoff_hz,
         latest=None if s is None else Sample(seq=s.seq, time=s.time, values=list(s.values)),
-        counters=dict(getattr(sensor, "counters", {})),
-        error=getattr(sensor, "error", None),
+        counters=dict(sensor.counters),
+        error=sensor.error,
     )
 
 

@@ -108,8 +108,7 @@ async def state(robot: RobotDep, decision: DecisionDep) -> RobotState:
 
 @router.get("/model")
 async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
-    kin = getattr(robot, "kinematics", None)
-    tool = kin.tool.tolist() if kin is not None else np.eye(4).tolist()
+    tool = robot.kinematics.tool.tolist()
     return RobotModel(
         name="PUMA 560",
         dh=[DHRow(d=d, a=a, alpha=alpha) for d, a, alpha in DH],

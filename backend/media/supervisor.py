@@ -85,12 +85,8 @@ class MediaSupervisor:
             future.set_result(msg)
 
     def _publish_arm(self) -> None:
-        snapshot = getattr(self.robot, "snapshot", None)
-        if callable(snapshot):
-            s = snapshot()
-            values = [s.time, *s.joints.tolist(), *s.velocities.tolist()]
-        else:
-            values = [asyncio.get_running_loop().time(), *self.robot.joints.tolist(), *([0.0] * 6)]
+        s = self.robot.snapshot()
+        values = [s.time, *s.joints.tolist(), *s.velocities.tolist()]
         with self._arm.get_lock():
             np.frombuffer(self._arm.get_obj(), dtype=np.float64)[:] = values
 

@@ -18,8 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from backend.devices import build_camera
 from backend.settings import Settings
-from drivers.base import ArmSnapshot, StereoCamera, TelerobotError
+from drivers.base import ArmSnapshot, TelerobotError
 
 log = logging.getLogger(__name__)
 
@@ -33,27 +34,6 @@ def shared_arm_probe(arm: Any) -> Callable[[], ArmSnapshot]:
         return ArmSnapshot(float(values[0]), values[1:7], values[7:13])
 
     return probe
-
-
-def build_camera(settings: Settings, probe: Callable[[], ArmSnapshot]) -> StereoCamera:
-    w, h, fps = settings.video_width, settings.video_height, settings.video_fps
-    devices: list[int | str] = [int(d) if d.isdigit() else d for d in settings.camera_devices]
-    if settings.camera == "opencv":
-        from drivers.camera.opencv import OpenCVStereoCamera
-
-        return OpenCVStereoCamera(devices[0], devices[1], width=w, height=h, fps=fps)
-    if settings.camera == "opencv-sbs":
-        from drivers.camera.opencv import OpenCVSideBySideCamera
-
-        return OpenCVSideBySideCamera(devices[0], width=w, height=h, fps=fps)
-    from backend.devices import build_workcell
-    from drivers.camera.sim import SimStereoCamera
-    from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
-
-    cell = build_workcell(settings)
-    return SimStereoCamera(
-        cell, probe, Puma560Kinematics(tool_transform(settings.tool_length)), fps=fps
-    )
 
 
 def worker_main(conn: multiprocessing.connection.Connection, settings_json: str, arm: Any) -> None:
@@ -130,13 +110,7 @@ async def _serve(conn: multiprocessing.connection.Connection, settings: Settings
             elif op == "keyframe":
                 pipeline.broadcaster.request_keyframe()  # shared and rate-limited like any
             elif op == "board":
-                show = getattr(camera, "show_board", None)
-                if show is None:
-                    raise TelerobotError(
-                        "only the simulated camera can show a board: hold a printed ChArUco "
-                        "board in front of the real cameras instead"
-                    )
-                show(req.get("view"))
+                camera.show_board(req.get("view"))
             else:
                 raise TelerobotError(f"unknown media request {op!r}")
             reply["ok"] = True

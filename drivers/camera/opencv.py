@@ -10,18 +10,39 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Self
 
 import cv2
 import numpy as np
 
-from drivers.base import CameraStatus, StereoFrame
+from drivers.base import CameraStatus, DeviceContext, StereoFrame, TelerobotError
 from drivers.camera.slot import FrameSlot
 from drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 
 Device = int | str  # a device index, a /dev/video path, or a video file/URL
+
+
+@dataclass(frozen=True)
+class OpenCVConfig:
+    """What the OpenCV cameras read from the settings."""
+
+    devices: tuple[Device, ...] = (0, 1)  # stereo: left, right; side by side: the first
+    width: int = 1280  # of one eye
+    height: int = 720
+    fps: float = 30.0
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        return cls(
+            devices=tuple(int(d) if d.isdigit() else d for d in settings["camera_devices"]),
+            width=int(settings["video_width"]),
+            height=int(settings["video_height"]),
+            fps=float(settings["video_fps"]),
+        )
 
 
 class _OpenCVCapture:
@@ -48,6 +69,12 @@ class _OpenCVCapture:
         self.retries = 0
         self.last_skew = 0.0
 
+    @classmethod
+    def default_rig(cls, settings: Mapping[str, Any]) -> str:
+        """The driver and its devices: each rig of real cameras keeps its calibration."""
+        devices = "-".join(str(d).strip("/").replace("/", "_") for d in settings["camera_devices"])
+        return f"{settings['camera']}-{devices}"[:64]
+
     @property
     def status(self) -> CameraStatus:
         return self._status
@@ -55,6 +82,12 @@ class _OpenCVCapture:
     @property
     def status_message(self) -> str:
         return self._message
+
+    def show_board(self, view: int | None) -> None:
+        raise TelerobotError(
+            "only the simulated camera can show a board: hold a printed ChArUco "
+            "board in front of the real cameras instead"
+        )
 
     def _fail(self, message: str) -> None:
         if self._status is not CameraStatus.FAILED or self._message != message:
@@ -154,6 +187,11 @@ class OpenCVStereoCamera(_OpenCVCapture):
         self.devices = (left, right)
         self._caps: list[cv2.VideoCapture] = []
 
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        c = OpenCVConfig.from_settings(settings)
+        return cls(c.devices[0], c.devices[1], width=c.width, height=c.height, fps=c.fps)
+
     def _open(self) -> None:
         self._close()
         self._caps = [_open_capture(d, self.width, self.height, self.fps) for d in self.devices]
@@ -199,6 +237,11 @@ class OpenCVSideBySideCamera(_OpenCVCapture):
         super().__init__(width=width, height=height, fps=fps, **kw)  # type: ignore[arg-type]
         self.device = device
         self._cap: cv2.VideoCapture | None = None
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        c = OpenCVConfig.from_settings(settings)
+        return cls(c.devices[0], width=c.width, height=c.height, fps=c.fps)
 
     def _open(self) -> None:
         self._close()

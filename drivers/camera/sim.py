@@ -13,12 +13,14 @@ from __future__ import annotations
 import itertools
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Self
 
 import cv2
 import numpy as np
 
-from drivers.base import ArmSnapshot, CameraStatus, StereoFrame
+from drivers.base import ArmSnapshot, CameraStatus, DeviceContext, StereoFrame
 from drivers.camera import timecode
 from drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
 from drivers.camera.slot import FrameSlot
@@ -52,6 +54,18 @@ def _shade(colour: tuple[int, int, int], k: float) -> tuple[int, int, int]:
     return (int(colour[0] * k), int(colour[1] * k), int(colour[2] * k))
 
 
+@dataclass(frozen=True)
+class SimStereoCameraConfig:
+    """What ``SimStereoCamera`` reads from the settings (its image size is the
+    workcell's cameras', made for the video's size)."""
+
+    fps: float = 30.0
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        return cls(fps=float(settings["video_fps"]))
+
+
 class SimStereoCamera:
     name = "sim-stereo"
 
@@ -81,6 +95,16 @@ class SimStereoCamera:
         self._status = CameraStatus.STOPPED
         self._background = np.concatenate([self._render_static(c) for c in self.cameras], axis=1)
         self.render_ms = 0.0  # last frame's render time
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        """The workcell's ground-truth pair, drawing the arm the context follows."""
+        config = SimStereoCameraConfig.from_settings(settings)
+        return cls(context.workcell(), context.arm_probe, context.kinematics(), fps=config.fps)
+
+    @classmethod
+    def default_rig(cls, settings: Mapping[str, Any]) -> str:
+        return "sim"
 
     # ------------------------------------------------------------ status
     @property

@@ -14,9 +14,11 @@ from __future__ import annotations
 import logging
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Self
 
-from drivers.base import InvalidCommand
+from drivers.base import DeviceContext, InvalidCommand
 from drivers.force import netft_protocol as rdt
 from drivers.force.pipeline import Six
 from drivers.force.sampled import SampledForceSensor
@@ -35,6 +37,26 @@ def parse_address(address: str) -> tuple[str, int]:
     if not host or not 0 < number < 65536:
         raise InvalidCommand(f"Net F/T address must be HOST or HOST:PORT, got {address!r}")
     return host, number
+
+
+@dataclass(frozen=True)
+class NetFtConfig:
+    """What ``NetFtSensor`` reads from the settings: the sensor's address, its
+    calibration (from its web page) and the rate it is set to stream at."""
+
+    address: str = f"192.168.1.1:{rdt.RDT_PORT}"
+    counts_per_force: float = rdt.COUNTS_PER_FORCE
+    counts_per_torque: float = rdt.COUNTS_PER_TORQUE
+    rate_hz: float = 1000.0
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        return cls(
+            address=str(settings["netft_address"]),
+            counts_per_force=float(settings["netft_counts_per_force"]),
+            counts_per_torque=float(settings["netft_counts_per_torque"]),
+            rate_hz=float(settings["force_rate_hz"]),
+        )
 
 
 class NetFtSensor(SampledForceSensor):
@@ -69,6 +91,16 @@ class NetFtSensor(SampledForceSensor):
         self.silences = 0  # times the sensor fell silent
         self.error: str | None = None  # what is wrong now (None once data flows again)
         self.last_error: str | None = None
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        config = NetFtConfig.from_settings(settings)
+        return cls(
+            config.address,
+            counts_per_force=config.counts_per_force,
+            counts_per_torque=config.counts_per_torque,
+            rate_hz=config.rate_hz,
+        )
 
     @property
     def counters(self) -> dict[str, int]:

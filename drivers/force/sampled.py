@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from drivers.base import ForceSample
 from drivers.force.pipeline import ForcePipeline, Six
@@ -20,6 +20,12 @@ log = logging.getLogger(__name__)
 class SampledForceSensor:
     name = "force"
     thread_name = "force-sensor"
+    error: str | None = None  # what is wrong now; a simulated sensor has no faults
+
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """The driver's counters (received, lost …); none unless a subclass keeps some."""
+        return {}
 
     def __init__(self, rate_hz: float) -> None:
         self._pipeline = ForcePipeline(ForcePipeline.check_rate(rate_hz))

@@ -15,11 +15,13 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any, Self
 
 import numpy as np
 
-from drivers.base import ArmSnapshot, ForceSample
+from drivers.base import ArmSnapshot, DeviceContext, ForceSample
+from drivers.force.config_sim import SimForceConfig
 from drivers.force.pipeline import Six
 from drivers.force.sampled import SampledForceSensor
 from drivers.robot.puma560.kinematics import Puma560Kinematics
@@ -59,6 +61,14 @@ class SimForceSensor(SampledForceSensor):
         # the offset is expressed in tool axes: R_toolᵀ p_tool.
         tool = kinematics.tool
         self._tool_offset = (tool[:3, :3].T @ tool[:3, 3]).tolist()
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        """Feels the arm the context follows in the context's workcell."""
+        config = SimForceConfig.from_settings(settings)
+        return cls(
+            context.workcell(), context.arm_probe, context.kinematics(), rate_hz=config.rate_hz
+        )
 
     # ------------------------------------------------------------ physics
     def read_raw(self, t: float) -> Six:

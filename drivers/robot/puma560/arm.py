@@ -9,6 +9,9 @@ how joint targets reach the arm and how positions come back
 Relative moves accumulate on the last commanded target, not on the last measured
 position, so a stream of small increments sent while the arm is still moving is
 never lost nor applied twice.
+
+``PumaConfig`` is what every PUMA driver reads from the settings; a driver's own
+config extends it beside its class.
 """
 
 from __future__ import annotations
@@ -16,10 +19,14 @@ from __future__ import annotations
 import asyncio
 import logging
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Self
 
 import numpy as np
 
 from drivers.base import (
+    ArmSnapshot,
     DeviceError,
     FloatArray,
     InvalidCommand,
@@ -46,6 +53,21 @@ log = logging.getLogger(__name__)
 _ACCEPTS_MOVES = (RobotStatus.READY, RobotStatus.MOVING)
 
 
+@dataclass(frozen=True)
+class PumaConfig:
+    """What every PUMA 560 driver reads from the settings."""
+
+    home_pose: str = "qn"  # a named pose (NAMED_POSES) the arm initialises to
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        return cls(home_pose=str(settings["home_pose"]))
+
+    @property
+    def home(self) -> FloatArray:
+        return NAMED_POSES[self.home_pose].copy()
+
+
 class PumaArm(ABC):
     name = "puma560"
 
@@ -70,6 +92,7 @@ class PumaArm(ABC):
         self._status = RobotStatus.NOT_CONNECTED
         self._status_message = "not connected"
         self._target: FloatArray | None = None  # model joints last commanded
+        self._reported: ArmSnapshot | None = None  # where the arm last reported it was
         self._idle = asyncio.Event()
         self._idle.set()
 
@@ -124,6 +147,15 @@ class PumaArm(ABC):
     def target_joints(self) -> FloatArray:
         return self.joints if self._target is None else self._target.copy()
 
+    def snapshot(self) -> ArmSnapshot:
+        """Where the arm last reported it was ("moved" events), safe to read from any
+        thread (one reference swapped); a driver that knows the joints' velocities
+        overrides this (here they are zero)."""
+        snap = self._reported
+        if snap is None:  # nothing reported yet: where the arm is now
+            snap = self._reported = ArmSnapshot(0.0, self.joints, np.zeros(6))
+        return snap
+
     @property
     def joint_offsets(self) -> FloatArray:
         """Joint-angle corrections: model angle = controller angle + offset."""
@@ -135,6 +167,7 @@ class PumaArm(ABC):
             raise NotReady("joint corrections cannot change while the arm moves")
         self._offsets = check_vector("joint_offsets", offsets, 6)
         self._target = None
+        self._reported = None  # the same arm, other model angles
 
     def _set_status(self, status: RobotStatus, message: str = "") -> None:
         if status is self._status and message == self._status_message:
@@ -155,9 +188,9 @@ class PumaArm(ABC):
 
     def _report_moved(self) -> None:
         q = self.joints
-        self.events.moved.emit(
-            RobotMoved(q, Pose.from_matrix(self.kinematics.fk(q)), self.clock.now())
-        )
+        now = self.clock.now()
+        self._reported = ArmSnapshot(now, q, np.zeros(6))
+        self.events.moved.emit(RobotMoved(q, Pose.from_matrix(self.kinematics.fk(q)), now))
 
     def _motion_finished(self) -> None:
         self._report_moved()

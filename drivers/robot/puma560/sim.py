@@ -14,13 +14,22 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Mapping
+from typing import Any, Self
 
 import numpy as np
 
-from drivers.base import ArmSnapshot, FloatArray, RobotStatus, StopCategory, StopSpec
+from drivers.base import (
+    ArmSnapshot,
+    DeviceContext,
+    FloatArray,
+    RobotStatus,
+    StopCategory,
+    StopSpec,
+)
 from drivers.clock import Clock
 from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX, JointMotion
-from drivers.robot.puma560.arm import PumaArm
+from drivers.robot.puma560.arm import PumaArm, PumaConfig
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, check_vector
 
 
@@ -54,6 +63,15 @@ class SimPuma(PumaArm):
         self.report_period = report_period
         self._reporter: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        config = PumaConfig.from_settings(settings)
+        return cls(kinematics=context.kinematics(), clock=context.clock, home=config.home)
+
+    @classmethod
+    def describe(cls, settings: Mapping[str, Any]) -> str:
+        return "the simulation"
 
     def _sync(self) -> None:
         now = self.clock.now()

@@ -30,12 +30,15 @@ import contextlib
 import logging
 import math
 import threading
-from dataclasses import replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, Self
 
 import numpy as np
 import serial
 
 from drivers.base import (
+    DeviceContext,
     DeviceError,
     FloatArray,
     SerialSettings,
@@ -46,7 +49,7 @@ from drivers.base import (
 from drivers.clock import Clock
 from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX
 from drivers.robot.puma560 import val_protocol as vp
-from drivers.robot.puma560.arm import PumaArm
+from drivers.robot.puma560.arm import PumaArm, PumaConfig
 from drivers.robot.puma560.kinematics import Puma560Kinematics
 
 log = logging.getLogger(__name__)
@@ -54,6 +57,24 @@ log = logging.getLogger(__name__)
 _MIN_INCREMENT_DEG = 0.00005  # below VAL's 4-decimal resolution: nothing to send
 # VAL sends the joint servos a new set point every 28 ms: an ABORT acts within one.
 VAL_TRAJECTORY_CYCLE_S = 0.028
+
+
+@dataclass(frozen=True)
+class ValSerialConfig(PumaConfig):
+    """What ``ValSerialPuma`` reads from the settings: the home pose and the link."""
+
+    serial: SerialSettings = field(default_factory=SerialSettings)
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        return cls(
+            home_pose=str(settings["home_pose"]),
+            serial=SerialSettings(
+                port=str(settings["serial_port"]),
+                baudrate=int(settings["serial_baudrate"]),
+                reply_timeout=float(settings["serial_reply_timeout"]),
+            ),
+        )
 
 
 class ValSerialPuma(PumaArm):
@@ -90,6 +111,17 @@ class ValSerialPuma(PumaArm):
         self._on_wire: int | None = None  # seq of the increment sent and not yet DONE
         self._aborting = False  # ABORT sent; its prompt not yet handled
         self._abort_prompt = False  # …and its prompt has arrived
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        config = ValSerialConfig.from_settings(settings)
+        return cls(
+            config.serial, kinematics=context.kinematics(), clock=context.clock, home=config.home
+        )
+
+    @classmethod
+    def describe(cls, settings: Mapping[str, Any]) -> str:
+        return f"the {settings['robot']} robot on {settings['serial_port']}"
 
     @property
     def stop_spec(self) -> StopSpec:
