@@ -1,8 +1,12 @@
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable
+import time
+from collections.abc import Awaitable, Iterator
 from typing import TypeVar
+
+import pytest
+from fastapi.testclient import TestClient
 
 from drivers.clock import ManualClock
 
@@ -40,3 +44,22 @@ async def run_with_clock(
         await clock.advance(step)
         elapsed += step
     return task.result()
+
+
+@pytest.fixture
+def client() -> Iterator[TestClient]:
+    """The app on the simulation (at qz), in process, once the arm is READY."""
+    from backend.app import create_app
+    from backend.settings import Settings
+    from tests.test_decision import TOKEN
+
+    with TestClient(
+        create_app(Settings(home_pose="qz", operator_token=TOKEN)), base_url="http://localhost"
+    ) as tc:
+        deadline = time.monotonic() + 10
+        while (
+            tc.get("/api/v1/robot/state").json()["status"] != "READY"
+            and time.monotonic() < deadline
+        ):
+            time.sleep(0.01)
+        yield tc

@@ -3,30 +3,13 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
-from backend.settings import Settings
 from tests.test_decision import TOKEN
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
-
-
-@pytest.fixture
-def client() -> Iterator[TestClient]:
-    with TestClient(
-        create_app(Settings(home_pose="qz", operator_token=TOKEN)), base_url="http://localhost"
-    ) as tc:
-        deadline = time.monotonic() + 5
-        while (
-            tc.get("/api/v1/robot/state").json()["status"] != "READY"
-            and time.monotonic() < deadline
-        ):
-            time.sleep(0.01)
-        yield tc
 
 
 def lease(client: TestClient) -> dict[str, str]:

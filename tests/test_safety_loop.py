@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 
-from backend.control.decision import NotAllowed, SafetyStop
+from backend.control.decision import DecisionServer, NotAllowed, SafetyStop
 from drivers.base import ForceSample
 from drivers.clock import ManualClock
 from drivers.force.sampled import SampledForceSensor
@@ -33,12 +33,18 @@ class ThreadedForceSource(SampledForceSensor):
         thread.join()
 
 
-async def test_the_force_limit_stops_the_arm_with_no_transport_running() -> None:
-    clock = ManualClock()
-    ds, _ = await make(clock)
+async def started_with_a_sensor() -> tuple[DecisionServer, ThreadedForceSource]:
+    """A DecisionServer on the simulated arm, running its own loop, fed by a sensor
+    thread, and no transport at all."""
+    ds, _ = await make(ManualClock())
     sensor = ThreadedForceSource()
     ds.force = sensor
     ds.start()
+    return ds, sensor
+
+
+async def test_the_force_limit_stops_the_arm_with_no_transport_running() -> None:
+    ds, sensor = await started_with_a_sensor()
     try:
         op = ds.join("script", TOKEN)
         await ds.take_lease(op.id)
@@ -78,11 +84,7 @@ async def test_the_dead_man_lapses_a_silent_lease_with_no_transport_running() ->
 
 
 async def test_a_sample_below_the_limit_changes_nothing() -> None:
-    clock = ManualClock()
-    ds, _ = await make(clock)
-    sensor = ThreadedForceSource()
-    ds.force = sensor
-    ds.start()
+    ds, sensor = await started_with_a_sensor()
     try:
         sensor.press((0.0, 0.0, 5.0, 0.0, 0.0, 0.0))
         await asyncio.sleep(0.02)

@@ -4,26 +4,22 @@ all joints together, and ends within the time and distance the server states
 
 from __future__ import annotations
 
-import time
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
 from backend.control.decision import DecisionServer
 from backend.control.limits import SafetyLimits, full_speed_stop_s, stopping
-from backend.settings import Settings
 from drivers.base import StopCategory
 from drivers.clock import ManualClock
 from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX, cartesian_stop, stop_time
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.robot.puma560.sim import SimPuma
 from tests.conftest import run_with_clock
+from tests.test_decision import TOKEN
 
-TOKEN = "operator-token-for-tests-0123456789"
 LOW = np.array([0.5, 0.9, -2.6, 0.3, 0.5, 0.0])  # bench.stopping's second pose
 
 
@@ -134,20 +130,6 @@ def test_at_a_singularity_the_joint_speed_limits_bound_the_stop() -> None:
     kin = Puma560Kinematics(tool_transform(0.1))
     time_s, _ = cartesian_stop(kin.jacobian(NAMED_POSES["qz"]), 0.25, PUMA_STOP_DECEL, PUMA_VMAX)
     assert 0 < time_s <= stop_time(PUMA_VMAX, PUMA_STOP_DECEL) + 1e-12
-
-
-@pytest.fixture
-def client() -> Iterator[TestClient]:
-    with TestClient(
-        create_app(Settings(home_pose="qz", operator_token=TOKEN)), base_url="http://localhost"
-    ) as tc:
-        deadline = time.monotonic() + 10
-        while (
-            tc.get("/api/v1/robot/state").json()["status"] != "READY"
-            and time.monotonic() < deadline
-        ):
-            time.sleep(0.02)
-        yield tc
 
 
 def test_get_safety_states_the_stop_category_and_the_stopping_figures(client: TestClient) -> None:
