@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-web screenshots lint typecheck unit browser-deps web web-check bench clean
+.PHONY: run test test-web screenshots lint typecheck unit browser-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/vite.config.ts web/tsconfig.json
 
@@ -38,6 +38,11 @@ test-web: $(STAMP) browser-deps web
 ## make screenshots: the operator page's views, saved into docs/img for the README
 screenshots: $(STAMP) browser-deps web
 	TELEROBOT_SCREENSHOTS=docs/img $(BIN)/python -m pytest -q tests/test_web.py -k screenshots
+
+## make types: regenerate the web client's types from the server (binary messages, REST schema)
+types: $(STAMP) web/node_modules/.installed
+	$(BIN)/python -m backend.realtime.typescript > web/src/transport/messages.ts
+	$(BIN)/python -m backend.api.openapi_ts
 
 web-check: web/node_modules/.installed
 	cd web && npm run --silent lint && npm run --silent typecheck && npm run --silent test

@@ -215,11 +215,3 @@ def test_every_message_layout_is_documented() -> None:
         assert row in doc, f"docs/protocol.md lacks the row for {msg.name}: {row}"
         assert f"`<B{msg.fmt}`" in doc, f"docs/protocol.md has a stale layout for {msg.name}"
     assert struct.calcsize("<Id6d") == m.FORCE_SAMPLE.size == 60
-
-
-def test_typescript_messages_are_generated_from_the_python_definitions() -> None:
-    from backend.realtime.typescript import TARGET, render
-
-    assert TARGET.read_text() == render(), (
-        "run: python -m backend.realtime.typescript > web/src/transport/messages.ts"
-    )

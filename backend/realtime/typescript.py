@@ -1,6 +1,14 @@
 """Generates web/src/transport/messages.ts from ``messages.py`` (ARCHITECTURE rule 5):
-``python -m backend.realtime.typescript`` prints it; a test fails when the committed
-file differs."""
+``python -m backend.realtime.typescript`` prints it; a test (tests/test_web_types.py)
+fails when the committed file differs.
+
+The file holds, for every message, its layout table (what the codec reads and writes)
+and a TypeScript interface of its decoded fields, with a discriminated union of them
+keyed by ``type`` (as viser's ``_typescript_interface_gen.py`` does): renaming a field
+here makes ``tsc`` fail wherever the web client still uses the old name. The robot
+status list (STATE's ``status`` index) comes from ``drivers.base.RobotStatus`` in the
+order the hub encodes it.
+"""
 
 from __future__ import annotations
 
@@ -10,13 +18,24 @@ import struct
 from pathlib import Path
 
 from backend.realtime import messages as m
+from backend.realtime.hub import STATUS_INDEX
 
 KINDS = {"B": ("u8", 1), "H": ("u16", 2), "I": ("u32", 4), "d": ("f64", 8)}
+TS_TYPES = {
+    "u8": "number",
+    "u16": "number",
+    "u32": "number",
+    "f64": "number",
+    "bytes": "Uint8Array",
+}
 TARGET = Path(__file__).resolve().parents[2] / "web" / "src" / "transport" / "messages.ts"
+# Keys the decoded message has besides its fields: no field may be called so.
+RESERVED = ("type", "text", "samples")
 
 
 def field_specs(msg: m.Message) -> list[dict[str, object]]:
-    specs, offset, names = [], 1, iter(msg.fields)
+    specs: list[dict[str, object]] = []
+    offset, names = 1, iter(msg.fields)
     for count, code in re.findall(r"(\d*)([BHIds])", msg.fmt):
         n = int(count or 1)
         if code == "s":
@@ -28,7 +47,32 @@ def field_specs(msg: m.Message) -> list[dict[str, object]]:
             specs.append({"name": next(names), "kind": kind, "offset": offset, "size": size})
             offset += size
     assert offset == msg.size, msg.name
+    assert not set(msg.fields) & set(RESERVED), f"{msg.name}: a field is named {RESERVED}"
     return specs
+
+
+def interface_name(msg: m.Message) -> str:
+    """``CART_INC`` → ``CartIncMessage``."""
+    return "".join(part.capitalize() for part in msg.name.split("_")) + "Message"
+
+
+def interface(msg: m.Message) -> list[str]:
+    direction = "client → server" if msg.type_id < 0x80 else "server → client"
+    lines = [
+        f"/** {msg.name} (0x{msg.type_id:02x}, {direction}): {msg.doc} */",
+        f"export interface {interface_name(msg)} {{",
+        f'  readonly type: "{msg.name}";',
+    ]
+    for spec in field_specs(msg):
+        kind, size = spec["kind"], spec["size"]
+        note = f"{size} bytes, zero-padded" if kind == "bytes" else kind
+        lines.append(f"  {spec['name']}: {TS_TYPES[str(kind)]}; // {note}")
+    if msg.tail == "text":
+        lines.append("  text: string; // UTF-8 to the end")
+    elif msg.tail == "samples":
+        lines.append("  samples: ForceSample[]; // u16 count, then the samples")
+    lines.append("}")
+    return lines
 
 
 HEADER = """\
@@ -40,10 +84,19 @@ export type FieldKind = "u8" | "u16" | "u32" | "f64" | "bytes";
 export interface FieldSpec {{
   readonly name: string; readonly kind: FieldKind; readonly offset: number; readonly size: number
 }}
-export interface MessageSpec {{
-  readonly name: string; readonly typeId: number; readonly size: number;
+export interface MessageSpec<N extends string = string> {{
+  readonly name: N; readonly typeId: number; readonly size: number;
   readonly tail: "" | "text" | "samples"; readonly fields: readonly FieldSpec[]
 }}
+"""
+
+UNION_HELPERS = """\
+export type Message = ClientMessage | ServerMessage;
+export type MessageName = Message["type"];
+/** The decoded message called `N`. */
+export type MessageOf<N extends MessageName> = Extract<Message, { readonly type: N }>;
+/** What `encode` takes for message `N`: its fixed fields (a text tail is passed apart). */
+export type FieldsOf<N extends MessageName> = Omit<MessageOf<N>, "type" | "text" | "samples">;
 """
 
 
@@ -58,22 +111,39 @@ def render() -> str:
             "fields": field_specs(msg),
         }
         out.append(f"/** {msg.doc} */")
-        out.append(f"export const {msg.name}: MessageSpec = {json.dumps(spec)};")
+        out.append(f'export const {msg.name}: MessageSpec<"{msg.name}"> = {json.dumps(spec)};')
     out.append("")
     names = ", ".join(x.name for x in m.MESSAGES)
-    out.append(f"export const MESSAGES: readonly MessageSpec[] = [{names}];")
+    out.append(f"export const MESSAGES: readonly MessageSpec<MessageName>[] = [{names}];")
+    assert m.FORCE_SAMPLE.format == "<Id6d", "ForceSample below describes <Id6d"
     out.append(
         f"export const FORCE_SAMPLE_SIZE = {m.FORCE_SAMPLE.size}; // u32 seq, f64 time, 6 × f64"
     )
+    out.append("")
+    out.append("/** One sample of a FORCE message: Fx Fy Fz (N), Tx Ty Tz (N·m). */")
+    out.append("export interface ForceSample {")
+    out.append("  seq: number; // u32")
+    out.append("  time: number; // f64, the sensor's clock (s)")
+    out.append("  values: number[]; // 6 × f64")
+    out.append("}")
+    out.append("")
+    out.append("// Decoded messages: one interface each, and their union keyed by `type`.")
+    for msg in m.MESSAGES:
+        out.extend(interface(msg))
+    for union, from_server in (("ClientMessage", False), ("ServerMessage", True)):
+        chosen = (x for x in m.MESSAGES if (x.type_id >= 0x80) == from_server)
+        members = "".join(f"\n  | {interface_name(x)}" for x in chosen)
+        out.append(f"export type {union} ={members};")
+    out.append(UNION_HELPERS)
     for enum in (m.Frame, m.LeaseAction, m.HelloFlags, m.StateFlags, m.Ack, m.EventKind):
         members = ", ".join(f"{e.name}: {e.value}" for e in enum)
         out.append(f"export const {enum.__name__} = {{ {members} }} as const;")
     out.append(f"export const ERROR_CODES = {json.dumps(m.ERROR_CODES)} as const;")
-    out.append(
-        "export const ROBOT_STATUS = "
-        + json.dumps(["NOT_CONNECTED", "CONNECTED", "WAITING", "READY", "MOVING", "ERROR"])
-        + " as const;"
-    )
+    statuses = sorted(STATUS_INDEX, key=STATUS_INDEX.__getitem__)
+    assert [STATUS_INDEX[s] for s in statuses] == list(range(len(statuses)))
+    out.append("/** STATE's `status` is an index into this list (drivers.base.RobotStatus). */")
+    out.append(f"export const ROBOT_STATUS = {json.dumps([s.value for s in statuses])} as const;")
+    out.append("export type RobotStatusName = (typeof ROBOT_STATUS)[number];")
     assert struct.calcsize("<Id6d") == m.FORCE_SAMPLE.size
     return "\n".join(out) + "\n"
 

@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import { decode, decodeForce, encode } from "./transport/codec";
-import { CART_INC, ERROR } from "./transport/messages";
+import { CART_INC, HELLO, PROTOCOL_VERSION } from "./transport/messages";
 
 // Byte vectors made by the Python definitions (backend/realtime/messages.py).
 const hex = (s: string) => new Uint8Array(s.match(/../g)!.map((b) => parseInt(b, 16))).buffer;
@@ -17,11 +17,19 @@ describe("binary protocol", () => {
   });
 
   it("decodes the server's messages", () => {
-    const e = decode(hex(ERR));
-    expect(e.spec).toBe(ERROR);
-    expect(e.fields).toEqual({ seq: 9, code: 6 });
-    expect(e.text).toBe("outside the workspace");
-    expect(decodeForce(hex(FORCE))).toEqual([{ seq: 5, time: 2.25, values: [1, 2, 3, 4, 5, 6] }]);
+    expect(decode(hex(ERR))).toEqual({ type: "ERROR", seq: 9, code: 6, text: "outside the workspace" });
+    const samples = [{ seq: 5, time: 2.25, values: [1, 2, 3, 4, 5, 6] }];
+    expect(decodeForce(hex(FORCE))).toEqual(samples);
+    expect(decode(hex(FORCE))).toEqual({ type: "FORCE", samples });
+  });
+
+  it("narrows the decoded union by its type", () => {
+    const msg = decode(encode(HELLO, { version: PROTOCOL_VERSION, flags: 1, token: new TextEncoder().encode("abc") }));
+    if (msg.type !== "HELLO") throw new Error(`decoded ${msg.type}`);
+    expect([msg.version, msg.flags]).toEqual([PROTOCOL_VERSION, 1]);
+    expect(new TextDecoder().decode(msg.token.subarray(0, 4))).toBe("abc\0");
+    // @ts-expect-error: CART_INC has no field "dq1" (a renamed field fails to compile)
+    encode(CART_INC, { seq: 1, client_time: 0, frame: 0, dx: 0, dy: 0, dz: 0, rx: 0, ry: 0, rz: 0, dq1: 0 });
   });
 
   it("refuses what it cannot read", () => {

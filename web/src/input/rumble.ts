@@ -36,3 +36,24 @@ export class Rumble {
     }
   }
 }
+
+/** The contact force as rumble on the gamepad and on the XR controller, each paced on
+ * its own; `strength` is read when a pulse may be due. */
+export class ContactRumble {
+  readonly pad = new Rumble();
+  readonly xr = new Rumble();
+
+  constructor(private readonly strength: () => number) {}
+
+  set enabled(on: boolean) {
+    this.pad.enabled = this.xr.enabled = on;
+  }
+
+  drivePad(now: number, pad: Gamepad | null): void {
+    this.pad.drive(now, this.strength(), [pad]);
+  }
+
+  driveXR(now: number, gamepad: Gamepad): void {
+    this.xr.drive(now, this.strength(), [gamepad]);
+  }
+}

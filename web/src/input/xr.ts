@@ -3,6 +3,30 @@
 // again re-anchors). Jumps in tracking are ignored rather than sent.
 import type { Vec3 } from "../robot/math";
 
+export type Quat = [number, number, number, number]; // x y z w
+
+/** The driving controller in one XR frame. */
+export interface XRControllerReading {
+  /** The grip (squeeze) is held and the position is tracked, not estimated. */
+  gripping: boolean;
+  position: Vec3; // XR space, metres
+  orientation: Quat;
+  gamepad: Gamepad;
+}
+
+/** The right-hand controller (else the first with a grip and buttons), or null. */
+export function readController(frame: XRFrame, space: XRReferenceSpace): XRControllerReading | null {
+  const sources = Array.from(frame.session.inputSources).filter((s) => s.gripSpace && s.gamepad);
+  const source = sources.find((s) => s.handedness === "right") ?? sources[0];
+  if (!source?.gripSpace || !source.gamepad) return null;
+  const pose = frame.getPose(source.gripSpace, space);
+  // xr-standard mapping: button 1 is the squeeze. An emulated (lost) position is no grip.
+  const gripping = (source.gamepad.buttons[1]?.pressed ?? false) && !!pose && !pose.emulatedPosition;
+  const p = pose?.transform.position ?? { x: 0, y: 0, z: 0 };
+  const o = pose?.transform.orientation ?? { x: 0, y: 0, z: 0, w: 1 };
+  return { gripping, position: [p.x, p.y, p.z], orientation: [o.x, o.y, o.z, o.w], gamepad: source.gamepad };
+}
+
 export interface XRDelta {
   dX: Vec3; // robot base frame, metres
   rotvec: Vec3;

@@ -2,18 +2,14 @@
 // the server (read from /api/v1/robot/model), forward kinematics, and a predicted
 // tool pose that integrates every command the moment it is sent and is corrected
 // when the server reports where the arm actually is.
+import type { Schema } from "../api";
 import { type Mat4, type Vec3, identity4, inverseRigid, mul3, mul4, pose, position, rotation, rotvecToMatrix } from "./math";
 
-export interface DHRow {
-  d: number;
-  a: number;
-  alpha: number;
-}
-export interface RobotModelInfo {
-  dh: DHRow[];
-  tool: number[][];
-}
-export type FrameName = "base" | "wrist" | "tool";
+// As GET /api/v1/robot/model gives them (the server's OpenAPI schema).
+export type DHRow = Schema<"DHRow">;
+export type RobotModelInfo = Pick<Schema<"RobotModel">, "dh" | "tool">;
+/** The frame Cartesian increments are expressed in (the server's WorkingFrame). */
+export type FrameName = Schema<"WorkingFrame">;
 
 export function dhTransform(q: number, row: DHRow): Mat4 {
   const ct = Math.cos(q);

@@ -1,30 +1,32 @@
 // Encode and decode the binary messages described by the generated `messages.ts`.
-import { FORCE, FORCE_SAMPLE_SIZE, MESSAGES, type MessageSpec } from "./messages";
+// Both are typed by the generated interfaces: `encode(CART_INC, {...})` needs exactly
+// CART_INC's fields, and `decode` returns the union of decoded messages keyed by `type`.
+import {
+  FORCE,
+  FORCE_SAMPLE_SIZE,
+  MESSAGES,
+  type FieldsOf,
+  type ForceSample,
+  type Message,
+  type MessageName,
+  type MessageSpec,
+} from "./messages";
 
+export type { ForceSample, Message } from "./messages";
 export type FieldValue = number | Uint8Array;
-export interface Decoded {
-  spec: MessageSpec;
-  fields: Record<string, number>;
-  bytes: Record<string, Uint8Array>;
-  text: string;
-}
-export interface ForceSample {
-  seq: number;
-  time: number;
-  values: number[];
-}
 
-const BY_ID = new Map(MESSAGES.map((m) => [m.typeId, m]));
+const BY_ID = new Map<number, MessageSpec<MessageName>>(MESSAGES.map((m) => [m.typeId, m]));
 const utf8 = new TextEncoder();
 const fromUtf8 = new TextDecoder();
 
-export function encode(spec: MessageSpec, values: Record<string, FieldValue>, text = ""): ArrayBuffer {
+export function encode<N extends MessageName>(spec: MessageSpec<N>, values: FieldsOf<N>, text = ""): ArrayBuffer {
+  const byName = values as unknown as Record<string, FieldValue | undefined>;
   const tail = spec.tail === "text" ? utf8.encode(text) : new Uint8Array();
   const buffer = new ArrayBuffer(spec.size + tail.length);
   const view = new DataView(buffer);
   view.setUint8(0, spec.typeId);
   for (const f of spec.fields) {
-    const v = values[f.name] ?? 0;
+    const v = byName[f.name] ?? 0;
     if (f.kind === "bytes") {
       const bytes = v instanceof Uint8Array ? v : new Uint8Array();
       new Uint8Array(buffer, f.offset, f.size).set(bytes.subarray(0, f.size));
@@ -39,28 +41,33 @@ export function encode(spec: MessageSpec, values: Record<string, FieldValue>, te
   return buffer;
 }
 
-export function decode(data: ArrayBuffer): Decoded {
+/** One message from the server (or any known type): its fields by name, `type` its name,
+ * `text` for a message with a text tail, `samples` for FORCE. */
+export function decode(data: ArrayBuffer): Message {
   const view = new DataView(data);
   if (data.byteLength === 0) throw new Error("empty message");
   const spec = BY_ID.get(view.getUint8(0));
   if (!spec) throw new Error(`unknown message type 0x${view.getUint8(0).toString(16)}`);
-  const fields: Record<string, number> = {};
-  const bytes: Record<string, Uint8Array> = {};
-  if (spec.tail !== "samples" && data.byteLength < spec.size) throw new Error(`${spec.name} is too short`);
+  if (spec.tail === "samples") return { type: "FORCE", samples: decodeForce(data) };
+  if (data.byteLength < spec.size) throw new Error(`${spec.name} is too short`);
+  // The layout table and the interfaces are generated from the same Python definitions:
+  // the object built from the table is the interface of `spec.name`.
+  const out: Record<string, FieldValue | string> = { type: spec.name };
   for (const f of spec.fields) {
-    if (f.kind === "bytes") bytes[f.name] = new Uint8Array(data, f.offset, f.size);
-    else if (f.kind === "u8") fields[f.name] = view.getUint8(f.offset);
-    else if (f.kind === "u16") fields[f.name] = view.getUint16(f.offset, true);
-    else if (f.kind === "u32") fields[f.name] = view.getUint32(f.offset, true);
-    else fields[f.name] = view.getFloat64(f.offset, true);
+    if (f.kind === "bytes") out[f.name] = new Uint8Array(data, f.offset, f.size);
+    else if (f.kind === "u8") out[f.name] = view.getUint8(f.offset);
+    else if (f.kind === "u16") out[f.name] = view.getUint16(f.offset, true);
+    else if (f.kind === "u32") out[f.name] = view.getUint32(f.offset, true);
+    else out[f.name] = view.getFloat64(f.offset, true);
   }
-  const text = spec.tail === "text" ? fromUtf8.decode(new Uint8Array(data, spec.size)) : "";
-  return { spec, fields, bytes, text };
+  if (spec.tail === "text") out.text = fromUtf8.decode(new Uint8Array(data, spec.size));
+  return out as unknown as Message;
 }
 
 export function decodeForce(data: ArrayBuffer): ForceSample[] {
   const view = new DataView(data);
   if (view.getUint8(0) !== FORCE.typeId) throw new Error("not a FORCE message");
+  if (data.byteLength < 3) throw new Error("FORCE has the wrong size");
   const count = view.getUint16(1, true);
   if (data.byteLength !== 3 + count * FORCE_SAMPLE_SIZE) throw new Error("FORCE has the wrong size");
   const out: ForceSample[] = [];

@@ -6,44 +6,206 @@ export type FieldKind = "u8" | "u16" | "u32" | "f64" | "bytes";
 export interface FieldSpec {
   readonly name: string; readonly kind: FieldKind; readonly offset: number; readonly size: number
 }
-export interface MessageSpec {
-  readonly name: string; readonly typeId: number; readonly size: number;
+export interface MessageSpec<N extends string = string> {
+  readonly name: N; readonly typeId: number; readonly size: number;
   readonly tail: "" | "text" | "samples"; readonly fields: readonly FieldSpec[]
 }
 
 /** first message; the operator token (printable ASCII, ≤ 64 bytes) zero-padded, or empty */
-export const HELLO: MessageSpec = {"name": "HELLO", "typeId": 1, "size": 69, "tail": "", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "flags", "kind": "u16", "offset": 3, "size": 2}, {"name": "token", "kind": "bytes", "offset": 5, "size": 64}]};
+export const HELLO: MessageSpec<"HELLO"> = {"name": "HELLO", "typeId": 1, "size": 69, "tail": "", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "flags", "kind": "u16", "offset": 3, "size": 2}, {"name": "token", "kind": "bytes", "offset": 5, "size": 64}]};
 /** ΔX (m) and ΔM as a rotation vector (rad) in the given frame */
-export const CART_INC: MessageSpec = {"name": "CART_INC", "typeId": 2, "size": 62, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}, {"name": "frame", "kind": "u8", "offset": 13, "size": 1}, {"name": "dx", "kind": "f64", "offset": 14, "size": 8}, {"name": "dy", "kind": "f64", "offset": 22, "size": 8}, {"name": "dz", "kind": "f64", "offset": 30, "size": 8}, {"name": "rx", "kind": "f64", "offset": 38, "size": 8}, {"name": "ry", "kind": "f64", "offset": 46, "size": 8}, {"name": "rz", "kind": "f64", "offset": 54, "size": 8}]};
+export const CART_INC: MessageSpec<"CART_INC"> = {"name": "CART_INC", "typeId": 2, "size": 62, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}, {"name": "frame", "kind": "u8", "offset": 13, "size": 1}, {"name": "dx", "kind": "f64", "offset": 14, "size": 8}, {"name": "dy", "kind": "f64", "offset": 22, "size": 8}, {"name": "dz", "kind": "f64", "offset": 30, "size": 8}, {"name": "rx", "kind": "f64", "offset": 38, "size": 8}, {"name": "ry", "kind": "f64", "offset": 46, "size": 8}, {"name": "rz", "kind": "f64", "offset": 54, "size": 8}]};
 /** joint increments (rad) */
-export const JOINT_INC: MessageSpec = {"name": "JOINT_INC", "typeId": 3, "size": 61, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}, {"name": "dq1", "kind": "f64", "offset": 13, "size": 8}, {"name": "dq2", "kind": "f64", "offset": 21, "size": 8}, {"name": "dq3", "kind": "f64", "offset": 29, "size": 8}, {"name": "dq4", "kind": "f64", "offset": 37, "size": 8}, {"name": "dq5", "kind": "f64", "offset": 45, "size": 8}, {"name": "dq6", "kind": "f64", "offset": 53, "size": 8}]};
+export const JOINT_INC: MessageSpec<"JOINT_INC"> = {"name": "JOINT_INC", "typeId": 3, "size": 61, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}, {"name": "dq1", "kind": "f64", "offset": 13, "size": 8}, {"name": "dq2", "kind": "f64", "offset": 21, "size": 8}, {"name": "dq3", "kind": "f64", "offset": 29, "size": 8}, {"name": "dq4", "kind": "f64", "offset": 37, "size": 8}, {"name": "dq5", "kind": "f64", "offset": 45, "size": 8}, {"name": "dq6", "kind": "f64", "offset": 53, "size": 8}]};
 /** keeps the dead-man satisfied (any message does) */
-export const HEARTBEAT: MessageSpec = {"name": "HEARTBEAT", "typeId": 4, "size": 13, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}]};
+export const HEARTBEAT: MessageSpec<"HEARTBEAT"> = {"name": "HEARTBEAT", "typeId": 4, "size": 13, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}]};
 /** latched stop; anyone may send it */
-export const ESTOP: MessageSpec = {"name": "ESTOP", "typeId": 5, "size": 13, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}]};
+export const ESTOP: MessageSpec<"ESTOP"> = {"name": "ESTOP", "typeId": 5, "size": 13, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "client_time", "kind": "f64", "offset": 5, "size": 8}]};
 /** clock sync: the client's send time */
-export const PING: MessageSpec = {"name": "PING", "typeId": 6, "size": 13, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}]};
+export const PING: MessageSpec<"PING"> = {"name": "PING", "typeId": 6, "size": 13, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}]};
 /** take, release or take over control */
-export const LEASE: MessageSpec = {"name": "LEASE", "typeId": 7, "size": 6, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "action", "kind": "u8", "offset": 5, "size": 1}]};
+export const LEASE: MessageSpec<"LEASE"> = {"name": "LEASE", "typeId": 7, "size": 6, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "action", "kind": "u8", "offset": 5, "size": 1}]};
 /** clear a latched e-stop (the client in control) */
-export const RESET: MessageSpec = {"name": "RESET", "typeId": 8, "size": 5, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
+export const RESET: MessageSpec<"RESET"> = {"name": "RESET", "typeId": 8, "size": 5, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
 /** role 1 = operator; text = client id */
-export const WELCOME: MessageSpec = {"name": "WELCOME", "typeId": 129, "size": 12, "tail": "text", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "role", "kind": "u8", "offset": 3, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 4, "size": 8}]};
+export const WELCOME: MessageSpec<"WELCOME"> = {"name": "WELCOME", "typeId": 129, "size": 12, "tail": "text", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "role", "kind": "u8", "offset": 3, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 4, "size": 8}]};
 /** robot state; status: index in RobotStatus order; flags: StateFlags */
-export const STATE: MessageSpec = {"name": "STATE", "typeId": 130, "size": 159, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "server_time", "kind": "f64", "offset": 5, "size": 8}, {"name": "status", "kind": "u8", "offset": 13, "size": 1}, {"name": "flags", "kind": "u8", "offset": 14, "size": 1}, {"name": "q1", "kind": "f64", "offset": 15, "size": 8}, {"name": "q2", "kind": "f64", "offset": 23, "size": 8}, {"name": "q3", "kind": "f64", "offset": 31, "size": 8}, {"name": "q4", "kind": "f64", "offset": 39, "size": 8}, {"name": "q5", "kind": "f64", "offset": 47, "size": 8}, {"name": "q6", "kind": "f64", "offset": 55, "size": 8}, {"name": "x", "kind": "f64", "offset": 63, "size": 8}, {"name": "y", "kind": "f64", "offset": 71, "size": 8}, {"name": "z", "kind": "f64", "offset": 79, "size": 8}, {"name": "r00", "kind": "f64", "offset": 87, "size": 8}, {"name": "r01", "kind": "f64", "offset": 95, "size": 8}, {"name": "r02", "kind": "f64", "offset": 103, "size": 8}, {"name": "r10", "kind": "f64", "offset": 111, "size": 8}, {"name": "r11", "kind": "f64", "offset": 119, "size": 8}, {"name": "r12", "kind": "f64", "offset": 127, "size": 8}, {"name": "r20", "kind": "f64", "offset": 135, "size": 8}, {"name": "r21", "kind": "f64", "offset": 143, "size": 8}, {"name": "r22", "kind": "f64", "offset": 151, "size": 8}]};
+export const STATE: MessageSpec<"STATE"> = {"name": "STATE", "typeId": 130, "size": 159, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "server_time", "kind": "f64", "offset": 5, "size": 8}, {"name": "status", "kind": "u8", "offset": 13, "size": 1}, {"name": "flags", "kind": "u8", "offset": 14, "size": 1}, {"name": "q1", "kind": "f64", "offset": 15, "size": 8}, {"name": "q2", "kind": "f64", "offset": 23, "size": 8}, {"name": "q3", "kind": "f64", "offset": 31, "size": 8}, {"name": "q4", "kind": "f64", "offset": 39, "size": 8}, {"name": "q5", "kind": "f64", "offset": 47, "size": 8}, {"name": "q6", "kind": "f64", "offset": 55, "size": 8}, {"name": "x", "kind": "f64", "offset": 63, "size": 8}, {"name": "y", "kind": "f64", "offset": 71, "size": 8}, {"name": "z", "kind": "f64", "offset": 79, "size": 8}, {"name": "r00", "kind": "f64", "offset": 87, "size": 8}, {"name": "r01", "kind": "f64", "offset": 95, "size": 8}, {"name": "r02", "kind": "f64", "offset": 103, "size": 8}, {"name": "r10", "kind": "f64", "offset": 111, "size": 8}, {"name": "r11", "kind": "f64", "offset": 119, "size": 8}, {"name": "r12", "kind": "f64", "offset": 127, "size": 8}, {"name": "r20", "kind": "f64", "offset": 135, "size": 8}, {"name": "r21", "kind": "f64", "offset": 143, "size": 8}, {"name": "r22", "kind": "f64", "offset": 151, "size": 8}]};
 /** u16 count, then count × (u32 seq, f64 time, 6 × f64) */
-export const FORCE: MessageSpec = {"name": "FORCE", "typeId": 131, "size": 1, "tail": "samples", "fields": []};
+export const FORCE: MessageSpec<"FORCE"> = {"name": "FORCE", "typeId": 131, "size": 1, "tail": "samples", "fields": []};
 /** something happened; text says what */
-export const EVENT: MessageSpec = {"name": "EVENT", "typeId": 132, "size": 10, "tail": "text", "fields": [{"name": "kind", "kind": "u8", "offset": 1, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 2, "size": 8}]};
+export const EVENT: MessageSpec<"EVENT"> = {"name": "EVENT", "typeId": 132, "size": 10, "tail": "text", "fields": [{"name": "kind", "kind": "u8", "offset": 1, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 2, "size": 8}]};
 /** the command with this seq was refused; nothing moved */
-export const ERROR: MessageSpec = {"name": "ERROR", "typeId": 133, "size": 7, "tail": "text", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "code", "kind": "u16", "offset": 5, "size": 2}]};
+export const ERROR: MessageSpec<"ERROR"> = {"name": "ERROR", "typeId": 133, "size": 7, "tail": "text", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "code", "kind": "u16", "offset": 5, "size": 2}]};
 /** the command reached the driver at server_time */
-export const ACK: MessageSpec = {"name": "ACK", "typeId": 134, "size": 14, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "result", "kind": "u8", "offset": 5, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 6, "size": 8}]};
+export const ACK: MessageSpec<"ACK"> = {"name": "ACK", "typeId": 134, "size": 14, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "result", "kind": "u8", "offset": 5, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 6, "size": 8}]};
 /** t0 echoed, t1 server receive, t2 server send */
-export const PONG: MessageSpec = {"name": "PONG", "typeId": 135, "size": 29, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}, {"name": "t1", "kind": "f64", "offset": 13, "size": 8}, {"name": "t2", "kind": "f64", "offset": 21, "size": 8}]};
+export const PONG: MessageSpec<"PONG"> = {"name": "PONG", "typeId": 135, "size": 29, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}, {"name": "t1", "kind": "f64", "offset": 13, "size": 8}, {"name": "t2", "kind": "f64", "offset": 21, "size": 8}]};
 
-export const MESSAGES: readonly MessageSpec[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
+export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
 export const FORCE_SAMPLE_SIZE = 60; // u32 seq, f64 time, 6 × f64
+
+/** One sample of a FORCE message: Fx Fy Fz (N), Tx Ty Tz (N·m). */
+export interface ForceSample {
+  seq: number; // u32
+  time: number; // f64, the sensor's clock (s)
+  values: number[]; // 6 × f64
+}
+
+// Decoded messages: one interface each, and their union keyed by `type`.
+/** HELLO (0x01, client → server): first message; the operator token (printable ASCII, ≤ 64 bytes) zero-padded, or empty */
+export interface HelloMessage {
+  readonly type: "HELLO";
+  version: number; // u16
+  flags: number; // u16
+  token: Uint8Array; // 64 bytes, zero-padded
+}
+/** CART_INC (0x02, client → server): ΔX (m) and ΔM as a rotation vector (rad) in the given frame */
+export interface CartIncMessage {
+  readonly type: "CART_INC";
+  seq: number; // u32
+  client_time: number; // f64
+  frame: number; // u8
+  dx: number; // f64
+  dy: number; // f64
+  dz: number; // f64
+  rx: number; // f64
+  ry: number; // f64
+  rz: number; // f64
+}
+/** JOINT_INC (0x03, client → server): joint increments (rad) */
+export interface JointIncMessage {
+  readonly type: "JOINT_INC";
+  seq: number; // u32
+  client_time: number; // f64
+  dq1: number; // f64
+  dq2: number; // f64
+  dq3: number; // f64
+  dq4: number; // f64
+  dq5: number; // f64
+  dq6: number; // f64
+}
+/** HEARTBEAT (0x04, client → server): keeps the dead-man satisfied (any message does) */
+export interface HeartbeatMessage {
+  readonly type: "HEARTBEAT";
+  seq: number; // u32
+  client_time: number; // f64
+}
+/** ESTOP (0x05, client → server): latched stop; anyone may send it */
+export interface EstopMessage {
+  readonly type: "ESTOP";
+  seq: number; // u32
+  client_time: number; // f64
+}
+/** PING (0x06, client → server): clock sync: the client's send time */
+export interface PingMessage {
+  readonly type: "PING";
+  seq: number; // u32
+  t0: number; // f64
+}
+/** LEASE (0x07, client → server): take, release or take over control */
+export interface LeaseMessage {
+  readonly type: "LEASE";
+  seq: number; // u32
+  action: number; // u8
+}
+/** RESET (0x08, client → server): clear a latched e-stop (the client in control) */
+export interface ResetMessage {
+  readonly type: "RESET";
+  seq: number; // u32
+}
+/** WELCOME (0x81, server → client): role 1 = operator; text = client id */
+export interface WelcomeMessage {
+  readonly type: "WELCOME";
+  version: number; // u16
+  role: number; // u8
+  server_time: number; // f64
+  text: string; // UTF-8 to the end
+}
+/** STATE (0x82, server → client): robot state; status: index in RobotStatus order; flags: StateFlags */
+export interface StateMessage {
+  readonly type: "STATE";
+  seq: number; // u32
+  server_time: number; // f64
+  status: number; // u8
+  flags: number; // u8
+  q1: number; // f64
+  q2: number; // f64
+  q3: number; // f64
+  q4: number; // f64
+  q5: number; // f64
+  q6: number; // f64
+  x: number; // f64
+  y: number; // f64
+  z: number; // f64
+  r00: number; // f64
+  r01: number; // f64
+  r02: number; // f64
+  r10: number; // f64
+  r11: number; // f64
+  r12: number; // f64
+  r20: number; // f64
+  r21: number; // f64
+  r22: number; // f64
+}
+/** FORCE (0x83, server → client): u16 count, then count × (u32 seq, f64 time, 6 × f64) */
+export interface ForceMessage {
+  readonly type: "FORCE";
+  samples: ForceSample[]; // u16 count, then the samples
+}
+/** EVENT (0x84, server → client): something happened; text says what */
+export interface EventMessage {
+  readonly type: "EVENT";
+  kind: number; // u8
+  server_time: number; // f64
+  text: string; // UTF-8 to the end
+}
+/** ERROR (0x85, server → client): the command with this seq was refused; nothing moved */
+export interface ErrorMessage {
+  readonly type: "ERROR";
+  seq: number; // u32
+  code: number; // u16
+  text: string; // UTF-8 to the end
+}
+/** ACK (0x86, server → client): the command reached the driver at server_time */
+export interface AckMessage {
+  readonly type: "ACK";
+  seq: number; // u32
+  result: number; // u8
+  server_time: number; // f64
+}
+/** PONG (0x87, server → client): t0 echoed, t1 server receive, t2 server send */
+export interface PongMessage {
+  readonly type: "PONG";
+  seq: number; // u32
+  t0: number; // f64
+  t1: number; // f64
+  t2: number; // f64
+}
+export type ClientMessage =
+  | HelloMessage
+  | CartIncMessage
+  | JointIncMessage
+  | HeartbeatMessage
+  | EstopMessage
+  | PingMessage
+  | LeaseMessage
+  | ResetMessage;
+export type ServerMessage =
+  | WelcomeMessage
+  | StateMessage
+  | ForceMessage
+  | EventMessage
+  | ErrorMessage
+  | AckMessage
+  | PongMessage;
+export type Message = ClientMessage | ServerMessage;
+export type MessageName = Message["type"];
+/** The decoded message called `N`. */
+export type MessageOf<N extends MessageName> = Extract<Message, { readonly type: N }>;
+/** What `encode` takes for message `N`: its fixed fields (a text tail is passed apart). */
+export type FieldsOf<N extends MessageName> = Omit<MessageOf<N>, "type" | "text" | "samples">;
+
 export const Frame = { BASE: 0, WRIST: 1, TOOL: 2 } as const;
 export const LeaseAction = { RELEASE: 0, TAKE: 1, TAKE_OVER: 2 } as const;
 export const HelloFlags = { EVERY_FORCE_SAMPLE: 1 } as const;
@@ -51,4 +213,6 @@ export const StateFlags = { YOU_HAVE_CONTROL: 1, SOMEONE_HAS_CONTROL: 2, ESTOP: 
 export const Ack = { APPLIED: 0, LIMITED: 1 } as const;
 export const EventKind = { STATUS: 1, LEASE: 2, SAFETY: 3, INFO: 4 } as const;
 export const ERROR_CODES = {"malformed": 1, "unknown_type": 2, "invalid_command": 3, "unreachable_pose": 4, "joint_limit": 5, "limit_exceeded": 6, "not_ready": 7, "not_allowed": 8, "safety_stop": 9, "device_error": 10, "telerobot_error": 11} as const;
+/** STATE's `status` is an index into this list (drivers.base.RobotStatus). */
 export const ROBOT_STATUS = ["NOT_CONNECTED", "CONNECTED", "WAITING", "READY", "MOVING", "ERROR"] as const;
+export type RobotStatusName = (typeof ROBOT_STATUS)[number];

@@ -1,11 +1,15 @@
 // The binary WebSocket channel (docs/protocol.md): hello, lease, commands,
 // heartbeat, e-stop, clock sync; state, forces, events, errors and acks in.
-import { decode, decodeForce, encode, type ForceSample } from "./codec";
+import { decode, encode, type ForceSample } from "./codec";
 import * as M from "./messages";
+import type { RobotStatusName, StateMessage } from "./messages";
 import { Rolling } from "../stats";
 
+/** Shown for a status index the generated list does not have. */
+export const UNKNOWN_STATUS = "?";
+
 export interface RobotState {
-  status: string;
+  status: RobotStatusName | typeof UNKNOWN_STATUS;
   joints: number[];
   position: [number, number, number];
   flags: number;
@@ -117,48 +121,38 @@ export class RealtimeClient {
   }
 
   private receive(data: ArrayBuffer): void {
-    const type = new DataView(data).getUint8(0);
-    if (type === M.FORCE.typeId) {
-      const samples = decodeForce(data);
-      this.forceInterval.tick(performance.now()); // per message: browsers get ~10 ms batches
-      this.handlers.forces?.(samples);
-      return;
-    }
     const msg = decode(data);
-    const f = msg.fields;
-    switch (msg.spec.name) {
+    switch (msg.type) {
+      case "FORCE":
+        this.forceInterval.tick(performance.now()); // per message: browsers get ~10 ms batches
+        this.handlers.forces?.(msg.samples);
+        break;
       case "WELCOME":
-        this.operator = f.role === 1;
+        this.operator = msg.role === 1;
         this.clientId = msg.text;
         break;
       case "STATE":
         this.stateInterval.tick(performance.now());
-        this.handlers.state?.({
-          status: M.ROBOT_STATUS[f.status ?? 0] ?? "?",
-          joints: [f.q1!, f.q2!, f.q3!, f.q4!, f.q5!, f.q6!],
-          position: [f.x!, f.y!, f.z!],
-          flags: f.flags ?? 0,
-          serverTime: f.server_time ?? 0,
-        });
+        this.handlers.state?.(robotState(msg));
         break;
       case "PONG": {
         const t3 = this.now();
-        const t0 = this.pendingPing.get(f.seq ?? 0);
+        const t0 = this.pendingPing.get(msg.seq);
         if (t0 !== undefined) {
-          this.pendingPing.delete(f.seq ?? 0);
-          const rtt = t3 - t0 - ((f.t2 ?? 0) - (f.t1 ?? 0));
+          this.pendingPing.delete(msg.seq);
+          const rtt = t3 - t0 - (msg.t2 - msg.t1);
           if (rtt < this.bestRtt) {
             this.bestRtt = rtt;
-            this.offset = ((f.t1 ?? 0) - t0 + ((f.t2 ?? 0) - t3)) / 2;
+            this.offset = (msg.t1 - t0 + (msg.t2 - t3)) / 2;
           }
         }
         break;
       }
       case "ACK": {
-        const sent = this.sentAt.get(f.seq ?? 0);
+        const sent = this.sentAt.get(msg.seq);
         if (sent !== undefined) {
-          this.sentAt.delete(f.seq ?? 0);
-          const latency = ((f.server_time ?? 0) - this.offset - sent) * 1000;
+          this.sentAt.delete(msg.seq);
+          const latency = (msg.server_time - this.offset - sent) * 1000;
           this.commandLatency.add(latency);
           this.handlers.ack?.(latency);
         }
@@ -168,8 +162,19 @@ export class RealtimeClient {
         this.handlers.event?.(msg.text);
         break;
       case "ERROR":
-        this.handlers.error?.(msg.text, f.seq ?? 0);
+        this.handlers.error?.(msg.text, msg.seq);
         break;
     }
   }
+}
+
+/** The page's view of a STATE message. */
+export function robotState(msg: StateMessage): RobotState {
+  return {
+    status: M.ROBOT_STATUS[msg.status] ?? UNKNOWN_STATUS,
+    joints: [msg.q1, msg.q2, msg.q3, msg.q4, msg.q5, msg.q6],
+    position: [msg.x, msg.y, msg.z],
+    flags: msg.flags,
+    serverTime: msg.server_time,
+  };
 }

@@ -1,0 +1,137 @@
+// The input → command loop. Every animation frame the gamepad and the keyboard become
+// Cartesian increments, sent only while the dead-man is held and this page holds the
+// lease; in an XR session the controller's grip (the dead-man there) does the same.
+// Also the lease requests (take, take over, release), the e-stop key and the frame.
+import type { Vec3 } from "../robot/math";
+import type { FrameName } from "../robot/model";
+import { Frame, LeaseAction, StateFlags } from "../transport/messages";
+import type { GamepadState } from "./gamepad";
+import { combine, type MotionCommand } from "./motion";
+import { XRMaster, type XRControllerReading } from "./xr";
+
+export const MAX_LINEAR = 0.1; // m/s at full deflection and speed 1
+export const MAX_ANGULAR = 0.5; // rad/s
+export const MAX_FRAME_S = 0.1; // a longer gap between frames moves no further than this
+/** Heartbeats start the moment we ask for control, before a STATE confirms it; after
+ * this long they go on only while we hold it. */
+export const WANT_CONTROL_MS = 2000;
+export const FRAMES: readonly FrameName[] = ["base", "wrist", "tool"];
+export const FRAME_IDS: Record<FrameName, number> = { base: Frame.BASE, wrist: Frame.WRIST, tool: Frame.TOOL };
+
+/** The realtime channel, as far as the loop uses it. */
+export interface CommandLink {
+  cartesian(dX: number[], rotvec: number[], frame: number): void;
+  lease(action: number): void;
+  wantControl(on: boolean): void;
+  estop(): void;
+}
+/** The local model that shows each command at once. */
+export interface CommandPredictor {
+  commandCartesian(dX: Vec3, rotvec: Vec3, frame: FrameName, now: number): void;
+}
+
+export const hasControl = (flags: number): boolean => (flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
+/** Take control, or take it over when someone else has it. */
+export const takeAction = (flags: number): number => ((flags & StateFlags.SOMEONE_HAS_CONTROL) !== 0 ? LeaseAction.TAKE_OVER : LeaseAction.TAKE);
+
+/** What `dt` seconds of `cmd` move at `speed` (0…1): null unless the dead-man is held
+ * and some axis is deflected. */
+export function increments(cmd: MotionCommand, speed: number, dt: number): { dX: Vec3; rotvec: Vec3 } | null {
+  const moving = cmd.linear.some((v) => v !== 0) || cmd.angular.some((v) => v !== 0);
+  if (!cmd.deadman || !moving) return null;
+  return {
+    dX: cmd.linear.map((v) => v * MAX_LINEAR * speed * dt) as Vec3,
+    rotvec: cmd.angular.map((v) => v * MAX_ANGULAR * speed * dt) as Vec3,
+  };
+}
+
+export interface InputLoopOptions {
+  link: CommandLink;
+  arm: CommandPredictor;
+  /** The latest STATE's flags (0 before the first). */
+  flags: () => number;
+  /** The speed setting, 0…1. */
+  speed: () => number;
+  gamepad: { read(): GamepadState };
+  keyboard: { read(): MotionCommand };
+  /** When the loop starts (ms, the clock `tick` is given). */
+  now: number;
+}
+
+export class InputLoop {
+  frame: FrameName = "base";
+  /** A key or the gamepad picked another frame. */
+  onFrameChange: ((frame: FrameName) => void) | null = null;
+  /** The inputs' state changed (which devices, the dead-man): for the page to show. */
+  onInputState: ((text: string) => void) | null = null;
+  private last: number;
+  private inputState = "";
+  private readonly xr = new XRMaster();
+
+  constructor(private readonly o: InputLoopOptions) {
+    this.last = o.now;
+  }
+
+  get hasControl(): boolean {
+    return hasControl(this.o.flags());
+  }
+
+  take(): void {
+    this.o.link.lease(takeAction(this.o.flags()));
+    this.o.link.wantControl(true);
+    setTimeout(() => this.o.link.wantControl(false), WANT_CONTROL_MS); // from then on: only while we hold it
+  }
+
+  release(): void {
+    this.o.link.wantControl(false);
+    this.o.link.lease(LeaseAction.RELEASE);
+  }
+
+  estop(): void {
+    this.o.link.estop();
+  }
+
+  /** A key went down (KeyboardEvent.code): Escape is the e-stop, 1/2/3 pick the frame. */
+  key(code: string): void {
+    if (code === "Escape") this.estop();
+    const digit = /^Digit([123])$/.exec(code);
+    if (digit) this.pickFrame(FRAMES[Number(digit[1]) - 1]!);
+  }
+
+  private pickFrame(frame: FrameName): void {
+    this.frame = frame;
+    this.onFrameChange?.(frame);
+  }
+
+  /** One animation frame at `now` (ms); gives the gamepad's state (for its rumble). */
+  tick(now: number): GamepadState {
+    const dt = Math.min(MAX_FRAME_S, (now - this.last) / 1000);
+    this.last = now;
+    const pad = this.o.gamepad.read();
+    if (pad.cycleFrame) this.pickFrame(FRAMES[(FRAMES.indexOf(this.frame) + 1) % FRAMES.length]!);
+    const cmd = combine(pad.command, this.o.keyboard.read());
+    const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
+    if (inputState !== this.inputState) this.onInputState?.((this.inputState = inputState));
+    const step = increments(cmd, this.o.speed(), dt);
+    if (step && this.hasControl) this.send(step.dX, step.rotvec, this.frame, now);
+    return pad;
+  }
+
+  /** One XR frame at `now` (ms): the controller that drives (null: none). While its grip
+   * is held, its motion since the last frame, scaled by the speed, moves the gripper. */
+  xrFrame(controller: XRControllerReading | null, now: number): void {
+    if (!controller) {
+      this.xr.update(false, [0, 0, 0], [0, 0, 0, 1], 0);
+      return;
+    }
+    const delta = this.xr.update(controller.gripping, controller.position, controller.orientation, now / 1000);
+    if (!delta || !this.hasControl) return;
+    const speed = this.o.speed();
+    this.send(delta.dX.map((v) => v * speed) as Vec3, delta.rotvec.map((v) => v * speed) as Vec3, "base", now);
+  }
+
+  private send(dX: Vec3, rotvec: Vec3, frame: FrameName, now: number): void {
+    this.o.link.cartesian(dX, rotvec, FRAME_IDS[frame]);
+    this.o.arm.commandCartesian(dX, rotvec, frame, now);
+  }
+}

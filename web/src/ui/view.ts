@@ -1,0 +1,45 @@
+// The View panel: the stereo mode (remembered), the AR ball's settings, VR, and the
+// link to the 3D view.
+import type { Api, MessageLog } from "../api";
+import { MODES, type Ball, type StereoView, type ViewMode } from "../view/stereo";
+import { $, numberIn } from "./dom";
+
+const MODE_KEY = "telerobot.mode";
+
+/** Fill the mode list, show the remembered mode; gives a function that switches it. */
+export function setupModes(view: StereoView): (mode: ViewMode) => void {
+  const select = $<HTMLSelectElement>("mode");
+  for (const m of MODES) select.add(new Option(m, m));
+  select.value = localStorage.getItem(MODE_KEY) ?? "side-by-side";
+  view.setMode(select.value as ViewMode);
+  select.onchange = () => {
+    view.setMode(select.value as ViewMode);
+    localStorage.setItem(MODE_KEY, select.value);
+  };
+  return (mode) => {
+    select.value = mode;
+    view.setMode(mode);
+  };
+}
+
+/** Draw the ball with the panel's settings (shown or not, colour, size). */
+export function showBall(view: StereoView, ball: Ball): void {
+  view.setBall(ball, $<HTMLInputElement>("ar").checked, $<HTMLInputElement>("ar-colour").value, numberIn("ar-size"));
+}
+
+export function setupXRButton(view: StereoView, log: MessageLog): void {
+  $("xr").onclick = () => view.enterXR().catch((e: Error) => log.add(e.message, true));
+}
+
+/** The 3D view (viser) is served on its own port of this host, when it runs. */
+export function link3dView(api: Api): void {
+  api
+    .request("get", "/api/v1/viewer")
+    .then((v) => {
+      if (v.port === null) return;
+      const link = $<HTMLAnchorElement>("view3d");
+      link.href = `http://${location.hostname}:${v.port}/`;
+      link.hidden = false;
+    })
+    .catch(() => undefined);
+}
