@@ -6,35 +6,9 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from backend.control.decision import LimitExceeded, NotAllowed, SafetyStop, StillMoving
-from backend.media.pipeline import BadOffer
-from backend.media.supervisor import MediaRequestFailed, MediaUnavailable
 from drivers.base import (
-    DeviceError,
-    DriverUnavailable,
-    InvalidCommand,
-    JointLimitError,
-    NotReady,
     TelerobotError,
-    UnreachablePose,
 )
-
-# Most specific first: the first class that matches gives the HTTP status.
-_STATUS: dict[type[TelerobotError], int] = {
-    NotAllowed: 403,
-    BadOffer: 400,
-    MediaUnavailable: 503,
-    StillMoving: 504,
-    SafetyStop: 409,
-    LimitExceeded: 422,
-    UnreachablePose: 422,
-    JointLimitError: 422,
-    InvalidCommand: 422,
-    NotReady: 409,
-    DeviceError: 503,
-    DriverUnavailable: 503,
-}
-
 
 MAX_LISTED_ERRORS = 10  # a validation answer lists this many problems at most
 
@@ -78,10 +52,7 @@ def validation_problem(exc: RequestValidationError) -> JSONResponse:
 def install_error_handlers(app: FastAPI) -> None:
     async def on_telerobot_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, TelerobotError)
-        status = next((s for cls, s in _STATUS.items() if isinstance(exc, cls)), 500)
-        if isinstance(exc, MediaRequestFailed):  # the worker's error, by its code
-            status = 400 if exc.code == BadOffer.code else 502
-        return problem(status, exc.code, str(exc))
+        return problem(exc.http_status, exc.code, str(exc))
 
     async def on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)

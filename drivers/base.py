@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
-from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,15 +32,31 @@ FloatArray = NDArray[np.float64]
 
 # ---------------------------------------------------------------- errors
 class TelerobotError(Exception):
-    """Base of every error a person may see; ``code`` is stable for clients."""
+    """Base of every error a person may see. Each class says once what it is on every
+    channel: ``code`` (stable, in problem+json and, mapped by ``messages.ERROR_CODES``,
+    on the wire) and ``http_status`` (what the REST API answers)."""
 
     code = "telerobot_error"
+    http_status: ClassVar[int] = 500
+
+    @classmethod
+    def with_code(cls, code: str) -> type[TelerobotError] | None:
+        """The most specific class of this family with ``code`` (an error that crossed
+        a process boundary by its code, e.g. from the media worker)."""
+        own = cls is TelerobotError or "code" in vars(cls)  # not one that inherits its code
+        found: type[TelerobotError] | None = cls if own and cls.code == code else None
+        for sub in cls.__subclasses__():
+            deeper = sub.with_code(code)
+            if deeper is not None:
+                found = deeper
+        return found
 
 
 class InvalidCommand(TelerobotError, ValueError):
     """The command itself is wrong (NaN, wrong size, not a rotation …); nothing moved."""
 
     code = "invalid_command"
+    http_status = 422
 
 
 class UnreachablePose(InvalidCommand):
@@ -59,18 +75,21 @@ class NotReady(TelerobotError):
     """The device is not in a state that accepts this command; nothing moved."""
 
     code = "not_ready"
+    http_status = 409
 
 
 class DeviceError(TelerobotError):
     """The device or its link failed (timeout, garbled reply, port gone)."""
 
     code = "device_error"
+    http_status = 503
 
 
 class DriverUnavailable(TelerobotError):
     """The chosen driver is unknown or its SDK is not installed."""
 
     code = "driver_unavailable"
+    http_status = 503
 
 
 # ---------------------------------------------------------------- robot

@@ -301,3 +301,21 @@ def test_numbers_enums_and_tuples_are_read_as_json_gives_them() -> None:
             {"space": "cartesian", "mode": "incremental", "position": [True, 0, 0]}
         )
     assert MoveRequest.model_validate({"space": "joint", "mode": "absolute", "wait": False})
+
+
+def test_every_error_class_says_its_http_status_and_code_once() -> None:
+    from backend.control.decision import NotAllowed, StillMoving
+    from backend.media.pipeline import NotYourPeer, ViewerLimitReached
+    from backend.media.supervisor import MediaRequestFailed
+    from drivers.base import InvalidCommand, TelerobotError
+
+    assert (NotAllowed.http_status, StillMoving.http_status) == (403, 504)
+    assert ViewerLimitReached.http_status == 503  # a MediaUnavailable
+    assert TelerobotError.with_code("not_your_peer") is NotYourPeer
+    assert TelerobotError.with_code("viewer_limit") is ViewerLimitReached
+    assert TelerobotError.with_code("invalid_command") is InvalidCommand
+    assert TelerobotError.with_code("no such code") is None
+    assert TelerobotError.with_code("telerobot_error") is TelerobotError  # not its heirs
+    assert MediaRequestFailed("media_error", "x").http_status == 502
+    for code in ("malformed", "not_allowed", "safety_stop", "limit_exceeded"):
+        assert code in m.ERROR_CODES  # the wire's numbers for the classes' codes

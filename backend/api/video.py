@@ -24,27 +24,12 @@ from backend.api.deps import (
     bearer_token,
 )
 from backend.api.requests import StrictRequest
-from backend.control.decision import NotAllowed
-from backend.media.pipeline import NotYourPeer, ViewerLimitReached
+from backend.media.pipeline import NotYourPeer
 from backend.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaUnavailable
-from drivers.base import TelerobotError
 
 router = APIRouter(tags=["video"])
 
 SECRET_MAX = 64  # a peer secret is 22 characters; anything longer is not one
-
-
-class PeerNotAllowed(NotAllowed):
-    """403: the peer is someone else's (the worker's ``NotYourPeer``)."""
-
-    code = NotYourPeer.code
-
-
-# The worker's errors that have a class (and so an HTTP status) of their own here.
-_WORKER_ERRORS: dict[str, type[TelerobotError]] = {
-    NotYourPeer.code: PeerNotAllowed,
-    ViewerLimitReached.code: ViewerLimitReached,  # 503
-}
 
 
 class SessionDescription(StrictRequest):
@@ -85,17 +70,6 @@ class VideoStatus(BaseModel):
     error: str | None = Field(None, description="why there are no stats right now")
 
 
-async def ask(media: MediaSupervisor, op: str, **fields: Any) -> dict[str, Any]:
-    """A media worker request, its refusals raised as their own classes (403, 503)."""
-    try:
-        return await media.request(op, **fields)
-    except MediaRequestFailed as exc:
-        cls = _WORKER_ERRORS.get(exc.code)
-        if cls is None:
-            raise
-        raise cls(str(exc)) from None
-
-
 def is_operator(decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]) -> bool:
     return decision.check_token(token)
 
@@ -114,7 +88,7 @@ async def video_stats(media: MediaSupervisor, peer_ids: bool) -> dict[str, Any]:
 async def offer(body: SessionDescription, media: MediaDep) -> PeerDescription:
     """Send the browser's offer (with a recvonly video transceiver); get the answer.
     ICE candidates are in the SDP (no trickle). Keep ``peer_secret``."""
-    reply = await ask(media, "answer", sdp=body.sdp, type=body.type)
+    reply = await media.request("answer", sdp=body.sdp, type=body.type)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
@@ -122,14 +96,13 @@ async def offer(body: SessionDescription, media: MediaDep) -> PeerDescription:
 async def server_offer(media: MediaDep) -> PeerDescription:
     """For browsers that need the server to offer: answer it with /webrtc/answer (with
     the ``peer_secret``) within a few seconds, or the offer is dropped."""
-    reply = await ask(media, "offer")
+    reply = await media.request("offer")
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/answer")
 async def answer(body: Answer, media: MediaDep) -> dict[str, str]:
-    await ask(
-        media,
+    await media.request(
         "accept",
         peer_id=body.peer_id,
         sdp=body.sdp,
@@ -147,8 +120,7 @@ async def close_peer(
     x_peer_secret: PeerSecret = None,
 ) -> dict[str, str]:
     """Close your own peer (header ``X-Peer-Secret``), or any (the operator token)."""
-    await ask(
-        media,
+    await media.request(
         "close_peer",
         peer_id=peer_id,
         peer_secret=x_peer_secret,
@@ -207,12 +179,11 @@ async def put_alignment(
     """Save this viewer's shift: with the ``X-Peer-Id`` and ``X-Peer-Secret`` of its
     live video peer (each peer saves one viewer name)."""
     if not x_peer_id or not x_peer_secret:
-        raise PeerNotAllowed(
+        raise NotYourPeer(
             "saving an alignment needs this page's video connection: send the headers"
             " X-Peer-Id and X-Peer-Secret with the peer_id and peer_secret of its offer"
         )
-    await ask(
-        media,
+    await media.request(
         "claim_viewer",
         peer_id=x_peer_id,
         peer_secret=x_peer_secret,

@@ -51,12 +51,14 @@ class NotAllowed(TelerobotError):
     """The client may not do this (observer, or someone else holds the lease)."""
 
     code = "not_allowed"
+    http_status = 403
 
 
 class SafetyStop(TelerobotError):
     """Motion is stopped by the e-stop or the force limit; nothing moved."""
 
     code = "safety_stop"
+    http_status = 409
 
 
 class LimitExceeded(InvalidCommand):
@@ -69,6 +71,7 @@ class StillMoving(TelerobotError):
     """A scripted move did not end within the time its caller would wait; it goes on."""
 
     code = "still_moving"
+    http_status = 504
 
 
 MAX_CLIENTS = 512  # joined clients (every /ws, priority or REST-lease client is one)

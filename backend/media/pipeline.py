@@ -42,6 +42,7 @@ class BadOffer(TelerobotError):
     """The session description cannot be used; the reason says why."""
 
     code = "bad_offer"
+    http_status = 400
 
 
 class ViewerLimitReached(MediaUnavailable):
@@ -55,6 +56,7 @@ class NotYourPeer(TelerobotError):
     (or the operator, with the operator token). The server answers 403."""
 
     code = "not_your_peer"
+    http_status = 403
 
 
 # Limits on the peers one media worker holds (ARCHITECTURE rule 18). Each peer costs

@@ -21,9 +21,14 @@ log = logging.getLogger(__name__)
 
 class MediaUnavailable(TelerobotError):
     code = "media_unavailable"
+    http_status = 503
 
 
 class MediaRequestFailed(TelerobotError):
+    """The media worker refused a request with an error this process has no class for."""
+
+    http_status = 502
+
     def __init__(self, code: str, message: str) -> None:
         super().__init__(message)
         self.code = code
@@ -130,9 +135,11 @@ class MediaSupervisor:
                 f"the media worker did not answer {op!r} within {timeout:g} s"
             ) from None
         if not reply.get("ok"):
-            raise MediaRequestFailed(
-                reply.get("code", "media_error"), reply.get("error", "unknown error")
-            )
+            code, text = reply.get("code", "media_error"), reply.get("error", "unknown error")
+            known = TelerobotError.with_code(code)  # the worker's error, as its own class
+            if known is not None and known is not TelerobotError:
+                raise known(text)
+            raise MediaRequestFailed(code, text)
         return reply
 
     async def stop(self) -> None:
