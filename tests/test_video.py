@@ -10,10 +10,16 @@ import numpy as np
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.media.pipeline import BadOffer, VideoPipeline, VideoSettings, no_signal_frame
-from drivers.base import ArmSnapshot
+from backend.media.pipeline import (
+    IDLE_POLL_S,
+    BadOffer,
+    VideoPipeline,
+    VideoSettings,
+    no_signal_frame,
+)
+from drivers.base import ArmSnapshot, StereoFrame
 from drivers.camera import timecode
-from drivers.camera.sim import FIDUCIAL_COLOURS, SimStereoCamera
+from drivers.camera.sim import FIDUCIAL_COLOURS, IDLE_AFTER_S, SimStereoCamera
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.sim.workcell import default_workcell
 
@@ -56,6 +62,43 @@ def test_newest_frame_wins_and_is_never_handed_out_twice() -> None:
     assert cam.next_frame(second.seq, timeout=0.01) is None  # nothing newer: no stale repeat
     assert first.seq < second.seq
     assert got.left.base is got.sbs and got.right.shape == got.left.shape  # views of one capture
+
+
+def test_the_simulated_camera_renders_only_while_someone_reads() -> None:
+    now = [100.0]
+    snap = ArmSnapshot(now[0], NAMED_POSES["qn"], np.zeros(6))
+    cam = SimStereoCamera(
+        default_workcell(**SMALL),
+        lambda: snap,
+        Puma560Kinematics(tool_transform(0.1)),
+        time_source=lambda: now[0],
+    )
+    assert not cam.wanted  # nobody has asked yet
+    assert cam.next_frame(0, timeout=0.0) is None  # a reader asks (nothing rendered yet)
+    assert cam.wanted
+    now[0] += IDLE_AFTER_S
+    assert cam.wanted
+    now[0] += 0.01
+    assert not cam.wanted  # the reader went away: the thread stops rendering
+
+
+async def test_the_pipeline_pulls_no_frames_without_a_viewer() -> None:
+    cam = camera(**SMALL)
+    asked: list[int] = []
+    real_next_frame = cam.next_frame
+
+    def next_frame(after_seq: int, timeout: float) -> StereoFrame | None:
+        asked.append(after_seq)
+        return real_next_frame(after_seq, timeout)
+
+    cam.next_frame = next_frame  # type: ignore[method-assign]
+    pipeline = VideoPipeline(cam, VideoSettings(fps=30))
+    pipeline.start()
+    try:
+        await asyncio.sleep(5 * IDLE_POLL_S)
+        assert asked == [] and not cam.wanted
+    finally:
+        await pipeline.close()
 
 
 def test_no_signal_frame_says_why() -> None:

@@ -95,6 +95,9 @@ class Peer:
         return secret is not None and secrets.compare_digest(self.secret.encode(), secret.encode())
 
 
+IDLE_POLL_S = 0.05  # with no viewer, how often the pipeline looks for one
+
+
 def no_signal_frame(width: int, height: int, message: str, seq: int, t: float) -> StereoFrame:
     """What viewers see while a camera is down: grey with the reason, in both eyes."""
     eye = np.full((height, width, 3), 40, np.uint8)
@@ -208,6 +211,11 @@ class VideoPipeline:
         loop = asyncio.get_running_loop()
         seq = 0
         while True:
+            if self.viewers == 0:
+                # Nobody to send to: pull no frames, so a camera that renders on demand
+                # (the simulated one) does not take ~10 % of a core from the force stream.
+                await asyncio.sleep(IDLE_POLL_S)
+                continue
             frame = await loop.run_in_executor(self._grab, self.camera.next_frame, seq, 0.5)
             if frame is None:
                 # No frame for 0.5 s: show viewers why, twice a second, until it is back.
