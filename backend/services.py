@@ -25,6 +25,7 @@ from backend.devices import build_force_sensor, build_robot, build_workcell, mak
 from backend.media.supervisor import MediaSupervisor
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
+from backend.realtime.ratelimit import PeerLimits
 from backend.security import state_dir
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
@@ -132,6 +133,7 @@ class Services:
     priority: PriorityChannel
     media: MediaSupervisor | None
     viewer: Viewer3D
+    ws_limits: PeerLimits = field(default_factory=PeerLimits)  # per address, on /ws
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
 
 

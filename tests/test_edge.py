@@ -19,7 +19,7 @@ from starlette.websockets import WebSocketDisconnect
 from backend.app import create_app
 from backend.edge import BODY_LIMITS, DEFAULT_BODY_LIMIT
 from backend.realtime import messages as m
-from backend.realtime.ratelimit import MALFORMED_IN_A_ROW, TokenBucket
+from backend.realtime.ratelimit import MALFORMED_IN_A_ROW, PeerLimits, TokenBucket
 from backend.security import redact_query_tokens
 from backend.settings import Settings
 from bench.common import telerobot_process
@@ -319,3 +319,18 @@ def test_every_error_class_says_its_http_status_and_code_once() -> None:
     assert MediaRequestFailed("media_error", "x").http_status == 502
     for code in ("malformed", "not_allowed", "safety_stop", "limit_exceeded"):
         assert code in m.ERROR_CODES  # the wire's numbers for the classes' codes
+
+
+def test_an_address_shares_one_budget_and_reconnecting_in_a_loop_is_refused() -> None:
+    limits = PeerLimits(connections_per_s=10.0, connection_burst=5, max_peers=3)
+    first = limits.connect("10.0.0.1", 0.0)
+    assert first is not None
+    assert limits.connect("10.0.0.1", 0.0) is first  # a new connection: the same budget
+    for _ in range(3):
+        assert limits.connect("10.0.0.1", 0.0) is not None
+    assert limits.connect("10.0.0.1", 0.0) is None  # the 6th at once
+    assert limits.refused_connections == 1
+    assert limits.connect("10.0.0.1", 0.1) is not None  # a token back after 0.1 s
+    for host in ("a", "b", "c"):  # the table keeps the 3 heard from last
+        limits.connect(host, 1.0)
+    assert limits.connect("10.0.0.1", 1.0) is not first  # forgotten: a fresh budget

@@ -10,6 +10,7 @@ nothing but malformed messages is closed.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 MESSAGES_PER_S = 1000.0  # 10× what any real client sends
@@ -51,3 +52,44 @@ class MalformedRun:
         """True when the client has sent ``limit`` malformed messages in a row."""
         self.count = self.count + 1 if malformed else 0
         return self.count >= self.limit
+
+
+CONNECTIONS_PER_S = 10.0  # new /ws connections a second from one address…
+CONNECTION_BURST = 50  # …after a burst (a page reloading, a test suite)
+MAX_PEERS = 1024  # addresses remembered; the one heard from longest ago goes first
+
+
+@dataclass
+class PeerLimits:
+    """Budgets per remote address, shared by all its connections: a client that is
+    closed for flooding and reconnects gets no fresh burst, and reconnecting itself is
+    rate-limited. The table is bounded (least recently seen address dropped)."""
+
+    messages_per_s: float = MESSAGES_PER_S
+    burst: float = BURST
+    connections_per_s: float = CONNECTIONS_PER_S
+    connection_burst: float = CONNECTION_BURST
+    max_peers: int = MAX_PEERS
+    _peers: OrderedDict[str, tuple[TokenBucket, TokenBucket]] = field(default_factory=OrderedDict)
+    refused_connections: int = 0
+
+    def _buckets(self, peer: str) -> tuple[TokenBucket, TokenBucket]:
+        buckets = self._peers.pop(peer, None)
+        if buckets is None:
+            buckets = (
+                TokenBucket(self.messages_per_s, self.burst),
+                TokenBucket(self.connections_per_s, self.connection_burst),
+            )
+        self._peers[peer] = buckets
+        while len(self._peers) > self.max_peers:
+            self._peers.popitem(last=False)
+        return buckets
+
+    def connect(self, peer: str, now: float) -> TokenBucket | None:
+        """The address's message budget, or None when it connects too often."""
+        messages, connections = self._buckets(peer)
+        if connections.take(now) > 0:
+            connections.tokens += 1.0  # refused: the attempt costs nothing more
+            self.refused_connections += 1
+            return None
+        return messages

@@ -13,7 +13,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from backend.api.deps import ServicesDep
 from backend.realtime import messages as m
-from backend.realtime.ratelimit import MalformedRun, TokenBucket
+from backend.realtime.ratelimit import MalformedRun
 from backend.realtime.session import Session, error
 from backend.security import origin_allowed
 from drivers.base import TelerobotError
@@ -34,9 +34,13 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
         log.warning("refused /ws from origin %s", websocket.headers.get("origin"))
         await websocket.close(code=1008, reason="origin not allowed")
         return
-    await websocket.accept()
     hub, decision = services.hub, services.decision
     peer = websocket.client
+    bucket = services.ws_limits.connect(peer.host if peer else "", hub.clock.now())
+    if bucket is None:  # reconnecting in a loop: refused before any work
+        await websocket.close(code=1013, reason="too many connections from your address")
+        return
+    await websocket.accept()
     try:
         hello = await asyncio.wait_for(websocket.receive_bytes(), HELLO_TIMEOUT_S)
         session = Session.open(
@@ -60,7 +64,7 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
     conn = session.conn
     conn.reply(session.welcome)
     session.attach()
-    bucket, garbage = TokenBucket(), MalformedRun()
+    garbage = MalformedRun()
     try:
         while not conn.closed:
             frame = await websocket.receive()
