@@ -19,7 +19,12 @@ from starlette.websockets import WebSocketDisconnect
 from backend.app import create_app
 from backend.edge import BODY_LIMITS, DEFAULT_BODY_LIMIT
 from backend.realtime import messages as m
-from backend.realtime.ratelimit import MALFORMED_IN_A_ROW, PeerLimits, TokenBucket
+from backend.realtime.ratelimit import (
+    MALFORMED_COST,
+    MALFORMED_IN_A_ROW,
+    PeerLimits,
+    TokenBucket,
+)
 from backend.security import redact_query_tokens
 from backend.settings import Settings
 from bench.common import telerobot_process
@@ -334,3 +339,10 @@ def test_an_address_shares_one_budget_and_reconnecting_in_a_loop_is_refused() ->
     for host in ("a", "b", "c"):  # the table keeps the 3 heard from last
         limits.connect(host, 1.0)
     assert limits.connect("10.0.0.1", 1.0) is not first  # forgotten: a fresh budget
+
+
+def test_garbage_costs_more_of_the_budget_than_commands() -> None:
+    bucket = TokenBucket(rate=1000.0, burst=100)
+    for _ in range(10):
+        bucket.take(0.0, MALFORMED_COST)
+    assert bucket.take(0.0) == pytest.approx(0.001)  # 10 malformed emptied a 100 burst

@@ -13,7 +13,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from backend.api.deps import ServicesDep
 from backend.realtime import messages as m
-from backend.realtime.ratelimit import MalformedRun
+from backend.realtime.ratelimit import MALFORMED_COST, MalformedRun
 from backend.realtime.session import Session, error
 from backend.security import origin_allowed
 from drivers.base import TelerobotError
@@ -79,6 +79,8 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
                 ok = False
             else:
                 ok = await session.receive(data, hub.clock.now())
+            if not ok:  # garbage pays more: its cost is taken before the next read
+                bucket.take(hub.clock.now(), MALFORMED_COST - 1.0)
             if garbage.note(not ok):
                 reason = f"{garbage.limit} malformed messages in a row: closing"
                 await conn.close()  # its sender first: one writer on the socket
