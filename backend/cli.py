@@ -62,6 +62,14 @@ def _serve(args: argparse.Namespace) -> int:
         port=settings.http_port,
         log_level="info",
         ws_max_size=WS_MAX_MESSAGE,
+        # The websockets implementation that parses a frame only when the app reads
+        # one (32 queued at most, then TCP pushes back). The sans-I/O one parses all a
+        # read brings at once: a flood of 3-byte frames (21,000 in one 64 kB read)
+        # held the event loop for 3 s and queued them all. No compression: the
+        # messages are binary and small, and inflating is work a client can make us do.
+        ws="websockets",
+        ws_max_queue=32,
+        ws_per_message_deflate=False,
         **ssl,  # type: ignore[arg-type]
     )
     redact_server_logs()  # after uvicorn has configured its loggers
