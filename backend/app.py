@@ -10,7 +10,7 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 
 from fastapi import APIRouter, FastAPI
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.routing import Match, Mount
 from starlette.types import Scope
@@ -44,6 +44,25 @@ log = logging.getLogger("telerobot")
 API_PREFIXES = ("/api/", "/ws/")
 STATIC = Path(__file__).parent / "static"
 WEB_DIST = Path(__file__).resolve().parents[1] / "web" / "dist"  # built by `make web`
+
+
+def install_api_docs(app: FastAPI) -> None:
+    """``/docs``: Swagger UI from the installed ``swagger-ui-bundle-v2`` package, not a
+    CDN (a workcell's LAN often has no internet; FastAPI's default page was blank)."""
+    from fastapi.openapi.docs import get_swagger_ui_html
+    from swagger_ui_bundle import swagger_ui_path  # type: ignore[import-untyped]
+
+    app.mount("/docs-assets", StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    async def api_docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title="Telerobot API",
+            swagger_js_url="/docs-assets/swagger-ui-bundle.js",
+            swagger_css_url="/docs-assets/swagger-ui.css",
+            swagger_favicon_url="/docs-assets/favicon-32x32.png",
+        )
 
 
 class ClientFiles(Mount):
@@ -88,7 +107,10 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
         version="0.1.0",
         summary="Drive a robot arm from a browser, in stereo, with force feedback.",
         lifespan=lifespan,
+        docs_url=None,  # served below from the package: it must work with no internet
+        redoc_url=None,
     )
+    install_api_docs(app)
     install_error_handlers(app)
     certificate = state_dir(settings) / "tls" / "cert.pem" if settings.tls else None
     install_edge(app, allowed_host_names(settings, certificate), settings.allowed_origins, token)

@@ -65,3 +65,24 @@ def test_status_page_shows_the_robot_moving_then_ready(browser: Browser, tmp_pat
         page.screenshot(path=os.environ.get("TELEROBOT_SCREENSHOT", str(tmp_path / "status.png")))
         assert errors == []
         page.close()
+
+
+def test_the_api_docs_render_with_no_internet(browser: Browser) -> None:
+    with telerobot("serve", "--http-port", "0", wait_for=r"(http://localhost:\d+/)") as (_, m):
+        base = m.group(1)
+        page = browser.new_page()
+        outside: list[str] = []
+
+        def only_this_server(route) -> None:  # type: ignore[no-untyped-def]
+            if route.request.url.startswith(base):
+                route.continue_()
+            else:  # a CDN, or anything else: the page must not need it
+                outside.append(route.request.url)
+                route.abort()
+
+        page.route("**/*", only_this_server)
+        page.goto(base + "docs")
+        page.wait_for_selector(".swagger-ui .info .title", timeout=20_000)
+        assert "Telerobot" in (page.locator(".swagger-ui .info .title").text_content() or "")
+        page.get_by_text("/api/v1/safety/estop", exact=True).wait_for(timeout=20_000)
+        assert outside == []
