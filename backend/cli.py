@@ -153,6 +153,45 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _move(args: argparse.Namespace) -> int:
+    """One bounded move from the shell, with the Python client (takes the lease,
+    moves, releases it)."""
+    import httpx
+
+    from telerobot.client import Telerobot, TelerobotError, local_url, stored_token
+
+    token = args.token or stored_token()
+    if not token:
+        print(
+            "telerobot move: no operator token: pass --token, set TELEROBOT_OPERATOR_TOKEN,"
+            " or run it where `telerobot serve` keeps it",
+            file=sys.stderr,
+        )
+        return 2
+    values = [float(v) for v in args.values]
+    want = 6 if args.space == "joints" else 3
+    if len(values) != want:
+        print(f"telerobot move: {args.space} takes {want} numbers", file=sys.stderr)
+        return 2
+    try:
+        url = args.url or local_url()
+        with Telerobot(url, token, name="telerobot move", take_over=args.take_over) as robot:
+            if args.space == "joints":
+                result = robot.move_joints(values, relative=args.relative)
+            else:
+                result = robot.move_cartesian(values, relative=args.relative, frame=args.frame)
+    except TelerobotError as exc:
+        print(f"telerobot move: {exc}", file=sys.stderr)
+        return 1
+    except httpx.HTTPError as exc:
+        print(f"telerobot move: cannot reach {args.url or local_url()}: {exc}", file=sys.stderr)
+        return 1
+    state = result["state"]
+    print("position (m):", " ".join(f"{v:.4f}" for v in state["position"]))
+    print("joints (deg):", " ".join(f"{v:.2f}" for v in state["joints_deg"]))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="telerobot", description="Drive a robot arm from a browser."
@@ -207,6 +246,18 @@ def main(argv: list[str] | None = None) -> int:
     netft.add_argument("--port", type=int, default=49152, help="UDP port (0: any free port)")
     netft.add_argument("--rate", type=float, default=1000.0, help="samples per second")
     netft.set_defaults(func=_netft_emulator)
+
+    move = sub.add_parser(
+        "move", help="one move: telerobot move cartesian 0.6 -0.1 0.9 (or joints J1..J6)"
+    )
+    move.add_argument("space", choices=["joints", "cartesian"])
+    move.add_argument("values", nargs="+", help="6 angles (rad) or x y z (m, robot base)")
+    move.add_argument("--relative", action="store_true", help="by, not to")
+    move.add_argument("--frame", choices=["base", "wrist", "tool"], help="of a relative move")
+    move.add_argument("--url", help="the server (default: TELEROBOT_URL or localhost:8000)")
+    move.add_argument("--token", help="operator token (default: the one the server keeps)")
+    move.add_argument("--take-over", action="store_true", help="take control from its holder")
+    move.set_defaults(func=_move)
 
     bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")
     bench.add_argument("name")

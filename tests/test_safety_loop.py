@@ -119,3 +119,29 @@ async def test_the_client_table_is_bounded_and_idle_rest_clients_are_forgotten()
                 ds.client(gone.id)
     finally:
         await ds.stop()
+
+
+async def test_a_scripted_lease_idles_between_moves_but_jogging_keeps_the_fast_dead_man() -> None:
+    clock = ManualClock()
+    ds, robot = await make(clock)
+    ds.start()
+    try:
+        script = ds.join("script", TOKEN, lease_idle_s=5.0)
+        await ds.take_lease(script.id)
+        q = robot.joints.copy()
+        q[0] += 0.05
+        await ds.move_joints(script.id, q)  # a bounded absolute move
+        for _ in range(100):  # 2 s with no request: a person reading the screen
+            await clock.advance(ds.limits.tick_s)
+        assert ds.lease_holder == script.id
+        await ds.cartesian_increment(script.id, np.array([0.002, 0, 0]), np.zeros(3))
+        for _ in range(15):  # 0.3 s of silence after jogging: the fast dead-man
+            await clock.advance(ds.limits.tick_s)
+        assert ds.lease_holder is None
+        await ds.take_lease(script.id)
+        await ds.move_joints(script.id, q)
+        for _ in range(int(5.2 / ds.limits.tick_s)):  # past its idle timeout
+            await clock.advance(ds.limits.tick_s)
+        assert ds.lease_holder is None
+    finally:
+        await ds.stop()

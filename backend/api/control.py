@@ -8,20 +8,31 @@ from fastapi import APIRouter, Header, Request
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ClientDep, DecisionDep, OperatorDep
+from backend.api.requests import StrictRequest
 from backend.control.decision import DecisionServer, NotAllowed
 from backend.control.limits import full_speed_stop_s, stopping
 from drivers.base import StopCategory, WorkingFrame
 
 # A script's client (no connection of its own) is forgotten this long after its last
-# request, unless it holds the lease (whose dead-man is 150 ms).
+# request, unless it holds the lease.
 REST_CLIENT_IDLE_S = 60.0
+# A script's lease is kept this long between absolute moves (a bounded move runs to its
+# end under the server's supervision); increments get the 150 ms dead-man.
+REST_LEASE_IDLE_S = 5.0
 
 router = APIRouter(tags=["control"])
 
 
-class LeaseRequest(BaseModel):
+class LeaseRequest(StrictRequest):
     name: str = Field("script", max_length=64)
     force: bool = Field(False, description="take control even if another client holds it")
+    idle_timeout_s: float = Field(
+        REST_LEASE_IDLE_S,
+        gt=0,
+        le=60,
+        description="how long the lease is kept with no request between absolute moves"
+        " (a script pausing); while it jogs (incremental moves) the dead-man's limit applies",
+    )
 
 
 class LeaseGranted(BaseModel):
@@ -146,13 +157,19 @@ async def take_lease(
     token: OperatorDep,
     x_client_id: Annotated[str | None, Header()] = None,
 ) -> LeaseGranted:
-    """Take control (the operator token is required). Keep it with a heartbeat at
-    least every dead-man timeout, or any command; a move waiting with ``wait``
-    counts as alive."""
+    """Take control (the operator token is required). Between absolute moves the lease
+    is kept ``idle_timeout_s`` without a request; while jogging (incremental moves) keep
+    it with a heartbeat or a command at least every dead-man timeout (150 ms). A move
+    waiting with ``wait`` counts as alive."""
     client = (
         decision.client(x_client_id)
         if x_client_id
-        else decision.join(body.name, token, idle_expiry_s=REST_CLIENT_IDLE_S)
+        else decision.join(
+            body.name,
+            token,
+            idle_expiry_s=max(REST_CLIENT_IDLE_S, body.idle_timeout_s),
+            lease_idle_s=body.idle_timeout_s,
+        )
     )
     await decision.take_lease(client.id, force=body.force)
     return LeaseGranted(client_id=client.id)

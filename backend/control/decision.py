@@ -94,6 +94,11 @@ class Client:
     # this long without a request, unless it holds the lease: a script that crashes
     # without DELETE /lease must not fill the table for good. None: while connected.
     idle_expiry_s: float | None = None
+    # A scripted lease (REST): between bounded absolute moves it is kept this long
+    # without a request, like a person pausing. Streamed increments (any client) always
+    # get the fast dead-man: ``streaming`` says the last command was one.
+    lease_idle_s: float | None = None
+    streaming: bool = False
 
 
 @dataclass(frozen=True)
@@ -223,7 +228,14 @@ class DecisionServer:
     def check_token(self, token: str | None) -> bool:
         return token is not None and secrets.compare_digest(token.encode(), self._token.encode())
 
-    def join(self, name: str, token: str | None, *, idle_expiry_s: float | None = None) -> Client:
+    def join(
+        self,
+        name: str,
+        token: str | None,
+        *,
+        idle_expiry_s: float | None = None,
+        lease_idle_s: float | None = None,
+    ) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
         if len(self._clients) >= self.max_clients:
             self._forget_idle(self.clock.now())
@@ -232,7 +244,12 @@ class DecisionServer:
                 f"this server already has {self.max_clients} clients: try again when one leaves"
             )
         client = Client(
-            secrets.token_hex(8), name[:64], role, self.clock.now(), idle_expiry_s=idle_expiry_s
+            secrets.token_hex(8),
+            name[:64],
+            role,
+            self.clock.now(),
+            idle_expiry_s=idle_expiry_s,
+            lease_idle_s=lease_idle_s,
         )
         self._clients[client.id] = client
         return client
@@ -300,6 +317,13 @@ class DecisionServer:
         self.events.lease_changed.emit(self._lease)
         self.events.safety_changed.emit(self.state())
 
+    def deadman_limit(self, client: Client) -> float:
+        """How long ``client`` may be silent holding the lease: the dead-man's limit,
+        or a scripted lease's idle timeout while its arm is not being jogged."""
+        if client.lease_idle_s is None or client.streaming:
+            return self.limits.deadman_timeout_s
+        return client.lease_idle_s
+
     async def tick(self) -> None:
         """Dead-man: a lease holder silent for ``deadman_timeout_s`` loses the lease
         and the arm stops. Called every ``tick_s``.
@@ -323,7 +347,7 @@ class DecisionServer:
             await self._lapse("controller gone")
             return
         silent = now - holder.last_seen
-        if holder.busy > 0 or silent <= self.limits.deadman_timeout_s:
+        if holder.busy > 0 or silent <= self.deadman_limit(holder):
             self._deferred = False
         elif late and not self._deferred:
             self._deferred = True
@@ -423,6 +447,7 @@ class DecisionServer:
     ) -> Applied:
         """ΔX (m) and ΔM as a rotation vector (rad), in ``frame`` (default: the working frame)."""
         client = self._authorise(client_id)
+        client.streaming = True
         dX = check_vector("position increment", dX, 3) * self._scale
         rv = check_vector("rotation increment", rotvec, 3) * self._scale
         with np.errstate(over="ignore"):  # 1e300 is refused below, not a warning
@@ -457,6 +482,7 @@ class DecisionServer:
         self, client_id: str, dq: FloatArray, *, seq: int = 0, client_time: float | None = None
     ) -> Applied:
         client = self._authorise(client_id)
+        client.streaming = True
         dq = check_vector("joint increment", dq, 6)
         lim = self.limits
         biggest = float(np.max(np.abs(dq)))
@@ -482,6 +508,7 @@ class DecisionServer:
         """An absolute joint move (scripted): joint limits and the workspace apply; the
         arm's own velocity limits pace it."""
         client = self._authorise(client_id)
+        client.streaming = False  # a bounded move, not jogging: a scripted lease may idle
         q = check_vector("joints", q, 6)
         if self._force_limited:
             raise SafetyStop("force limit: back away with a Cartesian move first")
@@ -493,6 +520,7 @@ class DecisionServer:
         self, client_id: str, position: FloatArray, rotation: FloatArray, *, seq: int = 0
     ) -> Applied:
         client = self._authorise(client_id)
+        client.streaming = False
         p = check_vector("position", position, 3)
         R = check_rotation("orientation", rotation)
         if self._force_limited:

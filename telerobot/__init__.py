@@ -1,0 +1,1 @@
+"""The Telerobot Python client: ``from telerobot.client import Telerobot``."""
