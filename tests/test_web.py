@@ -324,7 +324,9 @@ def test_keyboard_space_is_the_dead_man_w_drives_escape_stops_alt_arrows_align(
     page, errors = open_page(browser, server)
     take_control(page)
     start = target(server)
-    page.locator("#view").click()  # keys go to the page, not to a form field
+    page.click("#ar")  # a control touched (issue 13): the keys still drive,
+    page.click("#ar")  # and Space does not toggle it
+    ar_before = page.is_checked("#ar")
     page.keyboard.down("KeyW")
     page.wait_for_timeout(500)
     assert target(server) == start  # W alone: nothing moves
@@ -333,6 +335,7 @@ def test_keyboard_space_is_the_dead_man_w_drives_escape_stops_alt_arrows_align(
     # W with Space held: forward along base x
     until(page, lambda: tool_position(server)[0] >= x0 + 0.005, "the arm moves with Space held")
     page.keyboard.up("Space")
+    assert page.is_checked("#ar") == ar_before  # Space drove, it did not toggle the box
     page.wait_for_timeout(300)
     held = target(server)
     page.wait_for_timeout(600)
