@@ -145,9 +145,10 @@ export interface paths {
         put?: never;
         /**
          * Take Lease
-         * @description Take control (the operator token is required). Keep it with a heartbeat at
-         *     least every dead-man timeout, or any command; a move waiting with ``wait``
-         *     counts as alive.
+         * @description Take control (the operator token is required). Between absolute moves the lease
+         *     is kept ``idle_timeout_s`` without a request; while jogging (incremental moves) keep
+         *     it with a heartbeat or a command at least every dead-man timeout (150 ms). A move
+         *     waiting with ``wait`` counts as alive.
          */
         post: operations["take_lease_api_v1_lease_post"];
         /** Release Lease */
@@ -948,6 +949,12 @@ export interface components {
              * @default false
              */
             force: boolean;
+            /**
+             * Idle Timeout S
+             * @description how long the lease is kept with no request between absolute moves (a script pausing); while it jogs (incremental moves) the dead-man's limit applies
+             * @default 5
+             */
+            idle_timeout_s: number;
         };
         /** MoveRequest */
         MoveRequest: {
