@@ -7,7 +7,6 @@ import os
 import re
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,8 +14,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from bench.common import telerobot_process
 from telerobot.client import Telerobot, TelerobotError
+from tests.servers import served
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "client-test-token-0123456789abcdef"
@@ -32,15 +31,7 @@ def readme_block(kind: str) -> str:
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[str]:
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
-            "serve", "--http-port", "0", "--state-dir", state,
-            wait_for=r"(http://localhost:\d+/)",
-            env={"TELEROBOT_OPERATOR_TOKEN": TOKEN},
-        ) as (_, m),
-    ):  # fmt: skip
-        base = m.group(1).rstrip("/")
+    with served(TOKEN) as base:
         deadline = time.monotonic() + 30
         while httpx.get(base + "/api/v1/robot/state").json()["status"] != "READY":
             assert time.monotonic() < deadline, "the arm never became READY"

@@ -4,7 +4,6 @@ operator token. A bounded number of cases per operation keeps CI short."""
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Iterator
 from typing import Any
 
@@ -14,7 +13,7 @@ import schemathesis
 from hypothesis import HealthCheck, given, settings
 from schemathesis.checks import not_a_server_error
 
-from bench.common import telerobot_process
+from tests.servers import served
 
 TOKEN = "fuzz-test-token-0123456789abcdef"
 CASES_PER_OPERATION = 25
@@ -25,22 +24,11 @@ NOT_FUZZED = {"POST /api/v1/webrtc/server-offer"}
 
 @pytest.fixture(scope="module")
 def base_url() -> Iterator[str]:
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
-            "serve", "--http-port", "0", "--state-dir", state,
-            wait_for=r"(http://localhost:\d+/)",
-            env={
-                "TELEROBOT_OPERATOR_TOKEN": TOKEN,
-                # The media routes answer for real (a small, slow picture: cheap).
-                "TELEROBOT_VIDEO": "true",
-                "TELEROBOT_VIDEO_WIDTH": "320",
-                "TELEROBOT_VIDEO_HEIGHT": "240",
-                "TELEROBOT_VIDEO_FPS": "5",
-            },
-        ) as (_, match),
-    ):  # fmt: skip
-        yield match.group(1).replace("localhost", "127.0.0.1").rstrip("/")
+    # The media routes answer for real (a small, slow picture: cheap).
+    video = {"TELEROBOT_VIDEO": "true", "TELEROBOT_VIDEO_WIDTH": "320"}
+    video |= {"TELEROBOT_VIDEO_HEIGHT": "240", "TELEROBOT_VIDEO_FPS": "5"}
+    with served(TOKEN, **video) as base:
+        yield base
 
 
 def fuzz(base_url: str, token: str | None) -> list[str]:
