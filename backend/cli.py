@@ -35,6 +35,7 @@ def _serve(args: argparse.Namespace) -> int:
             host=args.host,
             http_port=args.http_port,
             priority_port=args.priority_port,
+            viewer_port=args.viewer_port,
             robot=args.robot,
             serial_port=args.port,
             serial_baudrate=args.baudrate,
@@ -205,6 +206,9 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument("--http-port", type=int, help="HTTP port (default 8000)")
     serve.add_argument(
         "--priority-port", type=int, help="TCP port of the priority channel (default 8001)"
+    )
+    serve.add_argument(
+        "--viewer-port", type=int, help="HTTP port of the 3D view (default 8002; 0: any free)"
     )
     serve.add_argument("--robot", choices=driver_names("robot"), help="robot driver (default sim)")
     serve.add_argument(

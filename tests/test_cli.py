@@ -89,3 +89,16 @@ def test_serve_reads_forces_from_the_netft_emulator() -> None:
         assert force["driver"] == "netft" and force["error"] is None
         assert force["latest"]["values"][0] == 0.5  # the emulator's Fx, in newtons
         assert force["counters"]["received"] > 0 and force["counters"]["bad_packets"] == 0
+
+
+def test_serve_takes_the_3d_views_port_from_its_flag() -> None:
+    import socket
+
+    with socket.socket() as s:  # a free port, given by the flag
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with telerobot(
+        "serve", "--http-port", "0", "--viewer-port", str(port),
+        wait_for=r"3D view: http://\S+:(\d+)/", env={"TELEROBOT_VIEWER": "true"},
+    ) as (_, m):  # fmt: skip
+        assert int(m.group(1)) == port

@@ -113,4 +113,23 @@ describe("the message log", () => {
     expect(items[1]!.style.color).toBe("");
     expect(new MessageLog(null).limit).toBe(LOG_LIMIT);
   });
+
+  it("folds a message repeated in a row into one line with a count", () => {
+    const { items, list } = fakeList();
+    const log = new MessageLog(list, 3, () => new Date(2020, 0, 1, 12, 0, 0));
+    log.add("first");
+    for (let i = 0; i < 11; i++) log.add("E-STOP: e-stop pressed", true);
+    log.add("E-STOP: e-stop pressed"); // the same words, not an error: its own line
+    expect(log.entries.map((e) => [e.text, e.count])).toEqual([
+      ["E-STOP: e-stop pressed", 1],
+      ["E-STOP: e-stop pressed", 11],
+      ["first", 1],
+    ]);
+    const time = new Date(2020, 0, 1, 12, 0, 0).toLocaleTimeString();
+    expect(items.map((li) => li.textContent)).toEqual([
+      `${time} E-STOP: e-stop pressed`,
+      `${time} E-STOP: e-stop pressed ×11`,
+      `${time} first`,
+    ]);
+  });
 });

@@ -153,14 +153,19 @@ export interface LogEntry {
   time: string;
   text: string;
   error: boolean;
+  /** How many times in a row it came (a latched e-stop repeats itself). */
+  count: number;
 }
 /** Where the log shows: the page's list element (anything with these members). */
 export type LogList = Pick<HTMLElement, "prepend" | "childElementCount" | "lastElementChild" | "ownerDocument">;
 export const LOG_LIMIT = 50;
 
-/** Newest first, at most `limit` lines, here and on the page. */
+/** Newest first, at most `limit` lines, here and on the page; a message that comes
+ * again right after itself updates its line ("×N", the latest time) instead of
+ * pushing the others out. */
 export class MessageLog {
   readonly entries: LogEntry[] = [];
+  private newest: { textContent: string | null } | null = null;
 
   constructor(
     private readonly list: LogList | null,
@@ -169,7 +174,15 @@ export class MessageLog {
   ) {}
 
   add(text: string, error = false): void {
-    const entry = { time: this.clock().toLocaleTimeString(), text, error };
+    const time = this.clock().toLocaleTimeString();
+    const last = this.entries[0];
+    if (last && last.text === text && last.error === error) {
+      last.count += 1;
+      last.time = time;
+      if (this.newest) this.newest.textContent = `${time} ${text} ×${last.count}`;
+      return;
+    }
+    const entry = { time, text, error, count: 1 };
     this.entries.unshift(entry);
     if (this.entries.length > this.limit) this.entries.length = this.limit;
     if (!this.list) return;
@@ -177,6 +190,7 @@ export class MessageLog {
     li.textContent = `${entry.time} ${text}`;
     if (error) li.style.color = "#f88";
     this.list.prepend(li);
+    this.newest = li;
     while (this.list.childElementCount > this.limit) this.list.lastElementChild?.remove();
   }
 }
