@@ -63,6 +63,7 @@ from backend.control.decision import DecisionServer
 from backend.netprio import mark_high_priority
 from backend.realtime import messages as m
 from backend.realtime.hub import RealtimeHub
+from backend.realtime.ratelimit import BURST, MESSAGES_PER_S, TokenBucket
 from backend.realtime.session import Session, error
 from drivers.base import ForceSample, ForceSensor, TelerobotError
 
@@ -83,8 +84,8 @@ HELLO_TIMEOUT_S = 3.0  # a client says HELLO at once; an idle socket is closed a
 MAX_MESSAGE_BYTES = 1024  # the largest client message, HELLO, is 69 bytes
 MAX_INBOX = 64  # messages read from one client and not yet handled on the event loop
 MAX_RX_BYTES = 16 * 1024  # bytes read from one client and not yet split into messages
-MAX_MESSAGES_PER_S = 1000.0  # per connection, sustained (the bridge sends ~130 a second)
-MAX_BURST = 500  # per connection at once (a queue of commands after a stall)
+MAX_MESSAGES_PER_S = MESSAGES_PER_S  # as /ws (ratelimit.py); the bridge sends ~130 a second
+MAX_BURST = BURST  # at once (a queue of commands after a stall)
 ACCEPT_BACKOFF_S = (0.05, 1.0)  # accepting pauses this long after EMFILE & co, doubling
 WATCHDOG_S = 1.0  # how often the event loop checks that the channel's thread runs
 RESTART_BACKOFF_S = (0.05, 1.0)  # the thread's loop waits this long after an exception
@@ -128,8 +129,7 @@ class PriorityClient:
     # Read, not yet handled: bytes not yet split into messages, then messages.
     rx: bytearray = field(default_factory=bytearray, repr=False)
     inbox: deque[tuple[bytes, float]] = field(default_factory=deque, repr=False)
-    tokens: float = float(MAX_BURST)  # the rate limit's bucket
-    tokens_at: float = 0.0
+    bucket: TokenBucket = field(default_factory=lambda: TokenBucket(MAX_MESSAGES_PER_S, MAX_BURST))
     read_blocked: bool = False  # reading waits for the event loop to make room
     notify_pending: bool = False  # a wake-up of the worker is on its way to the loop
     ready: asyncio.Event | None = None  # set when the inbox has something
@@ -497,7 +497,10 @@ class PriorityChannel:
             return
         now = time.monotonic()
         client = PriorityClient(
-            sock, peer, accepted_at=now, tokens=float(self.max_burst), tokens_at=now
+            sock,
+            peer,
+            accepted_at=now,
+            bucket=TokenBucket(self.max_messages_per_s, self.max_burst),
         )
         self.clients[client] = None
         self._watch_socket(client, selectors.EVENT_READ)
@@ -549,11 +552,6 @@ class PriorityChannel:
         counted against the rate limit before anything is done with it."""
         rx, inbox = client.rx, client.inbox
         received = self.hub.clock.now()
-        client.tokens = min(
-            float(self.max_burst),
-            client.tokens + (now - client.tokens_at) * self.max_messages_per_s,
-        )
-        client.tokens_at = now
         added = False
         while len(rx) >= LENGTH.size:
             (size,) = LENGTH.unpack_from(rx)
@@ -575,7 +573,7 @@ class PriorityChannel:
                 if len(inbox) >= self.max_inbox:
                     break
                 client.read_blocked = False
-            if client.tokens < 1.0:
+            if client.bucket.take(now) > 0:  # over its rate: no waiting here, closed
                 self.rate_limited += 1
                 self._refuse(
                     client,
@@ -584,7 +582,6 @@ class PriorityChannel:
                     f" (bursts of {self.max_burst}): closing",
                 )
                 return
-            client.tokens -= 1.0
             inbox.append((bytes(rx[LENGTH.size : LENGTH.size + size]), received))
             del rx[: LENGTH.size + size]
             added = True
