@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 import re
-import secrets
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -32,7 +31,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from backend.api.deps import OPERATOR_SCHEME
 from backend.errors import problem
-from backend.security import origin_allowed
+from backend.security import bearer, origin_allowed, token_matches
 
 log = logging.getLogger(__name__)
 
@@ -184,10 +183,7 @@ class Edge:
             return
         rule = self._rule(scope["path"])
         if rule is not None and scope["method"] in rule.operator_methods:
-            authorization = headers.get(b"authorization", b"").decode("latin-1")
-            token = (
-                authorization[7:].strip() if authorization.lower().startswith("bearer ") else None
-            )
+            token = bearer(headers.get(b"authorization", b"").decode("latin-1"))
             if not self.check_token(token):
                 await self._refuse(
                     scope,
@@ -260,13 +256,6 @@ def _headers(scope: Scope) -> dict[bytes, bytes]:
     return out
 
 
-def constant_time_token_check(token: str) -> Callable[[str | None], bool]:
-    def check(candidate: str | None) -> bool:
-        return candidate is not None and secrets.compare_digest(candidate.encode(), token.encode())
-
-    return check
-
-
 def install_edge(
     app: FastAPI, allowed_hosts: Iterable[str], allowed_origins: list[str], token: str
 ) -> None:
@@ -275,5 +264,5 @@ def install_edge(
         fastapi=app,
         allowed_hosts=list(allowed_hosts),
         allowed_origins=allowed_origins,
-        check_token=constant_time_token_check(token),
+        check_token=lambda candidate: token_matches(candidate, token),
     )

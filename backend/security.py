@@ -49,6 +49,18 @@ def operator_token(settings: Settings) -> tuple[str, bool]:
     return token, True
 
 
+def token_matches(candidate: str | None, token: str) -> bool:
+    """The operator token check, in constant time (every place that checks it)."""
+    return candidate is not None and secrets.compare_digest(candidate.encode(), token.encode())
+
+
+def bearer(authorization: str | None) -> str | None:
+    """The token of an ``Authorization: Bearer …`` header, if it is one."""
+    if authorization and authorization.lower().startswith("bearer "):
+        return authorization[7:].strip()
+    return None
+
+
 def origin_allowed(origin: str | None, host: str | None, allowed: list[str]) -> bool:
     """A browser may open /ws only from a page of this server (or a listed origin).
     Clients that send no Origin (scripts, the master-arm bridge) are not browsers."""

@@ -19,6 +19,7 @@ from backend.control.decision import Client, DecisionServer, NotAllowed
 from backend.media.supervisor import MediaSupervisor, MediaUnavailable
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
+from backend.security import bearer
 from backend.services import Alignments, CalibrationRecord, Intrinsics, Services, Viewer3D
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
@@ -110,9 +111,7 @@ MediaDep = Annotated[MediaSupervisor, Depends(_media)]
 
 
 def bearer_token(authorization: Annotated[str | None, Header()] = None) -> str | None:
-    if authorization and authorization.lower().startswith("bearer "):
-        return authorization[7:].strip()
-    return None
+    return bearer(authorization)
 
 
 # Declared as a security scheme, so the OpenAPI schema says which operations need the

@@ -29,6 +29,7 @@ import numpy as np
 import pinocchio as pin
 
 from backend.control.limits import SafetyLimits
+from backend.security import token_matches
 from drivers.base import (
     FloatArray,
     ForceSample,
@@ -226,7 +227,7 @@ class DecisionServer:
 
     # ------------------------------------------------------------ clients
     def check_token(self, token: str | None) -> bool:
-        return token is not None and secrets.compare_digest(token.encode(), self._token.encode())
+        return token_matches(token, self._token)
 
     def join(
         self,
