@@ -346,3 +346,29 @@ def test_garbage_costs_more_of_the_budget_than_commands() -> None:
     for _ in range(10):
         bucket.take(0.0, MALFORMED_COST)
     assert bucket.take(0.0) == pytest.approx(0.001)  # 10 malformed emptied a 100 burst
+
+
+def test_a_ws_message_over_64_kib_closes_the_connection(server: Server) -> None:
+    import websockets.sync.client as ws_client
+    from websockets.exceptions import ConnectionClosed
+
+    from backend.cli import WS_MAX_MESSAGE
+
+    url = f"ws://{server.host}:{server.port}/ws"
+    with ws_client.connect(url, open_timeout=5) as ws:
+        ws.send(m.encode(m.HELLO, m.PROTOCOL_VERSION, 0, b""))
+        ws.send(b"\x06" * (WS_MAX_MESSAGE + 1))
+        with pytest.raises(ConnectionClosed) as closed:
+            while True:
+                ws.recv(timeout=5)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1009  # too big
+    assert httpx.get(server.base + "api/v1/health").status_code == 200
+
+
+def test_a_fit_takes_at_most_100_fiducials(client: TestClient) -> None:
+    from backend.api.calibration import MAX_FIDUCIALS
+
+    n = MAX_FIDUCIALS + 1
+    fit = {"camera": "left", "points": [[0, 0, 0]] * n, "pixels": [[0, 0]] * n}
+    r = client.post("/api/v1/calibration/fit", json=fit, headers=AUTH)
+    assert r.status_code == 422 and "points" in r.json()["detail"]
