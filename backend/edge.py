@@ -105,7 +105,6 @@ class Edge:
         self.allowed_origins = list(allowed_origins)
         self.check_token = check_token
         self._rules: list[RouteRule] | None = None
-        self.refused: dict[str, int] = {}  # reason → count (shown nowhere yet; for tests)
 
     # ------------------------------------------------------------ helpers
     def host_allowed(self, host_header: str | None) -> bool:
@@ -117,7 +116,6 @@ class Edge:
         return next((r for r in self._rules if r.pattern.match(path)), None)
 
     async def _refuse(self, scope: Scope, send: Send, status: int, code: str, text: str) -> None:
-        self.refused[code] = self.refused.get(code, 0) + 1
         response = problem(status, code, text)
         response.headers["connection"] = "close"
         await response(scope, _no_body, send)
