@@ -4,9 +4,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-web screenshots lint typecheck unit browser-deps web web-check bench clean types
+.PHONY: run test test-web screenshots lint typecheck unit browser-deps turn-deps web web-check bench clean types
 
-WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/vite.config.ts web/tsconfig.json
+WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -29,7 +29,7 @@ run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser included)
-test: $(STAMP) browser-deps lint typecheck web-check web unit
+test: $(STAMP) browser-deps turn-deps lint typecheck web-check web unit
 
 ## make test-web: only the browser tests (the operator page with live video, the status page)
 test-web: $(STAMP) browser-deps web
@@ -62,6 +62,13 @@ browser-deps:
 	@command -v chromium >/dev/null 2>&1 || { \
 	  echo "installing Debian's chromium for the browser tests"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
+
+# Debian's coturn for the TURN relay tests (tests/coturn.py starts its own turnserver;
+# the package's system service stays off).
+turn-deps:
+	@command -v turnserver >/dev/null 2>&1 || { \
+	  echo "installing Debian's coturn for the TURN tests"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq coturn >/dev/null; }
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.kinematics

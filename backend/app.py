@@ -18,9 +18,13 @@ from starlette.types import Scope
 from backend.api import (
     calibration,
     control,
+    export,
     force,
     health,
+    recording_review,
+    recordings,
     robot,
+    tasks,
     telemetry,
     video,
     viewer,
@@ -86,7 +90,10 @@ def services_of(app: FastAPI) -> Services:
     return services
 
 
-def create_app(settings: Settings | None = None, *, clock: Clock | None = None) -> FastAPI:
+def create_app(
+    settings: Settings | None = None, *, clock: Clock | None = None, record: str | None = None
+) -> FastAPI:
+    """``record``: start a recording of that name as soon as the server runs."""
     settings = settings or Settings()
     clock = clock or MonotonicClock()
     token, token_is_new = operator_token(settings)
@@ -97,6 +104,8 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
         app.state.services = services
         app.openapi()  # made now, not on the first request (the edge reads it: ~0.1 s)
         await start_services(services)
+        if record:
+            services.recorder.start(record)
         try:
             yield
         finally:
@@ -116,7 +125,8 @@ def create_app(settings: Settings | None = None, *, clock: Clock | None = None) 
     install_edge(app, allowed_host_names(settings, certificate), settings.allowed_origins, token)
     api = APIRouter(prefix="/api/v1")
     for module in (
-        health, robot, control, force, telemetry, video, workcell, calibration, viewer
+        health, robot, control, force, telemetry, video, workcell, calibration, viewer, recordings,
+        recording_review, export, tasks,
     ):  # fmt: skip
         api.include_router(module.router)
     app.include_router(api)

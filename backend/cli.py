@@ -22,8 +22,16 @@ from drivers.registry import driver_names
 WS_MAX_MESSAGE = 64 * 1024
 
 
+# The event loop shares the GIL with the force sensor's, the priority channel's and the
+# recorder's threads: a thread that wants it waits at most this long for a busy one to
+# let go (CPython's default is 5 ms, a long time beside a 1 ms force period).
+GIL_SWITCH_INTERVAL_S = 0.0005
+
+
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
+
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
 
     from backend.app import create_app, services_of
     from backend.devices import describe_robot
@@ -48,7 +56,7 @@ def _serve(args: argparse.Namespace) -> int:
         return 2
     from backend.security import ensure_certificate, redact_server_logs, state_dir
 
-    app = create_app(settings)
+    app = create_app(settings, record=args.record)
     ssl: dict[str, str] = {}
     if settings.tls:
         cert, key = ensure_certificate(settings)
@@ -148,6 +156,25 @@ def _netft_emulator(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export_lerobot(args: argparse.Namespace) -> int:
+    from backend.recording.lerobot import ExportError, export_lerobot
+
+    try:
+        summary = export_lerobot(args.recording, args.dir, fps=args.fps)
+    except (ExportError, OSError) as exc:
+        print(f"telerobot export lerobot: {exc}", file=sys.stderr)
+        return 1
+    print(
+        f"{summary.out_dir}: {summary.episodes} episodes, {summary.frames} frames at "
+        f"{summary.fps} fps, tasks {summary.tasks} ({summary.export_s:.1f} s)"
+    )
+    if summary.whole_recording:
+        print("the recording has no episodes: exported the whole of it as one")
+    for note in summary.skipped:
+        print(f"left out: {note}")
+    return 0
+
+
 def _bench(args: argparse.Namespace) -> int:
     sys.argv = [f"bench.{args.name}", *args.rest]
     runpy.run_module(f"bench.{args.name}", run_name="__main__", alter_sys=True)
@@ -193,6 +220,20 @@ def _move(args: argparse.Namespace) -> int:
     return 0
 
 
+def _recording_recover(args: argparse.Namespace) -> int:
+    from backend.recording.reader import has_summary, recover
+
+    if not args.file.is_file():
+        print(f"telerobot: no file {args.file}", file=sys.stderr)
+        return 2
+    if has_summary(args.file):
+        print(f"{args.file} is complete (it has its summary): nothing to do")
+        return 0
+    kept = recover(args.file)
+    print(f"{args.file}: recovered {kept} messages; it has its summary now")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="telerobot", description="Drive a robot arm from a browser."
@@ -224,7 +265,18 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument(
         "--state-dir", type=Path, help="where the token and certificate live (~/.config/telerobot)"
     )
+    serve.add_argument(
+        "--record", metavar="NAME", help="record from the start (state folder/recordings)"
+    )
     serve.set_defaults(func=_serve)
+
+    recording = sub.add_parser("recording", help="recordings: recover FILE (one with no summary)")
+    recording_sub = recording.add_subparsers(dest="recording_command", required=True)
+    recover = recording_sub.add_parser(
+        "recover", help="rewrite a recording whose writer was killed, with its index and summary"
+    )
+    recover.add_argument("file", type=Path)
+    recover.set_defaults(func=_recording_recover)
 
     emu = sub.add_parser(
         "val-emulator", help="emulate a Unimation VAL controller on a pty or TCP port"
@@ -262,6 +314,16 @@ def main(argv: list[str] | None = None) -> int:
     move.add_argument("--token", help="operator token (default: the one the server keeps)")
     move.add_argument("--take-over", action="store_true", help="take control from its holder")
     move.set_defaults(func=_move)
+
+    export = sub.add_parser("export", help="export a recording: export lerobot RECORDING DIR")
+    export_sub = export.add_subparsers(dest="export_format", required=True)
+    lerobot = export_sub.add_parser(
+        "lerobot", help="the recording's episodes as a LeRobot v3.0 dataset in a new folder"
+    )
+    lerobot.add_argument("recording", type=Path, help="the .mcap file")
+    lerobot.add_argument("dir", type=Path, help="the dataset's folder (new or empty)")
+    lerobot.add_argument("--fps", type=int, help="rows per second (default: the video's rate)")
+    lerobot.set_defaults(func=_export_lerobot)
 
     bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")
     bench.add_argument("name")

@@ -15,7 +15,7 @@ import contextlib
 import logging
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -26,14 +26,18 @@ from backend.media.supervisor import MediaSupervisor
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
 from backend.realtime.ratelimit import PeerLimits
+from backend.recording.recorder import Recorder, RecordingEvent, RecordingTaps, transform
+from backend.recording.video import VideoTap, follow_recorder
 from backend.security import state_dir
 from backend.settings import Settings
+from backend.tasks.runner import TaskRunner
 from backend.telemetry.stats import Telemetry
 from backend.viewer3d import Workcell3DView
 from calibration.model import CalibrationError
 from calibration.store import CalibrationStore
 from drivers.base import DeviceError, ForceSensor, Robot, TelerobotError
 from drivers.clock import Clock
+from drivers.events import Event
 from drivers.sim.workcell import Workcell
 
 log = logging.getLogger("telerobot")
@@ -55,6 +59,8 @@ class CalibrationRecord:
 
     store: CalibrationStore
     load_error: str | None = None
+    # Emitted (on the event loop) when a fit is kept or the calibration is cleared.
+    changed: Event[CalibrationStore] = field(default_factory=lambda: Event("calibration"))
 
     @classmethod
     def load(cls, settings: Settings) -> CalibrationRecord:
@@ -133,6 +139,9 @@ class Services:
     priority: PriorityChannel
     media: MediaSupervisor | None
     viewer: Viewer3D
+    recorder: Recorder
+    recording_taps: RecordingTaps
+    task_runner: TaskRunner  # supervisory tasks: taught motions repeated under guards
     ws_limits: PeerLimits = field(default_factory=PeerLimits)  # per address, on /ws
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
 
@@ -142,6 +151,8 @@ def safety_limits(settings: Settings) -> SafetyLimits:
     return SafetyLimits(
         force_limit_n=settings.force_limit_n,
         deadman_timeout_s=settings.deadman_timeout_s,
+        lease_grace_s=settings.lease_grace_s,
+        max_command_age_s=settings.max_command_age_ms / 1000,
         max_speed_m_s=settings.max_speed_m_s,
         contact_speed_m_s=settings.contact_speed_m_s,
     )
@@ -200,6 +211,17 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
             f" ({exc.strerror}): set TELEROBOT_PRIORITY_PORT or --priority-port"
         ) from None
     calibration = CalibrationRecord.load(settings)
+    recorder = Recorder(state_dir(settings) / "recordings", clock)
+    recorder.snapshot = lambda: recording_snapshot(settings, workcell, calibration, recorder)
+    # A recalibration mid-recording is in the file from that moment on.
+    calibration.changed.subscribe(
+        lambda _store: recorder.log("/calibration", calibration_payload(workcell, calibration))
+    )
+    recorder.events.subscribe(lambda e: _announce_recording(hub, e))
+    media = MediaSupervisor(settings, robot) if settings.video else None
+    if media is not None:  # the video as sent, while a recording runs
+        follow_recorder(VideoTap(media), recorder)
+    task_runner = TaskRunner(decision, force, clock, operator_token=token.value)
     return Services(
         settings=settings,
         clock=clock,
@@ -214,9 +236,59 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         decision=decision,
         hub=hub,
         priority=priority,
-        media=MediaSupervisor(settings, robot) if settings.video else None,
+        media=media,
         viewer=build_viewer(settings, workcell, robot, force, calibration.store),
+        recorder=recorder,
+        recording_taps=RecordingTaps(
+            recorder,
+            robot=robot,
+            decision=decision,
+            force=force,
+            clock=clock,
+            state_period=1.0 / settings.state_rate_hz,
+            tasks=task_runner.events.changed,
+        ),
+        task_runner=task_runner,
     )
+
+
+def recording_snapshot(
+    settings: Settings, workcell: Workcell, calibration: CalibrationRecord, recorder: Recorder
+) -> list[tuple[str, dict[str, Any]]]:
+    """What a recording starts with: the settings in force (no token or TURN secret), the
+    calibration, and the cameras' poses in the base frame (the rig's ground truth)."""
+    wall = recorder.wall_ns()
+    cams = []
+    for cam in (workcell.rig.left, workcell.rig.right):
+        # world → camera (R, t): the camera in the base frame is (Rᵀ, −Rᵀ t)
+        cams.append(transform("base", f"camera_{cam.name}", cam.R.T, -cam.R.T @ cam.t, wall))
+    return [
+        ("/settings", settings.model_dump(mode="json", exclude={"operator_token", "turn_secret"})),
+        ("/calibration", calibration_payload(workcell, calibration)),
+        ("/tf", {"transforms": cams}),
+    ]
+
+
+def calibration_payload(workcell: Workcell, calibration: CalibrationRecord) -> dict[str, Any]:
+    """The recording's ``/calibration``: the fits in force and the rig's ground truth."""
+    store = calibration.store
+    return {
+        "rig": store.rig,
+        "cameras": {n: m.to_json() for n, m in store.cameras.items()},
+        "ground_truth_P": {c.name: c.P.tolist() for c in (workcell.rig.left, workcell.rig.right)},
+        "error": calibration.load_error,
+    }
+
+
+def _announce_recording(hub: RealtimeHub, e: RecordingEvent) -> None:
+    """Every viewer sees a recording start and stop (and why it stopped)."""
+    from backend.realtime.messages import EventKind
+
+    if e.kind == "started":
+        text = f"RECORDING started: {e.file}"
+    else:
+        text = f"RECORDING stopped: {e.file or e.name} ({e.reason})"
+    hub.broadcast_event(EventKind.INFO, text)
 
 
 async def bring_up_robot(robot: Robot, initialize: bool) -> None:
@@ -236,6 +308,7 @@ async def start_services(s: Services) -> None:
     s.decision.start()  # the force limit and the dead-man, whatever transports run
     s.priority.start()
     s.force.start()
+    s.recording_taps.start()
     if s.viewer.view is not None:
         s.viewer.view.start()
     if s.media is not None:
@@ -250,6 +323,9 @@ async def stop_services(s: Services) -> None:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError, TelerobotError):
             await task
+    if s.recorder.active:
+        await s.recorder.stop("the server stopped")
+    await s.recording_taps.stop()
     s.force.stop()
     if s.viewer.view is not None:
         await s.viewer.view.stop()
@@ -257,5 +333,6 @@ async def stop_services(s: Services) -> None:
         await s.media.stop()
     await s.priority.stop()
     await s.hub.stop()
+    await s.task_runner.stop()
     await s.decision.stop()
     await s.robot.disconnect()

@@ -14,7 +14,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -22,6 +22,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from backend.media.ice import IceConfig
 from drivers.registry import driver_names, load_driver
 from drivers.robot.puma560.kinematics import NAMED_POSES
 
@@ -61,6 +62,10 @@ class Settings(BaseSettings):
     # Safety (the rest of SafetyLimits keeps its defaults)
     force_limit_n: float = Field(60.0, gt=0)
     deadman_timeout_s: float = Field(0.15, gt=0, le=0.18)
+    # after the dead-man stops the arm, the lease is kept this long for the link to return
+    lease_grace_s: float = Field(2.0, gt=0, le=30.0)
+    # Commands sent longer ago than this (client clock synced to the server's) are dropped.
+    max_command_age_ms: float = Field(250.0, ge=20.0, le=5000.0)
     max_speed_m_s: float = Field(0.25, gt=0, le=2.0)
     contact_speed_m_s: float = Field(0.02, gt=0, le=2.0)  # toward a recent contact
 
@@ -97,7 +102,13 @@ class Settings(BaseSettings):
     video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
     video_cbr: bool = False  # constant bitrate (filler data) instead of "at most"
     keyframe_interval_s: float = Field(2.0, gt=0.0, le=60.0)
-    ice_servers: list[str] = []  # "stun:host:port", "turn:user:pass@host:port"
+    # STUN/TURN for the page and the server's peers (backend/media/ice.py): "stun:host:port",
+    # "turn:user:pass@host:port", or "turn:host:port[?transport=tcp]" with credentials
+    # minted per peer from turn_secret (coturn: use-auth-secret, static-auth-secret)
+    ice_servers: list[str] = []
+    turn_secret: str | None = Field(None, min_length=16, repr=False)  # never sent to a page
+    turn_credential_ttl_s: int = Field(3600, ge=60, le=7 * 86400)  # minted credentials' life
+    ice_relay_only: bool = False  # video only through TURN (iceTransportPolicy "relay")
     alignment_px: tuple[int, int] = (0, 0)  # default shift of the right image vs the left (x, y)
 
     # Simulated workcell
@@ -117,6 +128,20 @@ class Settings(BaseSettings):
         if not all(math.isfinite(c) for p in v for c in p):
             raise ValueError("fiducials must be finite numbers")
         return v
+
+    @model_validator(mode="after")
+    def _ice_usable(self) -> Settings:
+        _ = self.ice_config  # raises (a ValueError) with what to set
+        return self
+
+    @property
+    def ice_config(self) -> IceConfig:
+        return IceConfig(
+            tuple(self.ice_servers),
+            self.turn_secret,
+            self.turn_credential_ttl_s,
+            self.ice_relay_only,
+        )
 
     @field_validator("robot", "force", "camera")
     @classmethod

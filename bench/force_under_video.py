@@ -14,9 +14,9 @@ video, then with an aiortc viewer receiving the video (not decoding it: the link
 the server are under test, not the viewer's CPU).
 
 Links: loopback; and, when run as root, a veth pair between two network namespaces
-this benchmark creates and removes, the server's side shaped to 100 Mbit/s by HTB
-with DSCP EF (the priority channel's mark) in its own class ahead of the rest, as a
-DiffServ-aware router would.
+(bench.netem's NetemPair on its ``lan`` profile: no delay, no loss), the server's side
+shaped to 100 Mbit/s by HTB with DSCP EF (the priority channel's mark) in its own class
+ahead of the rest, as a DiffServ-aware router would.
 """
 
 from __future__ import annotations
@@ -25,24 +25,21 @@ import argparse
 import asyncio
 import json
 import multiprocessing
-import os
 import secrets
-import shutil
 import subprocess
 import sys
 import time
-from typing import Any
+from typing import Any, Literal
 
 import httpx
 import numpy as np
 
 from backend.realtime import messages as m
 from bench.common import emit, machine, open_viewer, parser, serve_for_bench
+from bench.netem import NetemPair, netns_available
 
 RATE_MBIT = 100
 VIDEO_BITRATE = 9_000_000
-NS_SERVER, NS_CLIENT = "trbench-srv", "trbench-cli"
-ADDR_SERVER, ADDR_CLIENT = "10.231.0.1", "10.231.0.2"
 
 
 # ---------------------------------------------------------------- the client process
@@ -159,50 +156,34 @@ def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any
     return {"no_video": quiet, "video": busy, "video_mbps": mbps, "ws": ws_figures, **channel}
 
 
-# ---------------------------------------------------------------- the network namespaces
-def _sh(command: str) -> None:
-    subprocess.run(command.split(), check=True, capture_output=True, text=True)
-
-
-def netns_available() -> str | None:
-    """Why the shaped-link run cannot happen here, or None if it can."""
-    if os.geteuid() != 0:
-        return "not root"
-    for tool in ("ip", "tc"):
-        if shutil.which(tool) is None:
-            return f"no `{tool}` command"
-    return None
-
-
-def netns_up() -> None:
-    netns_down()
-    _sh(f"ip netns add {NS_SERVER}")
-    _sh(f"ip netns add {NS_CLIENT}")
-    _sh(f"ip link add trb0 netns {NS_SERVER} type veth peer trb1 netns {NS_CLIENT}")
-    for ns, dev, addr in ((NS_SERVER, "trb0", ADDR_SERVER), (NS_CLIENT, "trb1", ADDR_CLIENT)):
-        _sh(f"ip -n {ns} addr add {addr}/24 dev {dev}")
-        _sh(f"ip -n {ns} link set {dev} up")
-        _sh(f"ip -n {ns} link set lo up")
-    # The server's way out: 100 Mbit/s; EF (forces) in class 1:10 ahead of 1:20 (the rest).
-    tc = f"ip netns exec {NS_SERVER} tc"
+# ---------------------------------------------------------------- the shaped link
+def prioritise_ef(pair: NetemPair) -> None:
+    """The server's way out: 100 Mbit/s; EF (forces) in class 1:10 ahead of 1:20 (the
+    rest), as a DiffServ-aware router would. The pair stays on the ``lan`` profile, so
+    its root qdisc is ours."""
+    tc = ["tc", "-n", pair.server_ns]
+    dev = ["dev", pair.server_dev]
     rate = f"{RATE_MBIT}mbit"
-    _sh(f"{tc} qdisc add dev trb0 root handle 1: htb default 20 r2q 100")
-    _sh(f"{tc} class add dev trb0 parent 1: classid 1:1 htb rate {rate}")
-    _sh(f"{tc} class add dev trb0 parent 1:1 classid 1:10 htb rate 10mbit ceil {rate} prio 0")
-    _sh(f"{tc} class add dev trb0 parent 1:1 classid 1:20 htb rate 90mbit ceil {rate} prio 1")
-    _sh(
-        f"{tc} filter add dev trb0 parent 1: protocol ip prio 1 u32"
-        " match ip dsfield 0xb8 0xfc flowid 1:10"
-    )
-
-
-def netns_down() -> None:
-    for ns in (NS_SERVER, NS_CLIENT):
-        subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+    for command in (
+        ["qdisc", "add", *dev, "root", "handle", "1:", "htb", "default", "20", "r2q", "100"],
+        ["class", "add", *dev, "parent", "1:", "classid", "1:1", "htb", "rate", rate],
+        ["class", "add", *dev, "parent", "1:1", "classid", "1:10", "htb", "rate", "10mbit",
+         "ceil", rate, "prio", "0"],
+        ["class", "add", *dev, "parent", "1:1", "classid", "1:20", "htb", "rate", "90mbit",
+         "ceil", rate, "prio", "1"],
+        ["filter", "add", *dev, "parent", "1:", "protocol", "ip", "prio", "1", "u32",
+         "match", "ip", "dsfield", "0xb8", "0xfc", "flowid", "1:10"],
+    ):  # fmt: skip
+        subprocess.run([*tc, *command], check=True, capture_output=True, text=True)
 
 
 # ---------------------------------------------------------------- one measurement
-def measure(seconds: float, netns: bool, compare_ws: bool = False) -> dict[str, Any]:
+def measure(
+    seconds: float, netns: NetemPair | Literal[False] | None, compare_ws: bool = False
+) -> dict[str, Any]:
+    """One run: on loopback when ``netns`` is None or False (bench.recording passes
+    False), else the server in the pair's server namespace, the client in its client's."""
+    pair = netns or None
     env = {
         "TELEROBOT_VIDEO": "true",
         "TELEROBOT_VIDEO_WIDTH": "1280",
@@ -212,9 +193,9 @@ def measure(seconds: float, netns: bool, compare_ws: bool = False) -> dict[str, 
         "TELEROBOT_VIDEO_CBR": "true",
         "TELEROBOT_OPERATOR_TOKEN": secrets.token_hex(16),
     }
-    host = ADDR_SERVER if netns else "127.0.0.1"
-    server_prefix = ("ip", "netns", "exec", NS_SERVER) if netns else ()
-    client_prefix = ["ip", "netns", "exec", NS_CLIENT] if netns else []
+    host = pair.server_addr if pair else "127.0.0.1"
+    server_prefix = pair.server_prefix if pair else ()
+    client_prefix = pair.client_prefix if pair else ()
     with serve_for_bench("--host", host, env=env, prefix=server_prefix) as (_, base):
         out = subprocess.run(
             [*client_prefix, sys.executable, "-m", "bench.force_under_video",
@@ -268,11 +249,9 @@ def main() -> None:
     figures: dict[str, Any] = {"loopback": measure(args.seconds, False, args.compare_ws)}
     why_not = netns_available()
     if why_not is None:
-        try:
-            netns_up()
-            figures["netns"] = measure(args.seconds, True, args.compare_ws)
-        finally:
-            netns_down()
+        with NetemPair("lan") as pair:
+            prioritise_ef(pair)
+            figures["netns"] = measure(args.seconds, pair, args.compare_ws)
     else:
         figures["netns"] = None
         figures["netns_skipped"] = why_not

@@ -31,6 +31,20 @@ def pytest_configure() -> None:
 T = TypeVar("T")
 
 
+@pytest.fixture(autouse=True)
+def _no_realtime_test_process() -> Iterator[None]:
+    """A test that leaves this process in a realtime scheduling class fails here, by name:
+    every server and browser started later would inherit it, and one spinning at
+    SCHED_FIFO 99 freezes the machine (and CI with it) instead of failing a test."""
+    import os
+
+    yield
+    policy = os.sched_getscheduler(0)
+    if policy in (os.SCHED_FIFO, os.SCHED_RR):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        pytest.fail(f"this test left the test process in realtime scheduling ({policy})")
+
+
 async def run_with_clock(
     clock: ManualClock, work: Awaitable[T], step: float = 0.05, limit: float = 60.0
 ) -> T:

@@ -108,7 +108,9 @@ async def test_one_controller_at_a_time_and_forced_takeover(clock: ManualClock) 
     assert ds.lease_holder is None and len(robot.sent) == 1
 
 
-async def test_dead_man_stops_motion_within_200_ms(clock: ManualClock) -> None:
+async def test_dead_man_stops_motion_within_200_ms_and_keeps_the_lease_for_its_grace(
+    clock: ManualClock,
+) -> None:
     ds, robot = await make(clock)
     a = ds.join("alice", TOKEN)
     await ds.take_lease(a.id)
@@ -123,14 +125,102 @@ async def test_dead_man_stops_motion_within_200_ms(clock: ManualClock) -> None:
     await ds.joint_increment(a.id, np.array([0.1, 0, 0, 0, 0, 0]))
     assert robot.status is RobotStatus.MOVING
     t_quiet = clock.now()
-    while ds.lease_holder is not None:
+    while not ds.state().halted:
         await clock.advance(0.005)
     assert clock.now() - t_quiet <= 0.2
+    assert ds.lease_holder == a.id  # a stall costs a stop, not control
     # The arm was told to stop: it brakes to rest short of the target.
     await clock.advance(1.0)
     assert robot.status is RobotStatus.READY
     assert robot.joints[0] < robot.sent[-1][0] - 1e-3 and len(robot.sent) == before + 1
+    while ds.lease_holder is not None:
+        await clock.advance(0.005)
+    grace = ds.limits.deadman_timeout_s + ds.limits.lease_grace_s
+    assert grace <= clock.now() - t_quiet <= grace + 0.05
+    assert "dead-man" in ds.state().lease_note and not ds.state().halted
     ticker.cancel()
+
+
+async def test_after_a_stall_the_lease_is_kept_and_only_a_fresh_command_moves(
+    clock: ManualClock,
+) -> None:
+    ds, robot = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    ticker = asyncio.create_task(_tick_forever(ds, clock))
+    sent_at = clock.now()  # the client's clock: ours, 10 ms behind on the way
+    await clock.advance(0.01)
+    await ds.cartesian_increment(a.id, np.array([0.001, 0, 0]), np.zeros(3), client_time=sent_at)
+    before = len(robot.sent)
+    await clock.advance(0.5)  # the link stalls: the arm is stopped, the lease kept
+    assert ds.state().halted and ds.lease_holder == a.id
+    assert len(robot.sent) == before
+    # The backlog arrives: a command sent at the start of the stall is stale.
+    with pytest.raises(SafetyStop, match="stale command"):
+        await ds.cartesian_increment(
+            a.id, np.array([0.001, 0, 0]), np.zeros(3), client_time=sent_at + 0.02
+        )
+    assert not ds.state().halted  # the link is back
+    assert len(robot.sent) == before  # and nothing moved
+    fresh = clock.now() - 0.01
+    await ds.cartesian_increment(a.id, np.array([0.001, 0, 0]), np.zeros(3), client_time=fresh)
+    assert len(robot.sent) == before + 1 and ds.lease_holder == a.id
+    ticker.cancel()
+
+
+async def test_a_synced_clients_command_older_than_the_age_limit_is_dropped_and_counted(
+    clock: ManualClock,
+) -> None:
+    ds, robot = await make(clock)
+    a = ds.join("alice", TOKEN, synced_clock=True)
+    await ds.take_lease(a.id)
+    dX, rv = np.array([0.001, 0, 0]), np.zeros(3)
+    limit = ds.limits.max_command_age_s
+    assert limit == 0.25
+    # A steady 200 ms one-way link: every command is 200 ms old when it arrives, and
+    # moves (the age is the link's, not a stall: the transit floor sees nothing wrong).
+    for _ in range(5):
+        await clock.advance(0.02)
+        await ds.cartesian_increment(a.id, dX, rv, client_time=clock.now() - 0.2)
+    moved = len(robot.sent)
+    assert moved == 5
+    # One sent 260 ms ago: dropped with its age and the limit, counted, nothing moves.
+    await clock.advance(0.02)
+    with pytest.raises(SafetyStop, match=r"sent 260 ms ago, older than the 250 ms limit"):
+        await ds.cartesian_increment(a.id, dX, rv, client_time=clock.now() - 0.26)
+    with pytest.raises(SafetyStop, match="stale command"):
+        await ds.joint_increment(a.id, np.full(6, 1e-4), client_time=clock.now() - 1.0)
+    assert len(robot.sent) == moved
+    assert a.stale_dropped == 2 and ds.stale_dropped == 2
+    # A synced client's time must be a time: NaN, no motion.
+    with pytest.raises(InvalidCommand, match="send time"):
+        await ds.cartesian_increment(a.id, dX, rv, client_time=math.nan)
+    assert len(robot.sent) == moved
+    # A REST move made for it (the page's Home button) carries no time and is not refused.
+    await clock.advance(0.02)
+    await ds.cartesian_increment(a.id, dX, rv)
+    moved += 1
+    assert len(robot.sent) == moved
+    # An unsynced client (its own clock, far from ours) is judged by its transit floor.
+    b = ds.join("script", TOKEN)
+    await ds.take_lease(b.id, force=True)
+    await clock.advance(0.02)
+    await ds.cartesian_increment(b.id, dX, rv, client_time=-1000.0)
+    assert len(robot.sent) == moved + 1 and ds.stale_dropped == 2
+
+
+async def test_a_clients_clock_drifting_behind_is_not_taken_for_stale_commands(
+    clock: ManualClock,
+) -> None:
+    ds, robot = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    own = 0.0  # the client's clock runs 100 ppm slow against ours
+    for _ in range(1800):  # half an hour, a command a second: 180 ms of drift
+        await clock.advance(1.0)
+        own += 1.0 * (1 - 1e-4)
+        await ds.cartesian_increment(a.id, np.array([1e-5, 0, 0]), np.zeros(3), client_time=own)
+    assert len(robot.sent) == 1800
 
 
 async def test_a_stalled_server_reads_the_heartbeats_that_waited_before_judging(
@@ -155,7 +245,7 @@ async def test_a_server_whose_ticks_are_always_late_still_stops_a_silent_client(
     ds, _, _ = await in_control(clock)
     await ds.tick()
     t_quiet = clock.now()
-    while ds.lease_holder is not None:  # every tick 100 ms late, the client silent
+    while not ds.state().halted:  # every tick 100 ms late, the client silent
         await clock.advance(0.1)
         await ds.tick()
     # Deferred once at most: the verdict comes on the next late tick.
@@ -177,6 +267,11 @@ async def test_a_busy_rest_request_keeps_the_lease(clock: ManualClock) -> None:
     await ds.tick()
     assert ds.lease_holder == a.id
     a.busy -= 1
+    await ds.tick()
+    assert ds.state().halted and ds.lease_holder == a.id
+    await clock.advance(ds.limits.lease_grace_s)
+    await ds.tick()  # late (nobody ticked meanwhile): judged on the next one
+    await clock.advance(ds.limits.tick_s)
     await ds.tick()
     assert ds.lease_holder is None
 

@@ -215,3 +215,44 @@ def test_every_message_layout_is_documented() -> None:
         assert row in doc, f"docs/protocol.md lacks the row for {msg.name}: {row}"
         assert f"`<B{msg.fmt}`" in doc, f"docs/protocol.md has a stale layout for {msg.name}"
     assert struct.calcsize("<Id6d") == m.FORCE_SAMPLE.size == 60
+
+
+def test_pings_alone_do_not_keep_the_dead_man_satisfied(
+    client: TestClient, clock: ManualClock
+) -> None:
+    # The page's worker pings every 2 s for the clock sync, also while the page hangs:
+    # a ping is not the operator being there.
+    with client.websocket_connect(WS) as ws:
+        ws.send_bytes(hello(TOKEN))
+        receive_until(ws, m.WELCOME)
+        ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(ws, m.ACK)
+        for seq in range(2, 12):
+            ws.send_bytes(m.encode(m.PING, seq, 0.0))
+            receive_until(ws, m.PONG)
+            client.portal.call(clock.advance, 0.05)  # type: ignore[union-attr]
+        assert client.get("/api/v1/safety").json()["halted"] is True
+
+
+def test_a_synced_clients_stale_command_is_dropped_with_its_age(
+    client: TestClient, clock: ManualClock
+) -> None:
+    with client.websocket_connect(WS) as ws:
+        ws.send_bytes(hello(TOKEN, flags=m.HelloFlags.SYNCED_CLOCK))
+        receive_until(ws, m.WELCOME)
+        ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(ws, m.ACK)
+        x0 = client.get("/api/v1/robot/state").json()["position"][0]
+        old = clock.now() - 0.3  # sent 300 ms ago on the server's clock
+        ws.send_bytes(m.encode(m.CART_INC, 2, old, 0, 0.004, 0.0, 0.0, 0.0, 0.0, 0.0))
+        error, text, _ = receive_until(ws, m.ERROR)
+        assert error["seq"] == 2 and "sent 300 ms ago" in text, text
+        fresh = clock.now() - 0.05
+        ws.send_bytes(m.encode(m.CART_INC, 3, fresh, 0, 0.004, 0.0, 0.0, 0.0, 0.0, 0.0))
+        ack, _, _ = receive_until(ws, m.ACK)
+        assert ack["seq"] == 3 and ack["result"] == m.Ack.APPLIED
+        safety = client.get("/api/v1/safety").json()
+        assert safety["stale_commands_dropped"] == 1 and safety["max_command_age_ms"] == 250
+        client.portal.call(clock.advance, 1.0)  # type: ignore[union-attr]
+        x1 = client.get("/api/v1/robot/state").json()["position"][0]
+        assert x1 == pytest.approx(x0 + 0.004, abs=1e-6)  # only the fresh one moved

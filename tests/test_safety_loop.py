@@ -77,6 +77,9 @@ async def test_the_dead_man_lapses_a_silent_lease_with_no_transport_running() ->
         assert ds.lease_holder == op.id
         for _ in range(20):  # 0.4 s of silence, in the watchdog's own ticks
             await clock.advance(ds.limits.tick_s)
+        assert ds.state().halted and ds.lease_holder == op.id  # stopped; lease kept
+        for _ in range(int(ds.limits.lease_grace_s / ds.limits.tick_s)):
+            await clock.advance(ds.limits.tick_s)
         assert ds.lease_holder is None
         assert robot.status.value in ("READY", "MOVING")  # stopped, not broken
     finally:
@@ -136,6 +139,9 @@ async def test_a_scripted_lease_idles_between_moves_but_jogging_keeps_the_fast_d
         assert ds.lease_holder == script.id
         await ds.cartesian_increment(script.id, np.array([0.002, 0, 0]), np.zeros(3))
         for _ in range(15):  # 0.3 s of silence after jogging: the fast dead-man
+            await clock.advance(ds.limits.tick_s)
+        assert ds.state().halted
+        for _ in range(int(ds.limits.lease_grace_s / ds.limits.tick_s)):  # and its grace
             await clock.advance(ds.limits.tick_s)
         assert ds.lease_holder is None
         await ds.take_lease(script.id)

@@ -216,3 +216,29 @@ def test_a_crashed_media_worker_is_restarted_and_control_never_stops() -> None:
             assert time.monotonic() < deadline + 30, status
             time.sleep(0.2)
         asyncio.run(watch(base, 5))  # and the stream is back
+
+
+async def _watch_link(base: str, seconds: float) -> dict[str, object]:
+    pc, track = await open_viewer(base, timeout=20)
+    deadline = time.monotonic() + seconds
+    async with httpx.AsyncClient(base_url=base, timeout=30) as http:
+        while True:
+            await asyncio.wait_for(track.recv(), 20)  # type: ignore[attr-defined]
+            viewers = (await http.get("api/v1/video")).json()["stats"]["viewers"]
+            link: dict[str, object] = viewers[0]["link"]
+            done = link["reports"] and link["rtt_ms"] is not None and link["estimated_kbps"]
+            if done or time.monotonic() > deadline:
+                break
+    await pc.close()
+    return {"layer": viewers[0]["layer"], **link}
+
+
+def test_each_viewers_link_is_reported_from_its_rtcp() -> None:
+    # What a per-viewer layer choice needs: the receiver's own reports (RR: loss and the
+    # round trip; REMB: its bandwidth estimate), per viewer in GET /api/v1/video.
+    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
+        link = asyncio.run(_watch_link(m.group(1), 15))
+    assert link["layer"] == "full", link
+    assert link["reports"] >= 1 and link["loss"] == 0, link  # loopback: nothing lost
+    assert link["rtt_ms"] is not None and 0 <= link["rtt_ms"] < 200, link  # type: ignore[operator]
+    assert link["estimated_kbps"] and link["estimated_kbps"] > 100, link  # type: ignore[operator]

@@ -8,8 +8,8 @@ export default defineConfig({
     emptyOutDir: true,
     sourcemap: true,
     chunkSizeWarningLimit: 1200,
-    // Two pages: the operator's and the camera calibration.
-    rollupOptions: { input: { main: "index.html", calibration: "calibration.html" } },
+    // Three pages: the operator's, the camera calibration and the recordings' review.
+    rollupOptions: { input: { main: "index.html", calibration: "calibration.html", review: "review.html" } },
   },
   server: {
     proxy: {

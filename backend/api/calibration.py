@@ -175,6 +175,7 @@ async def fit(
         K, dist = captured
         model = fit_charuco(K, dist, points, pixels, body.camera, width, height)
     await asyncio.to_thread(record.store.put, model)
+    record.changed.emit(record.store)
     return state(record, cell, intrinsics)
 
 
@@ -282,4 +283,5 @@ async def clear(
     await asyncio.to_thread(record.store.clear)
     intrinsics.clear()
     record.load_error = None
+    record.changed.emit(record.store)
     return state(record, cell, intrinsics)

@@ -73,6 +73,11 @@ class SafetyView(BaseModel):
     estop_reason: str
     force_limited: bool
     controller: str | None  # name of the client in control
+    halted: bool = Field(
+        description="the dead-man stopped the arm; its controller keeps the lease for "
+        "lease_grace_s, and a fresh command moves it again"
+    )
+    lease_note: str = Field(description="why control last changed hands or was lost")
     workspace_min: list[float]
     workspace_max: list[float]
     max_step_m: float
@@ -83,6 +88,12 @@ class SafetyView(BaseModel):
     contact_speed_m_s: float = Field(description="approach speed toward a recent contact")
     contact_memory_s: float = Field(description="how long a contact slows approaches")
     deadman_timeout_s: float
+    lease_grace_s: float = Field(description="how long a lease outlives the dead-man's stop")
+    max_command_age_ms: float = Field(
+        description="a command sent longer ago than this (clients on the server's clock) "
+        "is dropped, not executed late"
+    )
+    stale_commands_dropped: int = Field(description="commands dropped as too old, so far")
     stop_category: int = Field(description="IEC 60204-1 stop category of every stop it makes")
     stop_category_text: str
     stop: str = Field(description="how the driver stops the arm")
@@ -130,6 +141,8 @@ def _safety(decision: DecisionDep) -> SafetyView:
         estop_reason=s.estop_reason,
         force_limited=s.force_limited,
         controller=s.lease_holder_name,
+        halted=s.halted,
+        lease_note=s.lease_note,
         workspace_min=lim.workspace_min.tolist(),
         workspace_max=lim.workspace_max.tolist(),
         max_step_m=lim.max_step_m,
@@ -140,6 +153,9 @@ def _safety(decision: DecisionDep) -> SafetyView:
         contact_speed_m_s=lim.contact_speed_m_s,
         contact_memory_s=lim.contact_memory_s,
         deadman_timeout_s=lim.deadman_timeout_s,
+        lease_grace_s=lim.lease_grace_s,
+        max_command_age_ms=lim.max_command_age_s * 1000,
+        stale_commands_dropped=decision.stale_dropped,
         stop_category=int(spec.category),
         stop_category_text=STOP_CATEGORY_TEXT[spec.category],
         stop=spec.summary,
@@ -169,6 +185,7 @@ async def take_lease(
             token,
             idle_expiry_s=max(REST_CLIENT_IDLE_S, body.idle_timeout_s),
             lease_idle_s=body.idle_timeout_s,
+            source="rest",
         )
     )
     await decision.take_lease(client.id, force=body.force)
@@ -199,7 +216,7 @@ async def safety(decision: DecisionDep) -> SafetyView:
 async def estop(request: Request, decision: DecisionDep) -> SafetyView:
     """Anyone may press the e-stop: motion stops and stays stopped until a reset."""
     who = request.client.host if request.client else "unknown"
-    await decision.estop(None, f"e-stop pressed over REST from {who}")
+    await decision.estop(None, f"e-stop pressed over REST from {who}", source="rest")
     return _safety(decision)
 
 

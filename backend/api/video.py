@@ -10,9 +10,10 @@ Peer ids are listed only to the operator.
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+import time
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Header, Path, Query
+from fastapi import APIRouter, Depends, Header, Path, Query, Response
 from pydantic import BaseModel, Field
 
 from backend.api.deps import (
@@ -30,6 +31,8 @@ from backend.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaU
 router = APIRouter(tags=["video"])
 
 SECRET_MAX = 64  # a peer secret is 22 characters; anything longer is not one
+# The name in the TURN credentials a page gets ("<expiry>:telerobot-viewer" in its log).
+VIEWER_TURN_NAME = "telerobot-viewer"
 
 
 class SessionDescription(StrictRequest):
@@ -70,6 +73,29 @@ class VideoStatus(BaseModel):
     error: str | None = Field(None, description="why there are no stats right now")
 
 
+class IceServerEntry(BaseModel):
+    """One entry of RTCConfiguration.iceServers."""
+
+    urls: list[str]
+    username: str | None = None
+    credential: str | None = None
+
+
+class IceConfiguration(BaseModel):
+    ice_servers: list[IceServerEntry] = Field(
+        description="for RTCConfiguration.iceServers; TURN credentials minted for this request"
+    )
+    ice_transport_policy: Literal["all", "relay"] = Field(
+        description="for RTCConfiguration.iceTransportPolicy: 'relay' sends video only"
+        " through TURN (the server's own peer is relay-only then too)"
+    )
+    expires_at: int | None = Field(
+        None,
+        description="unix time after which the minted TURN credentials open no new"
+        " allocation: fetch this again for each new peer connection",
+    )
+
+
 def is_operator(decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]) -> bool:
     return decision.check_token(token)
 
@@ -82,6 +108,24 @@ async def video_stats(media: MediaSupervisor, peer_ids: bool) -> dict[str, Any]:
     """The worker's figures; peer ids only for the operator (``peer_ids``)."""
     stats: dict[str, Any] = (await media.request("stats", timeout=5, peer_ids=peer_ids))["stats"]
     return stats
+
+
+@router.get("/video/ice")
+async def ice_configuration(settings: SettingsDep, response: Response) -> IceConfiguration:
+    """The STUN/TURN servers for this page's RTCPeerConnection, and whether it must be
+    relay-only. TURN credentials are time-limited (coturn's ``use-auth-secret``): minted
+    for each request, never cached; the shared secret stays on the server."""
+    ice = settings.ice_config
+    now = time.time()
+    response.headers["Cache-Control"] = "no-store"
+    return IceConfiguration(
+        ice_servers=[
+            IceServerEntry(urls=list(s.urls), username=s.username, credential=s.credential)
+            for s in ice.ice_servers(VIEWER_TURN_NAME, now)
+        ],
+        ice_transport_policy=ice.transport_policy,
+        expires_at=ice.expires_at(now),
+    )
 
 
 @router.post("/webrtc/offer")

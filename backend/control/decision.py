@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import secrets
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any, Concatenate, ParamSpec, TypeVar
 
 import numpy as np
 import pinocchio as pin
@@ -76,6 +78,10 @@ class StillMoving(TelerobotError):
 
 
 MAX_CLIENTS = 512  # joined clients (every /ws, priority or REST-lease client is one)
+# A client's clock and ours drift apart (crystals differ by up to ~100 ppm): the transit
+# floor a stale command is measured against rises this much per second, so a drift of
+# its clock behind ours is never taken for a delay.
+TRANSIT_DRIFT = 2e-4
 
 
 class Role(StrEnum):
@@ -100,6 +106,14 @@ class Client:
     # get the fast dead-man: ``streaming`` says the last command was one.
     lease_idle_s: float | None = None
     streaming: bool = False
+    # The least (server receive time − client_time) seen: a command's transit time
+    # beyond it is how long it waited on the way (a stalled link's backlog).
+    transit_floor: float | None = None
+    transit_floor_at: float = 0.0
+    source: str = "ws"  # where it joined: ws, priority, rest, task (the recording says)
+    # Its client_time is on our clock (it syncs with PING): its commands' age is known.
+    synced_clock: bool = False
+    stale_dropped: int = 0  # its commands dropped as too old
 
 
 @dataclass(frozen=True)
@@ -121,6 +135,25 @@ class SafetyState:
     force_limited: bool
     lease_holder: str | None
     lease_holder_name: str | None
+    # The dead-man stopped the holder's arm; the lease is kept for lease_grace_s.
+    halted: bool = False
+    lease_note: str = ""  # why control last changed hands (or was lost)
+
+
+@dataclass(frozen=True)
+class CommandReport:
+    """One command as the DecisionServer decided it (the recording's ``/commands``):
+    ``args`` as received (arrays as they came), ``error`` None if it was accepted."""
+
+    t: float  # server clock when decided
+    kind: str
+    client_id: str | None
+    client: str
+    source: str
+    args: dict[str, Any]
+    error: TelerobotError | None
+    target: FloatArray | None  # what reached the driver
+    lease_holder: str | None
 
 
 @dataclass
@@ -128,6 +161,40 @@ class DecisionEvents:
     lease_changed: Event[str | None] = field(default_factory=lambda: Event("lease_changed"))
     safety_changed: Event[SafetyState] = field(default_factory=lambda: Event("safety_changed"))
     applied: Event[Applied] = field(default_factory=lambda: Event("applied"))
+    command: Event[CommandReport] = field(default_factory=lambda: Event("command"))
+
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def reported(
+    kind: str, **extra: str
+) -> Callable[
+    [Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]]],
+    Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]],
+]:
+    """Every command, accepted or refused, is reported once on ``events.command``
+    (the one hook the recorder listens to); the command itself is unchanged."""
+
+    def wrap(
+        method: Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]],
+    ) -> Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]]:
+        @functools.wraps(method)
+        async def run(
+            self: DecisionServer, client_id: Any, /, *args: P.args, **kwargs: P.kwargs
+        ) -> R:
+            try:
+                result = await method(self, client_id, *args, **kwargs)
+            except TelerobotError as exc:
+                self._report(kind, client_id, args, {**extra, **kwargs}, exc, None)
+                raise
+            self._report(kind, client_id, args, {**extra, **kwargs}, None, result)
+            return result
+
+        return run
+
+    return wrap
 
 
 class DecisionServer:
@@ -156,6 +223,9 @@ class DecisionServer:
         self.frame = WorkingFrame.BASE
         self._estop = False
         self._estop_reason = ""
+        self._halted = False  # the dead-man stopped the arm; the lease is in its grace
+        self._lease_note = ""
+        self.stale_dropped = 0  # commands dropped as older than max_command_age_s
         self._force_limited = False
         self._force_base = np.zeros(3)  # last contact force, base frame
         self._contact_at: float | None = None  # when a contact force was last felt
@@ -223,6 +293,8 @@ class DecisionServer:
             self._force_limited,
             self._lease,
             holder.name if holder else None,
+            halted=self._halted,
+            lease_note=self._lease_note,
         )
 
     # ------------------------------------------------------------ clients
@@ -236,6 +308,8 @@ class DecisionServer:
         *,
         idle_expiry_s: float | None = None,
         lease_idle_s: float | None = None,
+        source: str = "ws",
+        synced_clock: bool = False,
     ) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
         if len(self._clients) >= self.max_clients:
@@ -251,6 +325,8 @@ class DecisionServer:
             self.clock.now(),
             idle_expiry_s=idle_expiry_s,
             lease_idle_s=lease_idle_s,
+            source=source,
+            synced_clock=synced_clock,
         )
         self._clients[client.id] = client
         return client
@@ -278,12 +354,23 @@ class DecisionServer:
 
     def seen(self, client_id: str) -> None:
         """A heartbeat: any message from a client counts as one."""
-        self.client(client_id).last_seen = self.clock.now()
+        self._heard(self.client(client_id))
+
+    def _heard(self, client: Client) -> None:
+        client.last_seen = self.clock.now()
+        if self._halted and client.id == self._lease:
+            # The link is back: the arm stays where the dead-man stopped it until a
+            # fresh command moves it (a backlog's stale ones are refused: _check_fresh).
+            self._halted = False
+            client.last_command_at = None
+            log.info("dead-man: %s is back; the lease was kept", client.name)
+            self.events.safety_changed.emit(self.state())
 
     @property
     def lease_holder(self) -> str | None:
         return self._lease
 
+    @reported("lease", action="take")
     async def take_lease(self, client_id: str, *, force: bool = False) -> None:
         client = self.client(client_id)
         client.last_seen = self.clock.now()
@@ -299,10 +386,15 @@ class DecisionServer:
                 )
             log.warning("%s takes control from %s", client.name, holder.name)
             await self.robot.stop()
+            self._lease_note = f"taken over by {client.name!r}"
+        else:
+            self._lease_note = f"taken by {client.name!r}"
         self._lease = client_id
+        self._halted = False
         client.last_command_at = None
         self._changed_lease()
 
+    @reported("lease", action="release")
     async def release_lease(self, client_id: str) -> None:
         if self._lease != client_id:
             raise NotAllowed("you do not hold the lease")
@@ -311,6 +403,8 @@ class DecisionServer:
     async def _lapse(self, why: str) -> None:
         log.info("lease lapses: %s", why)
         self._lease = None
+        self._halted = False
+        self._lease_note = why
         await self.robot.stop()
         self._changed_lease()
 
@@ -326,8 +420,10 @@ class DecisionServer:
         return client.lease_idle_s
 
     async def tick(self) -> None:
-        """Dead-man: a lease holder silent for ``deadman_timeout_s`` loses the lease
-        and the arm stops. Called every ``tick_s``.
+        """Dead-man: a lease holder silent for ``deadman_timeout_s`` has its arm
+        stopped at once; silent ``lease_grace_s`` longer, it loses the lease (a short
+        stall of a busy machine costs a stop, not control). A scripted lease idle past
+        its own timeout loses it at once. Called every ``tick_s``.
 
         A tick that comes late says the *server* stalled (its event loop busy, or the
         machine's CPU taken elsewhere), not that the client went quiet: the client's
@@ -348,26 +444,45 @@ class DecisionServer:
             await self._lapse("controller gone")
             return
         silent = now - holder.last_seen
-        if holder.busy > 0 or silent <= self.deadman_limit(holder):
+        limit = self.deadman_limit(holder)
+        if holder.busy > 0 or silent <= limit:
             self._deferred = False
         elif late and not self._deferred:
             self._deferred = True
             log.info("dead-man verdict deferred: this server stalled for %.0f ms", gap * 1000)
         else:
             self._deferred = False
-            await self._lapse(
-                f"dead-man: no heartbeat from {holder.name!r} for {silent * 1000:.0f} ms"
-                f" (the limit is {self.limits.deadman_timeout_s * 1000:.0f} ms)"
-            )
+            scripted = limit != self.limits.deadman_timeout_s
+            if scripted or silent > limit + self.limits.lease_grace_s:
+                await self._lapse(
+                    f"dead-man: no heartbeat from {holder.name!r} for {silent * 1000:.0f} ms"
+                    f" (the limit is {limit * 1000:.0f} ms"
+                    + ("" if scripted else f", then {self.limits.lease_grace_s:g} s of grace")
+                    + ")"
+                )
+            elif not self._halted:
+                self._halted = True
+                log.info(
+                    "dead-man: arm stopped, %s silent for %.0f ms; lease kept %g s",
+                    holder.name,
+                    silent * 1000,
+                    self.limits.lease_grace_s,
+                )
+                await self.robot.stop()
+                self.events.safety_changed.emit(self.state())
 
     # ------------------------------------------------------------ safety
-    async def estop(self, client_id: str | None, reason: str = "e-stop pressed") -> None:
+    @reported("estop")
+    async def estop(
+        self, client_id: str | None, reason: str = "e-stop pressed", *, source: str = "server"
+    ) -> None:
         """Anyone may stop the arm; it stays stopped until an operator resets it."""
         who = self._clients[client_id].name if client_id in self._clients else "server"
         self._estop, self._estop_reason = True, f"{reason} ({who})"
         await self.robot.stop()
         self.events.safety_changed.emit(self.state())
 
+    @reported("reset")
     async def reset(self, client_id: str) -> None:
         client = self.client(client_id)
         if client.role is not Role.OPERATOR:
@@ -404,9 +519,36 @@ class DecisionServer:
             self._force_limited = False
             self.events.safety_changed.emit(self.state())
 
+    def _report(
+        self,
+        kind: str,
+        client_id: str | None,
+        args: tuple[Any, ...],
+        kwargs: dict[str, Any],
+        error: TelerobotError | None,
+        result: object,
+    ) -> None:
+        client = self._clients.get(client_id) if client_id is not None else None
+        source = str(kwargs.pop("source", "server"))
+        if args:
+            kwargs["args"] = list(args)
+        self.events.command.emit(
+            CommandReport(
+                self.clock.now(),
+                kind,
+                client_id,
+                client.name if client else "server",
+                client.source if client else source,
+                kwargs,
+                error,
+                result.target if isinstance(result, Applied) else None,
+                self._lease,
+            )
+        )
+
     def _authorise(self, client_id: str) -> Client:
         client = self.client(client_id)
-        client.last_seen = self.clock.now()
+        self._heard(client)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("observers cannot move the robot")
         if self._lease != client_id:
@@ -428,6 +570,44 @@ class DecisionServer:
         contact = self.robot.pose.rotation @ np.array(self._contact_sensor)
         return float(moved @ contact) < 0.0
 
+    def _check_fresh(self, client: Client, client_time: float | None) -> None:
+        """Refuse an increment that waited on the way longer than the dead-man's limit
+        (sent before a stall, read after it): motion resumes only on fresh commands.
+        Its wait is its transit time (our clock at receipt − its own clock) beyond the
+        least transit seen from this client, which drifts up by ``TRANSIT_DRIFT``.
+        A client on our clock also has every command's age checked against
+        ``max_command_age_s``: older ones are dropped and counted."""
+        now = self.clock.now()
+        # None: a REST call made on behalf of this client (the page's Home button), which
+        # carries no send time; it is judged when it arrives, like any REST move.
+        if client.synced_clock and client_time is not None:
+            if not math.isfinite(client_time):
+                raise InvalidCommand("a command without a valid send time (client_time)")
+            age = now - client_time
+            limit = self.limits.max_command_age_s
+            if age > limit:
+                client.stale_dropped += 1
+                self.stale_dropped += 1
+                raise SafetyStop(
+                    f"stale command: sent {age * 1000:.0f} ms ago, older than the "
+                    f"{limit * 1000:.0f} ms limit; dropped ({client.stale_dropped} so far)"
+                )
+        if client_time is None or not math.isfinite(client_time):
+            return
+        transit = now - client_time
+        floor = client.transit_floor
+        if floor is not None:
+            floor += (now - client.transit_floor_at) * TRANSIT_DRIFT
+        if floor is None or transit < floor:
+            floor = transit
+        client.transit_floor, client.transit_floor_at = floor, now
+        waited = transit - floor
+        if waited > self.limits.deadman_timeout_s:
+            raise SafetyStop(
+                f"stale command: it waited {waited * 1000:.0f} ms on the way (longer than "
+                f"the dead-man's {self.limits.deadman_timeout_s * 1000:.0f} ms); dropped"
+            )
+
     def _interval(self, client: Client, now: float) -> float:
         """Time the speed limit allows for this increment: since the client's last
         command, within [1 ms, 100 ms] so a pause does not bank a big jump."""
@@ -436,6 +616,7 @@ class DecisionServer:
         return min(max(now - client.last_command_at, 0.001), 0.1)
 
     # ------------------------------------------------------------ commands
+    @reported("cartesian_increment")
     async def cartesian_increment(
         self,
         client_id: str,
@@ -449,6 +630,7 @@ class DecisionServer:
         """ΔX (m) and ΔM as a rotation vector (rad), in ``frame`` (default: the working frame)."""
         client = self._authorise(client_id)
         client.streaming = True
+        self._check_fresh(client, client_time)
         dX = check_vector("position increment", dX, 3) * self._scale
         rv = check_vector("rotation increment", rotvec, 3) * self._scale
         with np.errstate(over="ignore"):  # 1e300 is refused below, not a warning
@@ -479,11 +661,13 @@ class DecisionServer:
         q = self.kinematics.ik(T, seed)
         return await self._apply(client, q, seed, seq, client_time, limited)
 
+    @reported("joint_increment")
     async def joint_increment(
         self, client_id: str, dq: FloatArray, *, seq: int = 0, client_time: float | None = None
     ) -> Applied:
         client = self._authorise(client_id)
         client.streaming = True
+        self._check_fresh(client, client_time)
         dq = check_vector("joint increment", dq, 6)
         lim = self.limits
         biggest = float(np.max(np.abs(dq)))
@@ -505,6 +689,7 @@ class DecisionServer:
         self._check_workspace(self.kinematics.fk(q)[:3, 3])
         return await self._apply(client, q, seed, seq, client_time, limited)
 
+    @reported("move_joints")
     async def move_joints(self, client_id: str, q: FloatArray, *, seq: int = 0) -> Applied:
         """An absolute joint move (scripted): joint limits and the workspace apply; the
         arm's own velocity limits pace it."""
@@ -517,6 +702,7 @@ class DecisionServer:
         self._check_workspace(self.kinematics.fk(q)[:3, 3])
         return await self._apply(client, q, None, seq, None, False)
 
+    @reported("move_pose")
     async def move_pose(
         self, client_id: str, position: FloatArray, rotation: FloatArray, *, seq: int = 0
     ) -> Applied:
@@ -532,6 +718,7 @@ class DecisionServer:
         q = self.kinematics.ik(T, self.robot.target_joints)
         return await self._apply(client, q, None, seq, None, False)
 
+    @reported("initialize")
     async def initialize(self, client_id: str, q: FloatArray | None = None) -> None:
         """Connect if needed and initialise (to ``q`` or the home pose); needs the lease."""
         self._authorise(client_id)

@@ -37,6 +37,13 @@ class SafetyLimits:
     contact_memory_s: float = 2.0
     deadman_timeout_s: float = 0.15  # quiet controller → stop (checked every tick)
     tick_s: float = 0.02  # how often the dead-man is checked
+    # A lease holder silent past the dead-man has its arm stopped at once but keeps the
+    # lease this much longer: a busy machine's 200 ms stall costs a stop, not control.
+    lease_grace_s: float = 2.0
+    # A command from a client on the server's clock (HELLO's SYNCED_CLOCK) that is older
+    # than this when it arrives is dropped, not executed late: on a slow or bursty link
+    # a backlog must not replay the operator's past motions.
+    max_command_age_s: float = 0.25
 
     def __post_init__(self) -> None:
         lo, hi = (
@@ -55,9 +62,11 @@ class SafetyLimits:
             "force_limit_n",
             "contact_force_n",
             "contact_speed_m_s",
+            "max_command_age_s",
             "contact_memory_s",
             "deadman_timeout_s",
             "tick_s",
+            "lease_grace_s",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):

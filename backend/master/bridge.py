@@ -17,10 +17,15 @@ over the priority channel. Every millisecond it reads the device and
 Heartbeats keep the lease while the bridge runs. An optional constant virtual delay
 holds each force sample until its sensor time plus T_v (Kosuge's virtual time delay),
 so the feedback loop sees one constant delay instead of a jittering one.
+
+When the priority channel goes away (a server restart, a network cut), the device is
+let go (no force, clutch re-anchored) and, given a ``reconnect`` function, the bridge
+connects again with a doubling backoff (0.5 s … 8 s, from the start after a success).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -34,7 +39,7 @@ import numpy as np
 
 from backend.master.link import PriorityLink, Reply
 from backend.realtime import messages as m
-from drivers.base import FloatArray, ForceSample, InvalidCommand, MasterArm
+from drivers.base import FloatArray, ForceSample, InvalidCommand, MasterArm, TelerobotError
 from drivers.master.impedance import ImpedanceCompensator
 from drivers.threads import WorkerThread
 
@@ -76,6 +81,23 @@ def rotvec(R: FloatArray) -> FloatArray:
     return np.asarray(axis * (angle / s), dtype=float)
 
 
+class Backoff:
+    """Delays between attempts: ``first_s``, doubling up to ``max_s``; reset to the first."""
+
+    def __init__(self, first_s: float = 0.5, max_s: float = 8.0) -> None:
+        self.first_s = first_s
+        self.max_s = max_s
+        self._next = first_s
+
+    def next(self) -> float:
+        delay = self._next
+        self._next = min(self.max_s, delay * 2)
+        return delay
+
+    def reset(self) -> None:
+        self._next = self.first_s
+
+
 class MasterBridge:
     def __init__(
         self,
@@ -84,9 +106,16 @@ class MasterBridge:
         settings: BridgeSettings | None = None,
         *,
         time_source: Callable[[], float] = time.monotonic,
+        reconnect: Callable[[], PriorityLink] | None = None,
+        backoff: Backoff | None = None,
     ) -> None:
         self.device = device
         self.link = link
+        self.reconnect = reconnect  # a new link to the server; None: stop when it goes
+        self.backoff = backoff or Backoff()
+        self.reconnects = 0
+        self.connected = True
+        self.on_reconnect: Callable[[PriorityLink], None] | None = None  # e.g. take control again
         self.settings = (settings or BridgeSettings()).check()
         self.compensator = ImpedanceCompensator(
             self.settings.alpha,
@@ -118,6 +147,9 @@ class MasterBridge:
         self.last_rendered: FloatArray = np.zeros(3)
         self.last_error: str | None = None
         self.on_sample: Callable[[ForceSample, float], None] | None = None  # benchmarks
+        self._attach(link)
+
+    def _attach(self, link: PriorityLink) -> None:
         link.on_force = self._on_force
         link.on_state = self._on_state
         link.on_reply = self._on_reply
@@ -223,8 +255,45 @@ class MasterBridge:
         self._worker.stop()
         self.device.set_force(np.zeros(3))
         self.device.close()
-        if self.has_control:
-            self.link.lease(m.LeaseAction.RELEASE)
+        if self.has_control and self.connected:
+            with contextlib.suppress(OSError):
+                self.link.lease(m.LeaseAction.RELEASE)
+
+    def _lost(self, reason: str) -> bool:
+        """The link went away: let the device go, then connect again with backoff (until
+        stopped); True once a new link is up, False when there is no reconnecting."""
+        self.connected = False
+        self.last_error = f"the priority channel closed: {reason}"
+        log.error("%s", self.last_error)
+        self.device.set_force(np.zeros(3))
+        with self._lock:
+            self._force = None
+            self._delayed.clear()
+            self.flags = 0  # no control known on a link that is gone
+        self._anchor = None  # the next grip re-anchors: no jump from the gap
+        self._pending_dx[:] = 0
+        self._pending_rv[:] = 0
+        self.link.close()
+        if self.reconnect is None:
+            return False
+        while not self._stop.wait(self.backoff.next()):
+            try:
+                link = self.reconnect()
+            except (TelerobotError, OSError) as exc:
+                log.warning("reconnecting: %s", exc)
+                continue
+            self._attach(link)
+            self.link = link
+            self.connected = True
+            self.reconnects += 1
+            self.backoff.reset()
+            self.last_error = None
+            log.info("reconnected to the priority channel (%d)", self.reconnects)
+            link.ping()
+            if self.on_reconnect is not None:
+                self.on_reconnect(link)
+            return True
+        return False
 
     def _run(self) -> None:
         period = 1.0 / self.settings.rate_hz
@@ -239,12 +308,15 @@ class MasterBridge:
                 self.overruns += 1
                 next_t = self._now()
             try:
+                if self.link.closed_reason is not None:
+                    raise OSError(self.link.closed_reason)
                 self.tick()
             except OSError as exc:  # the link went away
-                self.last_error = f"the priority channel closed: {exc}"
-                log.error("%s", self.last_error)
-                self.device.set_force(np.zeros(3))
-                return
+                if not self._lost(str(exc)):
+                    return
+                next_t = self._now()
+                pings = 0
+                continue
             if pings < 5 and self.ticks % 100 == 0:  # a few more for a good clock offset
                 self.link.ping()
                 pings += 1

@@ -73,7 +73,10 @@ def run(args: argparse.Namespace) -> int:
         cls = load_driver("master", args.device)
         device: MasterArm = cls(demo_hand) if args.device == "sim" else cls()
         link = open_link(args.server, token)
-        bridge = MasterBridge(device, link, settings)
+        # A server restart or a cut: connect again (with backoff) rather than exit.
+        bridge = MasterBridge(
+            device, link, settings, reconnect=lambda: open_link(args.server, token)
+        )
         bridge.start(take_control=bool(token), take_over=args.take_over)
     except TelerobotError as exc:
         print(f"telerobot master: {exc}", file=sys.stderr)
@@ -89,12 +92,10 @@ def run(args: argparse.Namespace) -> int:
                 f"control {'yes' if bridge.has_control else 'no '}"
                 f" · commands {bridge.commands_sent}"
                 f" · forces {bridge.forces_received} · rendering {np.linalg.norm(f):.2f} N"
+                + ("" if bridge.connected else " · reconnecting")
                 + (f" · last error: {bridge.last_error}" if bridge.last_error else ""),
                 flush=True,
             )
-            if link.closed_reason:
-                print(f"telerobot master: {link.closed_reason}", file=sys.stderr)
-                break
     bridge.stop()
-    link.close()
+    bridge.link.close()
     return 0

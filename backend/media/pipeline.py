@@ -13,6 +13,7 @@ import contextlib
 import logging
 import secrets
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,13 +23,16 @@ import numpy as np
 from aiortc import (
     RTCConfiguration,
     RTCIceServer,
+    RTCIceTransportPolicy,
     RTCPeerConnection,
     RTCRtpSender,
     RTCSessionDescription,
 )
+from aiortc.rtp import RTCP_PSFB_APP, RtcpPsfbPacket, RtcpRrPacket, RtcpSrPacket, unpack_remb_fci
 
 from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from backend.media.fanout import Broadcaster, SharedVideoTrack
+from backend.media.ice import IceConfig, parse_url
 from backend.media.supervisor import MediaUnavailable
 from backend.netprio import mark_peer_low_priority
 from backend.telemetry.stats import InterArrival, StreamStats
@@ -49,6 +53,12 @@ class ViewerLimitReached(MediaUnavailable):
     """Every viewer place (or every place for a viewer still connecting) is taken."""
 
     code = "viewer_limit"
+
+
+class TurnUnavailable(MediaUnavailable):
+    """Relay-only video, and the TURN server gave this peer no relay address."""
+
+    code = "turn_unavailable"
 
 
 class NotYourPeer(TelerobotError):
@@ -78,7 +88,52 @@ class VideoSettings:
     bitrate: int = 8_000_000
     keyframe_interval: float = 2.0
     cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
-    ice_servers: tuple[str, ...] = ()  # "stun:host:port" or "turn:user:pass@host:port"
+    ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
+
+
+@dataclass
+class ViewerLink:
+    """What this viewer's receiver reports of its link (RTCP): its bandwidth estimate
+    (REMB), the loss in its last receiver report, the round trip. The figures a layer
+    choice per viewer needs; None until reported."""
+
+    estimated_bps: int | None = None
+    fraction_lost: float | None = None  # of the packets in the last report interval
+    packets_lost: int | None = None  # cumulative
+    rtt_s: float | None = None
+    reports: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "estimated_kbps": None if self.estimated_bps is None else self.estimated_bps / 1000,
+            "loss": self.fraction_lost,
+            "packets_lost": self.packets_lost,
+            "rtt_ms": None if self.rtt_s is None else self.rtt_s * 1000,
+            "reports": self.reports,
+        }
+
+
+def follow_link(sender: RTCRtpSender, link: ViewerLink) -> None:
+    """Copy what the receiver reports over RTCP into ``link`` (aiortc keeps REMB and the
+    loss to itself: its handler is wrapped, as ``_send_keyframe`` is below)."""
+    handle = sender._handle_rtcp_packet
+
+    async def on_rtcp(packet: Any) -> None:
+        await handle(packet)
+        if isinstance(packet, RtcpRrPacket | RtcpSrPacket):
+            for report in packet.reports:
+                if report.ssrc == sender._ssrc:
+                    link.fraction_lost = report.fraction_lost / 256
+                    link.packets_lost = report.packets_lost
+                    link.rtt_s = getattr(sender, "_RTCRtpSender__rtt", None)
+                    link.reports += 1
+        elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == RTCP_PSFB_APP:
+            with contextlib.suppress(ValueError):
+                bitrate, ssrcs = unpack_remb_fci(packet.fci)
+                if sender._ssrc in ssrcs:
+                    link.estimated_bps = bitrate
+
+    sender._handle_rtcp_packet = on_rtcp  # type: ignore[method-assign]
 
 
 @dataclass
@@ -86,6 +141,7 @@ class Peer:
     pc: RTCPeerConnection
     track: SharedVideoTrack
     created: float
+    link: ViewerLink = field(default_factory=ViewerLink)
     secret: str = field(default_factory=lambda: secrets.token_urlsafe(PEER_SECRET_BYTES))
     connected: bool = False
     viewer: str | None = None  # the one viewer name whose alignment this peer may save
@@ -116,17 +172,24 @@ def no_signal_frame(width: int, height: int, message: str, seq: int, t: float) -
     return StereoFrame(seq, t, np.concatenate([eye, eye], axis=1))
 
 
-def _ice(servers: tuple[str, ...]) -> RTCConfiguration:
-    parsed = []
-    for url in servers:
-        scheme, _, rest = url.partition(":")
-        if "@" in rest:  # turn:user:pass@host:port
-            creds, _, host = rest.rpartition("@")
-            user, _, password = creds.partition(":")
-            parsed.append(RTCIceServer(urls=f"{scheme}:{host}", username=user, credential=password))
-        else:
-            parsed.append(RTCIceServer(urls=url))
-    return RTCConfiguration(iceServers=parsed)
+# The name in the TURN credentials the server's own peers mint ("<expiry>:telerobot-server"
+# in the TURN server's log; a page's are "…:telerobot-viewer").
+SERVER_TURN_NAME = "telerobot-server"
+
+
+def _ice(config: IceConfig, now: float | None = None) -> RTCConfiguration:
+    """aiortc's configuration for one peer: the same servers as the page's, TURN
+    credentials minted now (unix time). aiortc uses the first STUN and the first TURN
+    URL it can (turn: over UDP or TCP, turns: over TCP)."""
+    servers = config.ice_servers(SERVER_TURN_NAME, time.time() if now is None else now)
+    policy = RTCIceTransportPolicy.RELAY if config.relay_only else RTCIceTransportPolicy.ALL
+    return RTCConfiguration(
+        iceServers=[
+            RTCIceServer(urls=list(s.urls), username=s.username, credential=s.credential)
+            for s in servers
+        ],
+        iceTransportPolicy=policy,
+    )
 
 
 class VideoPipeline:
@@ -162,6 +225,10 @@ class VideoPipeline:
         self.keyframe_bytes = StreamStats("video_keyframe_bytes", "B", capacity=100)
         self.frames_encoded = 0
         self._no_signal_seq = 0
+        # The recording's tap (backend/recording/video.py), while a recording runs: every
+        # H.264 packet the viewers get, the same bytes (no second encode). While it is
+        # set the pipeline captures and encodes H.264 even with nobody watching.
+        self.tap: Callable[[EncodedFrame], None] | None = None
 
     def _encoder(self, codec: str) -> PacketEncoder:
         if codec not in self.encoders:
@@ -177,6 +244,15 @@ class VideoPipeline:
             self.encoders[codec] = enc
             self.broadcasters[codec] = Broadcaster(enc.request_keyframe, self.clock.now)
         return self.encoders[codec]
+
+    def start_tap(self, tap: Callable[[EncodedFrame], None]) -> None:
+        """Hand every H.264 packet to ``tap`` from now on, and ask for a keyframe (shared
+        and rate-limited like a viewer's) so the recording can start on one."""
+        self.tap = tap
+        self.broadcaster.request_keyframe()
+
+    def stop_tap(self) -> None:
+        self.tap = None
 
     @property
     def broadcaster(self) -> Broadcaster:
@@ -211,9 +287,10 @@ class VideoPipeline:
         loop = asyncio.get_running_loop()
         seq = 0
         while True:
-            if self.viewers == 0:
-                # Nobody to send to: pull no frames, so a camera that renders on demand
-                # (the simulated one) does not take ~10 % of a core from the force stream.
+            if self.viewers == 0 and self.tap is None:
+                # Nobody to send to and nothing recorded: pull no frames, so a camera that
+                # renders on demand (the simulated one) does not take ~10 % of a core from
+                # the force stream.
                 await asyncio.sleep(IDLE_POLL_S)
                 continue
             frame = await loop.run_in_executor(self._grab, self.camera.next_frame, seq, 0.5)
@@ -231,12 +308,15 @@ class VideoPipeline:
                 seq = frame.seq
                 self.capture_interarrival.tick(frame.time)
             for codec, broadcaster in list(self.broadcasters.items()):
-                if broadcaster.sending == 0:
-                    continue  # nobody connected in this codec: no encoding
+                tap = self.tap if codec == "H264" else None
+                if broadcaster.sending == 0 and tap is None:
+                    continue  # nobody connected in this codec, nothing recorded: no encoding
                 encoder = self.encoders[codec]
                 for encoded in await loop.run_in_executor(self._encode, encoder.encode, frame):
                     if codec == "H264":
                         self._record(encoded)
+                        if tap is not None:
+                            tap(encoded)  # must not block: a bounded hand-over
                     broadcaster.publish(encoded)
 
     def _record(self, e: EncodedFrame) -> None:
@@ -303,7 +383,7 @@ class VideoPipeline:
 
     # ------------------------------------------------------------ signalling
     def _new_peer(self, codec: str = "H264") -> tuple[str, Peer]:
-        pc = RTCPeerConnection(_ice(self.settings.ice_servers))
+        pc = RTCPeerConnection(_ice(self.settings.ice))
         self._encoder(codec)
         track = self.broadcasters[codec].new_track()
         transceiver = pc.addTransceiver(track, direction="sendonly")
@@ -322,6 +402,7 @@ class VideoPipeline:
         sender._send_keyframe = on_keyframe_request  # type: ignore[method-assign]
         peer_id = secrets.token_hex(8)
         peer = Peer(pc, track, created=self.clock.now())
+        follow_link(sender, peer.link)
         self.peers[peer_id] = peer
 
         @pc.on("connectionstatechange")
@@ -383,6 +464,7 @@ class VideoPipeline:
         except Exception as exc:
             await self.close_peer(peer_id)
             raise BadOffer(f"cannot use this offer: {exc}") from None
+        await self._check_relay(peer_id, peer)
         return self._description(peer_id, peer)
 
     async def offer(self) -> dict[str, str]:
@@ -390,7 +472,20 @@ class VideoPipeline:
         self._make_room()
         peer_id, peer = self._new_peer()
         await peer.pc.setLocalDescription(await peer.pc.createOffer())
+        await self._check_relay(peer_id, peer)
         return self._description(peer_id, peer)
+
+    async def _check_relay(self, peer_id: str, peer: Peer) -> None:
+        """Relay-only, and no relay candidate: no viewer could ever connect; say why now."""
+        ice = self.settings.ice
+        if ice.relay_only and " typ relay" not in peer.pc.localDescription.sdp:
+            await self.close_peer(peer_id)
+            turn = next(u for u in ice.servers if u.startswith("turn"))
+            raise TurnUnavailable(
+                f"video is relay-only and the TURN server {parse_url(turn)[0]} gave no relay"
+                " address: is it running and reachable from the server, and is"
+                " TELEROBOT_TURN_SECRET its static-auth-secret (or the URL's user:pass right)?"
+            )
 
     @staticmethod
     def _description(peer_id: str, peer: Peer) -> dict[str, str]:
@@ -454,6 +549,9 @@ class VideoPipeline:
                     "bytes": p.track.sent_bytes,
                     "mbps": p.track.sent_bytes * 8 / 1e6 / max(now - p.created, 1e-3),
                     "resyncs": p.track.resyncs,
+                    # One layer today (the full stream); the link is what its receiver says.
+                    "layer": "full",
+                    "link": p.link.as_dict(),
                 }
                 for pid, p in self.peers.items()
             ],

@@ -8,6 +8,8 @@ import contextlib
 import itertools
 import logging
 import multiprocessing
+import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -49,6 +51,10 @@ class MediaSupervisor:
         self.restarts = 0
         self.started_at = 0.0
         self._stopping = False
+        # The recording's video (backend/recording/video.py): while set, the worker sends
+        # every H.264 packet, and this is called with each (on a reader thread of its own,
+        # so a megabyte a second never passes through the event loop).
+        self._video_sink: Callable[[bytes], None] | None = None
 
     @property
     def alive(self) -> bool:
@@ -64,17 +70,49 @@ class MediaSupervisor:
 
     def _spawn(self) -> None:
         parent, child = self._ctx.Pipe()
+        video_in, video_out = self._ctx.Pipe(duplex=False)
         self._conn = parent
         self._ready.clear()
         self._proc = self._ctx.Process(
             target=worker_main,
-            args=(child, self.settings.model_dump_json(), self._arm),
+            args=(child, self.settings.model_dump_json(), self._arm, video_out),
             name="telerobot-media",
             daemon=True,
         )
         self._proc.start()
         child.close()
+        video_out.close()
         asyncio.get_running_loop().add_reader(parent.fileno(), self._readable)
+        threading.Thread(
+            target=self._read_video, args=(video_in,), name="media-video-tap", daemon=True
+        ).start()
+
+    def _read_video(self, conn: Any) -> None:
+        """Until this worker is gone: each packet to the sink, if a recording wants it."""
+        with conn:
+            while True:
+                try:
+                    message = conn.recv_bytes()
+                except (EOFError, OSError):
+                    return
+                sink = self._video_sink
+                if sink is not None:
+                    try:
+                        sink(message)
+                    except Exception:  # a recording's bug must not end the reader
+                        log.exception("the recording's video sink failed")
+
+    async def record_video(self, sink: Callable[[bytes], None] | None) -> dict[str, Any]:
+        """Start (a sink) or stop (None) sending the encoded video to ``sink``; the worker
+        runs the pipeline while it records, viewers or not, and starts on a keyframe.
+        Answers the worker's counts (``sent``, ``dropped``) so far."""
+        if sink is not None:
+            self._video_sink = sink
+            return await self.request("record", on=True)
+        try:
+            return await self.request("record", on=False)
+        finally:  # packets already on their way still reach the recording
+            self._video_sink = None
 
     def _readable(self) -> None:
         try:
@@ -84,6 +122,8 @@ class MediaSupervisor:
             return
         if msg.get("event") == "ready":
             self._ready.set()
+            if self._video_sink is not None:  # a worker restarted while recording
+                self._conn.send({"id": None, "op": "record", "on": True})
             return
         future = self._pending.pop(msg.get("id"), None)
         if future is not None and not future.done():

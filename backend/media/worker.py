@@ -36,7 +36,14 @@ def shared_arm_probe(arm: Any) -> Callable[[], ArmSnapshot]:
     return probe
 
 
-def worker_main(conn: multiprocessing.connection.Connection, settings_json: str, arm: Any) -> None:
+def worker_main(
+    conn: multiprocessing.connection.Connection,
+    settings_json: str,
+    arm: Any,
+    video: multiprocessing.connection.Connection | None = None,
+) -> None:
+    """``conn`` carries requests and replies; ``video`` (send only) the recording's
+    packets while one runs (``backend/media/tap.py``)."""
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s media-worker: %(message)s"
     )
@@ -52,11 +59,17 @@ def worker_main(conn: multiprocessing.connection.Connection, settings_json: str,
         uvloop.install()
     except ImportError:
         pass
-    asyncio.run(_serve(conn, settings, arm))
+    asyncio.run(_serve(conn, settings, arm, video))
 
 
-async def _serve(conn: multiprocessing.connection.Connection, settings: Settings, arm: Any) -> None:
+async def _serve(
+    conn: multiprocessing.connection.Connection,
+    settings: Settings,
+    arm: Any,
+    video: multiprocessing.connection.Connection | None = None,
+) -> None:
     from backend.media.pipeline import VideoPipeline, VideoSettings
+    from backend.media.tap import PacketPipe
 
     camera = build_camera(settings, shared_arm_probe(arm))
     pipeline = VideoPipeline(
@@ -66,10 +79,15 @@ async def _serve(conn: multiprocessing.connection.Connection, settings: Settings
             bitrate=settings.video_bitrate,
             keyframe_interval=settings.keyframe_interval_s,
             cbr=settings.video_cbr,
-            ice_servers=tuple(settings.ice_servers),
+            ice=settings.ice_config,
         ),
     )
     pipeline.start()
+    tap = (
+        PacketPipe(video.send_bytes, pipeline.broadcaster.request_keyframe)
+        if video is not None
+        else None
+    )
     loop = asyncio.get_running_loop()
     requests: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
 
@@ -109,6 +127,15 @@ async def _serve(conn: multiprocessing.connection.Connection, settings: Settings
                 reply["stats"] = pipeline.stats(peer_ids=bool(req.get("peer_ids")))
             elif op == "keyframe":
                 pipeline.broadcaster.request_keyframe()  # shared and rate-limited like any
+            elif op == "record":
+                if tap is None:
+                    raise TelerobotError("this media worker has no pipe for the recording")
+                if req.get("on"):
+                    tap.restart()
+                    pipeline.start_tap(tap.push)
+                else:
+                    pipeline.stop_tap()
+                reply.update(sent=tap.sent, dropped=tap.dropped)
             elif op == "board":
                 camera.show_board(req.get("view"))
             else:

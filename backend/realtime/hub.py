@@ -207,6 +207,10 @@ class RealtimeHub:
 
     def _on_safety(self, state: SafetyState) -> None:
         parts = [f"control: {state.lease_holder_name or 'nobody'}"]
+        if state.lease_note:
+            parts[0] += f" ({state.lease_note})"
+        if state.halted:
+            parts.append("HALTED: the dead-man stopped the arm; the lease is kept a moment")
         if state.estop:
             parts.append(f"E-STOP: {state.estop_reason}")
         if state.force_limited:
@@ -226,6 +230,8 @@ class RealtimeHub:
             flags |= m.StateFlags.ESTOP
         if safety.force_limited:
             flags |= m.StateFlags.FORCE_LIMITED
+        if safety.halted:
+            flags |= m.StateFlags.HALTED
         if conn.operator:
             flags |= m.StateFlags.OPERATOR
         return m.encode(

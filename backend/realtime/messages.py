@@ -44,6 +44,10 @@ class LeaseAction(IntEnum):
 
 class HelloFlags(IntEnum):
     EVERY_FORCE_SAMPLE = 1  # one FORCE message per sample instead of ~10 ms batches
+    # client_time is on the server's clock (synced with PING/PONG): commands older than
+    # the server's max command age are dropped (and one whose time is not a number is
+    # refused).
+    SYNCED_CLOCK = 2
 
 
 class StateFlags(IntEnum):
@@ -52,6 +56,7 @@ class StateFlags(IntEnum):
     ESTOP = 4
     FORCE_LIMITED = 8
     OPERATOR = 16  # you joined with the operator token
+    HALTED = 32  # the dead-man stopped the arm; its holder keeps the lease for a grace period
 
 
 class Ack(IntEnum):

@@ -666,6 +666,7 @@ class PriorityChannel:
                 send=send,
                 every_force_sample=True,
                 direct_forces=True,  # written by the sensor's thread, above
+                source="priority",
             )
         except (m.MalformedMessage, KeyError) as exc:
             self._close_soon(client, "malformed", str(exc))

@@ -73,13 +73,17 @@ class Session:
         send: Callable[[bytes], Awaitable[None]],
         every_force_sample: bool | None = None,
         direct_forces: bool = False,
+        source: str = "ws",
     ) -> Session:
         """``every_force_sample`` None: as the HELLO's flags ask."""
         fields = check_hello(hello)
         token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
-        client = decision.join(peer, token or None)
+        flags = int(fields["flags"])
+        client = decision.join(
+            peer, token or None, source=source, synced_clock=bool(flags & m.HelloFlags.SYNCED_CLOCK)
+        )
         if every_force_sample is None:
-            every_force_sample = bool(int(fields["flags"]) & m.HelloFlags.EVERY_FORCE_SAMPLE)
+            every_force_sample = bool(flags & m.HelloFlags.EVERY_FORCE_SAMPLE)
         conn = Connection(
             send,
             client.id,
@@ -108,9 +112,11 @@ class Session:
         self.hub.add(self.conn)
 
     async def receive(self, data: bytes, received: float) -> bool:
-        """One message from the client (any message is a heartbeat); False if it was
-        malformed."""
-        self.decision.seen(self.client.id)
+        """One message from the client (any message but PING is a heartbeat); False if
+        it was malformed. A PING is the transport's clock sync, which the page's worker
+        sends on its own every 2 s: it says nothing of the operator being there."""
+        if data[:1] != bytes((m.PING.type_id,)):
+            self.decision.seen(self.client.id)
         return await handle(data, received, self.client.id, self.conn, self.decision, self.hub)
 
     async def close(self) -> None:

@@ -1,5 +1,5 @@
 import { describe, expect, expectTypeOf, it, vi } from "vitest";
-import { Api, ApiError, LOG_LIMIT, MessageLog, TOKEN_KEY, TOKEN_NEEDED, buildRequest, errorText, readToken, type LogList, type ResponseOf, type Schema } from "./api";
+import { Api, ApiError, LOG_LIMIT, MessageLog, TOKEN_KEY, TOKEN_NEEDED, TRY_KEY, buildRequest, errorText, readToken, saveToken, tokenVerdict, withoutToken, type LogList, type ResponseOf, type Schema } from "./api";
 
 function memoryStorage(init: Record<string, string> = {}) {
   const data = new Map(Object.entries(init));
@@ -9,13 +9,31 @@ const problem = (status: number, code: string, detail: string) => ({ type: `urn:
 const json = (body: unknown, status = 200) => new Response(JSON.stringify(body), { status, headers: { "Content-Type": "application/json" } });
 
 describe("the operator token", () => {
-  it("comes from ?token= (and is remembered), else from what was remembered, else is empty", () => {
+  it("comes from ?token=, else from the token field once, else from what was remembered, else is empty", () => {
     const storage = memoryStorage();
-    expect(readToken("", storage)).toBe("");
-    expect(readToken("?token=secret-1&x=1", storage)).toBe("secret-1");
-    expect(storage.data.get(TOKEN_KEY)).toBe("secret-1");
-    expect(readToken("?x=1", storage)).toBe("secret-1");
-    expect(readToken("?token=", storage)).toBe("secret-1"); // an empty one changes nothing
+    const session = { ...memoryStorage(), removeItem(k: string) { this.data.delete(k); } };
+    expect(readToken("", storage, session)).toBe("");
+    expect(readToken("?token=secret-1&x=1", storage, session)).toBe("secret-1");
+    expect(storage.data.get(TOKEN_KEY)).toBeUndefined(); // not remembered until the server accepts it
+    saveToken(storage, "secret-1");
+    expect(readToken("?x=1", storage, session)).toBe("secret-1");
+    expect(readToken("?token=", storage, session)).toBe("secret-1"); // an empty one changes nothing
+    session.setItem(TRY_KEY, "typed");
+    expect(readToken("", storage, session)).toBe("typed");
+    expect(readToken("", storage, session)).toBe("secret-1"); // tried once
+  });
+  it("leaves the address once read", () => {
+    expect(withoutToken("http://robot:8000/?token=abc&mode=x#h")).toBe("http://robot:8000/?mode=x#h");
+    expect(withoutToken("http://robot:8000/?token=abc")).toBe("http://robot:8000/");
+  });
+  it("is said to be rejected when the server makes the page an observer, and says where one comes from", () => {
+    expect(tokenVerdict("good", true, null)).toBeNull();
+    expect(tokenVerdict("", false, null)).toBeNull(); // no token: an observer, as asked
+    const said = tokenVerdict("wrong", false, "good") ?? "";
+    expect(said).toMatch(/^Token rejected/);
+    expect(said).toContain("remembered token was kept");
+    expect(said).toContain("telerobot serve");
+    expect(tokenVerdict("wrong", false, "wrong")).not.toContain("remembered");
   });
 });
 

@@ -11,17 +11,45 @@ export type Schema<K extends keyof components["schemas"]> = components["schemas"
 export const TOKEN_KEY = "telerobot.token";
 type KeyValueStore = Pick<Storage, "getItem" | "setItem">;
 
-/** The operator token: `?token=` in the page's address (remembered for the next
- * visit), else the one remembered, else "" (an observer). */
-export function readToken(search: string, storage: KeyValueStore): string {
+/** A token typed into the page's token field, to try once in this tab. */
+export const TRY_KEY = "telerobot.token.try";
+
+/** The operator token to try: `?token=` in the page's address, else one typed into the
+ * token field (`tried`: this tab's session storage), else the one remembered, else ""
+ * (an observer). Nothing is remembered here: only a token the server accepted is
+ * (saveToken, on WELCOME as operator), so a wrong one never replaces a good one. */
+export function readToken(search: string, storage: Pick<Storage, "getItem">, tried?: Pick<Storage, "getItem" | "removeItem">): string {
   const given = new URLSearchParams(search).get("token");
-  if (given) storage.setItem(TOKEN_KEY, given);
+  if (given) return given;
+  const typed = tried?.getItem(TRY_KEY);
+  if (typed) {
+    tried?.removeItem(TRY_KEY);
+    return typed;
+  }
   return storage.getItem(TOKEN_KEY) ?? "";
 }
 
 export function saveToken(storage: KeyValueStore, token: string): void {
   storage.setItem(TOKEN_KEY, token);
 }
+
+/** The page's address without `?token=`: put back with history.replaceState once read,
+ * so the token is not left in the address bar, the history, a bookmark or a screenshot. */
+export function withoutToken(href: string): string {
+  const url = new URL(href);
+  url.searchParams.delete("token");
+  return url.toString();
+}
+
+/** What the page says after the server answered its HELLO: null when all is as asked;
+ * else why this page only watches, and where a token comes from. */
+export function tokenVerdict(sent: string, operator: boolean, remembered: string | null): string | null {
+  if (operator || sent === "") return null;
+  const kept = remembered && remembered !== sent ? " The remembered token was kept: reload without ?token= to use it." : "";
+  return `Token rejected: this page only watches.${kept} ${TOKEN_SOURCE}`;
+}
+
+export const TOKEN_SOURCE = "The operator token is printed by `telerobot serve` when it starts and kept in its state folder (operator-token).";
 
 // ---- typed requests
 

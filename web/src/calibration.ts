@@ -2,7 +2,7 @@
 // in each image (with a loupe), edit their 3D positions, compute, judge the fit from
 // the residuals and the projected fiducial frame drawn over both images. Composed here
 // from api.ts, transport/video.ts and ui/calibration/.
-import { Api, MessageLog, readToken } from "./api";
+import { Api, MessageLog, readToken, withoutToken } from "./api";
 import { connectVideo } from "./transport/video";
 import { BoardViews } from "./ui/calibration/charuco";
 import { CAMERAS, Clicks, neededFor, type Method } from "./ui/calibration/clicks";
@@ -12,7 +12,8 @@ import { fitBoth, type CalibrationState } from "./ui/calibration/fit";
 import { FrozenImages } from "./ui/calibration/images";
 import { $ } from "./ui/dom";
 
-const api = new Api(`${location.origin}/`, readToken(location.search, localStorage));
+const api = new Api(`${location.origin}/`, readToken(location.search, localStorage, sessionStorage));
+history.replaceState(history.state, "", withoutToken(location.href)); // read: out of the address bar
 const log = new MessageLog($("messages"));
 
 async function main(): Promise<void> {

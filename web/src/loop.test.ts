@@ -7,7 +7,11 @@ import { LeaseAction, StateFlags } from "./transport/messages";
 
 const FORWARD: MotionCommand = { deadman: true, linear: [1, 0, 0], angular: [0, 0, 0] };
 
-function rig(flags = 0) {
+// A view frame: away from the camera is base −x, the image's left −y, its up +z (a
+// camera at +x looking back at the robot).
+const VIEW = [-1, 0, 0, 0, -1, 0, 0, 0, 1];
+
+function rig(flags = 0, view: number[] | null = null) {
   const calls: [string, ...unknown[]][] = [];
   const link = {
     cartesian: (dX: number[], rv: number[], frame: number) => void calls.push(["cartesian", dX, rv, frame]),
@@ -26,6 +30,7 @@ function rig(flags = 0) {
     speed: () => state.speed,
     gamepad: { read: () => inputs.pad },
     keyboard: { read: () => inputs.keys },
+    view,
     now: 1000,
   });
   return { loop, calls, predicted, inputs, state };
@@ -100,16 +105,41 @@ describe("the input loop", () => {
     const { loop, calls, inputs } = rig(StateFlags.YOU_HAVE_CONTROL);
     const picked: string[] = [];
     loop.onFrameChange = (f) => picked.push(f);
+    expect(loop.frame).toBe("view"); // the default
     loop.key("Digit3");
-    inputs.pad = { command: IDLE, cycleFrame: true, pad: null };
-    loop.tick(1010);
+    const cycle = () => {
+      inputs.pad = { command: IDLE, cycleFrame: true, pad: null };
+      loop.tick(1010);
+      inputs.pad = { command: IDLE, cycleFrame: false, pad: null };
+    };
+    cycle(); // tool → view (the cycle wraps)
+    loop.key("Digit2");
+    cycle(); // wrist → tool
+    loop.key("Digit1");
+    cycle(); // base → wrist
+    loop.key("Digit4");
     inputs.keys = FORWARD;
-    inputs.pad = { command: IDLE, cycleFrame: false, pad: null };
     loop.tick(1020);
-    expect(picked).toEqual(["tool", "base"]);
-    expect(calls[0]![3]).toBe(FRAME_IDS.base);
+    expect(picked).toEqual(["tool", "view", "wrist", "tool", "base", "wrist", "view"]);
+    expect(calls[0]![3]).toBe(FRAME_IDS.base); // the view frame is sent as the base frame
     loop.key("Escape");
     expect(calls[1]).toEqual(["estop"]);
+  });
+
+  it("turns view-frame increments into base ones, sends them and predicts the very same", () => {
+    const { loop, calls, predicted, inputs } = rig(StateFlags.YOU_HAVE_CONTROL, VIEW);
+    inputs.keys = { deadman: true, linear: [1, 1, 1], angular: [0, 0, 1] }; // W, A, R and Q
+    loop.tick(1020);
+    const step = MAX_LINEAR * 0.5 * 0.02;
+    const [, dX, rv, frame] = calls[0]!;
+    expect(frame).toBe(FRAME_IDS.base);
+    (dX as number[]).forEach((v, i) => expect(v).toBeCloseTo([-step, -step, step][i]!, 12));
+    expect((rv as number[])[2]).toBeGreaterThan(0); // Q about the image's up: base +z here
+    expect(predicted[0]).toEqual([dX, rv, "base", 1020]);
+    loop.key("Digit1"); // the base frame: as the keys say
+    loop.tick(1040);
+    (calls[1]![1] as number[]).forEach((v, i) => expect(v).toBeCloseTo([step, step, step][i]!, 12));
+    expect(predicted[1]![2]).toBe("base");
   });
 
   it("drives with the XR controller's grip as the dead-man, only with control", () => {

@@ -1,28 +1,38 @@
 // The operator's page: stereo video with the AR ball, inputs, panels. Composed here
 // from the REST API (api.ts), the realtime link and the video (transport/), the input
 // loop (input/), the AR ball (ar/), the view (view/) and the page's wiring (ui/).
-import { Api, MessageLog, readToken } from "./api";
+import { Api, MessageLog, TOKEN_KEY, readToken, saveToken, tokenVerdict, withoutToken } from "./api";
+import { AxisMarker } from "./ar/axes";
 import { ArBall } from "./ar/ball";
+import { GhostArm, setupGhostSwitch } from "./ar/ghost";
+import { PathOverlay } from "./ar/path";
 import { GamepadInput } from "./input/gamepad";
 import { KeyboardInput } from "./input/keyboard";
 import { InputLoop } from "./input/loop";
+import { viewFrame } from "./input/viewframe";
 import { ContactRumble, rumbleStrength } from "./input/rumble";
-import { readController } from "./input/xr";
+import { XRMasterInput } from "./input/xr";
 import { PredictedArm } from "./robot/model";
 import { Rolling } from "./stats";
 import type { ForceSample } from "./transport/codec";
 import { RealtimeLink } from "./transport/link";
 import type { RobotState } from "./transport/realtime";
-import { connectVideo } from "./transport/video";
+import { VideoConnection } from "./transport/video";
 import { Alignment, viewerName } from "./ui/alignment";
+import { ConnectionHud } from "./ui/connection-hud";
+import { ControlWatch, showControlAlerts } from "./ui/control-alert";
 import { setupControls } from "./ui/controls";
 import { $, numberIn } from "./ui/dom";
+import { HelpOverlay } from "./ui/help";
+import { RecordingPanel } from "./ui/recording";
 import { showConnection, startPanels } from "./ui/panels";
-import { link3dView, setupModes, setupXRButton, showBall } from "./ui/view";
+import { TasksPanel } from "./ui/tasks";
+import { link3dView, setupFullscreen, setupModes, setupXRButton, showBall } from "./ui/view";
 import { measureGlass } from "./view/glass";
 import { StereoView } from "./view/stereo";
 
-const token = readToken(location.search, localStorage);
+const token = readToken(location.search, localStorage, sessionStorage);
+history.replaceState(history.state, "", withoutToken(location.href)); // read: out of the address bar
 const viewer = viewerName(localStorage);
 const api = new Api(`${location.origin}/`, token);
 const log = new MessageLog($("messages"));
@@ -37,6 +47,7 @@ async function main(): Promise<void> {
   const ar = new ArBall(cell.cameras);
   const video = $<HTMLVideoElement>("video");
   const view = new StereoView($<HTMLCanvasElement>("view"), video);
+  view.fitInto($("stage"));
   const glass = new Rolling(900); // capture → presented, ms
   const videoInterval = new Rolling(900);
   let state: RobotState | null = null;
@@ -45,70 +56,128 @@ async function main(): Promise<void> {
   const setMode = setupModes(view);
   const alignment = await Alignment.load(view, api, viewer, log);
   setupXRButton(view, log);
+  const toggleFullscreen = setupFullscreen($("stage"), log);
   link3dView(api);
 
   // ---- real-time channel
+  const control = new ControlWatch(); // control lost, said over the video
+  let tasks: TasksPanel | null = null; // a task this page started holds the lease: not lost
+  // Recording (issue 14): the header's REC indicator for every viewer, the operator's panel.
+  const recording = new RecordingPanel({ api, log, operator: () => link.operator });
   const link = new RealtimeLink(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, token, {
     state: (s) => {
       state = s;
       arm.report(s.joints, s.status === "MOVING", performance.now());
+      if (!tasks?.handedOver) control.state(s.flags, performance.now());
     },
     forces: (samples) => {
       lastForce = samples[samples.length - 1] ?? lastForce;
     },
-    event: (text) => log.add(text),
+    event: (text) => {
+      log.add(text);
+      control.event(text, performance.now());
+      recording.event(text);
+    },
     error: (text) => log.add(text, true),
-    connection: showConnection,
+    connection: (up, why) => {
+      showConnection(up, why);
+      control.connection(up);
+    },
+    welcome: (operator) => {
+      control.welcome(operator);
+      // Remembered only once accepted: a wrong token never replaces a good one.
+      const verdict = tokenVerdict(token, operator, localStorage.getItem(TOKEN_KEY));
+      if (verdict) log.add(verdict, true);
+      else if (operator) saveToken(localStorage, token);
+      $("token-status").textContent = verdict ?? "";
+    },
   });
   link.connect();
 
   // ---- video
-  const videoPeer = connectVideo(api, (stream) => {
-    video.srcObject = stream;
-    void video.play();
-    const track = stream.getVideoTracks()[0];
-    if (track) void measureGlass(track.clone(), link, glass);
+  // Kept up by itself: a failed or stalled peer is re-negotiated (with backoff).
+  let glassMeter: { stop(): void } | null = null;
+  const videoConnection = new VideoConnection(api, {
+    onStream: (stream) => {
+      video.srcObject = stream;
+      void video.play();
+      const track = stream.getVideoTracks()[0];
+      glassMeter?.stop(); // the previous peer's copy: its frames are read no more
+      glassMeter = track ? measureGlass(track.clone(), link, glass) : null;
+    },
+    onPeer: (peer) => alignment.useVideoPeer(peer),
+    onError: (text) => log.add(text),
   });
-  videoPeer.catch((e: Error) => log.add(`video: ${e.message}`, true));
-  alignment.useVideoPeer(videoPeer);
-  view.onFrame = () => videoInterval.tick(performance.now());
+  videoConnection.start().catch((e: Error) => log.add(`video: ${e.message}`, true));
+  // The connection HUD over the video (RTT, loss, video, freezes, force and command age).
+  const hud = new ConnectionHud({ pc: () => videoConnection.peer?.pc ?? null, link, force: () => lastForce, video: api.request("get", "/api/v1/video") });
+  hud.start($("hud"));
+  view.onFrame = () => {
+    const now = performance.now();
+    videoInterval.tick(now);
+    videoConnection.frame();
+    hud.frame(now);
+  };
+  view.onStale = (ms) => videoConnection.stalled(ms);
 
   // ---- inputs → commands, and rumble in proportion to the contact force
   const keyboard = new KeyboardInput(window);
+  const gamepad = new GamepadInput();
   const loop = new InputLoop({
     link,
     arm,
     flags: () => state?.flags ?? 0,
     speed: () => numberIn("speed"),
-    gamepad: new GamepadInput(),
+    gamepad,
     keyboard,
+    view: cell.cameras[0] ? viewFrame(cell.cameras[0].P) : null, // the left camera's
     now: performance.now(),
   });
+  // The active frame's axes at the gripper, in both eyes (shown with the AR ball).
+  const axes = new AxisMarker(cell.cameras, model.tool.flat(), view);
+  // The whole predicted arm, a translucent skeleton in both eyes (the "Ghost arm" switch).
+  const ghost = new GhostArm(model, cell.cameras);
+  view.addOverlay(ghost);
+  setupGhostSwitch($<HTMLInputElement>("ghost"), ghost, localStorage, () => view.overlayChanged());
   setupControls(loop, link);
+  const alarm = showControlAlerts(control, [keyboard, gamepad], () => loop.take());
+  const help = new HelpOverlay();
   keyboard.onKey = (key, e) => {
+    help.key(e.key); // `?` toggles the help; Escape closes it and still e-stops (below)
     loop.key(key);
     alignment.key(key, e);
+    // F toggles fullscreen, except while Space (the dead-man) is held: then F drives down.
+    if (key === "KeyF" && !e.repeat && !e.altKey && !e.ctrlKey && !e.metaKey && !keyboard.read().deadman) toggleFullscreen();
   };
   const rumble = new ContactRumble(() => (lastForce ? rumbleStrength(Math.hypot(...lastForce.values.slice(0, 3)), safety.force_limit_n) : 0));
   const rumbleBox = $<HTMLInputElement>("rumble");
   rumble.enabled = rumbleBox.checked;
   rumbleBox.onchange = () => (rumble.enabled = rumbleBox.checked);
-  // A WebXR controller as a 6-DoF master: its grip is the dead-man.
+  // A WebXR controller (else a tracked hand) as a 6-DoF master: its grip (the hand's
+  // pinch) is the dead-man.
+  const xrInput = new XRMasterInput();
   view.onXRFrame = (frame, space) => {
-    const controller = readController(frame, space);
+    const controller = xrInput.read(frame, space);
     const now = performance.now();
     loop.xrFrame(controller, now);
-    if (controller) rumble.driveXR(now, controller.gamepad);
+    // (A headset pauses the page's own animation frames: the ghost follows here too.)
+    if (ghost.update(arm.joints)) view.overlayChanged();
+    if (controller?.gamepad) rumble.driveXR(now, controller.gamepad);
   };
   const tick = () => {
     const now = performance.now();
     rumble.drivePad(now, loop.tick(now).pad);
     showBall(view, ar.update(arm.pose));
+    if (ghost.update(arm.joints)) view.overlayChanged();
+    axes.update(loop.frame, arm.pose, loop.view, $<HTMLInputElement>("ar").checked);
     requestAnimationFrame(tick);
   };
   requestAnimationFrame(tick);
 
-  startPanels({ state: () => state, force: () => lastForce, link, glass, videoInterval, forceLimitN: safety.force_limit_n });
+  // Repeating a recorded episode as a task, its path shown in both eyes before it runs.
+  tasks = new TasksPanel($("tasks"), { api, log, link, flags: () => state?.flags ?? 0, path: new PathOverlay(cell.cameras, view) });
+  void tasks.load();
+  const panels = startPanels({ state: () => state, force: () => lastForce, link, glass, videoInterval, forceLimitN: safety.force_limit_n, api, log });
 
   // For tests and benchmarks (read-only figures and a few switches).
   Object.assign(window, {
@@ -118,7 +187,10 @@ async function main(): Promise<void> {
       glass,
       rumble,
       videoInterval,
+      video: videoConnection,
       ball: ar.ball,
+      axes,
+      ghost,
       arm,
       loop,
       get state() {
@@ -128,6 +200,13 @@ async function main(): Promise<void> {
         return lastForce;
       },
       setMode,
+      help,
+      panels,
+      control,
+      alarm,
+      tasks,
+      recording,
+      hud,
     },
   });
 }

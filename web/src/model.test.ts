@@ -1,22 +1,12 @@
 import { describe, expect, it } from "vitest";
+import { PUMA } from "./puma.fixture";
 import { project } from "./ar/projection";
 import { deadzone } from "./input/motion";
 import { XRMaster } from "./input/xr";
 import { identity4, position } from "./robot/math";
-import { PredictedArm, applyIncrement, forwardKinematics, type RobotModelInfo } from "./robot/model";
+import { PredictedArm, applyIncrement, forwardKinematics } from "./robot/model";
 import { Rolling } from "./stats";
 
-const PUMA: RobotModelInfo = {
-  dh: [
-    { d: 0.67183, a: 0, alpha: Math.PI / 2 },
-    { d: 0, a: 0.4318, alpha: 0 },
-    { d: 0.15005, a: 0.0203, alpha: -Math.PI / 2 },
-    { d: 0.4318, a: 0, alpha: Math.PI / 2 },
-    { d: 0, a: 0, alpha: -Math.PI / 2 },
-    { d: 0, a: 0, alpha: 0 },
-  ],
-  tool: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.1], [0, 0, 0, 1]],
-};
 const near = (a: number[], b: number[], tol = 1e-4) => a.forEach((v, i) => expect(Math.abs(v - (b[i] ?? NaN))).toBeLessThan(tol));
 
 describe("robot model", () => {

@@ -357,6 +357,28 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/video/ice": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Ice Configuration
+         * @description The STUN/TURN servers for this page's RTCPeerConnection, and whether it must be
+         *     relay-only. TURN credentials are time-limited (coturn's ``use-auth-secret``): minted
+         *     for each request, never cached; the shared secret stays on the server.
+         */
+        get: operations["ice_configuration_api_v1_video_ice_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/webrtc/offer": {
         parameters: {
             query?: never;
@@ -619,10 +641,402 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/recordings": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * List Recordings
+         * @description The newest recordings first (at most the recorder's ``max_listed``).
+         */
+        get: operations["list_recordings_api_v1_recordings_get"];
+        put?: never;
+        /** Start Recording */
+        post: operations["start_recording_api_v1_recordings_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/active": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /** Active Recording */
+        get: operations["active_recording_api_v1_recordings_active_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/active/stop": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /** Stop Recording */
+        post: operations["stop_recording_api_v1_recordings_active_stop_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/active/episodes": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /** Start Episode */
+        post: operations["start_episode_api_v1_recordings_active_episodes_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/active/episodes/end": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /** End Episode */
+        post: operations["end_episode_api_v1_recordings_active_episodes_end_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/active/episodes/{episode}": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        /** Label Episode */
+        patch: operations["label_episode_api_v1_recordings_active_episodes__episode__patch"];
+        trace?: never;
+    };
+    "/api/v1/recordings/{file}/metadata": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /** Recording Metadata */
+        get: operations["recording_metadata_api_v1_recordings__file__metadata_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/{file}/download": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Download Recording
+         * @description The MCAP file as it is (streamed).
+         */
+        get: operations["download_recording_api_v1_recordings__file__download_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/{file}": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        post?: never;
+        /**
+         * Delete Recording
+         * @description Refused for the recording being made.
+         */
+        delete: operations["delete_recording_api_v1_recordings__file__delete"];
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/{recording_id}/video.mp4": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Recording Video
+         * @description The recorded stereo video (side by side) as an MP4: time 0 is the first frame's
+         *     capture time (``video_start`` in the timeline). Seekable (HTTP ranges).
+         */
+        get: operations["recording_video_api_v1_recordings__recording_id__video_mp4_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/{recording_id}/timeline": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Recording Timeline
+         * @description The recording's channels on one timeline (s from its first message): forces and
+         *     states decimated to ``max_points`` each, events (commands, safety, episodes,
+         *     calibration) as they are, up to 5000 each.
+         */
+        get: operations["recording_timeline_api_v1_recordings__recording_id__timeline_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/recordings/{recording_id}/export/lerobot": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Export Recording Lerobot
+         * @description Export the recording's episodes as a LeRobot v3.0 dataset into a new folder under
+         *     ``<state folder>/exports/`` (409 while another export runs).
+         */
+        post: operations["export_recording_lerobot_api_v1_recordings__recording_id__export_lerobot_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /** List Tasks */
+        get: operations["list_tasks_api_v1_tasks_get"];
+        put?: never;
+        /**
+         * Start Task
+         * @description Read the recording, build the trajectory and start it (it runs on its own;
+         *     poll GET /tasks/{id}).
+         */
+        post: operations["start_task_api_v1_tasks_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks/preview": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Preview Task
+         * @description The path a task from this episode or segment would follow, before it runs (the
+         *     same trajectory POST /tasks builds), for the page's ghost of it. Moves nothing.
+         */
+        post: operations["preview_task_api_v1_tasks_preview_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks/{task_id}": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /** Get Task */
+        get: operations["get_task_api_v1_tasks__task_id__get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks/{task_id}/path": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Task Path
+         * @description The path the task follows, for the page's ghost of it.
+         */
+        get: operations["task_path_api_v1_tasks__task_id__path_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks/{task_id}/pause": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /** Pause Task */
+        post: operations["pause_task_api_v1_tasks__task_id__pause_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks/{task_id}/resume": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /** Resume Task */
+        post: operations["resume_task_api_v1_tasks__task_id__resume_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/tasks/{task_id}/abort": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /** Abort Task */
+        post: operations["abort_task_api_v1_tasks__task_id__abort_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
 }
 export type webhooks = Record<string, never>;
 export interface components {
     schemas: {
+        /** ActiveRecording */
+        ActiveRecording: {
+            /** Recording */
+            recording: boolean;
+            /** Name */
+            name?: string | null;
+            /** File */
+            file?: string | null;
+            /**
+             * Started
+             * @description UTC, ISO 8601
+             */
+            started?: string | null;
+            /** Elapsed S */
+            elapsed_s?: number | null;
+            /** Bytes */
+            bytes?: number | null;
+            /** Messages */
+            messages?: number | null;
+            /** Queued */
+            queued?: number | null;
+            /**
+             * Dropped
+             * @default {}
+             */
+            dropped: {
+                [key: string]: number;
+            };
+            /**
+             * Episodes
+             * @default []
+             */
+            episodes: components["schemas"]["Episode"][];
+        };
         /** Alignment */
         Alignment: {
             /**
@@ -783,6 +1197,35 @@ export interface components {
                 [key: string]: number;
             };
         };
+        /** Compliance */
+        Compliance: {
+            /**
+             * Axes
+             * @description base axes that give way
+             * @default xyz
+             */
+            axes: string;
+            /**
+             * Stiffness N Per M
+             * @default 1000
+             */
+            stiffness_n_per_m: number;
+            /**
+             * Damping N S Per M
+             * @default 2000
+             */
+            damping_n_s_per_m: number;
+            /**
+             * Max Offset M
+             * @default 0.01
+             */
+            max_offset_m: number;
+            /**
+             * Max Rate M S
+             * @default 0.02
+             */
+            max_rate_m_s: number;
+        };
         /** ConnectionView */
         ConnectionView: {
             /**
@@ -821,6 +1264,48 @@ export interface components {
             a: number;
             /** Alpha */
             alpha: number;
+        };
+        /** Episode */
+        Episode: {
+            /** Episode */
+            episode: number;
+            /** Task */
+            task: string;
+            /**
+             * Started
+             * @description server clock (s)
+             */
+            started: number;
+            /** Ended */
+            ended: number | null;
+            /** Success */
+            success: boolean | null;
+            /** Notes */
+            notes: string;
+        };
+        /** EpisodeEnd */
+        EpisodeEnd: {
+            /** Success */
+            success?: boolean | null;
+            /** Notes */
+            notes?: string | null;
+        };
+        /** EpisodeLabel */
+        EpisodeLabel: {
+            /** Task */
+            task?: string | null;
+            /** Success */
+            success?: boolean | null;
+            /** Notes */
+            notes?: string | null;
+        };
+        /** EpisodeStart */
+        EpisodeStart: {
+            /**
+             * Task
+             * @default
+             */
+            task: string;
         };
         /** FitRequest */
         FitRequest: {
@@ -896,6 +1381,37 @@ export interface components {
             /** Version */
             version: string;
         };
+        /** IceConfiguration */
+        IceConfiguration: {
+            /**
+             * Ice Servers
+             * @description for RTCConfiguration.iceServers; TURN credentials minted for this request
+             */
+            ice_servers: components["schemas"]["IceServerEntry"][];
+            /**
+             * Ice Transport Policy
+             * @description for RTCConfiguration.iceTransportPolicy: 'relay' sends video only through TURN (the server's own peer is relay-only then too)
+             * @enum {string}
+             */
+            ice_transport_policy: "all" | "relay";
+            /**
+             * Expires At
+             * @description unix time after which the minted TURN credentials open no new allocation: fetch this again for each new peer connection
+             */
+            expires_at?: number | null;
+        };
+        /**
+         * IceServerEntry
+         * @description One entry of RTCConfiguration.iceServers.
+         */
+        IceServerEntry: {
+            /** Urls */
+            urls: string[];
+            /** Username */
+            username?: string | null;
+            /** Credential */
+            credential?: string | null;
+        };
         /** InitializeRequest */
         InitializeRequest: {
             /**
@@ -927,6 +1443,43 @@ export interface components {
              * @description radians: model angle = controller angle + offset
              */
             offsets: number[];
+        };
+        /** LeRobotExport */
+        LeRobotExport: {
+            /**
+             * Path
+             * @description the dataset's folder on the server
+             */
+            path: string;
+            /** Episodes */
+            episodes: number;
+            /** Frames */
+            frames: number;
+            /** Fps */
+            fps: number;
+            /** Tasks */
+            tasks: string[];
+            /**
+             * Whole Recording
+             * @description no episodes were recorded: the whole one is one
+             */
+            whole_recording: boolean;
+            /** Video Codec */
+            video_codec: string | null;
+            /** Recorded S */
+            recorded_s: number;
+            /** Export S */
+            export_s: number;
+            /** Skipped */
+            skipped: string[];
+        };
+        /** LeRobotExportRequest */
+        LeRobotExportRequest: {
+            /**
+             * Fps
+             * @description rows per second (default: the video's rate)
+             */
+            fps?: number | null;
         };
         /** LeaseGranted */
         LeaseGranted: {
@@ -1024,6 +1577,61 @@ export interface components {
             /** Type */
             type: string;
         };
+        /** RecordingDetail */
+        RecordingDetail: {
+            /** File */
+            file: string;
+            /** Name */
+            name: string;
+            /** Bytes */
+            bytes: number;
+            /** Duration S */
+            duration_s: number | null;
+            /** Episodes */
+            episodes: components["schemas"]["Episode"][];
+            /**
+             * Complete
+             * @description has its summary (else: telerobot recording recover)
+             */
+            complete: boolean;
+            /** Stop Reason */
+            stop_reason: string;
+            /** Active */
+            active: boolean;
+            /**
+             * Counts
+             * @description messages per topic
+             */
+            counts: {
+                [key: string]: number;
+            };
+            /** Metadata */
+            metadata: {
+                [key: string]: string;
+            };
+        };
+        /** RecordingEntry */
+        RecordingEntry: {
+            /** File */
+            file: string;
+            /** Name */
+            name: string;
+            /** Bytes */
+            bytes: number;
+            /** Duration S */
+            duration_s: number | null;
+            /** Episodes */
+            episodes: components["schemas"]["Episode"][];
+            /**
+             * Complete
+             * @description has its summary (else: telerobot recording recover)
+             */
+            complete: boolean;
+            /** Stop Reason */
+            stop_reason: string;
+            /** Active */
+            active: boolean;
+        };
         /** RobotModel */
         RobotModel: {
             /** Name */
@@ -1080,6 +1688,16 @@ export interface components {
             force_limited: boolean;
             /** Controller */
             controller: string | null;
+            /**
+             * Halted
+             * @description the dead-man stopped the arm; its controller keeps the lease for lease_grace_s, and a fresh command moves it again
+             */
+            halted: boolean;
+            /**
+             * Lease Note
+             * @description why control last changed hands or was lost
+             */
+            lease_note: string;
             /** Workspace Min */
             workspace_min: number[];
             /** Workspace Max */
@@ -1109,6 +1727,21 @@ export interface components {
             contact_memory_s: number;
             /** Deadman Timeout S */
             deadman_timeout_s: number;
+            /**
+             * Lease Grace S
+             * @description how long a lease outlives the dead-man's stop
+             */
+            lease_grace_s: number;
+            /**
+             * Max Command Age Ms
+             * @description a command sent longer ago than this (clients on the server's clock) is dropped, not executed late
+             */
+            max_command_age_ms: number;
+            /**
+             * Stale Commands Dropped
+             * @description commands dropped as too old, so far
+             */
+            stale_commands_dropped: number;
             /**
              * Stop Category
              * @description IEC 60204-1 stop category of every stop it makes
@@ -1164,6 +1797,55 @@ export interface components {
              */
             type: string;
         };
+        /** StartRecording */
+        StartRecording: {
+            /**
+             * Name
+             * @default recording
+             */
+            name: string;
+        };
+        /** StartTask */
+        StartTask: {
+            /**
+             * Recording
+             * @description a recording's file name (GET /api/v1/recordings)
+             */
+            recording: string;
+            /**
+             * Episode
+             * @description repeat this episode
+             */
+            episode?: number | null;
+            /**
+             * Segment
+             * @description or this span [t0, t1] s (of the episode, else of the recording)
+             */
+            segment?: [
+                number,
+                number
+            ] | null;
+            /**
+             * Speed
+             * @description share of the taught speed
+             * @default 1
+             */
+            speed: number;
+            /** @description none: position only */
+            compliance?: components["schemas"]["Compliance"] | null;
+            /**
+             * Force Margin N
+             * @description stop on a force this much above the taught one
+             * @default 15
+             */
+            force_margin_n: number | null;
+            /**
+             * Approach
+             * @description the operator confirms a guarded move to the first pose first
+             * @default false
+             */
+            approach: boolean;
+        };
         /** StoppingView */
         StoppingView: {
             /**
@@ -1215,6 +1897,76 @@ export interface components {
             /** Histogram Counts */
             histogram_counts: number[];
         };
+        /** TaskPath */
+        TaskPath: {
+            /** Id */
+            id: string;
+            /** Positions */
+            positions: [
+                number,
+                number,
+                number
+            ][];
+            /** Forces N */
+            forces_n: number[];
+        };
+        /** TaskSource */
+        TaskSource: {
+            /**
+             * Recording
+             * @description a recording's file name (GET /api/v1/recordings)
+             */
+            recording: string;
+            /**
+             * Episode
+             * @description repeat this episode
+             */
+            episode?: number | null;
+            /**
+             * Segment
+             * @description or this span [t0, t1] s (of the episode, else of the recording)
+             */
+            segment?: [
+                number,
+                number
+            ] | null;
+        };
+        /** TaskView */
+        TaskView: {
+            /** Id */
+            id: string;
+            /**
+             * State
+             * @enum {string}
+             */
+            state: "approaching" | "running" | "paused" | "done" | "stopped" | "aborted";
+            /** Reason */
+            reason: string;
+            /** Progress */
+            progress: number;
+            /** S */
+            s: number;
+            /** Duration */
+            duration: number;
+            /** Speed */
+            speed: number;
+            /** Force N */
+            force_n: number;
+            /** Recorded N */
+            recorded_n: number;
+            /** Peak Force N */
+            peak_force_n: number;
+            /** Offset */
+            offset: [
+                number,
+                number,
+                number
+            ];
+            /** Supervisor */
+            supervisor: string;
+            /** Source */
+            source: string;
+        };
         /** TelemetryView */
         TelemetryView: {
             /** Streams */
@@ -1225,6 +1977,47 @@ export interface components {
             video?: {
                 [key: string]: unknown;
             } | null;
+        };
+        /** Timeline */
+        Timeline: {
+            /**
+             * Start
+             * @description wall clock s of the first message: the timeline's 0
+             */
+            start: number;
+            /**
+             * Duration
+             * @description s from the first message to the last
+             */
+            duration: number;
+            /**
+             * Video Start
+             * @description timeline s of the MP4's time 0 (the first frame's capture), if video
+             */
+            video_start: number | null;
+            /**
+             * Counts
+             * @description messages per topic in the file
+             */
+            counts: {
+                [key: string]: number;
+            };
+            /**
+             * Stride
+             * @description every how many messages a series keeps
+             */
+            stride: {
+                [key: string]: number;
+            };
+            /**
+             * Topics
+             * @description per topic, its messages (decimated) with `time` (timeline s) added
+             */
+            topics: {
+                [key: string]: {
+                    [key: string]: unknown;
+                }[];
+            };
         };
         /** ValidationError */
         ValidationError: {
@@ -1902,6 +2695,26 @@ export interface operations {
             };
         };
     };
+    ice_configuration_api_v1_video_ice_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["IceConfiguration"];
+                };
+            };
+        };
+    };
     offer_api_v1_webrtc_offer_post: {
         parameters: {
             query?: never;
@@ -2334,6 +3147,640 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["ViewerState"];
+                };
+            };
+        };
+    };
+    list_recordings_api_v1_recordings_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["RecordingEntry"][];
+                };
+            };
+        };
+    };
+    start_recording_api_v1_recordings_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["StartRecording"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ActiveRecording"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    active_recording_api_v1_recordings_active_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ActiveRecording"];
+                };
+            };
+        };
+    };
+    stop_recording_api_v1_recordings_active_stop_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["RecordingEntry"];
+                };
+            };
+        };
+    };
+    start_episode_api_v1_recordings_active_episodes_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["EpisodeStart"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["Episode"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    end_episode_api_v1_recordings_active_episodes_end_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["EpisodeEnd"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["Episode"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    label_episode_api_v1_recordings_active_episodes__episode__patch: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                episode: number;
+            };
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["EpisodeLabel"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["Episode"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    recording_metadata_api_v1_recordings__file__metadata_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                file: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["RecordingDetail"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    download_recording_api_v1_recordings__file__download_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                file: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content?: never;
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    delete_recording_api_v1_recordings__file__delete: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                file: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": unknown;
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    recording_video_api_v1_recordings__recording_id__video_mp4_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                recording_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "video/mp4": unknown;
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    recording_timeline_api_v1_recordings__recording_id__timeline_get: {
+        parameters: {
+            query?: {
+                topics?: string[] | null;
+                max_points?: number;
+            };
+            header?: never;
+            path: {
+                recording_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["Timeline"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    export_recording_lerobot_api_v1_recordings__recording_id__export_lerobot_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                recording_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: {
+            content: {
+                "application/json": components["schemas"]["LeRobotExportRequest"] | null;
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["LeRobotExport"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    list_tasks_api_v1_tasks_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskView"][];
+                };
+            };
+        };
+    };
+    start_task_api_v1_tasks_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-client-id"?: string | null;
+            };
+            path?: never;
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["StartTask"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    preview_task_api_v1_tasks_preview_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["TaskSource"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskPath"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    get_task_api_v1_tasks__task_id__get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                task_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    task_path_api_v1_tasks__task_id__path_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                task_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskPath"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    pause_task_api_v1_tasks__task_id__pause_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-client-id"?: string | null;
+            };
+            path: {
+                task_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    resume_task_api_v1_tasks__task_id__resume_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-client-id"?: string | null;
+            };
+            path: {
+                task_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    abort_task_api_v1_tasks__task_id__abort_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-client-id"?: string | null;
+            };
+            path: {
+                task_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["TaskView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };

@@ -17,6 +17,8 @@ const NOT_TEXT = new Set(["checkbox", "radio", "range", "button", "submit", "res
 
 export class KeyboardInput {
   private down = new Set<string>();
+  // Keys held when control was lost: they move nothing until released and pressed again.
+  private latched = new Set<string>();
   onKey: ((key: string, event: KeyboardEvent) => void) | null = null;
 
   constructor(target: Window) {
@@ -28,16 +30,30 @@ export class KeyboardInput {
     });
     target.addEventListener("keyup", (e) => {
       this.down.delete(e.code);
+      this.latched.delete(e.code);
       // A focused checkbox or button acts on Space's keyup: not while driving.
       if (e.code === "Space" && !takesText(e.target)) e.preventDefault();
     });
-    target.addEventListener("blur", () => this.down.clear()); // a lost focus never keeps moving
+    target.addEventListener("blur", () => {
+      this.down.clear(); // a lost focus never keeps moving
+      this.latched.clear();
+    });
+  }
+
+  /** Control was lost or the arm halted: the keys held now stop driving until each is
+   * released (a key held through the loss must not move the arm when control returns). */
+  latch(): void {
+    for (const code of this.down) this.latched.add(code);
+  }
+
+  private held(code: string): boolean {
+    return this.down.has(code) && !this.latched.has(code);
   }
 
   read(): MotionCommand {
-    const k = (code: string) => (this.down.has(code) ? 1 : 0);
+    const k = (code: string) => (this.held(code) ? 1 : 0);
     return {
-      deadman: this.down.has("Space"),
+      deadman: this.held("Space"),
       linear: [k("KeyW") - k("KeyS"), k("KeyA") - k("KeyD"), k("KeyR") - k("KeyF")],
       angular: [0, 0, k("KeyQ") - k("KeyE")],
     };

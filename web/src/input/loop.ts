@@ -2,11 +2,14 @@
 // Cartesian increments, sent only while the dead-man is held and this page holds the
 // lease; in an XR session the controller's grip (the dead-man there) does the same.
 // Also the lease requests (take, take over, release), the e-stop key and the frame.
-import type { Vec3 } from "../robot/math";
+// The view frame (the default) moves as the left camera's image shows: its increments
+// are turned into the base frame's here, and sent (and predicted) as base ones.
+import type { Mat3, Vec3 } from "../robot/math";
 import type { FrameName } from "../robot/model";
 import { Frame, LeaseAction, StateFlags } from "../transport/messages";
 import type { GamepadState } from "./gamepad";
 import { combine, type MotionCommand } from "./motion";
+import { viewToBase } from "./viewframe";
 import { XRMaster, type XRControllerReading } from "./xr";
 
 export const MAX_LINEAR = 0.1; // m/s at full deflection and speed 1
@@ -15,8 +18,15 @@ export const MAX_FRAME_S = 0.1; // a longer gap between frames moves no further 
 /** Heartbeats start the moment we ask for control, before a STATE confirms it; after
  * this long they go on only while we hold it. */
 export const WANT_CONTROL_MS = 2000;
-export const FRAMES: readonly FrameName[] = ["base", "wrist", "tool"];
-export const FRAME_IDS: Record<FrameName, number> = { base: Frame.BASE, wrist: Frame.WRIST, tool: Frame.TOOL };
+/** The frames the operator drives in: the view (W away from the camera, A left and R up
+ * in the image) or one of the server's. */
+export type DriveFrame = "view" | FrameName;
+/** In the order the gamepad's Y cycles them. */
+export const FRAMES: readonly DriveFrame[] = ["view", "base", "wrist", "tool"];
+/** Keys that pick a frame (KeyboardEvent.code). */
+export const FRAME_KEYS: Record<string, DriveFrame> = { Digit1: "base", Digit2: "wrist", Digit3: "tool", Digit4: "view" };
+/** The frame each is sent in: the view's increments go as base ones. */
+export const FRAME_IDS: Record<DriveFrame, number> = { view: Frame.BASE, base: Frame.BASE, wrist: Frame.WRIST, tool: Frame.TOOL };
 
 /** The realtime channel, as far as the loop uses it. */
 export interface CommandLink {
@@ -54,14 +64,17 @@ export interface InputLoopOptions {
   speed: () => number;
   gamepad: { read(): GamepadState };
   keyboard: { read(): MotionCommand };
+  /** The view frame's rotation in the base frame (viewframe.ts), from the left camera;
+   * null: no camera, and the view frame drives as the base frame. */
+  view: Mat3 | null;
   /** When the loop starts (ms, the clock `tick` is given). */
   now: number;
 }
 
 export class InputLoop {
-  frame: FrameName = "base";
+  frame: DriveFrame = "view";
   /** A key or the gamepad picked another frame. */
-  onFrameChange: ((frame: FrameName) => void) | null = null;
+  onFrameChange: ((frame: DriveFrame) => void) | null = null;
   /** The inputs' state changed (which devices, the dead-man): for the page to show. */
   onInputState: ((text: string) => void) | null = null;
   private last: number;
@@ -70,6 +83,11 @@ export class InputLoop {
 
   constructor(private readonly o: InputLoopOptions) {
     this.last = o.now;
+  }
+
+  /** The view frame's rotation in the base frame (null: no camera). */
+  get view(): Mat3 | null {
+    return this.o.view;
   }
 
   get hasControl(): boolean {
@@ -91,14 +109,15 @@ export class InputLoop {
     this.o.link.estop();
   }
 
-  /** A key went down (KeyboardEvent.code): Escape is the e-stop, 1/2/3 pick the frame. */
+  /** A key went down (KeyboardEvent.code): Escape is the e-stop, 1/2/3/4 pick the
+   * base/wrist/tool/view frame. */
   key(code: string): void {
     if (code === "Escape") this.estop();
-    const digit = /^Digit([123])$/.exec(code);
-    if (digit) this.pickFrame(FRAMES[Number(digit[1]) - 1]!);
+    const frame = FRAME_KEYS[code];
+    if (frame) this.pickFrame(frame);
   }
 
-  private pickFrame(frame: FrameName): void {
+  private pickFrame(frame: DriveFrame): void {
     this.frame = frame;
     this.onFrameChange?.(frame);
   }
@@ -130,7 +149,13 @@ export class InputLoop {
     this.send(delta.dX.map((v) => v * speed) as Vec3, delta.rotvec.map((v) => v * speed) as Vec3, "base", now);
   }
 
-  private send(dX: Vec3, rotvec: Vec3, frame: FrameName, now: number): void {
+  /** Send an increment in `frame`, and give the local model the very same one. */
+  private send(dX: Vec3, rotvec: Vec3, frame: DriveFrame, now: number): void {
+    if (frame === "view") {
+      const view = this.o.view;
+      if (view) [dX, rotvec] = [viewToBase(view, dX), viewToBase(view, rotvec)];
+      frame = "base";
+    }
     this.o.link.cartesian(dX, rotvec, FRAME_IDS[frame]);
     this.o.arm.commandCartesian(dX, rotvec, frame, now);
   }

@@ -1,22 +1,25 @@
-// A WebXR controller as a 6-DoF master: while the grip is held, the controller's
-// motion since the last frame moves the gripper (a clutch: releasing and gripping
-// again re-anchors). Jumps in tracking are ignored rather than sent.
+// A WebXR controller or a tracked hand as a 6-DoF master: while the grip is held (a
+// hand: pinched), the motion since the last frame moves the gripper (a clutch: releasing
+// and gripping again re-anchors). Jumps in tracking are ignored rather than sent.
 import type { Vec3 } from "../robot/math";
+import { Pinch, handReading, isTracked, readHandJoints } from "./hands";
 
 export type Quat = [number, number, number, number]; // x y z w
 
-/** The driving controller in one XR frame. */
+/** The driving controller (or hand) in one XR frame. */
 export interface XRControllerReading {
-  /** The grip (squeeze) is held and the position is tracked, not estimated. */
+  /** The grip (squeeze; a hand: the pinch) is held and the position is tracked, not estimated. */
   gripping: boolean;
   position: Vec3; // XR space, metres
   orientation: Quat;
-  gamepad: Gamepad;
+  /** The controller's gamepad (its haptics); null for a hand. */
+  gamepad: Gamepad | null;
 }
 
-/** The right-hand controller (else the first with a grip and buttons), or null. */
+/** The right-hand controller (else the first with a grip and buttons), or null. Hands
+ * (which may carry a gamepad for their pinch) are not controllers. */
 export function readController(frame: XRFrame, space: XRReferenceSpace): XRControllerReading | null {
-  const sources = Array.from(frame.session.inputSources).filter((s) => s.gripSpace && s.gamepad);
+  const sources = Array.from(frame.session.inputSources).filter((s) => s.gripSpace && s.gamepad && !s.hand);
   const source = sources.find((s) => s.handedness === "right") ?? sources[0];
   if (!source?.gripSpace || !source.gamepad) return null;
   const pose = frame.getPose(source.gripSpace, space);
@@ -25,6 +28,46 @@ export function readController(frame: XRFrame, space: XRReferenceSpace): XRContr
   const p = pose?.transform.position ?? { x: 0, y: 0, z: 0 };
   const o = pose?.transform.orientation ?? { x: 0, y: 0, z: 0, w: 1 };
   return { gripping, position: [p.x, p.y, p.z], orientation: [o.x, o.y, o.z, o.w], gamepad: source.gamepad };
+}
+
+/** The master in each XR frame: a controller when there is one, else a tracked hand
+ * (the right first). Whenever the driving input changes (another hand, a controller
+ * picked up) the reading lets go for one frame, so the clutch re-anchors on the new one
+ * instead of taking the step between the two for a motion. */
+export class XRMasterInput {
+  private readonly pinches = new Map<XRHandedness, Pinch>();
+  private last: XRInputSource | null = null;
+
+  read(frame: XRFrame, space: XRReferenceSpace): XRControllerReading | null {
+    const controller = readController(frame, space);
+    const sources = Array.from(frame.session.inputSources);
+    let source: XRInputSource | null = null;
+    let reading: XRControllerReading | null = null;
+    if (controller) {
+      source = sources.find((s) => s.gamepad === controller.gamepad) ?? null;
+      reading = controller;
+    } else {
+      const hands = sources.filter((s) => s.hand && (s.handedness === "right" || s.handedness === "left"));
+      hands.sort((a, b) => (a.handedness === "right" ? 0 : 1) - (b.handedness === "right" ? 0 : 1));
+      // Every hand's pinch is followed each frame (its hysteresis needs every distance).
+      const joints = hands.map((s) => readHandJoints(frame, s.hand!, space));
+      const readings = joints.map((j, k) => handReading(j, this.pinch(hands[k]!.handedness)));
+      const i = Math.max(0, joints.findIndex(isTracked));
+      source = hands[i] ?? null;
+      reading = readings[i] ?? null;
+    }
+    if (source !== this.last) {
+      this.last = source;
+      if (reading) reading = { ...reading, gripping: false };
+    }
+    return reading;
+  }
+
+  private pinch(handedness: XRHandedness): Pinch {
+    let p = this.pinches.get(handedness);
+    if (!p) this.pinches.set(handedness, (p = new Pinch()));
+    return p;
+  }
 }
 
 export interface XRDelta {

@@ -3,7 +3,7 @@
 // tool pose that integrates every command the moment it is sent and is corrected
 // when the server reports where the arm actually is.
 import type { Schema } from "../api";
-import { type Mat4, type Vec3, identity4, inverseRigid, mul3, mul4, pose, position, rotation, rotvecToMatrix } from "./math";
+import { type Mat4, type Vec3, identity4, inverseRigid, matrixToRotvec, mul3, mul4, pose, position, rotation, rotvecToMatrix, solveLinear } from "./math";
 
 // As GET /api/v1/robot/model gives them (the server's OpenAPI schema).
 export type DHRow = Schema<"DHRow">;
@@ -27,6 +27,55 @@ export function forwardKinematics(model: RobotModelInfo, q: number[]): Mat4 {
   return mul4(t, model.tool.flat());
 }
 
+/** Every link frame by forward kinematics: the base (identity), then each joint's DH
+ * frame in turn, and last the tool (forwardKinematics's pose). */
+export function linkFrames(model: RobotModelInfo, q: number[]): Mat4[] {
+  const frames: Mat4[] = [identity4()];
+  model.dh.forEach((row, i) => frames.push(mul4(frames[frames.length - 1]!, dhTransform(q[i] ?? 0, row))));
+  frames.push(mul4(frames[frames.length - 1]!, model.tool.flat()));
+  return frames;
+}
+
+/** The arm as a chain of points in the base frame: the origin of every link frame, base
+ * to tool (the ghost arm's skeleton). */
+export function jointOrigins(model: RobotModelInfo, q: number[]): Vec3[] {
+  return linkFrames(model, q).map(position);
+}
+
+/** Joints that put the tool at `target`, found from `seed` by damped least squares (a
+ * numerical inverse kinematics for any DH chain: the predicted pose moves a little
+ * from the reported joints, so a few steps from there converge to the nearby solution). */
+export function solveIK(model: RobotModelInfo, target: Mat4, seed: number[], iterations = 20, tolerance = 1e-7): number[] {
+  const q = model.dh.map((_, i) => seed[i] ?? 0);
+  const error = (t: Mat4): number[] => {
+    const p = position(t);
+    const goal = position(target);
+    const rt = rotation(t);
+    const transposed = [rt[0]!, rt[3]!, rt[6]!, rt[1]!, rt[4]!, rt[7]!, rt[2]!, rt[5]!, rt[8]!];
+    return [goal[0] - p[0], goal[1] - p[1], goal[2] - p[2], ...matrixToRotvec(mul3(rotation(target), transposed))];
+  };
+  const lambda2 = 1e-4; // damping: bounded steps near a singularity
+  for (let it = 0; it < iterations; it++) {
+    const e = error(forwardKinematics(model, q));
+    if (Math.hypot(...e) < tolerance) break;
+    // The Jacobian by finite differences (6 × n).
+    const h = 1e-6;
+    const J = e.map(() => q.map(() => 0));
+    q.forEach((_, j) => {
+      const dq = q.slice();
+      dq[j]! += h;
+      const ej = error(forwardKinematics(model, dq));
+      ej.forEach((v, i) => (J[i]![j] = (e[i]! - v) / h));
+    });
+    // dq = Jᵀ (J Jᵀ + λ² I)⁻¹ e
+    const JJt = J.map((ri, i) => J.map((rk, k) => ri.reduce((s, v, j) => s + v * rk[j]!, 0) + (i === k ? lambda2 : 0)));
+    const y = solveLinear(JJt, e);
+    if (!y) break;
+    q.forEach((_, j) => (q[j]! += J.reduce((s, row, i) => s + row[j]! * y[i]!, 0)));
+  }
+  return q;
+}
+
 /** The tool pose after the increment (dX, rotation vector) expressed in `frame`, as
  * the server's `Puma560Kinematics.apply_increment` computes it. */
 export function applyIncrement(model: RobotModelInfo, t: Mat4, dX: Vec3, rotvec: Vec3, frame: FrameName): Mat4 {
@@ -44,6 +93,8 @@ export function applyIncrement(model: RobotModelInfo, t: Mat4, dX: Vec3, rotvec:
 export class PredictedArm {
   private predicted: Mat4 | null = null;
   private lastCommandAt = -Infinity;
+  private predictedJoints: number[] | null = null;
+  private jointsStale = false;
 
   constructor(
     readonly model: RobotModelInfo,
@@ -59,6 +110,8 @@ export class PredictedArm {
   report(joints: number[], moving: boolean, now: number): void {
     if (this.predicted === null || (!moving && now - this.lastCommandAt > this.settleMs)) {
       this.predicted = forwardKinematics(this.model, joints);
+      this.predictedJoints = joints.slice();
+      this.jointsStale = false;
     }
   }
 
@@ -67,5 +120,16 @@ export class PredictedArm {
     if (this.predicted === null) return;
     this.predicted = applyIncrement(this.model, this.predicted, dX, rotvec, frame);
     this.lastCommandAt = now;
+    this.jointsStale = true;
+  }
+
+  /** The joints of the predicted pose: the reported ones until a command moves the
+   * prediction, then solved from the last ones (at most once per change). */
+  get joints(): number[] | null {
+    if (this.jointsStale && this.predicted && this.predictedJoints) {
+      this.predictedJoints = solveIK(this.model, this.predicted, this.predictedJoints);
+      this.jointsStale = false;
+    }
+    return this.predictedJoints;
   }
 }

@@ -30,7 +30,8 @@ export type FromWorker =
   | { kind: "event"; text: string }
   | { kind: "error"; text: string; seq: number }
   | { kind: "connection"; up: boolean; why: string; meta: LinkMeta }
-  | { kind: "ack"; latencyMs: number; meta: LinkMeta };
+  | { kind: "ack"; latencyMs: number; meta: LinkMeta }
+  | { kind: "welcome"; meta: LinkMeta };
 
 export class RealtimeLink implements LinkMeta {
   operator = false;
@@ -109,6 +110,9 @@ export class RealtimeLink implements LinkMeta {
         break;
       case "ack":
         this.commandLatency.add(m.latencyMs);
+        break;
+      case "welcome":
+        this.handlers.welcome?.(m.meta.operator, m.meta.clientId);
         break;
     }
   }

@@ -4,6 +4,7 @@ import { decode, encode, type ForceSample } from "./codec";
 import * as M from "./messages";
 import type { RobotStatusName, StateMessage } from "./messages";
 import { Rolling } from "../stats";
+import { ClockSync, PING_EVERY_MS } from "./clocksync";
 
 /** Shown for a status index the generated list does not have. */
 export const UNKNOWN_STATUS = "?";
@@ -12,6 +13,8 @@ export interface RobotState {
   status: RobotStatusName | typeof UNKNOWN_STATUS;
   joints: number[];
   position: [number, number, number];
+  /** The tool's orientation: a 3×3 rotation matrix, rows (base frame). */
+  rotation: [number, number, number][];
   flags: number;
   serverTime: number;
 }
@@ -24,6 +27,8 @@ export interface RealtimeHandlers {
   connection?: (up: boolean, why: string) => void;
   /** A command's latency (ms): sent here → taken by the server's driver. */
   ack?: (latencyMs: number) => void;
+  /** The server answered HELLO: the role it gave (operator: the token was accepted). */
+  welcome?: (operator: boolean, clientId: string) => void;
 }
 
 export class RealtimeClient {
@@ -31,8 +36,10 @@ export class RealtimeClient {
   private seq = 0;
   private pendingPing = new Map<number, number>();
   private sentAt = new Map<number, number>();
-  offset = 0; // server clock − client clock (s), from ping sync
-  bestRtt = Infinity;
+  // The server's clock, from PING/PONG: commands carry their send time on it (HELLO's
+  // SYNCED_CLOCK), and the server drops one older than its max command age.
+  private readonly clock = new ClockSync();
+  private pinger: ReturnType<typeof setInterval> | undefined;
   operator = false;
   clientId = "";
   readonly stateInterval = new Rolling();
@@ -50,8 +57,10 @@ export class RealtimeClient {
     ws.binaryType = "arraybuffer";
     this.ws = ws;
     ws.onopen = () => {
-      ws.send(encode(M.HELLO, { version: M.PROTOCOL_VERSION, flags: 0, token: new TextEncoder().encode(this.token) }));
+      ws.send(encode(M.HELLO, { version: M.PROTOCOL_VERSION, flags: M.HelloFlags.SYNCED_CLOCK, token: new TextEncoder().encode(this.token) }));
       for (let i = 0; i < 5; i++) setTimeout(() => this.ping(), 100 * i);
+      clearInterval(this.pinger);
+      this.pinger = setInterval(() => this.ping(), PING_EVERY_MS);
       this.handlers.connection?.(true, "connected");
     };
     ws.onclose = (ev) => {
@@ -67,6 +76,20 @@ export class RealtimeClient {
 
   private now(): number {
     return performance.now() / 1000;
+  }
+
+  /** Server clock − page clock (s), from the recent ping with the least round trip. */
+  get offset(): number {
+    return this.clock.offset;
+  }
+
+  get bestRtt(): number {
+    return this.clock.bestRtt;
+  }
+
+  /** Now on the server's clock (what commands carry as client_time). */
+  private serverNow(): number {
+    return this.now() + this.clock.offset;
   }
 
   /** When the last message went out (ms, performance.now()). */
@@ -85,6 +108,9 @@ export class RealtimeClient {
   }
 
   ping(): void {
+    if (!this.open) return;
+    // An answer lost on the way must not leave its entry behind for good.
+    if (this.pendingPing.size > 64) this.pendingPing.clear();
     const seq = this.nextSeq();
     this.pendingPing.set(seq, this.now());
     this.send(encode(M.PING, { seq, t0: this.now() }));
@@ -95,7 +121,7 @@ export class RealtimeClient {
   }
 
   estop(): void {
-    this.send(encode(M.ESTOP, { seq: this.nextSeq(), client_time: this.now() }));
+    this.send(encode(M.ESTOP, { seq: this.nextSeq(), client_time: this.serverNow() }));
   }
 
   reset(): void {
@@ -103,16 +129,19 @@ export class RealtimeClient {
   }
 
   heartbeat(): void {
-    this.send(encode(M.HEARTBEAT, { seq: this.nextSeq(), client_time: this.now() }));
+    this.send(encode(M.HEARTBEAT, { seq: this.nextSeq(), client_time: this.serverNow() }));
   }
 
   cartesian(dX: number[], rotvec: number[], frame: number): number {
     const seq = this.nextSeq();
+    // Not before the first clock sync (the first ~RTT after connecting): the server
+    // could not tell how old the command is.
+    if (!this.clock.synced) return seq;
     const t = this.now();
     this.sentAt.set(seq, t);
     this.send(
       encode(M.CART_INC, {
-        seq, client_time: t, frame,
+        seq, client_time: t + this.clock.offset, frame,
         dx: dX[0] ?? 0, dy: dX[1] ?? 0, dz: dX[2] ?? 0,
         rx: rotvec[0] ?? 0, ry: rotvec[1] ?? 0, rz: rotvec[2] ?? 0,
       }),
@@ -130,6 +159,7 @@ export class RealtimeClient {
       case "WELCOME":
         this.operator = msg.role === 1;
         this.clientId = msg.text;
+        this.handlers.welcome?.(this.operator, this.clientId);
         break;
       case "STATE":
         this.stateInterval.tick(performance.now());
@@ -140,11 +170,7 @@ export class RealtimeClient {
         const t0 = this.pendingPing.get(msg.seq);
         if (t0 !== undefined) {
           this.pendingPing.delete(msg.seq);
-          const rtt = t3 - t0 - (msg.t2 - msg.t1);
-          if (rtt < this.bestRtt) {
-            this.bestRtt = rtt;
-            this.offset = (msg.t1 - t0 + (msg.t2 - t3)) / 2;
-          }
+          this.clock.add(t0, msg.t1, msg.t2, t3);
         }
         break;
       }
@@ -174,6 +200,11 @@ export function robotState(msg: StateMessage): RobotState {
     status: M.ROBOT_STATUS[msg.status] ?? UNKNOWN_STATUS,
     joints: [msg.q1, msg.q2, msg.q3, msg.q4, msg.q5, msg.q6],
     position: [msg.x, msg.y, msg.z],
+    rotation: [
+      [msg.r00, msg.r01, msg.r02],
+      [msg.r10, msg.r11, msg.r12],
+      [msg.r20, msg.r21, msg.r22],
+    ],
     flags: msg.flags,
     serverTime: msg.server_time,
   };

@@ -52,6 +52,7 @@ port.onmessage = (e) => {
       error: (text, seq) => port.postMessage({ kind: "error", text, seq }),
       connection: (up, why) => port.postMessage({ kind: "connection", up, why, meta: meta(c) }),
       ack: (latencyMs) => port.postMessage({ kind: "ack", latencyMs, meta: meta(c) }),
+      welcome: () => port.postMessage({ kind: "welcome", meta: meta(c) }),
     }));
     c.connect();
     setInterval(beat, HEARTBEAT_PERIOD_MS);

@@ -1,4 +1,9 @@
-// Stereo video over WebRTC: one POST with our offer, the server's answer back.
+// Stereo video over WebRTC: one POST with our offer, the server's answer back. Before
+// each offer the page asks the server for its ICE servers (STUN; TURN with credentials
+// minted for this peer) and whether video goes through TURN only (GET /api/v1/video/ice).
+// VideoConnection keeps it up: when the peer fails or no frame has come for a while
+// (a server restart, a dropped peer), it closes the old peer and negotiates a new one,
+// retrying with a doubling backoff (0.5 s … 8 s) until frames flow again.
 import type { Api, Schema } from "../api";
 
 /** This page's video connection, and the secret that proves the server's peer is ours
@@ -9,8 +14,29 @@ export interface VideoPeer {
   secret: string;
 }
 
+/** The server's ICE configuration as RTCPeerConnection takes it. */
+export function rtcConfiguration(ice: Schema<"IceConfiguration">): RTCConfiguration {
+  return {
+    iceServers: ice.ice_servers.map((s) => ({
+      urls: s.urls,
+      ...(s.username != null ? { username: s.username } : {}),
+      ...(s.credential != null ? { credential: s.credential } : {}),
+    })),
+    iceTransportPolicy: ice.ice_transport_policy,
+  };
+}
+
+/** How long to wait for ICE candidates before offering (ms): host candidates are enough
+ * on a LAN; a TURN server's relay address takes a round trip or two to it. */
+export function gatherTimeoutMs(config: RTCConfiguration): number {
+  const turn = (config.iceServers ?? []).some((s) => [s.urls].flat().some((u) => u.startsWith("turn")));
+  return turn ? 5000 : 2000;
+}
+
 export async function connectVideo(api: Api, onStream: (stream: MediaStream) => void): Promise<VideoPeer> {
-  const pc = new RTCPeerConnection();
+  // Fetched for each peer: TURN credentials are time-limited.
+  const config = rtcConfiguration(await api.request("get", "/api/v1/video/ice"));
+  const pc = new RTCPeerConnection(config);
   const transceiver = pc.addTransceiver("video", { direction: "recvonly" });
   // No jitter buffer beyond what decoding needs: render frames as they arrive.
   const receiver = transceiver.receiver as RTCRtpReceiver & { jitterBufferTarget?: number; playoutDelayHint?: number };
@@ -21,19 +47,143 @@ export async function connectVideo(api: Api, onStream: (stream: MediaStream) => 
   await new Promise<void>((resolve) => {
     if (pc.iceGatheringState === "complete") return resolve();
     pc.addEventListener("icegatheringstatechange", () => pc.iceGatheringState === "complete" && resolve());
-    setTimeout(resolve, 2000); // host candidates are enough on a LAN
+    setTimeout(resolve, gatherTimeoutMs(config));
   });
   const answer = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer" } });
   await pc.setRemoteDescription({ sdp: answer.sdp, type: answer.type as RTCSdpType });
   const peer = { pc, peerId: answer.peer_id, secret: answer.peer_secret };
   // Leaving the page frees the server's peer at once, not after ICE gives up.
-  window.addEventListener("pagehide", () => {
-    pc.close();
-    api
-      .request("delete", "/api/v1/webrtc/{peer_id}", { params: { peer_id: peer.peerId }, keepalive: true, headers: { "X-Peer-Secret": peer.secret } })
-      .catch(() => undefined);
-  });
+  const onHide = () => closeVideo(api, peer);
+  window.addEventListener("pagehide", onHide);
+  onClose.set(peer, () => window.removeEventListener("pagehide", onHide));
   return peer;
+}
+
+const onClose = new WeakMap<VideoPeer, () => void>();
+
+/** Close our peer here and on the server (which needs its secret); a server that is gone
+ * has closed it already. */
+export function closeVideo(api: Api, peer: VideoPeer): void {
+  onClose.get(peer)?.();
+  onClose.delete(peer);
+  peer.pc.close();
+  api
+    .request("delete", "/api/v1/webrtc/{peer_id}", { params: { peer_id: peer.peerId }, keepalive: true, headers: { "X-Peer-Secret": peer.secret } })
+    .catch(() => undefined);
+}
+
+/** Delays between attempts: `firstMs`, doubling up to `maxMs`; back to the first on reset. */
+export class Backoff {
+  private nextMs: number;
+
+  constructor(
+    readonly firstMs = 500,
+    readonly maxMs = 8000,
+  ) {
+    this.nextMs = firstMs;
+  }
+
+  next(): number {
+    const ms = this.nextMs;
+    this.nextMs = Math.min(this.maxMs, ms * 2);
+    return ms;
+  }
+
+  reset(): void {
+    this.nextMs = this.firstMs;
+  }
+}
+
+export interface VideoConnectionOptions {
+  /** Each new stream (the first, and one per re-negotiation). */
+  onStream: (stream: MediaStream) => void;
+  /** Each new peer as it is negotiated (e.g. for the alignment's saves). */
+  onPeer?: (peer: Promise<VideoPeer>) => void;
+  onError?: (message: string) => void;
+  /** Re-negotiate once the video has been stale this long (ms)… */
+  staleMs?: number;
+  /** …and the newest peer has had this long (ms) to bring its first frame. */
+  graceMs?: number;
+  backoff?: Backoff;
+}
+
+/** This page's video, kept up: re-negotiated (a new RTCPeerConnection, the old one closed
+ * with its secret) when it fails or stalls, with backoff, until frames flow again. */
+export class VideoConnection {
+  peer: VideoPeer | null = null;
+  /** Peers negotiated after the first. */
+  renegotiations = 0;
+  private attempting = false;
+  private timer: ReturnType<typeof setTimeout> | null = null;
+  private attemptAt = -Infinity;
+  private readonly backoff: Backoff;
+  private readonly staleMs: number;
+  private readonly graceMs: number;
+
+  constructor(
+    private readonly api: Api,
+    private readonly options: VideoConnectionOptions,
+  ) {
+    this.backoff = options.backoff ?? new Backoff();
+    this.staleMs = options.staleMs ?? 1000;
+    this.graceMs = options.graceMs ?? 5000;
+  }
+
+  /** Negotiate the first peer. */
+  start(): Promise<VideoPeer> {
+    return this.attempt();
+  }
+
+  /** A frame arrived: the video is up; the next failure starts from the shortest delay. */
+  frame(): void {
+    this.backoff.reset();
+  }
+
+  /** How long the video has been stale (ms, null while live): long enough, and the
+   * newest peer had its chance, and it is time to try again. */
+  stalled(ms: number | null, now = performance.now()): void {
+    if (ms === null || ms < this.staleMs || now - this.attemptAt < this.graceMs) return;
+    this.retry(`no video for ${Math.round(ms)} ms`);
+  }
+
+  /** Try again after the backoff's next delay (one attempt at a time). */
+  retry(why: string): void {
+    if (this.attempting || this.timer !== null) return;
+    const delay = this.backoff.next();
+    this.options.onError?.(`video: ${why}; reconnecting in ${(delay / 1000).toFixed(1)} s`);
+    this.timer = setTimeout(() => {
+      this.timer = null;
+      this.attempt().catch(() => undefined);
+    }, delay);
+  }
+
+  private attempt(): Promise<VideoPeer> {
+    this.attempting = true;
+    this.attemptAt = performance.now();
+    const old = this.peer;
+    this.peer = null;
+    if (old) {
+      closeVideo(this.api, old);
+      this.renegotiations += 1;
+    }
+    const next = connectVideo(this.api, (stream) => this.options.onStream(stream)).then((peer) => {
+      this.peer = peer;
+      this.attemptAt = performance.now(); // its grace starts now
+      peer.pc.addEventListener("connectionstatechange", () => {
+        if (this.peer === peer && (peer.pc.connectionState === "failed" || peer.pc.connectionState === "closed")) this.retry(`peer ${peer.pc.connectionState}`);
+      });
+      return peer;
+    });
+    this.options.onPeer?.(next);
+    next
+      .catch((e: Error) => {
+        this.attempting = false;
+        this.retry(e.message);
+      })
+      .then(() => (this.attempting = false))
+      .catch(() => undefined);
+    return next;
+  }
 }
 
 /** Save this viewer's shift of the right image on the server, through its own peer. */

@@ -1,7 +1,6 @@
 // The operator's buttons and the Driving panel, wired to the input loop and the link.
-import { saveToken } from "../api";
-import type { InputLoop } from "../input/loop";
-import type { FrameName } from "../robot/model";
+import { TRY_KEY } from "../api";
+import type { DriveFrame, InputLoop } from "../input/loop";
 import { $ } from "./dom";
 
 export function setupControls(loop: InputLoop, link: { reset(): void }): void {
@@ -10,13 +9,15 @@ export function setupControls(loop: InputLoop, link: { reset(): void }): void {
   $("estop").onclick = () => loop.estop();
   $("reset").onclick = () => link.reset();
   $<HTMLInputElement>("token").onchange = (e) => {
-    saveToken(localStorage, (e.target as HTMLInputElement).value);
+    // Tried once in this tab; remembered only if the server accepts it.
+    sessionStorage.setItem(TRY_KEY, (e.target as HTMLInputElement).value);
     location.reload();
   };
   const frame = $<HTMLSelectElement>("frame");
   frame.onchange = () => {
-    loop.frame = frame.value as FrameName;
+    loop.frame = frame.value as DriveFrame;
   };
+  frame.value = loop.frame; // the page's default (view), whatever the HTML says
   loop.onFrameChange = (name) => {
     frame.value = name;
   };

@@ -1,16 +1,19 @@
-// The operator's panels, redrawn at 5 Hz: status and role, who has control and the
-// buttons that go with it, the banner, joints and pose, forces, and the timing figures.
+// The operator's panels, redrawn at 5 Hz: the header (one state model, status.ts:
+// badge, role, control, buttons, the E-STOP's latched look, the banner), joints and
+// pose, forces, the speed's value and the timing figures; and the Home button.
+import type { Api, MessageLog } from "../api";
 import type { Vec3 } from "../robot/math";
 import type { Rolling } from "../stats";
 import type { ForceSample } from "../transport/codec";
-import { hasControl } from "../input/loop";
-import { StateFlags } from "../transport/messages";
 import type { RobotState } from "../transport/realtime";
 import { drawArrow, drawHistogram } from "./charts";
-import { $ } from "./dom";
+import { $, numberIn } from "./dom";
+import { forceRows, JOINT_NAMES, degrees, orientationText, speedText } from "./readouts";
+import { headerView, type HeaderView, type HomeStep } from "./status";
 
 export const PANEL_PERIOD_MS = 200;
-const AXES = ["Fx", "Fy", "Fz", "Tx", "Ty", "Tz"];
+/** A Home click waits this long for the confirming click. */
+export const HOME_CONFIRM_MS = 4000;
 
 /** The figures the panels show, read at each redraw. */
 export interface PanelSources {
@@ -19,6 +22,7 @@ export interface PanelSources {
   link: {
     readonly operator: boolean;
     readonly open: boolean;
+    readonly clientId: string;
     readonly commandLatency: Rolling;
     readonly forceInterval: Rolling;
     readonly stateInterval: Rolling;
@@ -26,45 +30,125 @@ export interface PanelSources {
   glass: Rolling; // capture → presented, ms
   videoInterval: Rolling;
   forceLimitN: number;
+  /** For the Home button (POST /api/v1/robot/initialize) and its errors. */
+  api?: Api;
+  log?: MessageLog;
 }
 
-/** The banner over the view: a warning, or (error) the lost connection. */
-export function showBanner(text: string, error = false): void {
-  const banner = $("banner");
-  banner.hidden = text === "";
-  banner.className = error ? "error" : "";
-  banner.textContent = text;
-}
+let disconnectReason = "";
 
+/** The link's connection handler: remembers why it closed, for the banner. */
 export function showConnection(up: boolean, why: string): void {
-  showBanner(up ? "" : `Disconnected: ${why}`, true);
+  disconnectReason = up ? "" : why;
+}
+
+/** The Home button: a first click asks for a second (it moves the arm), the second
+ * initialises the arm to the home pose as the client holding the lease. */
+export class HomeButton {
+  step: HomeStep = "idle";
+  private timer: ReturnType<typeof setTimeout> | undefined;
+
+  constructor(
+    private readonly api: Pick<Api, "request">,
+    private readonly link: { readonly clientId: string },
+    private readonly log: Pick<MessageLog, "add">,
+    private readonly changed: () => void = () => {},
+  ) {}
+
+  click(): void {
+    if (this.step === "moving") return;
+    clearTimeout(this.timer);
+    if (this.step === "idle") {
+      this.step = "confirm";
+      this.timer = setTimeout(() => this.set("idle"), HOME_CONFIRM_MS);
+      this.changed();
+      return;
+    }
+    this.set("moving");
+    this.log.add("home: moving to the home pose…");
+    this.api
+      .request("post", "/api/v1/robot/initialize", { body: {}, headers: { "X-Client-Id": this.link.clientId } })
+      .then(() => this.log.add("home: at the home pose"))
+      .catch((e: Error) => this.log.add(`home: ${e.message}`, true))
+      .finally(() => this.set("idle"));
+  }
+
+  private set(step: HomeStep): void {
+    this.step = step;
+    this.changed();
+  }
 }
 
 const fmt = (v: number, digits: number) => (Number.isFinite(v) ? v.toFixed(digits) : "—"); // nothing measured yet
 
-export function updatePanels(src: PanelSources): void {
+function showButton(id: string, b: { visible: boolean; enabled: boolean }): void {
+  const el = $<HTMLButtonElement>(id);
+  el.hidden = !b.visible;
+  el.disabled = !b.enabled;
+}
+
+/** Draw the header as the model says. */
+export function showHeader(v: HeaderView): void {
+  $("status").textContent = v.badge.text;
+  $("status").className = `badge ${v.badge.cls}`;
+  $("role").textContent = v.role;
+  $("control-owner").textContent = v.control;
+  $("token-row").hidden = !v.tokenRow;
+  showButton("take", v.take);
+  showButton("release", v.release);
+  showButton("reset", v.reset);
+  showButton("home", v.home);
+  $("home").textContent = v.home.text;
+  const estop = $("estop");
+  estop.textContent = v.estop.text;
+  estop.classList.toggle("latched", v.estop.latched);
+  estop.setAttribute("aria-pressed", String(v.estop.latched));
+  const banner = $("banner");
+  banner.hidden = v.banner.text === "";
+  banner.className = v.banner.error ? "error" : "";
+  banner.textContent = v.banner.text;
+}
+
+/** When the latest STATE came and when the link last opened (ms, performance.now()). */
+interface Freshness {
+  state: RobotState | null;
+  stateAt: number;
+  open: boolean;
+  openedAt: number;
+}
+
+export function updatePanels(src: PanelSources, fresh: Freshness, home: HomeStep = "idle", now = performance.now()): void {
   const s = src.state();
-  const flags = s?.flags ?? 0;
-  const mine = hasControl(flags);
-  $("status").textContent = s?.status ?? "…";
-  $("status").className = `badge ${s?.status ?? ""}`;
-  $("role").textContent = src.link.operator ? "operator" : "observer (watching only)";
-  $("token-row").hidden = src.link.operator;
-  $("take").hidden = !src.link.operator || mine;
-  $("release").hidden = !mine;
-  $("reset").hidden = (flags & StateFlags.ESTOP) === 0;
-  $("control-owner").textContent = mine ? "you have control" : flags & StateFlags.SOMEONE_HAS_CONTROL ? "someone else has control" : "nobody has control";
-  if (flags & StateFlags.ESTOP) showBanner("E-STOP latched: reset it to move again");
-  else if (flags & StateFlags.FORCE_LIMITED) showBanner("Force limit: back away from the contact");
-  else if (src.link.open) $("banner").hidden = true;
+  if (s !== fresh.state) [fresh.state, fresh.stateAt] = [s, now];
+  if (src.link.open && !fresh.open) fresh.openedAt = now;
+  fresh.open = src.link.open;
+  showHeader(
+    headerView({
+      linkOpen: src.link.open,
+      disconnectReason,
+      operator: src.link.operator,
+      state: s,
+      stateAgeMs: now - Math.max(s ? fresh.stateAt : -Infinity, fresh.openedAt),
+      home,
+    }),
+  );
+  $("speed-value").textContent = speedText(numberIn("speed"));
   if (s) {
-    $("joints").innerHTML = `<tr>${s.joints.map((q) => `<td>${((q * 180) / Math.PI).toFixed(1)}°</td>`).join("")}</tr>`;
+    $("joints").innerHTML =
+      `<tr>${JOINT_NAMES.map((n) => `<th>${n}</th>`).join("")}</tr>` +
+      `<tr>${s.joints.map((q) => `<td>${degrees(q).toFixed(1)}°</td>`).join("")}</tr>`;
     $("pose").textContent = `tool at ${s.position.map((v) => v.toFixed(3)).join(", ")} m`;
+    $("orientation").textContent = s.rotation ? orientationText(s.rotation) : "";
   }
   const limit = src.forceLimitN;
   const f = src.force()?.values ?? [0, 0, 0, 0, 0, 0];
-  $("force-bars").innerHTML = f
-    .map((v, i) => `<div title="${AXES[i]} ${v.toFixed(2)}"><div class="bar" style="width:${Math.min(100, (Math.abs(v) / limit) * 100)}%"></div></div>`)
+  $("force-limit").textContent = `limit ${limit.toFixed(0)} N`;
+  $("force-bars").innerHTML = forceRows(f, limit)
+    .map(
+      (r) =>
+        `<div class="force-row${r.over ? " over" : ""}"><span class="axis">${r.axis}</span>` +
+        `<span class="track"><span class="bar" style="width:${r.percent.toFixed(1)}%"></span></span><span class="value">${r.text}</span></div>`,
+    )
     .join("");
   drawArrow($<HTMLCanvasElement>("force-arrow"), f.slice(0, 3) as Vec3, limit);
   const { link, glass, videoInterval } = src;
@@ -76,6 +160,19 @@ export function updatePanels(src: PanelSources): void {
   drawHistogram($<HTMLCanvasElement>("hist-video"), videoInterval, 100, "video inter-arrival (0–100 ms)");
 }
 
-export function startPanels(src: PanelSources): void {
-  setInterval(() => updatePanels(src), PANEL_PERIOD_MS);
+/** Redraw the panels every PANEL_PERIOD_MS (and at once when the Home button changes);
+ * wire the Home button and the speed's value. */
+export function startPanels(src: PanelSources): { home: HomeButton | null; redraw: () => void } {
+  const fresh: Freshness = { state: null, stateAt: 0, open: false, openedAt: performance.now() };
+  let home: HomeButton | null = null;
+  const redraw = () => updatePanels(src, fresh, home?.step);
+  if (src.api && src.log) {
+    home = new HomeButton(src.api, src.link, src.log, redraw);
+    const button = home;
+    $("home").onclick = () => button.click();
+  }
+  $("speed").addEventListener("input", () => ($("speed-value").textContent = speedText(numberIn("speed"))));
+  setInterval(redraw, PANEL_PERIOD_MS);
+  redraw();
+  return { home, redraw };
 }

@@ -27,6 +27,16 @@ export function showBall(view: StereoView, ball: Ball): void {
   view.setBall(ball, $<HTMLInputElement>("ar").checked, $<HTMLInputElement>("ar-colour").value, numberIn("ar-size"));
 }
 
+/** The fullscreen button over the stage; gives the toggle (the page binds F to it too). */
+export function setupFullscreen(stage: HTMLElement, log: MessageLog): () => void {
+  const toggle = () => {
+    const done = document.fullscreenElement ? document.exitFullscreen() : stage.requestFullscreen();
+    done.catch((e: Error) => log.add(`fullscreen: ${e.message}`, true));
+  };
+  $("fullscreen").onclick = toggle;
+  return toggle;
+}
+
 export function setupXRButton(view: StereoView, log: MessageLog): void {
   $("xr").onclick = () => view.enterXR().catch((e: Error) => log.add(e.message, true));
 }

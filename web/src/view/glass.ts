@@ -10,15 +10,27 @@ export interface ServerClock {
 /** Capture → decoded frame in this page, for every frame: each decoded frame carries its
  * capture time as a timecode (32 blocks of 16 px at (8, 8) in the left image), read from
  * the decoder's own frame (a 512×2 luma copy; no GPU read-back), on the server's clock
- * through the ping offset. */
-export async function measureGlass(track: MediaStreamTrack, clock: ServerClock, glass: Rolling): Promise<void> {
+ * through the ping offset. Reads `track` (a copy: it is stopped) until `stop()`. */
+export function measureGlass(track: MediaStreamTrack, clock: ServerClock, glass: Rolling): { stop(): void } {
   const Processor = (window as unknown as { MediaStreamTrackProcessor?: new (i: { track: MediaStreamTrack }) => { readable: ReadableStream<VideoFrame> } })
     .MediaStreamTrackProcessor;
-  if (!Processor) return; // not Chromium: the panel shows no glass-to-glass figure
+  if (!Processor) return { stop: () => track.stop() }; // not Chromium: the panel shows no glass-to-glass figure
   const reader = new Processor({ track }).readable.getReader();
+  void readFrames(reader, clock, glass);
+  return {
+    stop() {
+      // Cancelling closes the frames still queued (a dropped reader would leave them
+      // to the garbage collector, which Chromium reports as an error).
+      void reader.cancel().catch(() => undefined);
+      track.stop();
+    },
+  };
+}
+
+async function readFrames(reader: ReadableStreamDefaultReader<VideoFrame>, clock: ServerClock, glass: Rolling): Promise<void> {
   const rect = { x: 8, y: 16, width: 512, height: 2 };
   for (;;) {
-    const { value: frame, done } = await reader.read();
+    const { value: frame, done } = await reader.read().catch(() => ({ value: undefined, done: true }));
     if (done || !frame) return;
     const now = performance.now() / 1000;
     try {

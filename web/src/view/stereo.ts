@@ -6,7 +6,14 @@
 // uniform or not: with one program for all modes it drew 5.7–7.4 side-by-side frames/s
 // of 2×640×360 video, with one per mode 10.8–11.4, on the same 1.2 cores.
 // Frames are rendered as they arrive (requestVideoFrameCallback).
+// Over the video: the overlay layer (overlay.ts; other modules paint into it, in each
+// camera's pixels), the AR ball as a ring (the gripper tip it marks shows through), and,
+// when no frame has come for a while, the view dims and says "VIDEO STALE n ms".
+// The timecode stripe the simulated cameras draw at the top (drivers/camera/timecode.py)
+// is cropped from what is shown; every coordinate stays in full-camera-image pixels.
 import * as THREE from "three";
+import { OverlayCanvas, type Eye, type EyeSize, type OverlayPainter } from "./overlay";
+import { FrameWatch } from "./staleness";
 
 export const MODES = ["mono", "side-by-side", "cross-eye", "anaglyph", "anaglyph-dubois"] as const;
 export type ViewMode = (typeof MODES)[number];
@@ -26,7 +33,10 @@ const DUBOIS_RIGHT = new THREE.Matrix3().set(-0.043, -0.088, -0.002, 0.378, 0.73
 
 const FRAGMENT = /* glsl */ `
 uniform sampler2D tex;
+uniform sampler2D overlay; // both eyes side by side like the video, premultiplied alpha
 uniform vec2 eye;       // one eye's size in pixels
+uniform float cropTop;  // rows of each eye not shown (the timecode stripe)
+uniform float dim;      // 0: the video as it is, 1: black (stale video)
 uniform vec2 outSize;   // this quad's size in pixels
 uniform vec2 shift;     // right image moved by this many pixels (x right, y down)
 uniform bool showBall;
@@ -38,17 +48,25 @@ uniform mat3 duboisL;
 uniform mat3 duboisR;
 varying vec2 vUv;
 
+// px: a pixel of what is shown of one eye; drawn at the camera's pixel px + (0, cropTop).
 vec3 sampleEye(int which, vec2 px) {
+  px.y += cropTop;
   if (which == 1) px -= shift;
   if (px.x < 0.0 || px.y < 0.0 || px.x >= eye.x || px.y >= eye.y) return vec3(0.0);
   vec2 uv = vec2((px.x + float(which) * eye.x) / (2.0 * eye.x), 1.0 - px.y / eye.y);
-  vec3 c = texture2D(tex, uv).rgb;
+  vec3 c = texture2D(tex, uv).rgb * (1.0 - dim);
   if (showBall) {
+    // A ring: the tip it marks shows through its middle.
     vec2 b = which == 0 ? ballL : ballR;
-    float d = distance(px, b);
-    if (d < radius) c = ballColor;
-    else if (d < radius + 1.5) c = mix(ballColor, vec3(0.0), 0.6);
+    float e = abs(distance(px, b) - radius);
+    float w = max(1.5, 0.2 * radius);
+    if (e < w) c = ballColor;
+    else if (e < w + 1.5) c = mix(ballColor, vec3(0.0), 0.6);
   }
+#if OVERLAY
+  vec4 o = texture2D(overlay, uv);
+  c = c * (1.0 - o.a) + o.rgb;
+#endif
   return c;
 }
 
@@ -79,6 +97,15 @@ export interface Ball {
   right: [number, number] | null;
 }
 
+/** Rows at the top of each camera image that the view does not show: the simulated
+ * cameras' timecode stripe (drivers/camera/timecode.py: blocks of 16 px at y 8, a 4 px
+ * black guard around them), which the page reads from the decoded frames itself. */
+export const TIMECODE_ROWS = 28;
+/** No new frame for this long: the view dims and says so. */
+export const STALE_MS = 300;
+
+export type { Eye, EyeSize, OverlayPainter };
+
 export class StereoView {
   readonly renderer: THREE.WebGLRenderer;
   private readonly scene = new THREE.Scene();
@@ -93,6 +120,19 @@ export class StereoView {
   /** Each XR frame, before it is drawn: read the controllers here. */
   onXRFrame: ((frame: XRFrame, space: XRReferenceSpace) => void) | null = null;
   xrFrames = 0;
+  /** Watches frame arrival: stale once no frame has come for STALE_MS. */
+  readonly watch = new FrameWatch(STALE_MS, () => performance.now());
+  /** How long the video has been stale (ms), or null while frames come. */
+  staleMs: number | null = null;
+  /** The last time the view turned stale: when the last frame had come, and when it said so (performance.now()). */
+  lastStale: { lastFrameAt: number; reportedAt: number } | null = null;
+  /** Told on every check (every ~frame interval) how long the video has been stale, or null. */
+  onStale: ((ms: number | null) => void) | null = null;
+  private readonly overlay = new OverlayCanvas();
+  private readonly overlayTexture: THREE.CanvasTexture;
+  private readonly xrQuads: THREE.Mesh[] = [];
+  private cropTop = TIMECODE_ROWS;
+  private container: HTMLElement | null = null;
 
   constructor(
     readonly canvas: HTMLCanvasElement,
@@ -105,6 +145,13 @@ export class StereoView {
     this.texture.colorSpace = THREE.NoColorSpace;
     this.texture.minFilter = THREE.NearestFilter;
     this.texture.magFilter = THREE.NearestFilter;
+    this.overlayTexture = new THREE.CanvasTexture(this.overlay.canvas);
+    this.overlayTexture.colorSpace = THREE.NoColorSpace;
+    this.overlayTexture.premultiplyAlpha = true;
+    this.overlayTexture.generateMipmaps = false;
+    this.overlayTexture.minFilter = THREE.LinearFilter;
+    this.overlayTexture.magFilter = THREE.LinearFilter;
+    this.overlay.top = { paint: (ctx, eye, size) => this.paintStale(ctx, eye, size) };
     this.material = this.makeMaterial();
     this.scene.add(new THREE.Mesh(new THREE.PlaneGeometry(1, 1), this.material));
     this.camera.position.z = 1;
@@ -115,6 +162,7 @@ export class StereoView {
       const quad = new THREE.Mesh(new THREE.PlaneGeometry(1.6 * (16 / 9), 1.6), m);
       quad.position.set(0, 1.6, -2);
       quad.layers.set(layer);
+      this.xrQuads.push(quad);
       this.xrGroup.add(quad);
     }
     this.xrGroup.visible = false;
@@ -131,15 +179,92 @@ export class StereoView {
       this.render();
     });
     this.scheduleFrame();
+    // Checked about once per frame interval; frames arriving do not need it.
+    setInterval(() => this.checkStale(), 50);
+  }
+
+  /** Draw `painter` over the video (both eyes, every mode, WebXR); see overlay.ts. */
+  addOverlay(painter: OverlayPainter): void {
+    this.overlay.add(painter);
+    this.overlayChanged();
+  }
+
+  /** Painters are called again before the next frame is drawn. */
+  overlayChanged(): void {
+    this.overlay.dirty = true;
+  }
+
+  /** Scale the canvas (CSS, aspect kept) to fill `container`, now and whenever it resizes. */
+  fitInto(container: HTMLElement): void {
+    this.container = container;
+    new ResizeObserver(() => this.fitBox()).observe(container);
+    this.fitBox();
+  }
+
+  private fitBox(): void {
+    const box = this.container;
+    if (!box || this.renderer.xr.isPresenting) return;
+    const style = getComputedStyle(box);
+    const w = box.clientWidth - parseFloat(style.paddingLeft) - parseFloat(style.paddingRight);
+    const h = box.clientHeight - parseFloat(style.paddingTop) - parseFloat(style.paddingBottom);
+    const scale = Math.min(w / this.canvas.width, h / this.canvas.height);
+    if (!(scale > 0)) return;
+    this.canvas.style.width = `${Math.floor(this.canvas.width * scale)}px`;
+    this.canvas.style.height = `${Math.floor(this.canvas.height * scale)}px`;
+  }
+
+  /** Rows of each camera image not shown at the top: a shown pixel (x, y) is the
+   * camera's pixel (x, y + croppedRows). */
+  get croppedRows(): number {
+    return this.cropTop;
+  }
+
+  /** Rows of each camera image not shown at the top (default: the timecode stripe). */
+  setCropTop(rows: number): void {
+    this.cropTop = rows;
+    this.render();
+  }
+
+  private paintStale(ctx: CanvasRenderingContext2D, _eye: Eye, size: EyeSize): void {
+    if (this.staleMs === null) return;
+    const text = `VIDEO STALE ${Math.round(this.staleMs)} ms`;
+    const px = Math.max(12, Math.round(size.height / 10));
+    ctx.font = `bold ${px}px system-ui, sans-serif`;
+    ctx.textAlign = "center";
+    ctx.textBaseline = "middle";
+    const x = size.width / 2;
+    const y = size.height / 2;
+    const w = ctx.measureText(text).width + px;
+    ctx.fillStyle = "rgba(0, 0, 0, 0.6)";
+    ctx.fillRect(x - w / 2, y - px * 0.8, w, px * 1.6);
+    ctx.fillStyle = "#ffb020";
+    ctx.fillText(text, x, y);
+  }
+
+  /** Stale or not: dim and say so (the text updated as it grows), or clear both. */
+  private checkStale(): void {
+    const now = performance.now();
+    const ms = this.watch.stale(now);
+    const was = this.staleMs;
+    if (ms === null && was === null) return this.onStale?.(null);
+    if (ms !== null && was === null) this.lastStale = { lastFrameAt: this.watch.lastFrameAt, reportedAt: now };
+    this.staleMs = ms;
+    this.overlayChanged();
+    for (const m of this.all()) m.uniforms.dim!.value = ms === null ? 0 : 0.6;
+    if (!this.renderer.xr.isPresenting) this.render();
+    this.onStale?.(ms);
   }
 
   private makeMaterial(mode = MODE_INDEX["side-by-side"]): THREE.ShaderMaterial {
     return new THREE.ShaderMaterial({
       vertexShader: VERTEX,
       fragmentShader: FRAGMENT,
-      defines: { MODE: mode },
+      defines: { MODE: mode, OVERLAY: 1 },
       uniforms: {
         tex: { value: this.texture },
+        overlay: { value: this.overlayTexture },
+        cropTop: { value: TIMECODE_ROWS },
+        dim: { value: 0 },
         eye: { value: new THREE.Vector2(1280, 720) },
         outSize: { value: new THREE.Vector2(2560, 720) },
         shift: { value: new THREE.Vector2(0, 0) },
@@ -184,26 +309,36 @@ export class StereoView {
     this.render();
   }
 
-  /** Output in video pixels: one eye wide for mono/anaglyph, two for side-by-side. */
+  /** Output in video pixels: one eye wide for mono/anaglyph, two for side-by-side;
+   * each eye's rows below the cropped ones. */
   private layout(): void {
     const eyeW = this.video.videoWidth / 2 || 1280;
     const eyeH = this.video.videoHeight || 720;
     const wide = this.mode === "side-by-side" || this.mode === "cross-eye";
     const w = wide ? 2 * eyeW : eyeW;
+    const crop = Math.min(this.cropTop, eyeH - 1);
+    const h = eyeH - crop;
     // (In XR the session's layer sizes the canvas.)
-    if (!this.renderer.xr.isPresenting && (this.canvas.width !== w || this.canvas.height !== eyeH)) {
-      this.renderer.setSize(w, eyeH, false);
+    if (!this.renderer.xr.isPresenting && (this.canvas.width !== w || this.canvas.height !== h)) {
+      this.renderer.setSize(w, h, false);
+      this.fitBox();
+    }
+    for (const q of this.xrQuads) q.scale.x = eyeW / h / (16 / 9);
+    if (this.overlay.resize({ width: eyeW, height: eyeH })) this.overlayTexture.dispose(); // a new size: a new texture
+    if (this.overlay.dirty) {
+      this.overlay.paint();
+      this.overlayTexture.needsUpdate = true;
     }
     if (this.material.defines.MODE !== MODE_INDEX[this.mode]) {
       this.material.defines.MODE = MODE_INDEX[this.mode];
       this.material.needsUpdate = true; // another program (three.js keeps each one built)
     }
-    (this.material.uniforms.eye!.value as THREE.Vector2).set(eyeW, eyeH);
-    (this.material.uniforms.outSize!.value as THREE.Vector2).set(w, eyeH);
-    for (const m of this.xrMaterials) {
+    for (const m of this.all()) {
       (m.uniforms.eye!.value as THREE.Vector2).set(eyeW, eyeH);
-      (m.uniforms.outSize!.value as THREE.Vector2).set(eyeW, eyeH);
+      m.uniforms.cropTop!.value = crop;
     }
+    (this.material.uniforms.outSize!.value as THREE.Vector2).set(w, h);
+    for (const m of this.xrMaterials) (m.uniforms.outSize!.value as THREE.Vector2).set(eyeW, h);
   }
 
   /** Upload the video's current frame and draw it now (e.g. after pausing). */
@@ -220,6 +355,8 @@ export class StereoView {
   private scheduleFrame(): void {
     this.video.requestVideoFrameCallback((_now, metadata) => {
       this.frames += 1;
+      this.watch.frame(performance.now());
+      if (this.staleMs !== null) this.checkStale(); // fresh again: undim before drawing
       this.texture.needsUpdate = true;
       if (!this.renderer.xr.isPresenting) this.render();
       this.onFrame?.(metadata);
@@ -230,7 +367,7 @@ export class StereoView {
   async enterXR(): Promise<void> {
     const xr = (navigator as Navigator & { xr?: { requestSession(mode: string, init?: object): Promise<XRSession> } }).xr;
     if (!xr) throw new Error("WebXR is not available in this browser");
-    const session = await xr.requestSession("immersive-vr", { optionalFeatures: ["local-floor"] });
+    const session = await xr.requestSession("immersive-vr", { optionalFeatures: ["local-floor", "hand-tracking"] });
     await this.renderer.xr.setSession(session);
   }
 }

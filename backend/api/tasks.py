@@ -1,0 +1,182 @@
+"""Supervisory tasks (issue 14): repeat a recorded episode, or a time segment of a
+recording, as a server-side task under the DecisionServer's guards. Starting one
+needs the operator token and the control lease (``X-Client-Id``): the lease goes to
+the task for its run and comes back at its end. Reading is open to every client."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Depends
+from pydantic import BaseModel, Field
+
+from backend.api.deps import ClientDep, ServicesDep
+from backend.api.requests import StrictRequest
+from backend.recording.recorder import Recorder
+from backend.tasks.compliance import ComplianceSettings
+from backend.tasks.runner import Task, TaskRunner, TaskSpec
+from backend.tasks.trajectory import Trajectory
+from drivers.base import InvalidCommand
+
+router = APIRouter(prefix="/tasks", tags=["tasks"])
+
+
+def _runner(s: ServicesDep) -> TaskRunner:
+    return s.task_runner
+
+
+def _recorder(s: ServicesDep) -> Recorder:
+    return s.recorder
+
+
+RunnerDep = Annotated[TaskRunner, Depends(_runner)]
+RecorderDep = Annotated[Recorder, Depends(_recorder)]
+
+
+class Compliance(StrictRequest):
+    axes: str = Field("xyz", pattern=r"^[xyz]{0,3}$", description="base axes that give way")
+    stiffness_n_per_m: float = Field(1000.0, ge=10, le=1e6)
+    damping_n_s_per_m: float = Field(2000.0, ge=1, le=1e6)
+    max_offset_m: float = Field(0.01, ge=0, le=0.05)
+    max_rate_m_s: float = Field(0.02, ge=0, le=0.1)
+
+
+class TaskSource(StrictRequest):
+    recording: str = Field(description="a recording's file name (GET /api/v1/recordings)")
+    episode: int | None = Field(None, ge=0, description="repeat this episode")
+    segment: tuple[float, float] | None = Field(
+        None, description="or this span [t0, t1] s (of the episode, else of the recording)"
+    )
+
+
+class StartTask(TaskSource):
+    speed: float = Field(1.0, ge=0.1, le=1.0, description="share of the taught speed")
+    compliance: Compliance | None = Field(None, description="none: position only")
+    force_margin_n: float | None = Field(
+        15.0, ge=0.5, le=200, description="stop on a force this much above the taught one"
+    )
+    approach: bool = Field(
+        False, description="the operator confirms a guarded move to the first pose first"
+    )
+
+
+class TaskView(BaseModel):
+    id: str
+    state: Literal["approaching", "running", "paused", "done", "stopped", "aborted"]
+    reason: str
+    progress: float
+    s: float
+    duration: float
+    speed: float
+    force_n: float
+    recorded_n: float
+    peak_force_n: float
+    offset: tuple[float, float, float]
+    supervisor: str
+    source: str
+
+
+class TaskPath(BaseModel):
+    id: str
+    positions: list[tuple[float, float, float]]  # base frame, metres, at most 400
+    forces_n: list[float]  # the recorded force's magnitude at each
+
+
+def _path(task_id: str, traj: Trajectory) -> TaskPath:
+    """The trajectory's positions thinned to at most 400 (ends kept), with the recorded
+    force's magnitude at each."""
+    step = max(1, -(-len(traj) // 400))
+    idx = list(range(0, len(traj), step))
+    if idx[-1] != len(traj) - 1:
+        idx.append(len(traj) - 1)
+    return TaskPath(
+        id=task_id,
+        positions=[(float(a), float(b), float(c)) for a, b, c in traj.positions[idx]],
+        forces_n=[float((traj.forces[i] ** 2).sum() ** 0.5) for i in idx],
+    )
+
+
+async def _trajectory(body: TaskSource, recorder: Recorder) -> Trajectory:
+    path = recorder.path_of(body.recording)
+    if body.segment is not None and not body.segment[0] < body.segment[1]:
+        raise InvalidCommand("a segment is [t0, t1] with t0 < t1")
+    return await asyncio.to_thread(
+        Trajectory.from_recording, path, episode=body.episode, segment=body.segment
+    )
+
+
+def _view(task: Task) -> TaskView:
+    st = task.status()
+    return TaskView(
+        id=st.id,
+        state=st.state.value,
+        reason=st.reason,
+        progress=st.progress,
+        s=st.s,
+        duration=st.duration,
+        speed=st.speed,
+        force_n=st.force_n,
+        recorded_n=st.recorded_n,
+        peak_force_n=st.peak_force_n,
+        offset=st.offset,
+        supervisor=st.supervisor,
+        source=st.source,
+    )
+
+
+@router.get("")
+async def list_tasks(runner: RunnerDep) -> list[TaskView]:
+    return [_view(t) for t in runner.list()]
+
+
+@router.post("")
+async def start_task(
+    body: StartTask, runner: RunnerDep, recorder: RecorderDep, client: ClientDep
+) -> TaskView:
+    """Read the recording, build the trajectory and start it (it runs on its own;
+    poll GET /tasks/{id})."""
+    trajectory = await _trajectory(body, recorder)
+    c = body.compliance
+    spec = TaskSpec(
+        trajectory,
+        speed=body.speed,
+        compliance=None if c is None else ComplianceSettings(**c.model_dump()),
+        force_margin_n=body.force_margin_n,
+        approach=body.approach,
+    )
+    return _view(await runner.start(spec, client.id))
+
+
+@router.post("/preview")
+async def preview_task(body: TaskSource, recorder: RecorderDep) -> TaskPath:
+    """The path a task from this episode or segment would follow, before it runs (the
+    same trajectory POST /tasks builds), for the page's ghost of it. Moves nothing."""
+    return _path("preview", await _trajectory(body, recorder))
+
+
+@router.get("/{task_id}")
+async def get_task(task_id: str, runner: RunnerDep) -> TaskView:
+    return _view(runner.get(task_id))
+
+
+@router.get("/{task_id}/path")
+async def task_path(task_id: str, runner: RunnerDep) -> TaskPath:
+    """The path the task follows, for the page's ghost of it."""
+    task = runner.get(task_id)
+    return _path(task.id, task.spec.trajectory)
+
+
+@router.post("/{task_id}/pause")
+async def pause_task(task_id: str, runner: RunnerDep, client: ClientDep) -> TaskView:
+    return _view(runner.pause(task_id, client.id))
+
+
+@router.post("/{task_id}/resume")
+async def resume_task(task_id: str, runner: RunnerDep, client: ClientDep) -> TaskView:
+    return _view(runner.resume(task_id, client.id))
+
+
+@router.post("/{task_id}/abort")
+async def abort_task(task_id: str, runner: RunnerDep, client: ClientDep) -> TaskView:
+    return _view(await runner.abort(task_id, client.id))

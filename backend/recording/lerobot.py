@@ -1,0 +1,711 @@
+"""Export a recording's episodes as a LeRobot dataset (format v3.0), the way lerobot's
+own ``LeRobotDataset`` writes one (huggingface/lerobot ``src/lerobot/datasets``:
+``utils.py`` for the paths and ``info.json``, ``dataset_writer.py`` and
+``dataset_metadata.py`` for the episode rows, ``compute_stats.py`` for the stats,
+``configs/video.py`` for the default encoder)::
+
+    meta/info.json                       codebase_version "v3.0", fps, features, paths
+    meta/tasks.parquet                   task (the index) → task_index
+    meta/stats.json                      per feature: min max mean std count q01 q10 q50 q90 q99
+    meta/episodes/chunk-000/file-000.parquet   one row per episode (where its rows and
+                                         video frames are, its stats)
+    data/chunk-000/file-000.parquet      one row per frame, every episode
+    videos/observation.images.{left,right}/chunk-000/file-000.mp4
+
+The rows sit on the dataset's grid: episode ``e``'s row ``k`` is at ``start_e + k/fps``
+on the recording's clock (``fps`` defaults to the recorded video's rate), and its
+``timestamp`` is ``k/fps``, as lerobot requires (it checks the spacing, and finds a
+row's video frame at ``from_timestamp + timestamp``). At each row time:
+
+- image: the recorded video frame captured nearest to the row time (each half of the
+  side-by-side frame is one camera; a frame is repeated or skipped when the camera ran
+  slower or faster than the grid);
+- ``observation.state`` (joints, rad) and ``observation.tool_pose`` (position m, then the
+  row-major rotation): the last ``/robot/state`` at or before the row time (held, not
+  interpolated: 50 Hz states are at most 20 ms old);
+- ``observation.force`` (N, N·m, sensor frame): the mean of the ``/force`` samples in the
+  row's interval ``(t - 1/fps, t]`` (the last sample before it if there is none);
+- ``action``: the target joints of the last accepted command at or before the row time
+  (``/commands`` with ``accepted`` and a ``target_joints``); before any, the state's
+  ``target_joints``.
+
+Episodes come from ``/episodes`` (``start``/``end``, the task from the last ``label``);
+a recording without any is exported as one episode, the whole recording, with the task
+``"(whole recording)"`` (the summary says so).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, cast
+
+import av
+import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from backend.recording.reader import read
+from drivers.base import TelerobotError
+
+CODEBASE_VERSION = "v3.0"
+CHUNKS_SIZE = 1000  # lerobot DEFAULT_CHUNK_SIZE
+DATA_FILES_SIZE_IN_MB = 100  # DEFAULT_DATA_FILE_SIZE_IN_MB
+VIDEO_FILES_SIZE_IN_MB = 200  # DEFAULT_VIDEO_FILE_SIZE_IN_MB
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)  # lerobot DEFAULT_QUANTILES
+# lerobot's default encoder (VideoEncoderConfig): SVT-AV1, yuv420p, a keyframe every 2
+# frames, crf 30, preset 12. libx264 when this PyAV has no SVT-AV1.
+ENCODERS: tuple[tuple[str, dict[str, str], dict[str, Any]], ...] = (
+    ("libsvtav1", {"crf": "30", "preset": "12"}, {"video.crf": 30, "video.preset": 12}),
+    ("libx264", {"crf": "23", "preset": "veryfast"}, {"video.crf": 23, "video.preset": "veryfast"}),
+)
+GOP = 2
+TIE_S = 1e-6  # times this close are the same time
+WHOLE_RECORDING_TASK = "(whole recording)"
+ROBOT_TYPE = "puma560"
+CAMERAS = ("left", "right")
+MAX_STAT_IMAGES = 100  # images sampled per episode for the image stats (lerobot samples too)
+
+JOINT_NAMES = [f"joint_{i}" for i in range(1, 7)]
+POSE_NAMES = ["x", "y", "z", *(f"r{r}{c}" for r in range(1, 4) for c in range(1, 4))]
+FORCE_NAMES = ["fx", "fy", "fz", "tx", "ty", "tz"]
+
+Array = npt.NDArray[np.float64]
+
+
+class ExportError(TelerobotError):
+    """The recording cannot be exported (said why)."""
+
+    code = "export_failed"
+    http_status = 422
+
+
+@dataclass(frozen=True)
+class ExportSummary:
+    out_dir: str
+    episodes: int
+    frames: int
+    fps: int
+    tasks: list[str]
+    whole_recording: bool  # no episodes were recorded: the whole recording is one
+    video_codec: str | None  # None: the recording has no video
+    recorded_s: float  # how long the recording is
+    export_s: float  # how long the export took
+    skipped: list[str] = field(default_factory=list)  # episodes left out, and why
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------- reading
+
+
+def _stamp_s(value: Any) -> float:
+    """A foxglove ``Time`` (``{sec, nsec}``) or a number (ns if huge, else s), in s."""
+    if isinstance(value, dict):
+        return float(value.get("sec", 0)) + float(value.get("nsec", 0)) * 1e-9
+    v = float(value)
+    return v * 1e-9 if v > 1e12 else v
+
+
+@dataclass
+class _Recording:
+    state_t: Array
+    joints: Array
+    targets: Array
+    pose: Array
+    force_t: Array
+    force: Array
+    command_t: Array
+    command_target: Array
+    episodes: list[tuple[float, float, str]]  # (start, end, task) on the monotonic clock
+    video_t: Array  # capture times, monotonic clock
+    video_au: list[bytes]
+    skipped: list[str]
+
+
+def _load(path: Path) -> _Recording:
+    topics = ["/robot/state", "/force", "/commands", "/episodes", "/video/stereo"]
+    state_t: list[float] = []
+    joints: list[list[float]] = []
+    targets: list[list[float]] = []
+    pose: list[list[float]] = []
+    force_t: list[float] = []
+    force: list[list[float]] = []
+    command_t: list[float] = []
+    command_target: list[list[float]] = []
+    events: list[dict[str, Any]] = []
+    video_wall: list[float] = []
+    video_au: list[bytes] = []
+    offsets: list[float] = []  # wall (log time) − monotonic (t), from the JSON channels
+    for topic, log_ns, m in read(path, topics):
+        if topic == "/video/stereo":
+            video_wall.append(_stamp_s(m["timestamp"]))
+            video_au.append(bytes(m["data"]))
+            continue
+        t = float(m["t"])
+        if len(offsets) < 1000:
+            offsets.append(log_ns * 1e-9 - t)
+        if topic == "/robot/state":
+            state_t.append(t)
+            joints.append(m["joints"])
+            targets.append(m.get("target_joints") or m["joints"])
+            pose.append([*m["position"], *m["rotation"]])
+        elif topic == "/force":
+            force_t.append(t)
+            force.append(m["values"])
+        elif topic == "/commands":
+            if m.get("accepted") and m.get("target_joints") is not None:
+                command_t.append(t)
+                command_target.append(m["target_joints"])
+        elif topic == "/episodes":
+            events.append(m)
+    if not state_t:
+        raise ExportError(f"{path.name} has no /robot/state messages: nothing to export")
+    # The video's capture times are wall clock; the rest is on the server's monotonic
+    # clock. Each JSON message has both (its log time and its t): the smallest offset is
+    # the one least delayed by logging.
+    offset = min(offsets)
+    video_t = np.asarray(video_wall, np.float64) - offset
+    order = np.argsort(video_t, kind="stable")  # (capture order is the stream's order)
+    if not np.all(order == np.arange(len(order))):
+        video_t = np.maximum.accumulate(video_t)
+    episodes, skipped = _episodes(events, state_t[-1])
+    f32 = np.float64
+    return _Recording(
+        state_t=np.asarray(state_t, f32),
+        joints=np.asarray(joints, f32).reshape(-1, 6),
+        targets=np.asarray(targets, f32).reshape(-1, 6),
+        pose=np.asarray(pose, f32).reshape(-1, 12),
+        force_t=np.asarray(force_t, f32),
+        force=np.asarray(force, f32).reshape(-1, 6),
+        command_t=np.asarray(command_t, f32),
+        command_target=np.asarray(command_target, f32).reshape(-1, 6),
+        episodes=episodes,
+        video_t=video_t,
+        video_au=video_au,
+        skipped=skipped,
+    )
+
+
+def _episodes(
+    events: Iterable[dict[str, Any]], last_t: float
+) -> tuple[list[tuple[float, float, str]], list[str]]:
+    by_number: dict[int, dict[str, Any]] = {}
+    for e in events:
+        ep = by_number.setdefault(int(e["episode"]), {"task": ""})
+        kind = e.get("event")
+        if kind == "start":
+            ep["start"] = float(e["t"])
+            ep["task"] = e.get("task") or ep["task"]
+        elif kind == "end":
+            ep["end"] = float(e["t"])
+            ep["task"] = e.get("task") or ep["task"]
+        elif kind == "label":
+            ep["task"] = e.get("task") or ep["task"]
+    out: list[tuple[float, float, str]] = []
+    skipped: list[str] = []
+    for n in sorted(by_number):
+        ep = by_number[n]
+        if "start" not in ep:
+            skipped.append(f"episode {n}: no start event")
+            continue
+        end = ep.get("end", last_t)
+        if "end" not in ep:
+            skipped.append(f"episode {n}: no end event, exported up to the recording's end")
+        out.append((ep["start"], end, ep["task"] or f"episode {n}"))
+    out.sort()
+    return out, [s for s in skipped if "no start" in s] + [s for s in skipped if "no end" in s]
+
+
+# ---------------------------------------------------------------- resampling
+
+
+def _held(t_src: Array, values: Array, t: Array, before: Array | None = None) -> Array:
+    """The last of ``values`` at or before each ``t``; ``before`` (row-wise, or the first
+    value) where none is. Times a microsecond apart count as equal (the clocks are
+    floats of some 10⁹ s: a state logged at a row's time must not fall either side)."""
+    i = np.searchsorted(t_src, t + TIE_S, side="right") - 1
+    out = values[np.clip(i, 0, max(len(values) - 1, 0))] if len(values) else np.zeros((len(t), 6))
+    missing = i < 0
+    if missing.any():
+        out = out.copy()
+        out[missing] = before[missing] if before is not None else values[0]
+    return np.asarray(out, np.float64)
+
+
+def _interval_mean(t_src: Array, values: Array, t: Array, period: float) -> Array:
+    """The mean of ``values`` in ``(t - period, t]``; the last one before if none is."""
+    if len(values) == 0:
+        return np.zeros((len(t), 6))
+    csum = np.vstack([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
+    hi = np.searchsorted(t_src, t + TIE_S, side="right")
+    lo = np.searchsorted(t_src, t - period + TIE_S, side="right")
+    n = hi - lo
+    out = (csum[hi] - csum[lo]) / np.maximum(n, 1)[:, None]
+    empty = n == 0
+    if empty.any():
+        out[empty] = values[np.clip(hi[empty] - 1, 0, len(values) - 1)]
+    return np.asarray(out, np.float64)
+
+
+def _nearest(t_src: Array, t: Array) -> npt.NDArray[np.int64]:
+    i = np.clip(np.searchsorted(t_src, t), 1, len(t_src) - 1)
+    left_closer = (t - t_src[i - 1]) <= (t_src[i] - t)
+    return np.asarray(np.where(left_closer, i - 1, i), np.int64)
+
+
+def _video_fps(video_t: Array) -> int:
+    if len(video_t) < 2:
+        return 30
+    dt = float(np.median(np.diff(video_t)))
+    return max(1, round(1.0 / dt)) if dt > 0 else 30
+
+
+# ---------------------------------------------------------------- stats
+
+
+def _stats(x: npt.NDArray[Any], axis: int | tuple[int, ...], keepdims: bool) -> dict[str, Any]:
+    """lerobot's per-feature stats: min, max, mean, std, count, quantiles (exact here;
+    lerobot estimates them from histograms)."""
+    x = np.asarray(x, np.float64)
+    count = x.shape[0]
+    out: dict[str, Any] = {
+        "min": np.min(x, axis=axis, keepdims=keepdims),
+        "max": np.max(x, axis=axis, keepdims=keepdims),
+        "mean": np.mean(x, axis=axis, keepdims=keepdims),
+        "std": np.std(x, axis=axis, keepdims=keepdims),
+        "count": np.array([count]),
+    }
+    for q in QUANTILES:
+        out[f"q{round(q * 100):02d}"] = np.quantile(x, q, axis=axis, keepdims=keepdims)
+    return out
+
+
+def _image_stats(frames: list[npt.NDArray[np.uint8]]) -> dict[str, Any]:
+    """Per channel, shape (3, 1, 1), in [0, 1], like lerobot's ``compute_episode_stats``
+    (over a sample of the frames, each downsampled like lerobot's)."""
+    arr = np.stack([f.transpose(2, 0, 1) for f in frames]).astype(np.float64)  # N C H W
+    stats = _stats(arr, axis=(0, 2, 3), keepdims=True)
+    return {k: v if k == "count" else np.squeeze(v / 255.0, axis=0) for k, v in stats.items()}
+
+
+def _downsample(img: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    h, w = img.shape[:2]
+    step = max(1, max(h, w) // 150)
+    return img[::step, ::step]
+
+
+def _tolist(stats: dict[str, Any]) -> dict[str, Any]:
+    return {k: np.asarray(v).tolist() for k, v in stats.items()}
+
+
+# ---------------------------------------------------------------- writing
+
+
+def _pick_encoder() -> tuple[str, dict[str, str], dict[str, Any]]:
+    for name, options, info in ENCODERS:
+        try:
+            av.codec.Codec(name, "w")
+        except Exception:
+            continue
+        return name, options, info
+    raise ExportError("this PyAV has neither SVT-AV1 nor libx264 to encode the videos")
+
+
+def _no_realtime_threads() -> int:
+    """Put every thread of this process that is in a realtime class back in the normal one;
+    returns how many. SVT-AV1, when run as root, puts the thread that opens an encoder and
+    its own workers in SCHED_FIFO at priority 99: left so, they (and every thread and
+    process started from them later: the server's, a browser's) take a core from
+    everything else on the machine, timers and force stream included, for as long as
+    they run (a spinning one freezes a 2-core machine)."""
+    reset = 0
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            if os.sched_getscheduler(int(tid)) in (os.SCHED_FIFO, os.SCHED_RR):
+                os.sched_setscheduler(int(tid), os.SCHED_OTHER, os.sched_param(0))
+                reset += 1
+        except OSError:  # the thread has ended
+            continue
+    return reset
+
+
+def _vector_column(values: Array) -> pa.Array:
+    width = values.shape[1]
+    flat = pa.array(values.astype(np.float32).reshape(-1), pa.float32())
+    return pa.FixedSizeListArray.from_arrays(flat, width)
+
+
+def _feature(shape: list[int], names: list[str] | None, description: str) -> dict[str, Any]:
+    return {"dtype": "float32", "shape": shape, "names": names, "description": description}
+
+
+def _tasks_table(tasks: list[str]) -> pa.Table:
+    """``meta/tasks.parquet`` as pandas writes lerobot's DataFrame (the task text is the
+    index, ``task_index`` the column): the pandas metadata makes ``pd.read_parquet``
+    give the index back."""
+    table = pa.table(
+        {
+            "task_index": pa.array(range(len(tasks)), pa.int64()),
+            "task": pa.array(tasks, pa.string()),
+        }
+    )
+    pandas_meta = {
+        "index_columns": ["task"],
+        "column_indexes": [
+            {
+                "name": None,
+                "field_name": None,
+                "pandas_type": "unicode",
+                "numpy_type": "object",
+                "metadata": {"encoding": "UTF-8"},
+            }
+        ],
+        "columns": [
+            {
+                "name": "task_index",
+                "field_name": "task_index",
+                "pandas_type": "int64",
+                "numpy_type": "int64",
+                "metadata": None,
+            },
+            {
+                "name": "task",
+                "field_name": "task",
+                "pandas_type": "unicode",
+                "numpy_type": "object",
+                "metadata": None,
+            },
+        ],
+        "creator": {"library": "pyarrow", "version": pa.__version__},
+        "pandas_version": "2.2.3",
+    }
+    return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+
+
+def export_lerobot(
+    recording_path: str | Path, out_dir: str | Path, fps: int | None = None
+) -> ExportSummary:
+    """Write the recording's episodes into ``out_dir`` (which must not exist or be
+    empty) as a LeRobot v3.0 dataset; see the module's docstring for the rules."""
+    t_start = time.perf_counter()
+    recording_path = Path(recording_path)
+    out = Path(out_dir)
+    if out.exists() and any(out.iterdir()):
+        raise ExportError(f"{out} is not empty: export into a new folder")
+    rec = _load(recording_path)
+    has_video = len(rec.video_au) > 0
+    if fps is None:
+        fps = _video_fps(rec.video_t) if has_video else 30
+    if fps <= 0:
+        raise ExportError("fps must be positive")
+    whole = not rec.episodes and not rec.skipped
+    episodes = rec.episodes or [(rec.state_t[0], rec.state_t[-1], WHOLE_RECORDING_TASK)]
+    skipped = list(rec.skipped)
+
+    # The rows of each episode on the dataset's grid, kept where there is video.
+    rows: list[Array] = []
+    kept: list[tuple[float, float, str]] = []
+    for start, end, task in episodes:
+        lo, hi = start, end
+        if has_video:
+            half = 0.5 / fps
+            lo, hi = max(lo, rec.video_t[0] - half), min(hi, rec.video_t[-1] + half)
+        n = math.floor((hi - lo) * fps + 1e-9) + 1 if hi >= lo else 0
+        if n < 2:
+            skipped.append(f"'{task}' ({start:.3f}–{end:.3f} s): under two frames of data")
+            continue
+        # Rows start on the episode's first grid point inside the video.
+        first = start + math.ceil((lo - start) * fps - 1e-9) / fps
+        n = math.floor((hi - first) * fps + 1e-9) + 1
+        rows.append(first + np.arange(n) / fps)
+        kept.append((first, end, task))
+    if not kept:
+        raise ExportError(f"{recording_path.name}: no episode has data to export")
+
+    tasks: list[str] = []
+    for _, _, task in kept:
+        if task not in tasks:
+            tasks.append(task)
+
+    out.mkdir(parents=True, exist_ok=True)
+    features: dict[str, dict[str, Any]] = {
+        "observation.state": _feature(
+            [6], JOINT_NAMES, "joints (rad): the last /robot/state at or before the row time"
+        ),
+        "observation.tool_pose": _feature(
+            [12],
+            POSE_NAMES,
+            "tool position (m) and row-major rotation in the base frame: the last "
+            "/robot/state at or before the row time",
+        ),
+        "observation.force": _feature(
+            [6],
+            FORCE_NAMES,
+            "force (N) and torque (N·m), sensor frame: the mean of the /force samples in "
+            "(t - 1/fps, t], else the last before",
+        ),
+        "action": _feature(
+            [6],
+            JOINT_NAMES,
+            "commanded target joints (rad): the last accepted /commands target at or before "
+            "the row time (before any: the state's target)",
+        ),
+    }
+
+    # Per-episode columns.
+    columns: dict[str, list[Any]] = {k: [] for k in features}
+    index_cols: dict[str, list[npt.NDArray[Any]]] = {
+        "timestamp": [],
+        "frame_index": [],
+        "episode_index": [],
+        "index": [],
+        "task_index": [],
+    }
+    total = 0
+    for e, (t, (_, _, task)) in enumerate(zip(rows, kept, strict=True)):
+        n = len(t)
+        state = _held(rec.state_t, rec.joints, t)
+        columns["observation.state"].append(state)
+        columns["observation.tool_pose"].append(_held(rec.state_t, rec.pose, t))
+        columns["observation.force"].append(_interval_mean(rec.force_t, rec.force, t, 1.0 / fps))
+        fallback = _held(rec.state_t, rec.targets, t)
+        columns["action"].append(_held(rec.command_t, rec.command_target, t, before=fallback))
+        index_cols["timestamp"].append((np.arange(n) / fps).astype(np.float32))
+        index_cols["frame_index"].append(np.arange(n, dtype=np.int64))
+        index_cols["episode_index"].append(np.full(n, e, np.int64))
+        index_cols["index"].append(np.arange(total, total + n, dtype=np.int64))
+        index_cols["task_index"].append(np.full(n, tasks.index(task), np.int64))
+        total += n
+
+    # Videos: decode the side-by-side stream once, write each half's rows in order.
+    codec_name: str | None = None
+    video_info: dict[str, Any] = {}
+    image_samples: dict[str, list[list[npt.NDArray[np.uint8]]]] = {
+        c: [[] for _ in kept] for c in CAMERAS
+    }
+    if has_video:
+        codec_name, video_info = _write_videos(out, rec, rows, fps, image_samples)
+        for cam in CAMERAS:
+            features[f"observation.images.{cam}"] = {
+                "dtype": "video",
+                "shape": [video_info["video.height"], video_info["video.width"], 3],
+                "names": ["height", "width", "channels"],
+                "info": video_info,
+                "description": f"the {cam} camera: the recorded frame captured nearest to "
+                "the row time",
+            }
+    for key in index_cols:
+        dtype = "float32" if key == "timestamp" else "int64"
+        features[key] = {"dtype": dtype, "shape": [1], "names": None}
+
+    # data/chunk-000/file-000.parquet
+    table = pa.table(
+        {
+            **{k: _vector_column(np.concatenate(v)) for k, v in columns.items()},
+            **{k: pa.array(np.concatenate(v)) for k, v in index_cols.items()},
+        }
+    )
+    data_path = out / DATA_PATH.format(chunk_index=0, file_index=0)
+    data_path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(table, data_path, compression="snappy")
+
+    # Stats, per episode and over the dataset.
+    stat_keys = [*columns, *index_cols]
+    episode_stats: list[dict[str, dict[str, Any]]] = []
+    for e in range(len(kept)):
+        s: dict[str, dict[str, Any]] = {}
+        for k in columns:
+            s[k] = _stats(columns[k][e], axis=0, keepdims=False)
+        for k in index_cols:
+            s[k] = _stats(index_cols[k][e], axis=0, keepdims=True)
+        for cam in CAMERAS if has_video else ():
+            s[f"observation.images.{cam}"] = _image_stats(image_samples[cam][e])
+        episode_stats.append(s)
+    dataset_stats: dict[str, dict[str, Any]] = {}
+    for k in columns:
+        dataset_stats[k] = _stats(np.concatenate(columns[k]), axis=0, keepdims=False)
+    for k in index_cols:
+        dataset_stats[k] = _stats(np.concatenate(index_cols[k]), axis=0, keepdims=True)
+    for cam in CAMERAS if has_video else ():
+        dataset_stats[f"observation.images.{cam}"] = _image_stats(
+            [f for ep in image_samples[cam] for f in ep]
+        )
+    (out / "meta").mkdir(exist_ok=True)
+    (out / "meta" / "stats.json").write_text(
+        json.dumps({k: _tolist(v) for k, v in dataset_stats.items()}, indent=4)
+    )
+
+    # meta/episodes/chunk-000/file-000.parquet
+    lengths = [len(t) for t in rows]
+    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
+    ep_cols: dict[str, Any] = {
+        "episode_index": pa.array(range(len(kept)), pa.int64()),
+        "tasks": pa.array([[task] for _, _, task in kept], pa.list_(pa.string())),
+        "length": pa.array(lengths, pa.int64()),
+        "data/chunk_index": pa.array([0] * len(kept), pa.int64()),
+        "data/file_index": pa.array([0] * len(kept), pa.int64()),
+        "dataset_from_index": pa.array(starts[:-1].tolist(), pa.int64()),
+        "dataset_to_index": pa.array(starts[1:].tolist(), pa.int64()),
+    }
+    for cam in CAMERAS if has_video else ():
+        key = f"observation.images.{cam}"
+        ep_cols[f"videos/{key}/chunk_index"] = pa.array([0] * len(kept), pa.int64())
+        ep_cols[f"videos/{key}/file_index"] = pa.array([0] * len(kept), pa.int64())
+        ep_cols[f"videos/{key}/from_timestamp"] = pa.array(
+            (starts[:-1] / fps).tolist(), pa.float64()
+        )
+        ep_cols[f"videos/{key}/to_timestamp"] = pa.array((starts[1:] / fps).tolist(), pa.float64())
+    stat_features = [*stat_keys, *(f"observation.images.{c}" for c in CAMERAS if has_video)]
+    for k in stat_features:
+        for stat in episode_stats[0][k]:
+            ep_cols[f"stats/{k}/{stat}"] = pa.array(
+                [np.asarray(s[k][stat], np.float64).tolist() for s in episode_stats]
+            )
+    ep_cols["meta/episodes/chunk_index"] = pa.array([0] * len(kept), pa.int64())
+    ep_cols["meta/episodes/file_index"] = pa.array([0] * len(kept), pa.int64())
+    episodes_path = out / EPISODES_PATH.format(chunk_index=0, file_index=0)
+    episodes_path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.table(ep_cols), episodes_path, compression="snappy")
+
+    pq.write_table(_tasks_table(tasks), out / "meta" / "tasks.parquet")
+
+    info = {
+        "codebase_version": CODEBASE_VERSION,
+        "robot_type": ROBOT_TYPE,
+        "total_episodes": len(kept),
+        "total_frames": total,
+        "total_tasks": len(tasks),
+        "chunks_size": CHUNKS_SIZE,
+        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
+        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+        "fps": fps,
+        "splits": {"train": f"0:{len(kept)}"},
+        "data_path": DATA_PATH,
+        "video_path": VIDEO_PATH if has_video else None,
+        "features": features,
+    }
+    (out / "meta" / "info.json").write_text(json.dumps(info, indent=4, ensure_ascii=False))
+
+    recorded = float(rec.state_t[-1] - rec.state_t[0])
+    return ExportSummary(
+        out_dir=str(out),
+        episodes=len(kept),
+        frames=total,
+        fps=fps,
+        tasks=tasks,
+        whole_recording=whole,
+        video_codec=codec_name,
+        recorded_s=recorded,
+        export_s=time.perf_counter() - t_start,
+        skipped=skipped,
+    )
+
+
+def _write_videos(
+    out: Path,
+    rec: _Recording,
+    rows: list[Array],
+    fps: int,
+    samples: dict[str, list[list[npt.NDArray[np.uint8]]]],
+) -> tuple[str, dict[str, Any]]:
+    """One mp4 per camera holding every episode's frames back to back (frame ``i`` of the
+    file is dataset row ``i``, at ``i/fps``); fills ``samples`` for the image stats."""
+    source = [
+        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
+        for t in rows
+    ]
+    wanted = np.concatenate(source)  # the source frame of each row, in row order
+    episode_of_row = np.concatenate([np.full(len(t), e) for e, t in enumerate(rows)])
+    sample_every = [max(1, len(t) // MAX_STAT_IMAGES) for t in rows]
+    row_in_episode = np.concatenate([np.arange(len(t)) for t in rows])
+    name, options, info_extra = _pick_encoder()
+    decoder = av.CodecContext.create("h264", "r")
+    containers: dict[str, Any] = {}
+    streams: dict[str, Any] = {}
+    row = 0
+    width = height = 0
+
+    def rows_for(index: int, image: npt.NDArray[np.uint8]) -> None:
+        nonlocal row, width, height
+        while row < len(wanted) and wanted[row] == index:
+            if not containers:
+                height, width = image.shape[0], image.shape[1] // 2
+                for cam in CAMERAS:
+                    path = out / VIDEO_PATH.format(
+                        video_key=f"observation.images.{cam}", chunk_index=0, file_index=0
+                    )
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    container = av.open(str(path), "w")
+                    stream = cast(
+                        av.video.stream.VideoStream,
+                        container.add_stream(name, rate=fps, options=options),
+                    )
+                    stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+                    stream.codec_context.gop_size = GOP
+                    stream.codec_context.time_base = Fraction(1, fps)
+                    containers[cam], streams[cam] = container, stream
+            for side, cam in enumerate(CAMERAS):
+                half = np.ascontiguousarray(image[:, side * width : (side + 1) * width])
+                frame = av.VideoFrame.from_ndarray(half, format="rgb24")
+                frame.pts = row
+                frame.time_base = Fraction(1, fps)
+                for packet in streams[cam].encode(frame):
+                    containers[cam].mux(packet)
+                if row == 0:  # the first frame opened the encoder (and its threads)
+                    _no_realtime_threads()
+                e = int(episode_of_row[row])
+                if row_in_episode[row] % sample_every[e] == 0:
+                    samples[cam][e].append(_downsample(half))
+            row += 1
+
+    try:
+        index = 0
+        for au in [*rec.video_au, None]:
+            # Each message is one whole access unit: one packet, no parser needed.
+            packet = av.Packet(au) if au is not None else None
+            for frame in decoder.decode(packet):
+                if row < len(wanted) and wanted[row] == index:
+                    rgb = cast(npt.NDArray[np.uint8], frame.to_ndarray(format="rgb24"))
+                    rows_for(index, rgb)
+                index += 1
+            if row >= len(wanted):
+                break
+        if row < len(wanted):
+            raise ExportError(
+                f"the video decoded to {index} frames; the rows need frame {wanted[row]}"
+            )
+        for cam in CAMERAS:
+            for packet in streams[cam].encode(None):
+                containers[cam].mux(packet)
+    finally:
+        for container in containers.values():
+            container.close()
+        _no_realtime_threads()
+    info = {
+        "video.height": height,
+        "video.width": width,
+        "video.codec": "av1" if name == "libsvtav1" else "h264",
+        "video.pix_fmt": "yuv420p",
+        "video.fps": fps,
+        "video.channels": 3,
+        "video.g": GOP,
+        **info_extra,
+        "video.fast_decode": 0,
+        "video.video_backend": "pyav",
+        "video.extra_options": {},
+        "has_audio": False,
+        "is_depth_map": False,
+    }
+    return name, info

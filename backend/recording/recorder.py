@@ -1,0 +1,612 @@
+"""The Recorder service (issue 14): one MCAP file per recording, written off the
+realtime paths.
+
+``log(topic, payload, t=None)`` is non-blocking and thread-safe (the event loop, the
+force sensor's thread and the video encoder call it): it puts the message on the
+recording's bounded queue, or, if the queue is full, drops it and counts the drop
+per topic. A forwarding thread hands what has queued, every ``BATCH_S``, to the
+recording's own writer process (``writer.serve_file``), which encodes and writes: the
+JSON, base64 and zstd work never holds this process's GIL against the force stream
+and the event loop (in a thread here it put +0.3–0.5 ms on the force p99). A failing
+write (a full disk, the writer killed, any error) ends the recording with the reason
+on ``events``; it never raises into a caller and the robot is not touched. The file
+written so far keeps every complete chunk: ``reader.recover`` gives it a summary.
+
+``RecordingTaps`` subscribes the recorder to the robot's streams (force samples,
+state at the state rate, every command, safety changes) without touching their
+paths beyond one ``log`` call.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import datetime as dt
+import json
+import logging
+import multiprocessing
+import multiprocessing.process
+import queue
+import re
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend.control.decision import CommandReport, DecisionServer, SafetyState
+from backend.recording import schemas as ch
+from backend.recording.reader import summary
+from backend.recording.writer import CHUNK_BYTES, describe, serve_file
+from drivers.base import ForceSample, ForceSensor, InvalidCommand, Robot, TelerobotError
+from drivers.clock import Clock
+from drivers.events import Event
+
+log = logging.getLogger(__name__)
+
+MAX_QUEUE = 50_000  # messages waiting for the writer (≈ 30 s of 1 kHz force + the rest)
+MAX_NAME = 64  # characters of the operator's name kept in the file name
+MAX_LISTED = 200  # recordings the list shows (newest first)
+MAX_EPISODES = 10_000  # per recording
+MAX_TEXT = 2000  # characters of an episode's task or notes
+BATCH_S = 0.02  # what has queued goes to the writer process this often
+CLOSE_TIMEOUT_S = 60.0  # the writer's index and summary (a long recording: seconds)
+
+
+class RecordingError(TelerobotError):
+    code = "recording"
+    http_status = 409
+
+
+class RecordingNotFound(TelerobotError):
+    code = "not_found"
+    http_status = 404
+
+
+@dataclass(frozen=True)
+class RecordingEvent:
+    kind: str  # "started" or "stopped"
+    name: str
+    file: str
+    reason: str = ""
+
+
+@dataclass
+class EpisodeInfo:
+    episode: int
+    task: str
+    started: float  # server clock
+    ended: float | None = None
+    success: bool | None = None
+    notes: str = ""
+
+
+@dataclass
+class _Active:
+    name: str
+    path: Path
+    started_t: float
+    started_wall: str
+    queue: queue.Queue[tuple[str, int, float, Any] | None]
+    process: multiprocessing.process.BaseProcess
+    conn: Connection
+    thread: threading.Thread | None = None
+    dropped: dict[str, int] = field(default_factory=dict)
+    episodes: list[EpisodeInfo] = field(default_factory=list)
+    bytes: int = 0
+    messages: int = 0
+    failed: str | None = None  # why the writer ended on its own
+    stopping: bool = False
+    reason: str = ""
+    done: threading.Event = field(default_factory=threading.Event)
+
+
+def file_name(name: str, wall: dt.datetime) -> str:
+    clean = re.sub(r"[^A-Za-z0-9_-]", "", name.replace(" ", "_"))[:MAX_NAME] or "recording"
+    return f"{wall.strftime('%Y%m%d-%H%M%S')}-{clean}.mcap"
+
+
+class Recorder:
+    def __init__(
+        self,
+        folder: Path,
+        clock: Clock,
+        *,
+        wall_ns: Callable[[], int] = time.time_ns,
+        max_queue: int = MAX_QUEUE,
+        max_listed: int = MAX_LISTED,
+        chunk_bytes: int = CHUNK_BYTES,
+    ) -> None:
+        self.folder = folder
+        self.clock = clock
+        self.wall_ns = wall_ns
+        self.max_queue = max_queue
+        self.max_listed = max_listed
+        self.chunk_bytes = chunk_bytes
+        self.events: Event[RecordingEvent] = Event("recording")
+        # What is in force when a recording starts (calibration, settings, transforms):
+        # set by whoever knows (services), called on the event loop.
+        self.snapshot: Callable[[], list[tuple[str, dict[str, Any]]]] = list
+        self._active: _Active | None = None
+        self._drop_lock = threading.Lock()
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    # ------------------------------------------------------------ the hot path
+    def log(self, topic: str, payload: dict[str, Any] | bytes, t: float | None = None) -> None:
+        """Queue one message for the active recording (nothing if none); never blocks,
+        never raises. ``t``: the server clock (now if None)."""
+        active = self._active
+        if active is None or active.failed is not None or active.stopping:
+            return
+        try:
+            active.queue.put_nowait(
+                (topic, self.wall_ns(), self.clock.now() if t is None else t, payload)
+            )
+        except queue.Full:
+            with self._drop_lock:
+                active.dropped[topic] = active.dropped.get(topic, 0) + 1
+
+    # ------------------------------------------------------------ control
+    @property
+    def active(self) -> bool:
+        return self._active is not None
+
+    def start(self, name: str) -> Path:
+        """Open a new recording (on the event loop); one at a time."""
+        if self._active is not None:
+            raise RecordingError(f"already recording {self._active.path.name!r}: stop it first")
+        self._loop = asyncio.get_running_loop()
+        wall = dt.datetime.fromtimestamp(self.wall_ns() / 1e9, dt.UTC)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            path = self.folder / file_name(name, wall)
+            n = 1
+            while path.exists():
+                n += 1
+                path = self.folder / file_name(f"{name}-{n}", wall)
+            open(path, "xb").close()  # the name is ours (the writer process fills it)
+        except OSError as exc:
+            reason = f"cannot write in {self.folder}: {exc.strerror or exc}"
+            self.events.emit(RecordingEvent("stopped", name, "", reason))
+            raise RecordingError(f"the recording cannot start: {reason}") from None
+        # A fresh process (spawned: it shares no lock with this one's threads).
+        ctx = multiprocessing.get_context("spawn")
+        ours, theirs = ctx.Pipe()
+        process = ctx.Process(
+            target=serve_file,
+            args=(theirs, str(path), self.chunk_bytes),
+            name=f"recorder {path.name}",
+            daemon=True,
+        )
+        try:
+            process.start()
+        except OSError as exc:  # no process could be started (out of memory or pids)
+            path.unlink(missing_ok=True)
+            ours.close()
+            raise RecordingError(f"the recording cannot start: {describe(exc)}") from None
+        finally:
+            theirs.close()
+        active = _Active(
+            name=name[:MAX_NAME],
+            path=path,
+            started_t=self.clock.now(),
+            started_wall=wall.isoformat(),
+            queue=queue.Queue(self.max_queue),
+            process=process,
+            conn=ours,
+        )
+        self._active = active
+        for topic, payload in self.snapshot():
+            self.log(topic, payload)
+        active.thread = threading.Thread(
+            target=self._forward, args=(active,), name=f"recorder {path.name}", daemon=True
+        )
+        active.thread.start()
+        log.info("recording to %s", path)
+        self.events.emit(RecordingEvent("started", active.name, path.name))
+        return path
+
+    async def stop(self, reason: str = "stopped by the operator") -> Path:
+        """Finish the active recording: the writer drains its queue and writes the
+        summary (the file is complete when this returns)."""
+        active = self._active
+        if active is None:
+            raise RecordingError("nothing is being recorded")
+        if not active.stopping:
+            active.reason = reason
+            active.stopping = True
+            with contextlib.suppress(queue.Full):
+                active.queue.put_nowait(None)  # else the writer sees `stopping` on a timeout
+        await asyncio.to_thread(active.done.wait)
+        self._ended(active)
+        return active.path
+
+    def _ended(self, active: _Active) -> None:
+        """On the event loop, once the writer is done (stopped, or failed on its own)."""
+        if self._active is not active:
+            return
+        self._active = None
+        reason = active.failed or active.reason
+        if active.failed:
+            log.error("recording %s stopped: %s", active.path.name, active.failed)
+        self.events.emit(RecordingEvent("stopped", active.name, active.path.name, reason))
+
+    # ------------------------------------------------------------ episodes
+    def episode_start(self, task: str = "") -> EpisodeInfo:
+        active = self._need()
+        if active.episodes and active.episodes[-1].ended is None:
+            self.episode_end()
+        if len(active.episodes) >= MAX_EPISODES:
+            raise RecordingError(f"a recording holds at most {MAX_EPISODES} episodes")
+        ep = EpisodeInfo(len(active.episodes), task[:MAX_TEXT], self.clock.now())
+        active.episodes.append(ep)
+        self._log_episode("start", ep)
+        return ep
+
+    def episode_end(self, success: bool | None = None, notes: str | None = None) -> EpisodeInfo:
+        active = self._need()
+        if not active.episodes or active.episodes[-1].ended is not None:
+            raise RecordingError("no episode is open: start one first")
+        ep = active.episodes[-1]
+        ep.ended = self.clock.now()
+        if success is not None:
+            ep.success = success
+        if notes is not None:
+            ep.notes = notes[:MAX_TEXT]
+        self._log_episode("end", ep)
+        return ep
+
+    def label(
+        self,
+        episode: int,
+        *,
+        task: str | None = None,
+        success: bool | None = None,
+        notes: str | None = None,
+    ) -> EpisodeInfo:
+        active = self._need()
+        if not 0 <= episode < len(active.episodes):
+            raise InvalidCommand(f"no episode {episode} in this recording")
+        ep = active.episodes[episode]
+        if task is not None:
+            ep.task = task[:MAX_TEXT]
+        if success is not None:
+            ep.success = success
+        if notes is not None:
+            ep.notes = notes[:MAX_TEXT]
+        self._log_episode("label", ep)
+        return ep
+
+    def _log_episode(self, event: str, ep: EpisodeInfo) -> None:
+        self.log(
+            ch.EPISODES,
+            {
+                "event": event,
+                "episode": ep.episode,
+                "task": ep.task,
+                "success": ep.success,
+                "notes": ep.notes,
+            },
+        )
+
+    def _need(self) -> _Active:
+        if self._active is None:
+            raise RecordingError("nothing is being recorded: start a recording first")
+        return self._active
+
+    # ------------------------------------------------------------ status, files
+    def status(self) -> dict[str, Any] | None:
+        a = self._active
+        if a is None:
+            return None
+        return {
+            "name": a.name,
+            "file": a.path.name,
+            "started": a.started_wall,
+            "elapsed_s": self.clock.now() - a.started_t,
+            "bytes": a.bytes,
+            "messages": a.messages,
+            "queued": a.queue.qsize(),
+            "dropped": dict(a.dropped),
+            "episodes": [vars(e).copy() for e in a.episodes],
+        }
+
+    def path_of(self, file: str) -> Path:
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+\.mcap", file) or file.startswith("."):
+            raise RecordingNotFound(f"no recording {file!r}")
+        path = self.folder / file
+        if not path.is_file():
+            raise RecordingNotFound(f"no recording {file!r}")
+        return path
+
+    def delete(self, file: str) -> None:
+        path = self.path_of(file)
+        if self._active is not None and self._active.path == path:
+            raise RecordingError(f"{file!r} is being recorded: stop it first")
+        path.unlink()
+
+    def listing(self) -> list[dict[str, Any]]:
+        """The newest ``max_listed`` recordings: file, name, size, duration, episodes."""
+        try:
+            files = sorted(self.folder.glob("*.mcap"), reverse=True)[: self.max_listed]
+        except OSError:
+            return []
+        out = []
+        for path in files:
+            entry: dict[str, Any] = {
+                "file": path.name,
+                "name": path.stem[16:],
+                "bytes": 0,
+                "duration_s": None,
+                "episodes": [],
+                "complete": False,
+                "stop_reason": "",
+                "active": self._active is not None and self._active.path == path,
+            }
+            with contextlib.suppress(OSError):
+                entry["bytes"] = path.stat().st_size
+            if not entry["active"]:
+                with contextlib.suppress(Exception):
+                    _counts, meta = summary(path)
+                    entry["complete"] = True
+                    entry["name"] = meta.get("name", entry["name"])
+                    entry["duration_s"] = float(meta.get("duration_s", "nan"))
+                    entry["episodes"] = json.loads(meta.get("episodes", "[]"))
+                    entry["stop_reason"] = meta.get("stop_reason", "")
+            out.append(entry)
+        return out
+
+    # ------------------------------------------------------------ the forwarding thread
+    def _forward(self, a: _Active) -> None:
+        """Wakes every ``BATCH_S`` and sends what has queued to the writer process as one
+        message (one pickle, one pipe write; no wake-up per message: a thread switch
+        each, on a 2-core machine, showed in the loop's latency). A writer that falls
+        behind fills the pipe and then this queue, which drops and counts: the callers
+        of ``log`` never wait."""
+        try:
+            while True:
+                time.sleep(BATCH_S)
+                batch = []
+                while True:
+                    try:
+                        item = a.queue.get_nowait()
+                    except queue.Empty:
+                        break
+                    if item is not None:
+                        batch.append(item)
+                if batch:
+                    a.conn.send(("batch", batch))
+                self._answers(a)
+                if a.stopping and a.queue.empty():
+                    break
+            a.conn.send(("close", self._metadata(a)))
+            if not a.conn.poll(CLOSE_TIMEOUT_S):
+                raise _WriterGone(f"did not finish the file within {CLOSE_TIMEOUT_S:.0f} s")
+            self._answers(a)
+        except _WriterGone as exc:
+            a.failed = f"the recording's writer failed: {exc}"
+        except (EOFError, OSError) as exc:  # the pipe broke: the writer process is gone
+            a.failed = f"the recording's writer failed: {self._writer_end(a, exc)}"
+        except BaseException as exc:  # a bug here
+            a.failed = f"the recording's writer failed: {describe(exc)}"
+        finally:
+            with contextlib.suppress(OSError):
+                a.conn.close()
+            a.process.join(5)
+            if a.process.is_alive():
+                a.process.kill()
+            a.bytes = _size(a.path)
+            a.done.set()
+            loop = self._loop
+            if loop is not None and not loop.is_closed():
+                with contextlib.suppress(RuntimeError):
+                    loop.call_soon_threadsafe(self._ended, a)
+
+    @staticmethod
+    def _answers(a: _Active) -> None:
+        """Take in what the writer process said: progress, or why it stopped."""
+        while a.conn.poll():
+            answer = a.conn.recv()
+            if answer[0] == "failed":
+                raise _WriterGone(answer[1])
+            a.bytes, a.messages = answer[1], answer[2]
+
+    @staticmethod
+    def _writer_end(a: _Active, exc: BaseException) -> str:
+        """Why the pipe broke: what the writer said before it ended, or how it ended."""
+        try:
+            Recorder._answers(a)
+        except _WriterGone as said:
+            return str(said)
+        except (EOFError, OSError):
+            pass
+        a.process.join(1)
+        code = a.process.exitcode
+        if code is not None and code < 0:
+            return f"its process was killed (signal {-code})"
+        if code is not None:
+            return f"its process ended (exit code {code})"
+        return describe(exc)
+
+    def _metadata(self, a: _Active) -> dict[str, str]:
+        meta = {
+            "name": a.name,
+            "started": a.started_wall,
+            "stopped": dt.datetime.fromtimestamp(self.wall_ns() / 1e9, dt.UTC).isoformat(),
+            "duration_s": f"{self.clock.now() - a.started_t:.3f}",
+            "stop_reason": a.reason,
+            "episodes": json.dumps([vars(e) for e in a.episodes]),
+        }
+        with self._drop_lock:
+            for topic, n in a.dropped.items():
+                meta[f"dropped.{topic}"] = str(n)
+        return meta
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+class _WriterGone(Exception):
+    """The writer process stopped and said why (or did not answer)."""
+
+
+# ---------------------------------------------------------------- taps
+def _quat(R: np.ndarray) -> dict[str, float]:
+    """Rotation matrix → quaternion (x, y, z, w)."""
+    import pinocchio as pin
+
+    x, y, z, w = pin.Quaternion(np.asarray(R, dtype=float)).coeffs().tolist()
+    return {"x": x, "y": y, "z": z, "w": w}
+
+
+def transform(
+    parent: str, child: str, R: np.ndarray, p: np.ndarray, wall_ns: int
+) -> dict[str, Any]:
+    """One ``foxglove.FrameTransform``: ``child``'s pose in ``parent``."""
+    return {
+        "timestamp": {"sec": wall_ns // 1_000_000_000, "nsec": wall_ns % 1_000_000_000},
+        "parent_frame_id": parent,
+        "child_frame_id": child,
+        "translation": dict(zip("xyz", np.asarray(p, dtype=float).tolist(), strict=True)),
+        "rotation": _quat(R),
+    }
+
+
+def command_payload(r: CommandReport) -> dict[str, Any]:
+    return {
+        "t": r.t,
+        "source": r.source,
+        "client_id": r.client_id or "",
+        "client": r.client,
+        "kind": r.kind,
+        "args": r.args,
+        "accepted": r.error is None,
+        "reason": str(r.error) if r.error is not None else "",
+        "code": r.error.code if r.error is not None else "",
+        "target_joints": r.target,
+        "lease_holder": r.lease_holder,
+    }
+
+
+class RecordingTaps:
+    """The recorder's subscriptions: force samples (on the sensor's thread), the
+    state at the state rate (its own task), every command and safety change."""
+
+    def __init__(
+        self,
+        recorder: Recorder,
+        *,
+        robot: Robot,
+        decision: DecisionServer,
+        force: ForceSensor | None,
+        clock: Clock,
+        state_period: float,
+        tasks: Event[Any] | None = None,
+    ) -> None:
+        self.recorder = recorder
+        self.tasks = tasks  # the task runner's changes: what a task did is recorded too
+        self.robot = robot
+        self.decision = decision
+        self.force = force
+        self.clock = clock
+        self.state_period = state_period
+        self._unsubscribe: list[Callable[[], None]] = []
+        self._task: asyncio.Task[None] | None = None
+
+    def start(self) -> None:
+        rec = self.recorder
+        if self.force is not None:
+
+            def on_sample(s: ForceSample) -> None:  # the sensor's thread: one queue put
+                if rec._active is not None:
+                    rec.log(
+                        ch.FORCE, {"seq": s.seq, "sensor_time": s.time, "values": list(s.values)}
+                    )
+
+            self._unsubscribe.append(self.force.subscribe(on_sample))
+        self._unsubscribe.append(
+            self.decision.events.command.subscribe(
+                lambda r: rec.log(ch.COMMANDS, command_payload(r), r.t)
+            )
+        )
+        self._unsubscribe.append(self.decision.events.safety_changed.subscribe(self._on_safety))
+        if self.tasks is not None:
+            self._unsubscribe.append(self.tasks.subscribe(self._on_task))
+        self._task = asyncio.get_running_loop().create_task(self._states(), name="record-state")
+
+    def _on_safety(self, s: SafetyState) -> None:
+        self.recorder.log(
+            ch.SAFETY,
+            {
+                "estop": s.estop,
+                "estop_reason": s.estop_reason,
+                "force_limited": s.force_limited,
+                "halted": s.halted,
+                "lease_holder": s.lease_holder,
+                "lease_holder_name": s.lease_holder_name,
+                "lease_note": s.lease_note,
+            },
+        )
+
+    def _on_task(self, status: Any) -> None:
+        payload = dataclasses.asdict(status)
+        payload["state"] = str(getattr(status.state, "value", status.state))
+        payload["offset"] = list(payload["offset"])
+        self.recorder.log(ch.TASKS, payload)
+
+    def log_state(self) -> None:
+        rec = self.recorder
+        pose = self.robot.pose
+        rec.log(
+            ch.ROBOT_STATE,
+            {
+                "status": str(self.robot.status),
+                "joints": self.robot.joints.tolist(),
+                "target_joints": self.robot.target_joints.tolist(),
+                "position": pose.position.tolist(),
+                "rotation": pose.rotation.ravel().tolist(),
+            },
+        )
+        rec.log(
+            ch.TF,
+            {
+                "transforms": [
+                    transform("base", "tool", pose.rotation, pose.position, rec.wall_ns())
+                ]
+            },
+        )
+
+    async def _states(self) -> None:
+        while True:
+            await self.clock.sleep(self.state_period)
+            if self.recorder._active is not None:
+                try:
+                    self.log_state()
+                except Exception:  # a recording must never end the robot's loop
+                    log.exception("recording the state failed")
+
+    async def stop(self) -> None:
+        for unsubscribe in self._unsubscribe:
+            unsubscribe()
+        self._unsubscribe.clear()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+
+def recordings_folder(state: Path) -> Path:
+    return state / "recordings"
+
+
+__all__ = ["Recorder", "RecordingError", "RecordingEvent", "RecordingTaps"]

@@ -1,0 +1,137 @@
+"""Every recording channel in one place: its topic, schema name and JSON Schema
+(docs/recording.md is the contract; keep the two in step).
+
+All channels are JSON (``message_encoding: json``). The video and the transforms use
+Foxglove's well-known schemas in their JSON form (bytes as base64, as Foxglove's
+JSON schemas say), so Foxglove and Lichtblick show them in their Image and 3D panels.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+ROBOT_STATE = "/robot/state"
+FORCE = "/force"
+COMMANDS = "/commands"
+SAFETY = "/safety"
+EPISODES = "/episodes"
+VIDEO = "/video/stereo"
+TF = "/tf"
+CALIBRATION = "/calibration"
+SETTINGS = "/settings"
+TASKS = "/tasks"
+
+_num = {"type": "number"}
+_vec = {"type": "array", "items": _num}
+_str = {"type": "string"}
+_bool = {"type": "boolean"}
+
+
+def _obj(**props: Any) -> dict[str, Any]:
+    return {"type": "object", "properties": props}
+
+
+_time = _obj(sec={"type": "integer", "minimum": 0}, nsec={"type": "integer", "minimum": 0})
+_xyz = _obj(x=_num, y=_num, z=_num)
+_quat = _obj(x=_num, y=_num, z=_num, w=_num)
+
+# topic → (schema name, JSON Schema)
+CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
+    ROBOT_STATE: (
+        "telerobot.RobotState",
+        _obj(t=_num, status=_str, joints=_vec, target_joints=_vec, position=_vec, rotation=_vec),
+    ),
+    FORCE: (
+        "telerobot.Force",
+        _obj(t=_num, seq={"type": "integer"}, sensor_time=_num, values=_vec),
+    ),
+    COMMANDS: (
+        "telerobot.Command",
+        _obj(
+            t=_num,
+            source=_str,
+            client_id=_str,
+            client=_str,
+            kind=_str,
+            args={"type": "object"},
+            accepted=_bool,
+            reason=_str,
+            code=_str,
+            target_joints={"type": ["array", "null"], "items": _num},
+            lease_holder={"type": ["string", "null"]},
+        ),
+    ),
+    SAFETY: (
+        "telerobot.Safety",
+        _obj(
+            t=_num,
+            estop=_bool,
+            estop_reason=_str,
+            force_limited=_bool,
+            halted=_bool,
+            lease_holder={"type": ["string", "null"]},
+            lease_holder_name={"type": ["string", "null"]},
+            lease_note=_str,
+        ),
+    ),
+    EPISODES: (
+        "telerobot.Episode",
+        _obj(
+            t=_num,
+            event=_str,
+            episode={"type": "integer"},
+            task=_str,
+            success={"type": ["boolean", "null"]},
+            notes=_str,
+        ),
+    ),
+    # Foxglove's well-known schemas (github.com/foxglove/foxglove-sdk, schemas/jsonschema)
+    VIDEO: (
+        "foxglove.CompressedVideo",
+        _obj(
+            timestamp=_time,
+            frame_id=_str,
+            data={"type": "string", "contentEncoding": "base64"},
+            format=_str,
+        ),
+    ),
+    TF: (
+        "foxglove.FrameTransforms",
+        _obj(
+            transforms={
+                "type": "array",
+                "items": _obj(
+                    timestamp=_time,
+                    parent_frame_id=_str,
+                    child_frame_id=_str,
+                    translation=_xyz,
+                    rotation=_quat,
+                ),
+            }
+        ),
+    ),
+    TASKS: (
+        "telerobot.Task",
+        _obj(
+            t=_num,
+            id=_str,
+            state=_str,
+            reason=_str,
+            progress=_num,
+            s=_num,
+            duration=_num,
+            speed=_num,
+            force_n=_num,
+            recorded_n=_num,
+            peak_force_n=_num,
+            offset=_vec,
+            supervisor=_str,
+            source=_str,
+        ),
+    ),
+    CALIBRATION: ("telerobot.Calibration", {"type": "object"}),
+    SETTINGS: ("telerobot.Settings", {"type": "object"}),
+}
+
+# Fields carried as bytes in Python and as base64 in the file.
+BYTES_FIELDS: dict[str, str] = {VIDEO: "data"}

@@ -1,0 +1,470 @@
+"""The TaskRunner: repeats a taught motion (a ``Trajectory``) with the server's own
+loop, through the DecisionServer, while the operator supervises (SPEC §5, issue 14).
+
+**The lease.** A task is a client of the DecisionServer like any other (its own
+client, named "task N"): only the operator *holding the control lease* can start
+one, and starting it hands the lease to the task. So the task moves under exactly
+the rules of every command (role, lease, e-stop, step and speed limits, contact
+slowing, the force limit's back-away-only rule, workspace, IK, joint steps), and the
+DecisionServer's own dead-man watches the *task's* loop: the loop heartbeats by
+commanding every period (also while paused: it holds the path point), so a stalled
+loop is stopped by the dead-man like a silent operator. The operator takes control
+back at any time by taking the lease (the task stops: lease loss), and when the task
+ends the lease is handed back to the operator who started it. Running the task under
+the operator's own lease instead would mix two loops' heartbeats in one client, so a
+dead page could not be told from a live task.
+
+**Guards**, checked every period before moving: the e-stop, lease loss, the force
+limit (the DecisionServer's), the supervising operator gone (its connection closed),
+and a contact force stronger than the one recorded at that point by more than
+``force_margin_n`` (an obstacle the recording did not have). A task starts only within
+``start_tolerance_m`` of its first pose, or with ``approach`` (the operator's
+confirmation), after a slow guarded move there.
+
+**Compliance**: the admittance offset (``compliance.py``) is added to each commanded
+position along the chosen axes.
+
+Time is the injected clock's; the loop runs every ``period_s``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import math
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import pinocchio as pin
+
+from backend.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
+from backend.tasks.compliance import Admittance, ComplianceSettings
+from backend.tasks.trajectory import Trajectory
+from drivers.base import (
+    FloatArray,
+    ForceSensor,
+    InvalidCommand,
+    RobotStatus,
+    TelerobotError,
+    WorkingFrame,
+)
+from drivers.clock import Clock
+from drivers.events import Event
+
+log = logging.getLogger(__name__)
+
+MAX_FINISHED = 32  # finished tasks kept for GET; the oldest goes first
+TRACE_LIMIT = 60_000  # periods traced per task (20 min at 50 Hz)
+
+
+class TaskBusy(TelerobotError):
+    """Another task is running: abort it first."""
+
+    code = "task_busy"
+    http_status = 409
+
+
+class UnknownTask(TelerobotError):
+    code = "not_found"
+    http_status = 404
+
+
+class TaskState(StrEnum):
+    APPROACHING = "approaching"  # the guarded move to the first pose
+    RUNNING = "running"
+    PAUSED = "paused"
+    DONE = "done"
+    STOPPED = "stopped"  # a guard or a refused command ended it
+    ABORTED = "aborted"  # the operator ended it
+
+    @property
+    def finished(self) -> bool:
+        return self in (TaskState.DONE, TaskState.STOPPED, TaskState.ABORTED)
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    trajectory: Trajectory
+    speed: float = 1.0  # share of the taught speed, 0.1–1
+    compliance: ComplianceSettings | None = None
+    force_margin_n: float | None = 15.0  # None: no unexpected-contact guard
+    approach: bool = False  # the operator confirms a guarded move to the first pose
+    start_tolerance_m: float = 0.005
+    start_tolerance_rad: float = math.radians(3.0)
+    approach_speed_m_s: float = 0.02
+    # The margin compares with the strongest force recorded this near in time.
+    margin_window_s: float = 0.25
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.speed, int | float) and 0.1 <= self.speed <= 1.0):
+            raise InvalidCommand(f"speed is a share of the taught speed, 0.1–1, got {self.speed}")
+        m = self.force_margin_n
+        if m is not None and not (math.isfinite(m) and 0.5 <= m <= 200.0):
+            raise InvalidCommand(f"force_margin_n must be 0.5–200 N, got {m}")
+        if len(self.trajectory) < 2:
+            raise InvalidCommand("a task needs a trajectory of at least two poses")
+
+
+@dataclass(frozen=True)
+class TracePoint:
+    t: float  # server clock
+    s: float  # trajectory time
+    force_n: float  # measured contact force magnitude
+    recorded_n: float  # recorded at this point of the path
+    offset: tuple[float, float, float]  # compliance offset, base frame, m
+
+
+@dataclass(frozen=True)
+class TaskStatus:
+    id: str
+    state: TaskState
+    reason: str
+    progress: float  # 0–1 of the trajectory's duration
+    s: float  # trajectory time reached, s
+    duration: float  # trajectory duration at the taught speed, s
+    speed: float
+    force_n: float  # the last measured contact force
+    recorded_n: float  # and the recorded one at that point
+    peak_force_n: float
+    offset: tuple[float, float, float]
+    supervisor: str  # the operator who started it (client name)
+    source: str  # the trajectory's origin
+
+
+@dataclass
+class Task:
+    id: str
+    spec: TaskSpec
+    supervisor_id: str
+    supervisor_name: str
+    client_id: str
+    state: TaskState
+    reason: str = ""
+    s: float = 0.0
+    force_n: float = 0.0
+    recorded_n: float = 0.0
+    peak_force_n: float = 0.0
+    admittance: Admittance | None = None
+    trace: deque[TracePoint] = field(default_factory=lambda: deque(maxlen=TRACE_LIMIT))
+    loop: asyncio.Task[None] | None = None
+    finished: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def status(self) -> TaskStatus:
+        traj = self.spec.trajectory
+        offset = self.admittance.offset if self.admittance else np.zeros(3)
+        return TaskStatus(
+            id=self.id,
+            state=self.state,
+            reason=self.reason,
+            progress=min(self.s / traj.duration, 1.0) if traj.duration > 0 else 1.0,
+            s=self.s,
+            duration=traj.duration,
+            speed=self.spec.speed,
+            force_n=self.force_n,
+            recorded_n=self.recorded_n,
+            peak_force_n=self.peak_force_n,
+            offset=(float(offset[0]), float(offset[1]), float(offset[2])),
+            supervisor=self.supervisor_name,
+            source=traj.source,
+        )
+
+
+@dataclass
+class TaskEvents:
+    changed: Event[TaskStatus] = field(default_factory=lambda: Event("task_changed"))
+
+
+class TaskRunner:
+    """Runs one task at a time; keeps the last ``MAX_FINISHED`` finished ones."""
+
+    def __init__(
+        self,
+        decision: DecisionServer,
+        force: ForceSensor | None,
+        clock: Clock,
+        *,
+        operator_token: str,
+        period_s: float = 0.02,
+        settle_s: float = 1.0,
+    ) -> None:
+        self.decision = decision
+        self.force = force
+        self.clock = clock
+        self.period_s = period_s
+        self.settle_s = settle_s  # after the path's end, how long the arm may take to arrive
+        self.events = TaskEvents()
+        self._token = operator_token
+        self._tasks: OrderedDict[str, Task] = OrderedDict()
+        self._ids = itertools.count(1)
+
+    # ------------------------------------------------------------ queries
+    def get(self, task_id: str) -> Task:
+        try:
+            return self._tasks[task_id]
+        except KeyError:
+            raise UnknownTask(f"there is no task {task_id!r}") from None
+
+    def list(self) -> list[Task]:
+        return list(self._tasks.values())
+
+    @property
+    def active(self) -> Task | None:
+        return next((t for t in self._tasks.values() if not t.state.finished), None)
+
+    def distance_to_start(self, trajectory: Trajectory) -> tuple[float, float]:
+        """How far the arm's tool is from the trajectory's first pose (m, rad)."""
+        pose = self.decision.robot.pose
+        p0, R0, _ = trajectory.at(0.0)
+        angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ R0)))
+        return float(np.linalg.norm(pose.position - p0)), angle
+
+    # ------------------------------------------------------------ control
+    async def start(self, spec: TaskSpec, supervisor_id: str) -> Task:
+        """Start ``spec`` for the operator ``supervisor_id``, who must hold the lease:
+        the task takes it over for its run and hands it back at the end."""
+        decision = self.decision
+        supervisor = decision.client(supervisor_id)
+        if supervisor.role is not Role.OPERATOR:
+            raise NotAllowed("observers cannot start tasks: connect with the operator token")
+        if decision.lease_holder != supervisor_id:
+            raise NotAllowed(
+                "take the control lease first: a task runs on the lease its operator hands it"
+            )
+        state = decision.state()
+        if state.estop:
+            raise SafetyStop(f"e-stop is latched ({state.estop_reason}): reset it first")
+        if state.force_limited:
+            raise SafetyStop("the force limit is active: back away from the contact first")
+        if self.active is not None:
+            raise TaskBusy(f"task {self.active.id} is running: abort it first")
+        distance, angle = self.distance_to_start(spec.trajectory)
+        near = distance <= spec.start_tolerance_m and angle <= spec.start_tolerance_rad
+        if not near and not spec.approach:
+            raise InvalidCommand(
+                f"the tool is {distance * 1000:.1f} mm / {math.degrees(angle):.1f}° from the "
+                f"task's first pose (it starts within {spec.start_tolerance_m * 1000:.0f} mm / "
+                f"{math.degrees(spec.start_tolerance_rad):.0f}°): move there, or confirm a "
+                "guarded approach move (approach: true)"
+            )
+        task_id = str(next(self._ids))
+        client = decision.join(f"task {task_id}", self._token, source="task")
+        try:
+            await decision.take_lease(client.id, force=True)
+        except TelerobotError:
+            await decision.leave(client.id)
+            raise
+        task = Task(
+            id=task_id,
+            spec=spec,
+            supervisor_id=supervisor_id,
+            supervisor_name=supervisor.name,
+            client_id=client.id,
+            state=TaskState.RUNNING if near else TaskState.APPROACHING,
+            admittance=Admittance(spec.compliance) if spec.compliance else None,
+        )
+        self._remember(task)
+        log.info("task %s starts (%s) for %s", task_id, spec.trajectory.source, supervisor.name)
+        task.loop = asyncio.get_running_loop().create_task(self._run(task), name=f"task-{task_id}")
+        self._changed(task)
+        return task
+
+    def _remember(self, task: Task) -> None:
+        self._tasks[task.id] = task
+        while len(self._tasks) > MAX_FINISHED + 1:
+            oldest = next(iter(self._tasks.values()))
+            if not oldest.state.finished:
+                break
+            self._tasks.popitem(last=False)
+
+    def _check_supervisor(self, task: Task, client_id: str) -> None:
+        client = self.decision.client(client_id)
+        if client.role is not Role.OPERATOR:
+            raise NotAllowed("observers cannot change a task: connect with the operator token")
+
+    def pause(self, task_id: str, client_id: str) -> Task:
+        task = self.get(task_id)
+        self._check_supervisor(task, client_id)
+        if task.state is TaskState.RUNNING:
+            task.state = TaskState.PAUSED
+            self._changed(task)
+        elif task.state is not TaskState.PAUSED:
+            raise InvalidCommand(f"task {task_id} is {task.state}: only a running task pauses")
+        return task
+
+    def resume(self, task_id: str, client_id: str) -> Task:
+        task = self.get(task_id)
+        self._check_supervisor(task, client_id)
+        if task.state is TaskState.PAUSED:
+            task.state = TaskState.RUNNING
+            self._changed(task)
+        elif task.state is not TaskState.RUNNING:
+            raise InvalidCommand(f"task {task_id} is {task.state}: only a paused task resumes")
+        return task
+
+    async def abort(self, task_id: str, client_id: str) -> Task:
+        task = self.get(task_id)
+        self._check_supervisor(task, client_id)
+        if not task.state.finished:
+            await self._end(task, TaskState.ABORTED, "aborted by the operator")
+        return task
+
+    async def stop(self) -> None:
+        """Server shutdown: end every task."""
+        for task in list(self._tasks.values()):
+            if not task.state.finished:
+                await self._end(task, TaskState.ABORTED, "the server is stopping")
+
+    # ------------------------------------------------------------ the loop
+    async def _run(self, task: Task) -> None:
+        last = self.clock.now()
+        settle_until: float | None = None
+        try:
+            while not task.state.finished:
+                await self.clock.sleep(self.period_s)
+                if task.state.finished:
+                    return
+                now = self.clock.now()
+                dt, last = now - last, now
+                why = self._guard(task)
+                if why is not None:
+                    await self._end(task, TaskState.STOPPED, why)
+                    return
+                if await self._step(task, dt):
+                    settle_until = settle_until if settle_until is not None else now + self.settle_s
+                    arrived = self.decision.robot.status is not RobotStatus.MOVING
+                    if arrived or now >= settle_until:
+                        await self._end(task, TaskState.DONE, "")
+                        return
+        except TelerobotError as exc:
+            await self._end(task, TaskState.STOPPED, str(exc))
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # a bug must not leave the lease with a dead task
+            log.exception("task %s failed", task.id)
+            await self._end(task, TaskState.STOPPED, f"internal error: {exc}")
+
+    def _guard(self, task: Task) -> str | None:
+        """Why the task must stop now, or None."""
+        decision = self.decision
+        state = decision.state()
+        if state.estop:
+            return f"e-stop ({state.estop_reason})"
+        if decision.lease_holder != task.client_id:
+            return f"lease lost ({state.lease_note or 'control changed hands'})"
+        if state.force_limited:
+            return f"force limit ({decision.limits.force_limit_n:g} N) reached"
+        try:
+            decision.client(task.supervisor_id)
+        except NotAllowed:
+            return f"the supervising operator {task.supervisor_name!r} disconnected"
+        return None
+
+    def _measured_force(self) -> FloatArray:
+        """The newest contact force (x, y, z) in the base frame."""
+        sample = self.force.latest if self.force is not None else None
+        if sample is None:
+            return np.zeros(3)
+        f = np.asarray(sample.values[:3], dtype=float)
+        result: FloatArray = self.decision.robot.pose.rotation @ f
+        return result
+
+    async def _step(self, task: Task, dt: float) -> bool:
+        """One period: advance along the path, check the margin, command the pose.
+        True once the path's end has been commanded."""
+        spec, traj = task.spec, task.spec.trajectory
+        measured = self._measured_force()
+        task.force_n = float(np.linalg.norm(measured))
+        task.peak_force_n = max(task.peak_force_n, task.force_n)
+        if task.state is TaskState.APPROACHING:
+            p0, R0, _ = traj.at(0.0)
+            self._check_margin(task, traj.peak_force_near(0.0, spec.margin_window_s))
+            await self._command_towards(task, p0, R0, spec.approach_speed_m_s * dt)
+            distance, angle = self.distance_to_start(traj)
+            if distance <= spec.start_tolerance_m / 2 and angle <= spec.start_tolerance_rad / 2:
+                task.state = TaskState.RUNNING
+                self._changed(task)
+            return False
+        if task.state is TaskState.RUNNING:
+            task.s = min(task.s + dt * spec.speed, traj.duration)
+        p, R, recorded = traj.at(task.s)
+        task.recorded_n = float(np.linalg.norm(recorded))
+        self._check_margin(task, traj.peak_force_near(task.s, spec.margin_window_s))
+        offset = np.zeros(3)
+        if task.admittance is not None:
+            offset = task.admittance.step(measured, recorded, dt)
+            p = p + offset
+        task.trace.append(
+            TracePoint(
+                self.clock.now(),
+                task.s,
+                task.force_n,
+                task.recorded_n,
+                (float(offset[0]), float(offset[1]), float(offset[2])),
+            )
+        )
+        await self._command_towards(task, p, R, None)
+        return task.s >= traj.duration
+
+    @staticmethod
+    def _check_margin(task: Task, recorded_n: float) -> None:
+        margin = task.spec.force_margin_n
+        if margin is not None and task.force_n > recorded_n + margin:
+            raise SafetyStop(
+                f"unexpected contact: {task.force_n:.1f} N where {recorded_n:.1f} N was "
+                f"taught near this point (margin {margin:g} N)"
+            )
+
+    async def _command_towards(
+        self, task: Task, p: FloatArray, R: FloatArray, max_step: float | None
+    ) -> None:
+        """One Cartesian increment (base frame) from the commanded target toward
+        (p, R), within the per-command step limits (the DecisionServer's speed limit
+        paces it further)."""
+        decision = self.decision
+        T0 = decision.kinematics.fk(decision.robot.target_joints)
+        dX = p - T0[:3, 3]
+        rv = pin.log3(R @ T0[:3, :3].T)
+        lim = decision.limits
+        cap = lim.max_step_m * 0.99 if max_step is None else min(max_step, lim.max_step_m * 0.99)
+        step = float(np.linalg.norm(dX))
+        if step > cap:
+            dX = dX * (cap / step)
+        angle = float(np.linalg.norm(rv))
+        if angle > lim.max_step_rad * 0.99:
+            rv = rv * (lim.max_step_rad * 0.99 / angle)
+        # Scale 1 would be applied by the DecisionServer to every client's increments:
+        # the task's increments are absolute distances, so undo the operator's scale.
+        scale = decision.scale
+        await decision.cartesian_increment(
+            task.client_id, dX / scale, rv / scale, frame=WorkingFrame.BASE
+        )
+
+    async def _end(self, task: Task, state: TaskState, reason: str) -> None:
+        if task.state.finished:
+            return
+        task.state, task.reason = state, reason
+        log.info("task %s %s%s", task.id, state, f": {reason}" if reason else "")
+        decision = self.decision
+        if decision.lease_holder == task.client_id:
+            await decision.robot.stop()
+            # Hand the lease back to the operator who started the task, if still here.
+            try:
+                decision.client(task.supervisor_id)
+                await decision.take_lease(task.supervisor_id, force=True)
+            except TelerobotError:
+                await decision.release_lease(task.client_id)
+        await decision.leave(task.client_id)
+        task.finished.set()
+        self._changed(task)
+        current = asyncio.current_task()
+        if task.loop is not None and task.loop is not current:
+            task.loop.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task.loop
+
+    def _changed(self, task: Task) -> None:
+        self.events.changed.emit(task.status())

@@ -1,0 +1,70 @@
+"""The master-arm bridge survives a server restart: it lets the device go when the
+priority channel closes and connects again by itself, with a doubling backoff, to the
+new server on the same address (real processes, real sockets)."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import numpy as np
+
+from backend.master.bridge import Backoff, BridgeSettings, MasterBridge
+from backend.master.cli import open_link
+from drivers.base import FloatArray
+from drivers.master.sim import SimMaster
+from tests.servers import free_port, serving
+from tests.test_priority_channel import until
+
+TOKEN = "master-reconnect-token-0123456789"
+
+
+def test_the_backoff_doubles_to_its_limit_and_starts_again_after_a_success() -> None:
+    b = Backoff(0.5, 8.0)
+    assert [b.next() for _ in range(7)] == [0.5, 1.0, 2.0, 4.0, 8.0, 8.0, 8.0]
+    b.reset()
+    assert b.next() == 0.5
+
+
+ENV = {
+    "TELEROBOT_OPERATOR_TOKEN": TOKEN,
+    "TELEROBOT_HOME_POSE": "qn",
+    "TELEROBOT_PRIORITY_PORT": "0",
+}
+
+
+def still(t: float) -> tuple[FloatArray, bool]:
+    return np.zeros(3), False
+
+
+def test_the_bridge_reconnects_after_the_server_restarts() -> None:
+    port = free_port()  # the same port again after the restart
+    with contextlib.ExitStack() as server:
+        base = server.enter_context(serving(ENV, port))
+        device = SimMaster(still)
+        bridge = MasterBridge(
+            device,
+            open_link(base, TOKEN),
+            BridgeSettings(),
+            reconnect=lambda: open_link(base, TOKEN),
+            backoff=Backoff(0.2, 1.0),
+        )
+        bridge.start(take_control=False)
+        try:
+            until(lambda: bridge.states_received > 10, timeout=10)
+            first_link = bridge.link
+            server.close()  # the server process ends
+            until(lambda: not bridge.connected, timeout=10)
+            assert bridge.link is first_link and bridge.reconnects == 0
+            assert np.all(device.rendered == 0)  # the device was let go
+            time.sleep(1.5)  # it keeps trying while nothing listens, and does not give up
+            assert not bridge.connected and bridge._worker.running
+            server.enter_context(serving(ENV, port))
+            until(lambda: bridge.connected, timeout=15)
+            assert bridge.reconnects == 1 and bridge.link is not first_link
+            states = bridge.states_received
+            until(lambda: bridge.states_received > states + 10, timeout=10)  # state flows again
+            assert bridge.last_error is None
+        finally:
+            bridge.stop()
+            bridge.link.close()

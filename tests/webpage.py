@@ -1,0 +1,184 @@
+"""What every browser test of the operator page shares: the server on the simulation
+(video included) with an operator token, Debian's Chromium, a page opened with a
+scripted gamepad (and the emulated WebXR runtime), and waits that say what the page
+said when they fail. Test modules import the fixtures `server` and `browser` from here."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from playwright.sync_api import Browser, Page, sync_playwright
+
+# The same Chromium flags as the browser benchmark, and its software GPU at nice 10.
+from bench.browser import ARGS, yield_software_gpu
+from tests.servers import serving
+from tests.test_browser import CHROMIUM
+
+TOKEN = "web-test-operator-token-0123456789"
+ENV = {
+    "TELEROBOT_VIDEO": "true",
+    # 2×640×360 at 20 fps (the timecode needs 520 px of width): this 2-core machine
+    # also runs the server and a software GPU.
+    "TELEROBOT_VIDEO_WIDTH": "640",
+    "TELEROBOT_VIDEO_HEIGHT": "360",
+    "TELEROBOT_VIDEO_FPS": "20",
+    # The browser shares this machine's CPU with the server here (never so in use): a
+    # media worker at nice 10 waits behind the browser's software GPU, and the frames
+    # reach the page late (glass-to-glass p50 19 → 63 ms with one core busy elsewhere).
+    "TELEROBOT_VIDEO_NICE": "0",
+    "TELEROBOT_OPERATOR_TOKEN": TOKEN,
+    # Any free port for the priority channel: another server here may hold 8001.
+    "TELEROBOT_PRIORITY_PORT": "0",
+    "TELEROBOT_HOME_POSE": "qn",
+    # The longest dead-man the spec allows (stop within 200 ms): a software-rendered
+    # page on this loaded 2-core machine can stall its timers for 150 ms.
+    "TELEROBOT_DEADMAN_TIMEOUT_S": "0.18",
+}
+# `make screenshots` saves them into docs/img for the README; a test run keeps the
+# working tree clean and saves them in a temporary folder.
+SHOTS_FOR_DOCS = os.environ.get("TELEROBOT_SCREENSHOTS")
+
+# A gamepad the test holds: standard mapping, R1 (button 5) is the dead-man.
+FAKE_GAMEPAD = """
+window.__pad = { axes: [0, 0, 0, 0], pressed: new Set() };
+navigator.getGamepads = () => [{
+  id: "scripted", index: 0, connected: true, mapping: "standard", timestamp: performance.now(),
+  axes: window.__pad.axes,
+  buttons: Array.from({ length: 17 }, (_, i) => ({ pressed: window.__pad.pressed.has(i), touched: false, value: window.__pad.pressed.has(i) ? 1 : 0 })),
+}];
+"""
+
+
+# A fake vibration actuator on the scripted gamepad records what the page asks of it.
+FAKE_GAMEPAD += """
+window.__rumble = [];
+const __actuator = { playEffect: (type, p) => { window.__rumble.push(p.strongMagnitude); return Promise.resolve("complete"); } };
+const __getGamepads = navigator.getGamepads;
+navigator.getGamepads = () => __getGamepads().map((p) => Object.assign(p, { vibrationActuator: __actuator }));
+"""
+
+# WebXR in a browser with no headset: Meta's Immersive Web Emulation Runtime (iwer,
+# an npm devDependency of web/) emulates a Quest 3 with its two controllers.
+IWER = (
+    Path(__file__).resolve().parents[1] / "web" / "node_modules" / "iwer" / "build" / "iwer.min.js"
+)
+XR_RUNTIME = """
+window.__xr = new IWER.XRDevice(IWER.metaQuest3);
+window.__xr.stereoEnabled = true;
+window.__xr.installRuntime({ forceInstall: true });
+"""
+
+
+def _serve() -> Iterator[str]:
+    if not CHROMIUM.exists():
+        pytest.fail("Debian's chromium is missing: `make test` installs it")
+    with serving(ENV) as base:
+        yield base
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[str]:
+    yield from _serve()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
+        yield b
+        b.close()
+
+
+def open_page(
+    browser: Browser, base: str, token: str = TOKEN, xr: bool = False
+) -> tuple[Page, list[str]]:
+    # The emulated headset draws at the window's size in software: a smaller window.
+    page = browser.new_page(
+        viewport={"width": 960, "height": 540} if xr else {"width": 1500, "height": 900}
+    )
+    errors: list[str] = []
+    page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.add_init_script(FAKE_GAMEPAD)
+    if xr:
+        if not IWER.exists():
+            pytest.fail(
+                "the WebXR emulator (iwer) is missing from web/node_modules: make test installs it"
+            )
+        page.add_init_script(path=str(IWER))
+        page.add_init_script(XR_RUNTIME)
+    page.goto(base + (f"?token={token}" if token else ""))
+    yield_software_gpu()
+    page.wait_for_function(
+        "window.telerobot && window.telerobot.view.frames > 10", timeout=60_000, polling=100
+    )
+    return page, errors
+
+
+def wait(page: Page, expression: str, timeout: float = 10_000) -> None:
+    """Wait for ``expression`` in the page; on timeout, say what the page said."""
+    try:
+        page.wait_for_function(expression, timeout=timeout, polling=100)
+    except Exception:
+        said = page.locator("#messages").inner_text()
+        flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
+        raise AssertionError(
+            f"{expression} never held; flags {flags}; page messages:\n{said}"
+        ) from None
+
+
+def target(server: str) -> list[float]:
+    return httpx.get(server + "api/v1/robot/state").json()["target_joints"]
+
+
+def tool_position(server: str) -> np.ndarray:
+    return np.array(httpx.get(server + "api/v1/robot/state").json()["position"])
+
+
+def until(
+    page: Page, condition: Callable[[], bool], what: str | Callable[[], str], timeout: float = 10
+) -> None:
+    """Poll the server until ``condition`` holds; on timeout, say what the page said."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            said = page.locator("#messages").inner_text()
+            flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
+            raise AssertionError(
+                f"never: {what if isinstance(what, str) else what()}; flags {flags}; "
+                f"page messages:\n{said}"
+            )
+        time.sleep(0.1)
+
+
+def xr_frames_pass(page: Page, n: int = 2) -> None:
+    """Wait until the XR session has drawn ``n`` more frames: the page has read the
+    controllers' state as it is now (a busy page draws 1–9 XR frames/s here)."""
+    n0 = page.evaluate("window.telerobot.view.xrFrames")
+    wait(page, f"window.telerobot.view.xrFrames >= {n0 + n}")
+
+
+def take_control(page: Page) -> None:
+    page.click("#take")
+    wait(page, "(window.telerobot.state.flags & 1) !== 0")
+
+
+def drop_video_peer(page: Page, server: str) -> str:
+    """The server closes this page's video peer for real (its secret proves it is the
+    page's), as a crashed or restarted media worker would: no new frame arrives.
+    Returns the closed peer's id."""
+    peer = page.evaluate(
+        "({ id: window.telerobot.video.peer.peerId, secret: window.telerobot.video.peer.secret })"
+    )
+    r = httpx.delete(
+        server + f"api/v1/webrtc/{peer['id']}",
+        headers={"X-Peer-Secret": peer["secret"], "X-Telerobot-Client": "test"},
+    )
+    assert r.status_code < 300, r.text
+    return str(peer["id"])

@@ -1,0 +1,259 @@
+import { describe, expect, it } from "vitest";
+import { Rolling } from "./stats";
+import {
+  COMMAND_AGE_AMBER_MS,
+  COMMAND_AGE_RED_MS,
+  COMMAND_IDLE_MS,
+  ConnectionHud,
+  FORCE_AGE_AMBER_MS,
+  FORCE_AGE_RED_MS,
+  FREEZE_MS,
+  FREEZE_WINDOW_MS,
+  FREEZES_RED,
+  FROZEN_RED_MS,
+  FreezeCounter,
+  LOSS_AMBER_PERCENT,
+  LOSS_RED_PERCENT,
+  RTT_AMBER_MS,
+  RTT_RED_MS,
+  STATS_WINDOW_MS,
+  fpsLimits,
+  hudView,
+  readVideoStats,
+  videoRates,
+  type HudFigures,
+  type HudKey,
+  type HudRow,
+} from "./ui/connection-hud";
+
+// A healthy loopback link: the figures the browser test sees.
+const good: HudFigures = {
+  videoUp: true,
+  videoRttMs: 0.6,
+  pingRttMs: 0.4,
+  lossPercent: 0,
+  fps: 30,
+  nominalFps: 30,
+  bitrateKbps: 2400,
+  layer: "full",
+  frameSize: "1280×360",
+  sinceFrameMs: 20,
+  freezes: 0,
+  longestFreezeMs: 0,
+  linkOpen: true,
+  synced: true,
+  offsetMs: 12.5,
+  forceAgeMs: 8,
+  commandAgeMs: null,
+  commandSeenAgoMs: null,
+};
+
+const view = (over: Partial<HudFigures> = {}) => hudView({ ...good, ...over });
+const row = (over: Partial<HudFigures>, key: HudKey): HudRow => {
+  const r = view(over).rows.find((x) => x.key === key);
+  if (!r) throw new Error(`no ${key} row`);
+  return r;
+};
+
+describe("the connection HUD's rows", () => {
+  it("a healthy link: every row ok, the figures shown", () => {
+    const v = view();
+    expect(v.level).toBe("ok");
+    expect(v.reason).toBe("");
+    expect(v.rows.map((r) => r.key)).toEqual(["rtt", "loss", "video", "freezes", "force", "command", "clock"]);
+    expect(v.rows.every((r) => r.level === "ok")).toBe(true);
+    expect(row({}, "rtt").text).toBe("video 0.6 ms · ping 0.4 ms");
+    expect(row({}, "video").text).toBe("30 fps · 2400 kbit/s · full 1280×360");
+    expect(row({}, "force").text).toBe("8.0 ms");
+    expect(row({}, "command").text).toBe("— (no command yet)");
+    expect(row({}, "clock").text).toBe("+12.5 ms");
+    expect(row({ offsetMs: -1_234_567 }, "clock").text).toBe("−1234.567 s");
+    expect(row({}, "freezes").text).toBe("none in 10 s");
+    for (const r of v.rows) expect(r.limits.length).toBeGreaterThan(10); // the tooltip says the thresholds
+  });
+
+  it("RTT: amber over 100 ms, red over 250 ms, judged by the slower of video and ping", () => {
+    expect(row({ videoRttMs: RTT_AMBER_MS }, "rtt").level).toBe("ok");
+    expect(row({ videoRttMs: RTT_AMBER_MS + 1 }, "rtt")).toMatchObject({ level: "amber", text: "video 101 ms · ping 0.4 ms (> 100 ms)" });
+    expect(row({ pingRttMs: RTT_RED_MS }, "rtt").level).toBe("amber");
+    expect(row({ pingRttMs: RTT_RED_MS + 1 }, "rtt")).toMatchObject({ level: "red", text: "video 0.6 ms · ping 251 ms (> 250 ms)" });
+    expect(row({ videoRttMs: null, pingRttMs: 3 }, "rtt")).toMatchObject({ level: "ok", text: "ping 3.0 ms" });
+    expect(row({ videoRttMs: null, pingRttMs: null }, "rtt")).toMatchObject({ level: "amber", text: "not measured yet" });
+  });
+
+  it("loss: amber over 1 %, red over 5 %; none measured is not an alarm", () => {
+    expect(row({ lossPercent: LOSS_AMBER_PERCENT }, "loss").level).toBe("ok");
+    expect(row({ lossPercent: 2.5 }, "loss")).toMatchObject({ level: "amber", text: "2.5 % (> 1 %)" });
+    expect(row({ lossPercent: LOSS_RED_PERCENT + 0.1 }, "loss")).toMatchObject({ level: "red", text: "5.1 % (> 5 %)" });
+    expect(row({ lossPercent: null }, "loss")).toMatchObject({ level: "ok", text: "—" });
+  });
+
+  it("video rate: amber below 20 fps, red below 10; a server sending fewer is judged against its own rate", () => {
+    expect(fpsLimits(30)).toEqual({ amber: 20, red: 10 });
+    expect(fpsLimits(null)).toEqual({ amber: 20, red: 10 });
+    expect(fpsLimits(20)).toEqual({ amber: 15, red: 10 });
+    expect(fpsLimits(10)).toEqual({ amber: 7.5, red: 5 });
+    expect(row({ fps: 20 }, "video").level).toBe("ok");
+    expect(row({ fps: 19 }, "video")).toMatchObject({ level: "amber", text: "19 fps of 30 (< 20) · 2400 kbit/s · full 1280×360" });
+    expect(row({ fps: 9 }, "video")).toMatchObject({ level: "red", text: "9 fps of 30 (< 10) · 2400 kbit/s · full 1280×360" });
+    expect(row({ fps: 19, nominalFps: 20 }, "video").level).toBe("ok"); // the test server's 20 fps
+    expect(row({ fps: 14, nominalFps: 20 }, "video").level).toBe("amber");
+  });
+
+  it("video frozen: amber past 200 ms without a new frame, red past 500 ms, with how long", () => {
+    expect(row({ sinceFrameMs: FREEZE_MS }, "video").level).toBe("ok");
+    expect(row({ sinceFrameMs: FREEZE_MS + 50 }, "video")).toMatchObject({ level: "amber", text: "frozen: no new frame for 0.3 s" });
+    expect(row({ sinceFrameMs: FROZEN_RED_MS + 700 }, "video")).toMatchObject({ level: "red", text: "frozen: no new frame for 1.2 s" });
+    expect(row({ videoUp: false }, "video")).toMatchObject({ level: "red", text: "no video peer (reconnecting)" });
+    expect(row({ sinceFrameMs: null }, "video")).toMatchObject({ level: "amber", text: "waiting for the first frame" });
+  });
+
+  it("the layer is the server's when it reports one, else full", () => {
+    expect(row({ layer: "half", frameSize: "640×180" }, "video").text).toContain("half 640×180");
+    expect(row({ frameSize: null }, "video").text).toBe("30 fps · 2400 kbit/s · full");
+  });
+
+  it("freezes: one in 10 s is amber, five red", () => {
+    expect(row({ freezes: 1, longestFreezeMs: 450 }, "freezes")).toMatchObject({ level: "amber", text: "1 in 10 s (longest 0.5 s)" });
+    expect(row({ freezes: FREEZES_RED - 1, longestFreezeMs: 300 }, "freezes").level).toBe("amber");
+    expect(row({ freezes: FREEZES_RED, longestFreezeMs: 300 }, "freezes").level).toBe("red");
+    expect(row({ decoderFreezes: 2, decoderFreezeS: 0.84 }, "freezes").text).toBe("none in 10 s · decoder 2 (0.8 s)");
+  });
+
+  it("force age: amber over 50 ms, red over 200 ms; a dead link or no samples is red", () => {
+    expect(row({ forceAgeMs: FORCE_AGE_AMBER_MS }, "force").level).toBe("ok");
+    expect(row({ forceAgeMs: 80 }, "force")).toMatchObject({ level: "amber", text: "80 ms (> 50 ms)" });
+    expect(row({ forceAgeMs: FORCE_AGE_RED_MS + 1 }, "force")).toMatchObject({ level: "red", text: "201 ms (> 200 ms)" });
+    expect(row({ forceAgeMs: 3400 }, "force")).toMatchObject({ level: "red", text: "no new sample for 3.4 s (> 200 ms)" });
+    expect(row({ forceAgeMs: null }, "force")).toMatchObject({ level: "red", text: "no force samples yet" });
+    expect(row({ linkOpen: false }, "force")).toMatchObject({ level: "red", text: "realtime link down" });
+    expect(row({ synced: false }, "force")).toMatchObject({ level: "amber", text: "waiting for the clock sync" });
+  });
+
+  it("command age: amber over 100 ms, red over 250 ms (the server's max command age); idle after 5 s", () => {
+    const driving = { commandSeenAgoMs: 100 };
+    expect(row({ ...driving, commandAgeMs: 1.25 }, "command")).toMatchObject({ level: "ok", text: "1.3 ms" });
+    expect(row({ ...driving, commandAgeMs: COMMAND_AGE_AMBER_MS }, "command").level).toBe("ok");
+    expect(row({ ...driving, commandAgeMs: 120 }, "command")).toMatchObject({ level: "amber", text: "120 ms (> 100 ms)" });
+    expect(row({ ...driving, commandAgeMs: COMMAND_AGE_RED_MS + 10 }, "command")).toMatchObject({ level: "red", text: "260 ms (> 250 ms)" });
+    expect(row({ commandAgeMs: 300, commandSeenAgoMs: COMMAND_IDLE_MS + 1 }, "command")).toMatchObject({ level: "ok", text: "idle (last 300 ms)" });
+  });
+
+  it("the clock offset is shown, not judged, once synced", () => {
+    expect(row({ offsetMs: 1e9 }, "clock").level).toBe("ok");
+    expect(row({ synced: false }, "clock")).toMatchObject({ level: "amber", text: "not synced yet" });
+  });
+
+  it("the HUD is as bad as its worst row, and says why, worst first", () => {
+    expect(view({ lossPercent: 2 }).level).toBe("amber");
+    const v = view({ lossPercent: 2, forceAgeMs: 500 });
+    expect(v.level).toBe("red");
+    expect(v.reason).toBe("force age: 500 ms (> 200 ms); loss: 2.0 % (> 1 %)");
+  });
+});
+
+describe("reading getStats()", () => {
+  const report = (over: Record<string, unknown> = {}) => [
+    { type: "inbound-rtp", id: "a", kind: "audio", bytesReceived: 1e9 },
+    { type: "inbound-rtp", id: "v", kind: "video", framesDecoded: 100, bytesReceived: 500_000, packetsLost: 2, packetsReceived: 998, frameWidth: 1280, frameHeight: 360, freezeCount: 1, totalFreezesDuration: 0.4, ...over },
+    { type: "transport", id: "t", selectedCandidatePairId: "p2" },
+    { type: "candidate-pair", id: "p1", nominated: true, state: "succeeded", currentRoundTripTime: 0.5 },
+    { type: "candidate-pair", id: "p2", nominated: true, state: "succeeded", currentRoundTripTime: 0.002 },
+  ];
+
+  it("takes the inbound video stream and the transport's selected candidate pair", () => {
+    const s = readVideoStats(report(), 1000);
+    expect(s).toMatchObject({ at: 1000, framesDecoded: 100, bytesReceived: 500_000, packetsLost: 2, packetsReceived: 998, frameWidth: 1280, freezeCount: 1, totalFreezesDuration: 0.4, rttS: 0.002 });
+    expect(s.framesPerSecond).toBeNull();
+    // Without a transport entry: the nominated, succeeded pair.
+    expect(readVideoStats(report().filter((x) => x.type !== "transport" && x.id !== "p2"), 0).rttS).toBe(0.5);
+    expect(readVideoStats([], 0)).toMatchObject({ framesDecoded: null, rttS: null });
+  });
+
+  it("rates over the window: frames, kbit/s, loss", () => {
+    const a = readVideoStats(report(), 0);
+    const b = readVideoStats(report({ framesDecoded: 140, bytesReceived: 1_000_000, packetsLost: 12, packetsReceived: 1988 }), STATS_WINDOW_MS);
+    expect(videoRates(a, b)).toEqual({ fps: 20, kbps: 2000, lossPercent: 1 });
+    // framesPerSecond (Chromium's, over the last second) wins when there is one.
+    expect(videoRates(a, { ...b, framesPerSecond: 24 }).fps).toBe(24);
+    // The first sample: no rates yet; no packets: no loss figure; duplicates are not negative loss.
+    expect(videoRates(undefined, b)).toEqual({ fps: null, kbps: null, lossPercent: null });
+    expect(videoRates(a, { ...a, at: 1000 }).lossPercent).toBeNull();
+    expect(videoRates(a, { ...b, packetsLost: 0 }).lossPercent).toBe(0);
+  });
+});
+
+describe("freezes as the page sees them", () => {
+  it("counts gaps over 200 ms between frames for 10 s, and says how long it has been", () => {
+    const f = new FreezeCounter();
+    expect(f.since(0)).toBeNull();
+    for (let t = 0; t <= 1000; t += 50) f.frame(t);
+    expect(f.window(1000).count).toBe(0);
+    f.frame(1000 + FREEZE_MS); // exactly the limit: not a freeze
+    expect(f.window(1200).count).toBe(0);
+    expect(f.since(1500)).toBe(300);
+    f.frame(1900); // 700 ms without a frame
+    expect(f.window(1900)).toEqual({ count: 1, longestMs: 700 });
+    expect(f.window(1900 + FREEZE_WINDOW_MS + 1).count).toBe(0);
+    expect(f.total).toBe(1);
+  });
+});
+
+describe("the collector", () => {
+  function fakePc(frames: { n: number }) {
+    return {
+      connectionState: "connected",
+      getStats: () =>
+        Promise.resolve(
+          new Map<string, Record<string, unknown>>([
+            ["v", { type: "inbound-rtp", kind: "video", framesDecoded: frames.n, bytesReceived: frames.n * 10_000, packetsLost: 0, packetsReceived: frames.n * 5 }],
+            ["p", { type: "candidate-pair", id: "p", nominated: true, state: "succeeded", currentRoundTripTime: 0.001 }],
+          ]),
+        ),
+    } as unknown as RTCPeerConnection;
+  }
+
+  it("turns the peer's counters, the link's figures and the newest force sample into rows", async () => {
+    const frames = { n: 0 };
+    const pc = fakePc(frames);
+    const commandLatency = new Rolling();
+    const link = { open: true, bestRtt: 0.0004, offset: 100, commandLatency };
+    let force = { time: 100 + 0.99 }; // page time 1.0 s = server time 101.0 s: 10 ms old
+    const hud = new ConnectionHud({ pc: () => pc, link, force: () => force, video: Promise.resolve({ fps: 20 }) });
+    await Promise.resolve();
+    for (let t = 0; t <= 1000; t += 50) hud.frame(t);
+    await hud.update(500);
+    frames.n = 10;
+    const v = await hud.update(1000);
+    expect(hud.figures).toMatchObject({ fps: 20, bitrateKbps: 1600, lossPercent: 0, videoRttMs: 1, pingRttMs: 0.4, offsetMs: 100_000, nominalFps: 20 });
+    expect(hud.figures?.forceAgeMs).toBeCloseTo(10, 6);
+    expect(v.reason).toBe("");
+    expect(hud.level).toBe("ok");
+    expect(hud.rows.find((r) => r.key === "video")?.text).toBe("20 fps · 1600 kbit/s · full");
+
+    // The force stream stops: its age grows on the server's clock.
+    commandLatency.add(3);
+    await hud.update(1300);
+    expect(hud.rows.find((r) => r.key === "command")?.text).toBe("3.0 ms");
+    force = { time: 100.99 };
+    await hud.update(2000);
+    expect(hud.level).toBe("red");
+    expect(hud.reason).toContain("force age: no new sample for 1.0 s");
+    expect(hud.reason).toContain("video: frozen: no new frame for 1.0 s");
+  });
+
+  it("with no peer: video red; a new peer's counters start afresh, the gap across it is a freeze", async () => {
+    let pc: RTCPeerConnection | null = fakePc({ n: 50 });
+    const hud = new ConnectionHud({ pc: () => pc, link: { open: true, bestRtt: 0.001, offset: 0, commandLatency: new Rolling() }, force: () => ({ time: 0 }) });
+    hud.frame(0);
+    await hud.update(0);
+    pc = null;
+    await hud.update(500);
+    expect(hud.rows.find((r) => r.key === "video")).toMatchObject({ level: "red", text: "no video peer (reconnecting)" });
+    pc = fakePc({ n: 5 }); // counters from zero: no rate against the old peer's 50 frames
+    hud.frame(2500);
+    await hud.update(2500);
+    expect(hud.figures).toMatchObject({ fps: null, bitrateKbps: null, freezes: 1, longestFreezeMs: 2500 });
+    expect(hud.rows.find((r) => r.key === "freezes")).toMatchObject({ level: "amber", text: "1 in 10 s (longest 2.5 s)" });
+  });
+});

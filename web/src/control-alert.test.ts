@@ -1,0 +1,86 @@
+import { describe, expect, it } from "vitest";
+import { ControlWatch, type ControlAlert } from "./ui/control-alert";
+import { StateFlags } from "./transport/messages";
+
+const MINE = StateFlags.YOU_HAVE_CONTROL | StateFlags.SOMEONE_HAS_CONTROL | StateFlags.OPERATOR;
+const NOBODY = StateFlags.OPERATOR;
+
+function watched() {
+  const w = new ControlWatch();
+  const seen: { alert: ControlAlert | null; sound: boolean }[] = [];
+  w.onChange = (alert, sound) => seen.push({ alert, sound });
+  return { w, seen };
+}
+
+describe("losing control", () => {
+  it("is said loudly, with the server's reason, when the lease goes without the operator releasing it", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    expect(seen).toEqual([]);
+    w.event("control: nobody (dead-man: no heartbeat from 'page' for 2180 ms (the limit is 150 ms, then 2 s of grace))", 10);
+    w.state(NOBODY, 20);
+    expect(seen).toHaveLength(1);
+    expect(seen[0]!.sound).toBe(true);
+    expect(seen[0]!.alert?.level).toBe("lost");
+    expect(seen[0]!.alert?.text).toContain("dead-man: no heartbeat");
+    w.state(NOBODY, 40); // once, not every STATE
+    expect(seen).toHaveLength(1);
+  });
+
+  it("says so when someone takes it over, and an old reason is not reused", () => {
+    const { w, seen } = watched();
+    w.event("control: page (taken by 'page')", 0);
+    w.state(MINE, 10);
+    w.state(StateFlags.SOMEONE_HAS_CONTROL | StateFlags.OPERATOR, 10_000);
+    expect(seen[0]!.alert?.text).toBe("CONTROL LOST: the server took it back");
+  });
+
+  it("is quiet when the operator released it", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.released();
+    w.state(NOBODY, 10);
+    expect(seen).toEqual([]);
+  });
+
+  it("halted by the dead-man: an alarm while the lease is kept, gone when the link is back", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.state(MINE | StateFlags.HALTED, 10);
+    w.state(MINE | StateFlags.HALTED, 30);
+    expect(seen).toHaveLength(1);
+    expect(seen[0]!.alert?.level).toBe("halted");
+    expect(seen[0]!.sound).toBe(true);
+    w.state(MINE, 50);
+    expect(seen[1]).toEqual({ alert: null, sound: false });
+  });
+
+  it("with the connection: an alarm, then after reconnecting as operator an offer to take it again", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.connection(false);
+    expect(seen[0]!.alert?.text).toContain("connection to the server dropped");
+    expect(seen[0]!.sound).toBe(true);
+    w.connection(true);
+    w.welcome(true);
+    expect(seen[1]!.alert?.retake).toBe(true);
+    expect(seen[1]!.sound).toBe(false);
+    w.state(NOBODY, 100); // the new connection holds nothing yet: no second alarm
+    expect(seen).toHaveLength(2);
+    w.state(MINE, 200); // taken again
+    expect(seen[2]).toEqual({ alert: null, sound: false });
+  });
+
+  it("offers nothing to a page that did not hold control, or reconnects as an observer", () => {
+    const { w, seen } = watched();
+    w.state(NOBODY, 0);
+    w.connection(false);
+    w.welcome(true);
+    expect(seen).toEqual([]);
+    const b = watched();
+    b.w.state(MINE, 0);
+    b.w.connection(false);
+    b.w.welcome(false);
+    expect(b.seen.map((s) => s.alert?.retake)).toEqual([false]);
+  });
+});

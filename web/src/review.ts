@@ -1,0 +1,199 @@
+// The review page: a recording played back on one timeline — both eyes of the recorded
+// video (the MP4 the server remuxes from the recorded H.264, played and seeked by a
+// <video>) with the AR ball and the ghost arm at the recorded *predicted* pose (the
+// commanded target joints, as the live page draws them) beside a thin ring at the
+// recorded actual tool position, both projected with the calibration in force at that
+// moment; the force plot with a cursor and the command log. Pause, seek, 0.25–4× speed.
+// Data: GET /api/v1/recordings/{id}/timeline, …/video.mp4, /api/v1/robot/model.
+import { Api, MessageLog, readToken, withoutToken } from "./api";
+import { GHOST_RGB, type Pixel, ghostChain } from "./ar/ghost";
+import { project, type Projection } from "./ar/projection";
+import { SPEEDS, forceRange, formatTime, latestAt, timelineOf, videoTimeOf } from "./review/timeline";
+import { $ } from "./ui/dom";
+import { tracePolyline } from "./view/overlay";
+
+const api = new Api(`${location.origin}/`, readToken(location.search, localStorage, sessionStorage));
+const recordingId = new URLSearchParams(location.search).get("id") ?? "";
+history.replaceState(history.state, "", withoutToken(location.href));
+const log = new MessageLog($("messages"));
+
+interface Timed {
+  time: number;
+  [key: string]: unknown;
+}
+const FORCE_COLOURS = ["#e44", "#4c4", "#48f", "#e9e", "#ee4", "#4ee"];
+
+async function pickList(): Promise<void> {
+  const pick = $<HTMLSelectElement>("review-pick");
+  try {
+    const response = await fetch(`${location.origin}/api/v1/recordings`, { cache: "no-store" });
+    const list = (await response.json()) as { file: string; name?: string; active?: boolean }[] | { recordings?: { file: string }[] };
+    const items = Array.isArray(list) ? list : (list.recordings ?? []);
+    for (const r of items) {
+      const o = document.createElement("option");
+      o.value = r.file;
+      o.textContent = r.file;
+      o.selected = r.file === recordingId || r.file.replace(/\.mcap$/, "") === recordingId;
+      pick.append(o);
+    }
+  } catch {
+    /* the list is a convenience: ?id= works without it */
+  }
+  pick.onchange = () => (location.search = `?id=${encodeURIComponent(pick.value)}`);
+}
+
+async function main(): Promise<void> {
+  void pickList();
+  if (!recordingId) {
+    log.add("open a recording: review.html?id=<file name> (or pick one above)");
+    return;
+  }
+  $("review-name").textContent = recordingId;
+  const [tl, model] = await Promise.all([
+    api.request("get", "/api/v1/recordings/{recording_id}/timeline", {
+      params: { recording_id: recordingId },
+      query: { max_points: 4000 },
+    }),
+    api.request("get", "/api/v1/robot/model"),
+  ]);
+  const topic = (name: string) => (tl.topics[name] ?? []) as Timed[];
+  const forces = topic("/force") as (Timed & { values: number[] })[];
+  const states = topic("/robot/state") as (Timed & { position: number[]; target_joints?: number[] })[];
+  // What the overlay shows now, per eye (for tests): the predicted tool and the actual one.
+  const overlay: { predicted: (Pixel | null)[]; actual: (Pixel | null)[] } = { predicted: [null, null], actual: [null, null] };
+  const commands = topic("/commands") as (Timed & { kind: string; accepted: boolean; reason: string; source: string; client: string })[];
+  // As recorded: {cameras: {left: {P}, right: {P}}, ground_truth_P: {left, right}}.
+  type RecordedCalibration = Timed & { cameras?: Record<string, { P?: Projection }>; ground_truth_P?: Record<string, Projection> };
+  const calibrations = (topic("/calibration") as RecordedCalibration[]).map((c) => ({
+    time: c.time,
+    cameras: ["left", "right"].map((eye) => ({ P: c.cameras?.[eye]?.P ?? c.ground_truth_P?.[eye] ?? [] })),
+  }));
+
+  const video = $<HTMLVideoElement>("review-video");
+  const canvas = $<HTMLCanvasElement>("review-view");
+  const ctx = canvas.getContext("2d");
+  const seek = $<HTMLInputElement>("review-seek");
+  const play = $<HTMLButtonElement>("review-play");
+  const speed = $<HTMLSelectElement>("review-speed");
+  seek.max = String(tl.duration);
+  for (const s of SPEEDS) {
+    const o = document.createElement("option");
+    o.value = String(s);
+    o.textContent = `${s}×`;
+    o.selected = s === 1;
+    speed.append(o);
+  }
+  speed.onchange = () => (video.playbackRate = Number(speed.value));
+  play.onclick = () => (video.paused ? void video.play() : video.pause());
+  video.onplay = () => (play.textContent = "Pause");
+  video.onpause = () => (play.textContent = "Play");
+  seek.oninput = () => {
+    video.currentTime = videoTimeOf(Number(seek.value), tl.video_start, video.duration);
+  };
+  if (tl.video_start !== null && tl.video_start !== undefined) {
+    video.src = `${location.origin}/api/v1/recordings/${encodeURIComponent(recordingId)}/video.mp4`;
+    video.onerror = () => log.add(`video: ${video.error?.message ?? "cannot play"}`, true);
+  } else log.add("this recording has no video");
+  video.onloadedmetadata = () => {
+    canvas.width = video.videoWidth;
+    canvas.height = video.videoHeight;
+  };
+
+  // The command log: every command, the ones after the cursor greyed.
+  const list = $("review-commands");
+  const rows = commands.map((c) => {
+    const li = document.createElement("li");
+    li.textContent = `${formatTime(c.time)} ${c.source} ${c.client} ${c.kind}${c.accepted ? "" : ` refused: ${c.reason}`}`;
+    if (!c.accepted) li.classList.add("refused");
+    list.append(li);
+    return li;
+  });
+  let shown = -2;
+
+  const forcePlot = $<HTMLCanvasElement>("review-force");
+  const fctx = forcePlot.getContext("2d");
+  const range = forceRange(forces);
+  function drawForces(t: number): void {
+    if (!fctx) return;
+    const { width: w, height: h } = forcePlot;
+    fctx.clearRect(0, 0, w, h);
+    const x = (s: number) => (s / Math.max(tl.duration, 1e-6)) * w;
+    const y = (v: number) => h / 2 - (v / range) * (h / 2 - 4);
+    for (let axis = 0; axis < 6; axis++) {
+      fctx.strokeStyle = FORCE_COLOURS[axis] ?? "#fff";
+      fctx.beginPath();
+      forces.forEach((f, i) => (i ? fctx.lineTo(x(f.time), y(f.values[axis] ?? 0)) : fctx.moveTo(x(f.time), y(f.values[axis] ?? 0))));
+      fctx.stroke();
+    }
+    fctx.strokeStyle = "#fff";
+    fctx.beginPath();
+    fctx.moveTo(x(t), 0);
+    fctx.lineTo(x(t), h);
+    fctx.stroke();
+    fctx.fillStyle = "#ccc";
+    fctx.fillText(`±${range.toFixed(1)} N / N·m`, 4, 12);
+  }
+
+  function frame(): void {
+    const t = tl.video_start === null || tl.video_start === undefined ? Number(seek.value) : timelineOf(video.currentTime, tl.video_start);
+    if (document.activeElement !== seek) seek.value = String(t);
+    $("review-time").textContent = `${formatTime(t)} / ${formatTime(tl.duration)}`;
+    if (ctx && video.readyState >= 2) {
+      ctx.drawImage(video, 0, 0, canvas.width, canvas.height);
+      const state = states[latestAt(states, t)];
+      const cameras = calibrations[Math.max(0, latestAt(calibrations, t))]?.cameras ?? [];
+      const p = state?.position;
+      const q = state?.target_joints;
+      cameras.slice(0, 2).forEach((cam, eye) => {
+        if (cam.P.length !== 3) return;
+        ctx.save();
+        ctx.translate((eye * canvas.width) / 2, 0);
+        // The ghost arm and the ball where the gripper was commanded to be.
+        const chain = q && q.length === model.dh.length ? ghostChain(model, q, cam.P) : [];
+        const tool = chain[chain.length - 1] ?? null;
+        overlay.predicted[eye] = tool;
+        if (chain.length) {
+          const [r, g, b] = GHOST_RGB;
+          ctx.strokeStyle = `rgba(${r}, ${g}, ${b}, 0.45)`;
+          ctx.lineWidth = 7;
+          ctx.lineCap = ctx.lineJoin = "round";
+          ctx.beginPath();
+          tracePolyline(ctx, chain);
+          ctx.stroke();
+        }
+        if (tool) {
+          ctx.strokeStyle = "#0f0";
+          ctx.lineWidth = 3;
+          ctx.beginPath();
+          ctx.arc(tool[0], tool[1], 12, 0, 2 * Math.PI);
+          ctx.stroke();
+        }
+        // Where it actually was: a thin white ring.
+        const actual = p && p.length === 3 ? project(cam.P, [p[0] ?? 0, p[1] ?? 0, p[2] ?? 0]) : null;
+        overlay.actual[eye] = actual;
+        if (actual) {
+          ctx.strokeStyle = "#fff";
+          ctx.lineWidth = 1;
+          ctx.beginPath();
+          ctx.arc(actual[0], actual[1], 6, 0, 2 * Math.PI);
+          ctx.stroke();
+        }
+        ctx.restore();
+      });
+    }
+    drawForces(t);
+    const last = latestAt(commands, t);
+    if (last !== shown) {
+      rows.forEach((r, i) => r.classList.toggle("future", i > last));
+      rows[last]?.scrollIntoView({ block: "nearest" });
+      shown = last;
+    }
+    requestAnimationFrame(frame);
+  }
+  requestAnimationFrame(frame);
+  // For tests: what the timeline holds, and the video.
+  Object.assign(window, { review: { video, overlay, duration: tl.duration, videoStart: tl.video_start, forces: forces.length, states: states.length, commands: commands.length } });
+  document.body.dataset.reviewReady = "1";
+}
+
+main().catch((e: Error) => log.add(e.message, true));

@@ -1,0 +1,148 @@
+// Losing control is said where the operator looks: over the video, in red, with a
+// sound, and the inputs held at that moment stop driving (each must be released and
+// pressed again). Also the arm halted by the dead-man (the link stalled; the lease is
+// kept a moment), and, after the link came back, the offer to take control again when
+// this page held it (only on the operator's say-so: someone may have walked up to the
+// arm meanwhile).
+import { StateFlags } from "../transport/messages";
+
+export interface ControlAlert {
+  level: "lost" | "halted";
+  text: string;
+  /** Offer a button that takes control again (this page held it before the link dropped). */
+  retake: boolean;
+}
+
+/** How long a lease event's reason explains a loss of control seen in STATE. */
+const REASON_MS = 3000;
+
+/** The page's control, from STATE flags, the link and the server's events: what to show. */
+export class ControlWatch {
+  private had = false; // this page held control at the last STATE
+  private releasing = false; // the operator asked to release: no alarm
+  private heldWhenDropped = false;
+  private reason = "";
+  private reasonAt = -Infinity;
+  alert: ControlAlert | null = null;
+  /** Called when the alert appears or changes (null: it went); `sound`: a new alarm. */
+  onChange: ((alert: ControlAlert | null, sound: boolean) => void) | null = null;
+
+  /** The operator released control (or took it: clears the offer). */
+  released(): void {
+    this.releasing = true;
+  }
+
+  /** A server event: "control: nobody (dead-man: …)" says why control changed. */
+  event(text: string, now: number): void {
+    const m = /^control: [^(;]*\(([^)]*)\)/.exec(text);
+    if (m) {
+      this.reason = m[1]!;
+      this.reasonAt = now;
+    }
+  }
+
+  /** The realtime link went down or came back up. */
+  connection(up: boolean): void {
+    if (!up && this.had) {
+      this.had = false;
+      this.heldWhenDropped = true;
+      this.set({ level: "lost", text: "CONTROL LOST: the connection to the server dropped", retake: false }, true);
+    }
+  }
+
+  /** The server welcomed this page again; `operator`: with the operator's role. */
+  welcome(operator: boolean): void {
+    if (this.heldWhenDropped && operator) {
+      this.set({ level: "lost", text: "Reconnected. You had control before the connection dropped.", retake: true }, false);
+    }
+  }
+
+  /** Every STATE's flags, at `now` (ms). */
+  state(flags: number, now: number): void {
+    const mine = (flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
+    if (mine) {
+      this.had = true;
+      this.heldWhenDropped = false;
+      this.releasing = false;
+      if ((flags & StateFlags.HALTED) !== 0) {
+        if (this.alert?.level !== "halted") {
+          this.set({ level: "halted", text: "ARM HALTED: the link stalled, the arm stopped. You keep control: release the keys, then drive again.", retake: false }, true);
+        }
+      } else if (this.alert) this.set(null, false);
+      return;
+    }
+    if (this.had && !this.releasing) {
+      const why = now - this.reasonAt < REASON_MS && this.reason ? this.reason : "the server took it back";
+      this.set({ level: "lost", text: `CONTROL LOST: ${why}`, retake: false }, true);
+    } else if (this.alert?.level === "halted") this.set(null, false);
+    this.had = false;
+    this.releasing = false;
+  }
+
+  /** The operator dismissed the alert, or took control again from it. */
+  dismiss(): void {
+    this.heldWhenDropped = false;
+    this.set(null, false);
+  }
+
+  private set(alert: ControlAlert | null, sound: boolean): void {
+    this.alert = alert;
+    this.onChange?.(alert, sound);
+  }
+}
+
+/** Two short beeps (WebAudio: the page has had a click by the time it holds control). */
+export class AlarmSound {
+  played = 0;
+  private ctx: AudioContext | null = null;
+
+  play(): void {
+    this.played += 1;
+    try {
+      this.ctx ??= new AudioContext();
+      const t = this.ctx.currentTime;
+      for (const start of [0, 0.25]) {
+        const osc = this.ctx.createOscillator();
+        const gain = this.ctx.createGain();
+        osc.frequency.value = 880;
+        gain.gain.setValueAtTime(0.2, t + start);
+        gain.gain.setValueAtTime(0, t + start + 0.15);
+        osc.connect(gain).connect(this.ctx.destination);
+        osc.start(t + start);
+        osc.stop(t + start + 0.16);
+      }
+    } catch {
+      // no audio output: the alert over the video still says it
+    }
+  }
+}
+
+/** Show the watch's alerts over the video (#control-alert), sound the alarm, stop the
+ * held inputs, and wire the alert's buttons: take control again, dismiss. */
+export function showControlAlerts(
+  watch: ControlWatch,
+  inputs: { latch(): void }[],
+  take: () => void,
+  sound = new AlarmSound(),
+): AlarmSound {
+  const box = document.getElementById("control-alert")!;
+  const text = document.getElementById("control-alert-text")!;
+  const retake = document.getElementById("retake") as HTMLButtonElement;
+  watch.onChange = (alert, alarm) => {
+    box.hidden = alert === null;
+    box.className = alert?.level ?? "";
+    text.textContent = alert?.text ?? "";
+    retake.hidden = !alert?.retake;
+    if (alert && alarm) {
+      for (const input of inputs) input.latch();
+      sound.play();
+    }
+  };
+  retake.onclick = () => {
+    watch.dismiss();
+    take();
+  };
+  document.getElementById("dismiss-alert")!.onclick = () => watch.dismiss();
+  document.getElementById("release")?.addEventListener("click", () => watch.released());
+  return sound;
+}

@@ -1,0 +1,113 @@
+// The help overlay: every key and control of the operator page. `?` or the header's
+// "?" button toggles it; Escape closes it — and Escape is still the e-stop (the input
+// loop sees every key; the overlay never swallows one).
+import { FRAMES, FRAME_KEYS } from "../input/loop";
+import { $ } from "./dom";
+
+export interface HelpRow {
+  keys: string;
+  does: string;
+}
+
+/** What the overlay lists, in sections. */
+export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<Record<string, string>> = FRAME_KEYS): { title: string; rows: HelpRow[] }[] {
+  const picks = Object.entries(keys).sort(([a], [b]) => a.localeCompare(b));
+  const digits = picks.map(([code]) => code.replace(/^Digit/, "")).join(" / ");
+  return [
+    {
+      title: "Keyboard",
+      rows: [
+        { keys: "Space (hold)", does: "dead-man: nothing moves unless it is held" },
+        { keys: "W / S", does: "forward / back: the frame's x (view: away from / toward the camera)" },
+        { keys: "A / D", does: "left / right: its y" },
+        { keys: "R / F", does: "up / down: its z" },
+        { keys: "Q / E", does: "turn left / right about its z (view: about the image's up)" },
+        { keys: "Escape", does: "E-STOP (latched; Reset e-stop clears it). Also closes this help" },
+        { keys: digits, does: `driving frame: ${picks.map(([, f]) => f).join(" / ")}` },
+        ...(frames.includes("view")
+          ? [{ keys: "view frame", does: "moves as the left image shows it: W/S away from / toward the camera, A/D left / right, R/F up / down in the image, Q/E about the image's up" }]
+          : []),
+        { keys: "Alt + arrows", does: "shift the right image against the left (stereo alignment)" },
+        { keys: "F", does: "fullscreen video (not while Space is held: then F drives down)" },
+        { keys: "?", does: "this help" },
+      ],
+    },
+    {
+      title: "Gamepad",
+      rows: [
+        { keys: "R1 (hold)", does: "dead-man" },
+        { keys: "sticks", does: "translate and rotate the tool" },
+        { keys: "Y", does: `next driving frame (${frames.join(" → ")})` },
+      ],
+    },
+    {
+      title: "VR (WebXR)",
+      rows: [
+        { keys: "grip / pinch (hold)", does: "dead-man: the controller's motion moves the tool" },
+        { keys: "Enter VR", does: "the View panel's button" },
+      ],
+    },
+    {
+      title: "Buttons",
+      rows: [
+        { keys: "Take / Release control", does: "the lease: one operator drives at a time" },
+        { keys: "Home", does: "move the arm to its home pose (click twice to confirm)" },
+        { keys: "E-STOP", does: "stop at once, latched; anyone may press it" },
+        { keys: "Reset e-stop", does: "clear the latch (the operator in control)" },
+        { keys: "Speed", does: "scales every motion, 0.10–1.00" },
+      ],
+    },
+  ];
+}
+
+/** What a key does to the overlay: `?` toggles it, Escape closes it (and still e-stops). */
+export function helpKeyAction(key: string, open: boolean): "toggle" | "close" | null {
+  if (key === "?") return "toggle";
+  if (key === "Escape" && open) return "close";
+  return null;
+}
+
+const escape = (s: string) => s.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]!);
+
+export class HelpOverlay {
+  readonly element: HTMLElement;
+
+  constructor(doc: Document = document, button: HTMLElement | null = $("help-button")) {
+    const el = doc.createElement("div");
+    el.id = "help";
+    el.hidden = true;
+    el.setAttribute("role", "dialog");
+    el.setAttribute("aria-label", "Keys and controls");
+    el.innerHTML =
+      `<div class="help-box"><button type="button" class="help-close" title="Escape">×</button><h2>Keys and controls</h2>` +
+      helpSections()
+        .map((s) => `<h3>${escape(s.title)}</h3><table>${s.rows.map((r) => `<tr><th>${escape(r.keys)}</th><td>${escape(r.does)}</td></tr>`).join("")}</table>`)
+        .join("") +
+      `</div>`;
+    el.addEventListener("click", (e) => {
+      if (e.target === el || (e.target as HTMLElement).classList.contains("help-close")) this.hide();
+    });
+    doc.body.append(el);
+    this.element = el;
+    if (button) button.onclick = () => this.toggle();
+  }
+
+  get open(): boolean {
+    return !this.element.hidden;
+  }
+
+  toggle(): void {
+    this.element.hidden = this.open;
+  }
+
+  hide(): void {
+    this.element.hidden = true;
+  }
+
+  /** A key went down (KeyboardEvent.key). */
+  key(key: string): void {
+    const action = helpKeyAction(key, this.open);
+    if (action === "toggle") this.toggle();
+    else if (action === "close") this.hide();
+  }
+}
