@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import { ControlWatch, type ControlAlert } from "./ui/control-alert";
-import { StateFlags } from "./transport/messages";
+import { ERROR_CODES, StateFlags } from "./transport/messages";
 
 const MINE = StateFlags.YOU_HAVE_CONTROL | StateFlags.SOMEONE_HAS_CONTROL | StateFlags.OPERATOR;
 const NOBODY = StateFlags.OPERATOR;
@@ -82,5 +82,26 @@ describe("losing control", () => {
     b.w.connection(false);
     b.w.welcome(false);
     expect(b.seen.map((s) => s.alert?.retake)).toEqual([false]);
+  });
+});
+
+describe("refusals of commands already on their way", () => {
+  const NOT_ALLOWED = ERROR_CODES.not_allowed;
+
+  it("are left out of the log while control is held and just after it went: the alert says it", () => {
+    const { w } = watched();
+    w.state(MINE, 0);
+    expect(w.quiet(NOT_ALLOWED, 5)).toBe(true); // refused before this page's STATE said so
+    w.state(NOBODY, 20);
+    expect(w.quiet(NOT_ALLOWED, 1000)).toBe(true);
+    expect(w.quiet(NOT_ALLOWED, 2100)).toBe(false); // long after: a refusal worth reading
+  });
+
+  it("are logged when this page never held control, and other refusals always are", () => {
+    const { w } = watched();
+    w.state(NOBODY, 0);
+    expect(w.quiet(NOT_ALLOWED, 10)).toBe(false);
+    w.state(MINE, 20);
+    expect(w.quiet(ERROR_CODES.limit_exceeded, 30)).toBe(false);
   });
 });

@@ -78,7 +78,9 @@ async function main(): Promise<void> {
       control.event(text, performance.now());
       recording.event(text);
     },
-    error: (text) => log.add(text, true),
+    error: (text, _seq, code) => {
+      if (!control.quiet(code, performance.now())) log.add(text, true);
+    },
     connection: (up, why) => {
       showConnection(up, why);
       control.connection(up);

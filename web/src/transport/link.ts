@@ -28,7 +28,7 @@ export type FromWorker =
   | { kind: "state"; state: RobotState; at: number; meta: LinkMeta }
   | { kind: "forces"; samples: ForceSample[]; at: number }
   | { kind: "event"; text: string }
-  | { kind: "error"; text: string; seq: number }
+  | { kind: "error"; text: string; seq: number; code: number }
   | { kind: "connection"; up: boolean; why: string; meta: LinkMeta }
   | { kind: "ack"; latencyMs: number; meta: LinkMeta }
   | { kind: "welcome"; meta: LinkMeta };
@@ -51,7 +51,7 @@ export class RealtimeLink implements LinkMeta {
   ) {
     this.worker = new Worker(new URL("./realtime.worker.ts", import.meta.url), { type: "module" });
     this.worker.onmessage = (e: MessageEvent<FromWorker>) => this.receive(e.data);
-    this.worker.onerror = (e) => handlers.error?.(`the realtime worker failed: ${e.message}`, 0);
+    this.worker.onerror = (e) => handlers.error?.(`the realtime worker failed: ${e.message}`, 0, 0);
   }
 
   connect(): void {
@@ -103,7 +103,7 @@ export class RealtimeLink implements LinkMeta {
         this.handlers.event?.(m.text);
         break;
       case "error":
-        this.handlers.error?.(m.text, m.seq);
+        this.handlers.error?.(m.text, m.seq, m.code);
         break;
       case "connection":
         this.handlers.connection?.(m.up, m.why);

@@ -23,7 +23,7 @@ export interface RealtimeHandlers {
   state?: (s: RobotState) => void;
   forces?: (samples: ForceSample[]) => void;
   event?: (text: string) => void;
-  error?: (text: string, seq: number) => void;
+  error?: (text: string, seq: number, code: number) => void;
   connection?: (up: boolean, why: string) => void;
   /** A command's latency (ms): sent here → taken by the server's driver. */
   ack?: (latencyMs: number) => void;
@@ -188,7 +188,7 @@ export class RealtimeClient {
         this.handlers.event?.(msg.text);
         break;
       case "ERROR":
-        this.handlers.error?.(msg.text, msg.seq);
+        this.handlers.error?.(msg.text, msg.seq, msg.code);
         break;
     }
   }

@@ -49,7 +49,7 @@ port.onmessage = (e) => {
       },
       forces: (samples) => port.postMessage({ kind: "forces", samples, at: pageNow() }),
       event: (text) => port.postMessage({ kind: "event", text }),
-      error: (text, seq) => port.postMessage({ kind: "error", text, seq }),
+      error: (text, seq, code) => port.postMessage({ kind: "error", text, seq, code }),
       connection: (up, why) => port.postMessage({ kind: "connection", up, why, meta: meta(c) }),
       ack: (latencyMs) => port.postMessage({ kind: "ack", latencyMs, meta: meta(c) }),
       welcome: () => port.postMessage({ kind: "welcome", meta: meta(c) }),

@@ -4,7 +4,7 @@
 // kept a moment), and, after the link came back, the offer to take control again when
 // this page held it (only on the operator's say-so: someone may have walked up to the
 // arm meanwhile).
-import { StateFlags } from "../transport/messages";
+import { ERROR_CODES, StateFlags } from "../transport/messages";
 
 export interface ControlAlert {
   level: "lost" | "halted";
@@ -15,6 +15,9 @@ export interface ControlAlert {
 
 /** How long a lease event's reason explains a loss of control seen in STATE. */
 const REASON_MS = 3000;
+/** How long after control went a refusal of "not allowed" is a command that was already
+ * on its way (the keys were held at 50 Hz): the alert says it once, the log not again. */
+const IN_FLIGHT_MS = 2000;
 
 /** The page's control, from STATE flags, the link and the server's events: what to show. */
 export class ControlWatch {
@@ -23,6 +26,7 @@ export class ControlWatch {
   private heldWhenDropped = false;
   private reason = "";
   private reasonAt = -Infinity;
+  private lostAt = -Infinity; // when this page last saw control go (ms)
   alert: ControlAlert | null = null;
   /** Called when the alert appears or changes (null: it went); `sound`: a new alarm. */
   onChange: ((alert: ControlAlert | null, sound: boolean) => void) | null = null;
@@ -71,12 +75,20 @@ export class ControlWatch {
       } else if (this.alert) this.set(null, false);
       return;
     }
+    if (this.had) this.lostAt = now;
     if (this.had && !this.releasing) {
       const why = now - this.reasonAt < REASON_MS && this.reason ? this.reason : "the server took it back";
       this.set({ level: "lost", text: `CONTROL LOST: ${why}`, retake: false }, true);
     } else if (this.alert?.level === "halted") this.set(null, false);
     this.had = false;
     this.releasing = false;
+  }
+
+  /** A refusal from the server (ERROR's code) at `now` (ms). True: leave it out of the
+   * log: "not allowed" while this page held control or just after it went is a command
+   * sent before the page knew; the alert over the video already says control went. */
+  quiet(code: number, now: number): boolean {
+    return code === ERROR_CODES.not_allowed && (this.had || now - this.lostAt < IN_FLIGHT_MS);
   }
 
   /** The operator dismissed the alert, or took control again from it. */
