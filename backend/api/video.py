@@ -40,6 +40,17 @@ class SessionDescription(StrictRequest):
     type: str = Field(description="'offer' (to /webrtc/offer) or 'answer' (to /webrtc/answer)")
 
 
+LAYER_DOC = (
+    "the video layer: 'auto' follows this viewer's link (full while it carries it, the low"
+    " 2×640×360 one when it does not); 'full' or 'low' pin it (the calibration page pins"
+    " 'full': it measures pixels)"
+)
+
+
+class Offer(SessionDescription):
+    layer: Literal["auto", "full", "low"] = Field("auto", description=LAYER_DOC)
+
+
 class PeerDescription(BaseModel):
     peer_id: str
     peer_secret: str = Field(
@@ -129,18 +140,23 @@ async def ice_configuration(settings: SettingsDep, response: Response) -> IceCon
 
 
 @router.post("/webrtc/offer")
-async def offer(body: SessionDescription, media: MediaDep) -> PeerDescription:
+async def offer(body: Offer, media: MediaDep) -> PeerDescription:
     """Send the browser's offer (with a recvonly video transceiver); get the answer.
     ICE candidates are in the SDP (no trickle). Keep ``peer_secret``."""
-    reply = await media.request("answer", sdp=body.sdp, type=body.type)
+    reply = await media.request("answer", sdp=body.sdp, type=body.type, layer=body.layer)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/server-offer")
-async def server_offer(media: MediaDep) -> PeerDescription:
+async def server_offer(
+    media: MediaDep,
+    layer: Annotated[
+        Literal["auto", "full", "low"], Query(description="as for /webrtc/offer")
+    ] = "auto",
+) -> PeerDescription:
     """For browsers that need the server to offer: answer it with /webrtc/answer (with
     the ``peer_secret``) within a few seconds, or the offer is dropped."""
-    reply = await media.request("offer")
+    reply = await media.request("offer", layer=layer)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 

@@ -70,14 +70,14 @@ class KeyframeGate:
 class SharedVideoTrack(MediaStreamTrack):
     kind = "video"
 
-    def __init__(
-        self, request_keyframe: Callable[[], None], on_close: Callable[[SharedVideoTrack], None]
-    ) -> None:
+    def __init__(self, source: Broadcaster) -> None:
         super().__init__()
         self._queue: deque[EncodedFrame] = deque()
         self._ready = asyncio.Event()
-        self._request_keyframe = request_keyframe
-        self._on_close = on_close
+        self.source = source  # the layer whose frames this track sends
+        # Moving to another layer (``move_to``): the old layer's frames keep going out
+        # until the new one's first keyframe, so a switch never shows a gap.
+        self.joining: Broadcaster | None = None
         # Not sending until aiortc first asks for a frame (its peer has connected):
         # until then frames pass it by and it asks for nothing.
         self.sending = False
@@ -85,9 +85,39 @@ class SharedVideoTrack(MediaStreamTrack):
         self.sent_frames = 0
         self.sent_bytes = 0
         self.resyncs = 0
+        self.switches = 0  # layer changes done
 
-    def push(self, frame: EncodedFrame) -> None:
+    def _request_keyframe(self) -> None:
+        (self.joining or self.source).keyframes.ask()
+
+    def move_to(self, layer: Broadcaster) -> None:
+        """Send ``layer``'s frames from its next keyframe on (asked for now); until then
+        the current layer's. Moving back before that keyframe cancels the move."""
+        if layer is self.source:
+            if self.joining is not None:
+                self.joining.tracks.discard(self)
+                self.joining = None
+            return
+        if self.joining is not None and self.joining is not layer:
+            self.joining.tracks.discard(self)
+        self.joining = layer
+        layer.tracks.add(self)
+        if self.sending:
+            layer.keyframes.ask()
+
+    def push(self, frame: EncodedFrame, source: Broadcaster | None = None) -> None:
+        """One frame from ``source`` (the track's own layer when None)."""
         if not self.sending:
+            return
+        if source is not None and source is self.joining:
+            if not frame.keyframe:
+                return  # the new layer counts from its keyframe
+            self.source.tracks.discard(self)
+            self.source, self.joining = source, None
+            self._queue.clear()  # the old layer's frames would not decode after this one
+            self._waiting_for_keyframe = False
+            self.switches += 1
+        elif source is not None and source is not self.source:
             return
         if self._waiting_for_keyframe:
             if not frame.keyframe:
@@ -129,7 +159,9 @@ class SharedVideoTrack(MediaStreamTrack):
     def stop(self) -> None:
         super().stop()
         self._ready.set()
-        self._on_close(self)
+        self.source.tracks.discard(self)
+        if self.joining is not None:
+            self.joining.tracks.discard(self)
 
 
 class Broadcaster:
@@ -146,7 +178,7 @@ class Broadcaster:
 
     def new_track(self) -> SharedVideoTrack:
         # No keyframe yet: the track asks for one when its peer connects.
-        track = SharedVideoTrack(self.keyframes.ask, self.tracks.discard)
+        track = SharedVideoTrack(self)
         self.tracks.add(track)
         return track
 
@@ -155,15 +187,17 @@ class Broadcaster:
 
     @property
     def viewers(self) -> int:
-        return len(self.tracks)
+        """Tracks sending this layer (one moving here counts where it still is)."""
+        return sum(1 for t in self.tracks if t.source is self)
 
     @property
     def sending(self) -> int:
-        """Tracks whose peer is connected and takes frames (only these need encoding)."""
+        """Tracks whose peer is connected and takes frames, or waits for this layer's
+        keyframe to move here (only these need encoding)."""
         return sum(1 for t in self.tracks if t.sending)
 
     def publish(self, frame: EncodedFrame) -> None:
         self.keyframes.sent(frame)
         for track in list(self.tracks):
-            track.push(frame)
+            track.push(frame, self)
         self.keyframes.poll()  # a request deferred by the interval goes out when due

@@ -33,6 +33,16 @@ from aiortc.rtp import RTCP_PSFB_APP, RtcpPsfbPacket, RtcpRrPacket, RtcpSrPacket
 from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from backend.media.fanout import Broadcaster, SharedVideoTrack
 from backend.media.ice import IceConfig, parse_url
+from backend.media.layers import (
+    LAYERS,
+    LOW_BITRATE,
+    LOW_SCALE,
+    Layer,
+    LayerChoice,
+    LayerMode,
+    RateMeter,
+    low_size,
+)
 from backend.media.supervisor import MediaUnavailable
 from backend.netprio import mark_peer_low_priority
 from backend.telemetry.stats import InterArrival, StreamStats
@@ -88,6 +98,8 @@ class VideoSettings:
     bitrate: int = 8_000_000
     keyframe_interval: float = 2.0
     cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
+    low_scale: float = LOW_SCALE  # the low layer's size, of each side
+    low_bitrate: int = LOW_BITRATE
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
 
 
@@ -145,6 +157,8 @@ class Peer:
     secret: str = field(default_factory=lambda: secrets.token_urlsafe(PEER_SECRET_BYTES))
     connected: bool = False
     viewer: str | None = None  # the one viewer name whose alignment this peer may save
+    mode: LayerMode = "auto"  # "auto": the layer follows this viewer's link
+    choice: LayerChoice = field(default_factory=LayerChoice)
 
     def owned_by(self, secret: str | None) -> bool:
         """Constant-time comparison with the peer's secret."""
@@ -209,11 +223,13 @@ class VideoPipeline:
         self.max_viewers = max_viewers
         self.max_pending = max_pending
         self.pending_expiry_s = pending_expiry_s
-        # One encoder per codec in use (H.264; VP8 only while a viewer needs it), each
-        # shared by all of that codec's viewers.
-        self.encoders: dict[str, PacketEncoder] = {}
-        self.broadcasters: dict[str, Broadcaster] = {}
+        # One encoder per codec and layer in use (H.264 full; VP8 only while a viewer
+        # needs it; the low layer only while a viewer takes it), each shared by all of
+        # its viewers.
+        self.encoders: dict[tuple[str, Layer], PacketEncoder] = {}
+        self.broadcasters: dict[tuple[str, Layer], Broadcaster] = {}
         self.encoder = self._encoder("H264")
+        self.layer_rate = {layer: RateMeter() for layer in LAYERS}  # H.264 bits/s sent
         self.peers: dict[str, Peer] = {}
         self._grab = ThreadPoolExecutor(1, thread_name_prefix="video-grab")
         self._encode = ThreadPoolExecutor(1, thread_name_prefix="video-encode")
@@ -230,20 +246,28 @@ class VideoPipeline:
         # set the pipeline captures and encodes H.264 even with nobody watching.
         self.tap: Callable[[EncodedFrame], None] | None = None
 
-    def _encoder(self, codec: str) -> PacketEncoder:
-        if codec not in self.encoders:
+    def layer_size(self, layer: Layer) -> tuple[int, int]:
+        """One eye's size in ``layer``."""
+        if layer == "full":
+            return self.camera.width, self.camera.height
+        return low_size(self.camera.width, self.camera.height, self.settings.low_scale)
+
+    def _encoder(self, codec: str, layer: Layer = "full") -> PacketEncoder:
+        key = (codec, layer)
+        if key not in self.encoders:
             s = self.settings
+            width, height = self.layer_size(layer)
             enc = ENCODERS[codec](
-                2 * self.camera.width,
-                self.camera.height,
+                2 * width,
+                height,
                 s.fps,
-                s.bitrate,
+                s.bitrate if layer == "full" else min(s.bitrate, s.low_bitrate),
                 s.keyframe_interval,
                 cbr=s.cbr,
             )
-            self.encoders[codec] = enc
-            self.broadcasters[codec] = Broadcaster(enc.request_keyframe, self.clock.now)
-        return self.encoders[codec]
+            self.encoders[key] = enc
+            self.broadcasters[key] = Broadcaster(enc.request_keyframe, self.clock.now)
+        return self.encoders[key]
 
     def start_tap(self, tap: Callable[[EncodedFrame], None]) -> None:
         """Hand every H.264 packet to ``tap`` from now on, and ask for a keyframe (shared
@@ -256,7 +280,7 @@ class VideoPipeline:
 
     @property
     def broadcaster(self) -> Broadcaster:
-        return self.broadcasters["H264"]
+        return self.broadcasters[("H264", "full")]
 
     @property
     def viewers(self) -> int:
@@ -307,17 +331,43 @@ class VideoPipeline:
             else:
                 seq = frame.seq
                 self.capture_interarrival.tick(frame.time)
-            for codec, broadcaster in list(self.broadcasters.items()):
-                tap = self.tap if codec == "H264" else None
-                if broadcaster.sending == 0 and tap is None:
-                    continue  # nobody connected in this codec, nothing recorded: no encoding
-                encoder = self.encoders[codec]
-                for encoded in await loop.run_in_executor(self._encode, encoder.encode, frame):
-                    if codec == "H264":
-                        self._record(encoded)
-                        if tap is not None:
-                            tap(encoded)  # must not block: a bounded hand-over
-                    broadcaster.publish(encoded)
+            await self._encode_and_publish(loop, frame)
+
+    async def _encode_and_publish(
+        self, loop: asyncio.AbstractEventLoop, frame: StereoFrame
+    ) -> None:
+        """Encode ``frame`` in every layer someone takes, then hand all of it out at
+        once: a viewer moving between layers on this frame's keyframe finds the other
+        layer's copy of the same frame still queued (and drops it), never already sent
+        (two pictures with one RTP timestamp)."""
+        out: list[tuple[tuple[str, Layer], list[EncodedFrame]]] = []
+        small: StereoFrame | None = None
+        for key, broadcaster in list(self.broadcasters.items()):
+            layer = key[1]
+            tap = self.tap if key == ("H264", "full") else None
+            if broadcaster.sending == 0 and tap is None:
+                continue  # nobody on this layer, nothing recorded: no encoding
+            if layer == "low" and small is None:
+                small = await loop.run_in_executor(self._encode, self._shrink, frame)
+            source = small if layer == "low" and small is not None else frame
+            out.append(
+                (key, await loop.run_in_executor(self._encode, self.encoders[key].encode, source))
+            )
+        now = self.clock.now()
+        for key, encoded_frames in out:
+            for encoded in encoded_frames:
+                if key[0] == "H264":
+                    self.layer_rate[key[1]].add(encoded.size * 8, now)
+                if key == ("H264", "full"):
+                    self._record(encoded)
+                    if self.tap is not None:
+                        self.tap(encoded)  # must not block: a bounded hand-over
+                self.broadcasters[key].publish(encoded)
+
+    def _shrink(self, frame: StereoFrame) -> StereoFrame:
+        width, height = self.layer_size("low")
+        small = cv2.resize(frame.sbs, (2 * width, height), interpolation=cv2.INTER_AREA)
+        return StereoFrame(frame.seq, frame.time, small, frame.skew)
 
     def _record(self, e: EncodedFrame) -> None:
         self.frames_encoded += 1
@@ -335,6 +385,27 @@ class VideoPipeline:
         while True:
             await self.clock.sleep(EXPIRY_CHECK_S)
             self.expire_pending()
+            self.adapt_layers()
+
+    def adapt_layers(self) -> None:
+        """Each connected viewer on "auto" gets the layer its link carries (called about
+        once a second; the decision and its hysteresis are ``LayerChoice``'s)."""
+        now = self.clock.now()
+        full_bps = self.layer_rate["full"].bps(now)
+        for peer in self.peers.values():
+            if not peer.connected or peer.mode != "auto":
+                continue
+            before = peer.choice.layer
+            layer = peer.choice.decide(peer.link, full_bps, now)
+            if layer != before:
+                log.info("a viewer moves to the %s layer: %s", layer, peer.choice.why)
+                self.set_layer(peer, layer)
+
+    def set_layer(self, peer: Peer, layer: Layer) -> None:
+        """Move ``peer`` to ``layer`` (from that layer's next keyframe, asked for now)."""
+        codec = next(c for c, b in self.broadcasters.items() if b is peer.track.source)[0]
+        self._encoder(codec, layer)
+        peer.track.move_to(self.broadcasters[(codec, layer)])
 
     def expire_pending(self) -> list[str]:
         """Drop the peers that have not connected within ``pending_expiry_s``: they
@@ -382,10 +453,11 @@ class VideoPipeline:
         return peer
 
     # ------------------------------------------------------------ signalling
-    def _new_peer(self, codec: str = "H264") -> tuple[str, Peer]:
+    def _new_peer(self, codec: str = "H264", mode: LayerMode = "auto") -> tuple[str, Peer]:
         pc = RTCPeerConnection(_ice(self.settings.ice))
-        self._encoder(codec)
-        track = self.broadcasters[codec].new_track()
+        layer: Layer = "low" if mode == "low" else "full"
+        self._encoder(codec, layer)
+        track = self.broadcasters[(codec, layer)].new_track()
         transceiver = pc.addTransceiver(track, direction="sendonly")
         wanted = f"video/{codec}"
         caps = RTCRtpSender.getCapabilities("video").codecs
@@ -401,7 +473,8 @@ class VideoPipeline:
 
         sender._send_keyframe = on_keyframe_request  # type: ignore[method-assign]
         peer_id = secrets.token_hex(8)
-        peer = Peer(pc, track, created=self.clock.now())
+        peer = Peer(pc, track, created=self.clock.now(), mode=mode)
+        peer.choice.layer = layer
         follow_link(sender, peer.link)
         self.peers[peer_id] = peer
 
@@ -443,7 +516,7 @@ class VideoPipeline:
             raise NotYourPeer(f"this peer saves the alignment of viewer {peer.viewer!r} only")
         peer.viewer = viewer
 
-    async def answer(self, sdp: str, kind: str) -> dict[str, str]:
+    async def answer(self, sdp: str, kind: str, layer: LayerMode = "auto") -> dict[str, str]:
         """The browser offers, we answer (the usual way)."""
         if kind != "offer":
             raise BadOffer(f"expected an SDP of type 'offer', got {kind!r}")
@@ -457,7 +530,7 @@ class VideoPipeline:
         else:
             raise BadOffer("the offer accepts neither H.264 nor VP8 video")
         self._make_room()
-        peer_id, peer = self._new_peer(codec)
+        peer_id, peer = self._new_peer(codec, layer)
         try:
             await peer.pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
             await peer.pc.setLocalDescription(await peer.pc.createAnswer())
@@ -467,10 +540,10 @@ class VideoPipeline:
         await self._check_relay(peer_id, peer)
         return self._description(peer_id, peer)
 
-    async def offer(self) -> dict[str, str]:
+    async def offer(self, layer: LayerMode = "auto") -> dict[str, str]:
         """We offer (for browsers that need the server to): answer with ``accept``."""
         self._make_room()
-        peer_id, peer = self._new_peer()
+        peer_id, peer = self._new_peer("H264", layer)
         await peer.pc.setLocalDescription(await peer.pc.createOffer())
         await self._check_relay(peer_id, peer)
         return self._description(peer_id, peer)
@@ -535,7 +608,23 @@ class VideoPipeline:
             "bytes_per_frame_mean": size.mean if size.count else None,
             "keyframe_bytes_last": keys[-10:].tolist(),
             "frames_encoded": self.frames_encoded,
-            "codecs": {codec: b.viewers for codec, b in self.broadcasters.items()},
+            "codecs": {
+                codec: sum(b.viewers for (c, _), b in self.broadcasters.items() if c == codec)
+                for codec, _ in self.broadcasters
+            },
+            "layers": {
+                layer: {
+                    "width": self.layer_size(layer)[0],
+                    "height": self.layer_size(layer)[1],
+                    "viewers": sum(
+                        b.viewers for (_, x), b in self.broadcasters.items() if x == layer
+                    ),
+                    "kbps": None
+                    if (bps := self.layer_rate[layer].bps(now)) is None
+                    else bps / 1000,
+                }
+                for layer in LAYERS
+            },
             "keyframes_forced": sum(b.keyframes.forced for b in self.broadcasters.values()),
             "viewer_count": len(self.peers),
             "pending": self.pending,
@@ -549,11 +638,18 @@ class VideoPipeline:
                     "bytes": p.track.sent_bytes,
                     "mbps": p.track.sent_bytes * 8 / 1e6 / max(now - p.created, 1e-3),
                     "resyncs": p.track.resyncs,
-                    # One layer today (the full stream); the link is what its receiver says.
-                    "layer": "full",
+                    # The layer it gets now ("auto": chosen by its link, as the receiver
+                    # reports it), how often it moved and why it last did.
+                    "layer": self._layer_of(p),
+                    "layer_mode": p.mode,
+                    "layer_switches": p.track.switches,
+                    "layer_why": p.choice.why,
                     "link": p.link.as_dict(),
                 }
                 for pid, p in self.peers.items()
             ],
             "camera_running": self.camera.status is CameraStatus.RUNNING,
         }
+
+    def _layer_of(self, peer: Peer) -> Layer:
+        return next(x for (_, x), b in self.broadcasters.items() if b is peer.track.source)

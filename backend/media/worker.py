@@ -106,9 +106,11 @@ async def _serve(
         try:
             op = req["op"]
             if op == "answer":
-                reply.update(await pipeline.answer(req["sdp"], req["type"]))
+                reply.update(
+                    await pipeline.answer(req["sdp"], req["type"], req.get("layer", "auto"))
+                )
             elif op == "offer":
-                reply.update(await pipeline.offer())
+                reply.update(await pipeline.offer(req.get("layer", "auto")))
             elif op == "accept":
                 reply.update(
                     await pipeline.accept(

@@ -32,8 +32,13 @@ def draw(image: np.ndarray, t: float) -> None:
             image[y0 : y0 + BLOCK, x0 + i * BLOCK : x0 + (i + 1) * BLOCK] = 255
 
 
-def read(image: np.ndarray) -> int | None:
-    """The counter drawn in ``image``, read from the centre of each block."""
+def read(image: np.ndarray, scale: float = 1.0) -> int | None:
+    """The counter drawn in ``image``, read from the centre of each block. ``scale``:
+    the picture's size against the one drawn into (0.5 for the video's low layer)."""
+    if scale != 1.0:
+        import cv2
+
+        image = cv2.resize(image, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_LINEAR)
     x0, y0 = ORIGIN
     cy = y0 + BLOCK // 2
     if image.shape[0] <= cy or image.shape[1] <= x0 + BITS * BLOCK:

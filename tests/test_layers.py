@@ -1,0 +1,234 @@
+"""Two video layers and the choice between them (issue 15 part 2): the choice with an
+injected clock, a viewer's track moving between layers on a keyframe without a gap,
+and real aiortc viewers getting the low layer's smaller picture from a second, shared
+encoder. The same on emulated links: tests/test_layers_netem.py."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass
+
+import pytest
+from aiortc import RTCPeerConnection, RTCSessionDescription
+
+from backend.media.fanout import Broadcaster
+from backend.media.layers import (
+    ESTIMATE_GRACE_S,
+    FAILED_PROBE_S,
+    UP_HOLD_S,
+    LayerChoice,
+    RateMeter,
+    low_size,
+)
+from backend.media.pipeline import VideoPipeline, VideoSettings
+from drivers.camera import timecode
+from drivers.clock import ManualClock
+from tests.test_video import SMALL, camera
+from tests.test_video_limits import Counter, frame
+
+
+@dataclass
+class Link:
+    estimated_bps: int | None = None
+    fraction_lost: float | None = None
+    rtt_s: float | None = None
+    reports: int = 0
+
+    def report(self, lost: float = 0.0, rtt_s: float = 0.05, bps: int | None = None) -> Link:
+        self.fraction_lost, self.rtt_s, self.reports = lost, rtt_s, self.reports + 1
+        if bps is not None:
+            self.estimated_bps = bps
+        return self
+
+
+FULL = 3_000_000  # the full layer's measured rate, bits/s
+
+
+# ---------------------------------------------------------------- the choice
+def test_a_clean_link_keeps_the_full_layer() -> None:
+    c, link = LayerChoice(), Link()
+    for t in range(60):
+        assert c.decide(link.report(0.01, 0.05, 8_000_000), FULL, float(t)) == "full"
+    assert c.switches == 0
+
+
+@pytest.mark.parametrize(
+    ("report", "why"),
+    [
+        ({"lost": 0.08}, "8% lost"),
+        ({"bps": 2_000_000}, "estimate 2.00 Mbit/s below the full layer's 3.00"),
+        ({"rtt_s": 0.05 + 0.3}, "round trip 350 ms (a queue: it was 50)"),
+    ],
+)
+def test_the_full_layer_is_left_at_once_when_the_link_cannot_carry_it(
+    report: dict[str, float], why: str
+) -> None:
+    c, link = LayerChoice(), Link()
+    c.decide(link.report(0.0, 0.05, 8_000_000), FULL, 0.0)
+    assert c.decide(link.report(**report), FULL, 1.0) == "low"  # type: ignore[arg-type]
+    assert c.why == why and c.switches == 1
+
+
+def test_an_old_loss_report_is_not_counted_twice() -> None:
+    c, link = LayerChoice(), Link()
+    link.report(0.03)
+    assert c.decide(link, FULL, 0.0) == "full"  # 3 % < 5 %
+    # The same report seen again is not fresh; a new one with 6 % is.
+    assert c.decide(link, FULL, 1.0) == "full"
+    assert c.decide(link.report(0.06), FULL, 2.0) == "low"
+
+
+def test_up_again_only_after_a_clean_hold_and_a_failed_try_doubles_the_wait() -> None:
+    c, link = LayerChoice(), Link()
+    c.decide(link.report(0.10), FULL, 0.0)
+    assert c.layer == "low"
+    t = 0.0
+    while c.layer == "low":  # clean reports every second
+        t += 1.0
+        c.decide(link.report(0.0), FULL, t)
+    assert t == UP_HOLD_S
+    # The try fails within FAILED_PROBE_S: back down, and the next wait is twice as long.
+    t += 2.0
+    assert c.decide(link.report(0.10), FULL, t) == "low"
+    down_at = t
+    while c.layer == "low":
+        t += 1.0
+        c.decide(link.report(0.0), FULL, t)
+    assert t - down_at == 2 * UP_HOLD_S
+    # A lossy report on the low layer restarts the wait.
+    c.decide(link.report(0.10), FULL, t + 1)
+    assert c.layer == "low"
+    assert c.decide(link.report(0.0), FULL, t + 1 + UP_HOLD_S) == "low"  # hold still 2×
+    assert c.switches == 5
+
+
+def test_after_going_up_an_estimate_sized_by_the_low_layer_is_given_time_to_grow() -> None:
+    c, link = LayerChoice(), Link()
+    c.decide(link.report(0.10, bps=1_500_000), FULL, 0.0)
+    c.decide(link.report(0.0, bps=1_500_000), FULL, UP_HOLD_S)
+    assert c.layer == "full"
+    # Still the low layer's estimate: no reason to go down within the grace…
+    assert c.decide(link.report(0.0, bps=1_800_000), FULL, UP_HOLD_S + 1) == "full"
+    # …but past it, an estimate below the full rate is.
+    t = UP_HOLD_S + ESTIMATE_GRACE_S
+    assert c.decide(link.report(0.0, bps=1_800_000), FULL, t) == "low"
+    assert t - UP_HOLD_S >= FAILED_PROBE_S  # not counted as a failed try: the wait stays
+    assert c.up_hold_s == UP_HOLD_S
+
+
+def test_the_rate_meter_measures_a_window_and_says_none_before() -> None:
+    m = RateMeter(window_s=2.0)
+    assert m.bps(0.0) is None
+    for i in range(90):  # 30 frames/s of 10 kbit
+        m.add(10_000, i / 30)
+    assert m.bps(3.0) == pytest.approx(300_000, rel=0.05)
+    assert m.bps(10.0) is None  # nothing lately
+
+
+def test_the_low_layer_is_half_each_way_in_even_pixels() -> None:
+    assert low_size(1280, 720) == (640, 360)
+    assert low_size(640, 360) == (320, 180)
+    w, h = low_size(642, 362, 0.5)  # 321 × 181: odd, which 4:2:0 cannot take
+    assert w % 2 == 0 == h % 2 and abs(w - 321) == 1 and abs(h - 181) == 1
+
+
+# ---------------------------------------------------------------- moving a track
+async def test_a_track_moves_on_the_new_layers_keyframe_without_a_gap() -> None:
+    clock = ManualClock()
+    full_asked, low_asked = Counter(), Counter()
+    full, low = Broadcaster(full_asked, clock.now), Broadcaster(low_asked, clock.now)
+    t = full.new_track()
+    t.start_sending()
+    full.publish(frame(True, 0))
+    t.move_to(low)
+    assert low_asked.n == 1 and low.sending == 1 and full.viewers == 1 and low.viewers == 0
+    # Until the low layer's keyframe the full layer's frames go on; low's P-frames are not taken.
+    full.publish(frame(False, 1))
+    low.publish(frame(False, 1))
+    assert [f.seq for f in t._queue] == [0, 1] and t.source is full
+    full.publish(frame(False, 2))
+    low.publish(frame(True, 2))  # the switch: the full layer's copy of frame 2 is dropped
+    assert t.source is low and t.joining is None and t.switches == 1
+    assert [(f.seq, f.keyframe) for f in t._queue] == [(2, True)]
+    assert t not in full.tracks and full.sending == 0  # the full layer may stop encoding
+    full.publish(frame(True, 3))
+    assert len(t._queue) == 1  # not from the layer it left
+    # Moving back before the other layer's keyframe cancels the move.
+    t.move_to(full)
+    t.move_to(low)
+    assert t.joining is None and t not in full.tracks
+    t.stop()
+    assert not low.tracks and not full.tracks
+
+
+# ---------------------------------------------------------------- real viewers
+async def _viewer(pipeline: VideoPipeline, layer: str) -> tuple[RTCPeerConnection, object, str]:
+    pc = RTCPeerConnection()
+    pc.addTransceiver("video", direction="recvonly")
+    got: asyncio.Queue[object] = asyncio.Queue()
+    pc.on("track", got.put_nowait)
+    await pc.setLocalDescription(await pc.createOffer())
+    answer = await pipeline.answer(pc.localDescription.sdp, "offer", layer)  # type: ignore[arg-type]
+    await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+    return pc, await asyncio.wait_for(got.get(), 10), answer["peer_id"]
+
+
+async def _frames(track: object, n: int, full_width: int) -> list[tuple[int, int, float]]:
+    """(eye width, height, capture→decoded s) of the next ``n`` frames."""
+    out = []
+    for _ in range(n):
+        f = await asyncio.wait_for(track.recv(), 10)  # type: ignore[attr-defined]
+        rgb = f.to_ndarray(format="rgb24")
+        eye = rgb[:, : rgb.shape[1] // 2]
+        code = timecode.read(eye, scale=eye.shape[1] / full_width)
+        assert code is not None, f"no timecode in a {eye.shape[1]}×{eye.shape[0]} picture"
+        out.append((eye.shape[1], eye.shape[0], timecode.elapsed(code, time.monotonic())))
+    return out
+
+
+async def test_viewers_on_two_layers_get_two_sizes_from_two_shared_encoders() -> None:
+    cam = camera(**SMALL)
+    pipeline = VideoPipeline(cam, VideoSettings(bitrate=2_000_000, low_bitrate=400_000))
+    pipeline.start()
+    try:
+        (pa, ta, ida), (pb, tb, idb) = await asyncio.gather(
+            _viewer(pipeline, "full"), _viewer(pipeline, "low")
+        )
+        full_frames, low_frames = await asyncio.gather(
+            _frames(ta, 10, cam.width), _frames(tb, 10, cam.width)
+        )
+        assert {(w, h) for w, h, _ in full_frames} == {(cam.width, cam.height)}
+        assert {(w, h) for w, h, _ in low_frames} == {low_size(cam.width, cam.height)}
+        assert all(0 <= age < 1.0 for *_, age in full_frames + low_frames)  # real, fresh
+        stats = pipeline.stats(peer_ids=True)
+        assert set(pipeline.encoders) == {("H264", "full"), ("H264", "low")}
+        layers = {v["peer_id"]: v["layer"] for v in stats["viewers"]}
+        assert layers == {ida: "full", idb: "low"}
+        assert stats["layers"]["low"]["width"] == cam.width // 2
+        assert stats["layers"]["low"]["viewers"] == 1 and stats["layers"]["full"]["viewers"] == 1
+        # The full-layer viewer is moved down (as its link would): its next frames are
+        # the low layer's, counted as one switch; the low encoder stays one encoder.
+        peer = pipeline.peers[ida]
+        pipeline.set_layer(peer, "low")
+        seen = await _frames(ta, 40, cam.width)
+        assert seen[-1][:2] == low_size(cam.width, cam.height)
+        sizes = [s[:2] for s in seen]
+        assert sizes == sorted(sizes, reverse=True)  # one change, never back
+        assert peer.track.switches == 1 and pipeline.stats()["layers"]["full"]["viewers"] == 0
+        await asyncio.gather(pa.close(), pb.close())
+    finally:
+        await pipeline.close()
+
+
+async def test_the_low_layer_is_not_encoded_while_nobody_takes_it() -> None:
+    pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=1_000_000))
+    pipeline.start()
+    try:
+        pc, track, _ = await _viewer(pipeline, "auto")
+        await _frames(track, 5, SMALL["width"])
+        assert set(pipeline.encoders) == {("H264", "full")}  # never made
+        assert pipeline.stats()["layers"]["low"]["kbps"] is None
+        await pc.close()
+    finally:
+        await pipeline.close()
