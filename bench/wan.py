@@ -113,6 +113,7 @@ def role_viewer(base: str) -> dict[str, Any]:
 
     async def run() -> dict[str, Any]:
         stop = _stop_event(asyncio.get_running_loop())
+        full_width = (await asyncio.to_thread(_get_json, base, "api/v1/video"))["width"]
         pc, track = await open_viewer(base)
         frames: list[tuple[float, float | None]] = []  # arrival, age (None: unreadable)
         bytes_at: list[tuple[float, int]] = []
@@ -124,7 +125,8 @@ def role_viewer(base: str) -> dict[str, Any]:
                 if not frames:
                     print("ready", flush=True)
                 luma = frame.to_ndarray()  # yuv420p: the first `height` rows are Y
-                code = timecode.read(luma[: frame.height, : frame.width // 2])
+                eye = luma[: frame.height, : frame.width // 2]  # the low layer: half size
+                code = timecode.read(eye, scale=eye.shape[1] / full_width)
                 age = timecode.elapsed(code, now) if code is not None else None
                 frames.append((now, age))
                 bytes_at.append((now, received[0]))

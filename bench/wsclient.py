@@ -12,19 +12,40 @@ import websockets
 from backend.realtime import messages as m
 
 
+async def open_socket(url: str) -> Any:
+    return await websockets.connect(url, max_size=None, compression=None)
+
+
 class RealtimeClient:
     def __init__(self, ws: Any) -> None:
         self.ws = ws
         self.offset = 0.0  # server clock − client clock, seconds
         self.seq = 0
+        self.client_id = ""
+        self.resume_key = ""  # with HELLO's RESUMABLE flag: continue the session elsewhere
 
     @classmethod
     async def connect(cls, url: str, token: str = "", flags: int = 0) -> RealtimeClient:
-        ws = await websockets.connect(url, max_size=None, compression=None)
+        return await cls.hello(await open_socket(url), token, flags)
+
+    @classmethod
+    async def hello(cls, ws: Any, token: str = "", flags: int = 0) -> RealtimeClient:
+        """Say HELLO on an open WebSocket and wait for the WELCOME."""
         client = cls(ws)
         await ws.send(m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode()))
-        await client.expect(m.WELCOME)
+        welcome = await client.expect_message(m.WELCOME)
+        client.client_id, _, client.resume_key = welcome[2].partition(" ")
         return client
+
+    @classmethod
+    async def resume(cls, ws: Any, key: str, flags: int = 0) -> RealtimeClient:
+        """The session of ``key`` continued on ``ws``, a new connection (the server drops
+        the old one): what a client does when its link stalled (the page: realtime.ts).
+        One resume at a time: a later one would supersede this, so open connections in
+        parallel (a SYN lost in the cut waits 1 s to be resent) but resume on the first
+        that opens."""
+        flags |= m.HelloFlags.RESUME | m.HelloFlags.RESUMABLE
+        return await cls.hello(ws, key, flags)
 
     def next_seq(self) -> int:
         self.seq += 1
@@ -32,11 +53,17 @@ class RealtimeClient:
 
     async def expect(self, wanted: m.Message, timeout: float = 5.0) -> dict[str, Any]:
         """Read until a message of type ``wanted``; an ERROR on the way raises."""
+        return (await self.expect_message(wanted, timeout))[1]
+
+    async def expect_message(
+        self, wanted: m.Message, timeout: float = 5.0
+    ) -> tuple[m.Message, dict[str, Any], Any]:
+        """As ``expect``, with the message's tail (text) too."""
         async with asyncio.timeout(timeout):
             while True:
                 data = await self.ws.recv()
                 if data[0] == wanted.type_id:
-                    return m.decode(data)[1]
+                    return m.decode(data)
                 if data[0] == m.ERROR.type_id:
                     _, fields, text = m.decode(data)
                     raise RuntimeError(

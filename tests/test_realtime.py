@@ -256,3 +256,57 @@ def test_a_synced_clients_stale_command_is_dropped_with_its_age(
         client.portal.call(clock.advance, 1.0)  # type: ignore[union-attr]
         x1 = client.get("/api/v1/robot/state").json()["position"][0]
         assert x1 == pytest.approx(x0 + 0.004, abs=1e-6)  # only the fresh one moved
+
+
+def test_a_stalled_session_resumes_on_a_new_connection_with_its_lease(
+    client: TestClient, clock: ManualClock
+) -> None:
+    resumable = m.HelloFlags.SYNCED_CLOCK | m.HelloFlags.RESUMABLE
+    with client.websocket_connect(WS) as old:
+        old.send_bytes(hello(TOKEN, resumable))
+        _, text, _ = receive_until(old, m.WELCOME)
+        client_id, key = text.split(" ")
+        assert len(key) == 32
+        old.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(old, m.ACK)
+        holder = client.get("/api/v1/safety").json()["controller"]
+        assert holder is not None
+        # The old connection goes silent for 1 s: the arm is halted, the lease kept.
+        client.portal.call(clock.advance, 1.0)  # type: ignore[union-attr]
+        assert client.get("/api/v1/safety").json()["halted"] is True
+        # A wrong key: refused, said why, nothing changes.
+        with client.websocket_connect(WS) as thief:
+            thief.send_bytes(hello("x" * 32, m.HelloFlags.RESUME))
+            _, why, _ = receive_until(thief, m.ERROR)
+            assert "no session to resume" in why
+        with client.websocket_connect(WS) as new:
+            new.send_bytes(hello(key, resumable | m.HelloFlags.RESUME))
+            welcome, text, _ = receive_until(new, m.WELCOME)
+            assert text == f"{client_id} {key}" and welcome["role"] == 1  # same client
+            safety = client.get("/api/v1/safety").json()
+            assert safety["controller"] == holder and safety["halted"] is False
+            # The stalled connection's backlog, arriving late, is dropped unread…
+            x0 = client.get("/api/v1/robot/state").json()["position"][0]
+            old.send_bytes(cart(2, dx=0.004))
+            old.send_bytes(m.encode(m.LEASE, 3, m.LeaseAction.RELEASE))
+            # …and its closing does not end the session: the new connection drives.
+            old.close()
+            client.portal.call(clock.advance, 0.05)  # type: ignore[union-attr]
+            new.send_bytes(m.encode(m.HEARTBEAT, 4, 0.0))
+            state, _, _ = receive_until(new, m.STATE)
+            assert int(state["flags"]) & m.StateFlags.YOU_HAVE_CONTROL  # type: ignore[call-overload]
+            assert client.get("/api/v1/robot/state").json()["position"][0] == x0
+            assert client.get("/api/v1/safety").json()["controller"] == holder
+        # The session ends with its connection: the key resumes nothing any more.
+        with client.websocket_connect(WS) as late:
+            late.send_bytes(hello(key, m.HelloFlags.RESUME))
+            _, why, _ = receive_until(late, m.ERROR)
+            assert "no session to resume" in why
+    assert client.get("/api/v1/safety").json()["controller"] is None
+
+
+def test_a_client_that_did_not_ask_gets_no_resume_key(client: TestClient) -> None:
+    with client.websocket_connect(WS) as ws:
+        ws.send_bytes(hello(TOKEN))
+        _, text, _ = receive_until(ws, m.WELCOME)
+        assert " " not in text

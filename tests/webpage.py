@@ -96,8 +96,9 @@ def browser() -> Iterator[Browser]:
 
 
 def open_page(
-    browser: Browser, base: str, token: str = TOKEN, xr: bool = False
+    browser: Browser, base: str, token: str = TOKEN, xr: bool = False, query: str = ""
 ) -> tuple[Page, list[str]]:
+    """The operator page (``query``: more of its URL's parameters, e.g. "layer=low")."""
     # The emulated headset draws at the window's size in software: a smaller window.
     page = browser.new_page(
         viewport={"width": 960, "height": 540} if xr else {"width": 1500, "height": 900}
@@ -113,7 +114,8 @@ def open_page(
             )
         page.add_init_script(path=str(IWER))
         page.add_init_script(XR_RUNTIME)
-    page.goto(base + (f"?token={token}" if token else ""))
+    params = "&".join(p for p in (f"token={token}" if token else "", query) if p)
+    page.goto(base + (f"?{params}" if params else ""))
     yield_software_gpu()
     page.wait_for_function(
         "window.telerobot && window.telerobot.view.frames > 10", timeout=60_000, polling=100

@@ -94,6 +94,12 @@ class SafetyView(BaseModel):
         "is dropped, not executed late"
     )
     stale_commands_dropped: int = Field(description="commands dropped as too old, so far")
+    deadman_halts: int = Field(
+        description="times the dead-man stopped the arm of a silent holder (lease kept), so far"
+    )
+    resumed_sessions: int = Field(
+        description="sessions continued on a new connection after their link stalled, so far"
+    )
     stop_category: int = Field(description="IEC 60204-1 stop category of every stop it makes")
     stop_category_text: str
     stop: str = Field(description="how the driver stops the arm")
@@ -156,6 +162,8 @@ def _safety(decision: DecisionDep) -> SafetyView:
         lease_grace_s=lim.lease_grace_s,
         max_command_age_ms=lim.max_command_age_s * 1000,
         stale_commands_dropped=decision.stale_dropped,
+        deadman_halts=decision.deadman_halts,
+        resumed_sessions=decision.resumed_sessions,
         stop_category=int(spec.category),
         stop_category_text=STOP_CATEGORY_TEXT[spec.category],
         stop=spec.summary,

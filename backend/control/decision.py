@@ -78,6 +78,7 @@ class StillMoving(TelerobotError):
 
 
 MAX_CLIENTS = 512  # joined clients (every /ws, priority or REST-lease client is one)
+RESUME_KEY_BYTES = 24  # a resume key: 192 bits, given once, to the connection that joined
 # A client's clock and ours drift apart (crystals differ by up to ~100 ppm): the transit
 # floor a stale command is measured against rises this much per second, so a drift of
 # its clock behind ours is never taken for a delay.
@@ -114,6 +115,10 @@ class Client:
     # Its client_time is on our clock (it syncs with PING): its commands' age is known.
     synced_clock: bool = False
     stale_dropped: int = 0  # its commands dropped as too old
+    # The secret that lets this client's session continue on a new connection (HELLO's
+    # RESUME flag); None: not resumable. Its generation counts the connections so far.
+    resume_key: str | None = field(default=None, repr=False)
+    generation: int = 0
 
 
 @dataclass(frozen=True)
@@ -226,6 +231,8 @@ class DecisionServer:
         self._halted = False  # the dead-man stopped the arm; the lease is in its grace
         self._lease_note = ""
         self.stale_dropped = 0  # commands dropped as older than max_command_age_s
+        self.deadman_halts = 0  # arms stopped by the dead-man with the lease kept
+        self.resumed_sessions = 0  # sessions continued on a new connection
         self._force_limited = False
         self._force_base = np.zeros(3)  # last contact force, base frame
         self._contact_at: float | None = None  # when a contact force was last felt
@@ -310,6 +317,7 @@ class DecisionServer:
         lease_idle_s: float | None = None,
         source: str = "ws",
         synced_clock: bool = False,
+        resumable: bool = False,
     ) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
         if len(self._clients) >= self.max_clients:
@@ -327,9 +335,31 @@ class DecisionServer:
             lease_idle_s=lease_idle_s,
             source=source,
             synced_clock=synced_clock,
+            resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES) if resumable else None,
         )
         self._clients[client.id] = client
         return client
+
+    def resume(self, key: str) -> Client:
+        """The client whose resume key this is, now on a new connection (its generation
+        moves on: the old connection's session is superseded). Heard now: a lease kept
+        through the dead-man's grace stays, with the arm halted until a fresh command."""
+        found = None
+        for client in self._clients.values():  # bounded by max_clients; no early exit
+            if client.resume_key is not None and secrets.compare_digest(
+                client.resume_key.encode(), key.encode()
+            ):
+                found = client
+        if found is None:
+            raise NotAllowed(
+                "no session to resume with this key: it has ended (its connection closed"
+                " or the server restarted); connect afresh"
+            )
+        found.generation += 1
+        self.resumed_sessions += 1
+        self._heard(found)
+        log.info("%s resumed its session on a new connection", found.name)
+        return found
 
     def _forget_idle(self, now: float) -> None:
         for client in list(self._clients.values()):
@@ -462,6 +492,7 @@ class DecisionServer:
                 )
             elif not self._halted:
                 self._halted = True
+                self.deadman_halts += 1
                 log.info(
                     "dead-man: arm stopped, %s silent for %.0f ms; lease kept %g s",
                     holder.name,

@@ -29,7 +29,7 @@ LOW_BITRATE = 1_200_000
 
 DOWN_LOSS = 0.05  # a receiver report losing this share: down at once
 UP_LOSS = 0.02  # reports losing less than this count as clean
-ESTIMATE_MARGIN = 0.9  # down when the estimate is below this share of the full rate
+ESTIMATE_MARGIN = 0.75  # down when the estimate is below this share of the full rate
 QUEUE_RTT_S = 0.25  # down when the round trip exceeds its minimum by this (a queue)
 UP_HOLD_S = 8.0  # clean this long on the low layer: try the full one
 MAX_UP_HOLD_S = 64.0

@@ -184,7 +184,9 @@ class RealtimeHub:
         conn.set_state(self.encode_state(conn))
 
     async def remove(self, conn: Connection) -> None:
-        self.connections.pop(conn.client_id, None)
+        # A resumed session's new connection has the same client id: leave that one be.
+        if self.connections.get(conn.client_id) is conn:
+            del self.connections[conn.client_id]
         await conn.close()
 
     # ------------------------------------------------------------ streams

@@ -48,6 +48,14 @@ class HelloFlags(IntEnum):
     # the server's max command age are dropped (and one whose time is not a number is
     # refused).
     SYNCED_CLOCK = 2
+    # Give me a resume key: WELCOME's text is then "<client id> <resume key>".
+    RESUMABLE = 4
+    # The token field is a resume key, not the operator token: this HELLO continues that
+    # session (its role and its lease, if it still holds it) on a new connection, and
+    # the old connection is dropped. For a link that stalled: a new TCP connection gets
+    # through at once when the link is back, where the old one may wait out TCP's
+    # doubling retransmission timeout (0.2, 0.6, 1.4, 3 s after a loss).
+    RESUME = 8
 
 
 class StateFlags(IntEnum):

@@ -60,6 +60,7 @@ class Session:
         self.hub = hub
         self.client = client
         self.conn = conn
+        self.generation = client.generation
         self._closed = False
 
     @classmethod
@@ -79,9 +80,20 @@ class Session:
         fields = check_hello(hello)
         token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
         flags = int(fields["flags"])
-        client = decision.join(
-            peer, token or None, source=source, synced_clock=bool(flags & m.HelloFlags.SYNCED_CLOCK)
-        )
+        if flags & m.HelloFlags.RESUME:
+            client = decision.resume(token)
+            old = hub.connections.get(client.id)
+            if old is not None:
+                hub.connections.pop(client.id)  # the stalled connection gets nothing more
+                old.closed = True  # its reader stops at its next message
+        else:
+            client = decision.join(
+                peer,
+                token or None,
+                source=source,
+                synced_clock=bool(flags & m.HelloFlags.SYNCED_CLOCK),
+                resumable=bool(flags & m.HelloFlags.RESUMABLE),
+            )
         if every_force_sample is None:
             every_force_sample = bool(flags & m.HelloFlags.EVERY_FORCE_SAMPLE)
         conn = Connection(
@@ -98,13 +110,19 @@ class Session:
         return self.client.id
 
     @property
+    def superseded(self) -> bool:
+        """Its client resumed on another connection: this one only closes."""
+        return self.client.generation != self.generation
+
+    @property
     def welcome(self) -> bytes:
+        key = self.client.resume_key
         return m.encode(
             m.WELCOME,
             m.PROTOCOL_VERSION,
             int(self.conn.operator),
             self.hub.clock.now(),
-            text=self.client.id,
+            text=self.client.id if key is None else f"{self.client.id} {key}",
         )
 
     def attach(self) -> None:
@@ -114,7 +132,10 @@ class Session:
     async def receive(self, data: bytes, received: float) -> bool:
         """One message from the client (any message but PING is a heartbeat); False if
         it was malformed. A PING is the transport's clock sync, which the page's worker
-        sends on its own every 2 s: it says nothing of the operator being there."""
+        sends on its own every 2 s: it says nothing of the operator being there. A
+        superseded session's messages (a stalled link's backlog) are dropped unread."""
+        if self.superseded:
+            return True
         if data[:1] != bytes((m.PING.type_id,)):
             self.decision.seen(self.client.id)
         return await handle(data, received, self.client.id, self.conn, self.decision, self.hub)
@@ -124,7 +145,8 @@ class Session:
             return
         self._closed = True
         await self.hub.remove(self.conn)
-        await self.decision.leave(self.client.id)
+        if not self.superseded:
+            await self.decision.leave(self.client.id)
 
 
 def acknowledge(conn: Connection, hub: RealtimeHub, applied: Applied, received: float) -> None:

@@ -68,7 +68,7 @@ async function main(): Promise<void> {
     video.srcObject = stream;
     void video.play();
     $("prompt").textContent = "Freeze the images when the scene is still.";
-  }).catch((e: Error) => log.add(`video: ${e.message}`, true));
+  }, "full").catch((e: Error) => log.add(`video: ${e.message}`, true)); // clicks are in full-size pixels
   $("freeze").onclick = () => (images.freeze() ? prompt() : log.add("no video yet", true));
 
   // ---- compute, ChArUco, reset

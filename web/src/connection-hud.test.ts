@@ -18,6 +18,7 @@ import {
   RTT_RED_MS,
   STATS_WINDOW_MS,
   fpsLimits,
+  layerOf,
   hudView,
   readVideoStats,
   videoRates,
@@ -108,9 +109,16 @@ describe("the connection HUD's rows", () => {
     expect(row({ sinceFrameMs: null }, "video")).toMatchObject({ level: "amber", text: "waiting for the first frame" });
   });
 
-  it("the layer is the server's when it reports one, else full", () => {
-    expect(row({ layer: "half", frameSize: "640×180" }, "video").text).toContain("half 640×180");
+  it("shows the layer with the picture's size", () => {
+    expect(row({ layer: "low", frameSize: "1280×360" }, "video").text).toContain("low 1280×360");
     expect(row({ frameSize: null }, "video").text).toBe("30 fps · 2400 kbit/s · full");
+  });
+
+  it("the layer is read from the picture's width against the server's full one", () => {
+    expect(layerOf(2560, 1280)).toBe("full");
+    expect(layerOf(1280, 1280)).toBe("low"); // half each way
+    expect(layerOf(null, 1280)).toBe("—"); // no frame yet
+    expect(layerOf(1280, null)).toBe("full"); // the server's size unknown: nothing to compare
   });
 
   it("freezes: one in 10 s is amber, five red", () => {
@@ -206,7 +214,7 @@ describe("the collector", () => {
       getStats: () =>
         Promise.resolve(
           new Map<string, Record<string, unknown>>([
-            ["v", { type: "inbound-rtp", kind: "video", framesDecoded: frames.n, bytesReceived: frames.n * 10_000, packetsLost: 0, packetsReceived: frames.n * 5 }],
+            ["v", { type: "inbound-rtp", kind: "video", framesDecoded: frames.n, bytesReceived: frames.n * 10_000, packetsLost: 0, packetsReceived: frames.n * 5, frameWidth: 2560, frameHeight: 720 }],
             ["p", { type: "candidate-pair", id: "p", nominated: true, state: "succeeded", currentRoundTripTime: 0.001 }],
           ]),
         ),
@@ -219,7 +227,7 @@ describe("the collector", () => {
     const commandLatency = new Rolling();
     const link = { open: true, bestRtt: 0.0004, offset: 100, commandLatency };
     let force = { time: 100 + 0.99 }; // page time 1.0 s = server time 101.0 s: 10 ms old
-    const hud = new ConnectionHud({ pc: () => pc, link, force: () => force, video: Promise.resolve({ fps: 20 }) });
+    const hud = new ConnectionHud({ pc: () => pc, link, force: () => force, video: Promise.resolve({ fps: 20, width: 1280 }) });
     await Promise.resolve();
     for (let t = 0; t <= 1000; t += 50) hud.frame(t);
     await hud.update(500);
@@ -229,7 +237,7 @@ describe("the collector", () => {
     expect(hud.figures?.forceAgeMs).toBeCloseTo(10, 6);
     expect(v.reason).toBe("");
     expect(hud.level).toBe("ok");
-    expect(hud.rows.find((r) => r.key === "video")?.text).toBe("20 fps · 1600 kbit/s · full");
+    expect(hud.rows.find((r) => r.key === "video")?.text).toBe("20 fps · 1600 kbit/s · full 2560×720");
 
     // The force stream stops: its age grows on the server's clock.
     commandLatency.add(3);

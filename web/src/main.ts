@@ -17,7 +17,7 @@ import { Rolling } from "./stats";
 import type { ForceSample } from "./transport/codec";
 import { RealtimeLink } from "./transport/link";
 import type { RobotState } from "./transport/realtime";
-import { VideoConnection } from "./transport/video";
+import { VideoConnection, layerParam } from "./transport/video";
 import { Alignment, viewerName } from "./ui/alignment";
 import { ConnectionHud } from "./ui/connection-hud";
 import { ControlWatch, showControlAlerts } from "./ui/control-alert";
@@ -109,10 +109,13 @@ async function main(): Promise<void> {
     },
     onPeer: (peer) => alignment.useVideoPeer(peer),
     onError: (text) => log.add(text),
+    layer: layerParam(location.search),
   });
   videoConnection.start().catch((e: Error) => log.add(`video: ${e.message}`, true));
   // The connection HUD over the video (RTT, loss, video, freezes, force and command age).
-  const hud = new ConnectionHud({ pc: () => videoConnection.peer?.pc ?? null, link, force: () => lastForce, video: api.request("get", "/api/v1/video") });
+  const videoStatus = api.request("get", "/api/v1/video");
+  videoStatus.then((v) => (view.nativeSize = { width: v.width, height: v.height })).catch(() => undefined);
+  const hud = new ConnectionHud({ pc: () => videoConnection.peer?.pc ?? null, link, force: () => lastForce, video: videoStatus });
   hud.start($("hud"));
   view.onFrame = () => {
     const now = performance.now();

@@ -1,7 +1,7 @@
 // The page's video peer takes its ICE servers and policy from the server (TURN, relay-only).
 import { afterEach, describe, expect, it, vi } from "vitest";
 import type { Api, Schema } from "./api";
-import { connectVideo, gatherTimeoutMs, rtcConfiguration } from "./transport/video";
+import { connectVideo, gatherTimeoutMs, layerParam, rtcConfiguration } from "./transport/video";
 
 const RELAY: Schema<"IceConfiguration"> = {
   ice_servers: [
@@ -57,5 +57,14 @@ describe("connectVideo", () => {
     expect(asked).toEqual(["get /api/v1/video/ice", "get /api/v1/video/ice"]);
     expect(made).toEqual([rtcConfiguration(RELAY), rtcConfiguration(RELAY)]);
     expect(made[0]?.iceTransportPolicy).toBe("relay");
+  });
+});
+
+describe("the page's video layer", () => {
+  it("is pinned by ?layer=full or low, else the server chooses", () => {
+    expect(layerParam("?layer=low")).toBe("low");
+    expect(layerParam("?token=x&layer=full")).toBe("full");
+    expect(layerParam("")).toBe("auto");
+    expect(layerParam("?layer=huge")).toBe("auto");
   });
 });

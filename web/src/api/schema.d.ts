@@ -1563,6 +1563,23 @@ export interface components {
             target_joints: number[];
             state: components["schemas"]["RobotState"];
         };
+        /** Offer */
+        Offer: {
+            /** Sdp */
+            sdp: string;
+            /**
+             * Type
+             * @description 'offer' (to /webrtc/offer) or 'answer' (to /webrtc/answer)
+             */
+            type: string;
+            /**
+             * Layer
+             * @description the video layer: 'auto' follows this viewer's link (full while it carries it, the low 2×640×360 one when it does not); 'full' or 'low' pin it (the calibration page pins 'full': it measures pixels)
+             * @default auto
+             * @enum {string}
+             */
+            layer: "auto" | "full" | "low";
+        };
         /** PeerDescription */
         PeerDescription: {
             /** Peer Id */
@@ -1786,16 +1803,6 @@ export interface components {
              * @description Fx Fy Fz Tx Ty Tz (N, N·m), sensor frame
              */
             values: number[];
-        };
-        /** SessionDescription */
-        SessionDescription: {
-            /** Sdp */
-            sdp: string;
-            /**
-             * Type
-             * @description 'offer' (to /webrtc/offer) or 'answer' (to /webrtc/answer)
-             */
-            type: string;
         };
         /** StartRecording */
         StartRecording: {
@@ -2724,7 +2731,7 @@ export interface operations {
         };
         requestBody: {
             content: {
-                "application/json": components["schemas"]["SessionDescription"];
+                "application/json": components["schemas"]["Offer"];
             };
         };
         responses: {
@@ -2750,7 +2757,10 @@ export interface operations {
     };
     server_offer_api_v1_webrtc_server_offer_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description as for /webrtc/offer */
+                layer?: "auto" | "full" | "low";
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -2764,6 +2774,15 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["PeerDescription"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };

@@ -208,7 +208,7 @@ export type FieldsOf<N extends MessageName> = Omit<MessageOf<N>, "type" | "text"
 
 export const Frame = { BASE: 0, WRIST: 1, TOOL: 2 } as const;
 export const LeaseAction = { RELEASE: 0, TAKE: 1, TAKE_OVER: 2 } as const;
-export const HelloFlags = { EVERY_FORCE_SAMPLE: 1, SYNCED_CLOCK: 2 } as const;
+export const HelloFlags = { EVERY_FORCE_SAMPLE: 1, SYNCED_CLOCK: 2, RESUMABLE: 4, RESUME: 8 } as const;
 export const StateFlags = { YOU_HAVE_CONTROL: 1, SOMEONE_HAS_CONTROL: 2, ESTOP: 4, FORCE_LIMITED: 8, OPERATOR: 16, HALTED: 32 } as const;
 export const Ack = { APPLIED: 0, LIMITED: 1 } as const;
 export const EventKind = { STATUS: 1, LEASE: 2, SAFETY: 3, INFO: 4 } as const;

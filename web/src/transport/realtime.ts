@@ -19,6 +19,18 @@ export interface RobotState {
   serverTime: number;
 }
 
+/** No message for this long (ms) on an open connection: the link has stalled (the
+ * server sends STATE at 50 Hz). The session is then resumed on a new connection, which
+ * gets through as soon as the link is back, where the old one may wait out TCP's
+ * doubling retransmission timeout (0.2, 0.6, 1.4, 3 s): the lease, kept by the server
+ * for its grace, survives a short cut. */
+export const STALL_MS = 400;
+/** While stalled, a new resume attempt this often (ms), at most RESUME_ATTEMPTS at once. */
+export const RESUME_EVERY_MS = 250;
+export const RESUME_ATTEMPTS = 4;
+/** Stalled this long (ms): the server's grace is long past; connect afresh. */
+export const RESUME_GIVE_UP_MS = 10_000;
+
 export interface RealtimeHandlers {
   state?: (s: RobotState) => void;
   forces?: (samples: ForceSample[]) => void;
@@ -40,6 +52,15 @@ export class RealtimeClient {
   // SYNCED_CLOCK), and the server drops one older than its max command age.
   private readonly clock = new ClockSync();
   private pinger: ReturnType<typeof setInterval> | undefined;
+  private watchdog: ReturnType<typeof setInterval> | undefined;
+  private resumeKey = "";
+  private lastHeard = 0; // ms, performance.now()
+  private stalledSince: number | null = null;
+  private lastAttempt = -Infinity;
+  private attempts: WebSocket[] = [];
+  private resuming: WebSocket | null = null; // the attempt whose HELLO asked to resume
+  /** Sessions resumed on a new connection after a stall. */
+  resumes = 0;
   operator = false;
   clientId = "";
   readonly stateInterval = new Rolling();
@@ -56,18 +77,115 @@ export class RealtimeClient {
     const ws = new WebSocket(this.url);
     ws.binaryType = "arraybuffer";
     this.ws = ws;
+    this.resumeKey = "";
+    this.stopResuming();
     ws.onopen = () => {
-      ws.send(encode(M.HELLO, { version: M.PROTOCOL_VERSION, flags: M.HelloFlags.SYNCED_CLOCK, token: new TextEncoder().encode(this.token) }));
+      const flags = M.HelloFlags.SYNCED_CLOCK | M.HelloFlags.RESUMABLE;
+      ws.send(encode(M.HELLO, { version: M.PROTOCOL_VERSION, flags, token: new TextEncoder().encode(this.token) }));
+      this.lastHeard = performance.now();
       for (let i = 0; i < 5; i++) setTimeout(() => this.ping(), 100 * i);
       clearInterval(this.pinger);
       this.pinger = setInterval(() => this.ping(), PING_EVERY_MS);
+      clearInterval(this.watchdog);
+      this.watchdog = setInterval(() => this.watch(performance.now()), 100);
       this.handlers.connection?.(true, "connected");
     };
+    this.listen(ws);
+  }
+
+  /** `ws` is (now) this client's connection: its messages and its closing are ours. */
+  private listen(ws: WebSocket): void {
     ws.onclose = (ev) => {
+      if (ws !== this.ws) return; // a connection left behind by a resume
       this.handlers.connection?.(false, ev.reason || "connection closed; reconnecting…");
       setTimeout(() => this.connect(), 1000);
     };
-    ws.onmessage = (ev) => this.receive(ev.data as ArrayBuffer);
+    ws.onmessage = (ev) => {
+      this.lastHeard = performance.now();
+      // The old connection got through first: the attempts not yet resuming are dropped
+      // (one that asked to resume goes on: the server may already have moved the session).
+      if (this.stalledSince !== null && !this.resuming) this.stopResuming();
+      this.receive(ev.data as ArrayBuffer);
+    };
+  }
+
+  /** Every 100 ms: has the connection stalled? Then resume the session elsewhere. */
+  private watch(now: number): void {
+    if (!this.open || !this.resumeKey || now - this.lastHeard < STALL_MS) return;
+    this.stalledSince ??= now;
+    if (now - this.stalledSince > RESUME_GIVE_UP_MS) return this.startAfresh("the link stalled too long");
+    if (!this.resuming && now - this.lastAttempt >= RESUME_EVERY_MS) this.attemptResume(now);
+  }
+
+  private attemptResume(now: number): void {
+    this.lastAttempt = now;
+    const a = new WebSocket(this.url);
+    a.binaryType = "arraybuffer";
+    this.attempts.push(a);
+    if (this.attempts.length > RESUME_ATTEMPTS) this.attempts.shift()?.close();
+    const key = this.resumeKey;
+    // Connections open in parallel (a SYN lost in the cut is resent only after 1 s), but
+    // the session resumes on the first to open, alone: a second resume would take it
+    // over again from the one adopted.
+    a.onopen = () => {
+      if (this.resuming) return a.close();
+      this.resuming = a;
+      for (const other of this.attempts) if (other !== a) other.close();
+      this.attempts = [a];
+      const flags = M.HelloFlags.SYNCED_CLOCK | M.HelloFlags.RESUMABLE | M.HelloFlags.RESUME;
+      a.send(encode(M.HELLO, { version: M.PROTOCOL_VERSION, flags, token: new TextEncoder().encode(key) }));
+    };
+    a.onmessage = (ev) => {
+      const msg = decode(ev.data as ArrayBuffer);
+      if (msg.type === "WELCOME") this.adopt(a, performance.now());
+      else if (msg.type === "ERROR") this.startAfresh(msg.text); // the session has ended
+    };
+    a.onclose = () => {
+      this.attempts = this.attempts.filter((x) => x !== a);
+      if (this.resuming === a) this.resuming = null; // closed before its WELCOME: try again
+    };
+  }
+
+  /** A resume attempt was welcomed: it is the connection from now on. */
+  private adopt(a: WebSocket, now: number): void {
+    const old = this.ws;
+    const stalledMs = this.stalledSince === null ? 0 : now - this.stalledSince + STALL_MS;
+    this.attempts = this.attempts.filter((x) => x !== a);
+    this.stopResuming();
+    this.ws = a;
+    this.listen(a);
+    this.lastHeard = now;
+    this.resumes += 1;
+    if (old) {
+      old.onclose = old.onmessage = null;
+      old.close(1000, "resumed on a new connection");
+    }
+    this.handlers.connection?.(true, `resumed on a new connection after ${Math.round(stalledMs)} ms without news`);
+  }
+
+  private stopResuming(): void {
+    this.resuming = null;
+    this.stalledSince = null;
+    this.lastAttempt = -Infinity;
+    for (const a of this.attempts) {
+      a.onmessage = a.onclose = null;
+      a.close();
+    }
+    this.attempts = [];
+  }
+
+  /** Give up the session: drop the connection (without waiting for its closing) and
+   * connect afresh. */
+  private startAfresh(why: string): void {
+    const old = this.ws;
+    this.stopResuming();
+    if (old) {
+      old.onclose = old.onmessage = null;
+      old.close();
+    }
+    this.ws = null;
+    this.handlers.connection?.(false, `${why}; reconnecting…`);
+    setTimeout(() => this.connect(), 0);
   }
 
   get open(): boolean {
@@ -156,11 +274,15 @@ export class RealtimeClient {
         this.forceInterval.tick(performance.now()); // per message: browsers get ~10 ms batches
         this.handlers.forces?.(msg.samples);
         break;
-      case "WELCOME":
+      case "WELCOME": {
+        // "<client id> <resume key>" (HELLO's RESUMABLE flag).
+        const [id = "", key = ""] = msg.text.split(" ");
         this.operator = msg.role === 1;
-        this.clientId = msg.text;
+        this.clientId = id;
+        this.resumeKey = key;
         this.handlers.welcome?.(this.operator, this.clientId);
         break;
+      }
       case "STATE":
         this.stateInterval.tick(performance.now());
         this.handlers.state?.(robotState(msg));

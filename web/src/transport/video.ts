@@ -33,7 +33,19 @@ export function gatherTimeoutMs(config: RTCConfiguration): number {
   return turn ? 5000 : 2000;
 }
 
-export async function connectVideo(api: Api, onStream: (stream: MediaStream) => void): Promise<VideoPeer> {
+export type VideoLayer = "auto" | "full" | "low";
+export const VIDEO_LAYERS: readonly VideoLayer[] = ["auto", "full", "low"];
+
+/** The page's `?layer=full|low|auto` (pin the picture on a link known to be good or
+ * poor); anything else: "auto". */
+export function layerParam(search: string): VideoLayer {
+  const asked = new URLSearchParams(search).get("layer") as VideoLayer | null;
+  return asked && VIDEO_LAYERS.includes(asked) ? asked : "auto";
+}
+
+/** `layer`: "auto" lets the server choose by this page's link; "full" pins the full
+ * picture (the calibration page measures pixels in it). */
+export async function connectVideo(api: Api, onStream: (stream: MediaStream) => void, layer: VideoLayer = "auto"): Promise<VideoPeer> {
   // Fetched for each peer: TURN credentials are time-limited.
   const config = rtcConfiguration(await api.request("get", "/api/v1/video/ice"));
   const pc = new RTCPeerConnection(config);
@@ -49,7 +61,7 @@ export async function connectVideo(api: Api, onStream: (stream: MediaStream) => 
     pc.addEventListener("icegatheringstatechange", () => pc.iceGatheringState === "complete" && resolve());
     setTimeout(resolve, gatherTimeoutMs(config));
   });
-  const answer = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer" } });
+  const answer = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer", layer } });
   await pc.setRemoteDescription({ sdp: answer.sdp, type: answer.type as RTCSdpType });
   const peer = { pc, peerId: answer.peer_id, secret: answer.peer_secret };
   // Leaving the page frees the server's peer at once, not after ICE gives up.
@@ -105,6 +117,8 @@ export interface VideoConnectionOptions {
   /** …and the newest peer has had this long (ms) to bring its first frame. */
   graceMs?: number;
   backoff?: Backoff;
+  /** The video layer asked for (default "auto": the server picks by this page's link). */
+  layer?: VideoLayer;
 }
 
 /** This page's video, kept up: re-negotiated (a new RTCPeerConnection, the old one closed
@@ -166,7 +180,7 @@ export class VideoConnection {
       closeVideo(this.api, old);
       this.renegotiations += 1;
     }
-    const next = connectVideo(this.api, (stream) => this.options.onStream(stream)).then((peer) => {
+    const next = connectVideo(this.api, (stream) => this.options.onStream(stream), this.options.layer).then((peer) => {
       this.peer = peer;
       this.attemptAt = performance.now(); // its grace starts now
       peer.pc.addEventListener("connectionstatechange", () => {

@@ -66,7 +66,8 @@ export interface HudFigures {
   /** The rate the server sends at (TELEROBOT_VIDEO_FPS), when known. */
   nominalFps: number | null;
   bitrateKbps: number | null;
-  /** The video layer the server sends this page ("full": the one layer there is). */
+  /** The video layer the server sends this page: "full", or "low" (half each way) when
+   * the link cannot carry the full one ("—" before a frame). */
   layer: string;
   frameSize: string | null;
   /** Since the last new frame (ms); null before the first. */
@@ -299,6 +300,13 @@ export class FreezeCounter {
 
 // ---- collecting and drawing
 
+/** The layer a picture `frameWidth` wide (both eyes) is, for eyes `fullWidth` wide. */
+export function layerOf(frameWidth: number | null, fullWidth: number | null): string {
+  if (!frameWidth) return "—";
+  if (!fullWidth) return "full";
+  return frameWidth / 2 < 0.75 * fullWidth ? "low" : "full";
+}
+
 /** Where the HUD's figures come from. */
 export interface HudSources {
   /** The current video peer (null while there is none). */
@@ -306,9 +314,9 @@ export interface HudSources {
   link: { readonly open: boolean; readonly bestRtt: number; readonly offset: number; readonly commandLatency: Rolling };
   /** The newest force sample (its time on the server's clock, s). */
   force(): { time: number } | null;
-  /** The server's video settings (GET /api/v1/video): its frame rate, and a layer if it
-   * reports one (it does not yet: one layer, "full"). */
-  video?: Promise<{ fps: number } & Record<string, unknown>>;
+  /** The server's video settings (GET /api/v1/video): its frame rate and one eye's full
+   * size (a smaller picture is the low layer). */
+  video?: Promise<{ fps: number; width: number } & Record<string, unknown>>;
 }
 
 export class ConnectionHud implements HudView {
@@ -320,7 +328,7 @@ export class ConnectionHud implements HudView {
   private history: VideoStatsSample[] = [];
   private pcSeen: RTCPeerConnection | null = null;
   private nominalFps: number | null = null;
-  private layer = "full";
+  private fullWidth: number | null = null;
   private commandsSeen = 0;
   private commandAt: number | null = null;
 
@@ -328,7 +336,7 @@ export class ConnectionHud implements HudView {
     src.video
       ?.then((v) => {
         this.nominalFps = v.fps;
-        if (typeof v.layer === "string" && v.layer) this.layer = v.layer;
+        this.fullWidth = v.width;
       })
       .catch(() => undefined);
   }
@@ -372,7 +380,7 @@ export class ConnectionHud implements HudView {
       fps: rates.fps,
       nominalFps: this.nominalFps,
       bitrateKbps: rates.kbps,
-      layer: this.layer,
+      layer: layerOf(sample?.frameWidth ?? null, this.fullWidth),
       frameSize: sample?.frameWidth && sample.frameHeight ? `${sample.frameWidth}×${sample.frameHeight}` : null,
       sinceFrameMs: this.freezes.since(now),
       freezes: freezes.count,

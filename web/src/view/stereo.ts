@@ -309,11 +309,17 @@ export class StereoView {
     this.render();
   }
 
-  /** Output in video pixels: one eye wide for mono/anaglyph, two for side-by-side;
+  /** One eye's size in the camera's own pixels (GET /api/v1/video's width × height),
+   * which the calibration, the AR and the timecode crop are in. A smaller picture (the
+   * server's low video layer, on a poor link) is stretched to it, so the drawing stays
+   * registered whichever layer arrives. Null: the picture's own size. */
+  nativeSize: { width: number; height: number } | null = null;
+
+  /** Output in camera pixels: one eye wide for mono/anaglyph, two for side-by-side;
    * each eye's rows below the cropped ones. */
   private layout(): void {
-    const eyeW = this.video.videoWidth / 2 || 1280;
-    const eyeH = this.video.videoHeight || 720;
+    const eyeW = this.nativeSize?.width ?? (this.video.videoWidth / 2 || 1280);
+    const eyeH = this.nativeSize?.height ?? (this.video.videoHeight || 720);
     const wide = this.mode === "side-by-side" || this.mode === "cross-eye";
     const w = wide ? 2 * eyeW : eyeW;
     const crop = Math.min(this.cropTop, eyeH - 1);

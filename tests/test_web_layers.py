@@ -1,0 +1,77 @@
+"""The low video layer in a real browser (Debian's Chromium) against a real
+``telerobot serve``: a page that asks for it (``?layer=low``; the server would choose it
+for a poor link) gets a picture half the size each way, the HUD says "low", and the view
+stretches it to the camera's own size, so what is drawn over it (the calibration's
+pixels: the AR ball, the fiducials) stays where the camera sees it."""
+
+from __future__ import annotations
+
+import httpx
+import numpy as np
+import pytest
+from playwright.sync_api import Browser, Page
+
+from drivers.camera.sim import FIDUCIAL_COLOURS
+from tests.webpage import (  # noqa: F401  (browser and server are fixtures)
+    browser,
+    open_page,
+    server,
+    wait,
+)
+
+pytestmark = pytest.mark.browser
+
+PIXELS = """(points) => {
+  const v = document.getElementById('view'); const c = document.createElement('canvas');
+  c.width = v.width; c.height = v.height; const g = c.getContext('2d'); g.drawImage(v, 0, 0);
+  const crop = window.telerobot.view.croppedRows;
+  return { size: [v.width, v.height], crop, rgb: points.map(([x, y]) =>
+    Array.from(g.getImageData(Math.round(x), Math.round(y - crop), 1, 1).data).slice(0, 3)) };
+}"""
+
+
+def fiducials_seen(page: Page, server: str) -> tuple[dict[str, object], list[bool]]:
+    """Each fiducial, in each eye, where the ground-truth camera projects it in the
+    camera's pixels: is the view's pixel there the fiducial's colour?"""
+    cell = httpx.get(server + "api/v1/workcell").json()
+    world = np.array(httpx.get(server + "api/v1/calibration").json()["fiducials"])
+    points, colours = [], []
+    for eye, cam in enumerate(cell["cameras"]):
+        for xyz, colour in zip(world, FIDUCIAL_COLOURS, strict=False):
+            u, v, w = np.array(cam["P"]) @ np.append(xyz, 1.0)
+            points.append([u / w + eye * cam["width"], v / w])
+            colours.append(colour)
+    got = page.evaluate(PIXELS, points)
+    return got, [
+        max(abs(a - b) for a, b in zip(rgb, colour, strict=True)) <= 60
+        for rgb, colour in zip(got["rgb"], colours, strict=True)
+    ]
+
+
+def test_the_low_layer_is_shown_at_the_cameras_size_and_stays_registered(
+    browser: Browser, server: str
+) -> None:
+    status = httpx.get(server + "api/v1/video").json()
+    width, height = status["width"], status["height"]
+    full, _ = open_page(browser, server)
+    low, errors = open_page(browser, server, query="layer=low")
+    for page in (full, low):
+        page.evaluate("window.telerobot.setMode('side-by-side')")
+    wait(low, "window.telerobot.hud.figures && window.telerobot.hud.figures.layer === 'low'")
+    assert low.evaluate("window.telerobot.hud.figures.frameSize") == f"{width}×{height // 2}"
+    assert low.evaluate("document.querySelector('video').videoWidth") == width  # 2 × half
+    assert full.evaluate("window.telerobot.hud.figures.layer") == "full"
+    # The server sends each page its own layer, from two encoders.
+    layers = sorted(
+        v["layer"] for v in httpx.get(server + "api/v1/video").json()["stats"]["viewers"]
+    )
+    assert layers == ["full", "low"]
+    # Both views are the camera's size, and the fiducials are where the camera sees them
+    # in both (the low picture stretched, not drawn in a corner at half size).
+    seen = {name: fiducials_seen(page, server) for name, page in (("full", full), ("low", low))}
+    for name, (got, hits) in seen.items():
+        assert got["size"] == [2 * width, height - got["crop"]], (name, got)
+        assert sum(hits) >= len(hits) - 2, (name, got, hits)  # the arm may hide one per eye
+    assert not [e for e in errors if "video" in e.lower()], errors
+    full.close()
+    low.close()

@@ -1,0 +1,119 @@
+// The realtime client resumes its session on a new connection when its link stalls
+// (a fake WebSocket and fake timers: what it sends, which socket it keeps).
+import { afterEach, beforeEach, describe, expect, it, vi } from "vitest";
+import { decode, encode } from "./transport/codec";
+import * as M from "./transport/messages";
+import { RESUME_EVERY_MS, RealtimeClient, STALL_MS } from "./transport/realtime";
+
+class FakeSocket {
+  static all: FakeSocket[] = [];
+  static readonly OPEN = 1;
+  readyState = 0;
+  binaryType = "";
+  sent: ArrayBuffer[] = [];
+  closed = false;
+  onopen: (() => void) | null = null;
+  onclose: ((ev: { reason: string }) => void) | null = null;
+  onmessage: ((ev: { data: ArrayBuffer }) => void) | null = null;
+  constructor(readonly url: string) {
+    FakeSocket.all.push(this);
+  }
+  send(data: ArrayBuffer): void {
+    this.sent.push(data);
+  }
+  close(): void {
+    if (this.closed) return;
+    this.closed = true;
+    this.readyState = 3;
+    this.onclose?.({ reason: "" });
+  }
+  open(): void {
+    this.readyState = 1;
+    this.onopen?.();
+  }
+  deliver(data: ArrayBuffer): void {
+    this.onmessage?.({ data });
+  }
+  hellos(): { flags: number; token: string }[] {
+    return this.sent
+      .map((d) => decode(d))
+      .filter((m) => m.type === "HELLO")
+      .map((m) => {
+        const h = m as unknown as { flags: number; token: Uint8Array };
+        return { flags: h.flags, token: new TextDecoder().decode(h.token).replace(/\0+$/, "") };
+      });
+  }
+}
+
+const welcome = (text: string) => encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0 }, text);
+const KEY = "k".repeat(32);
+
+describe("a stalled link", () => {
+  beforeEach(() => {
+    FakeSocket.all = [];
+    vi.useFakeTimers();
+    vi.stubGlobal("WebSocket", FakeSocket);
+  });
+  afterEach(() => {
+    vi.useRealTimers();
+    vi.unstubAllGlobals();
+  });
+
+  function connected() {
+    const seen: string[] = [];
+    const client = new RealtimeClient("ws://x/ws", "secret", { connection: (up, why) => seen.push(`${up} ${why}`) });
+    client.connect();
+    const first = FakeSocket.all[0]!;
+    first.open();
+    first.deliver(welcome(`abc ${KEY}`));
+    return { client, first, seen };
+  }
+
+  it("asks for a resume key and, silent past the stall limit, resumes on the first new connection to open", () => {
+    const { client, first, seen } = connected();
+    expect(first.hellos()[0]).toEqual({ flags: M.HelloFlags.SYNCED_CLOCK | M.HelloFlags.RESUMABLE, token: "secret" });
+    vi.advanceTimersByTime(STALL_MS - 100);
+    expect(FakeSocket.all).toHaveLength(1); // not stalled yet
+    vi.advanceTimersByTime(200 + 2 * RESUME_EVERY_MS);
+    const attempts = FakeSocket.all.slice(1);
+    expect(attempts.length).toBeGreaterThanOrEqual(2); // in parallel: a SYN may be lost
+    attempts[1]!.open(); // the second opens first: it resumes, alone
+    attempts[0]!.open();
+    expect(attempts[1]!.hellos()).toEqual([{ flags: M.HelloFlags.SYNCED_CLOCK | M.HelloFlags.RESUMABLE | M.HelloFlags.RESUME, token: KEY }]);
+    expect(attempts[0]!.hellos()).toEqual([]);
+    expect(attempts[0]!.closed).toBe(true);
+    vi.advanceTimersByTime(5 * RESUME_EVERY_MS); // no new attempts while one is resuming
+    expect(FakeSocket.all.length).toBe(1 + attempts.length);
+    attempts[1]!.deliver(welcome(`abc ${KEY}`));
+    expect(first.closed).toBe(true);
+    expect(client.resumes).toBe(1);
+    expect(seen.at(-1)).toMatch(/^true resumed on a new connection after \d+ ms/);
+    client.heartbeat(); // the new connection carries what follows
+    expect(decode(attempts[1]!.sent.at(-1)!).type).toBe("HEARTBEAT");
+    expect(seen.filter((s) => s.startsWith("false"))).toEqual([]); // never said "down"
+  });
+
+  it("stops trying when the old connection gets through first", () => {
+    const { first } = connected();
+    vi.advanceTimersByTime(STALL_MS + 200);
+    const attempt = FakeSocket.all[1]!;
+    first.deliver(welcome(`abc ${KEY}`)); // any message: the link is back
+    expect(attempt.closed).toBe(true);
+    vi.advanceTimersByTime(100);
+    expect(FakeSocket.all).toHaveLength(2);
+  });
+
+  it("connects afresh when the server says the session has ended", () => {
+    const { first, seen } = connected();
+    vi.advanceTimersByTime(STALL_MS + 200);
+    const attempt = FakeSocket.all[1]!;
+    attempt.open();
+    attempt.deliver(encode(M.ERROR, { seq: 0, code: M.ERROR_CODES.not_allowed }, "no session to resume with this key"));
+    expect(first.closed).toBe(true);
+    expect(seen.at(-1)).toBe("false no session to resume with this key; reconnecting…");
+    vi.advanceTimersByTime(1);
+    expect(FakeSocket.all.at(-1)!.hellos).toBeDefined();
+    FakeSocket.all.at(-1)!.open();
+    expect(FakeSocket.all.at(-1)!.hellos()[0]!.token).toBe("secret"); // a fresh session
+  });
+});
