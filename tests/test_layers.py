@@ -103,16 +103,27 @@ def test_up_again_only_after_a_clean_hold_and_a_failed_try_doubles_the_wait() ->
     assert c.switches == 5
 
 
+def test_a_low_estimate_that_is_still_climbing_is_no_reason_to_go_down() -> None:
+    # Chromium's estimate starts near 70 kbit/s and climbs ~8 %/s on a link with room.
+    c, link, bps = LayerChoice(), Link(), 70_000.0
+    for t in range(30):
+        assert c.decide(link.report(0.0, bps=int(bps)), FULL, float(t)) == "full"
+        bps *= 1.08
+    # A congested estimator cuts its estimate: that is a reason.
+    assert c.decide(link.report(0.0, bps=int(bps * 0.7)), FULL, 30.0) == "low"
+
+
 def test_after_going_up_an_estimate_sized_by_the_low_layer_is_given_time_to_grow() -> None:
     c, link = LayerChoice(), Link()
     c.decide(link.report(0.10, bps=1_500_000), FULL, 0.0)
     c.decide(link.report(0.0, bps=1_500_000), FULL, UP_HOLD_S)
     assert c.layer == "full"
-    # Still the low layer's estimate: no reason to go down within the grace…
-    assert c.decide(link.report(0.0, bps=1_800_000), FULL, UP_HOLD_S + 1) == "full"
-    # …but past it, an estimate below the full rate is.
+    # Still the low layer's estimate, even falling a little: no reason within the grace…
+    c.decide(link.report(0.0, bps=1_800_000), FULL, UP_HOLD_S + 1)
+    assert c.decide(link.report(0.0, bps=1_500_000), FULL, UP_HOLD_S + 2) == "full"
+    # …but past it, a falling estimate below the full rate is.
     t = UP_HOLD_S + ESTIMATE_GRACE_S
-    assert c.decide(link.report(0.0, bps=1_800_000), FULL, t) == "low"
+    assert c.decide(link.report(0.0, bps=1_400_000), FULL, t) == "low"
     assert t - UP_HOLD_S >= FAILED_PROBE_S  # not counted as a failed try: the wait stays
     assert c.up_hold_s == UP_HOLD_S
 
