@@ -53,6 +53,12 @@ def test_a_clean_link_keeps_the_full_layer() -> None:
     assert c.switches == 0
 
 
+def bad_reports(c: LayerChoice, link: Link, t: float, **report: float) -> str:
+    """Two fresh reports in a row (a second apart) with ``report``: the layer after."""
+    c.decide(link.report(**report), FULL, t)  # type: ignore[arg-type]
+    return c.decide(link.report(**report), FULL, t + 1.0)  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize(
     ("report", "why"),
     [
@@ -61,45 +67,54 @@ def test_a_clean_link_keeps_the_full_layer() -> None:
         ({"rtt_s": 0.05 + 0.3}, "round trip 350 ms (a queue: it was 50)"),
     ],
 )
-def test_the_full_layer_is_left_at_once_when_the_link_cannot_carry_it(
+def test_the_full_layer_is_left_on_two_reports_saying_the_link_cannot_carry_it(
     report: dict[str, float], why: str
 ) -> None:
     c, link = LayerChoice(), Link()
     c.decide(link.report(0.0, 0.05, 8_000_000), FULL, 0.0)
-    assert c.decide(link.report(**report), FULL, 1.0) == "low"  # type: ignore[arg-type]
+    assert c.decide(link.report(**report), FULL, 1.0) == "full"  # type: ignore[arg-type]
+    assert c.decide(link.report(**report), FULL, 2.0) == "low"  # type: ignore[arg-type]
     assert c.why == why and c.switches == 1
+
+
+def test_one_bad_report_between_good_ones_is_a_hiccup() -> None:
+    c, link = LayerChoice(), Link()
+    for t in range(20):  # every other report a late RTCP packet or a lossy second
+        bad = t % 2 == 1
+        link.report(0.2 if bad else 0.0, 0.6 if bad else 0.05)
+        assert c.decide(link, FULL, float(t)) == "full"
 
 
 def test_an_old_loss_report_is_not_counted_twice() -> None:
     c, link = LayerChoice(), Link()
-    link.report(0.03)
-    assert c.decide(link, FULL, 0.0) == "full"  # 3 % < 5 %
-    # The same report seen again is not fresh; a new one with 6 % is.
+    link.report(0.06)
+    assert c.decide(link, FULL, 0.0) == "full"  # one report: not yet
+    # The same report seen again is not fresh; a second one with 6 % is.
     assert c.decide(link, FULL, 1.0) == "full"
-    assert c.decide(link.report(0.06), FULL, 2.0) == "low"
+    assert c.decide(link, FULL, 2.0) == "full"
+    assert c.decide(link.report(0.06), FULL, 3.0) == "low"
 
 
 def test_up_again_only_after_a_clean_hold_and_a_failed_try_doubles_the_wait() -> None:
     c, link = LayerChoice(), Link()
-    c.decide(link.report(0.10), FULL, 0.0)
-    assert c.layer == "low"
-    t = 0.0
+    assert bad_reports(c, link, 0.0, lost=0.10) == "low"
+    t = down_at = 1.0
     while c.layer == "low":  # clean reports every second
         t += 1.0
         c.decide(link.report(0.0), FULL, t)
-    assert t == UP_HOLD_S
+    assert t - down_at == UP_HOLD_S
     # The try fails within FAILED_PROBE_S: back down, and the next wait is twice as long.
-    t += 2.0
-    assert c.decide(link.report(0.10), FULL, t) == "low"
-    down_at = t
+    assert bad_reports(c, link, t + 1.0, lost=0.10) == "low"
+    t = down_at = t + 2.0
     while c.layer == "low":
         t += 1.0
         c.decide(link.report(0.0), FULL, t)
     assert t - down_at == 2 * UP_HOLD_S
     # A lossy report on the low layer restarts the wait.
-    c.decide(link.report(0.10), FULL, t + 1)
-    assert c.layer == "low"
-    assert c.decide(link.report(0.0), FULL, t + 1 + UP_HOLD_S) == "low"  # hold still 2×
+    assert bad_reports(c, link, t + 1, lost=0.10) == "low"
+    t += 2.0
+    c.decide(link.report(0.10), FULL, t)
+    assert c.decide(link.report(0.0), FULL, t + UP_HOLD_S) == "low"  # hold still 2×
     assert c.switches == 5
 
 
@@ -110,21 +125,22 @@ def test_a_low_estimate_that_is_still_climbing_is_no_reason_to_go_down() -> None
         assert c.decide(link.report(0.0, bps=int(bps)), FULL, float(t)) == "full"
         bps *= 1.08
     # A congested estimator cuts its estimate: that is a reason.
-    assert c.decide(link.report(0.0, bps=int(bps * 0.7)), FULL, 30.0) == "low"
+    assert bad_reports(c, link, 30.0, lost=0.0, bps=int(bps * 0.7)) == "low"
 
 
 def test_after_going_up_an_estimate_sized_by_the_low_layer_is_given_time_to_grow() -> None:
     c, link = LayerChoice(), Link()
-    c.decide(link.report(0.10, bps=1_500_000), FULL, 0.0)
-    c.decide(link.report(0.0, bps=1_500_000), FULL, UP_HOLD_S)
+    bad_reports(c, link, 0.0, lost=0.10, bps=1_500_000)
+    c.decide(link.report(0.0, bps=1_500_000), FULL, 1.0 + UP_HOLD_S)
     assert c.layer == "full"
-    # Still the low layer's estimate, even falling a little: no reason within the grace…
-    c.decide(link.report(0.0, bps=1_800_000), FULL, UP_HOLD_S + 1)
-    assert c.decide(link.report(0.0, bps=1_500_000), FULL, UP_HOLD_S + 2) == "full"
+    up = 1.0 + UP_HOLD_S
+    # Still the low layer's estimate, even falling: no reason within the grace…
+    c.decide(link.report(0.0, bps=1_800_000), FULL, up + 1)
+    assert bad_reports(c, link, up + 2, lost=0.0, bps=1_500_000) == "full"
     # …but past it, a falling estimate below the full rate is.
-    t = UP_HOLD_S + ESTIMATE_GRACE_S
-    assert c.decide(link.report(0.0, bps=1_400_000), FULL, t) == "low"
-    assert t - UP_HOLD_S >= FAILED_PROBE_S  # not counted as a failed try: the wait stays
+    t = up + ESTIMATE_GRACE_S
+    assert bad_reports(c, link, t, lost=0.0, bps=1_400_000) == "low"
+    assert t - up >= FAILED_PROBE_S  # not counted as a failed try: the wait stays
     assert c.up_hold_s == UP_HOLD_S
 
 

@@ -2,9 +2,10 @@
 namespace; one aiortc viewer beside it (a clean link), one in the client namespace
 behind the shared emulator's `bad` profile (150 ± 50 ms, 5 % loss, 2 Mbit/s). Each
 asks for "auto". The viewer on the bad link is moved to the low layer by what its own
-receiver reports, and gets the smaller picture; the one on the clean link keeps the
-full layer all along. Skipped, with the kernel's reason, where network namespaces are
-refused."""
+receiver reports (the full layer, at a constant 3 Mbit/s, does not fit the link's 2;
+a try to go up again fails and backs off) and gets the smaller picture; the one on the
+clean link keeps the full layer all along. Skipped, with the kernel's reason, where
+network namespaces are refused."""
 
 from __future__ import annotations
 
@@ -60,6 +61,10 @@ def test_a_viewer_on_a_bad_link_moves_to_the_low_layer_while_a_clean_one_keeps_t
         pytest.skip(f"no link emulator here: {why}")
     env = {
         "TELEROBOT_VIDEO": "true",
+        # The full layer at a constant 3 Mbit/s does not fit the bad link's 2 Mbit/s;
+        # the low one (1.2 Mbit/s) does.
+        "TELEROBOT_VIDEO_BITRATE": "3000000",
+        "TELEROBOT_VIDEO_CBR": "true",
         "TELEROBOT_VIDEO_WIDTH": "640",
         "TELEROBOT_VIDEO_HEIGHT": "360",
         "TELEROBOT_VIDEO_FPS": "20",
@@ -89,11 +94,11 @@ def test_a_viewer_on_a_bad_link_moves_to_the_low_layer_while_a_clean_one_keeps_t
             seen[name] = json.loads(out.strip().splitlines()[-1])
     widths = {name: s["widths"] for name, s in seen.items()}
     # The clean viewer: the full picture (2 × 640) every second, from first to last.
-    assert all(w == [1280] for w in widths["clean"].values()), widths
+    server = seen["clean"]["viewers"]  # asked after the bad one had switched
+    assert all(w == [1280] for w in widths["clean"].values()), (widths, server)
     # The bad one: the full picture at first, then the low one (2 × 320) for the rest.
     last = sorted(widths["bad"], key=int)[-5:]
     assert all(widths["bad"][k] == [640] for k in last), widths
-    server = seen["clean"]["viewers"]  # asked after the bad one had switched
     by_layer = sorted((v["layer"], v["layer_switches"], v["layer_why"]) for v in server)
     assert by_layer[0][:2] == ("full", 0), by_layer
     assert by_layer[1][0] == "low" and by_layer[1][1] >= 1, by_layer

@@ -41,6 +41,9 @@ FAILED_PROBE_S = 10.0  # back down within this after going up: the probe failed
 # A receiver's estimate grows with what it receives (up to ~1.5× that): for this long
 # after going up, an estimate still sized by the low layer is no reason to go down.
 ESTIMATE_GRACE_S = 10.0
+# Trouble in this many receiver reports in a row (about one a second) before going
+# down: one report can be a busy machine's hiccup (a late RTCP packet reads as a queue).
+CONFIRM_REPORTS = 2
 
 
 def low_size(width: int, height: int, scale: float = LOW_SCALE) -> tuple[int, int]:
@@ -67,6 +70,7 @@ class LayerChoice:
     min_rtt_s: float | None = None
     peak_bps: int = 0  # the highest estimate on this layer
     seen_reports: int = 0
+    strikes: int = 0  # fresh reports in a row that found trouble on the full layer
     why: str = "start"
 
     def decide(self, link: LinkReport, full_bps: float | None, now: float) -> Layer:
@@ -83,7 +87,9 @@ class LayerChoice:
         if self.layer == "full":
             trusted = now - self.switched_at >= ESTIMATE_GRACE_S
             trouble = self._trouble(link, full_bps if trusted else None, fresh)
-            if trouble:
+            if fresh:
+                self.strikes = self.strikes + 1 if trouble else 0
+            if trouble and self.strikes >= CONFIRM_REPORTS:
                 if now - self.switched_at < FAILED_PROBE_S:
                     self.up_hold_s = min(MAX_UP_HOLD_S, self.up_hold_s * 2)
                 self._switch("low", trouble, now)
@@ -126,6 +132,7 @@ class LayerChoice:
         self.layer, self.why = layer, why
         self.switched_at = now
         self.peak_bps = 0
+        self.strikes = 0
         self.switches += 1
 
 
