@@ -32,7 +32,7 @@ VIEWER = textwrap.dedent(
     import httpx
     from bench.common import open_viewer
 
-    base, seconds = sys.argv[1], float(sys.argv[2])
+    base, seconds, ask = sys.argv[1], float(sys.argv[2]), sys.argv[3] == "ask"
 
     async def main():
         pc, track = await open_viewer(base)
@@ -43,8 +43,10 @@ VIEWER = textwrap.dedent(
             except asyncio.TimeoutError:
                 continue
             widths.setdefault(int(t), set()).add(frame.width)
-        async with httpx.AsyncClient(timeout=10) as http:
-            video = (await http.get(base + "api/v1/video")).json()
+        video = {"stats": {"viewers": None}}
+        if ask:  # (over the bad link, a request may not get through the full queue)
+            async with httpx.AsyncClient(timeout=10) as http:
+                video = (await http.get(base + "api/v1/video")).json()
         await pc.close()
         print(json.dumps({"widths": {k: sorted(v) for k, v in widths.items()},
                           "viewers": video["stats"]["viewers"]}))
@@ -79,13 +81,16 @@ def test_a_viewer_on_a_bad_link_moves_to_the_low_layer_while_a_clean_one_keeps_t
     ):
         viewers = {
             name: subprocess.Popen(
-                [*prefix, sys.executable, "-c", VIEWER, base, str(SECONDS)],
+                [*prefix, sys.executable, "-c", VIEWER, base, str(SECONDS), ask],
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,
                 cwd=ROOT,
             )
-            for name, prefix in (("clean", pair.server_prefix), ("bad", pair.client_prefix))
+            for name, prefix, ask in (
+                ("clean", pair.server_prefix, "ask"),
+                ("bad", pair.client_prefix, "-"),
+            )
         }
         seen = {}
         for name, proc in viewers.items():
@@ -96,9 +101,13 @@ def test_a_viewer_on_a_bad_link_moves_to_the_low_layer_while_a_clean_one_keeps_t
     # The clean viewer: the full picture (2 × 640) every second, from first to last.
     server = seen["clean"]["viewers"]  # asked after the bad one had switched
     assert all(w == [1280] for w in widths["clean"].values()), (widths, server)
-    # The bad one: the full picture at first, then the low one (2 × 320) for the rest.
-    last = sorted(widths["bad"], key=int)[-5:]
-    assert all(widths["bad"][k] == [640] for k in last), widths
-    by_layer = sorted((v["layer"], v["layer_switches"], v["layer_why"]) for v in server)
-    assert by_layer[0][:2] == ("full", 0), by_layer
-    assert by_layer[1][0] == "low" and by_layer[1][1] >= 1, by_layer
+    # The bad one: mostly the low picture (2 × 320) once it came (the full one may not
+    # have got through at all); a try to go up again (after 8 s clean, then 16 s…) may
+    # show the full one for a moment.
+    seconds = sorted(widths["bad"], key=int)
+    first_low = next(k for k in seconds if 640 in widths["bad"][k])
+    after = [widths["bad"][k] for k in seconds if int(k) > int(first_low)]
+    assert sum(w == [640] for w in after) >= 0.6 * len(after), widths
+    # The server's side: the clean viewer never moved, the bad one did.
+    switches = sorted(v["layer_switches"] for v in server)
+    assert switches[0] == 0 and switches[1] >= 1, server
