@@ -188,14 +188,16 @@ def role_force(base: str) -> dict[str, Any]:
 
 
 def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
-    from bench.wsclient import RealtimeClient
+    from bench.wsclient import RealtimeClient, StallResumer
 
     synced = getattr(m.HelloFlags, "SYNCED_CLOCK", None)
 
     async def run() -> dict[str, Any]:
         stop = _stop_event(asyncio.get_running_loop())
         url = base.replace("http", "ws", 1) + "ws"
-        op = await RealtimeClient.connect(url, token=token, flags=int(synced or 0))
+        flags = int(synced or 0) | m.HelloFlags.RESUMABLE  # resumed on a stall, as the page
+        op = await RealtimeClient.connect(url, token=token, flags=flags)
+        resumer = StallResumer(op, url)
         # Before the lease: pings are no heartbeat, and on ``bad`` 5 of them take ~2.5 s,
         # past the dead-man's 150 ms + 2 s of grace (the offset is for the record only:
         # both ends read one CLOCK_MONOTONIC).
@@ -209,7 +211,12 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
 
         async def read() -> None:
             while True:
-                data = await op.ws.recv()
+                try:
+                    data = await op.ws.recv()
+                except Exception:  # the old connection, closed by a resume
+                    await asyncio.sleep(0.01)
+                    continue
+                resumer.heard()
                 now = time.monotonic()
                 kind = data[0]
                 if kind == m.ACK.type_id:
@@ -224,6 +231,7 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
                         control.append((now, have))
 
         reader = asyncio.create_task(read())
+        watch = asyncio.create_task(resumer.run())
         print("ready", flush=True)
         period = 1.0 / hz
         next_send = time.monotonic()
@@ -233,17 +241,19 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
             seq = op.next_seq()
             now = time.monotonic()
             sent[seq] = now
-            await op.ws.send(
-                m.encode(m.CART_INC, seq, now, m.Frame.BASE, 0.0, 0.0, dz, 0.0, 0.0, 0.0)
-            )
+            with contextlib.suppress(Exception):
+                await op.ws.send(
+                    m.encode(m.CART_INC, seq, now, m.Frame.BASE, 0.0, 0.0, dz, 0.0, 0.0, 0.0)
+                )
             i += 1
             next_send += period
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), max(0.0, next_send - time.monotonic()))
         await asyncio.sleep(1.0)  # the last answers
-        reader.cancel()
-        with contextlib.suppress(asyncio.CancelledError, Exception):
-            await reader
+        for task in (reader, watch):
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
         safety = await asyncio.to_thread(_get_json, base, "api/v1/safety")
         with contextlib.suppress(TimeoutError):  # the close handshake: not worth 10 s
             await asyncio.wait_for(op.close(), 1.0)
@@ -255,6 +265,7 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
             "safety": safety,
             "synced_clock_flag": synced is not None,
             "ping_rtt_ms": rtt * 1000,
+            "resumed": resumer.resumed,
             "clock_offset_ms": op.offset * 1000,
         }
 
@@ -427,6 +438,7 @@ def command_figures(
         "outage_commands_executed": len(outage_executed),
         "outage_commands_oldest_executed_ms": max(outage_executed) if outage_executed else None,
         "lease_kept": bool(last and not lost_at),
+        "sessions_resumed": out.get("resumed", 0),
         "control_lost_at_s": [round(t - whole[0], 3) for t in lost_at],
         "server_stale_commands_dropped": safety.get("stale_commands_dropped"),
         "server_controller_at_end": safety.get("controller"),

@@ -90,3 +90,65 @@ class RealtimeClient:
 
     async def close(self) -> None:
         await self.ws.close()
+
+
+class StallResumer:
+    """Keeps a client's session through a stalled link, as the page does (realtime.ts):
+    nothing heard for ``stall_s`` → open connections every ``every_s`` (in parallel: a
+    SYN lost in the cut is resent only after 1 s) and resume on the first to open, alone
+    (a second resume would take the session over again). The caller calls ``heard()``
+    for every message it reads and reads ``client.ws`` afresh after a resume."""
+
+    def __init__(
+        self, client: RealtimeClient, url: str, stall_s: float = 0.4, every_s: float = 0.25
+    ) -> None:
+        self.client, self.url = client, url
+        self.stall_s, self.every_s = stall_s, every_s
+        self.last_heard = time.monotonic()
+        self.resumed = 0
+        self._resuming = False
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    def heard(self) -> None:
+        self.last_heard = time.monotonic()
+
+    def stalled(self) -> bool:
+        return time.monotonic() - self.last_heard > self.stall_s
+
+    async def run(self) -> None:
+        """Watch until cancelled."""
+        last = 0.0
+        try:
+            while True:
+                await asyncio.sleep(0.1)
+                now = time.monotonic()
+                if self.stalled() and not self._resuming and now - last >= self.every_s:
+                    last = now
+                    task = asyncio.create_task(self._attempt())
+                    self._tasks.add(task)
+                    task.add_done_callback(self._tasks.discard)
+        finally:
+            for task in list(self._tasks):
+                task.cancel()
+
+    async def _attempt(self) -> None:
+        try:
+            ws = await asyncio.wait_for(open_socket(self.url), 3.0)
+        except (OSError, TimeoutError, websockets.WebSocketException):
+            return
+        if self._resuming or not self.stalled():  # another opened first, or it came back
+            await ws.close()
+            return
+        self._resuming = True
+        try:
+            new = await RealtimeClient.resume(ws, self.client.resume_key)
+        except (OSError, TimeoutError, RuntimeError, websockets.WebSocketException):
+            return
+        finally:
+            self._resuming = False
+        old, self.client.ws = self.client.ws, new.ws
+        self.heard()
+        self.resumed += 1
+        closing = asyncio.create_task(asyncio.wait_for(old.close(), 1.0))
+        self._tasks.add(closing)  # type: ignore[arg-type]
+        closing.add_done_callback(self._tasks.discard)  # type: ignore[arg-type]

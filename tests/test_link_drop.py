@@ -30,21 +30,20 @@ ROOT = Path(__file__).resolve().parents[1]
 # the server's /safety says and whether its STATE flags showed the arm HALTED.
 CLIENT = textwrap.dedent(
     """
-    import asyncio, contextlib, json, sys, time
+    import asyncio, contextlib, json, sys
     import httpx
     from backend.realtime import messages as m
-    from bench.wsclient import RealtimeClient, open_socket
+    from bench.wsclient import RealtimeClient, StallResumer
 
     base, token = sys.argv[1], sys.argv[2]
     url = base.replace("http", "ws") + "ws"
-    STALL_S, RESUME_EVERY_S = 0.4, 0.25  # as the page's realtime.ts
 
     async def main():
         client = await RealtimeClient.connect(url, token, m.HelloFlags.RESUMABLE)
         await client.ws.send(m.encode(m.LEASE, client.next_seq(), m.LeaseAction.TAKE))
         await client.expect(m.ACK)
-        seen = {"halted": False, "resumed": 0}
-        heard = [time.monotonic()]
+        seen = {"halted": False}
+        resumer = StallResumer(client, url)  # as the page's realtime.ts
 
         async def beat():
             while True:
@@ -52,52 +51,27 @@ CLIENT = textwrap.dedent(
                     await client.ws.send(m.encode(m.HEARTBEAT, client.next_seq(), 0.0))
                 await asyncio.sleep(0.05)
 
-        async def listen(ws):
-            with contextlib.suppress(Exception):
-                async for data in ws:
-                    if ws is not client.ws:
-                        return
-                    heard[0] = time.monotonic()
-                    if data[0] == m.STATE.type_id:
-                        if int(m.decode(data)[1]["flags"]) & m.StateFlags.HALTED:
-                            seen["halted"] = True
-
-        chosen = [False]  # one resume at a time: a later one would supersede it
-
-        async def attempt():
-            with contextlib.suppress(Exception):
-                ws = await asyncio.wait_for(open_socket(url), 3)
-                if chosen[0] or time.monotonic() - heard[0] < STALL_S:
-                    await ws.close()  # another opened first, or the old link came back
-                    return
-                chosen[0] = True
-                try:
-                    new = await RealtimeClient.resume(ws, client.resume_key)
-                finally:
-                    chosen[0] = False
-                old, client.ws = client.ws, new.ws
-                heard[0] = time.monotonic()
-                seen["resumed"] += 1
-                tasks.append(asyncio.create_task(listen(new.ws)))
-                asyncio.create_task(old.close())
-
-        async def watch():  # the link stalled: resume the session on a new connection
-            last = 0.0
+        async def listen():
             while True:
-                await asyncio.sleep(0.1)
-                now = time.monotonic()
-                if now - heard[0] > STALL_S and now - last >= RESUME_EVERY_S:
-                    last = now
-                    tasks.append(asyncio.create_task(attempt()))
+                try:
+                    data = await client.ws.recv()
+                except Exception:  # the old connection, closed by a resume
+                    await asyncio.sleep(0.01)
+                    continue
+                resumer.heard()
+                if data[0] == m.STATE.type_id:
+                    if int(m.decode(data)[1]["flags"]) & m.StateFlags.HALTED:
+                        seen["halted"] = True
 
-        tasks = [asyncio.create_task(beat()), asyncio.create_task(listen(client.ws)),
-                 asyncio.create_task(watch())]
+        tasks = [asyncio.create_task(beat()), asyncio.create_task(listen()),
+                 asyncio.create_task(resumer.run())]
         print("ready", flush=True)
         loop = asyncio.get_running_loop()
         while (line := await loop.run_in_executor(None, sys.stdin.readline)).strip():
             await asyncio.sleep(0.6)  # the link is back: let a few beats through
             async with httpx.AsyncClient(timeout=10) as http:
                 safety = (await http.get(base + "api/v1/safety")).json()
+            seen["resumed"] = resumer.resumed
             print(json.dumps({**seen, "controller": safety["controller"],
                               "note": safety["lease_note"], "halts": safety["deadman_halts"],
                               "resumes": safety["resumed_sessions"]}), flush=True)
