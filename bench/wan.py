@@ -211,12 +211,7 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
 
         async def read() -> None:
             while True:
-                try:
-                    data = await op.ws.recv()
-                except Exception:  # the old connection, closed by a resume
-                    await asyncio.sleep(0.01)
-                    continue
-                resumer.heard()
+                data = await resumer.recv()
                 now = time.monotonic()
                 kind = data[0]
                 if kind == m.ACK.type_id:

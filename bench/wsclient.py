@@ -112,6 +112,18 @@ class StallResumer:
     def heard(self) -> None:
         self.last_heard = time.monotonic()
 
+    async def recv(self) -> Any:
+        """The next message on the client's connection, whichever it is by then (an
+        old one closed by a resume is left behind), counted as news."""
+        while True:
+            try:
+                data = await self.client.ws.recv()
+            except websockets.WebSocketException:
+                await asyncio.sleep(0.01)
+                continue
+            self.heard()
+            return data
+
     def stalled(self) -> bool:
         return time.monotonic() - self.last_heard > self.stall_s
 

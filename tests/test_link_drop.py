@@ -53,12 +53,7 @@ CLIENT = textwrap.dedent(
 
         async def listen():
             while True:
-                try:
-                    data = await client.ws.recv()
-                except Exception:  # the old connection, closed by a resume
-                    await asyncio.sleep(0.01)
-                    continue
-                resumer.heard()
+                data = await resumer.recv()
                 if data[0] == m.STATE.type_id:
                     if int(m.decode(data)[1]["flags"]) & m.StateFlags.HALTED:
                         seen["halted"] = True
