@@ -1760,6 +1760,16 @@ export interface components {
              */
             stale_commands_dropped: number;
             /**
+             * Deadman Halts
+             * @description times the dead-man stopped the arm of a silent holder (lease kept), so far
+             */
+            deadman_halts: number;
+            /**
+             * Resumed Sessions
+             * @description sessions continued on a new connection after their link stalled, so far
+             */
+            resumed_sessions: number;
+            /**
              * Stop Category
              * @description IEC 60204-1 stop category of every stop it makes
              */
