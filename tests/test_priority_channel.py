@@ -195,3 +195,151 @@ def test_sockets_that_never_say_hello_are_shed_then_closed(server: tuple[str, in
     finally:
         for sock in idle:
             sock.close()
+
+
+# ---------------------------------------------------------------- forces as datagrams
+def test_forces_come_as_datagrams_when_asked_and_commands_stay_on_tcp(
+    server: tuple[str, int],
+) -> None:
+    base, port = server
+    rec = Recorder()
+    link = PriorityLink(
+        "127.0.0.1", port, TOKEN, on_force=rec.force, on_reply=rec.reply, datagrams=True
+    )
+    try:
+        until(lambda: link.datagrams == "udp" and link.datagrams_received >= 500)
+        assert rec.reply_to(link._datagram_seq).name == "ACK"
+        # From the switch on, every sample came by UDP (on loopback none is lost), in order.
+        n = len(rec.forces)
+        until(lambda: len(rec.forces) >= n + 300)
+        seqs = [s.seq for s, _ in rec.forces[n : n + 300]]
+        assert seqs == list(range(seqs[0], seqs[0] + 300))
+        assert all(0 <= at - s.time < 1.0 for s, at in rec.forces[n : n + 300])
+        assert link.received - link.datagrams_received < 100  # on TCP until the ACK (ms)
+        limits = httpx.get(base + "api/v1/force/channel").json()["limits"]
+        assert limits["datagrams_sent"] >= 500
+        # Commands and their replies still travel on TCP.
+        assert rec.reply_to(link.lease(m.LeaseAction.TAKE)).name == "ACK"
+        assert rec.reply_to(link.cartesian((0.002, 0, 0), (0, 0, 0))).name == "ACK"
+    finally:
+        link.close()
+
+
+def test_forces_go_back_to_tcp_when_the_datagrams_stop(server: tuple[str, int]) -> None:
+    """The client's keep-alive stops (its UDP socket closed, a NAT mapping gone): after
+    the server's 2 s the samples come on TCP again."""
+    _, port = server
+    rec = Recorder()
+    link = PriorityLink("127.0.0.1", port, "", on_force=rec.force, on_reply=rec.reply)
+    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        udp.connect(("127.0.0.1", port))
+        udp.settimeout(2)
+        key = bytes(range(1, 17))
+        link.send_raw(m.encode(m.DATAGRAMS, 77, key))
+        assert rec.reply_to(77).name == "ACK"
+        udp.send(m.encode(m.DATAGRAMS, 0, key))
+        first = udp.recv(2048)
+        assert first[:1] == bytes((m.FORCE.type_id,)) and len(m.decode_force(first)) == 1
+        time.sleep(0.3)  # (samples already queued on TCP have arrived)
+        on_tcp = len(rec.forces)
+        time.sleep(0.5)
+        assert len(rec.forces) <= on_tcp + 5  # while the datagrams flow, TCP is quiet
+        udp.close()  # no more keep-alives
+        until(lambda: len(rec.forces) > on_tcp + 500, timeout=10)
+    finally:
+        link.close()
+        udp.close()
+
+
+def test_datagrams_without_a_registered_key_get_nothing(server: tuple[str, int]) -> None:
+    base, port = server
+    before = httpx.get(base + "api/v1/force/channel").json()["limits"]["datagrams_refused"]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        udp.settimeout(0.5)
+        udp.connect(("127.0.0.1", port))
+        for junk in (m.encode(m.DATAGRAMS, 0, b"\x07" * 16), b"", b"\x09" * 5, b"x" * 60):
+            udp.send(junk)
+        with pytest.raises(TimeoutError):
+            udp.recv(2048)  # no answer, no forces
+    until(
+        lambda: (
+            httpx.get(base + "api/v1/force/channel").json()["limits"]["datagrams_refused"]
+            >= before + 3
+        )  # (the empty datagram may not count: it is a zero-length read)
+    )
+
+
+def test_a_taken_or_empty_datagram_key_is_refused(server: tuple[str, int]) -> None:
+    _, port = server
+    a, arec = connect(port, token="")
+    b, brec = connect(port, token="")
+    try:
+        key = b"k" * 16
+        a.send_raw(m.encode(m.DATAGRAMS, 5, key))
+        assert arec.reply_to(5).name == "ACK"
+        b.send_raw(m.encode(m.DATAGRAMS, 6, key))  # someone else's key
+        taken = brec.reply_to(6)
+        assert taken.name == "ERROR" and "random bytes" in taken.text
+        b.send_raw(m.encode(m.DATAGRAMS, 7, bytes(16)))
+        assert brec.reply_to(7).name == "ERROR"
+        b.send_raw(m.encode(m.DATAGRAMS, 8, key)[:-1])  # a byte short
+        until(lambda: any(r.name == "ERROR" and "DATAGRAMS" in r.text for r in brec.replies))
+    finally:
+        a.close()
+        b.close()
+
+
+def test_a_link_falls_back_to_tcp_when_no_datagram_comes(
+    server: tuple[str, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A firewall that drops the server's datagrams: the link stops asking and the forces
+    keep coming on TCP (here the datagrams go to a port nobody serves)."""
+    import backend.master.link as link_module
+
+    _, port = server
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as hole:
+        hole.bind(("127.0.0.1", 0))
+        real_connect = socket.socket.connect
+
+        def misdirected(self: socket.socket, address: object) -> None:
+            if self.type == socket.SOCK_DGRAM:
+                address = hole.getsockname()
+            real_connect(self, address)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(link_module.socket.socket, "connect", misdirected)
+        rec = Recorder()
+        link = PriorityLink("127.0.0.1", port, "", on_force=rec.force, datagrams=True)
+        monkeypatch.undo()
+        try:
+            until(lambda: link.datagrams.startswith("tcp: no force datagram"), timeout=5)
+            n = len(rec.forces)
+            until(lambda: len(rec.forces) > n + 500)
+            assert link.datagrams_received == 0
+        finally:
+            link.close()
+
+
+def test_datagrams_is_refused_on_the_websocket() -> None:
+    from backend.realtime.session import handle
+
+    replies: list[bytes] = []
+
+    class Conn:
+        def reply(self, data: bytes) -> None:
+            replies.append(data)
+
+    import asyncio
+
+    ok = asyncio.run(
+        handle(m.encode(m.DATAGRAMS, 3, b"k" * 16), 0.0, "c", Conn(), None, None)  # type: ignore[arg-type]
+    )
+    msg, fields, text = m.decode(replies[0])
+    assert not ok and msg is m.ERROR and fields["seq"] == 3 and "priority channel" in text
+
+
+def test_newer_sample_numbers_wrap() -> None:
+    from backend.master.link import newer
+
+    assert newer(5, 4) and not newer(4, 5) and not newer(4, 4)
+    assert newer(0, 0xFFFFFFFF) and not newer(0xFFFFFFFF, 0)

@@ -41,17 +41,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--virtual-delay-ms", type=float, default=0.0, help="constant force delay")
     p.add_argument("--command-rate", type=float, default=100.0, help="commands per second")
     p.add_argument("--take-over", action="store_true", help="take control from whoever has it")
+    p.add_argument(
+        "--forces",
+        choices=("udp", "tcp"),
+        default="udp",
+        help="forces as UDP datagrams (a lost one is lost, not late; TCP if none arrive)"
+        " or on the TCP channel",
+    )
 
 
-def open_link(server: str, token: str) -> PriorityLink:
-    """Find the server's priority channel (GET /api/v1/force/channel) and connect."""
+def open_link(server: str, token: str, *, datagrams: bool = True) -> PriorityLink:
+    """Find the server's priority channel (GET /api/v1/force/channel) and connect;
+    forces as datagrams unless ``datagrams`` is False."""
     base = server if server.endswith("/") else server + "/"
     try:
         channel = httpx.get(base + "api/v1/force/channel", timeout=5, verify=False).json()
     except (httpx.HTTPError, ValueError) as exc:
         raise TelerobotError(f"cannot ask {base} for its priority channel: {exc}") from None
     host = urlsplit(base).hostname or "localhost"
-    return PriorityLink(host, int(channel["port"]), token)
+    return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,10 +80,11 @@ def run(args: argparse.Namespace) -> int:
         ).check()
         cls = load_driver("master", args.device)
         device: MasterArm = cls(demo_hand) if args.device == "sim" else cls()
-        link = open_link(args.server, token)
+        udp = args.forces == "udp"
+        link = open_link(args.server, token, datagrams=udp)
         # A server restart or a cut: connect again (with backoff) rather than exit.
         bridge = MasterBridge(
-            device, link, settings, reconnect=lambda: open_link(args.server, token)
+            device, link, settings, reconnect=lambda: open_link(args.server, token, datagrams=udp)
         )
         bridge.start(take_control=bool(token), take_over=args.take_over)
     except TelerobotError as exc:
@@ -91,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"control {'yes' if bridge.has_control else 'no '}"
                 f" · commands {bridge.commands_sent}"
-                f" · forces {bridge.forces_received} · rendering {np.linalg.norm(f):.2f} N"
+                f" · forces {bridge.forces_received} ({bridge.link.datagrams})"
+                f" · rendering {np.linalg.norm(f):.2f} N"
                 + ("" if bridge.connected else " · reconnecting")
                 + (f" · last error: {bridge.last_error}" if bridge.last_error else ""),
                 flush=True,

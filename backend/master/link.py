@@ -1,11 +1,20 @@
 """A client of the priority channel (``backend.realtime.priority``): one TCP socket,
 length-prefixed messages, a reader thread that hands every force sample over the
 moment it arrives. Thread-safe sends; used by the master-arm bridge and the
-force-under-video benchmark."""
+force-under-video benchmark.
+
+With ``datagrams=True`` the forces come as UDP datagrams instead (DATAGRAMS in
+docs/protocol.md): on a lossy link a lost sample is then just lost, where on TCP it
+holds every later one back by a retransmission (a round trip or more). A second
+reader thread takes them and keeps the server's mapping alive; if none arrives within
+``DATAGRAM_FALLBACK_S``, or the server refuses, the forces stay on TCP
+(``datagrams`` says which and why)."""
 
 from __future__ import annotations
 
 import contextlib
+import logging
+import secrets
 import socket
 import threading
 import time
@@ -17,7 +26,16 @@ from backend.netprio import mark_high_priority
 from backend.realtime import messages as m
 from drivers.base import DeviceError, ForceSample
 
+log = logging.getLogger(__name__)
+
 ForceCallback = Callable[[ForceSample, float], None]  # sample, receive time (monotonic)
+DATAGRAM_KEEPALIVE_S = 0.5  # DATAGRAMS to the server this often (it waits 2 s)
+DATAGRAM_FALLBACK_S = 2.0  # no force datagram this long after asking: stay on TCP
+
+
+def newer(seq: int, last: int) -> bool:
+    """Whether sample number ``seq`` comes after ``last`` (u32, wrapping)."""
+    return 0 < (seq - last) & 0xFFFFFFFF < 0x80000000
 
 
 @dataclass
@@ -38,6 +56,7 @@ class PriorityLink:
         on_state: Callable[[dict[str, Any]], None] | None = None,
         on_reply: Callable[[Reply], None] | None = None,
         timeout_s: float = 5.0,
+        datagrams: bool = False,
     ) -> None:
         self.on_force = on_force
         self.on_state = on_state
@@ -50,6 +69,17 @@ class PriorityLink:
         self.best_rtt = float("inf")
         self.closed_reason: str | None = None
         self.received = 0
+        self.stale_samples = 0  # older than one already handed over (datagrams reorder)
+        self._last_seq: int | None = None
+        self._force_lock = threading.Lock()  # two readers with datagrams
+        # Forces as datagrams: "tcp" (not asked), "asking", "udp", or "tcp: <why>".
+        self.datagrams = "tcp"
+        self.datagrams_received = 0
+        self._udp: socket.socket | None = None
+        self._udp_reader: threading.Thread | None = None
+        self._datagram_seq = -1
+        self._datagram_hello = b""
+        self._stopping = threading.Event()
         try:
             self.sock = socket.create_connection((host, port), timeout=timeout_s)
         except OSError as exc:
@@ -70,6 +100,8 @@ class PriorityLink:
                 + (f": {self.closed_reason}" if self.closed_reason else "")
             )
         self.sock.settimeout(None)
+        if datagrams:
+            self._ask_for_datagrams()
 
     # ------------------------------------------------------------ sending
     def _next(self) -> int:
@@ -108,11 +140,66 @@ class PriorityLink:
         self._send(message)
 
     def close(self) -> None:
+        self._stopping.set()
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)
         self.sock.close()
-        if self._reader.is_alive() and self._reader is not threading.current_thread():
-            self._reader.join(timeout=2)
+        for reader in (self._reader, self._udp_reader):
+            if (
+                reader is not None
+                and reader.is_alive()
+                and reader is not threading.current_thread()
+            ):
+                reader.join(timeout=2)
+        if self._udp is not None:
+            self._udp.close()
+
+    # ------------------------------------------------------------ forces as datagrams
+    def _ask_for_datagrams(self) -> None:
+        try:
+            udp = socket.socket(self.sock.family, socket.SOCK_DGRAM)
+            udp.connect(self.sock.getpeername()[:2])  # the channel's address, UDP
+        except OSError as exc:
+            self.datagrams = f"tcp: no UDP socket ({exc})"
+            return
+        mark_high_priority(udp)
+        udp.settimeout(DATAGRAM_KEEPALIVE_S / 2)
+        self._udp = udp
+        key = secrets.token_bytes(16)
+        self._datagram_hello = m.encode(m.DATAGRAMS, 0, key)
+        self.datagrams = "asking"
+        self._datagram_seq = self._next()
+        self._send(m.encode(m.DATAGRAMS, self._datagram_seq, key))
+        self._udp_reader = threading.Thread(
+            target=self._read_datagrams, args=(udp,), name="priority-link-udp", daemon=True
+        )
+        self._udp_reader.start()
+
+    def _read_datagrams(self, udp: socket.socket) -> None:
+        hello = self._datagram_hello
+        asked_at = time.monotonic()
+        said_at = -DATAGRAM_KEEPALIVE_S
+        while not self._stopping.is_set() and not self.datagrams.startswith("tcp"):
+            now = time.monotonic()
+            if self.datagrams == "asking" and now - asked_at > DATAGRAM_FALLBACK_S:
+                self.datagrams = f"tcp: no force datagram within {DATAGRAM_FALLBACK_S:g} s"
+                log.warning("forces stay on TCP: %s", self.datagrams[5:])
+                return  # no more DATAGRAMS: the server goes back to TCP
+            if now - said_at >= DATAGRAM_KEEPALIVE_S:
+                said_at = now
+                with contextlib.suppress(OSError):
+                    udp.send(hello)
+            try:
+                data = udp.recv(2048)
+            except TimeoutError:
+                continue
+            except OSError:
+                continue  # (an ICMP error; or closed, and the loop ends)
+            if data[:1] == bytes((m.FORCE.type_id,)):
+                self.datagrams = "udp"
+                self.datagrams_received += 1
+                with contextlib.suppress(m.MalformedMessage):
+                    self._forces(data, time.monotonic())
 
     # ------------------------------------------------------------ receiving
     def _read(self) -> None:
@@ -135,14 +222,29 @@ class PriorityLink:
         except OSError as exc:
             self.closed_reason = self.closed_reason or str(exc)
 
-    def _dispatch(self, message: bytes, now: float) -> None:
-        if message[0] == m.FORCE.type_id:
+    def _forces(self, message: bytes, now: float) -> None:
+        with self._force_lock:
             for seq, t, values in m.decode_force(message):
+                if self._last_seq is not None and not newer(seq, self._last_seq):
+                    self.stale_samples += 1
+                    continue
+                self._last_seq = seq
                 self.received += 1
                 if self.on_force is not None:
                     self.on_force(ForceSample(seq, t, values), now)  # type: ignore[arg-type]
+
+    def _dispatch(self, message: bytes, now: float) -> None:
+        if message[0] == m.FORCE.type_id:
+            self._forces(message, now)
             return
         msg, fields, text = m.decode(message)
+        if msg is m.ERROR and int(fields["seq"]) == self._datagram_seq:
+            self.datagrams = f"tcp: {text}"  # refused: the UDP reader ends
+            log.warning("forces stay on TCP: %s", text)
+        elif msg is m.ACK and int(fields["seq"]) == self._datagram_seq and self._udp is not None:
+            # Registered: say it by UDP now (the first one may have come before the key).
+            with contextlib.suppress(OSError):
+                self._udp.send(self._datagram_hello)
         if msg is m.WELCOME:
             self.operator = int(fields["role"]) == 1
             self.client_id = text

@@ -132,6 +132,15 @@ ESTOP = Message("ESTOP", 0x05, ("seq", "client_time"), "Id", doc="latched stop; 
 PING = Message("PING", 0x06, ("seq", "t0"), "Id", doc="clock sync: the client's send time")
 LEASE = Message("LEASE", 0x07, ("seq", "action"), "IB", doc="take, release or take over control")
 RESET = Message("RESET", 0x08, ("seq",), "I", doc="clear a latched e-stop (the client in control)")
+DATAGRAMS = Message(
+    "DATAGRAMS",
+    0x09,
+    ("seq", "key"),
+    "I16s",
+    doc="priority channel only: on TCP, send my forces as UDP datagrams to whoever"
+    " sends this key (16 random bytes); on UDP to the channel's port, from the socket"
+    " that receives them, at least every second",
+)
 
 WELCOME = Message(
     "WELCOME",
@@ -211,7 +220,7 @@ PONG = Message(
 )
 
 MESSAGES: Final[tuple[Message, ...]] = (
-    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET,
+    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS,
     WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG,
 )  # fmt: skip
 BY_ID: Final = {m.type_id: m for m in MESSAGES}

@@ -48,6 +48,7 @@ import asyncio
 import contextlib
 import errno
 import logging
+import math
 import resource
 import selectors
 import socket
@@ -89,11 +90,16 @@ MAX_BURST = BURST  # at once (a queue of commands after a stall)
 ACCEPT_BACKOFF_S = (0.05, 1.0)  # accepting pauses this long after EMFILE & co, doubling
 WATCHDOG_S = 1.0  # how often the event loop checks that the channel's thread runs
 RESTART_BACKOFF_S = (0.05, 1.0)  # the thread's loop waits this long after an exception
+# Forces as UDP datagrams (DATAGRAMS): back to TCP after this long without a datagram
+# from the client (it sends one at least every second).
+DATAGRAM_TIMEOUT_S = 2.0
+MAX_DATAGRAMS_PER_STEP = 64  # read at once; a UDP flood then waits behind the TCP clients
 
 # accept() errors that mean "out of resources": shed, pause, try again later.
 _OUT_OF_RESOURCES = {errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM}
 _ACCEPT = "accept"
 _WAKE = "wake"
+_DATAGRAM = "datagram"
 
 
 frame = m.frame
@@ -141,6 +147,11 @@ class PriorityClient:
     state: bytes | None = field(default=None, repr=False)
     head: memoryview | None = field(default=None, repr=False)
     forces_dropped: int = 0
+    # Forces as datagrams: the key this client registered (DATAGRAMS on TCP), the
+    # address its datagrams come from and when the last one came (time.monotonic()).
+    datagram_key: bytes | None = None
+    datagram_addr: Any = None
+    datagram_heard: float = -math.inf
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     events: int = 0  # what the selector watches for this socket (0: not registered)
     session: Session | None = None  # once HELLO has been answered
@@ -236,6 +247,10 @@ class PriorityChannel:
         )
         self._listener.setblocking(False)
         self.port: int = self._listener.getsockname()[1]
+        self._udp = self._datagram_socket(host)
+        # DATAGRAMS keys → their client (at most one key per client, so as bounded as
+        # the connections).
+        self._datagram_keys: dict[bytes, PriorityClient] = {}
         # Every open connection, oldest first (the thread adds and removes; others
         # only take a copy with ``list``).
         self.clients: dict[PriorityClient, None] = {}
@@ -263,6 +278,8 @@ class PriorityChannel:
         self.oversized = 0
         self.accept_errors = 0
         self.restarts = 0  # the thread's loop after an exception, or a new thread
+        self.datagrams_sent = 0  # force samples sent as UDP datagrams
+        self.datagrams_refused = 0  # UDP datagrams that named no registered key
 
     def stats(self) -> dict[str, int]:
         return {
@@ -274,13 +291,31 @@ class PriorityChannel:
             "oversized": self.oversized,
             "accept_errors": self.accept_errors,
             "restarts": self.restarts,
+            "datagrams_sent": self.datagrams_sent,
+            "datagrams_refused": self.datagrams_refused,
         }
+
+    def _datagram_socket(self, host: str) -> socket.socket | None:
+        """A UDP socket on the channel's port number, for forces as datagrams; None
+        (and DATAGRAMS refused) if that port is taken for UDP."""
+        udp = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            udp.bind((host, self.port))
+        except OSError as exc:
+            udp.close()
+            log.warning("no UDP port %d for forces as datagrams (%s): TCP only", self.port, exc)
+            return None
+        udp.setblocking(False)
+        mark_high_priority(udp)
+        return udp
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._selector.register(self._listener, selectors.EVENT_READ, _ACCEPT)
         self._selector.register(self._wake_r, selectors.EVENT_READ, _WAKE)
+        if self._udp is not None:
+            self._selector.register(self._udp, selectors.EVENT_READ, _DATAGRAM)
         if self.force is not None:
             self._unsubscribe.append(self.force.subscribe(self._on_force))
         self._thread.start()
@@ -305,6 +340,8 @@ class PriorityChannel:
         self._subscribers = ()
         self._selector.close()
         self._listener.close()
+        if self._udp is not None:
+            self._udp.close()
         self._wake_r.close()
         self._wake_w.close()
 
@@ -328,14 +365,32 @@ class PriorityChannel:
 
     # ------------------------------------------------------------ forces (sensor thread)
     def _on_force(self, sample: ForceSample) -> None:
-        data = frame(m.encode_force([(sample.seq, sample.time, sample.values)]))
+        message = m.encode_force([(sample.seq, sample.time, sample.values)])
+        data = frame(message)
         look = False
+        now = time.monotonic()
         for client in self._subscribers:  # only clients that said HELLO
-            if not client.closed:
+            if client.closed:
+                continue
+            self.samples_sent += 1
+            addr = client.datagram_addr
+            if addr is not None and now - client.datagram_heard < DATAGRAM_TIMEOUT_S:
+                self._send_datagram(client, message, addr)
+            else:
                 look |= client.push(data, Kind.FORCE)
-                self.samples_sent += 1
         if look:
             self._wake()  # the channel's thread sends the rest when the socket drains
+
+    def _send_datagram(self, client: PriorityClient, message: bytes, addr: Any) -> None:
+        assert self._udp is not None  # (an address is only learnt through it)
+        try:
+            self._udp.sendto(message, addr)
+            self.datagrams_sent += 1
+        except (BlockingIOError, InterruptedError):
+            client.forces_dropped += 1  # the socket's buffer is full: this one is lost
+        except OSError as exc:  # (unreachable, …): TCP until the client says otherwise
+            client.datagram_addr = None
+            self._log_limited("datagram", "forces to %s as datagrams failed: %s", addr, exc)
 
     # ------------------------------------------------------------ the channel's thread
     def _run(self) -> None:
@@ -358,6 +413,8 @@ class PriorityChannel:
             elif key.data == _WAKE:
                 with contextlib.suppress(OSError):
                     self._wake_r.recv(4096)
+            elif key.data == _DATAGRAM:
+                self._read_datagrams()
             else:
                 client: PriorityClient = key.data
                 try:
@@ -407,6 +464,48 @@ class PriorityChannel:
                 want |= selectors.EVENT_WRITE
             self._watch_socket(client, want)
         return max(timeout, 0.0)
+
+    def _read_datagrams(self) -> None:
+        """DATAGRAMS from the clients' UDP sockets: where their forces go from now on.
+        Anything else is dropped unanswered (no reply: a forged source address gets
+        nothing back)."""
+        assert self._udp is not None
+        for _ in range(MAX_DATAGRAMS_PER_STEP):
+            try:
+                data, addr = self._udp.recvfrom(64)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                continue  # (an ICMP error reported on the socket)
+            client = None
+            if len(data) == m.DATAGRAMS.size and data[0] == m.DATAGRAMS.type_id:
+                client = self._datagram_keys.get(data[-16:])
+            if client is None or client.closed:
+                self.datagrams_refused += 1
+                continue
+            if client.datagram_addr != addr:
+                log.info("priority client %s: forces as datagrams to %s", client.peer, addr)
+            client.datagram_addr = addr
+            client.datagram_heard = time.monotonic()
+
+    def register_datagrams(self, client: PriorityClient, message: bytes) -> bytes:
+        """DATAGRAMS on the client's TCP socket (on the event loop): the reply."""
+        _, fields, _ = m.decode(message)
+        seq, key = int(fields["seq"]), bytes(fields["key"])
+        if self._udp is None:
+            return error(seq, "not_ready", "this server has no UDP port: forces stay on TCP")
+        if key == bytes(16) or self._datagram_keys.get(key, client) is not client:
+            return error(seq, "not_allowed", "use 16 random bytes of your own as the key")
+        if client.datagram_key is not None:
+            self._datagram_keys.pop(client.datagram_key, None)
+        client.datagram_key = key
+        self._datagram_keys[key] = client
+        return m.encode(m.ACK, seq, m.Ack.APPLIED, self.hub.clock.now())
+
+    def _forget_datagrams(self, client: PriorityClient) -> None:
+        if client.datagram_key is not None:
+            self._datagram_keys.pop(client.datagram_key, None)
+        client.datagram_addr = None
 
     def _wants_read(self, client: PriorityClient) -> bool:
         if client.stage is Stage.HELLO:
@@ -600,6 +699,7 @@ class PriorityChannel:
         self.clients.pop(client, None)
         client.closed = True
         self._drop_subscriber(client)
+        self._forget_datagrams(client)
         if client.events:
             with contextlib.suppress(KeyError, ValueError, OSError):
                 self._selector.unregister(client.sock)
@@ -700,6 +800,14 @@ class PriorityChannel:
                 if client.read_blocked and len(inbox) <= self.max_inbox // 2:
                     client.read_blocked = False
                     self._wake()  # room again: read on
+                if (
+                    message[:1] == bytes((m.DATAGRAMS.type_id,))
+                    and len(message) == m.DATAGRAMS.size
+                    and not session.superseded
+                ):
+                    self.decision.seen(session.client.id)  # a message like any other
+                    self._send_soon(client, self.register_datagrams(client, message))
+                    continue
                 await session.receive(message, received)
                 await asyncio.sleep(0)
         except asyncio.CancelledError:
@@ -711,6 +819,7 @@ class PriorityChannel:
     async def _leave(self, client: PriorityClient) -> None:
         client.closed = True
         self._drop_subscriber(client)
+        self._forget_datagrams(client)
         if client.worker is not None and client.worker is not asyncio.current_task():
             client.worker.cancel()
             with contextlib.suppress(asyncio.CancelledError):

@@ -207,6 +207,12 @@ async def handle(
             else:
                 raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
             conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+        elif msg is m.DATAGRAMS:
+            raise m.MalformedMessage(
+                "DATAGRAMS is for the priority channel (forces over UDP), not this one",
+                "invalid_command",
+                seq,
+            )
         else:
             raise m.MalformedMessage(f"{msg.name} is not a client message", "unknown_type", seq)
     except m.MalformedMessage as exc:

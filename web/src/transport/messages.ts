@@ -27,6 +27,8 @@ export const PING: MessageSpec<"PING"> = {"name": "PING", "typeId": 6, "size": 1
 export const LEASE: MessageSpec<"LEASE"> = {"name": "LEASE", "typeId": 7, "size": 6, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "action", "kind": "u8", "offset": 5, "size": 1}]};
 /** clear a latched e-stop (the client in control) */
 export const RESET: MessageSpec<"RESET"> = {"name": "RESET", "typeId": 8, "size": 5, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
+/** priority channel only: on TCP, send my forces as UDP datagrams to whoever sends this key (16 random bytes); on UDP to the channel's port, from the socket that receives them, at least every second */
+export const DATAGRAMS: MessageSpec<"DATAGRAMS"> = {"name": "DATAGRAMS", "typeId": 9, "size": 21, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "key", "kind": "bytes", "offset": 5, "size": 16}]};
 /** role 1 = operator; text = client id */
 export const WELCOME: MessageSpec<"WELCOME"> = {"name": "WELCOME", "typeId": 129, "size": 12, "tail": "text", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "role", "kind": "u8", "offset": 3, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 4, "size": 8}]};
 /** robot state; status: index in RobotStatus order; flags: StateFlags */
@@ -42,7 +44,7 @@ export const ACK: MessageSpec<"ACK"> = {"name": "ACK", "typeId": 134, "size": 14
 /** t0 echoed, t1 server receive, t2 server send */
 export const PONG: MessageSpec<"PONG"> = {"name": "PONG", "typeId": 135, "size": 29, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}, {"name": "t1", "kind": "f64", "offset": 13, "size": 8}, {"name": "t2", "kind": "f64", "offset": 21, "size": 8}]};
 
-export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
+export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
 export const FORCE_SAMPLE_SIZE = 60; // u32 seq, f64 time, 6 × f64
 
 /** One sample of a FORCE message: Fx Fy Fz (N), Tx Ty Tz (N·m). */
@@ -113,6 +115,12 @@ export interface LeaseMessage {
 export interface ResetMessage {
   readonly type: "RESET";
   seq: number; // u32
+}
+/** DATAGRAMS (0x09, client → server): priority channel only: on TCP, send my forces as UDP datagrams to whoever sends this key (16 random bytes); on UDP to the channel's port, from the socket that receives them, at least every second */
+export interface DatagramsMessage {
+  readonly type: "DATAGRAMS";
+  seq: number; // u32
+  key: Uint8Array; // 16 bytes, zero-padded
 }
 /** WELCOME (0x81, server → client): role 1 = operator; text = client id */
 export interface WelcomeMessage {
@@ -190,7 +198,8 @@ export type ClientMessage =
   | EstopMessage
   | PingMessage
   | LeaseMessage
-  | ResetMessage;
+  | ResetMessage
+  | DatagramsMessage;
 export type ServerMessage =
   | WelcomeMessage
   | StateMessage
