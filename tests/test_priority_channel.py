@@ -5,6 +5,7 @@ sockets marked ahead of video."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 import socket
 import struct
@@ -236,9 +237,9 @@ def test_forces_go_back_to_tcp_when_the_datagrams_stop(server: tuple[str, int]) 
         udp.connect(("127.0.0.1", port))
         udp.settimeout(2)
         key = bytes(range(1, 17))
-        link.send_raw(m.encode(m.DATAGRAMS, 77, key))
+        link.send_raw(m.encode(m.DATAGRAMS, 77, key, 1))
         assert rec.reply_to(77).name == "ACK"
-        udp.send(m.encode(m.DATAGRAMS, 0, key))
+        udp.send(m.encode(m.DATAGRAMS, 0, key, 1))
         first = udp.recv(2048)
         assert first[:1] == bytes((m.FORCE.type_id,)) and len(m.decode_force(first)) == 1
         time.sleep(0.3)  # (samples already queued on TCP have arrived)
@@ -258,7 +259,7 @@ def test_datagrams_without_a_registered_key_get_nothing(server: tuple[str, int])
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
         udp.settimeout(0.5)
         udp.connect(("127.0.0.1", port))
-        for junk in (m.encode(m.DATAGRAMS, 0, b"\x07" * 16), b"", b"\x09" * 5, b"x" * 60):
+        for junk in (m.encode(m.DATAGRAMS, 0, b"\x07" * 16, 1), b"", b"\x09" * 5, b"x" * 60):
             udp.send(junk)
         with pytest.raises(TimeoutError):
             udp.recv(2048)  # no answer, no forces
@@ -276,14 +277,14 @@ def test_a_taken_or_empty_datagram_key_is_refused(server: tuple[str, int]) -> No
     b, brec = connect(port, token="")
     try:
         key = b"k" * 16
-        a.send_raw(m.encode(m.DATAGRAMS, 5, key))
+        a.send_raw(m.encode(m.DATAGRAMS, 5, key, 1))
         assert arec.reply_to(5).name == "ACK"
-        b.send_raw(m.encode(m.DATAGRAMS, 6, key))  # someone else's key
+        b.send_raw(m.encode(m.DATAGRAMS, 6, key, 1))  # someone else's key
         taken = brec.reply_to(6)
         assert taken.name == "ERROR" and "random bytes" in taken.text
-        b.send_raw(m.encode(m.DATAGRAMS, 7, bytes(16)))
+        b.send_raw(m.encode(m.DATAGRAMS, 7, bytes(16), 1))
         assert brec.reply_to(7).name == "ERROR"
-        b.send_raw(m.encode(m.DATAGRAMS, 8, key)[:-1])  # a byte short
+        b.send_raw(m.encode(m.DATAGRAMS, 8, key, 1)[:-1])  # a byte short
         until(lambda: any(r.name == "ERROR" and "DATAGRAMS" in r.text for r in brec.replies))
     finally:
         a.close()
@@ -332,7 +333,7 @@ def test_datagrams_is_refused_on_the_websocket() -> None:
     import asyncio
 
     ok = asyncio.run(
-        handle(m.encode(m.DATAGRAMS, 3, b"k" * 16), 0.0, "c", Conn(), None, None)  # type: ignore[arg-type]
+        handle(m.encode(m.DATAGRAMS, 3, b"k" * 16, 1), 0.0, "c", Conn(), None, None)  # type: ignore[arg-type]
     )
     msg, fields, text = m.decode(replies[0])
     assert not ok and msg is m.ERROR and fields["seq"] == 3 and "priority channel" in text
@@ -343,3 +344,64 @@ def test_newer_sample_numbers_wrap() -> None:
 
     assert newer(5, 4) and not newer(4, 5) and not newer(4, 4)
     assert newer(0, 0xFFFFFFFF) and not newer(0xFFFFFFFF, 0)
+
+
+def test_every_thins_the_datagrams_and_a_bad_every_is_refused(server: tuple[str, int]) -> None:
+    _, port = server
+    rec = Recorder()
+    link = PriorityLink("127.0.0.1", port, "", on_reply=rec.reply)
+    try:
+        link.send_raw(m.encode(m.DATAGRAMS, 40, b"e" * 16, 0))
+        zero = rec.reply_to(40)
+        assert zero.name == "ERROR" and "every" in zero.text
+        link.send_raw(m.encode(m.DATAGRAMS, 41, b"e" * 16, 1))
+        assert rec.reply_to(41).name == "ACK"
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            udp.settimeout(2)
+            udp.connect(("127.0.0.1", port))
+            udp.send(m.encode(m.DATAGRAMS, 0, b"e" * 16, 10))
+            seqs = [m.decode_force(udp.recv(2048))[0][0] for _ in range(30)]
+            assert all(s % 10 == 0 for s in seqs[5:]), seqs  # (a few were on their way)
+            assert all(b - a == 10 for a, b in itertools.pairwise(seqs[5:])), seqs
+    finally:
+        link.close()
+
+
+def test_thinning_doubles_on_loss_and_halves_after_a_clean_while() -> None:
+    from backend.master.link import Thinning
+
+    t = Thinning(now=0.0)
+    for seq in range(1000, 1500):
+        if seq % 10:  # 10 % missing
+            t.arrived(seq)
+    assert t.judge(0.5) == 2 and t.loss == pytest.approx(0.1, abs=0.01)
+    for seq in range(1500, 2000, 2):
+        if seq % 20:  # still 10 % of those sent
+            t.arrived(seq)
+    assert t.judge(1.0) == 4
+    for k in range(16):  # up to the cap
+        for seq in range(2000 + 500 * k, 2500 + 500 * k, t.every):
+            if (seq // t.every) % 10:
+                t.arrived(seq)
+        t.judge(1.5 + 0.5 * k)
+    assert t.every == Thinning.MAX
+    now = 10.0
+    for _ in range(4):  # clean: halves every 2 s, not sooner
+        start = 100_000 + int(now * 1000)
+        for seq in range(start, start + 500):
+            t.arrived(seq)
+        now += 0.5
+        t.judge(now)
+    assert t.every == Thinning.MAX // 2
+    # Some loss under the doubling limit holds it; nothing heard at all says nothing.
+    assert t.judge(now + 5) == Thinning.MAX // 2
+
+
+def test_thinning_ignores_samples_sent_before_the_change_and_wraps() -> None:
+    from backend.master.link import Thinning
+
+    t = Thinning(now=0.0)
+    t.every = 4
+    for seq in [0xFFFFFFF0 + i for i in range(0, 16)] + list(range(0, 64)):
+        t.arrived(seq)  # only the multiples of 4 count; the rest came before the change
+    assert t.judge(0.5) == 4 and t.loss == 0.0

@@ -38,6 +38,55 @@ def newer(seq: int, last: int) -> bool:
     return 0 < (seq - last) & 0xFFFFFFFF < 0x80000000
 
 
+class Thinning:
+    """How many samples the server should send one of (DATAGRAMS.every), judged from
+    the sample numbers that arrive. Datagrams have no congestion control: 1000 a second
+    are ~0.7 Mbit/s with their headers, which a 2 Mbit/s link shared with video cannot
+    carry without queueing and dropping everything, commands included. So: every half
+    second, more than ``LOSS_UP`` of the samples sent missing doubles ``every`` (up to
+    ``MAX``); ``CLEAN_S`` with less than ``LOSS_CLEAN`` missing halves it. (A link's
+    random loss looks like congestion here; a bad link then gets ~60 samples a second,
+    which is what it can carry anyway.)"""
+
+    MAX = 16
+    LOSS_UP = 0.05
+    LOSS_CLEAN = 0.01
+    CLEAN_S = 2.0
+
+    def __init__(self, now: float) -> None:
+        self.every = 1
+        self.loss = 0.0  # of the last window judged
+        self._first: int | None = None
+        self._last = 0
+        self._got = 0
+        self._clean_since = now
+
+    def arrived(self, seq: int) -> None:
+        if seq % self.every:
+            return  # sent before the server heard of the last change
+        if self._first is None:
+            self._first = self._last = seq
+        elif newer(seq, self._last):
+            self._last = seq
+        self._got += 1
+
+    def judge(self, now: float) -> int:
+        """End a window (every ``DATAGRAM_KEEPALIVE_S``); returns ``every`` for the next."""
+        if self._first is not None and self._got > 1:
+            expected = ((self._last - self._first) & 0xFFFFFFFF) // self.every + 1
+            self.loss = max(0.0, 1.0 - self._got / expected)
+            if self.loss > self.LOSS_UP:
+                self.every = min(2 * self.every, self.MAX)
+                self._clean_since = now
+            elif self.loss >= self.LOSS_CLEAN:
+                self._clean_since = now
+            elif now - self._clean_since >= self.CLEAN_S and self.every > 1:
+                self.every //= 2
+                self._clean_since = now
+        self._first, self._got = None, 0
+        return self.every
+
+
 @dataclass
 class Reply:
     name: str
@@ -79,6 +128,8 @@ class PriorityLink:
         self._udp_reader: threading.Thread | None = None
         self._datagram_seq = -1
         self._datagram_hello = b""
+        self._datagram_key = b""
+        self.thinning = Thinning(0.0)
         self._stopping = threading.Event()
         try:
             self.sock = socket.create_connection((host, port), timeout=timeout_s)
@@ -166,17 +217,18 @@ class PriorityLink:
         udp.settimeout(DATAGRAM_KEEPALIVE_S / 2)
         self._udp = udp
         key = secrets.token_bytes(16)
-        self._datagram_hello = m.encode(m.DATAGRAMS, 0, key)
+        self._datagram_key = key
+        self.thinning = Thinning(time.monotonic())
+        self._datagram_hello = m.encode(m.DATAGRAMS, 0, key, 1)
         self.datagrams = "asking"
         self._datagram_seq = self._next()
-        self._send(m.encode(m.DATAGRAMS, self._datagram_seq, key))
+        self._send(m.encode(m.DATAGRAMS, self._datagram_seq, key, 1))
         self._udp_reader = threading.Thread(
             target=self._read_datagrams, args=(udp,), name="priority-link-udp", daemon=True
         )
         self._udp_reader.start()
 
     def _read_datagrams(self, udp: socket.socket) -> None:
-        hello = self._datagram_hello
         asked_at = time.monotonic()
         said_at = -DATAGRAM_KEEPALIVE_S
         while not self._stopping.is_set() and not self.datagrams.startswith("tcp"):
@@ -187,17 +239,19 @@ class PriorityLink:
                 return  # no more DATAGRAMS: the server goes back to TCP
             if now - said_at >= DATAGRAM_KEEPALIVE_S:
                 said_at = now
+                every = self.thinning.judge(now) if self.datagrams == "udp" else 1
                 with contextlib.suppress(OSError):
-                    udp.send(hello)
+                    udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, every))
             try:
                 data = udp.recv(2048)
             except TimeoutError:
                 continue
             except OSError:
                 continue  # (an ICMP error; or closed, and the loop ends)
-            if data[:1] == bytes((m.FORCE.type_id,)):
+            if data[:1] == bytes((m.FORCE.type_id,)) and len(data) >= 7:
                 self.datagrams = "udp"
                 self.datagrams_received += 1
+                self.thinning.arrived(int.from_bytes(data[3:7], "little"))
                 with contextlib.suppress(m.MalformedMessage):
                     self._forces(data, time.monotonic())
 

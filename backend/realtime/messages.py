@@ -135,11 +135,12 @@ RESET = Message("RESET", 0x08, ("seq",), "I", doc="clear a latched e-stop (the c
 DATAGRAMS = Message(
     "DATAGRAMS",
     0x09,
-    ("seq", "key"),
-    "I16s",
+    ("seq", "key", "every"),
+    "I16sH",
     doc="priority channel only: on TCP, send my forces as UDP datagrams to whoever"
     " sends this key (16 random bytes); on UDP to the channel's port, from the socket"
-    " that receives them, at least every second",
+    " that receives them, at least every second; every: send one sample in this many"
+    " (1 = all; a slow link asks for fewer)",
 )
 
 WELCOME = Message(

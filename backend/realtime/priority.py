@@ -93,6 +93,7 @@ RESTART_BACKOFF_S = (0.05, 1.0)  # the thread's loop waits this long after an ex
 # Forces as UDP datagrams (DATAGRAMS): back to TCP after this long without a datagram
 # from the client (it sends one at least every second).
 DATAGRAM_TIMEOUT_S = 2.0
+MAX_EVERY = 1000  # DATAGRAMS.every: at least one sample a second
 MAX_DATAGRAMS_PER_STEP = 64  # read at once; a UDP flood then waits behind the TCP clients
 
 # accept() errors that mean "out of resources": shed, pause, try again later.
@@ -152,6 +153,7 @@ class PriorityClient:
     datagram_key: bytes | None = None
     datagram_addr: Any = None
     datagram_heard: float = -math.inf
+    datagram_every: int = 1  # one sample in this many (the client's choice)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     events: int = 0  # what the selector watches for this socket (0: not registered)
     session: Session | None = None  # once HELLO has been answered
@@ -375,7 +377,8 @@ class PriorityChannel:
             self.samples_sent += 1
             addr = client.datagram_addr
             if addr is not None and now - client.datagram_heard < DATAGRAM_TIMEOUT_S:
-                self._send_datagram(client, message, addr)
+                if sample.seq % client.datagram_every == 0:
+                    self._send_datagram(client, message, addr)
             else:
                 look |= client.push(data, Kind.FORCE)
         if look:
@@ -479,10 +482,12 @@ class PriorityChannel:
                 continue  # (an ICMP error reported on the socket)
             client = None
             if len(data) == m.DATAGRAMS.size and data[0] == m.DATAGRAMS.type_id:
-                client = self._datagram_keys.get(data[-16:])
+                _, _, key, every = m.DATAGRAMS.struct.unpack(data)
+                client = self._datagram_keys.get(key) if 1 <= every <= MAX_EVERY else None
             if client is None or client.closed:
                 self.datagrams_refused += 1
                 continue
+            client.datagram_every = every
             if client.datagram_addr != addr:
                 log.info("priority client %s: forces as datagrams to %s", client.peer, addr)
             client.datagram_addr = addr
@@ -492,6 +497,8 @@ class PriorityChannel:
         """DATAGRAMS on the client's TCP socket (on the event loop): the reply."""
         _, fields, _ = m.decode(message)
         seq, key = int(fields["seq"]), bytes(fields["key"])
+        if not 1 <= int(fields["every"]) <= MAX_EVERY:
+            return error(seq, "invalid_command", f"every must be 1 to {MAX_EVERY}")
         if self._udp is None:
             return error(seq, "not_ready", "this server has no UDP port: forces stay on TCP")
         if key == bytes(16) or self._datagram_keys.get(key, client) is not client:
