@@ -293,6 +293,17 @@ class NetemPair:
         """argv prefix running a command in the client's namespace."""
         return ("ip", "netns", "exec", self.client_ns)
 
+    def client_executable(self, program: str, directory: str) -> str:
+        """An executable script in ``directory`` that runs ``program`` (with its
+        arguments) in the client's namespace: for a caller that takes the path of a
+        program, not a command line (Playwright's ``executable_path``: a browser behind
+        the emulated link; Playwright drives it over pipes, which the namespace keeps)."""
+        path = os.path.join(directory, f"in-{self.client_ns}-{os.path.basename(program)}")
+        with open(path, "w") as f:
+            f.write(f'#!/bin/sh\nexec {" ".join(self.client_prefix)} {program} "$@"\n')
+        os.chmod(path, 0o755)
+        return path
+
     @property
     def profile(self) -> Profile:
         """The profile applied (also while the link is down)."""

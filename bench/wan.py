@@ -266,6 +266,7 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
             "synced_clock_flag": synced is not None,
             "ping_rtt_ms": rtt * 1000,
             "resumed": resumer.resumed,
+            "resume_attempts": list(resumer.attempts),
             "clock_offset_ms": op.offset * 1000,
         }
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections import deque
 from typing import Any
 
 import websockets
@@ -106,6 +107,9 @@ class StallResumer:
         self.stall_s, self.every_s = stall_s, every_s
         self.last_heard = time.monotonic()
         self.resumed = 0
+        # What each attempt came to: (time.monotonic(), "resumed" / why not), the
+        # last 64 (for a closer look at a lease lost through a cut).
+        self.attempts: deque[tuple[float, str]] = deque(maxlen=64)
         self._resuming = False
         self._tasks: set[asyncio.Task[None]] = set()
 
@@ -146,18 +150,22 @@ class StallResumer:
     async def _attempt(self) -> None:
         try:
             ws = await asyncio.wait_for(open_socket(self.url), 3.0)
-        except (OSError, TimeoutError, websockets.WebSocketException):
+        except (OSError, TimeoutError, websockets.WebSocketException) as exc:
+            self.attempts.append((time.monotonic(), f"open: {type(exc).__name__} {exc}"))
             return
         if self._resuming or not self.stalled():  # another opened first, or it came back
+            self.attempts.append((time.monotonic(), "not needed"))
             await ws.close()
             return
         self._resuming = True
         try:
             new = await RealtimeClient.resume(ws, self.client.resume_key)
-        except (OSError, TimeoutError, RuntimeError, websockets.WebSocketException):
+        except (OSError, TimeoutError, RuntimeError, websockets.WebSocketException) as exc:
+            self.attempts.append((time.monotonic(), f"resume: {type(exc).__name__} {exc}"))
             return
         finally:
             self._resuming = False
+        self.attempts.append((time.monotonic(), "resumed"))
         old, self.client.ws = self.client.ws, new.ws
         self.heard()
         self.resumed += 1
