@@ -70,6 +70,7 @@ FREEZE_S = 0.2  # no new frame for longer than this: frozen
 STALE_S = 0.25  # the server's default max_command_age_ms
 RECOVER_S = 1.0  # left out of the steady figures after the outage
 ROLES = ("viewer", "force", "command")
+VIEWERS = ("aiortc", "browser")  # --viewer: the "viewer" role's process
 
 
 # ---------------------------------------------------------------- client roles
@@ -157,6 +158,70 @@ def role_viewer(base: str) -> dict[str, Any]:
         }
 
     return asyncio.run(run())
+
+
+# Injected into the operator page once it shows video: the arrival time of every
+# decoded frame (requestVideoFrameCallback on the page's <video>) and every
+# capture → decoded figure the page's own glass-to-glass meter adds (view/glass.ts),
+# on the page's clock; both bounded (a 20 s run at 30 fps is 600 of each).
+PAGE_PROBE = """
+(() => {
+  const arrivals = (window.__arrivals = []);
+  const ages = (window.__ages = []);
+  const video = document.getElementById("video");
+  const tick = () => {
+    if (arrivals.length < 100000) arrivals.push(performance.now());
+    video.requestVideoFrameCallback(tick);
+  };
+  video.requestVideoFrameCallback(tick);
+  const glass = window.telerobot.glass;
+  const add = glass.add.bind(glass);
+  glass.add = (v) => {
+    if (ages.length < 100000) ages.push([performance.now(), v]);
+    add(v);
+  };
+})()
+"""
+
+
+def role_browser(base: str) -> dict[str, Any]:
+    """The viewer as an operator has it: Debian's Chromium with the operator page (as
+    an observer: no token), in this (the client's) namespace."""
+    from playwright.sync_api import sync_playwright
+
+    from bench.browser import ARGS, yield_software_gpu
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
+        page.goto(base)
+        yield_software_gpu()
+        page.wait_for_function(
+            "window.telerobot && window.telerobot.view.frames > 10", timeout=60_000, polling=100
+        )
+        page.evaluate(PAGE_PROBE)
+        print("ready", flush=True)
+        sys.stdin.readline()
+        now_page, arrivals, ages, layer = page.evaluate(
+            "[performance.now(), window.__arrivals, window.__ages,"
+            " window.telerobot.hud && window.telerobot.hud.rows.find((r) => r.key === 'video')]"
+        )
+        now = time.monotonic()
+        browser.close()
+    status = _get_json(base, "api/v1/video")
+
+    def mono(t_page: float) -> float:  # the page's clock → this machine's monotonic one
+        return now - (now_page - t_page) / 1000
+
+    return {
+        "frames": [(mono(t), None) for t in arrivals],
+        "ages": [(mono(t), age / 1000) for t, age in ages],
+        "bytes_at": [],
+        "packets": [],
+        "polls": [],
+        "status": status,
+        "hud_video_row": layer,
+    }
 
 
 def role_force(base: str) -> dict[str, Any]:
@@ -276,6 +341,8 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
 def run_role(role: str, base: str, token: str, hz: float) -> None:
     if role == "viewer":
         out = role_viewer(base)
+    elif role == "browser":
+        out = role_browser(base)
     elif role == "force":
         out = role_force(base)
     else:
@@ -309,7 +376,8 @@ def video_figures(out: dict[str, Any], segments: Segments, t_up: float) -> dict[
     arrivals = [t for t, _ in frames]
     steady = [t for t in arrivals if _in(t, segments)]
     span = sum(hi - lo for lo, hi in segments)
-    ages = [age * 1000 for t, age in frames if age is not None and _in(t, segments)]
+    timed = out.get("ages") or frames  # (the browser's meter reads them apart)
+    ages = [age * 1000 for t, age in timed if age is not None and _in(t, segments)]
     gaps = _gaps(arrivals, segments)
     frozen = sum(g for g in gaps if g > FREEZE_S)
     whole = (segments[0][0], segments[-1][1])
@@ -333,7 +401,9 @@ def video_figures(out: dict[str, Any], segments: Segments, t_up: float) -> dict[
         "frames_after_outage": len(after),
         "rtp_packets_after_outage": sum(1 for t in out["packets"] if t >= t_up),
         "video_mbps": mbps,
-        "frames_unreadable": sum(1 for t, age in frames if age is None and _in(t, segments)),
+        "frames_unreadable": None
+        if "ages" in out
+        else sum(1 for t, age in frames if age is None and _in(t, segments)),
         "layer_switches": switches,
         "layer_switches_source": source,
         "server_viewer": viewers[0] if viewers else None,
@@ -450,10 +520,13 @@ def command_figures(
 
 
 # ---------------------------------------------------------------- one profile
-def _spawn(pair: NetemPair, role: str, base: str, token: str, hz: float) -> subprocess.Popen[str]:
+def _spawn(
+    pair: NetemPair, role: str, base: str, token: str, hz: float, viewer: str = "aiortc"
+) -> subprocess.Popen[str]:
+    process = "browser" if role == "viewer" and viewer == "browser" else role
     return subprocess.Popen(
-        [*pair.client_prefix, sys.executable, "-m", "bench.wan", "--role", role, "--base", base,
-         "--command-hz", str(hz)],
+        [*pair.client_prefix, sys.executable, "-m", "bench.wan", "--role", process,
+         "--base", base, "--command-hz", str(hz)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "BENCH_WAN_TOKEN": token}, cwd=REPO,
     )  # fmt: skip
@@ -473,9 +546,15 @@ def _collect(proc: subprocess.Popen[str], role: str) -> dict[str, Any]:
 
 
 def run_profile(
-    pair: NetemPair, base: str, token: str, seconds: float, outage_s: float, hz: float
+    pair: NetemPair,
+    base: str,
+    token: str,
+    seconds: float,
+    outage_s: float,
+    hz: float,
+    viewer: str = "aiortc",
 ) -> dict[str, Any]:
-    procs = {role: _spawn(pair, role, base, token, hz) for role in ROLES}
+    procs = {role: _spawn(pair, role, base, token, hz, viewer) for role in ROLES}
     try:
         deadline = time.monotonic() + 60
         for role, proc in procs.items():
@@ -567,7 +646,14 @@ def main() -> None:
     p.add_argument("--video-bitrate", type=int, help="default: the server's own setting")
     p.add_argument("--command-hz", type=float, default=50.0)
     p.add_argument("--probes", type=int, default=60, help="link probes per profile")
-    p.add_argument("--role", choices=ROLES, help=argparse.SUPPRESS)
+    p.add_argument(
+        "--viewer",
+        choices=VIEWERS,
+        default="aiortc",
+        help="who watches: an aiortc peer that decodes in Python, or Debian's Chromium"
+        " with the operator page (what an operator has; heavier on this machine)",
+    )
+    p.add_argument("--role", choices=(*ROLES, "browser"), help=argparse.SUPPRESS)
     p.add_argument("--base", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.role:
@@ -611,7 +697,10 @@ def main() -> None:
             # one-way delay is the floor for any force transport.
             dense = measure_link(pair, probes=2000, interval_s=0.001)
             time.sleep(max(0.0, ready_at - time.monotonic()))
-            row = run_profile(pair, base, token, args.seconds, args.outage, args.command_hz)
+            row = run_profile(
+                pair, base, token, args.seconds, args.outage, args.command_hz, args.viewer
+            )
+            row["viewer"] = args.viewer
             row["link"] = {
                 "profile": name,
                 "backend": pair.backend or "none",

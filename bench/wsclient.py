@@ -4,6 +4,7 @@ bridge to come): hello, lease, clock sync, commands, force reception."""
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from collections import deque
 from typing import Any
@@ -107,6 +108,7 @@ class StallResumer:
         self.stall_s, self.every_s = stall_s, every_s
         self.last_heard = time.monotonic()
         self.resumed = 0
+        self.last_resumed = -math.inf
         # What each attempt came to: (time.monotonic(), "resumed" / why not), the
         # last 64 (for a closer look at a lease lost through a cut).
         self.attempts: deque[tuple[float, str]] = deque(maxlen=64)
@@ -148,12 +150,16 @@ class StallResumer:
                 task.cancel()
 
     async def _attempt(self) -> None:
+        started = time.monotonic()
         try:
             ws = await asyncio.wait_for(open_socket(self.url), 3.0)
         except (OSError, TimeoutError, websockets.WebSocketException) as exc:
             self.attempts.append((time.monotonic(), f"open: {type(exc).__name__} {exc}"))
             return
-        if self._resuming or not self.stalled():  # another opened first, or it came back
+        # Resumed by another attempt since this one started: not needed. (The old
+        # connection's news getting through is no reason to stop: our side of it may
+        # still wait on TCP's retransmission timer, as in the page, realtime.ts.)
+        if self._resuming or self.last_resumed > started:
             self.attempts.append((time.monotonic(), "not needed"))
             await ws.close()
             return
@@ -166,6 +172,7 @@ class StallResumer:
         finally:
             self._resuming = False
         self.attempts.append((time.monotonic(), "resumed"))
+        self.last_resumed = time.monotonic()
         old, self.client.ws = self.client.ws, new.ws
         self.heard()
         self.resumed += 1

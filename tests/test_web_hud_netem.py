@@ -20,7 +20,7 @@ from bench.common import serve_for_bench
 from bench.netem import NetemPair, emulator_available
 from tests.test_browser import CHROMIUM
 from tests.test_web_hud import HUD, hud_wait, row_is, rows, said
-from tests.webpage import ENV, TOKEN, open_page
+from tests.webpage import ENV, open_page
 
 pytestmark = pytest.mark.browser
 
@@ -52,7 +52,9 @@ def test_the_hud_follows_the_link_green_amber_red_and_back(
     linked: tuple[NetemPair, str, Browser],
 ) -> None:
     pair, base, browser = linked
-    assert base.startswith(f"http://{pair.server_addr}:")  # not loopback: the page is behind the link
+    assert base.startswith(
+        f"http://{pair.server_addr}:"
+    )  # not loopback: the page is behind the link
     page, errors = open_page(browser, base)
     hud_wait(page, f"{HUD}.level === 'ok'", timeout=30_000)
 

@@ -102,9 +102,13 @@ export class RealtimeClient {
     };
     ws.onmessage = (ev) => {
       this.lastHeard = performance.now();
-      // The old connection got through first: the attempts not yet resuming are dropped
-      // (one that asked to resume goes on: the server may already have moved the session).
-      if (this.stalledSince !== null && !this.resuming) this.stopResuming();
+      // The old connection's news got through first. That says nothing of what we send
+      // on it: each end of a TCP connection waits out its own doubling retransmission
+      // timer (0.2, 0.6, 1.4, 3 s), so ours may still be seconds from the server, past
+      // the lease's grace. The attempts under way go on and the first to open resumes;
+      // no new ones are made while the server is heard (watch), and the give-up clock
+      // restarts at the next stall.
+      this.stalledSince = null;
       this.receive(ev.data as ArrayBuffer);
     };
   }
