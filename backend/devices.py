@@ -32,6 +32,8 @@ def build_workcell(settings: Settings) -> Workcell:
         baseline=settings.camera_baseline,
         width=settings.video_width,  # the cameras' ground truth is for the video's size
         height=settings.video_height,
+        block_stiffness=settings.block_stiffness_n_m,
+        block_damping=settings.block_damping_n_s_m,
     )
     if settings.fiducials is not None:  # where they really are (a real workcell)
         cell = dataclasses.replace(cell, fiducials=np.array(settings.fiducials, dtype=float))

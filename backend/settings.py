@@ -117,6 +117,10 @@ class Settings(BaseSettings):
     fiducials: list[list[float]] | None = None
     camera_distance: float = Field(1.8, ge=0.3, le=10.0)
     camera_baseline: float = Field(0.12, gt=0.0, lt=1.0)
+    # The block the gripper can press on: its contact spring and damper (a stiffer one
+    # makes a delayed force-feedback loop harder to keep stable).
+    block_stiffness_n_m: float = Field(5.0e4, ge=100.0, le=1.0e7)
+    block_damping_n_s_m: float = Field(80.0, ge=0.0, le=1.0e4)
 
     @field_validator("fiducials")
     @classmethod

@@ -2,7 +2,7 @@
 bench.netem's profiles (lan, wifi, wan, mobile, bad) with the server in the pair's
 server namespace and the clients in its client namespace.
 
-    python -m bench.wan [--json] [--seconds 15] [--profiles mobile,bad]
+    python -m bench.wan [--json] [--seconds 15] [--profiles mobile,bad] [--viewer browser]
 
 One ``telerobot serve`` (simulation, stereo video at 2×640×360 by default, the
 server's own bitrate setting unless ``--video-bitrate``) for all profiles; for each
@@ -17,9 +17,20 @@ jitter), then three client processes run in the client namespace at once:
   ``layer_switches`` comes from the per-viewer entries of GET /api/v1/video: a
   switch counter if the server has one, else the changes of the viewer's ``layer``
   polled once a second; ``layer_switches_source`` says which (and 0 if neither).
+  With ``--viewer browser`` the viewer is Debian's Chromium with the operator page
+  (observer) instead: frame arrivals from requestVideoFrameCallback, capture →
+  decoded from the page's own meter (view/glass.ts); no byte or packet counts. On
+  this 2-core machine the browser's software GPU takes most of a core, which the
+  server's encoder then lacks: its fps is the machine's, not the link's.
 * **force**: the master-arm bridge (simulated master, observer) on the priority
-  channel: one-way latency = receive time − the sample's sensor time (one machine's
-  CLOCK_MONOTONIC, also across namespaces); lost = gaps in the sample numbers.
+  channel, forces as UDP datagrams (its default; ``force_transport`` says which it
+  got): one-way latency = receive time − the sample's sensor time (one machine's
+  CLOCK_MONOTONIC, also across namespaces); lost = gaps in the sample numbers (which
+  include the samples the bridge asked the server to skip on a lossy link:
+  ``force_rate_hz`` says how many came). Beside it, ``link.khz_down_p99_ms``: a bare
+  1 kHz UDP stream's one-way p99 through the same link without video, the floor any
+  force transport has (a FIFO link holds a stream denser than its jitter behind
+  itself).
 * **command**: a WebSocket client that takes the lease (take-over) and streams small
   Cartesian increments (``--command-hz``, 50 by default) without waiting for acks, as
   an operator's master arm would. Command latency = ACK's server time − send time

@@ -12,11 +12,17 @@ over the priority channel. Every millisecond it reads the device and
   the base frame with the arm's reported orientation, then into the device's frame,
   scaled and clamped (switchable);
 - adds local impedance compensation f = αv + βa from the device's own motion, so the
-  device feels lighter (switchable).
+  device feels lighter (switchable);
+- keeps the rendered force passive (``passivity``: the observer and controller of
+  ``backend.master.passivity``): a delayed, stiff contact cannot push back more energy
+  than the operator put in, which is what makes such a loop ring.
 
 Heartbeats keep the lease while the bridge runs. An optional constant virtual delay
 holds each force sample until its sensor time plus T_v (Kosuge's virtual time delay),
-so the feedback loop sees one constant delay instead of a jittering one.
+so the feedback loop sees one constant delay instead of a jittering one. For tests and
+the benchmark, ``delay_rtt_s`` adds a round trip of its own inside the bridge (half on
+the commands going out, half on the forces coming in, each with ``delay_jitter_s`` of
+normal jitter, kept in order), so a slow link can be had without network namespaces.
 
 When the priority channel goes away (a server restart, a network cut), the device is
 let go (no force, clutch re-anchored) and, given a ``reconnect`` function, the bridge
@@ -28,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import random
 import threading
 import time
 from collections import deque
@@ -38,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from backend.master.link import PriorityLink, Reply
+from backend.master.passivity import PassivityController, PassivitySettings
 from backend.realtime import messages as m
 from drivers.base import FloatArray, ForceSample, InvalidCommand, MasterArm, TelerobotError
 from drivers.master.impedance import ImpedanceCompensator
@@ -59,6 +67,15 @@ class BridgeSettings:
     virtual_delay_s: float = 0.0  # constant delay for force feedback; 0 = render at once
     max_step_m: float = 0.01  # a larger jump between two readings is a tracking glitch
     heartbeat_s: float = 0.05
+    passivity: bool = True  # damp the rendered force when the port makes energy
+    # The passivity controller's cap. High, because its damper is energy-bounded (it
+    # takes exactly the port's deficit, in bursts, not a standing 1000 N·s/m the device
+    # could not render stably at 1 kHz) and the device's own force limit comes first;
+    # bench.master_contact: at 200 ms, a cap of 40 left the contact ringing at 0–60 N,
+    # 200 at 0–30 N, 1000 settled it.
+    max_damping_n_s_m: float = 1000.0
+    delay_rtt_s: float = 0.0  # an injected round trip (tests, benchmarks), split in two
+    delay_jitter_s: float = 0.0  # σ of the normal jitter on each half, order kept
 
     def check(self) -> BridgeSettings:
         positive = ("rate_hz", "command_rate_hz")
@@ -68,6 +85,13 @@ class BridgeSettings:
                 raise InvalidCommand(f"{name} must be a finite number > 0, got {value!r}")
         if not (0 <= self.virtual_delay_s <= 1.0):
             raise InvalidCommand("virtual_delay_s must be between 0 and 1 s")
+        if not (0 <= self.delay_rtt_s <= 2.0):  # (NaN fails both)
+            raise InvalidCommand(f"delay_rtt_s must be between 0 and 2 s, got {self.delay_rtt_s!r}")
+        if not (0 <= self.delay_jitter_s <= 0.5):
+            raise InvalidCommand(
+                f"delay_jitter_s must be between 0 and 0.5 s, got {self.delay_jitter_s!r}"
+            )
+        PassivitySettings(max_damping_n_s_m=self.max_damping_n_s_m).check()
         return self
 
 
@@ -123,6 +147,16 @@ class MasterBridge:
             enabled=self.settings.compensation,
             max_force_n=device.max_force_n,
         )
+        self.passivity = PassivityController(
+            PassivitySettings(
+                enabled=self.settings.passivity, max_damping_n_s_m=self.settings.max_damping_n_s_m
+            )
+        )
+        # The injected delay: commands waiting to go out (due, dX, rotvec), bounded (at
+        # 100 a second and at most 1 s each way, 100 wait at once).
+        self._outbox: deque[tuple[float, FloatArray, FloatArray]] = deque(maxlen=1000)
+        self._rng = random.Random(0)
+        self._last_due = {"out": -math.inf, "in": -math.inf}
         self._now = time_source
         self._lock = threading.Lock()
         self._force: ForceSample | None = None  # the newest sample to render
@@ -164,11 +198,24 @@ class MasterBridge:
             if newest is not None and sample.seq <= newest.seq:
                 self.forces_stale += 1  # newest wins
                 return
+            due = -math.inf
             if self.settings.virtual_delay_s > 0:
                 due = sample.time - self.link.offset + self.settings.virtual_delay_s
+            if self.settings.delay_rtt_s > 0:
+                due = max(due, self._due("in", received))
+            if due > -math.inf:
                 self._delayed.append((due, sample))
             else:
                 self._force = sample
+
+    def _due(self, way: str, now: float) -> float:
+        """When something injected-delayed now arrives: half the round trip, jittered,
+        never before what went ahead of it (a link keeps order)."""
+        s = self.settings
+        delay = max(0.0, s.delay_rtt_s / 2 + self._rng.gauss(0.0, s.delay_jitter_s))
+        due = max(now + delay, self._last_due[way])
+        self._last_due[way] = due
+        return due
 
     def _on_state(self, fields: dict[str, Any]) -> None:
         R = np.array([[fields[f"r{i}{j}"] for j in range(3)] for i in range(3)], dtype=float)
@@ -203,14 +250,13 @@ class MasterBridge:
         state = self.device.read()
         now = state.time
         self.ticks += 1
-        # Forces: the remote contact, plus the compensation of the device's own dynamics.
+        # Forces: the remote contact, kept passive, plus the compensation of the device's
+        # own dynamics (a local, deliberate push: not part of the observed port).
         force = self.compensator.update(now, state.position)
+        velocity, dt = self.passivity.velocity_from(now, state.position)
         if s.render_force:
-            remote = self.remote_force_device_frame(now)
-            norm = float(np.linalg.norm(remote))
-            if norm > self.device.max_force_n:
-                remote = remote * (self.device.max_force_n / norm)
-            force = force + remote
+            remote = self._clamp(self.remote_force_device_frame(now))
+            force = force + self._clamp(self.passivity.step(remote, velocity, dt))
         self.last_rendered = force
         self.device.set_force(force)
         # Motion: increments while the clutch is held.
@@ -233,15 +279,32 @@ class MasterBridge:
             self._next_command = now + 1.0 / s.command_rate_hz
             moved = bool(np.any(self._pending_dx) or np.any(self._pending_rv))
             if moved and self.has_control:
-                dx, rv = self._pending_dx.tolist(), self._pending_rv.tolist()
-                self.link.cartesian((dx[0], dx[1], dx[2]), (rv[0], rv[1], rv[2]))
-                self.commands_sent += 1
-                self._last_heartbeat = now  # any command keeps the dead-man satisfied
+                if s.delay_rtt_s > 0:
+                    self._outbox.append(
+                        (self._due("out", now), self._pending_dx.copy(), self._pending_rv.copy())
+                    )
+                else:
+                    self._send_command(self._pending_dx, self._pending_rv, now)
             self._pending_dx[:] = 0.0
             self._pending_rv[:] = 0.0
+        while self._outbox and self._outbox[0][0] <= now:
+            _, dx_, rv_ = self._outbox.popleft()
+            self._send_command(dx_, rv_, now)
         if now - self._last_heartbeat >= s.heartbeat_s:
             self.link.heartbeat()
             self._last_heartbeat = now
+
+    def _clamp(self, force: FloatArray) -> FloatArray:
+        norm = float(np.linalg.norm(force))
+        if norm > self.device.max_force_n:
+            return np.asarray(force * (self.device.max_force_n / norm), dtype=float)
+        return force
+
+    def _send_command(self, dx: FloatArray, rv: FloatArray, now: float) -> None:
+        d, r = dx.tolist(), rv.tolist()
+        self.link.cartesian((d[0], d[1], d[2]), (r[0], r[1], r[2]))
+        self.commands_sent += 1
+        self._last_heartbeat = now  # any command keeps the dead-man satisfied
 
     # ------------------------------------------------------------ running
     def start(self, take_control: bool = True, take_over: bool = False) -> None:
@@ -270,6 +333,8 @@ class MasterBridge:
             self._force = None
             self._delayed.clear()
             self.flags = 0  # no control known on a link that is gone
+        self._outbox.clear()
+        self.passivity.reset()
         self._anchor = None  # the next grip re-anchors: no jump from the gap
         self._pending_dx[:] = 0
         self._pending_rv[:] = 0

@@ -39,6 +39,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--beta", type=float, default=0.0, help="compensation β (kg)")
     p.add_argument("--no-compensation", action="store_true")
     p.add_argument("--virtual-delay-ms", type=float, default=0.0, help="constant force delay")
+    p.add_argument(
+        "--passivity",
+        choices=("on", "off"),
+        default="on",
+        help="keep the rendered force passive (damps it when a delayed contact would push"
+        " back more energy than was put in)",
+    )
+    p.add_argument(
+        "--max-damping", type=float, default=40.0, help="the passivity damper's cap (N·s/m)"
+    )
+    p.add_argument(
+        "--delay-ms",
+        type=float,
+        default=0.0,
+        help="add this round trip inside the bridge (testing: half out, half back)",
+    )
+    p.add_argument("--delay-jitter-ms", type=float, default=0.0, help="σ of each half's jitter")
     p.add_argument("--command-rate", type=float, default=100.0, help="commands per second")
     p.add_argument("--take-over", action="store_true", help="take control from whoever has it")
     p.add_argument(
@@ -77,6 +94,10 @@ def run(args: argparse.Namespace) -> int:
             alpha=args.alpha,
             beta=args.beta,
             virtual_delay_s=args.virtual_delay_ms / 1000.0,
+            passivity=args.passivity == "on",
+            max_damping_n_s_m=args.max_damping,
+            delay_rtt_s=args.delay_ms / 1000.0,
+            delay_jitter_s=args.delay_jitter_ms / 1000.0,
         ).check()
         cls = load_driver("master", args.device)
         device: MasterArm = cls(demo_hand) if args.device == "sim" else cls()
@@ -97,11 +118,14 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.suppress(KeyboardInterrupt):
         while not stop.wait(1.0):
             f = bridge.last_rendered
+            pc = bridge.passivity
             print(
                 f"control {'yes' if bridge.has_control else 'no '}"
                 f" · commands {bridge.commands_sent}"
                 f" · forces {bridge.forces_received} ({bridge.link.datagrams})"
                 f" · rendering {np.linalg.norm(f):.2f} N"
+                f" · passivity {'on' if pc.settings.enabled else 'off'}: port {pc.energy:+.3f} J,"
+                f" damped {pc.dissipated:.3f} J, α {pc.damping:.1f} N·s/m"
                 + ("" if bridge.connected else " · reconnecting")
                 + (f" · last error: {bridge.last_error}" if bridge.last_error else ""),
                 flush=True,

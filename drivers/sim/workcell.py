@@ -212,6 +212,8 @@ def default_workcell(
     baseline: float = 0.12,
     width: int = 1280,
     height: int = 720,
+    block_stiffness: float = 5.0e4,
+    block_damping: float = 80.0,
 ) -> Workcell:
     table_top = 0.40
     table = Box(
@@ -227,8 +229,8 @@ def default_workcell(
         centre=np.array([0.65, -0.30, table_top + 0.05]),
         size=np.array([0.10, 0.10, 0.10]),
         colour=(200, 60, 50),
-        stiffness=5.0e4,
-        damping=80.0,
+        stiffness=block_stiffness,
+        damping=block_damping,
     )
     origin = np.array([0.55, 0.05, table_top])
     # The thesis's affine basis first (origin, then 0.2 m along x, y, z), then the other
