@@ -220,3 +220,17 @@ def test_forces_are_rendered_newest_first_after_a_constant_virtual_delay(server:
         assert not np.any(bridge.last_rendered)
     finally:
         link.close()
+
+
+def test_telerobot_master_says_what_the_passivity_controller_does(server: str) -> None:
+    """The command's status line shows the switch and the port's energy; a bad delay is
+    refused with a message before anything connects."""
+    with telerobot(
+        "master", "--server", server, "--passivity", "off", "--delay-ms", "100",
+        wait_for=r"passivity off: port [-+][\d.]+ J, damped [\d.]+ J, α [\d.]+ N·s/m",
+    ) as (_, match):  # fmt: skip
+        assert match is not None
+    with telerobot(
+        "master", "--server", server, "--delay-ms", "-5", wait_for=r"delay_rtt_s must be"
+    ) as (_, match):
+        assert "between 0 and 2 s" in match.string

@@ -43,7 +43,7 @@ MIN_SPEED_M_S = 1e-4  # slower than this: no damper (α would explode, and nothi
 @dataclass
 class PassivitySettings:
     enabled: bool = True
-    max_damping_n_s_m: float = 40.0  # the controller's cap on α
+    max_damping_n_s_m: float = 1000.0  # the controller's cap on α (BridgeSettings says why)
     # Velocity from successive device positions, low-passed (a real device's encoder
     # steps would otherwise make α jump): first-order filter's cut-off.
     velocity_cutoff_hz: float = 100.0

@@ -1,0 +1,198 @@
+"""Time-domain passivity in the master bridge (issue 16): the observer and controller
+on known signals, the bridge's injected delay, its settings, and the bridge against a
+real server with a 200 ms round trip: stable with passivity, ringing without."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from backend.master.bridge import BridgeSettings, MasterBridge
+from backend.master.passivity import PassivityController, PassivitySettings
+from drivers.base import ForceSample, InvalidCommand
+from drivers.master.sim import SimMaster
+
+DT = 0.001
+
+
+def drive(
+    pc: PassivityController, force_of: Callable[[float, np.ndarray, np.ndarray], np.ndarray],
+    seconds: float = 4.0, amplitude: float = 0.01, hz: float = 2.0,
+) -> tuple[list[float], float]:  # fmt: skip
+    """Move the port sinusoidally along z; ``force_of(t, x, v)`` is what the port asks.
+    Returns the observed energy after each step and the energy the port's output
+    (after the controller) put out in all."""
+    energies, out = [], 0.0
+    for n in range(int(seconds / DT)):
+        t = n * DT
+        w = 2 * math.pi * hz
+        x = np.array([0.0, 0.0, amplitude * math.sin(w * t)])
+        v = np.array([0.0, 0.0, amplitude * w * math.cos(w * t)])
+        f = pc.step(force_of(t, x, v), v, DT)
+        out += float(f @ v) * DT
+        energies.append(pc.energy)
+    return energies, out
+
+
+def test_a_passive_spring_damper_never_triggers_the_controller() -> None:
+    pc = PassivityController()
+    energies, _ = drive(pc, lambda t, x, v: -500.0 * x - 2.0 * v)
+    assert min(energies) >= -1e-9
+    assert pc.dissipated == 0.0 and pc.generated <= 1e-9 and pc.damping == 0.0
+
+
+def test_an_active_element_is_damped_to_zero_net_energy() -> None:
+    # A negative damper: pushes along the motion, making energy all the time.
+    pc = PassivityController()
+    energies, out = drive(pc, lambda t, x, v: 3.0 * v)
+    assert min(energies) >= -1e-9  # paid back within the step, every step
+    assert out == pytest.approx(0.0, abs=1e-6)  # nothing net left the port
+    assert pc.dissipated > 0.01
+    # Observed only (switched off): the same element's energy runs away, and the
+    # observer says by how much.
+    off = PassivityController(PassivitySettings(enabled=False))
+    energies, out = drive(off, lambda t, x, v: 3.0 * v)
+    assert (
+        out > 0.01 and min(energies) == pytest.approx(-out) and off.generated == pytest.approx(out)
+    )
+    assert off.dissipated == 0.0
+
+
+def test_a_delayed_spring_makes_energy_and_the_controller_takes_it_back() -> None:
+    # f(t) = −k·x(t − T): a stiff contact seen through a 100 ms delay.
+    k, T, hz, a = 2500.0, 0.1, 2.0, 0.002
+
+    def delayed(t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.array([0.0, 0.0, -k * a * math.sin(2 * math.pi * hz * (t - T))])
+
+    off = PassivityController(PassivitySettings(enabled=False))
+    drive(off, delayed, amplitude=a, hz=hz)
+    assert off.generated > 0.01  # the delay turned the spring into a source
+    on = PassivityController()
+    energies, out = drive(on, delayed, amplitude=a, hz=hz)
+    assert min(energies) >= -1e-9 and out <= 1e-6
+
+
+def test_the_damper_is_capped_and_counts_when_it_is() -> None:
+    pc = PassivityController(PassivitySettings(max_damping_n_s_m=1.0))
+    energies, _ = drive(pc, lambda t, x, v: 50.0 * v)
+    assert pc.saturated > 0 and min(energies) < -0.01  # what the cap left owed is shown
+    assert max(pc.damping for _ in [0]) <= 1.0
+
+
+def test_no_damper_when_still() -> None:
+    pc = PassivityController()
+    pc.energy = -1.0  # owed, but the handle does not move: α would be infinite
+    f = pc.step(np.array([0.0, 0.0, 1.0]), np.zeros(3), DT)
+    assert f.tolist() == [0.0, 0.0, 1.0] and pc.damping == 0.0
+
+
+def test_velocity_is_estimated_from_positions_and_filtered() -> None:
+    pc = PassivityController(PassivitySettings(velocity_cutoff_hz=50.0))
+    for n in range(200):
+        v, dt = pc.velocity_from(n * DT, np.array([0.0, 0.0, 0.02 * n * DT]))
+    assert dt == pytest.approx(DT) and v[2] == pytest.approx(0.02, rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"max_damping_n_s_m": 0.0},
+        {"max_damping_n_s_m": math.nan},
+        {"delay_rtt_s": -0.1},
+        {"delay_rtt_s": math.nan},
+        {"delay_rtt_s": 3.0},
+        {"delay_jitter_s": math.inf},
+    ],
+)
+def test_bad_passivity_and_delay_settings_are_refused(bad: dict[str, float]) -> None:
+    with pytest.raises(InvalidCommand, match=next(iter(bad)).split("_")[0]):
+        BridgeSettings(**bad).check()  # type: ignore[arg-type]
+
+
+class FakeLink:
+    """What the bridge needs of a PriorityLink, recording the commands it sends."""
+
+    def __init__(self) -> None:
+        self.offset = 0.0
+        self.closed_reason = None
+        self.sent: list[tuple[float, tuple[float, ...]]] = []
+        self.now = 0.0
+        self.on_force = self.on_state = self.on_reply = None
+
+    def cartesian(
+        self, dX: tuple[float, ...], rotvec: tuple[float, ...], frame: object = None
+    ) -> int:
+        self.sent.append((self.now, dX))
+        return len(self.sent)
+
+    def heartbeat(self) -> None:
+        pass
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_injected_round_trip_delays_commands_and_forces_by_half_each() -> None:
+    clock = Clock()
+    hand_z = [0.0]
+    device = SimMaster(lambda t: (np.array([0.0, 0.0, hand_z[0]]), True), time_source=clock)
+    link = FakeLink()
+    bridge = MasterBridge(
+        device,
+        link,
+        BridgeSettings(delay_rtt_s=0.2, force_scale=0.1),
+        time_source=clock,  # type: ignore[arg-type]
+    )
+    bridge.flags = 1  # YOU_HAVE_CONTROL: commands go out
+    device.open()
+    moved_at = None
+    for n in range(600):
+        clock.t = n * DT
+        link.now = clock.t
+        if n == 100:
+            hand_z[0] = -0.005  # the hand moves at 0.1 s
+            moved_at = clock.t
+        bridge.tick()
+    assert moved_at is not None and link.sent
+    first = link.sent[0][0]
+    assert 0.1 + 0.1 - 0.002 <= first <= 0.1 + 0.1 + 0.012  # half the round trip (+ a period)
+    # A force sample received at 0.6 s is rendered from 0.7 s, not before.
+    bridge._on_force(ForceSample(1, 0.6, (0.0, 0.0, 10.0, 0.0, 0.0, 0.0)), 0.6)
+    assert not np.any(bridge.remote_force_device_frame(0.699))
+    assert bridge.remote_force_device_frame(0.7)[2] == pytest.approx(1.0)
+
+
+def test_jitter_keeps_the_order() -> None:
+    clock = Clock()
+    bridge = MasterBridge(
+        SimMaster(time_source=clock), FakeLink(),  # type: ignore[arg-type]
+        BridgeSettings(delay_rtt_s=0.1, delay_jitter_s=0.05), time_source=clock,
+    )  # fmt: skip
+    dues = [bridge._due("in", n * DT) for n in range(2000)]
+    assert all(b >= a for a, b in itertools.pairwise(dues))
+    assert 0.04 < float(np.median(np.array(dues) - np.arange(2000) * DT)) < 0.15
+
+
+def test_with_a_200_ms_round_trip_the_contact_is_stable_with_passivity_and_rings_without() -> None:
+    from bench.master_contact import one_run
+
+    common = {"rtt_s": 0.2, "seconds": 9.0, "press_m": 0.002, "hand_stiffness": 400.0,
+              "stiffness": 5.0e4}  # fmt: skip
+    on = one_run(passivity=True, **common)  # type: ignore[arg-type]
+    off = one_run(passivity=False, **common)  # type: ignore[arg-type]
+    summary = f"with {on}\nwithout {off}"
+    assert on["contact_s"] > 5.0, summary  # it did press on the block
+    assert on["limit_trips"] == 0 and on["oscillation"] < 4.0, summary
+    assert on["energy_j"] < 0.01 and on["drift_mm"] < 5.0, summary
+    assert off["limit_trips"] > 0 or off["oscillation"] > 8.0, summary
+    assert off["energy_j"] > 10 * on["energy_j"], summary
