@@ -101,6 +101,9 @@ class Settings(BaseSettings):
     video_bitrate: int = Field(8_000_000, ge=100_000, le=100_000_000)
     video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
     video_cbr: bool = False  # constant bitrate (filler data) instead of "at most"
+    # Each viewer's packets spread at 2.5× its layer's rate, not a frame at once (a key
+    # frame's burst queues the forces behind it on a narrow link): media/pacer.py
+    video_pacing: bool = True
     keyframe_interval_s: float = Field(2.0, gt=0.0, le=60.0)
     # STUN/TURN for the page and the server's peers (backend/media/ice.py): "stun:host:port",
     # "turn:user:pass@host:port", or "turn:host:port[?transport=tcp]" with credentials

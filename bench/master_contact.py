@@ -15,6 +15,11 @@ block's push is rendered on the device at 1/20.
 
     python -m bench.master_contact [--json] [--rtts 0,50,100,200,400] [--seconds 12.5]
     python -m bench.master_contact --contact-rule   # the slow approach after a contact
+    python -m bench.master_contact --links wan,mobile  # through bench.netem's link instead
+
+With ``--links`` the delay is a real (emulated) link's instead of the injected one: the
+server in the pair's server namespace, the bridge in the client's (its forces as UDP
+datagrams, thinned on loss), one server per profile, JSON ``link_<name>``.
 
 For each round trip, with passivity ("passivity") and without ("none"):
 
@@ -39,8 +44,12 @@ after a contact (contact_speed_m_s 0.02) against none (0.25 m/s), 3 runs each.
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import secrets
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -98,6 +107,18 @@ def band(values: FloatArray, rate_hz: float) -> FloatArray:
     return smooth(values - smooth(values, int(2.0 * rate_hz)), int(0.025 * rate_hz))
 
 
+def server_env(token: str, stiffness: float, contact_speed: float | None = 0.25) -> dict[str, str]:
+    env = {
+        "TELEROBOT_OPERATOR_TOKEN": token,
+        "TELEROBOT_HOME_POSE": "qn",
+        "TELEROBOT_BLOCK_STIFFNESS_N_M": str(stiffness),
+        "TELEROBOT_PRIORITY_PORT": "0",
+    }
+    if contact_speed is not None:
+        env["TELEROBOT_CONTACT_SPEED_M_S"] = str(contact_speed)
+    return env
+
+
 def one_run(
     *,
     rtt_s: float,
@@ -110,82 +131,158 @@ def one_run(
     contact_speed: float | None = 0.25,
     hand: Callable[[float], tuple[FloatArray, bool]] | None = None,
 ) -> dict[str, Any]:
+    """One press against a server of its own."""
     token = secrets.token_hex(16)
-    env = {
-        "TELEROBOT_OPERATOR_TOKEN": token,
-        "TELEROBOT_HOME_POSE": "qn",
-        "TELEROBOT_BLOCK_STIFFNESS_N_M": str(stiffness),
-        "TELEROBOT_PRIORITY_PORT": "0",
-    }
-    if contact_speed is not None:
-        env["TELEROBOT_CONTACT_SPEED_M_S"] = str(contact_speed)
-    with serve_for_bench(env=env) as (_, base):
-        api = httpx.Client(base_url=base + "api/v1/", headers={"Authorization": f"Bearer {token}"})
-        deadline = time.monotonic() + 30
-        while api.get("robot/state").json()["status"] != "READY":
-            assert time.monotonic() < deadline, "the simulated arm never became ready"
-            time.sleep(0.1)
-        block = next(b for b in api.get("workcell").json()["boxes"] if b["name"] == "block")
-        top = block["centre"][2] + block["size"][2] / 2
-        api.headers["X-Client-Id"] = api.post("lease", json={"name": "setup"}).json()["client_id"]
-        api.post(
-            "robot/move",
-            json={
-                "space": "cartesian",
-                "mode": "absolute",
-                "position": [*block["centre"][:2], top + START_ABOVE_M],
-            },
-        ).raise_for_status()
-        api.delete("lease")
-        start = np.array(api.get("robot/state").json()["position"], dtype=float)
-        device = SimMaster(hand or pressing_hand(press_m), hand_stiffness_n_m=hand_stiffness)
-        link = open_link(base, token)
-        settings = BridgeSettings(
-            force_scale=0.05, passivity=passivity, delay_rtt_s=rtt_s, delay_jitter_s=jitter_s
-        )
-        bridge = MasterBridge(device, link, settings)
-        forces: list[tuple[float, float]] = []  # (sensor time, |F|)
-        lock = threading.Lock()
+    with serve_for_bench(env=server_env(token, stiffness, contact_speed)) as (_, base):
+        return press(
+            base, token, rtt_s=rtt_s, passivity=passivity, seconds=seconds, press_m=press_m,
+            hand_stiffness=hand_stiffness, jitter_s=jitter_s, hand=hand,
+        )  # fmt: skip
 
-        def keep(sample: ForceSample, received: float) -> None:
-            with lock:
-                forces.append((sample.time, float(np.linalg.norm(sample.values[:3]))))
 
-        bridge.on_sample = keep
-        bridge.start()
-        p0 = device.position.copy()
-        try:
-            time.sleep(seconds)
-        finally:
-            bridge.stop()
-            link.close()
-        moved_master = device.position - p0
-        end = np.array(api.get("robot/state").json()["position"], dtype=float)
-        safety = api.get("safety").json()
+def press(
+    base: str,
+    token: str,
+    *,
+    rtt_s: float,
+    passivity: bool,
+    seconds: float,
+    press_m: float,
+    hand_stiffness: float,
+    jitter_s: float = 0.0,
+    hand: Callable[[float], tuple[FloatArray, bool]] | None = None,
+) -> dict[str, Any]:
+    """One press against the server at ``base``: the tool placed 2 cm above the block,
+    then the simulated hand on the master for ``seconds``."""
+    api = httpx.Client(
+        base_url=base + "api/v1/", headers={"Authorization": f"Bearer {token}"}, timeout=20
+    )
+    deadline = time.monotonic() + 30
+    while api.get("robot/state").json()["status"] != "READY":
+        assert time.monotonic() < deadline, "the simulated arm never became ready"
+        time.sleep(0.1)
+    block = next(b for b in api.get("workcell").json()["boxes"] if b["name"] == "block")
+    top = block["centre"][2] + block["size"][2] / 2
+    lease = api.post("lease", json={"name": "setup", "force": True}).json()
+    api.headers["X-Client-Id"] = lease["client_id"]
+    api.post(
+        "robot/move",
+        json={
+            "space": "cartesian",
+            "mode": "absolute",
+            "position": [*block["centre"][:2], top + START_ABOVE_M],
+        },
+    ).raise_for_status()
+    api.delete("lease")
+    start = np.array(api.get("robot/state").json()["position"], dtype=float)
+    device = SimMaster(hand or pressing_hand(press_m), hand_stiffness_n_m=hand_stiffness)
+    link = open_link(base, token)
+    settings = BridgeSettings(
+        force_scale=0.05, passivity=passivity, delay_rtt_s=rtt_s, delay_jitter_s=jitter_s
+    )
+    bridge = MasterBridge(device, link, settings)
+    forces: list[tuple[float, float]] = []  # (sensor time, |F|)
+    lock = threading.Lock()
+
+    def keep(sample: ForceSample, received: float) -> None:
+        with lock:
+            forces.append((sample.time, float(np.linalg.norm(sample.values[:3]))))
+
+    bridge.on_sample = keep
+    bridge.start()
+    p0 = device.position.copy()
+    try:
+        time.sleep(seconds)
+    finally:
+        bridge.stop()
+        bridge.link.close()
+    moved_master = device.position - p0
+    end = np.array(api.get("robot/state").json()["position"], dtype=float)
+    safety = api.get("safety").json()
     with lock:
-        f = np.array([v for _, v in forces])
-        t = np.array([s for s, _ in forces])
-    touching = np.nonzero(f > 1.0)[0]
-    hold = f[touching[0] + 1000 :] if len(touching) else np.array([])
+        samples = sorted(forces)
+    return {
+        **force_figures(samples),
+        "energy_j": bridge.passivity.generated,
+        "damped_j": bridge.passivity.dissipated,
+        "drift_mm": float(np.linalg.norm((end - start) - moved_master) * 1000.0),
+        "estop_at_end": bool(safety.get("estop")),
+        "ping_rtt_ms": bridge.link.best_rtt * 1000.0,
+        "force_transport": bridge.link.datagrams,
+        "depth_mm": max(0.0, (top - end[2]) * 1000.0),  # (for --contact-rule)
+    }
+
+
+def force_figures(samples: list[tuple[float, float]]) -> dict[str, Any]:
+    """Peak, trips and the oscillation over the hold, from (sensor time, |F|) samples
+    resampled to 1 kHz (a lossy link delivers fewer, and a thinned stream fewer still)."""
+    if len(samples) < 2:
+        return {"peak_n": 0.0, "limit_trips": 0, "oscillation": 0.0, "crossings_hz": 0.0,
+                "contact_s": 0.0, "mean_force_n": 0.0, "samples": len(samples)}  # fmt: skip
+    t = np.array([s for s, _ in samples])
+    f = np.array([v for _, v in samples])
+    grid = np.arange(t[0], t[-1], 0.001)
+    g = np.interp(grid, t, f)
+    touching = np.nonzero(g > 1.0)[0]
+    hold = g[touching[0] + 1000 :] if len(touching) else np.array([])
     b = band(hold, 1000.0) if len(hold) > 100 else np.zeros(1)
     crossings = np.sum(np.signbit(b[1:]) != np.signbit(b[:-1])) if len(b) > 1 else 0
-    above = f > FORCE_LIMIT_N
-    pc = bridge.passivity
+    above = f > FORCE_LIMIT_N  # (trips from the samples themselves: no made-up crossings)
     return {
-        "peak_n": float(f.max()) if len(f) else 0.0,
-        "limit_trips": int(np.sum(above[1:] & ~above[:-1]) + int(above[0])) if len(f) else 0,
-        "energy_j": pc.generated,
+        "peak_n": float(f.max()),
+        "limit_trips": int(np.sum(above[1:] & ~above[:-1]) + int(above[0])),
         "oscillation": float(np.sqrt(np.mean(b**2))),
         "crossings_hz": float(crossings / (len(hold) / 1000.0)) if len(hold) else 0.0,
-        "drift_mm": float(np.linalg.norm((end - start) - moved_master) * 1000.0),
-        "damped_j": pc.dissipated,
-        "contact_s": float(t[-1] - t[touching[0]]) if len(touching) else 0.0,
+        "contact_s": float(grid[-1] - grid[touching[0]]) if len(touching) else 0.0,
         "mean_force_n": float(np.mean(hold)) if len(hold) else 0.0,
-        "estop_at_end": bool(safety.get("estop")),
-        "samples": len(f),
-        # (for --contact-rule)
-        "depth_mm": max(0.0, (top - end[2]) * 1000.0),
+        "samples": len(samples),
     }
+
+
+def over_links(args: Any) -> dict[str, Any]:
+    """The same press with the server behind an emulated link (bench.netem): the bridge
+    runs in the client's namespace, its forces come as datagrams, no injected delay."""
+    from bench.netem import REPO, NetemPair, emulator_available
+
+    why = emulator_available()
+    if why is not None:
+        raise SystemExit(f"no link emulator here: {why}")
+    figures: dict[str, Any] = {}
+    token = secrets.token_hex(16)
+    for name in [n.strip() for n in args.links.split(",") if n.strip()]:
+        with (
+            NetemPair(name) as pair,
+            serve_for_bench(
+                "--host", pair.server_addr, env=server_env(token, args.stiffness),
+                prefix=pair.server_prefix,
+            ) as (_, base),
+        ):  # fmt: skip
+            row: dict[str, Any] = {}
+            for label, on in (("passivity", "on"), ("none", "off")):
+                done = subprocess.run(
+                    [*pair.client_prefix, sys.executable, "-m", "bench.master_contact",
+                     "--role", "press", "--base", base, "--passivity", on,
+                     "--seconds", str(args.seconds), "--press-mm", str(args.press_mm),
+                     "--hand-stiffness", str(args.hand_stiffness)],
+                    capture_output=True, text=True, timeout=args.seconds + 120,
+                    env={**os.environ, "BENCH_TOKEN": token}, cwd=str(REPO),
+                )  # fmt: skip
+                lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
+                if done.returncode != 0 or not lines:
+                    raise RuntimeError(f"the press on {name} failed:\n{done.stderr[-3000:]}")
+                row[label] = r = json.loads(lines[-1])
+                print(f"{name:<7}" + line(label, r), flush=True)
+            figures[f"link_{name}"] = row
+    return figures
+
+
+def line(label: str, r: dict[str, Any]) -> str:
+    return (
+        f" {label:<9} peak {r['peak_n']:6.1f} N · trips {r['limit_trips']} · energy"
+        f" {r['energy_j']:.4f} J · oscillation {r['oscillation']:.2f} N"
+        f" ({r['crossings_hz']:.1f}/s) · drift {r['drift_mm']:.1f} mm · damped"
+        f" {r['damped_j']:.3f} J · ping {r['ping_rtt_ms']:.0f} ms"
+    )
 
 
 def sweep(args: Any) -> dict[str, Any]:
@@ -203,13 +300,7 @@ def sweep(args: Any) -> dict[str, Any]:
                 jitter_s=args.jitter_ms / 1000.0,
             )
             row[label] = r
-            print(
-                f"rtt {rtt_ms:>3} ms {label:<9} peak {r['peak_n']:6.1f} N · trips"
-                f" {r['limit_trips']} · energy {r['energy_j']:.4f} J · oscillation"
-                f" {r['oscillation']:.2f} N ({r['crossings_hz']:.1f}/s) · drift"
-                f" {r['drift_mm']:.1f} mm · damped {r['damped_j']:.3f} J",
-                flush=True,
-            )
+            print(f"rtt {rtt_ms:>3} ms" + line(label, r), flush=True)
         figures[f"rtt_{rtt_ms}"] = row
     if "rtt_200" in figures:
         on, off = figures["rtt_200"]["passivity"], figures["rtt_200"]["none"]
@@ -266,8 +357,27 @@ def main() -> None:
     p.add_argument("--stiffness", type=float, default=5.0e4, help="the block's, N/m")
     p.add_argument("--jitter-ms", type=float, default=0.0, help="σ on each half of the delay")
     p.add_argument("--contact-rule", action="store_true", help="the earlier comparison")
+    p.add_argument(
+        "--links", help="instead of injected delays: these bench.netem profiles, e.g. wan,mobile"
+    )
+    p.add_argument("--role", choices=("press",), help=argparse.SUPPRESS)
+    p.add_argument("--base", help=argparse.SUPPRESS)
+    p.add_argument("--passivity", choices=("on", "off"), help=argparse.SUPPRESS)
     args = p.parse_args()
-    figures = contact_rule(args) if args.contact_rule else sweep(args)
+    if args.role == "press":  # one press, in the client's namespace (--links)
+        r = press(
+            args.base, os.environ["BENCH_TOKEN"], rtt_s=0.0, passivity=args.passivity == "on",
+            seconds=args.seconds, press_m=args.press_mm / 1000.0,
+            hand_stiffness=args.hand_stiffness,
+        )  # fmt: skip
+        print(json.dumps(r))
+        return
+    if args.contact_rule:
+        figures = contact_rule(args)
+    elif args.links:
+        figures = over_links(args)
+    else:
+        figures = sweep(args)
     if args.json:
         print(json.dumps({**figures, "machine": machine()}))
 

@@ -656,6 +656,9 @@ def main() -> None:
     p.add_argument("--height", type=int, default=360)
     p.add_argument("--video-bitrate", type=int, help="default: the server's own setting")
     p.add_argument("--command-hz", type=float, default=50.0)
+    p.add_argument(
+        "--no-pacing", action="store_true", help="the video's packets unpaced (the baseline)"
+    )
     p.add_argument("--probes", type=int, default=60, help="link probes per profile")
     p.add_argument(
         "--viewer",
@@ -688,6 +691,7 @@ def main() -> None:
         "TELEROBOT_OPERATOR_TOKEN": token,
         "TELEROBOT_HOME_POSE": "qn",
         **({"TELEROBOT_VIDEO_BITRATE": str(args.video_bitrate)} if args.video_bitrate else {}),
+        **({"TELEROBOT_VIDEO_PACING": "false"} if args.no_pacing else {}),
     }
     figures: dict[str, Any] = {}
     started = time.monotonic()
@@ -733,6 +737,7 @@ def main() -> None:
             "bitrate": args.video_bitrate or "server default (TELEROBOT_VIDEO_BITRATE unset)",
         },
         "command_hz": args.command_hz,
+        "video_pacing": not args.no_pacing,
         "seconds": args.seconds,
         "outage_s": args.outage,
         "wall_s": time.monotonic() - started,

@@ -230,7 +230,7 @@ async def _watch_link(base: str, seconds: float) -> dict[str, object]:
             if done or time.monotonic() > deadline:
                 break
     await pc.close()
-    return {"layer": viewers[0]["layer"], **link}
+    return {"layer": viewers[0]["layer"], "pacing": viewers[0]["pacing"], **link}
 
 
 def test_each_viewers_link_is_reported_from_its_rtcp() -> None:
@@ -242,3 +242,8 @@ def test_each_viewers_link_is_reported_from_its_rtcp() -> None:
     assert link["reports"] >= 1 and link["loss"] == 0, link  # loopback: nothing lost
     assert link["rtt_ms"] is not None and 0 <= link["rtt_ms"] < 200, link  # type: ignore[operator]
     assert link["estimated_kbps"] and link["estimated_kbps"] > 100, link  # type: ignore[operator]
+    # Its packets are paced, abs-send-time stamped again as they leave (the estimate
+    # above is the receiver's reading of those stamps: still sane).
+    pacing = link["pacing"]
+    assert isinstance(pacing, dict) and pacing["restamps_abs_send_time"], link
+    assert pacing["kbps"] is None or pacing["kbps"] >= 1000, link

@@ -43,6 +43,7 @@ from backend.media.layers import (
     RateMeter,
     low_size,
 )
+from backend.media.pacer import Pacer, pace_peer
 from backend.media.supervisor import MediaUnavailable
 from backend.netprio import mark_peer_low_priority
 from backend.telemetry.stats import InterArrival, StreamStats
@@ -100,6 +101,7 @@ class VideoSettings:
     cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
     low_scale: float = LOW_SCALE  # the low layer's size, of each side
     low_bitrate: int = LOW_BITRATE
+    pacing: bool = True  # each viewer's packets paced (backend/media/pacer.py)
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
 
 
@@ -159,6 +161,7 @@ class Peer:
     viewer: str | None = None  # the one viewer name whose alignment this peer may save
     mode: LayerMode = "auto"  # "auto": the layer follows this viewer's link
     choice: LayerChoice = field(default_factory=LayerChoice)
+    pacer: Pacer | None = None  # in front of its transport's RTP, once connected
 
     def owned_by(self, secret: str | None) -> bool:
         """Constant-time comparison with the peer's secret."""
@@ -483,6 +486,10 @@ class VideoPipeline:
             if pc.connectionState == "connected":
                 peer.connected = True  # no longer pending: it stays until it closes
                 mark_peer_low_priority(pc)  # forces and commands go first
+                if self.settings.pacing and peer.pacer is None:
+                    # Spread each frame's packets (a key frame's burst would queue the
+                    # forces behind it on a narrow link): backend/media/pacer.py.
+                    peer.pacer = pace_peer(pc, lambda: self._layer_bps(peer))
             if pc.connectionState in ("failed", "closed"):
                 await self.close_peer(peer_id)
 
@@ -645,11 +652,28 @@ class VideoPipeline:
                     "layer_switches": p.track.switches,
                     "layer_why": p.choice.why,
                     "link": p.link.as_dict(),
+                    # The pacer (None: not pacing): its rate now, and how many packets
+                    # waited for it, how long in all.
+                    "pacing": None
+                    if p.pacer is None
+                    else {
+                        "kbps": None if (r := p.pacer.rate()) is None else r / 1000,
+                        "packets_waited": p.pacer.paced,
+                        "waited_ms": p.pacer.waited_s * 1000,
+                        "restamps_abs_send_time": p.pacer.abs_send_time_id is not None,
+                    },
                 }
                 for pid, p in self.peers.items()
             ],
             "camera_running": self.camera.status is CameraStatus.RUNNING,
         }
+
+    def _layer_bps(self, peer: Peer) -> float | None:
+        """The measured rate of the layer this peer gets now (None: not known)."""
+        try:
+            return self.layer_rate[self._layer_of(peer)].bps(self.clock.now())
+        except StopIteration:  # (between two layers)
+            return None
 
     def _layer_of(self, peer: Peer) -> Layer:
         return next(x for (_, x), b in self.broadcasters.items() if b is peer.track.source)

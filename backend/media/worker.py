@@ -79,6 +79,7 @@ async def _serve(
             bitrate=settings.video_bitrate,
             keyframe_interval=settings.keyframe_interval_s,
             cbr=settings.video_cbr,
+            pacing=settings.video_pacing,
             ice=settings.ice_config,
         ),
     )

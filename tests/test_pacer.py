@@ -1,0 +1,129 @@
+"""The video pacer (backend/media/pacer.py): a frame's packets spread at 2.5× the
+layer's rate, RTCP at once, abs-send-time stamped when a packet really leaves. An
+injected clock: no sleeping."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+
+import pytest
+from aiortc.rtcrtpparameters import RTCRtpHeaderExtensionParameters, RTCRtpParameters
+from aiortc.rtp import HeaderExtensionsMap, RtpPacket
+
+from backend.media.pacer import (
+    MIN_RATE_BPS,
+    PACING_FACTOR,
+    Pacer,
+    abs_send_time_offset,
+)
+
+ABS = "http://www.webrtc.org/experiments/rtp-hdrext/abs-send-time"
+MID = "urn:ietf:params:rtp-hdrext:sdes:mid"
+
+
+def extension_map(abs_id: int = 3) -> HeaderExtensionsMap:
+    m = HeaderExtensionsMap()
+    m.configure(
+        RTCRtpParameters(
+            headerExtensions=[
+                RTCRtpHeaderExtensionParameters(id=1, uri=MID),
+                RTCRtpHeaderExtensionParameters(id=abs_id, uri=ABS),
+            ]
+        )
+    )
+    return m
+
+
+def rtp(size: int = 1200, abs_send_time: int | None = 0x123456, seq: int = 1) -> bytes:
+    p = RtpPacket(payload_type=96, sequence_number=seq, timestamp=90_000)
+    p.ssrc = 1234
+    p.payload = bytes(size)
+    p.extensions.mid = "0"
+    if abs_send_time is not None:
+        p.extensions.abs_send_time = abs_send_time
+    return p.serialize(extension_map())
+
+
+RTCP_RR = bytes([0x80, 201, 0, 1, 0, 0, 4, 210])  # an empty receiver report
+
+
+class FakeTime:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def clock(self) -> float:
+        return self.t
+
+    async def sleep(self, s: float) -> None:
+        await asyncio.sleep(0)  # others run meanwhile, as in a real wait
+        self.t += s
+
+
+def test_abs_send_time_is_found_and_rewritten_where_aiortc_wrote_it() -> None:
+    data = rtp()
+    at = abs_send_time_offset(data, 3)
+    assert at is not None and data[at : at + 3] == bytes.fromhex("123456")
+    pacer = Pacer(lambda b: asyncio.sleep(0), lambda: None, 3, ntp=lambda: 0xABCDEF << 14)
+    stamped = pacer.stamp(data)
+    parsed = RtpPacket.parse(stamped, extension_map())
+    assert parsed.extensions.abs_send_time == 0xABCDEF
+    assert parsed.extensions.mid == "0" and parsed.payload == bytes(1200)
+    assert len(stamped) == len(data)
+
+
+def test_packets_without_it_are_left_alone() -> None:
+    assert abs_send_time_offset(rtp(abs_send_time=None), 3) is None
+    assert abs_send_time_offset(rtp(), 7) is None  # another id was negotiated
+    assert abs_send_time_offset(b"\x90" + bytes(11), 3) is None  # extension bit, no room
+    two_byte = bytearray(rtp())
+    two_byte[12:14] = b"\x10\x00"  # RFC 8285 two-byte headers
+    assert abs_send_time_offset(bytes(two_byte), 3) is None
+    pacer = Pacer(lambda b: asyncio.sleep(0), lambda: None, None)
+    assert pacer.stamp(rtp()) == rtp()
+
+
+def test_a_burst_leaves_at_the_pacing_rate_and_rtcp_goes_at_once() -> None:
+    ft = FakeTime()
+    sent: list[tuple[float, bytes]] = []
+
+    async def send(data: bytes) -> None:
+        sent.append((ft.t, data))
+
+    layer_bps = 800_000.0  # → paced at 2 Mbit/s = 250 kB/s
+    pacer = Pacer(send, lambda: layer_bps, 3, clock=ft.clock, sleep=ft.sleep)
+    assert pacer.rate() == PACING_FACTOR * layer_bps
+
+    async def burst() -> None:
+        frame = [pacer(rtp(1238, seq=i)) for i in range(50)]  # 50 × 1250 B = 62.5 kB
+        await asyncio.gather(*frame, pacer(RTCP_RR))
+
+    asyncio.run(burst())
+    rtcp = [t for t, d in sent if d == RTCP_RR]
+    assert rtcp == [0.0]  # not behind the frame
+    times = [t for t, d in sent if d != RTCP_RR]
+    assert len(times) == 50
+    total = 50 * len(rtp(1238))
+    # The whole frame over ~total / rate (less the first burst's allowance).
+    assert times[-1] == pytest.approx(total / 250_000, rel=0.1)
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert max(gaps) <= 1.1 * len(rtp(1238)) / 250_000
+    assert pacer.paced >= 45 and pacer.waited_s > 0
+
+
+def test_a_small_stream_is_paced_no_slower_than_the_floor_and_unknown_not_at_all() -> None:
+    assert Pacer(lambda b: asyncio.sleep(0), lambda: 10_000.0).rate() == MIN_RATE_BPS
+    ft = FakeTime()
+    sent: list[float] = []
+
+    async def send(data: bytes) -> None:
+        sent.append(ft.t)
+
+    pacer = Pacer(send, lambda: None, 3, clock=ft.clock, sleep=ft.sleep)
+
+    async def burst() -> None:
+        for i in range(20):
+            await pacer(rtp(seq=i))
+
+    asyncio.run(burst())
+    assert sent == [0.0] * 20 and pacer.paced == 0
