@@ -83,32 +83,49 @@ def test_packets_without_it_are_left_alone() -> None:
     assert pacer.stamp(rtp()) == rtp()
 
 
-def test_a_burst_leaves_at_the_pacing_rate_and_rtcp_goes_at_once() -> None:
+def paced_burst(packets: int, layer_bps: float) -> tuple[Pacer, list[tuple[float, bytes]]]:
+    """``packets`` RTP packets of 1250 B handed over at once, with an RTCP report among
+    them: when each left (fake time)."""
     ft = FakeTime()
     sent: list[tuple[float, bytes]] = []
 
     async def send(data: bytes) -> None:
         sent.append((ft.t, data))
 
-    layer_bps = 800_000.0  # → paced at 2 Mbit/s = 250 kB/s
     pacer = Pacer(send, lambda: layer_bps, 3, clock=ft.clock, sleep=ft.sleep)
-    assert pacer.rate() == PACING_FACTOR * layer_bps
 
     async def burst() -> None:
-        frame = [pacer(rtp(1238, seq=i)) for i in range(50)]  # 50 × 1250 B = 62.5 kB
-        await asyncio.gather(*frame, pacer(RTCP_RR))
+        for i in range(packets):
+            await pacer(rtp(1238, seq=i))  # handed over: the sender never waits
+            if i == 2:
+                await pacer(RTCP_RR)
+        assert pacer.queued >= packets - 3  # (the drain has not run yet)
+        await pacer.drained()
+        pacer.close()
 
     asyncio.run(burst())
-    rtcp = [t for t, d in sent if d == RTCP_RR]
-    assert rtcp == [0.0]  # not behind the frame
+    return pacer, sent
+
+
+def test_a_frame_leaves_at_the_pacing_rate_and_rtcp_goes_at_once() -> None:
+    size = len(rtp(1238))
+    pacer, sent = paced_burst(16, 800_000.0)  # 20 kB at 2 Mbit/s = 250 kB/s: 80 ms
+    assert pacer.rate() == PACING_FACTOR * 800_000.0
+    assert [t for t, d in sent if d == RTCP_RR] == [0.0]  # not behind the frame
     times = [t for t, d in sent if d != RTCP_RR]
-    assert len(times) == 50
-    total = 50 * len(rtp(1238))
-    # The whole frame over ~total / rate (less the first burst's allowance).
-    assert times[-1] == pytest.approx(total / 250_000, rel=0.1)
+    assert len(times) == 16
+    assert times[-1] == pytest.approx(16 * size / 250_000, rel=0.15)
     gaps = [b - a for a, b in itertools.pairwise(times)]
-    assert max(gaps) <= 1.1 * len(rtp(1238)) / 250_000
-    assert pacer.paced >= 45 and pacer.waited_s > 0
+    assert max(gaps) <= 1.1 * size / 250_000
+    assert pacer.paced >= 12 and pacer.waited_s > 0
+
+
+def test_a_long_queue_drains_within_its_bound() -> None:
+    # 250 kB (a huge key frame) at a 250 kB/s pacing rate would take 1 s: the rate rises
+    # with the queue, so it is out in ~0.1 × ln(10) + 0.1 s.
+    _, sent = paced_burst(200, 800_000.0)
+    times = [t for t, d in sent if d != RTCP_RR]
+    assert len(times) == 200 and 0.2 < times[-1] < 0.45, times[-1]
 
 
 def test_a_small_stream_is_paced_no_slower_than_the_floor_and_unknown_not_at_all() -> None:
@@ -124,6 +141,30 @@ def test_a_small_stream_is_paced_no_slower_than_the_floor_and_unknown_not_at_all
     async def burst() -> None:
         for i in range(20):
             await pacer(rtp(seq=i))
+        assert pacer.queued == 0  # sent at once, not queued
 
     asyncio.run(burst())
     assert sent == [0.0] * 20 and pacer.paced == 0
+
+
+def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
+    from types import SimpleNamespace
+
+    from backend.media.layers import RateMeter
+    from backend.media.pipeline import PACE_MAX_LOSS, VideoPipeline, ViewerLink
+
+    meter = RateMeter()
+    for i in range(21):
+        meter.add(40_000, i * 0.1)  # 400 kbit/s
+    pipeline = SimpleNamespace(
+        layer_rate={"full": meter},
+        _layer_of=lambda peer: "full",
+        clock=SimpleNamespace(now=lambda: 2.0),
+    )
+    peer = SimpleNamespace(link=ViewerLink())
+    bps = VideoPipeline._layer_bps(pipeline, peer)  # type: ignore[arg-type]
+    assert bps == pytest.approx(400_000, rel=0.1)  # no report yet: paced
+    peer.link.fraction_lost = PACE_MAX_LOSS / 2
+    assert VideoPipeline._layer_bps(pipeline, peer) == bps  # type: ignore[arg-type]
+    peer.link.fraction_lost = PACE_MAX_LOSS
+    assert VideoPipeline._layer_bps(pipeline, peer) is None  # type: ignore[arg-type]

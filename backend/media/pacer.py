@@ -8,8 +8,8 @@ DSCP EF would put them first only where a router honours it, and a typical bottl
 (a home router, a mobile cell, netem/HTB in bench.netem) is one FIFO. Paced below the
 link's rate, the video never builds that queue: the link drains faster than the pacer
 fills it, so a force sample waits behind at most a packet or two. The burst waits in
-this process instead (a key frame takes ~2.5× longer to leave than the encoder took to
-make it). Only RTP is paced; RTCP goes at once.
+this process instead, in a queue that drains within ``MAX_QUEUE_S``. Only RTP is
+paced; RTCP goes at once.
 
 abs-send-time (the header extension Chromium's receive-side bandwidth estimate reads)
 is stamped by aiortc when it builds the packet, before this waits; it is written again
@@ -21,8 +21,10 @@ layer choice that follows it) would fall for nothing.
 from __future__ import annotations
 
 import asyncio
+import math
 import struct
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -33,14 +35,23 @@ PACING_FACTOR = 2.5  # × the layer's measured rate (libwebrtc's default)
 MIN_RATE_BPS = 1_000_000  # never slower than this (a still scene's stream is tiny)
 BURST_S = 0.005  # what may go at once: 5 ms worth at the pacing rate…
 MIN_BURST_BYTES = 2 * 1300  # …but at least two full packets
+# The queue drains within this: with more waiting, the rate rises to match (libwebrtc
+# bounds its pacer's queue the same way). A key frame thus leaves within ~0.1-0.2 s,
+# and the sender's loop never waits: it hands over and goes on, so no frame of the
+# shared encoder is skipped (a skipped P-frame would break the picture until the next
+# key frame).
+MAX_QUEUE_S = 0.1
+MAX_QUEUE_PACKETS = 4096  # a transport that stopped taking them: beyond, at once
 
 Send = Callable[[bytes], Awaitable[None]]
 
 
 class Pacer:
-    """A token bucket in front of one transport's RTP. ``rate_bps`` says the layer's
-    measured rate now (None: not known yet, nothing is paced); ``abs_send_time_id`` is
-    the negotiated id of that header extension (None: not negotiated)."""
+    """A queue and a token bucket in front of one transport's RTP. ``rate_bps`` says
+    the layer's measured rate now (None: not known yet, nothing is paced);
+    ``abs_send_time_id`` is the negotiated id of that header extension (None: not
+    negotiated). Packets are handed over at once and sent, in order, by a task of the
+    pacer's own; ``close()`` ends it."""
 
     def __init__(
         self,
@@ -58,11 +69,17 @@ class Pacer:
         self._clock = clock
         self._sleep = sleep
         self._ntp = ntp
-        self._lock = asyncio.Lock()  # the sender's loop and NACK resends, in one line
+        self._queue: deque[bytes] = deque()
+        self._queued_bytes = 0
+        self._ready = asyncio.Event()  # something is queued
+        self._idle = asyncio.Event()  # nothing is (for close and tests)
+        self._idle.set()
+        self._task: asyncio.Task[None] | None = None
         self._tokens = 0.0  # bytes that may go now
         self._last = clock()
         self.paced = 0  # packets that had to wait
         self.waited_s = 0.0  # in all
+        self.lost_transport = 0  # packets dropped because the transport had closed
 
     def rate(self) -> float | None:
         """The pacing rate (bit/s) now, or None (not pacing)."""
@@ -71,17 +88,57 @@ class Pacer:
             return None
         return max(PACING_FACTOR * measured, MIN_RATE_BPS)
 
+    @property
+    def queued(self) -> int:
+        return len(self._queue)
+
     async def __call__(self, data: bytes) -> None:
-        if is_rtcp(data):
-            await self._send(data)  # reports and feedback: at once
+        if is_rtcp(data) or (not self._queue and self.rate() is None):
+            await self._send(self.stamp(data))  # reports and feedback, or not pacing
             return
-        async with self._lock:
-            rate = self.rate()
-            if rate is not None:
-                await self._wait(len(data), rate / 8)
-            await self._send(self.stamp(data))
+        if len(self._queue) >= MAX_QUEUE_PACKETS:  # (never on a live transport)
+            await self._send(self.stamp(data))  # out of order, rather than lost
+            return
+        self._queue.append(data)
+        self._queued_bytes += len(data)
+        self._idle.clear()
+        self._ready.set()
+        if self._task is None:
+            self._task = asyncio.ensure_future(self._drain())
+
+    async def drained(self) -> None:
+        await self._idle.wait()
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+        self._queue.clear()
+        self._queued_bytes = 0
+        self._idle.set()
+
+    async def _drain(self) -> None:
+        while True:
+            if not self._queue:
+                self._idle.set()
+                self._ready.clear()
+                await self._ready.wait()
+                continue
+            data = self._queue[0]
+            bytes_per_s = max((self.rate() or math.inf) / 8, self._queued_bytes / MAX_QUEUE_S)
+            await self._wait(len(data), bytes_per_s)
+            self._queue.popleft()
+            self._queued_bytes -= len(data)
+            try:
+                await self._send(self.stamp(data))
+            except ConnectionError:  # the transport has closed: nothing more will go
+                self.lost_transport += 1 + len(self._queue)
+                self._queue.clear()
+                self._queued_bytes = 0
 
     async def _wait(self, size: int, bytes_per_s: float) -> None:
+        if math.isinf(bytes_per_s):
+            return
         burst = max(bytes_per_s * BURST_S, MIN_BURST_BYTES)
         now = self._clock()
         self._tokens = min(burst, self._tokens + (now - self._last) * bytes_per_s)
