@@ -102,8 +102,11 @@ class Settings(BaseSettings):
     video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
     video_cbr: bool = False  # constant bitrate (filler data) instead of "at most"
     # Each viewer's packets spread at 2.5× its layer's rate, not a frame at once (a key
-    # frame's burst queues the forces behind it on a narrow link): media/pacer.py
-    video_pacing: bool = True
+    # frame's burst queues the forces behind it on a narrow link): media/pacer.py. Off by
+    # default: with it, Chromium on loopback counted 5 freezes in 10 s (its decoder's
+    # freeze detector: paced key frames arrive up to ~0.1 s late), which it does not
+    # without; bench.wan measured the gain for forces on `mobile` (docs/PERFORMANCE.md).
+    video_pacing: bool = False
     keyframe_interval_s: float = Field(2.0, gt=0.0, le=60.0)
     # STUN/TURN for the page and the server's peers (backend/media/ice.py): "stun:host:port",
     # "turn:user:pass@host:port", or "turn:host:port[?transport=tcp]" with credentials

@@ -236,7 +236,8 @@ async def _watch_link(base: str, seconds: float) -> dict[str, object]:
 def test_each_viewers_link_is_reported_from_its_rtcp() -> None:
     # What a per-viewer layer choice needs: the receiver's own reports (RR: loss and the
     # round trip; REMB: its bandwidth estimate), per viewer in GET /api/v1/video.
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
+    env = {**SMALL, "TELEROBOT_VIDEO_PACING": "true"}  # (off by default)
+    with telerobot("serve", "--http-port", "0", wait_for=URL, env=env) as (_, m):
         link = asyncio.run(_watch_link(m.group(1), 15))
     assert link["layer"] == "full", link
     assert link["reports"] >= 1 and link["loss"] == 0, link  # loopback: nothing lost

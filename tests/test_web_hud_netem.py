@@ -1,9 +1,9 @@
 """The connection HUD behind an emulated link (issue 15 part 3): Debian's Chromium runs
 in the client namespace of bench.netem's pair, the server in the other, and the link's
-profile changes under the open page. On `lan` the HUD is green; on `mobile` (80 ± 30 ms
-each way) the round trip turns it amber and says so; on `bad` (150 ± 50 ms, 5 % lost,
-2 Mbit/s) it is red with the round trip named as a reason; back on `lan` it is green
-again by itself. Skipped, with the kernel's reason, where network namespaces are
+profile changes under the open page. On `lan` its link rows (round trip, loss) are
+green; on `mobile` (80 ± 30 ms each way) the round trip turns amber and says so; on
+`bad` (150 ± 50 ms, 5 % lost, 2 Mbit/s) the box is red with the round trip named as a
+reason; back on `lan` the link rows are green again by themselves. Skipped, with the kernel's reason, where network namespaces are
 refused."""
 
 from __future__ import annotations
@@ -56,7 +56,13 @@ def test_the_hud_follows_the_link_green_amber_red_and_back(
         f"http://{pair.server_addr}:"
     )  # not loopback: the page is behind the link
     page, errors = open_page(browser, base)
-    hud_wait(page, f"{HUD}.level === 'ok'", timeout=30_000)
+    # (The link's rows; the freezes of the page's start-up on this loaded machine may
+    # keep the box amber or red for a while, test_web_hud.py covers that row.)
+    hud_wait(
+        page,
+        row_is("rtt", "r.level === 'ok'") + " && " + row_is("loss", "r.level === 'ok'"),
+        30_000,
+    )
 
     pair.apply("mobile")  # ~170 ms round trip: over the 100 ms amber line, under 250
     hud_wait(page, row_is("rtt", "r.level === 'amber'"), 20_000)
@@ -70,8 +76,11 @@ def test_the_hud_follows_the_link_green_amber_red_and_back(
     assert page.locator("#hud").get_attribute("class") == "hud-red"
 
     pair.apply("lan")  # back by itself
-    hud_wait(page, row_is("rtt", "r.level === 'ok'"), 30_000)
-    hud_wait(page, f"{HUD}.level !== 'red'", 30_000)
+    hud_wait(
+        page,
+        row_is("rtt", "r.level === 'ok'") + " && " + row_is("loss", "r.level === 'ok'"),
+        30_000,
+    )
     page.close()
     # (Errors the page logged while the link was bad are the page's to explain in its
     # log; none may be an uncaught exception.)

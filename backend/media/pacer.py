@@ -1,5 +1,6 @@
 """A pacer for each viewer's video packets (as libwebrtc's): a frame's packets go out
 spread at ``PACING_FACTOR`` × the layer's measured rate instead of in one burst.
+Off unless ``video_pacing`` (settings.py says why).
 
 Why: aiortc writes all of a frame's packets at once. A key frame is tens of kB, which
 a 4 Mbit/s link takes ~100 ms to carry. Everything sent behind it on the same link

@@ -102,7 +102,7 @@ class VideoSettings:
     cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
     low_scale: float = LOW_SCALE  # the low layer's size, of each side
     low_bitrate: int = LOW_BITRATE
-    pacing: bool = True  # each viewer's packets paced (backend/media/pacer.py)
+    pacing: bool = False  # each viewer's packets paced (backend/media/pacer.py)
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
 
 
