@@ -16,6 +16,7 @@ from backend.media.fanout import Broadcaster
 from backend.media.layers import (
     ESTIMATE_GRACE_S,
     FAILED_PROBE_S,
+    MAX_UP_HOLD_S,
     UP_HOLD_S,
     LayerChoice,
     RateMeter,
@@ -116,6 +117,34 @@ def test_up_again_only_after_a_clean_hold_and_a_failed_try_doubles_the_wait() ->
     c.decide(link.report(0.10), FULL, t)
     assert c.decide(link.report(0.0), FULL, t + UP_HOLD_S) == "low"  # hold still 2×
     assert c.switches == 5
+
+
+def test_the_wait_after_failed_tries_stops_doubling_at_its_ceiling() -> None:
+    c, link = LayerChoice(), Link()
+    t = 0.0
+    holds = []
+    for _ in range(8):  # down, wait clean, try, fail at once: eight times
+        assert bad_reports(c, link, t, lost=0.10) == "low"
+        t += 1.0
+        down_at = t
+        while c.layer == "low":
+            t += 1.0
+            c.decide(link.report(0.0), FULL, t)
+        holds.append(t - down_at)
+        t += 1.0
+    assert holds[:4] == [UP_HOLD_S, 2 * UP_HOLD_S, 4 * UP_HOLD_S, MAX_UP_HOLD_S]
+    assert holds[4:] == [MAX_UP_HOLD_S] * 4  # never longer than the ceiling
+
+
+def test_the_rate_meter_keeps_a_bounded_window() -> None:
+    m = RateMeter(window_s=2.0, capacity=512)
+    for i in range(10_000):  # 100 frames a second (both layers at 30 fps are 60)
+        m.add(10_000, i / 100)
+    assert m.bps(100.0) == pytest.approx(1_000_000, rel=0.02)
+    for i in range(100_000):  # far denser than any encoder: the oldest fall off…
+        m.add(1_000, 100 + i / 1000)
+    assert len(m._samples) == 512
+    assert m.bps(200.0) is None  # …and it says nothing rather than a wrong rate
 
 
 def test_a_low_estimate_that_is_still_climbing_is_no_reason_to_go_down() -> None:

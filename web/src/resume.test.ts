@@ -3,7 +3,7 @@
 import { afterEach, beforeEach, describe, expect, it, vi } from "vitest";
 import { decode, encode } from "./transport/codec";
 import * as M from "./transport/messages";
-import { RESUME_EVERY_MS, RealtimeClient, STALL_MS } from "./transport/realtime";
+import { RESUME_ATTEMPTS, RESUME_EVERY_MS, RESUME_GIVE_UP_MS, RealtimeClient, STALL_MS } from "./transport/realtime";
 
 class FakeSocket {
   static all: FakeSocket[] = [];
@@ -107,6 +107,22 @@ describe("a stalled link", () => {
     attempt.deliver(welcome(`abc ${KEY}`));
     expect(client.resumes).toBe(1);
     expect(first.closed).toBe(true);
+  });
+
+  it("keeps at most RESUME_ATTEMPTS connections opening, and starts afresh after RESUME_GIVE_UP_MS", () => {
+    const { first, seen } = connected();
+    vi.advanceTimersByTime(STALL_MS + 20 * RESUME_EVERY_MS); // none of them ever opens
+    const attempts = FakeSocket.all.slice(1);
+    expect(attempts.length).toBeGreaterThan(RESUME_ATTEMPTS);
+    expect(attempts.filter((a) => !a.closed)).toHaveLength(RESUME_ATTEMPTS); // the oldest closed
+    vi.advanceTimersByTime(RESUME_GIVE_UP_MS);
+    expect(first.closed).toBe(true);
+    expect(seen.at(-1)).toBe("false the link stalled too long; reconnecting…");
+    expect(FakeSocket.all.slice(1, -1).every((a) => a.closed)).toBe(true);
+    vi.advanceTimersByTime(1);
+    const fresh = FakeSocket.all.at(-1)!;
+    fresh.open();
+    expect(fresh.hellos()[0]!.token).toBe("secret"); // a new session, not a resume
   });
 
   it("connects afresh when the server says the session has ended", () => {
