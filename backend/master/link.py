@@ -127,7 +127,6 @@ class PriorityLink:
         self._udp: socket.socket | None = None
         self._udp_reader: threading.Thread | None = None
         self._datagram_seq = -1
-        self._datagram_hello = b""
         self._datagram_key = b""
         self.thinning = Thinning(0.0)
         self._stopping = threading.Event()
@@ -219,7 +218,6 @@ class PriorityLink:
         key = secrets.token_bytes(16)
         self._datagram_key = key
         self.thinning = Thinning(time.monotonic())
-        self._datagram_hello = m.encode(m.DATAGRAMS, 0, key, 1)
         self.datagrams = "asking"
         self._datagram_seq = self._next()
         self._send(m.encode(m.DATAGRAMS, self._datagram_seq, key, 1))
@@ -298,7 +296,7 @@ class PriorityLink:
         elif msg is m.ACK and int(fields["seq"]) == self._datagram_seq and self._udp is not None:
             # Registered: say it by UDP now (the first one may have come before the key).
             with contextlib.suppress(OSError):
-                self._udp.send(self._datagram_hello)
+                self._udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, 1))
         if msg is m.WELCOME:
             self.operator = int(fields["role"]) == 1
             self.client_id = text

@@ -140,19 +140,21 @@ class Pacer:
     async def _wait(self, size: int, bytes_per_s: float) -> None:
         if math.isinf(bytes_per_s):
             return
-        burst = max(bytes_per_s * BURST_S, MIN_BURST_BYTES)
-        now = self._clock()
-        self._tokens = min(burst, self._tokens + (now - self._last) * bytes_per_s)
-        self._last = now
+        self._refill(bytes_per_s)
         if self._tokens < size:
             delay = (size - self._tokens) / bytes_per_s
             self.paced += 1
             self.waited_s += delay
             await self._sleep(delay)
-            now = self._clock()
-            self._tokens = min(burst, self._tokens + (now - self._last) * bytes_per_s)
-            self._last = now
+            self._refill(bytes_per_s)
         self._tokens -= size
+
+    def _refill(self, bytes_per_s: float) -> None:
+        """The bucket after the time since the last refill, at most one burst full."""
+        burst = max(bytes_per_s * BURST_S, MIN_BURST_BYTES)
+        now = self._clock()
+        self._tokens = min(burst, self._tokens + (now - self._last) * bytes_per_s)
+        self._last = now
 
     def stamp(self, data: bytes) -> bytes:
         """``data`` with its abs-send-time set to now, if it carries one."""
