@@ -168,3 +168,30 @@ def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
     assert VideoPipeline._layer_bps(pipeline, peer) == bps  # type: ignore[arg-type]
     peer.link.fraction_lost = PACE_MAX_LOSS
     assert VideoPipeline._layer_bps(pipeline, peer) is None  # type: ignore[arg-type]
+
+
+def test_a_queue_the_transport_does_not_drain_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
+    import backend.media.pacer as pacer_module
+
+    monkeypatch.setattr(pacer_module, "MAX_QUEUE_PACKETS", 8)
+    sent: list[bytes] = []
+    stuck = asyncio.Event()
+
+    async def send(data: bytes) -> None:
+        sent.append(data)
+        if int.from_bytes(data[2:4], "big") == 0:
+            await stuck.wait()  # the first packet never finishes going out
+
+    async def run() -> tuple[int, int]:
+        pacer = Pacer(send, lambda: 800_000.0, 3)
+        for i in range(20):
+            await pacer(rtp(seq=i))
+            await asyncio.sleep(0)
+        queued, went = pacer.queued, len(sent)
+        pacer.close()
+        return queued, went
+
+    queued, went = asyncio.run(asyncio.wait_for(run(), 10))
+    assert queued <= 8  # never more than the bound…
+    assert queued + went == 20  # …the rest went at once (out of order, not lost)
+    assert went >= 20 - 8 - 1
