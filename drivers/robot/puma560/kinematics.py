@@ -31,6 +31,14 @@ import numpy as np
 import pinocchio as pin
 
 from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose, WorkingFrame
+from drivers.robot.kinematics import (  # re-exported: the PUMA's users import them here
+    apply_increment,
+    check_rotation,
+    check_vector,
+    tool_transform,
+)
+
+__all__ = ["Puma560Kinematics", "check_rotation", "check_vector", "tool_transform"]
 
 PI: Final = math.pi
 TWO_PI: Final = 2.0 * math.pi
@@ -105,54 +113,13 @@ def _rho(q2: float, q3: float) -> float:
     return A2 * math.cos(q2) + A3 * math.cos(q2 + q3) - D4 * math.sin(q2 + q3)
 
 
-def check_vector(name: str, v: object, size: int) -> FloatArray:
-    """A finite float vector of the given size, or a clear ``InvalidCommand``."""
-    # Fast path (every command passes here): a float64 vector whose sum is finite.
-    if (
-        isinstance(v, np.ndarray)
-        and v.dtype == np.float64
-        and v.shape == (size,)
-        and math.isfinite(v.sum())
-    ):
-        return v.copy()  # callers may keep it: never alias theirs
-    try:
-        arr = np.asarray(v, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommand(f"{name} must be {size} numbers: {exc}") from None
-    if arr.shape != (size,):
-        raise InvalidCommand(f"{name} must have {size} values, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InvalidCommand(f"{name} contains NaN or infinity: {arr.tolist()}")
-    return arr
-
-
-def check_rotation(name: str, R: object, tol: float = 1e-6) -> FloatArray:
-    """A proper 3×3 rotation matrix (orthonormal, det +1), or a clear ``InvalidCommand``."""
-    try:
-        arr = np.asarray(R, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InvalidCommand(f"{name} must be a 3x3 matrix: {exc}") from None
-    if arr.shape != (3, 3):
-        raise InvalidCommand(f"{name} must be a 3x3 matrix, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InvalidCommand(f"{name} contains NaN or infinity")
-    if np.abs(arr.T @ arr - np.eye(3)).max() > tol or np.linalg.det(arr) < 0:
-        raise InvalidCommand(f"{name} is not a rotation matrix (orthonormal with det +1)")
-    return arr
-
-
-def tool_transform(length: float) -> FloatArray:
-    """A gripper of ``length`` metres along the flange's z axis."""
-    T = np.eye(4)
-    T[2, 3] = length
-    return T
-
-
 class Puma560Kinematics:
     """FK and Jacobian from a Pinocchio model built from the DH table; closed-form IK.
 
     Not thread-safe (one Pinocchio ``Data`` per instance): give each thread its own.
     """
+
+    joint_names: Final = tuple(f"joint{i}" for i in range(1, 7))
 
     def __init__(self, tool: FloatArray | None = None) -> None:
         self.qlim = QLIM.copy()
@@ -173,7 +140,7 @@ class Puma560Kinematics:
             raise InvalidCommand("tool transform must be a finite 4x4 matrix")
         check_rotation("tool rotation", T[:3, :3])
         self._tool = T.copy()
-        self._tool_inv = np.linalg.inv(T)
+        self._tool_inv: FloatArray = np.linalg.inv(T).astype(float)
         self._tool_is_identity = bool(np.allclose(T, np.eye(4), atol=0, rtol=0))
         self._build_model()
 
@@ -243,23 +210,8 @@ class Puma560Kinematics:
     def apply_increment(
         self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
     ) -> FloatArray:
-        """The tool pose reached from ``T`` by the increment (dX, dM) expressed in ``frame``:
-        base (translate along / rotate about base axes, pivot at the tool point), tool
-        (tool axes, pivot at the tool point) or wrist (flange axes, pivot at the wrist centre)."""
-        delta = np.eye(4)
-        delta[:3, :3], delta[:3, 3] = dM, dX
-        if frame is WorkingFrame.BASE:
-            out = T.copy()
-            out[:3, :3] = dM @ T[:3, :3]
-            out[:3, 3] = T[:3, 3] + dX
-            return out
-        if frame is WorkingFrame.TOOL:
-            result: FloatArray = T @ delta
-            return result
-        if frame is WorkingFrame.WRIST:
-            result = T @ self._tool_inv @ delta @ self._tool
-            return result
-        raise InvalidCommand(f"unknown working frame {frame!r}")
+        """The tool pose reached from ``T`` by the increment (dX, dM) in ``frame``."""
+        return apply_increment(T, dX, dM, frame, self._tool, self._tool_inv)
 
     # ------------------------------------------------------------- limits
     def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:

@@ -1,0 +1,271 @@
+"""Kinematics of any arm from its URDF, through Pinocchio: FK, Jacobian and a numeric
+inverse kinematics for arms without a closed form.
+
+The IK is damped least squares with two priorities, warm-started from the current
+joints. The tool's *position* comes first; its *orientation* is met with what the
+arm has left (the null space of the position task). An arm with six joints in the
+tool's chain reaches both exactly. One with five (the SO-101) reaches any position in
+its workspace with the orientation as near as it can be, and says how near: a
+Cartesian jog that also asks a rotation the arm cannot make still moves the tool where
+it was sent. The damping grows with the error (λ² = k·|e|², Sugihara 2011), so
+steps far from the goal stay small and the last steps converge like Gauss-Newton.
+Joint limits are kept by clamping each step.
+
+The result carries its residual (``last_residual``); a pose whose position cannot be
+met within ``position_tol_m`` is refused as unreachable, nothing moved.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Final
+
+import numpy as np
+import pinocchio as pin
+
+from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose, WorkingFrame
+from drivers.robot.kinematics import apply_increment, check_rotation, joint_limit_faults
+
+MAX_ITERATIONS: Final = 60
+# Converged when a step moves the joints less than this (radians, largest joint).
+STEP_TOL: Final = 1e-10
+# Given up as stalled when the error is above this share of what it was
+# STALL_WINDOW steps before (Gauss-Newton shrinks it far faster near a solution).
+STALL_RATIO: Final = 0.95
+STALL_WINDOW: Final = 4
+_I3: Final = np.eye(3)
+
+
+class UrdfKinematics:
+    """FK, Jacobian and numeric IK of the chain from the URDF's root to ``flange`` plus
+    the tool. Not thread-safe (one Pinocchio ``Data`` per instance)."""
+
+    def __init__(
+        self,
+        urdf: str,
+        flange: str,
+        joint_names: Sequence[str],
+        tool: FloatArray | None = None,
+        *,
+        position_tol_m: float = 1e-6,
+        orientation_tol_rad: float = 1e-5,
+        damping: float = 1e-3,
+        restarts: int = 6,
+    ) -> None:
+        self._model_base = pin.buildModelFromXML(urdf)
+        names = tuple(self._model_base.names[1:])
+        if names != tuple(joint_names):
+            raise InvalidCommand(f"the URDF's joints {names} are not the model's {joint_names}")
+        if not self._model_base.existFrame(flange):
+            raise InvalidCommand(f"the URDF has no link {flange!r} to mount a tool on")
+        self._flange_name = flange
+        self._names = names
+        lo = np.asarray(self._model_base.lowerPositionLimit, float)
+        hi = np.asarray(self._model_base.upperPositionLimit, float)
+        self.qlim = np.stack([lo, hi], axis=1)
+        self.qlim.setflags(write=False)
+        self._lo, self._hi = lo, hi
+        self.position_tol_m = position_tol_m
+        self.orientation_tol_rad = orientation_tol_rad
+        self._k = damping
+        self.last_residual = (0.0, 0.0)  # metres, radians, of the last ik()
+        rng = np.random.default_rng(0)
+        middle = (lo + hi) / 2
+        self._restarts = [middle, *(rng.uniform(lo, hi) for _ in range(restarts - 1))]
+        self.last_iterations = 0
+        self.tool = np.eye(4) if tool is None else tool
+
+    # ------------------------------------------------------------- model
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self._names
+
+    @property
+    def tool(self) -> FloatArray:
+        return self._tool.copy()
+
+    @tool.setter
+    def tool(self, T: FloatArray) -> None:
+        T = np.asarray(T, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InvalidCommand("tool transform must be a finite 4x4 matrix")
+        check_rotation("tool rotation", T[:3, :3])
+        self._tool = T.copy()
+        self._tool_inv: FloatArray = np.linalg.inv(T).astype(float)
+        model = self._model_base.copy()
+        flange = model.frames[model.getFrameId(self._flange_name)]
+        self._flange_id = model.getFrameId(self._flange_name)
+        tool = pin.Frame(
+            "tool",
+            flange.parentJoint,
+            self._flange_id,
+            flange.placement * pin.SE3(self._tool),
+            pin.FrameType.OP_FRAME,
+        )
+        self._tool_id = model.addFrame(tool)
+        self.model = model
+        self._data = model.createData()
+        # How far the tool can be from the first joint: the sum of the links between
+        # the joints that move it (a bound, so a pose past it is refused at once).
+        chain = [j for j in model.supports[flange.parentJoint] if j > 0]
+        offsets = [model.jointPlacements[j].translation for j in chain[1:]]
+        last = model.frames[self._tool_id].placement.translation
+        self._shoulder = model.jointPlacements[chain[0]].translation.copy()
+        self._reach = float(sum(np.linalg.norm(o) for o in [*offsets, last]))
+
+    # ------------------------------------------------------------- forward
+    def fk(self, q: FloatArray) -> FloatArray:
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = pin.updateFramePlacement(
+            self.model, self._data, self._tool_id
+        ).homogeneous
+        return result
+
+    def fk_flange(self, q: FloatArray) -> FloatArray:
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = pin.updateFramePlacement(
+            self.model, self._data, self._flange_id
+        ).homogeneous
+        return result
+
+    def link_origins(self, q: FloatArray) -> FloatArray:
+        """Origins of the base, each joint and the tool ((n + 2) × 3), for drawing."""
+        pin.framesForwardKinematics(self.model, self._data, q)
+        pts = [self._data.oMi[i].translation for i in range(1, self.model.njoints)]
+        return np.array([np.zeros(3), *pts, self._data.oMf[self._tool_id].translation])
+
+    def jacobian(self, q: FloatArray) -> FloatArray:
+        """6×n geometric Jacobian of the tool point: rows vx vy vz wx wy wz, base frame."""
+        J: FloatArray = pin.computeFrameJacobian(
+            self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
+        )
+        return J
+
+    def apply_increment(
+        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
+    ) -> FloatArray:
+        return apply_increment(T, dX, dM, frame, self._tool, self._tool_inv)
+
+    # ------------------------------------------------------------- limits
+    def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:
+        return bool(np.all(q >= self._lo - tol) and np.all(q <= self._hi + tol))
+
+    def check_joint_limits(self, q: FloatArray) -> None:
+        bad = joint_limit_faults(q, self.qlim, self._names)
+        if bad:
+            raise JointLimitError("target is past a joint limit: " + "; ".join(bad))
+
+    # ------------------------------------------------------------- inverse
+    def ik(self, T: FloatArray, seed: FloatArray) -> FloatArray:
+        """Joints within the limits reaching the tool pose ``T``, found from ``seed``
+        (the current joints). The orientation is met as nearly as the arm can
+        (``last_residual``); ``UnreachablePose`` if the position cannot be."""
+        target = pin.SE3(T[:3, :3], T[:3, 3])
+        d = target.translation - self._shoulder
+        far = math.sqrt(d @ d) - self._reach
+        if far > self.position_tol_m:  # farther than the arm stretched out: no search
+            self.last_residual, self.last_iterations = (far, math.inf), 0
+            p = np.round(T[:3, 3], 4).tolist()
+            raise UnreachablePose(
+                f"the pose at {p} m is out of the {self._model_base.name}'s reach: "
+                f"{far * 1000:.0f} mm farther than the arm stretched out"
+            )
+        q = np.minimum(np.maximum(np.asarray(seed, dtype=float), self._lo), self._hi)
+        q, it = self._solve(target, q)
+        # A far move can end in a local minimum against a limit: start again from a
+        # few fixed places across the joint space (only then: a warm start is quick).
+        for start in self._restarts:
+            if self.last_residual[0] <= self.position_tol_m:
+                break
+            best_q, best = q, self.last_residual
+            q, more = self._solve(target, start)
+            it += more
+            if self.last_residual[0] > best[0]:
+                q, self.last_residual = best_q, best
+        self.last_iterations = it
+        pos_err = self.last_residual[0]
+        if pos_err > self.position_tol_m:
+            p = np.round(T[:3, 3], 4).tolist()
+            raise UnreachablePose(
+                f"the pose at {p} m is out of the {self._model_base.name}'s reach within "
+                f"its joint limits: the nearest it gets is {pos_err * 1000:.2f} mm away"
+            )
+        return q
+
+    def _solve(self, target: pin.SE3, q: FloatArray) -> tuple[FloatArray, int]:
+        q, it = self._newton(target, q)
+        if self.last_residual[0] > self.position_tol_m or (
+            self.last_residual[1] > self.orientation_tol_rad and it == MAX_ITERATIONS
+        ):
+            # Not both met: the orientation is out of the arm's reach (or a limit is in
+            # the way). Put the position first, the orientation in what it leaves.
+            q, more = self._prioritised(target, q)
+            it += more
+        return q, it
+
+    def _residual(self, target: pin.SE3, q: FloatArray) -> tuple[FloatArray, float, float]:
+        """The tool's error to ``target`` in the tool frame (6,), and its position and
+        orientation norms; leaves the joint Jacobians computed at ``q``."""
+        pin.computeJointJacobians(self.model, self._data, q)
+        error = pin.updateFramePlacement(self.model, self._data, self._tool_id).actInv(target)
+        e: FloatArray = pin.log6(error).vector
+        # log6's linear part is not the position error (the translation is, rotated).
+        d = error.translation
+        pos_err, rot_err = math.sqrt(d @ d), math.sqrt(e[3:] @ e[3:])
+        self.last_residual = (pos_err, rot_err)
+        return e, pos_err, rot_err
+
+    def _newton(self, target: pin.SE3, q: FloatArray) -> tuple[FloatArray, int]:
+        """Damped Gauss-Newton on the full 6-D error: few steps when the pose is
+        reachable (the usual warm start). Stops when met or when it stalls."""
+        lo, hi, model, data, tool = self._lo, self._hi, self.model, self._data, self._tool_id
+        pos_tol, rot_tol, k = self.position_tol_m, self.orientation_tol_rad, self._k
+        history = [math.inf] * STALL_WINDOW
+        for it in range(MAX_ITERATIONS):
+            e, pos_err, rot_err = self._residual(target, q)
+            if pos_err <= pos_tol and rot_err <= rot_tol:
+                return q, it
+            size = float(e @ e)
+            if size > STALL_RATIO * history[it % STALL_WINDOW]:
+                return q, it  # barely better than a few steps ago: a minimum elsewhere
+            history[it % STALL_WINDOW] = size
+            J = pin.getFrameJacobian(model, data, tool, pin.LOCAL)
+            A = J @ J.T
+            A.flat[::7] += k * (e @ e) + 1e-12  # the damping, on the diagonal
+            dq = J.T @ np.linalg.solve(A, e)
+            if dq @ dq < STEP_TOL * STEP_TOL:
+                return q, it  # a least-squares minimum that is not the pose
+            q = np.minimum(np.maximum(q + dq, lo), hi)
+        self._residual(target, q)
+        return q, MAX_ITERATIONS
+
+    def _prioritised(self, target: pin.SE3, q: FloatArray) -> tuple[FloatArray, int]:
+        """The position exactly where it can be; the orientation as near as the joints
+        the position leaves free allow (in the world-aligned frame at the tool)."""
+        model, data, tool = self.model, self._data, self._tool_id
+        history = [math.inf] * STALL_WINDOW
+        for it in range(1, MAX_ITERATIONS + 1):
+            pin.computeJointJacobians(model, data, q)
+            M = pin.updateFramePlacement(model, data, tool)
+            e_p = target.translation - M.translation
+            e_o = M.rotation @ pin.log3(M.rotation.T @ target.rotation)
+            self.last_residual = (math.sqrt(e_p @ e_p), math.sqrt(e_o @ e_o))
+            size = self.last_residual[0] + 0.01 * self.last_residual[1]
+            if size > STALL_RATIO * history[it % STALL_WINDOW]:
+                break
+            history[it % STALL_WINDOW] = size
+            J = pin.getFrameJacobian(model, data, tool, pin.LOCAL_WORLD_ALIGNED)
+            Jp, Jo = J[:3], J[3:]
+            Jp_pinv = Jp.T @ np.linalg.inv(Jp @ Jp.T + (self._k * (e_p @ e_p) + 1e-12) * _I3)
+            dq = Jp_pinv @ e_p
+            Jo_n = Jo - (Jo @ Jp_pinv) @ Jp
+            r = e_o - Jo @ dq
+            dq = dq + Jo_n.T @ np.linalg.solve(Jo_n @ Jo_n.T + (self._k * (r @ r) + 1e-12) * _I3, r)
+            q_next = np.minimum(np.maximum(q + dq, self._lo), self._hi)
+            step = q_next - q
+            q = q_next
+            if step @ step < STEP_TOL * STEP_TOL:
+                break
+        self._residual(target, q)
+        return q, it

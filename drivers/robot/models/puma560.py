@@ -1,0 +1,38 @@
+"""The PUMA 560 as a model: its URDF generated from the DH table the closed-form
+kinematics uses, so the page and any URDF tool draw the same arm the IK solves."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.base import FloatArray
+from drivers.robot.kinematics import ArmKinematics
+from drivers.robot.models import RobotModel
+from drivers.robot.models.urdf import dh_chain, write_urdf
+from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX
+from drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM, Puma560Kinematics
+
+
+def _kinematics(tool: FloatArray | None) -> ArmKinematics:
+    return Puma560Kinematics(tool)
+
+
+_joints, _segments = dh_chain(DH, QLIM, radius=0.05)
+
+MODEL = RobotModel(
+    name="puma560",
+    title="PUMA 560",
+    urdf=write_urdf("puma560", _joints, _segments),
+    joint_names=tuple(f"joint{i}" for i in range(1, 7)),
+    qlim=QLIM.copy(),
+    flange="flange",
+    named_poses={k: v.copy() for k, v in NAMED_POSES.items()},
+    home_pose="qn",
+    start_pose="qz",
+    vmax=PUMA_VMAX.copy(),
+    amax=PUMA_AMAX.copy(),
+    stop_decel=PUMA_STOP_DECEL.copy(),
+    default_tool_length=0.1,
+    make_kinematics=_kinematics,
+)
+np.asarray(MODEL.qlim).setflags(write=False)
