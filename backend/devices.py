@@ -16,14 +16,14 @@ from backend.settings import Settings
 from drivers.base import ArmSnapshot, DeviceContext, ForceSensor, Robot, StereoCamera
 from drivers.clock import Clock
 from drivers.registry import load_driver
-from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
+from drivers.robot.kinematics import ArmKinematics, tool_transform
 from drivers.sim.workcell import Workcell, default_workcell
 
 
-def make_kinematics(settings: Settings) -> Puma560Kinematics:
-    """The arm's model with the configured tool: the one place it is made (each user
-    gets its own: Pinocchio's data is per instance, not thread-safe)."""
-    return Puma560Kinematics(tool_transform(settings.tool_length))
+def make_kinematics(settings: Settings) -> ArmKinematics:
+    """The arm's kinematics with the configured tool: the one place it is made (each
+    user gets its own: Pinocchio's data is per instance, not thread-safe)."""
+    return settings.model.kinematics(tool_transform(settings.tool_length_m))
 
 
 def build_workcell(settings: Settings) -> Workcell:

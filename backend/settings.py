@@ -24,7 +24,7 @@ from pydantic_settings import (
 
 from backend.media.ice import IceConfig
 from drivers.registry import driver_names, load_driver
-from drivers.robot.puma560.kinematics import NAMED_POSES
+from drivers.robot.models import DEFAULT_MODEL, MODELS, RobotModel, load_model, model_names
 
 _config_file: ContextVar[Path | None] = ContextVar("telerobot_config_file", default=None)
 
@@ -43,8 +43,14 @@ class Settings(BaseSettings):
     # Drivers by their name in drivers/registry.py (each reads its own settings below)
     robot: str = "sim"
     auto_initialize: bool = True  # connect and initialise the robot at start-up
-    home_pose: str = "qn"  # a named pose (qz, qr, qs, qn) the robot initialises to
-    tool_length: float = Field(0.10, ge=0.0, le=0.5)  # gripper length along the flange z axis, m
+    # The arm's description (drivers/robot/models): puma560, so101
+    robot_model: str = DEFAULT_MODEL
+    # A named pose of the model the robot initialises to (PUMA: qz, qr, qs, qn; SO-101:
+    # zero, ready, rest); None: the model's home (qn, ready)
+    home_pose: str | None = None
+    # The tool's length along the flange's z axis, m; None: the model's (PUMA 0.1 m, the
+    # SO-101 0: its tool frame is already between the jaws)
+    tool_length: float | None = Field(None, ge=0.0, le=0.5)
 
     # ValSerialPuma: port is a device path, a pty, socket://host:port or loop://
     serial_port: str = "/dev/ttyS0"
@@ -162,12 +168,34 @@ class Settings(BaseSettings):
             raise ValueError(f"unknown {kind} driver {v!r} (known: {', '.join(known)})")
         return v
 
-    @field_validator("home_pose")
+    @field_validator("robot_model")
     @classmethod
-    def _known_pose(cls, v: str) -> str:
-        if v not in NAMED_POSES:
-            raise ValueError(f"home_pose must be one of {', '.join(NAMED_POSES)}")
+    def _known_model(cls, v: str) -> str:
+        if v not in MODELS:
+            raise ValueError(f"unknown robot model {v!r} (known: {', '.join(model_names())})")
         return v
+
+    @model_validator(mode="after")
+    def _known_pose(self) -> Settings:
+        poses = self.model.named_poses
+        if self.home_pose is not None and self.home_pose not in poses:
+            raise ValueError(
+                f"home_pose must be one of {', '.join(poses)} (the {self.model.title}'s poses)"
+            )
+        return self
+
+    @property
+    def model(self) -> RobotModel:
+        """The robot's description (its URDF, joints, limits, poses)."""
+        return load_model(self.robot_model)
+
+    @property
+    def tool_length_m(self) -> float:
+        return self.model.default_tool_length if self.tool_length is None else self.tool_length
+
+    @property
+    def home_pose_name(self) -> str:
+        return self.home_pose or self.model.home_pose
 
     @classmethod
     def settings_customise_sources(

@@ -20,7 +20,7 @@ import numpy as np
 from calibration.model import CameraModel
 from calibration.store import CalibrationStore
 from drivers.base import FloatArray, ForceSensor, Robot
-from drivers.robot.puma560.kinematics import Puma560Kinematics
+from drivers.robot.kinematics import ArmKinematics
 from drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ class Workcell3DView:
         robot: Robot,
         force: ForceSensor | None,
         calibration: CalibrationStore,
-        kinematics: Puma560Kinematics,
+        kinematics: ArmKinematics,
     ) -> None:
         import viser  # an optional part of the server: imported when the view is on
 

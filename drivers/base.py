@@ -24,7 +24,7 @@ from drivers.clock import Clock
 from drivers.events import Event
 
 if TYPE_CHECKING:  # both import this module
-    from drivers.robot.puma560.kinematics import Puma560Kinematics
+    from drivers.robot.kinematics import ArmKinematics
     from drivers.sim.workcell import Workcell
 
 FloatArray = NDArray[np.float64]
@@ -431,7 +431,7 @@ class DeviceContext:
 
     # A new model of the arm with the configured tool at each call (Pinocchio's data is
     # per instance: each user, each thread, gets its own).
-    kinematics: Callable[[], Puma560Kinematics]
+    kinematics: Callable[[], ArmKinematics]
     workcell: Callable[[], Workcell]  # the simulated workcell every sim device reads
     arm_probe: Callable[[], ArmSnapshot] = _no_arm  # the arm's state, from any thread
     clock: Clock | None = None  # None: the driver's own monotonic clock

@@ -16,7 +16,7 @@ from drivers.base import DriverUnavailable, ForceSensor, Robot, StereoCamera
 # kind → name → (module, class)
 DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
     "robot": {
-        "sim": ("drivers.robot.puma560.sim", "SimPuma"),
+        "sim": ("drivers.robot.sim", "SimArm"),
         "val": ("drivers.robot.puma560.val_serial", "ValSerialPuma"),
     },
     "force": {

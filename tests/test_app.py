@@ -48,8 +48,14 @@ def test_state_of_the_simulated_robot(client: TestClient) -> None:
 
 def test_model_and_workcell_for_the_clients(client: TestClient) -> None:
     model = client.get("/api/v1/robot/model").json()
-    assert len(model["dh"]) == 6 and model["dh"][1]["a"] == pytest.approx(0.4318)
-    assert model["joint_limits_deg"][1] == [-45, 225] and model["home_pose"] == "qz"
+    assert model["model"] == "puma560" and model["dof"] == 6 and len(model["joints"]) == 6
+    # Joint 3 sits a2 = 0.4318 m along joint 2's x axis (the DH table's row 2).
+    assert model["joints"][2]["origin"][0][3] == pytest.approx(0.4318)
+    assert [j["parent"] for j in model["joints"]] == [-1, 0, 1, 2, 3, 4]
+    assert model["joint_limits_deg"][1] == pytest.approx([-45, 225]) and model["home_pose"] == "qz"
+    urdf = client.get(model["urdf"])
+    assert urdf.headers["content-type"].startswith("application/xml")
+    assert urdf.text.count("<joint ") == 7 and 'name="puma560"' in urdf.text
     cell = client.get("/api/v1/workcell").json()
     assert [c["name"] for c in cell["cameras"]] == ["left", "right"]
     assert len(cell["fiducials"]) == 12 and cell["baseline"] == pytest.approx(0.12)

@@ -38,8 +38,8 @@ from drivers.force.netft import NetFtSensor
 from drivers.force.sim import SimForceSensor
 from drivers.registry import DRIVERS
 from drivers.robot.puma560.kinematics import NAMED_POSES
-from drivers.robot.puma560.sim import SimPuma
 from drivers.robot.puma560.val_serial import ValSerialPuma
+from drivers.robot.sim import SimArm
 from tests.test_decision import TOKEN
 
 # A whole simulated force sensor, as a developer would add it: its folder (a package),
@@ -182,8 +182,13 @@ def test_every_registered_driver_builds_itself_from_the_settings() -> None:
 
     sim = Settings()
     puma = build_robot(sim)
-    assert isinstance(puma, SimPuma) and isinstance(puma, Robot)
+    assert isinstance(puma, SimArm) and isinstance(puma, Robot)
+    assert puma.model.name == "puma560" and puma.name == "sim-puma560"
     assert describe_robot(sim) == "the simulation"
+    so101 = build_robot(Settings(robot_model="so101"))
+    assert isinstance(so101, SimArm) and so101.name == "sim-so101" and so101.dof == 6
+    np.testing.assert_allclose(so101.home, so101.model.pose("ready"))
+    assert so101.kinematics.joint_names[-1] == "gripper"
     force = build_force_sensor(sim, puma, build_workcell(sim))
     assert isinstance(force, SimForceSensor) and isinstance(force, ForceSensor)
     assert force.probe == puma.snapshot and force.counters == {} and force.error is None

@@ -7,14 +7,13 @@ import math
 from typing import Literal
 
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
 from backend.api.requests import StrictRequest
 from backend.control.decision import StillMoving
 from drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
-from drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM_DEG
 
 router = APIRouter(prefix="/robot", tags=["robot"])
 
@@ -32,19 +31,33 @@ class RobotState(BaseModel):
     frame: WorkingFrame
 
 
-class DHRow(BaseModel):
-    d: float
-    a: float
-    alpha: float
+class ModelJoint(BaseModel):
+    """A revolute joint: its frame is the parent joint's (the base's for -1) times
+    ``origin`` times a rotation of q about ``axis``."""
+
+    name: str
+    parent: int  # index into ``joints``; -1: the base
+    origin: list[list[float]]  # 4×4, in the parent joint's frame
+    axis: list[float]  # unit vector in the joint's frame
+
+
+class ModelFlange(BaseModel):
+    parent: int  # the joint the tool is mounted on (index into ``joints``)
+    origin: list[list[float]]  # 4×4, in that joint's frame
 
 
 class RobotModel(BaseModel):
-    name: str
-    dh: list[DHRow]  # standard DH: Rz(q) Tz(d) Tx(a) Rx(alpha)
+    model: str  # the settings' name: puma560, so101
+    name: str  # for a person: "PUMA 560", "SO-101"
+    dof: int
+    joint_names: list[str]
+    joints: list[ModelJoint]  # the kinematic tree, in joint order
+    flange: ModelFlange
     joint_limits_deg: list[tuple[float, float]]
     named_poses: dict[str, list[float]]
     tool: list[list[float]]  # flange → tool, 4×4
     home_pose: str
+    urdf: str  # where the description is, as URDF (for URDF tools)
 
 
 class InitializeRequest(StrictRequest):
@@ -55,7 +68,8 @@ class MoveRequest(StrictRequest):
     space: Literal["joint", "cartesian"]
     mode: Literal["absolute", "incremental"]
     joints: list[float] | None = Field(
-        None, description="joint space: 6 angles or increments, radians"
+        None,
+        description="joint space: one angle or increment per joint (GET /robot/model), radians",
     )
     position: list[float] | None = Field(None, description="cartesian: position or ΔX, metres")
     rotation: list[list[float]] | None = Field(
@@ -108,15 +122,34 @@ async def state(robot: RobotDep, decision: DecisionDep) -> RobotState:
 
 @router.get("/model")
 async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
-    tool = robot.kinematics.tool.tolist()
+    """The connected arm's model: the page computes its kinematics and draws it from
+    this; ``/robot/model.urdf`` is the same arm as URDF."""
+    description = settings.model
+    chain = description.chain()
     return RobotModel(
-        name="PUMA 560",
-        dh=[DHRow(d=d, a=a, alpha=alpha) for d, a, alpha in DH],
-        joint_limits_deg=[(float(lo), float(hi)) for lo, hi in QLIM_DEG],
-        named_poses={k: v.tolist() for k, v in NAMED_POSES.items()},
-        tool=tool,
-        home_pose=settings.home_pose,
+        model=description.name,
+        name=description.title,
+        dof=description.dof,
+        joint_names=list(description.joint_names),
+        joints=[ModelJoint.model_validate(j) for j in chain["joints"]],
+        flange=ModelFlange.model_validate(chain["flange"]),
+        joint_limits_deg=[(math.degrees(lo), math.degrees(hi)) for lo, hi in description.qlim],
+        named_poses={k: v.tolist() for k, v in description.named_poses.items()},
+        tool=robot.kinematics.tool.tolist(),
+        home_pose=settings.home_pose_name,
+        urdf="/api/v1/robot/model.urdf",
     )
+
+
+@router.get(
+    "/model.urdf",
+    response_class=Response,
+    responses={200: {"content": {"application/xml": {}}, "description": "the arm as URDF"}},
+)
+async def model_urdf(settings: SettingsDep) -> Response:
+    """The connected arm as URDF (primitives only), for URDF tools (RViz, Foxglove,
+    urdf-loader). The tool set on the server is not in it: it is ``/robot/model``'s."""
+    return Response(settings.model.urdf, media_type="application/xml")
 
 
 @router.post("/initialize")

@@ -45,7 +45,7 @@ from drivers.base import (
 )
 from drivers.clock import Clock
 from drivers.events import Event
-from drivers.robot.puma560.kinematics import Puma560Kinematics, check_rotation, check_vector
+from drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
 
 log = logging.getLogger(__name__)
 
@@ -207,7 +207,7 @@ class DecisionServer:
         self,
         robot: Robot,
         *,
-        kinematics: Puma560Kinematics,
+        kinematics: ArmKinematics,
         clock: Clock,
         operator_token: str,
         limits: SafetyLimits | None = None,
@@ -218,6 +218,7 @@ class DecisionServer:
             raise ValueError("the operator token must have at least 16 characters")
         self.robot = robot
         self.kinematics = kinematics
+        self._dof = len(kinematics.qlim)  # the model's joint count
         self.clock = clock
         self.limits = limits or SafetyLimits()
         self.events = DecisionEvents()
@@ -699,7 +700,7 @@ class DecisionServer:
         client = self._authorise(client_id)
         client.streaming = True
         self._check_fresh(client, client_time)
-        dq = check_vector("joint increment", dq, 6)
+        dq = check_vector("joint increment", dq, self._dof)
         lim = self.limits
         biggest = float(np.max(np.abs(dq)))
         if biggest > lim.max_joint_step_rad:
@@ -726,7 +727,7 @@ class DecisionServer:
         arm's own velocity limits pace it."""
         client = self._authorise(client_id)
         client.streaming = False  # a bounded move, not jogging: a scripted lease may idle
-        q = check_vector("joints", q, 6)
+        q = check_vector("joints", q, self._dof)
         if self._force_limited:
             raise SafetyStop("force limit: back away with a Cartesian move first")
         self.kinematics.check_joint_limits(q)
@@ -754,11 +755,15 @@ class DecisionServer:
         """Connect if needed and initialise (to ``q`` or the home pose); needs the lease."""
         self._authorise(client_id)
         if q is not None:
-            q = check_vector("joints", q, 6)
+            q = check_vector("joints", q, self._dof)
             self.kinematics.check_joint_limits(q)
             self._check_workspace(self.kinematics.fk(q)[:3, 3])
         await self.robot.connect()
         await self.robot.initialize(q)
+
+    def _joint_name(self, i: int) -> str:
+        name = self.kinematics.joint_names[i]
+        return f"joint {i + 1}" if name == f"joint{i + 1}" else f"joint {i + 1} ({name})"
 
     def _check_workspace(self, p: FloatArray) -> None:
         if not self.limits.in_workspace(p):
@@ -779,10 +784,10 @@ class DecisionServer:
     ) -> Applied:
         if seed is not None:
             jump = [abs(a - b) for a, b in zip(q.tolist(), seed.tolist(), strict=True)]
-            worst = max(range(6), key=jump.__getitem__)
+            worst = max(range(len(jump)), key=jump.__getitem__)
             if jump[worst] > self.limits.max_joint_step_rad:
                 raise LimitExceeded(
-                    f"too close to a singularity: joint {worst + 1} would turn "
+                    f"too close to a singularity: {self._joint_name(worst)} would turn "
                     f"{math.degrees(jump[worst]):.1f}° for this small move"
                 )
         async with self._lock:

@@ -25,7 +25,7 @@ from drivers.base import ArmSnapshot, CameraStatus, DeviceContext, StereoFrame
 from drivers.camera import timecode
 from drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
 from drivers.camera.slot import FrameSlot
-from drivers.robot.puma560.kinematics import Puma560Kinematics
+from drivers.robot.kinematics import ArmKinematics
 from drivers.sim.workcell import Box, PinholeCamera, Workcell
 from drivers.threads import WorkerThread
 
@@ -77,7 +77,7 @@ class SimStereoCamera:
         self,
         workcell: Workcell,
         probe: Callable[[], ArmSnapshot],
-        kinematics: Puma560Kinematics,
+        kinematics: ArmKinematics,
         *,
         fps: float = 30.0,
         show_timecode: bool = True,

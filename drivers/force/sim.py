@@ -24,7 +24,7 @@ from drivers.base import ArmSnapshot, DeviceContext, ForceSample
 from drivers.force.config_sim import SimForceConfig
 from drivers.force.pipeline import Six
 from drivers.force.sampled import SampledForceSensor
-from drivers.robot.puma560.kinematics import Puma560Kinematics
+from drivers.robot.kinematics import ArmKinematics
 from drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)
@@ -40,7 +40,7 @@ class SimForceSensor(SampledForceSensor):
         self,
         workcell: Workcell,
         probe: Callable[[], ArmSnapshot],
-        kinematics: Puma560Kinematics,
+        kinematics: ArmKinematics,
         *,
         rate_hz: float = 1000.0,
         noise_n: float = 0.02,

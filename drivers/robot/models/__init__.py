@@ -22,6 +22,7 @@ from drivers.base import DriverUnavailable, FloatArray
 
 if TYPE_CHECKING:
     from drivers.robot.kinematics import ArmKinematics
+    from drivers.robot.models.numeric import Chain
 
 # name → the module holding its MODEL
 MODELS: Final[dict[str, str]] = {
@@ -66,8 +67,15 @@ class RobotModel:
                 f"the {self.title} has no pose {name!r} (known: {known})"
             ) from None
 
+    def chain(self) -> Chain:
+        """The joint tree as plain numbers, for a client that computes forward
+        kinematics itself (the page)."""
+        from drivers.robot.models.numeric import describe_chain
+
+        return describe_chain(self.urdf, self.flange)
+
     def describe(self) -> dict[str, object]:
-        """The model as JSON for a client (the page draws it from this and the URDF)."""
+        """The model as JSON (the recording's metadata, the CLI)."""
         return {
             "name": self.name,
             "title": self.title,

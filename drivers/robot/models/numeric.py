@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Final
+from typing import Final, TypedDict
 
 import numpy as np
 import pinocchio as pin
@@ -269,3 +269,56 @@ class UrdfKinematics:
                 break
         self._residual(target, q)
         return q, it
+
+
+_AXES: Final = {"RX": (1.0, 0.0, 0.0), "RY": (0.0, 1.0, 0.0), "RZ": (0.0, 0.0, 1.0)}
+
+
+class ChainJoint(TypedDict):
+    name: str
+    parent: int  # index into the joints; -1: the base
+    origin: list[list[float]]  # 4×4 in the parent joint's frame
+    axis: list[float]
+
+
+class ChainFlange(TypedDict):
+    parent: int
+    origin: list[list[float]]
+
+
+class Chain(TypedDict):
+    joints: list[ChainJoint]
+    flange: ChainFlange
+
+
+def describe_chain(urdf: str, flange: str) -> Chain:
+    """The URDF's kinematic tree as plain numbers, for a client that computes forward
+    kinematics itself (the page): each revolute joint's parent (an index into the list,
+    -1 for the base), its placement in the parent joint's frame (4×4, row-major) and
+    axis, and where the flange sits on its joint."""
+    model = pin.buildModelFromXML(urdf)
+    joints: list[ChainJoint] = []
+    for j in range(1, model.njoints):
+        kind = model.joints[j].shortname().removeprefix("JointModel")
+        if kind == "RevoluteUnaligned":
+            axis = [float(x) for x in model.joints[j].extract().axis]
+        elif kind in _AXES:
+            axis = list(_AXES[kind])
+        else:
+            raise InvalidCommand(f"joint {model.names[j]!r} is {kind}: only revolute joints")
+        joints.append(
+            {
+                "name": model.names[j],
+                "parent": model.parents[j] - 1,
+                "origin": np.round(model.jointPlacements[j].homogeneous, 12).tolist(),
+                "axis": axis,
+            }
+        )
+    frame = model.frames[model.getFrameId(flange)]
+    return {
+        "joints": joints,
+        "flange": {
+            "parent": frame.parentJoint - 1,
+            "origin": np.round(frame.placement.homogeneous, 12).tolist(),
+        },
+    }

@@ -45,7 +45,7 @@ class Segment:
 
 
 def _fmt(v: Sequence[float]) -> str:
-    return " ".join(f"{float(x):.10g}" for x in v)
+    return " ".join(repr(float(x)) for x in v)  # exact: the shortest round trip
 
 
 def _along(direction: np.ndarray) -> Vec3:

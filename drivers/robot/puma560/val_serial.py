@@ -47,10 +47,10 @@ from drivers.base import (
     TelerobotError,
 )
 from drivers.clock import Clock
+from drivers.robot.kinematics import ArmKinematics
 from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX
 from drivers.robot.puma560 import val_protocol as vp
 from drivers.robot.puma560.arm import PumaArm, PumaConfig
-from drivers.robot.puma560.kinematics import Puma560Kinematics
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ class ValSerialConfig(PumaConfig):
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> Self:
         return cls(
-            home_pose=str(settings["home_pose"]),
+            home_pose=PumaConfig.from_settings(settings).home_pose,
             serial=SerialSettings(
                 port=str(settings["serial_port"]),
                 baudrate=int(settings["serial_baudrate"]),
@@ -84,7 +84,7 @@ class ValSerialPuma(PumaArm):
         self,
         settings: SerialSettings | None = None,
         *,
-        kinematics: Puma560Kinematics | None = None,
+        kinematics: ArmKinematics | None = None,
         clock: Clock | None = None,
         home: FloatArray | None = None,
         joint_offsets: FloatArray | None = None,
