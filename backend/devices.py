@@ -34,6 +34,9 @@ def build_workcell(settings: Settings) -> Workcell:
         height=settings.video_height,
         block_stiffness=settings.block_stiffness_n_m,
         block_damping=settings.block_damping_n_s_m,
+        scale=settings.model.scene_scale,
+        offset=settings.model.scene_offset,
+        pedestal_m=settings.model.pedestal_m,
     )
     if settings.fiducials is not None:  # where they really are (a real workcell)
         cell = dataclasses.replace(cell, fiducials=np.array(settings.fiducials, dtype=float))

@@ -148,7 +148,10 @@ class Services:
 
 def safety_limits(settings: Settings) -> SafetyLimits:
     """The settings' limits; the rest of ``SafetyLimits`` keeps its defaults."""
+    model = settings.model
     return SafetyLimits(
+        workspace_min=np.array(model.workspace_min),
+        workspace_max=np.array(model.workspace_max),
         force_limit_n=settings.force_limit_n,
         deadman_timeout_s=settings.deadman_timeout_s,
         lease_grace_s=settings.lease_grace_s,

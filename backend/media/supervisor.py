@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from backend.media.worker import ARM_FIELDS, worker_main
+from backend.media.worker import arm_fields, worker_main
 from backend.settings import Settings
 from drivers.base import Robot, TelerobotError
 
@@ -41,7 +41,7 @@ class MediaSupervisor:
         self.settings = settings
         self.robot = robot
         self._ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
-        self._arm: Any = self._ctx.Array("d", ARM_FIELDS, lock=True)
+        self._arm: Any = self._ctx.Array("d", arm_fields(settings.model.dof), lock=True)
         self._proc: Any = None
         self._conn: Any = None
         self._ids = itertools.count(1)

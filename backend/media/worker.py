@@ -24,14 +24,18 @@ from drivers.base import ArmSnapshot, TelerobotError
 
 log = logging.getLogger(__name__)
 
-ARM_FIELDS = 13  # time, 6 joints, 6 velocities
+
+def arm_fields(dof: int) -> int:
+    """The shared arm state's length: time, the joints, their velocities."""
+    return 1 + 2 * dof
 
 
 def shared_arm_probe(arm: Any) -> Callable[[], ArmSnapshot]:
     def probe() -> ArmSnapshot:
         with arm.get_lock():
             values = np.frombuffer(arm.get_obj(), dtype=np.float64).copy()
-        return ArmSnapshot(float(values[0]), values[1:7], values[7:13])
+        dof = (len(values) - 1) // 2
+        return ArmSnapshot(float(values[0]), values[1 : 1 + dof], values[1 + dof :])
 
     return probe
 

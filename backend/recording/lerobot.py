@@ -53,7 +53,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from backend.recording.reader import read
-from drivers.base import TelerobotError
+from drivers.base import DriverUnavailable, TelerobotError
+from drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000  # lerobot DEFAULT_CHUNK_SIZE
@@ -72,11 +73,23 @@ ENCODERS: tuple[tuple[str, dict[str, str], dict[str, Any]], ...] = (
 GOP = 2
 TIE_S = 1e-6  # times this close are the same time
 WHOLE_RECORDING_TASK = "(whole recording)"
-ROBOT_TYPE = "puma560"
+# The dataset's robot_type per model, as LeRobot names the arms it knows (an SO-101
+# recording is an SO-101 dataset); other models are named as the settings name them.
+ROBOT_TYPES = {"so101": "so101_follower"}
 CAMERAS = ("left", "right")
 MAX_STAT_IMAGES = 100  # images sampled per episode for the image stats (lerobot samples too)
 
-JOINT_NAMES = [f"joint_{i}" for i in range(1, 7)]
+PUMA_JOINT_NAMES = [f"joint_{i}" for i in range(1, 7)]  # as exported since issue 14
+
+
+def joint_feature_names(model: RobotModel) -> list[str]:
+    """The state/action columns' names: LeRobot's ``<motor>.pos`` for a model whose
+    joints are named (the SO-101's shoulder_pan.pos … gripper.pos); the PUMA's as before."""
+    if model.name == "puma560":
+        return PUMA_JOINT_NAMES
+    return [f"{name}.pos" for name in model.joint_names]
+
+
 POSE_NAMES = ["x", "y", "z", *(f"r{r}{c}" for r in range(1, 4) for c in range(1, 4))]
 FORCE_NAMES = ["fx", "fy", "fz", "tx", "ty", "tz"]
 
@@ -132,10 +145,12 @@ class _Recording:
     video_t: Array  # capture times, monotonic clock
     video_au: list[bytes]
     skipped: list[str]
+    model: RobotModel  # the arm recorded (its settings' robot_model)
 
 
 def _load(path: Path) -> _Recording:
-    topics = ["/robot/state", "/force", "/commands", "/episodes", "/video/stereo"]
+    topics = ["/settings", "/robot/state", "/force", "/commands", "/episodes", "/video/stereo"]
+    model_name = DEFAULT_MODEL  # recordings from before robot models were all of the PUMA
     state_t: list[float] = []
     joints: list[list[float]] = []
     targets: list[list[float]] = []
@@ -152,6 +167,9 @@ def _load(path: Path) -> _Recording:
         if topic == "/video/stereo":
             video_wall.append(_stamp_s(m["timestamp"]))
             video_au.append(bytes(m["data"]))
+            continue
+        if topic == "/settings":
+            model_name = str(m.get("robot_model", DEFAULT_MODEL))
             continue
         t = float(m["t"])
         if len(offsets) < 1000:
@@ -182,15 +200,21 @@ def _load(path: Path) -> _Recording:
         video_t = np.maximum.accumulate(video_t)
     episodes, skipped = _episodes(events, state_t[-1])
     f32 = np.float64
+    try:
+        model = load_model(model_name)
+    except DriverUnavailable as exc:
+        raise ExportError(f"{path.name} is of a robot this version does not know: {exc}") from None
+    n = model.dof
     return _Recording(
+        model=model,
         state_t=np.asarray(state_t, f32),
-        joints=np.asarray(joints, f32).reshape(-1, 6),
-        targets=np.asarray(targets, f32).reshape(-1, 6),
+        joints=np.asarray(joints, f32).reshape(-1, n),
+        targets=np.asarray(targets, f32).reshape(-1, n),
         pose=np.asarray(pose, f32).reshape(-1, 12),
         force_t=np.asarray(force_t, f32),
         force=np.asarray(force, f32).reshape(-1, 6),
         command_t=np.asarray(command_t, f32),
-        command_target=np.asarray(command_target, f32).reshape(-1, 6),
+        command_target=np.asarray(command_target, f32).reshape(-1, n),
         episodes=episodes,
         video_t=video_t,
         video_au=video_au,
@@ -440,9 +464,12 @@ def export_lerobot(
             tasks.append(task)
 
     out.mkdir(parents=True, exist_ok=True)
+    joint_names = joint_feature_names(rec.model)
     features: dict[str, dict[str, Any]] = {
         "observation.state": _feature(
-            [6], JOINT_NAMES, "joints (rad): the last /robot/state at or before the row time"
+            [rec.model.dof],
+            joint_names,
+            "joints (rad): the last /robot/state at or before the row time",
         ),
         "observation.tool_pose": _feature(
             [12],
@@ -457,8 +484,8 @@ def export_lerobot(
             "(t - 1/fps, t], else the last before",
         ),
         "action": _feature(
-            [6],
-            JOINT_NAMES,
+            [rec.model.dof],
+            joint_names,
             "commanded target joints (rad): the last accepted /commands target at or before "
             "the row time (before any: the state's target)",
         ),
@@ -583,7 +610,7 @@ def export_lerobot(
 
     info = {
         "codebase_version": CODEBASE_VERSION,
-        "robot_type": ROBOT_TYPE,
+        "robot_type": ROBOT_TYPES.get(rec.model.name, rec.model.name),
         "total_episodes": len(kept),
         "total_frames": total,
         "total_tasks": len(tasks),

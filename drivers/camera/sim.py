@@ -26,6 +26,8 @@ from drivers.camera import timecode
 from drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
 from drivers.camera.slot import FrameSlot
 from drivers.robot.kinematics import ArmKinematics
+from drivers.robot.models import DEFAULT_MODEL, load_model
+from drivers.robot.models.drawing import ArmDrawing
 from drivers.sim.workcell import Box, PinholeCamera, Workcell
 from drivers.threads import WorkerThread
 
@@ -46,7 +48,6 @@ FIDUCIAL_COLOURS = (  # RGB, in the workcell's order: the affine basis first
     (255, 150, 200),
     (200, 200, 90),
 )
-LINK_RADIUS = 0.045  # m
 BOARD = BoardSpec()  # the ChArUco board the calibration page asks for
 GRIPPER_COLOUR = (255, 140, 0)
 
@@ -79,6 +80,7 @@ class SimStereoCamera:
         probe: Callable[[], ArmSnapshot],
         kinematics: ArmKinematics,
         *,
+        drawing: ArmDrawing | None = None,
         fps: float = 30.0,
         show_timecode: bool = True,
         time_source: Callable[[], float] = time.monotonic,
@@ -89,6 +91,8 @@ class SimStereoCamera:
         self.fps = fps
         self.probe = probe
         self.kinematics = kinematics  # this camera's own (Pinocchio data is per thread)
+        # The arm's links as its model draws them (the PUMA if not said).
+        self.drawing = drawing or ArmDrawing(load_model(DEFAULT_MODEL))
         self.show_timecode = show_timecode
         self._now = time_source
         self._slot = FrameSlot()
@@ -105,7 +109,14 @@ class SimStereoCamera:
     def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
         """The workcell's ground-truth pair, drawing the arm the context follows."""
         config = SimStereoCameraConfig.from_settings(settings)
-        return cls(context.workcell(), context.arm_probe, context.kinematics(), fps=config.fps)
+        drawing = ArmDrawing(load_model(str(settings.get("robot_model", DEFAULT_MODEL))))
+        return cls(
+            context.workcell(),
+            context.arm_probe,
+            context.kinematics(),
+            drawing=drawing,
+            fps=config.fps,
+        )
 
     @classmethod
     def default_rig(cls, settings: Mapping[str, Any]) -> str:
@@ -136,7 +147,10 @@ class SimStereoCamera:
             np.uint8
         )[:, None]
         # The pedestal first: seen from the cameras it stands behind the table.
-        self._draw_link(img, cam, np.zeros(3), np.array([0.0, 0.0, 0.6]), 0.09, (90, 90, 96))
+        cell = self.workcell
+        if cell.pedestal_m > 0:
+            top = np.array([0.0, 0.0, cell.pedestal_m])
+            self._draw_link(img, cam, np.zeros(3), top, 0.09 * cell.scale, (90, 90, 96))
         # The table, its grid, then what stands on it. A box's visible faces never
         # overlap each other, so they need no sorting.
         for i, box in enumerate(self.workcell.obstacles):
@@ -145,7 +159,7 @@ class SimStereoCamera:
             if i == 0:
                 self._draw_table_grid(img, cam)
         for colour, p in zip(itertools.cycle(FIDUCIAL_COLOURS), self.workcell.fiducials):
-            self._draw_ball(img, cam, p, FIDUCIAL_RADIUS, colour)
+            self._draw_ball(img, cam, p, FIDUCIAL_RADIUS * self.workcell.scale, colour)
         return img
 
     def _box_faces(
@@ -181,9 +195,9 @@ class SimStereoCamera:
         z = table.upper[2] + 1e-4
         lo, hi = table.lower, table.upper
         colour = _shade(table.colour, 0.8)
-        for x in np.arange(lo[0], hi[0] + 1e-9, 0.05):
+        for x in np.arange(lo[0], hi[0] + 1e-9, 0.05 * self.workcell.scale):
             self._line(img, cam, np.array([x, lo[1], z]), np.array([x, hi[1], z]), colour, 1)
-        for y in np.arange(lo[1], hi[1] + 1e-9, 0.05):
+        for y in np.arange(lo[1], hi[1] + 1e-9, 0.05 * self.workcell.scale):
             self._line(img, cam, np.array([lo[0], y, z]), np.array([hi[0], y, z]), colour, 1)
 
     @staticmethod
@@ -244,13 +258,16 @@ class SimStereoCamera:
 
     def _draw_arm(self, img: np.ndarray, cam: PinholeCamera, q: np.ndarray) -> None:
         pts = self.kinematics.link_origins(q)
-        for a, b in itertools.pairwise(pts[1:-1]):  # base … joint 6 origins
+        drawing = self.drawing
+        for (a, b), radius in zip(drawing.segments(q), drawing.radii, strict=True):
             if np.linalg.norm(b - a) > 1e-6:
-                self._draw_link(img, cam, a, b, LINK_RADIUS, (160, 162, 170))
-        for p in pts[1:-1]:
-            self._draw_ball(img, cam, p, LINK_RADIUS * 1.1, (110, 112, 120))
-        self._draw_link(img, cam, pts[-2], pts[-1], 0.012, GRIPPER_COLOUR)
-        self._draw_ball(img, cam, pts[-1], 0.018, GRIPPER_COLOUR)
+                self._draw_link(img, cam, a, b, radius, (160, 162, 170))
+        joint_radius = 1.1 * float(drawing.radii.max())
+        for p in pts[1:-1]:  # each joint
+            self._draw_ball(img, cam, p, joint_radius, (110, 112, 120))
+        scale = self.workcell.scale
+        self._draw_link(img, cam, pts[-2], pts[-1], 0.012 * scale, GRIPPER_COLOUR)
+        self._draw_ball(img, cam, pts[-1], 0.018 * scale, GRIPPER_COLOUR)
 
     def render(self, t: float) -> np.ndarray:
         """The side-by-side image at time ``t`` (arm at its extrapolated joints)."""

@@ -157,6 +157,8 @@ class Workcell:
     rig: StereoRig
     work_centre: FloatArray  # (3,) where the cameras look
     obstacles: tuple[Box, ...] = field(default=())
+    scale: float = 1.0  # of the PUMA-sized scene: what is drawn is sized with it
+    pedestal_m: float = 0.6  # the arm's pedestal, from the floor to its base (0: none)
 
     def contact(self, point: FloatArray) -> tuple[Box | None, float, FloatArray]:
         """The obstacle ``point`` is deepest in, its penetration depth and outward normal."""
@@ -214,20 +216,35 @@ def default_workcell(
     height: int = 720,
     block_stiffness: float = 5.0e4,
     block_damping: float = 80.0,
+    scale: float = 1.0,
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    pedestal_m: float = 0.6,
 ) -> Workcell:
+    """The scene sized for the PUMA 560; another arm gets it ``scale``d about the base
+    and moved by ``offset`` (its model's ``scene``): the same table, block, fiducials and
+    camera view, in reach of a smaller arm. ``camera_distance`` and ``baseline`` are the
+    PUMA-sized ones, scaled with the rest."""
+    if not 0.05 <= scale <= 5.0:
+        raise InvalidCommand(f"the scene's scale must be 0.05–5, not {scale}")
+    shift = np.asarray(offset, dtype=float)
+
+    def at(*xyz: float) -> FloatArray:
+        result: FloatArray = scale * np.array(xyz, dtype=float) + shift
+        return result
+
     table_top = 0.40
     table = Box(
         "table",
-        centre=np.array([0.70, -0.10, table_top - 0.025]),
-        size=np.array([0.70, 1.00, 0.05]),
+        centre=at(0.70, -0.10, table_top - 0.025),
+        size=scale * np.array([0.70, 1.00, 0.05]),
         colour=(150, 111, 74),
         stiffness=2.0e4,
         damping=50.0,
     )
     block = Box(
         "block",
-        centre=np.array([0.65, -0.30, table_top + 0.05]),
-        size=np.array([0.10, 0.10, 0.10]),
+        centre=at(0.65, -0.30, table_top + 0.05),
+        size=scale * np.array([0.10, 0.10, 0.10]),
         colour=(200, 60, 50),
         stiffness=block_stiffness,
         damping=block_damping,
@@ -245,9 +262,22 @@ def default_workcell(
         [[0.42, -0.55, table_top], [0.98, -0.55, table_top], [0.42, 0.35, table_top],
          [0.98, 0.35, table_top]]
     )  # fmt: skip
-    fiducials = np.vstack([cube, corners])
-    centre = np.array([0.65, -0.15, 0.55])
+    fiducials = scale * np.vstack([cube, corners]) + shift
+    centre = at(0.65, -0.15, 0.55)
     rig = stereo_rig(
-        centre, distance=camera_distance, baseline=baseline, width=width, height=height
+        centre,
+        distance=scale * camera_distance,
+        baseline=scale * baseline,
+        width=width,
+        height=height,
     )
-    return Workcell(table, block, fiducials, rig, centre, obstacles=(table, block))
+    return Workcell(
+        table,
+        block,
+        fiducials,
+        rig,
+        centre,
+        obstacles=(table, block),
+        scale=scale,
+        pedestal_m=pedestal_m,
+    )

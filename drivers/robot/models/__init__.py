@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 
 from drivers.base import DriverUnavailable, FloatArray
+from drivers.robot.models.urdf import Segment
 
 if TYPE_CHECKING:
     from drivers.robot.kinematics import ArmKinematics
@@ -48,6 +49,14 @@ class RobotModel:
     stop_decel: FloatArray  # rad/s² per joint, a controlled stop
     default_tool_length: float  # metres along the flange's z axis
     make_kinematics: Callable[[FloatArray | None], ArmKinematics] = field(repr=False)
+    # The simulated workcell (sized for the PUMA) scaled about the base and moved, so
+    # the table and block are in this arm's reach; the tool's workspace box likewise.
+    scene_scale: float = 1.0
+    scene_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pedestal_m: float = 0.6  # drawn under the base (the PUMA's); 0: on the table
+    workspace_min: tuple[float, float, float] = (-0.2, -0.8, 0.30)
+    workspace_max: tuple[float, float, float] = (1.05, 0.8, 1.60)
+    segments: tuple[Segment, ...] = ()  # the URDF's drawing: cylinders in link frames
 
     @property
     def dof(self) -> int:

@@ -23,6 +23,7 @@ MODEL = RobotModel(
     name="puma560",
     title="PUMA 560",
     urdf=write_urdf("puma560", _joints, _segments),
+    segments=tuple(_segments),
     joint_names=tuple(f"joint{i}" for i in range(1, 7)),
     qlim=QLIM.copy(),
     flange="flange",

@@ -95,6 +95,7 @@ def _segments() -> list[Segment]:
     return segments
 
 
+SEGMENTS = tuple(_segments())
 QLIM = np.array([j.limits for j in JOINTS[:6] if j.limits is not None], dtype=float)
 
 
@@ -115,7 +116,8 @@ NAMED_POSES: dict[str, FloatArray] = {
 MODEL = RobotModel(
     name="so101",
     title="SO-101",
-    urdf=write_urdf("so101", JOINTS, _segments()),
+    urdf=write_urdf("so101", JOINTS, SEGMENTS),
+    segments=SEGMENTS,
     joint_names=JOINT_NAMES,
     qlim=QLIM,
     flange=TOOL_LINK,
@@ -128,5 +130,13 @@ MODEL = RobotModel(
     stop_decel=np.full(6, 20.0),
     default_tool_length=0.0,
     make_kinematics=_kinematics,
+    # At 0.4 of the PUMA's scene the table top is at the arm's base (where an SO-101 is
+    # clamped) and the block 0.3 m in front of the shoulder; the workspace box is the
+    # PUMA's box moved the same way.
+    scene_scale=0.4,
+    scene_offset=(0.0, 0.0, -0.16),
+    pedestal_m=0.0,
+    workspace_min=(-0.08, -0.32, -0.04),
+    workspace_max=(0.42, 0.32, 0.48),
 )
 QLIM.setflags(write=False)
