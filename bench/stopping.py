@@ -104,7 +104,7 @@ class Observer:
             data = await self.client.ws.recv()
             if data[0] == m.STATE.type_id:
                 _, f, _ = m.decode(data)
-                q = np.array([f[f"q{i}"] for i in range(1, 7)])
+                q = np.array(f["joints"])
                 p = np.array([f["x"], f["y"], f["z"]])
                 self.states.append((float(f["server_time"]), q, p))
             elif data[0] == m.EVENT.type_id:

@@ -25,6 +25,7 @@ from drivers.events import Event
 
 if TYPE_CHECKING:  # both import this module
     from drivers.robot.kinematics import ArmKinematics
+    from drivers.robot.models import RobotModel
     from drivers.sim.workcell import Workcell
 
 FloatArray = NDArray[np.float64]
@@ -215,11 +216,13 @@ class StopSpec:
 
 @runtime_checkable
 class Robot(Protocol):
-    """A 6-axis arm. Every move is validated before anything is sent; a refused
-    command raises a typed ``TelerobotError`` and the arm does not move."""
+    """An arm of some model (the PUMA 560's six joints, the SO-101's five and a
+    gripper). Every move is validated before anything is sent; a refused command raises
+    a typed ``TelerobotError`` and the arm does not move."""
 
     name: str
     events: RobotEvents
+    model: RobotModel  # what arm it is: joint names, limits, URDF (drivers/robot/models)
 
     @property
     def status(self) -> RobotStatus: ...

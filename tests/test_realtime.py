@@ -79,6 +79,33 @@ def test_observer_is_welcomed_sees_state_and_cannot_move(
     assert client.get("/api/v1/robot/state").json()["target_joints"] == pytest.approx([0] * 6)
 
 
+def test_welcome_says_the_joint_count_and_a_joint_increment_moves_each_joint(
+    client: TestClient, clock: ManualClock
+) -> None:
+    with client.websocket_connect(WS) as ws:
+        ws.send_bytes(hello(TOKEN))
+        welcome, _, _ = receive_until(ws, m.WELCOME)
+        assert welcome["joints"] == 6
+        state, _, _ = receive_until(ws, m.STATE)
+        assert state["joints"] == pytest.approx([0.0] * 6)  # the sim starts at qz
+        ws.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(ws, m.ACK)
+        step = [0.002, -0.004, 0.003, 0.0, 0.001, -0.001]  # done before the dead-man acts
+        ws.send_bytes(m.encode(m.JOINT_INC, 2, 0.0, joints=step))
+        ack, _, _ = receive_until(ws, m.ACK)
+        assert ack["seq"] == 2
+        client.portal.call(clock.advance, 1.0)  # type: ignore[union-attr]
+        ws.send_bytes(m.encode(m.HEARTBEAT, 3, 0.0))
+        assert ack["result"] == m.Ack.APPLIED
+        assert client.get("/api/v1/robot/state").json()["joints"] == pytest.approx(step, abs=1e-9)
+        for _ in range(20):  # the STATEs queued before the move ended, then the new one
+            state, _, _ = receive_until(ws, m.STATE)
+            if state["joints"] == pytest.approx(step, abs=1e-9):
+                break
+        else:
+            raise AssertionError(f"STATE never showed the joints moved: {state['joints']}")
+
+
 def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock) -> None:
     with client.websocket_connect(WS) as ws:
         ws.send_bytes(hello(TOKEN))
@@ -111,6 +138,11 @@ def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock
         (cart(5, frame=9), "unknown frame 9"),
         (m.encode(m.LEASE, 5, 7), "unknown lease action 7"),
         (m.encode(m.ACK, 5, 0, 0.0), "ACK is not a client message"),
+        # The joints: as many as the arm has (6), finite, whole, at most MAX_JOINTS.
+        (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.01] * 5), "must have 6 values"),
+        (m.encode(m.JOINT_INC, 5, 1.0, joints=[0, 0, math.nan, 0, 0, 0]), "has NaN"),
+        (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.01] * 6)[:-1], "JOINT_INC must be 13 + 8"),
+        (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.0] * 17), "(≤ 16)"),
     ],
 )
 def test_malformed_frames_get_an_error_and_nothing_moves(

@@ -68,9 +68,9 @@ def test_a_renamed_message_field_fails_the_web_clients_type_check(
     tsc = NODE_MODULES / ".bin" / "tsc"
     if not tsc.exists():
         pytest.skip("web/node_modules is missing (no tsc): `make test` installs it")
-    # STATE's first joint renamed on the server: q1 → j1.
+    # STATE's tool x renamed on the server: x → px.
     renamed = dataclasses.replace(
-        m.STATE, fields=tuple("j1" if f == "q1" else f for f in m.STATE.fields)
+        m.STATE, fields=tuple("px" if f == "x" else f for f in m.STATE.fields)
     )
     monkeypatch.setattr(m, "MESSAGES", tuple(renamed if x is m.STATE else x for x in m.MESSAGES))
     copy = tmp_path / "web"
@@ -82,5 +82,5 @@ def test_a_renamed_message_field_fails_the_web_clients_type_check(
     result = subprocess.run(
         [str(tsc), "--noEmit", "-p", str(copy)], capture_output=True, text=True, timeout=120
     )
-    assert result.returncode != 0, "tsc passed with STATE.q1 renamed to j1"
-    assert "src/transport/realtime.ts" in result.stdout and "'q1'" in result.stdout, result.stdout
+    assert result.returncode != 0, "tsc passed with STATE.x renamed to px"
+    assert "src/transport/realtime.ts" in result.stdout and "'x'" in result.stdout, result.stdout

@@ -242,9 +242,9 @@ class RealtimeHub:
             self.clock.now(),
             STATUS_INDEX[self.robot.status],
             flags,
-            *q.tolist(),
             *pose.position.tolist(),
             *pose.rotation.ravel().tolist(),
+            joints=q.tolist(),
         )
 
     async def _broadcast_state(self) -> None:

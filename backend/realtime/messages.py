@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Final
 
-PROTOCOL_VERSION: Final = 1
+PROTOCOL_VERSION: Final = 2  # 2: joints as a tail, their count in WELCOME
 
 # Stream framing (the priority channel, any TCP transport): every message preceded by
 # its length, u16 little-endian. Here with the messages, so a client (the master-arm
@@ -85,7 +85,9 @@ class Message:
     type_id: int
     fields: tuple[str, ...]  # names of the struct fields after the type byte
     fmt: str  # struct format of those fields (without the leading '<B')
-    tail: str = ""  # "text" (UTF-8 to the end) or "samples" (u16 count + FORCE_SAMPLE each)
+    # "text" (UTF-8 to the end), "samples" (u16 count + FORCE_SAMPLE each) or "joints"
+    # (f64 each to the end: as many as WELCOME's ``joints`` says the arm has)
+    tail: str = ""
     doc: str = ""
 
     @property
@@ -117,9 +119,10 @@ CART_INC = Message(
 JOINT_INC = Message(
     "JOINT_INC",
     0x03,
-    ("seq", "client_time", "dq1", "dq2", "dq3", "dq4", "dq5", "dq6"),
-    "Id6d",
-    doc="joint increments (rad)",
+    ("seq", "client_time"),
+    "Id",
+    tail="joints",
+    doc="joint increments (rad), one per joint of the arm (WELCOME's joints)",
 )
 HEARTBEAT = Message(
     "HEARTBEAT",
@@ -146,10 +149,10 @@ DATAGRAMS = Message(
 WELCOME = Message(
     "WELCOME",
     0x81,
-    ("version", "role", "server_time"),
-    "HBd",
+    ("version", "role", "server_time", "joints"),
+    "HBdB",
     tail="text",
-    doc="role 1 = operator; text = client id",
+    doc="role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id",
 )
 STATE = Message(
     "STATE",
@@ -159,12 +162,6 @@ STATE = Message(
         "server_time",
         "status",
         "flags",
-        "q1",
-        "q2",
-        "q3",
-        "q4",
-        "q5",
-        "q6",
         "x",
         "y",
         "z",
@@ -178,8 +175,9 @@ STATE = Message(
         "r21",
         "r22",
     ),
-    "IdBB6d3d9d",
-    doc="robot state; status: index in RobotStatus order; flags: StateFlags",
+    "IdBB3d9d",
+    tail="joints",
+    doc="robot state; status: index in RobotStatus order; flags: StateFlags; then the joints (rad)",
 )
 FORCE = Message(
     "FORCE",
@@ -249,9 +247,17 @@ class MalformedMessage(ValueError):
         self.seq = seq
 
 
-def encode(msg: Message, *values: object, text: str = "") -> bytes:
+# The most joints a message may carry (a JOINT_INC or STATE past it is malformed).
+MAX_JOINTS: Final = 16
+
+
+def encode(msg: Message, *values: object, text: str = "", joints: Sequence[float] = ()) -> bytes:
     body = msg.struct.pack(msg.type_id, *values)
-    return body + text.encode("utf-8") if msg.tail == "text" else body
+    if msg.tail == "text":
+        return body + text.encode("utf-8")
+    if msg.tail == "joints":
+        return body + struct.pack(f"<{len(joints)}d", *joints)
+    return body
 
 
 def encode_force(samples: Sequence[tuple[int, float, tuple[float, ...]]]) -> bytes:
@@ -290,16 +296,27 @@ def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
         decode_force(data)
         return msg, {}, ""
     size = msg.size
-    if len(data) < size or (msg.tail != "text" and len(data) != size):
+    extra = len(data) - size
+    if extra < 0 or (
+        extra != 0
+        if msg.tail == ""
+        else msg.tail == "joints" and (extra % 8 != 0 or extra > 8 * MAX_JOINTS)
+    ):
         seq = (
             struct.unpack_from("<I", data, 1)[0]
             if len(data) >= 5 and "seq" in msg.fields[:1]
             else 0
         )
-        raise MalformedMessage(f"{msg.name} must be {size} bytes, got {len(data)}", seq=seq)
+        wanted = f"{size} + 8 × joints (≤ {MAX_JOINTS})" if msg.tail == "joints" else str(size)
+        raise MalformedMessage(f"{msg.name} must be {wanted} bytes, got {len(data)}", seq=seq)
     values = msg.struct.unpack_from(data)[1:]
-    fields = dict(zip(msg.fields, values, strict=True))
+    fields: dict[str, Any] = dict(zip(msg.fields, values, strict=True))
+    if msg.tail == "joints":
+        fields["joints"] = struct.unpack_from(f"<{extra // 8}d", data, size)
     for name, v in fields.items():
+        if msg.tail == "joints" and name == "joints" and not all(math.isfinite(x) for x in v):
+            seq = fields.get("seq", 0)
+            raise MalformedMessage(f"{msg.name}.joints has NaN or infinity", "invalid_command", seq)
         if isinstance(v, float) and not math.isfinite(v):
             seq = fields.get("seq", 0)
             raise MalformedMessage(
@@ -319,7 +336,11 @@ def markdown_table() -> str:
         "| --- | --- | --- | --- | --- | --- |",
     ]
     for msg in MESSAGES:
-        size = {"text": f"{msg.size} + text", "samples": "3 + 60 × n"}.get(msg.tail, str(msg.size))
+        size = {
+            "text": f"{msg.size} + text",
+            "samples": "3 + 60 × n",
+            "joints": f"{msg.size} + 8 × joints",
+        }.get(msg.tail, str(msg.size))
         fields = ", ".join(msg.fields) or "count: u16, samples"
         layout = f"`<B{msg.fmt}`"
         rows.append(

@@ -122,6 +122,7 @@ class Session:
             m.PROTOCOL_VERSION,
             int(self.conn.operator),
             self.hub.clock.now(),
+            self.hub.robot.model.dof,
             text=self.client.id if key is None else f"{self.client.id} {key}",
         )
 
@@ -183,7 +184,7 @@ async def handle(
             )
             acknowledge(conn, hub, applied, received)
         elif msg is m.JOINT_INC:
-            dq = np.array([f[f"dq{i}"] for i in range(1, 7)], dtype=float)
+            dq = np.array(f["joints"], dtype=float)  # the DecisionServer checks the count
             applied = await decision.joint_increment(
                 client_id, dq, seq=seq, client_time=float(f["client_time"])
             )

@@ -71,6 +71,8 @@ def interface(msg: m.Message) -> list[str]:
         lines.append("  text: string; // UTF-8 to the end")
     elif msg.tail == "samples":
         lines.append("  samples: ForceSample[]; // u16 count, then the samples")
+    elif msg.tail == "joints":
+        lines.append("  joints: number[]; // f64 each to the end, as many as WELCOME's joints")
     lines.append("}")
     return lines
 
@@ -86,7 +88,7 @@ export interface FieldSpec {{
 }}
 export interface MessageSpec<N extends string = string> {{
   readonly name: N; readonly typeId: number; readonly size: number;
-  readonly tail: "" | "text" | "samples"; readonly fields: readonly FieldSpec[]
+  readonly tail: "" | "text" | "samples" | "joints"; readonly fields: readonly FieldSpec[]
 }}
 """
 
@@ -95,7 +97,8 @@ export type Message = ClientMessage | ServerMessage;
 export type MessageName = Message["type"];
 /** The decoded message called `N`. */
 export type MessageOf<N extends MessageName> = Extract<Message, { readonly type: N }>;
-/** What `encode` takes for message `N`: its fixed fields (a text tail is passed apart). */
+/** What `encode` takes for message `N`: its fixed fields and its joints (a text tail is
+ * passed apart). */
 export type FieldsOf<N extends MessageName> = Omit<MessageOf<N>, "type" | "text" | "samples">;
 """
 

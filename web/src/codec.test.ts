@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import { decode, decodeForce, encode } from "./transport/codec";
-import { CART_INC, HELLO, PROTOCOL_VERSION } from "./transport/messages";
+import { CART_INC, HELLO, JOINT_INC, PROTOCOL_VERSION } from "./transport/messages";
 
 // Byte vectors made by the Python definitions (backend/realtime/messages.py).
 const hex = (s: string) => new Uint8Array(s.match(/../g)!.map((b) => parseInt(b, 16))).buffer;
@@ -10,7 +10,23 @@ const ERR = "850900000006006f7574736964652074686520776f726b7370616365";
 const FORCE =
   "830100050000000000000000000240000000000000f03f00000000000000400000000000000840000000000000104000000000000014400000000000001840";
 
+// The joints are a tail of as many f64 as the arm has (WELCOME's joints): 6 and 5 here.
+const JOINTS6 =
+  "0303000000000000000000e03f9a9999999999b93f9a9999999999c9bf333333333333d33f00000000000000000000000000000000000000000000f83f";
+const STATE5 =
+  "820400000000000000000000400301000000000000e03f0000000000000000000000000000d03f000000000000f03f000000000000000000000000000000000000000000000000000000000000f03f000000000000000000000000000000000000000000000000000000000000f03f0000000000000000000000000000f03f000000000000f0bf000000000000e03f000000000000d03f";
+
 describe("binary protocol", () => {
+  it("carries as many joints as the arm has", () => {
+    const out = encode(JOINT_INC, { seq: 3, client_time: 0.5, joints: [0.1, -0.2, 0.3, 0, 0, 1.5] });
+    expect(new Uint8Array(out)).toEqual(new Uint8Array(hex(JOINTS6)));
+    const state = decode(hex(STATE5));
+    if (state.type !== "STATE") throw new Error(`decoded ${state.type}`);
+    expect(state.joints).toEqual([0, 1, -1, 0.5, 0.25]);
+    expect([state.x, state.z, state.flags]).toEqual([0.5, 0.25, 1]);
+    expect(() => decode(hex(STATE5).slice(0, -3))).toThrow("partial joint");
+  });
+
   it("encodes exactly as the server does", () => {
     const out = encode(CART_INC, { seq: 7, client_time: 1.5, frame: 2, dx: 0.001, dy: -0.002, dz: 0.003, rx: 0, ry: 0.1, rz: -0.1 });
     expect(new Uint8Array(out)).toEqual(new Uint8Array(hex(CART)));

@@ -20,8 +20,9 @@ const utf8 = new TextEncoder();
 const fromUtf8 = new TextDecoder();
 
 export function encode<N extends MessageName>(spec: MessageSpec<N>, values: FieldsOf<N>, text = ""): ArrayBuffer {
-  const byName = values as unknown as Record<string, FieldValue | undefined>;
-  const tail = spec.tail === "text" ? utf8.encode(text) : new Uint8Array();
+  const byName = values as unknown as Record<string, FieldValue | number[] | undefined>;
+  const joints = spec.tail === "joints" ? ((byName.joints as number[] | undefined) ?? []) : [];
+  const tail = spec.tail === "text" ? utf8.encode(text) : new Uint8Array(8 * joints.length);
   const buffer = new ArrayBuffer(spec.size + tail.length);
   const view = new DataView(buffer);
   view.setUint8(0, spec.typeId);
@@ -37,7 +38,8 @@ export function encode<N extends MessageName>(spec: MessageSpec<N>, values: Fiel
       else view.setFloat64(f.offset, v, true);
     }
   }
-  new Uint8Array(buffer, spec.size).set(tail);
+  if (spec.tail === "joints") joints.forEach((q, i) => view.setFloat64(spec.size + 8 * i, q, true));
+  else new Uint8Array(buffer, spec.size).set(tail);
   return buffer;
 }
 
@@ -52,7 +54,7 @@ export function decode(data: ArrayBuffer): Message {
   if (data.byteLength < spec.size) throw new Error(`${spec.name} is too short`);
   // The layout table and the interfaces are generated from the same Python definitions:
   // the object built from the table is the interface of `spec.name`.
-  const out: Record<string, FieldValue | string> = { type: spec.name };
+  const out: Record<string, FieldValue | string | number[]> = { type: spec.name };
   for (const f of spec.fields) {
     if (f.kind === "bytes") out[f.name] = new Uint8Array(data, f.offset, f.size);
     else if (f.kind === "u8") out[f.name] = view.getUint8(f.offset);
@@ -61,6 +63,12 @@ export function decode(data: ArrayBuffer): Message {
     else out[f.name] = view.getFloat64(f.offset, true);
   }
   if (spec.tail === "text") out.text = fromUtf8.decode(new Uint8Array(data, spec.size));
+  if (spec.tail === "joints") {
+    if ((data.byteLength - spec.size) % 8 !== 0) throw new Error(`${spec.name} has a partial joint`);
+    const joints: number[] = [];
+    for (let o = spec.size; o < data.byteLength; o += 8) joints.push(view.getFloat64(o, true));
+    out.joints = joints;
+  }
   return out as unknown as Message;
 }
 

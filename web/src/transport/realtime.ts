@@ -324,7 +324,7 @@ export class RealtimeClient {
 export function robotState(msg: StateMessage): RobotState {
   return {
     status: M.ROBOT_STATUS[msg.status] ?? UNKNOWN_STATUS,
-    joints: [msg.q1, msg.q2, msg.q3, msg.q4, msg.q5, msg.q6],
+    joints: msg.joints,
     position: [msg.x, msg.y, msg.z],
     rotation: [
       [msg.r00, msg.r01, msg.r02],
