@@ -16,6 +16,7 @@ from pydantic import ValidationError
 
 from backend.tuning import tune_for_realtime
 from drivers.registry import driver_names
+from drivers.robot.models import model_names
 
 # The largest /ws message the server reads: a FORCE batch from a client is the largest
 # legitimate one (< 16 kB); uvicorn's default (16 MiB) let one message hold 16 MiB.
@@ -45,6 +46,7 @@ def _serve(args: argparse.Namespace) -> int:
             priority_port=args.priority_port,
             viewer_port=args.viewer_port,
             robot=args.robot,
+            robot_model=args.model,
             serial_port=args.port,
             serial_baudrate=args.baudrate,
             auto_initialize=False if args.no_init else None,
@@ -252,6 +254,9 @@ def main(argv: list[str] | None = None) -> int:
         "--viewer-port", type=int, help="HTTP port of the 3D view (default 8002; 0: any free)"
     )
     serve.add_argument("--robot", choices=driver_names("robot"), help="robot driver (default sim)")
+    serve.add_argument(
+        "--model", choices=model_names(), help="the arm's description (default puma560)"
+    )
     serve.add_argument(
         "--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port"
     )

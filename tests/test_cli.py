@@ -27,6 +27,34 @@ def test_serve_prints_its_url_and_runs_the_simulation() -> None:
         assert state["status"] == "READY" and state["driver"] == "sim-puma560"
 
 
+def test_serve_runs_the_simulated_so101_from_its_model_flag() -> None:
+    with telerobot(
+        "serve",
+        "--model",
+        "so101",
+        "--http-port",
+        "0",
+        wait_for=r"running on the simulated SO-101: " + URL,
+    ) as (_, m):
+        base = m.group(1)
+        state = wait_ready(base)
+        assert state["status"] == "READY" and state["driver"] == "sim-so101"
+        model = httpx.get(base + "api/v1/robot/model").json()
+        assert model["model"] == "so101" and model["joint_names"][-1] == "gripper"
+        assert model["home_pose"] == "ready" and len(state["joints"]) == 6  # type: ignore[arg-type]
+
+
+def test_a_val_driver_refuses_another_models_settings() -> None:
+    out = subprocess.run(
+        [str(BIN), "serve", "--robot", "val", "--model", "so101", "--http-port", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode != 0
+    assert "drives a PUMA 560, not the SO-101" in out.stdout + out.stderr
+
+
 def test_serve_against_the_val_emulator_over_tcp() -> None:
     with (
         telerobot(

@@ -1,6 +1,6 @@
 """The operator page's header and panels in a real browser (issue 13, items 5 and 10):
 one state model drives the header (E-STOP latched, DISCONNECTED), the help overlay,
-the labels (J1–J6, the speed's value, force numbers, orientation), the Home button
+the labels (the model's joint names, the speed's value, force numbers, orientation), the Home button
 and the message log in view."""
 
 from __future__ import annotations
@@ -120,8 +120,9 @@ def test_question_mark_opens_the_help_escape_closes_it_and_still_estops(
 
 def test_labels_joints_speed_forces_and_orientation(browser: Browser, server: str) -> None:
     page, errors = open_page(browser, server)
-    wait(page, "document.querySelectorAll('#joints th').length === 6")
-    assert page.locator("#joints th").all_inner_texts() == ["J1", "J2", "J3", "J4", "J5", "J6"]
+    names = httpx.get(server + "api/v1/robot/model").json()["joint_names"]
+    wait(page, f"document.querySelectorAll('#joints th').length === {len(names)}")
+    assert page.locator("#joints th").all_inner_texts() == names  # joint1 … joint6
     state = httpx.get(server + "api/v1/robot/state").json()  # the arm is at rest here
     shown = [float(t.rstrip("°")) for t in page.locator("#joints td").all_inner_texts()]
     assert np.allclose(shown, state["joints_deg"], atol=0.06), (shown, state["joints_deg"])

@@ -91,7 +91,8 @@ class SimArm(ModelArm):
 
     @classmethod
     def describe(cls, settings: Mapping[str, Any]) -> str:
-        return "the simulation"
+        model = ArmConfig.from_settings(settings).model
+        return "the simulation" if model.name == "puma560" else f"the simulated {model.title}"
 
     def _sync(self) -> None:
         now = self.clock.now()

@@ -27,8 +27,9 @@ describe("the arm's link frames", () => {
     const pts = jointOrigins(PUMA, [0, 0, 0, 0, 0, 0]);
     expect(pts).toHaveLength(8); // base, six joints, tool
     near(pts[0]!, [0, 0, 0]);
-    near(pts[1]!, [0, 0, 0.67183]); // the shoulder
-    near(pts[2]!, [0.4318, 0, 0.67183]); // the elbow (upper arm along x at q = 0)
+    near(pts[1]!, [0, 0, 0]); // the waist joint, on the base
+    near(pts[2]!, [0, 0, 0.67183]); // the shoulder
+    near(pts[3]!, [0.4318, 0, 0.67183]); // the elbow (upper arm along x at q = 0)
     near(pts[7]!, [0.4521, -0.15005, 1.2036]); // the tool, as forwardKinematics gives it
     near(linkFrames(PUMA, QN).at(-1)!, forwardKinematics(PUMA, QN), 1e-12);
   });
@@ -39,8 +40,9 @@ describe("the ghost's projection", () => {
     const chain = ghostChain(PUMA, [0, 0, 0, 0, 0, 0], SIDE);
     expect(chain).toHaveLength(8);
     near(chain[0]!, [320, 240]);
-    near(chain[1]!, [320, 240 - 67.183]);
-    near(chain[2]!, [320 + 43.18, 240 - 67.183]);
+    near(chain[1]!, [320, 240]); // the waist joint, on the base
+    near(chain[2]!, [320, 240 - 67.183]);
+    near(chain[3]!, [320 + 43.18, 240 - 67.183]);
     near(chain[7]!, [320 + 45.21, 240 - 120.36], 0.01); // (the tool to 0.1 mm)
     // Perspective: the base's origin lands at the principal point's column.
     const front = ghostChain(PUMA, QN, FRONT);

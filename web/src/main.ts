@@ -182,7 +182,7 @@ async function main(): Promise<void> {
   // Repeating a recorded episode as a task, its path shown in both eyes before it runs.
   tasks = new TasksPanel($("tasks"), { api, log, link, flags: () => state?.flags ?? 0, path: new PathOverlay(cell.cameras, view) });
   void tasks.load();
-  const panels = startPanels({ state: () => state, force: () => lastForce, link, glass, videoInterval, forceLimitN: safety.force_limit_n, api, log });
+  const panels = startPanels({ state: () => state, force: () => lastForce, link, glass, videoInterval, forceLimitN: safety.force_limit_n, jointNames: model.joint_names, api, log });
 
   // For tests and benchmarks (read-only figures and a few switches).
   Object.assign(window, {

@@ -3,8 +3,8 @@ import { PUMA } from "./puma.fixture";
 import { project } from "./ar/projection";
 import { deadzone } from "./input/motion";
 import { XRMaster } from "./input/xr";
-import { identity4, position } from "./robot/math";
-import { PredictedArm, applyIncrement, forwardKinematics } from "./robot/model";
+import { type Mat4, identity4, mul4, position } from "./robot/math";
+import { PredictedArm, applyIncrement, forwardKinematics, jointOrigins } from "./robot/model";
 import { Rolling } from "./stats";
 
 const near = (a: number[], b: number[], tol = 1e-4) => a.forEach((v, i) => expect(Math.abs(v - (b[i] ?? NaN))).toBeLessThan(tol));
@@ -15,6 +15,29 @@ describe("robot model", () => {
     near(position(forwardKinematics(noTool, [0, 0, 0, 0, 0, 0])), [0.4521, -0.15005, 1.1036]);
     near(position(forwardKinematics(noTool, [0, Math.PI / 4, -Math.PI, 0, Math.PI / 4, 0])), [0.5963, -0.15005, 0.6575]);
     near(position(forwardKinematics(PUMA, [0, 0, 0, 0, 0, 0])), [0.4521, -0.15005, 1.2036]);
+  });
+
+  it("is the PUMA's DH table as a joint tree", () => {
+    // The standard DH rows (d, a, α) the page used before the server sent the tree.
+    const dh = [
+      [0.67183, 0, Math.PI / 2],
+      [0, 0.4318, 0],
+      [0.15005, 0.0203, -Math.PI / 2],
+      [0.4318, 0, Math.PI / 2],
+      [0, 0, -Math.PI / 2],
+      [0, 0, 0],
+    ];
+    const row = (q: number, [d, a, alpha]: number[]): Mat4 => {
+      const [ct, st, ca, sa] = [Math.cos(q), Math.sin(q), Math.cos(alpha!), Math.sin(alpha!)];
+      return [ct, -st * ca, st * sa, a! * ct, st, ct * ca, -ct * sa, a! * st, 0, sa, ca, d!, 0, 0, 0, 1];
+    };
+    for (const q of [[0, 0, 0, 0, 0, 0], [0.3, -1.2, 2.1, -0.4, 0.9, 2.8], [-2, 0.5, -3, 1.7, -1.1, -0.6]]) {
+      const frames: Mat4[] = [identity4()];
+      dh.forEach((r, i) => frames.push(mul4(frames.at(-1)!, row(q[i]!, r))));
+      near(forwardKinematics(PUMA, q), mul4(frames.at(-1)!, PUMA.tool.flat()), 1e-12);
+      // The skeleton: each joint sits where the DH frame before it has its origin.
+      near(jointOrigins(PUMA, q).slice(1, 7).flat(), frames.slice(0, 6).map(position).flat(), 1e-12);
+    }
   });
 
   it("applies increments in the base, tool and wrist frames", () => {

@@ -149,7 +149,7 @@ async function main(): Promise<void> {
         ctx.save();
         ctx.translate((eye * canvas.width) / 2, 0);
         // The ghost arm and the ball where the gripper was commanded to be.
-        const chain = q && q.length === model.dh.length ? ghostChain(model, q, cam.P) : [];
+        const chain = q && q.length === model.joints.length ? ghostChain(model, q, cam.P) : [];
         const tool = chain[chain.length - 1] ?? null;
         overlay.predicted[eye] = tool;
         if (chain.length) {

@@ -45,8 +45,33 @@ export interface paths {
             path?: never;
             cookie?: never;
         };
-        /** Model */
+        /**
+         * Model
+         * @description The connected arm's model: the page computes its kinematics and draws it from
+         *     this; ``/robot/model.urdf`` is the same arm as URDF.
+         */
         get: operations["model_api_v1_robot_model_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/robot/model.urdf": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Model Urdf
+         * @description The connected arm as URDF (primitives only), for URDF tools (RViz, Foxglove,
+         *     urdf-loader). The tool set on the server is not in it: it is ``/robot/model``'s.
+         */
+        get: operations["model_urdf_api_v1_robot_model_urdf_get"];
         put?: never;
         post?: never;
         delete?: never;
@@ -1256,15 +1281,6 @@ export interface components {
             scale?: number | null;
             frame?: components["schemas"]["WorkingFrame"] | null;
         };
-        /** DHRow */
-        DHRow: {
-            /** D */
-            d: number;
-            /** A */
-            a: number;
-            /** Alpha */
-            alpha: number;
-        };
         /** Episode */
         Episode: {
             /** Episode */
@@ -1509,6 +1525,28 @@ export interface components {
              */
             idle_timeout_s: number;
         };
+        /** ModelFlange */
+        ModelFlange: {
+            /** Parent */
+            parent: number;
+            /** Origin */
+            origin: number[][];
+        };
+        /**
+         * ModelJoint
+         * @description A revolute joint: its frame is the parent joint's (the base's for -1) times
+         *     ``origin`` times a rotation of q about ``axis``.
+         */
+        ModelJoint: {
+            /** Name */
+            name: string;
+            /** Parent */
+            parent: number;
+            /** Origin */
+            origin: number[][];
+            /** Axis */
+            axis: number[];
+        };
         /** MoveRequest */
         MoveRequest: {
             /**
@@ -1523,7 +1561,7 @@ export interface components {
             mode: "absolute" | "incremental";
             /**
              * Joints
-             * @description joint space: 6 angles or increments, radians
+             * @description joint space: one angle or increment per joint (GET /robot/model), radians
              */
             joints?: number[] | null;
             /**
@@ -1651,10 +1689,17 @@ export interface components {
         };
         /** RobotModel */
         RobotModel: {
+            /** Model */
+            model: string;
             /** Name */
             name: string;
-            /** Dh */
-            dh: components["schemas"]["DHRow"][];
+            /** Dof */
+            dof: number;
+            /** Joint Names */
+            joint_names: string[];
+            /** Joints */
+            joints: components["schemas"]["ModelJoint"][];
+            flange: components["schemas"]["ModelFlange"];
             /** Joint Limits Deg */
             joint_limits_deg: [
                 number,
@@ -1668,6 +1713,8 @@ export interface components {
             tool: number[][];
             /** Home Pose */
             home_pose: string;
+            /** Urdf */
+            urdf: string;
         };
         /** RobotState */
         RobotState: {
@@ -2185,6 +2232,26 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["RobotModel"];
+                };
+            };
+        };
+    };
+    model_urdf_api_v1_robot_model_urdf_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description the arm as URDF */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/xml": unknown;
                 };
             };
         };

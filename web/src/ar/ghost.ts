@@ -1,6 +1,7 @@
-// The ghost arm: the whole predicted arm (every link frame's origin, base to tool, from
-// the local model's predicted joints) drawn over both eyes' video as a translucent
-// skeleton, so the operator sees where the arm is going before the video shows it.
+// The ghost arm: the whole predicted arm (the base, each joint on the way to the tool,
+// the tool, from the local model's predicted joints; a branch such as a gripper's jaw
+// is not drawn) over both eyes' video as a translucent skeleton, so the operator sees
+// where the arm is going before the video shows it.
 // Projected with each camera's P, like the AR ball; redrawn only when it moved.
 import { jointOrigins, type RobotModelInfo } from "../robot/model";
 import { tracePolyline, type Eye, type EyeSize, type OverlayPainter } from "../view/overlay";
@@ -17,7 +18,7 @@ const JOINT_RADIUS = 5;
 export const REDRAW_PX = 0.5;
 export const GHOST_KEY = "telerobot.ghost";
 
-/** The arm's chain (base → each link frame → tool) in one camera's pixels. */
+/** The arm's chain (base → each joint of the tool's chain → tool) in one camera's pixels. */
 export function ghostChain(model: RobotModelInfo, q: number[], P: Projection): Pixel[] {
   return jointOrigins(model, q).map((p) => project(P, p));
 }

@@ -8,7 +8,7 @@ import type { ForceSample } from "../transport/codec";
 import type { RobotState } from "../transport/realtime";
 import { drawArrow, drawHistogram } from "./charts";
 import { $, numberIn } from "./dom";
-import { forceRows, JOINT_NAMES, degrees, orientationText, speedText } from "./readouts";
+import { forceRows, jointTable, orientationText, speedText } from "./readouts";
 import { headerView, type HeaderView, type HomeStep } from "./status";
 
 export const PANEL_PERIOD_MS = 200;
@@ -30,6 +30,8 @@ export interface PanelSources {
   glass: Rolling; // capture → presented, ms
   videoInterval: Rolling;
   forceLimitN: number;
+  /** The arm's joints, as GET /api/v1/robot/model names them (the joints table's heads). */
+  jointNames: readonly string[];
   /** For the Home button (POST /api/v1/robot/initialize) and its errors. */
   api?: Api;
   log?: MessageLog;
@@ -134,9 +136,7 @@ export function updatePanels(src: PanelSources, fresh: Freshness, home: HomeStep
   );
   $("speed-value").textContent = speedText(numberIn("speed"));
   if (s) {
-    $("joints").innerHTML =
-      `<tr>${JOINT_NAMES.map((n) => `<th>${n}</th>`).join("")}</tr>` +
-      `<tr>${s.joints.map((q) => `<td>${degrees(q).toFixed(1)}°</td>`).join("")}</tr>`;
+    $("joints").innerHTML = jointTable(src.jointNames, s.joints);
     $("pose").textContent = `tool at ${s.position.map((v) => v.toFixed(3)).join(", ")} m`;
     $("orientation").textContent = s.rotation ? orientationText(s.rotation) : "";
   }

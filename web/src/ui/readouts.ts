@@ -1,10 +1,10 @@
 // The Robot and Force panels' figures, as plain functions of the numbers: joint
-// angles in degrees, the tool's orientation as roll/pitch/yaw, and each force axis's
-// row (name, value with its unit, bar length against the limit).
+// angles in degrees under the arm's joint names, the tool's orientation as
+// roll/pitch/yaw, and each force axis's row (name, value with its unit, bar length
+// against the limit).
 // The orientation reads as a rotation vector first: the arm's home pose (qn) sits at
 // pitch 90°, where roll and yaw are not defined apart.
 
-export const JOINT_NAMES = ["J1", "J2", "J3", "J4", "J5", "J6"] as const;
 export const FORCE_AXES = ["Fx", "Fy", "Fz", "Tx", "Ty", "Tz"] as const;
 
 const DEG = 180 / Math.PI;
@@ -71,6 +71,17 @@ export function forceRows(values: readonly number[], limitN: number): ForceRow[]
     const share = limitN > 0 ? Math.abs(v) / limitN : 0;
     return { axis, text: `${(Math.abs(v) < 0.005 ? 0 : v).toFixed(2)} ${unit}`, percent: Math.min(100, share * 100), over: i < 3 && share >= 1 };
   });
+}
+
+const escapeHtml = (text: string): string =>
+  text.replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c] ?? c);
+
+/** The joints table's rows (HTML): the arm's joint names (GET /robot/model's
+ * joint_names), then each joint's angle in degrees, one decimal ("—" for one the state
+ * does not have). */
+export function jointTable(names: readonly string[], joints: readonly number[]): string {
+  const angle = (q: number | undefined) => (q === undefined || !Number.isFinite(q) ? "—" : `${degrees(q).toFixed(1)}°`);
+  return `<tr>${names.map((n) => `<th>${escapeHtml(n)}</th>`).join("")}</tr><tr>${names.map((_, i) => `<td>${angle(joints[i])}</td>`).join("")}</tr>`;
 }
 
 /** The speed setting as shown beside its slider: "0.50". */
