@@ -1,0 +1,66 @@
+"""The operator page driving the simulated SO-101 (issue 17): the same page, the arm
+it is given. Debian's Chromium against `telerobot serve` with the SO-101's model."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import httpx
+import numpy as np
+import pytest
+from playwright.sync_api import Browser
+
+from tests.servers import serving
+from tests.test_browser import CHROMIUM
+from tests.webpage import ENV, open_page, take_control, target, until, wait
+from tests.webpage import browser as browser  # a fixture
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[str]:
+    if not CHROMIUM.exists():
+        pytest.fail("Debian's chromium is missing: `make test` installs it")
+    env = {**ENV, "TELEROBOT_ROBOT_MODEL": "so101", "TELEROBOT_HOME_POSE": "ready"}
+    with serving(env) as base:
+        yield base
+
+
+def test_the_page_names_draws_and_drives_the_so101(browser: Browser, server: str) -> None:
+    model = httpx.get(server + "api/v1/robot/model").json()
+    assert model["model"] == "so101"
+    page, errors = open_page(browser, server)
+    # Its joints by name, one column each.
+    wait(page, "document.querySelectorAll('#joints th').length === 6")
+    assert page.locator("#joints th").all_inner_texts() == model["joint_names"]
+    # The AR ball where the ground-truth cameras see the SO-101's tool point.
+    page.evaluate("window.telerobot.setMode('side-by-side')")
+    page.wait_for_timeout(500)
+    cell = httpx.get(server + "api/v1/workcell").json()
+    tool = np.array(httpx.get(server + "api/v1/robot/state").json()["position"] + [1.0])
+    ball = page.evaluate("window.telerobot.ball")
+    for cam, got in zip(cell["cameras"], (ball["left"], ball["right"]), strict=True):
+        u, v, w = np.array(cam["P"]) @ tool
+        assert np.hypot(got[0] - u / w, got[1] - v / w) <= 3.0, (got, u / w, v / w)
+    # The ghost: base, the five joints that carry the tool, the tool (not the gripper's
+    # jaw, a branch) in each eye.
+    chains = page.evaluate("window.telerobot.ghost.pixels.map((c) => c.length)")
+    assert chains == [7, 7], chains
+    # Driven by the gamepad with its dead-man: the tool moves, and the joints with it.
+    take_control(page)
+    start = np.array(target(server))
+    position = np.array(httpx.get(server + "api/v1/robot/state").json()["position"])
+    page.evaluate("window.__pad.axes[1] = -0.8; window.__pad.pressed.add(5)")
+    until(
+        page,
+        lambda: np.abs(np.array(target(server)) - start).max() > 0.01,
+        "the SO-101 moves with the dead-man held",
+    )
+    page.evaluate("window.__pad.axes[1] = 0; window.__pad.pressed.delete(5)")
+    page.wait_for_timeout(500)
+    moved = np.array(httpx.get(server + "api/v1/robot/state").json()["position"])
+    assert np.linalg.norm(moved - position) > 0.002, (position, moved)
+    assert target(server)[5] == pytest.approx(start[5])  # a Cartesian jog keeps the gripper
+    assert errors == []
+    page.close()
