@@ -56,6 +56,13 @@ class Settings(BaseSettings):
     serial_port: str = "/dev/ttyS0"
     serial_baudrate: int = 9600
     serial_reply_timeout: float = Field(1.0, gt=0)
+    # So101Arm (robot = "so101", robot_model = "so101"): the Feetech servo bus, a device
+    # path, a pty or socket://host:port (python -m drivers.robot.so101.emulator), and the
+    # joint calibration file; None: so101-calibration.json in state_dir, beside the
+    # cameras' calibration-<rig>.json
+    so101_port: str = "/dev/ttyACM0"
+    so101_baudrate: int = Field(1_000_000, gt=0)
+    so101_calibration: Path | None = None
 
     force: str = "sim"
     force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)

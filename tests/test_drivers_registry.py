@@ -144,7 +144,9 @@ def test_driver_names_come_from_the_registry(constant_force: None) -> None:
         ValidationError, match=r"unknown force driver 'kistler' \(known: constant, netft, sim\)"
     ):
         Settings(force="kistler")
-    with pytest.raises(ValidationError, match=r"unknown robot driver 'kuka' \(known: sim, val\)"):
+    with pytest.raises(
+        ValidationError, match=r"unknown robot driver 'kuka' \(known: sim, so101, val\)"
+    ):
         Settings(robot="kuka")
     with pytest.raises(
         ValidationError, match=r"unknown camera driver 'gige' \(known: opencv, opencv-sbs, sim\)"

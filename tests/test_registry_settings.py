@@ -16,7 +16,9 @@ def test_registry_loads_drivers_lazily() -> None:
 
 
 def test_unknown_driver_names_the_known_ones() -> None:
-    with pytest.raises(DriverUnavailable, match=r"unknown robot driver 'kuka' \(known: sim, val\)"):
+    with pytest.raises(
+        DriverUnavailable, match=r"unknown robot driver 'kuka' \(known: sim, so101, val\)"
+    ):
         load_driver("robot", "kuka")
 
 
@@ -45,7 +47,9 @@ def test_settings_from_env_toml_and_overrides(
 def test_bad_settings_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ValidationError, match="home_pose must be one of"):
         Settings(home_pose="qx")
-    with pytest.raises(ValidationError, match=r"unknown robot driver 'kuka' \(known: sim, val\)"):
+    with pytest.raises(
+        ValidationError, match=r"unknown robot driver 'kuka' \(known: sim, so101, val\)"
+    ):
         Settings(robot="kuka")
     with pytest.raises(FileNotFoundError):
         load_settings(tmp_path / "missing.toml")

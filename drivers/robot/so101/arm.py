@@ -1,0 +1,714 @@
+"""``So101Arm``: the SO-101 follower arm, six Feetech STS3215 servos on one bus.
+
+The port is opened with ``serial.serial_for_url`` (a device path such as
+``/dev/ttyACM0``, a pty, or ``socket://host:port`` for the bus emulator). At connect
+the driver pings every servo and reads its model number: a servo that does not answer,
+or is not an STS3215, is named (joint and id) in the error.
+
+A poller thread owns the bus's timing: it sync-reads Present_Position, Velocity,
+Load, Voltage and Temperature of all six (one 8-byte block from address 56) every
+``poll_period_s`` (200 Hz by default) and hands the newest reading to the event loop
+(newest wins: a busy loop skips readings, never queues them). Every reply's error
+bits are checked there, in the thread: on overload, overheating, over-current, a
+voltage or angle-sensor fault, or a servo silent for more than ``missed_reads_limit``
+reads in a row, the thread brakes every servo at once (the same controlled stop as
+``stop()``) and the driver goes to ERROR with a message naming the joint, the servo
+and the fault. Writes (goals, configuration) share the bus through one lock, so a
+command and a read never interleave on the wire.
+
+Joint angles are the model's (radians, zero mid-range, ``drivers.robot.models.so101``)
+through the calibration (``calibration.So101Calibration``), loaded from
+``so101_calibration`` at connect. Without one the arm connects (and can be
+calibrated: ``release()``, ``raw_positions()``), but does not initialise.
+
+``stop()`` is a controlled stop, category 2: each servo's goal becomes where it can
+stop from its present speed at its Acceleration setting, so it brakes without turning
+back, and the servos keep torque and hold the arm there. ``disconnect()`` leaves the
+torque as it is: an arm released at disconnect would fall.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import os
+import socket
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+import serial
+
+from drivers.base import (
+    ArmSnapshot,
+    DeviceContext,
+    DeviceError,
+    FloatArray,
+    InvalidCommand,
+    NotReady,
+    RobotStatus,
+    StopCategory,
+    StopSpec,
+    TelerobotError,
+)
+from drivers.clock import Clock
+from drivers.robot.arm import ArmConfig, ModelArm
+from drivers.robot.kinematics import ArmKinematics
+from drivers.robot.models import load_model
+from drivers.robot.so101 import feetech as ft
+from drivers.robot.so101.calibration import SERVO_IDS, STEPS_PER_RADIAN, So101Calibration
+from drivers.robot.so101.feetech import ErrorBit, Register
+
+log = logging.getLogger(__name__)
+
+MODEL_NAME = "so101"
+CALIBRATION_FILE = "so101-calibration.json"
+# One read of all six: Present_Position, Present_Velocity, Present_Load (2 bytes
+# each), Present_Voltage, Present_Temperature (1 byte each), from address 56.
+BLOCK_ADDRESS = Register.PRESENT_POSITION
+BLOCK_LENGTH = 8
+# Written per servo with each goal: Acceleration, Goal_Position, Goal_Time, Goal_Velocity.
+GOAL_ADDRESS = Register.ACCELERATION
+GOAL_LENGTH = 7
+# Bytes past what a reply should hold that a transaction still reads (skipped
+# garbage, stray packets); past it, the read ends and the servos not heard count a miss.
+MAX_REPLY_JUNK = 512
+ARRIVED_STEPS = 6  # within this of the goal (0.5°), at rest: arrived
+SETTLE_READS = 10  # at rest this many reads in a row, not at the goal: blocked, done
+MIN_SPEED_STEPS = 20  # Goal_Velocity 0 would mean "as fast as it can"
+FAULTS = ErrorBit.VOLTAGE | ErrorBit.ANGLE_SENSOR | ErrorBit.OVERHEAT | ErrorBit.OVERCURRENT
+FAULTS |= ErrorBit.OVERLOAD
+ADVICE: Mapping[ErrorBit, str] = {
+    ErrorBit.OVERLOAD: "free what blocks it or lighten its load",
+    ErrorBit.OVERHEAT: "let it cool down",
+    ErrorBit.OVERCURRENT: "free what blocks it and check its wiring",
+    ErrorBit.VOLTAGE: "check the power supply (the STS3215 takes 6-12.6 V)",
+    ErrorBit.ANGLE_SENSOR: "the servo's position sensor failed: replace the servo",
+}
+
+
+def default_calibration_path(settings: Mapping[str, Any]) -> Path:
+    """``so101-calibration.json`` in the state folder, beside the cameras'
+    ``calibration-<rig>.json`` (the folder as ``backend.security.state_dir`` finds it:
+    drivers do not import the server)."""
+    state = settings.get("state_dir")
+    if state is None:
+        base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+        state = Path(base) / "telerobot"
+    return Path(state) / CALIBRATION_FILE
+
+
+@dataclass(frozen=True)
+class So101Config(ArmConfig):
+    """What ``So101Arm`` reads from the settings: the model (it must be so101), the
+    home pose, the bus and the calibration file."""
+
+    port: str = "/dev/ttyACM0"
+    baudrate: int = ft.DEFAULT_BAUDRATE
+    calibration_path: Path = field(default_factory=lambda: Path(CALIBRATION_FILE))
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        arm = ArmConfig.from_settings(settings)
+        if arm.robot_model != MODEL_NAME:
+            raise InvalidCommand(
+                f"the so101 robot driver drives the SO-101: set robot_model = 'so101' "
+                f"(it is {arm.robot_model!r})"
+            )
+        path = settings.get("so101_calibration")
+        return cls(
+            robot_model=arm.robot_model,
+            home_pose=arm.home_pose,
+            port=str(settings["so101_port"]),
+            baudrate=int(settings["so101_baudrate"]),
+            calibration_path=default_calibration_path(settings) if path is None else Path(path),
+        )
+
+
+@dataclass(frozen=True)
+class ServoStatus:
+    """One servo as last read (what the server shows per joint)."""
+
+    id: int
+    position_steps: int
+    velocity_steps: int  # steps/s
+    load_percent: float  # of the servo's maximum torque, signed
+    voltage_v: float
+    temperature_c: float
+    errors: tuple[str, ...]  # the error bits of its last reply, in words
+    missed_reads: int  # reads in a row it did not answer
+
+
+@dataclass(frozen=True)
+class _Reading:
+    seq: int
+    time: float  # the arm's clock
+    servos: Mapping[int, ServoStatus]  # every servo, its last answer where it missed this one
+    fault: TelerobotError | None = None  # what stopped the arm, once
+
+
+class MissCounter:
+    """Consecutive reads each servo did not answer; a servo past ``limit`` is lost."""
+
+    def __init__(self, ids: Sequence[int], limit: int) -> None:
+        if limit < 1:
+            raise ValueError("the missed-read limit is at least 1")
+        self.limit = limit
+        self.missed = dict.fromkeys(ids, 0)
+
+    def update(self, answered: Sequence[int]) -> list[int]:
+        """Count a read; the servos that have now missed more than ``limit`` in a row."""
+        for i in self.missed:
+            self.missed[i] = 0 if i in answered else self.missed[i] + 1
+        return [i for i, n in self.missed.items() if n > self.limit]
+
+
+class FeetechPort:
+    """One bus: a packet out, the replies of the servos it asked, under one lock."""
+
+    def __init__(self, port: serial.Serial, name: str, reply_timeout: float) -> None:
+        self.port = port
+        self.name = name
+        self.reply_timeout = reply_timeout
+        self.lock = threading.Lock()
+        self._reader = ft.PacketReader()
+        self.counters = {"transactions": 0, "corrupt": 0, "stray": 0, "flooded": 0}
+
+    def transact(self, packet: bytes, ids: Sequence[int]) -> dict[int, ft.Packet]:
+        """Send ``packet``; the status packets of ``ids`` that came within the reply
+        timeout (a servo missing from the result did not answer)."""
+        with self.lock:
+            self.counters["transactions"] += 1
+            try:
+                self.port.reset_input_buffer()  # late replies to an earlier request
+                self._reader.clear()
+                self.port.write(packet)
+                if not ids:
+                    return {}
+                return self._collect(ids)
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                raise DeviceError(f"the servo bus on {self.name!r} failed: {exc}") from None
+
+    def _collect(self, ids: Sequence[int]) -> dict[int, ft.Packet]:
+        wanted = set(ids)
+        got: dict[int, ft.Packet] = {}
+        budget = len(ids) * (ft.MIN_PACKET + ft.MAX_LENGTH) + MAX_REPLY_JUNK
+        deadline = time.monotonic() + self.reply_timeout
+        received = 0
+        while len(got) < len(wanted) and time.monotonic() < deadline:
+            if received > budget:
+                self.counters["flooded"] += 1
+                break
+            chunk = self.port.read(max(1, min(self.port.in_waiting, budget)))
+            received += len(chunk)
+            self._reader.feed(chunk)
+            while True:
+                try:
+                    p = self._reader.next()
+                except ft.ProtocolError as exc:
+                    self.counters["corrupt"] += 1
+                    log.debug("%s: %s", self.name, exc)
+                    continue
+                if p is None:
+                    break
+                if p.id in wanted and p.id not in got:
+                    got[p.id] = p
+                else:
+                    self.counters["stray"] += 1
+        return got
+
+
+class So101Arm(ModelArm):
+    name = "so101"
+
+    def __init__(
+        self,
+        port: str = "/dev/ttyACM0",
+        *,
+        baudrate: int = ft.DEFAULT_BAUDRATE,
+        calibration: So101Calibration | None = None,
+        calibration_path: Path | None = None,
+        kinematics: ArmKinematics | None = None,
+        clock: Clock | None = None,
+        home: FloatArray | None = None,
+        joint_offsets: FloatArray | None = None,
+        reply_timeout: float = 0.03,
+        poll_period_s: float = 0.005,
+        missed_reads_limit: int = 3,
+        report_period: float = 0.02,
+    ) -> None:
+        """``calibration``: use this one (tests, tools); else it is loaded from
+        ``calibration_path`` at each connect. ``reply_timeout``: how long a servo has to
+        answer (it answers within a millisecond at 1 Mbaud)."""
+        model = load_model(MODEL_NAME)
+        super().__init__(
+            model=model, kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets
+        )
+        self.port_name = port
+        self.baudrate = baudrate
+        self.calibration = calibration
+        self.calibration_path = calibration_path
+        self.reply_timeout = reply_timeout
+        self.poll_period_s = poll_period_s
+        self.missed_reads_limit = missed_reads_limit
+        self.report_period = report_period
+        # The servos brake at their Acceleration register: the model's acceleration.
+        self.acceleration_register = int(
+            min(254, max(1, round(float(np.min(model.amax)) * STEPS_PER_RADIAN / 100)))
+        )
+        self._serial: serial.Serial | None = None
+        self._bus: FeetechPort | None = None
+        self._poller: threading.Thread | None = None
+        self._poller_stop = threading.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._latest: _Reading | None = None
+        self._handover_pending = threading.Event()
+        self._faulted = threading.Event()  # the poller stopped the arm for a fault
+        self._raw = np.zeros(self.dof)
+        self._velocity = np.zeros(self.dof)
+        self._goal_steps: list[int] | None = None
+        self._goal_seq = 0  # the reading seq when the goal was sent
+        self._at_rest_reads = 0
+        self._last_report = -math.inf
+        self._snap: ArmSnapshot | None = None
+        self.reads = 0  # sync reads done since connect
+        self.reads_started = 0.0  # time.monotonic() at the first of them
+
+    # ------------------------------------------------------------ settings
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
+        config = So101Config.from_settings(settings)
+        return cls(
+            config.port,
+            baudrate=config.baudrate,
+            calibration_path=config.calibration_path,
+            kinematics=context.kinematics(),
+            clock=context.clock,
+            home=config.home,
+        )
+
+    @classmethod
+    def describe(cls, settings: Mapping[str, Any]) -> str:
+        return f"the SO-101 on {settings['so101_port']}"
+
+    @property
+    def stop_spec(self) -> StopSpec:
+        """A stop is one SYNC_WRITE, sent at most one bus transaction (a read waiting
+        for a silent servo: the reply timeout) after ``stop()``; then every servo brakes
+        at its Acceleration setting."""
+        write_bytes = 4 + 2 + 2 + len(SERVO_IDS) * (1 + GOAL_LENGTH)
+        decel = self.acceleration_register * 100 / STEPS_PER_RADIAN
+        return StopSpec(
+            category=StopCategory.CONTROLLED_HOLDING,
+            decel=np.full(self.dof, decel),
+            vmax=self.model.vmax.copy(),
+            reaction_s=self.reply_timeout + write_bytes * 10 / self.baudrate,
+            summary=(
+                "every servo's goal becomes where it can stop from its present speed: the "
+                "servos brake at their acceleration limit and keep torque, holding the arm "
+                "where it stopped (cutting the servos' power is the category 0 stop)"
+            ),
+        )
+
+    @property
+    def calibrated(self) -> bool:
+        return self.calibration is not None
+
+    @property
+    def _cal(self) -> So101Calibration:
+        return self.calibration or So101Calibration.nominal(self.model.joint_names)
+
+    @property
+    def ids(self) -> tuple[int, ...]:
+        return self._cal.ids
+
+    # ------------------------------------------------------------ state
+    def _measured_raw(self) -> FloatArray:
+        return self._raw.copy()
+
+    def snapshot(self) -> ArmSnapshot:
+        snap = self._snap
+        return super().snapshot() if snap is None else snap
+
+    def servo_status(self) -> dict[str, ServoStatus]:
+        """Each joint's servo as last read (position, speed, load, voltage, temperature,
+        error bits, missed reads), by joint name; empty before the first read."""
+        reading = self._latest
+        if reading is None:
+            return {}
+        cal = self._cal
+        return {cal.name_of(i): s for i, s in reading.servos.items()}
+
+    @property
+    def counters(self) -> dict[str, int]:
+        bus = {} if self._bus is None else dict(self._bus.counters)
+        return {"reads": self.reads, **bus}
+
+    def read_rate_hz(self) -> float:
+        """Sync reads per second since connect."""
+        elapsed = time.monotonic() - self.reads_started
+        return 0.0 if self.reads < 2 or elapsed <= 0 else (self.reads - 1) / elapsed
+
+    def raw_positions(self) -> list[int]:
+        """Present_Position of each joint's servo as last read (for calibration)."""
+        status = self.servo_status()
+        if not status:
+            raise NotReady("the SO-101 is not connected")
+        return [status[name].position_steps for name in self.model.joint_names]
+
+    # ------------------------------------------------------------ link
+    def _require_bus(self) -> FeetechPort:
+        if self._bus is None:
+            raise NotReady("the SO-101 is not connected")
+        return self._bus
+
+    async def _open(self) -> None:
+        if self.calibration_path is not None:
+            self.calibration = So101Calibration.load(self.calibration_path, self.model.joint_names)
+        try:
+            self._serial = await asyncio.to_thread(
+                serial.serial_for_url,
+                self.port_name,
+                baudrate=self.baudrate,
+                timeout=min(0.005, self.reply_timeout),
+                write_timeout=1.0,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"cannot open the servo bus {self.port_name!r}: {exc}") from None
+        # socket://: pyserial leaves Nagle on, and a goal written just before a read
+        # would then wait for the peer's delayed ACK (40 ms), past the reply timeout.
+        sock = getattr(self._serial, "_socket", None)
+        if isinstance(sock, socket.socket):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._bus = FeetechPort(self._serial, self.port_name, self.reply_timeout)
+        await asyncio.to_thread(self._handshake, self._bus)
+        self._loop = asyncio.get_running_loop()
+        self._faulted.clear()
+        self._latest = None
+        self.reads = 0
+        first = await asyncio.to_thread(self._read_once, self._bus, MissCounter(self.ids, 1), 0)
+        if first.fault is not None:
+            raise first.fault
+        silent = [i for i, s in first.servos.items() if s.missed_reads]
+        if silent:
+            names = ", ".join(self._cal.label(i) for i in silent)
+            raise DeviceError(f"{names}: no answer to the first read of the arm")
+        self._take(first)
+        self._poller_stop.clear()
+        self._poller = threading.Thread(
+            target=self._poll, args=(self._bus,), name="so101-poller", daemon=True
+        )
+        self._poller.start()
+
+    def _handshake(self, bus: FeetechPort) -> None:
+        """PING each servo and read its model number (blocking: in a thread)."""
+        cal = self._cal
+        silent = [i for i in cal.ids if i not in bus.transact(ft.ping(i), [i])]
+        if silent:
+            names = ", ".join(cal.label(i) for i in silent)
+            verb = "does" if len(silent) == 1 else "do"
+            raise DeviceError(
+                f"{names} {verb} not answer on {self.port_name!r}: check its power and "
+                "cable, and that its id is set"
+            )
+        for joint in cal.joints:
+            reply = bus.transact(ft.read(joint.id, Register.MODEL_NUMBER, 2), [joint.id])
+            if joint.id not in reply or len(reply[joint.id].params) != 2:
+                raise DeviceError(f"{cal.label(joint.id)} did not send its model number")
+            model = ft.u16(reply[joint.id].params)
+            if model != ft.STS3215_MODEL:
+                raise DeviceError(
+                    f"{cal.label(joint.id)} is a servo of model {model}, not an STS3215 "
+                    f"({ft.STS3215_MODEL})"
+                )
+            if joint.homing_offset is not None:
+                offset = self._read_u16(bus, joint.id, Register.HOMING_OFFSET)
+                held = ft.decode_signed(offset, ft.SIGN_BITS[Register.HOMING_OFFSET])
+                if held != joint.homing_offset:
+                    raise DeviceError(
+                        f"{cal.label(joint.id)} holds Homing_Offset {held}, but the "
+                        f"calibration was recorded with {joint.homing_offset}: "
+                        "record the calibration again"
+                    )
+
+    def _read_u16(self, bus: FeetechPort, servo_id: int, address: int) -> int:
+        reply = bus.transact(ft.read(servo_id, address, 2), [servo_id])
+        if servo_id not in reply or len(reply[servo_id].params) != 2:
+            raise DeviceError(f"{self._cal.label(servo_id)} did not answer a read of {address}")
+        return ft.u16(reply[servo_id].params)
+
+    async def _close(self) -> None:
+        self._poller_stop.set()
+        if self._poller is not None:
+            await asyncio.to_thread(self._poller.join, 2.0)
+            self._poller = None
+        if self._serial is not None:
+            with contextlib.suppress(Exception):
+                # In a thread: pyserial's socket:// close sleeps 0.3 s.
+                await asyncio.to_thread(self._serial.close)
+            self._serial = None
+        self._bus = None
+        self._goal_steps = None
+
+    # ------------------------------------------------------------ the poller thread
+    def _read_once(self, bus: FeetechPort, misses: MissCounter, seq: int) -> _Reading:
+        """One sync read of every servo (blocking); faults stop the arm here."""
+        cal = self._cal
+        ids = list(cal.ids)
+        replies = bus.transact(ft.sync_read(BLOCK_ADDRESS, BLOCK_LENGTH, ids), ids)
+        lost = misses.update([i for i, p in replies.items() if len(p.params) == BLOCK_LENGTH])
+        previous = {} if self._latest is None else self._latest.servos
+        servos: dict[int, ServoStatus] = {}
+        faults: list[str] = []
+        for i in ids:
+            p = replies.get(i)
+            if p is None or len(p.params) != BLOCK_LENGTH:
+                old = previous.get(i) or ServoStatus(i, 0, 0, 0.0, 0.0, 0.0, (), 0)
+                servos[i] = replace(old, missed_reads=misses.missed[i])
+                continue
+            d = p.params
+            s = ServoStatus(
+                id=i,
+                position_steps=ft.decode_signed(ft.u16(d, 0), 15),
+                velocity_steps=ft.decode_signed(ft.u16(d, 2), 15),
+                load_percent=ft.decode_signed(ft.u16(d, 4), 10) / 10.0,
+                voltage_v=d[6] / 10.0,
+                temperature_c=float(d[7]),
+                errors=tuple(ft.error_names(p.code)),
+                missed_reads=0,
+            )
+            servos[i] = s
+            bad = ErrorBit(p.code & FAULTS)
+            if bad:
+                advice = "; ".join(text for bit, text in ADVICE.items() if bad & bit)
+                faults.append(
+                    f"{cal.label(i)} reports {' and '.join(ft.error_names(bad))} "
+                    f"({s.temperature_c:.0f} °C, {s.voltage_v:.1f} V, load {s.load_percent:.0f} %)"
+                    f": {advice}"
+                )
+        if lost:
+            faults += [
+                f"{cal.label(i)} stopped answering on {self.port_name!r} "
+                f"({misses.missed[i]} reads in a row): check its cable and power"
+                for i in lost
+            ]
+        fault: TelerobotError | None = None
+        if faults and not self._faulted.is_set():
+            self._faulted.set()
+            self._brake(bus, servos)
+            fault = DeviceError(
+                "; ".join(faults) + ". The arm was stopped: the other servos hold it where "
+                "it is. Reconnect and initialise it when fixed."
+            )
+        self.reads += 1
+        if self.reads == 1:
+            self.reads_started = time.monotonic()
+        return _Reading(seq, self.clock.now(), servos, fault)
+
+    def _poll(self, bus: FeetechPort) -> None:
+        misses = MissCounter(self.ids, self.missed_reads_limit)
+        seq = 1
+        next_at = time.monotonic()
+        while not self._poller_stop.is_set():
+            try:
+                reading = self._read_once(bus, misses, seq)
+            except TelerobotError as exc:
+                if not self._poller_stop.is_set():
+                    self._latest = _Reading(seq, self.clock.now(), {}, exc)
+                    self._hand_over()
+                return
+            self._latest = reading
+            self._hand_over()
+            seq += 1
+            next_at = max(next_at + self.poll_period_s, time.monotonic())
+            self._poller_stop.wait(next_at - time.monotonic())
+
+    def _hand_over(self) -> None:
+        """Wake the event loop for the newest reading (once, however many came)."""
+        if self._handover_pending.is_set() or self._loop is None:
+            return
+        self._handover_pending.set()
+        with contextlib.suppress(RuntimeError):  # the loop closed: nobody is listening
+            self._loop.call_soon_threadsafe(self._on_reading)
+
+    def _brake_goals(self, servos: Mapping[int, ServoStatus]) -> dict[int, int]:
+        """Where each servo stops from its present speed at its acceleration."""
+        a = self.acceleration_register * 100.0
+        return {
+            i: int(
+                min(
+                    ft.STEPS_PER_TURN - 1,
+                    max(
+                        0,
+                        round(
+                            s.position_steps
+                            + math.copysign(s.velocity_steps**2 / (2 * a), s.velocity_steps)
+                        ),
+                    ),
+                )
+            )
+            for i, s in servos.items()
+        }
+
+    def _goal_packet(self, goals: Mapping[int, int], speeds: Mapping[int, int]) -> bytes:
+        data = {
+            i: bytes([self.acceleration_register])
+            + ft.le16(ft.encode_signed(goal, 15))
+            + ft.le16(0)
+            + ft.le16(speeds[i])
+            for i, goal in goals.items()
+        }
+        return ft.sync_write(GOAL_ADDRESS, GOAL_LENGTH, data)
+
+    def _brake(self, bus: FeetechPort, servos: Mapping[int, ServoStatus]) -> dict[int, int]:
+        goals = self._brake_goals(servos)
+        top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
+        bus.transact(self._goal_packet(goals, dict.fromkeys(goals, top)), [])
+        return goals
+
+    # ------------------------------------------------------------ on the event loop
+    def _take(self, reading: _Reading) -> None:
+        self._latest = reading
+        cal = self._cal
+        steps = [reading.servos[i].position_steps for i in cal.ids]
+        speeds = [reading.servos[i].velocity_steps for i in cal.ids]
+        self._raw = cal.to_radians(steps)
+        sign = np.array([j.direction for j in cal.joints], dtype=float)
+        self._velocity = sign * np.array(speeds, dtype=float) / STEPS_PER_RADIAN
+        self._snap = ArmSnapshot(reading.time, self._raw + self._offsets, self._velocity.copy())
+
+    def _on_reading(self) -> None:
+        self._handover_pending.clear()
+        reading = self._latest
+        if reading is None:
+            return
+        if reading.servos:
+            self._take(reading)
+        if reading.fault is not None:
+            self._goal_steps = None
+            self._fail(reading.fault)
+            return
+        if not self.status_is(RobotStatus.MOVING) or self._goal_steps is None:
+            return
+        if reading.time - self._last_report >= self.report_period:
+            self._last_report = reading.time
+            self._report_moved()
+        if reading.seq <= self._goal_seq + 1:
+            return  # not yet a reading taken after the goal went out
+        cal = self._cal
+        at_rest = all(reading.servos[i].velocity_steps == 0 for i in cal.ids)
+        self._at_rest_reads = self._at_rest_reads + 1 if at_rest else 0
+        arrived = at_rest and all(
+            abs(reading.servos[i].position_steps - g) <= ARRIVED_STEPS
+            for i, g in zip(cal.ids, self._goal_steps, strict=True)
+        )
+        if arrived or self._at_rest_reads >= SETTLE_READS:
+            self._goal_steps = None
+            self._motion_finished()
+
+    # ------------------------------------------------------------ initialisation
+    async def _prepare(self) -> None:
+        if self.calibration is None:
+            where = f" ({self.calibration_path})" if self.calibration_path else ""
+            raise NotReady(
+                f"the SO-101 is not calibrated{where}: record its calibration, or import "
+                "LeRobot's, before it can move"
+            )
+        bus = self._require_bus()
+        await asyncio.to_thread(self._configure, bus)
+
+    def _configure(self, bus: FeetechPort) -> None:
+        """Return delay 0 (EPROM, written only if it differs), acceleration and goal =
+        present position, then torque on: the arm holds where it is."""
+        cal = self._cal
+        ids = list(cal.ids)
+        bus.transact(ft.sync_write(Register.TORQUE_ENABLE, 1, dict.fromkeys(ids, b"\x00")), [])
+        for i in ids:
+            reply = bus.transact(ft.read(i, Register.RETURN_DELAY_TIME, 1), [i])
+            if i not in reply:
+                raise DeviceError(f"{cal.label(i)} did not answer while being configured")
+            if reply[i].params != b"\x00":
+                self._write_checked(bus, i, Register.LOCK, b"\x00")
+                self._write_checked(bus, i, Register.RETURN_DELAY_TIME, b"\x00")
+        reading = self._latest
+        assert reading is not None  # connect read the arm once
+        here = {i: reading.servos[i].position_steps for i in ids}
+        top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
+        bus.transact(self._goal_packet(here, dict.fromkeys(ids, top)), [])
+        on = dict.fromkeys(ids, b"\x01")
+        bus.transact(ft.sync_write(Register.TORQUE_ENABLE, 1, on), [])
+        bus.transact(ft.sync_write(Register.LOCK, 1, on), [])
+        self._faulted.clear()
+
+    def _write_checked(self, bus: FeetechPort, servo_id: int, address: int, data: bytes) -> None:
+        reply = bus.transact(ft.write(servo_id, address, data), [servo_id])
+        if servo_id not in reply:
+            raise DeviceError(f"{self._cal.label(servo_id)} did not confirm a write to {address}")
+
+    async def release(self) -> None:
+        """Torque off on every servo, so a person can move the arm (to calibrate it)."""
+        if self.status_is(RobotStatus.MOVING):
+            raise NotReady("the arm is moving: stop it before releasing it")
+        bus = self._require_bus()
+        off = dict.fromkeys(self.ids, b"\x00")
+        await asyncio.to_thread(bus.transact, ft.sync_write(Register.TORQUE_ENABLE, 1, off), [])
+        if not self.status_is(RobotStatus.ERROR):
+            self._set_status(RobotStatus.CONNECTED, "released: torque off, initialise to move")
+
+    async def read_homing_offsets(self) -> list[int]:
+        """Each joint's servo's Homing_Offset (recorded with a calibration)."""
+        bus = self._require_bus()
+        raw = [
+            await asyncio.to_thread(self._read_u16, bus, i, Register.HOMING_OFFSET)
+            for i in self.ids
+        ]
+        return [ft.decode_signed(r, ft.SIGN_BITS[Register.HOMING_OFFSET]) for r in raw]
+
+    def set_calibration(self, calibration: So101Calibration, *, save: bool = True) -> None:
+        """Use ``calibration`` from now on (and store it in ``calibration_path``)."""
+        if self.status_is(RobotStatus.MOVING):
+            raise NotReady("the calibration cannot change while the arm moves")
+        if save and self.calibration_path is not None:
+            calibration.save(self.calibration_path)
+        self.calibration = calibration
+        self._target = None
+        if self._latest is not None and self._latest.servos:
+            self._take(self._latest)
+
+    # ------------------------------------------------------------ motion
+    async def _send_target(self, raw_target: FloatArray) -> None:
+        bus = self._require_bus()
+        if self.calibration is None:
+            raise NotReady("the SO-101 is not calibrated")
+        cal = self.calibration
+        goals = cal.to_steps(raw_target)
+        # Each joint's speed in proportion to how far it goes: they arrive together.
+        distance = np.abs(np.asarray(raw_target, dtype=float) - self._raw)
+        longest = float(np.max(distance))
+        vmax = self.model.vmax
+        scale = 1.0 if longest < 1e-9 else float(np.min(vmax / np.maximum(distance, 1e-9)))
+        speeds = cal.speeds_to_steps(np.minimum(vmax, distance * scale))
+        packet = self._goal_packet(
+            dict(zip(cal.ids, goals, strict=True)),
+            {i: max(MIN_SPEED_STEPS, s) for i, s in zip(cal.ids, speeds, strict=True)},
+        )
+        await asyncio.to_thread(bus.transact, packet, [])
+        self._goal_steps = goals
+        self._goal_seq = self._latest.seq if self._latest is not None else 0
+        self._at_rest_reads = 0
+
+    async def _halt(self) -> None:
+        bus = self._require_bus()
+        reading = self._latest
+        if reading is None or not reading.servos:
+            return
+        goals = await asyncio.to_thread(self._brake, bus, reading.servos)
+        self._goal_steps = [goals[i] for i in self.ids]
+        self._goal_seq = reading.seq
+        self._at_rest_reads = 0

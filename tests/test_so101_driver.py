@@ -1,0 +1,502 @@
+"""So101Arm against the emulated Feetech bus over a real pseudo-terminal and a real
+TCP socket, real threads (ARCHITECTURE rule 4), and its calibration."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from backend.devices import build_robot, describe_robot
+from backend.settings import Settings
+from drivers.base import DeviceError, InvalidCommand, NotReady, Robot, RobotStatus, StopCategory
+from drivers.registry import load_driver
+from drivers.robot.models import load_model
+from drivers.robot.so101 import feetech as ft
+from drivers.robot.so101.arm import (
+    CALIBRATION_FILE,
+    SETTLE_READS,
+    MissCounter,
+    So101Arm,
+)
+from drivers.robot.so101.calibration import (
+    STEPS_PER_RADIAN,
+    CalibrationRecorder,
+    JointCalibration,
+    So101Calibration,
+    from_lerobot,
+)
+from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+from drivers.robot.so101.feetech import ErrorBit, Register
+
+MODEL = load_model("so101")
+NAMES = MODEL.joint_names
+# The arm as assembled: each servo's mid-scale near the joint's zero, some mounted
+# the other way round.
+TRUE_CAL = So101Calibration(
+    NAMES,
+    tuple(
+        JointCalibration(i + 1, zero, d)
+        for i, (zero, d) in enumerate(
+            [(2048.0, 1), (2100.0, -1), (1990.0, 1), (2050.0, 1), (2048.0, -1), (1900.0, 1)]
+        )
+    ),
+)
+STEP_RAD = 1 / STEPS_PER_RADIAN  # one step, radians
+
+
+def start_steps(pose: str = "rest") -> dict[int, float]:
+    return dict(zip(TRUE_CAL.ids, map(float, TRUE_CAL.to_steps(MODEL.pose(pose))), strict=True))
+
+
+def wait_until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
+    """Block until ``condition`` holds (the poller thread and the emulator are real)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError("timed out")
+        time.sleep(0.002)
+
+
+async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError("timed out")
+        await asyncio.sleep(0.002)
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def link(request: pytest.FixtureRequest) -> Iterator[BusLink]:
+    bus = FeetechBusEmulator(start=start_steps())
+    make = BusLink.on_pty if request.param == "pty" else BusLink.on_tcp
+    with make(bus) as running:
+        yield running
+
+
+def arm_on(link: BusLink, **kw: object) -> So101Arm:
+    kw.setdefault("calibration", TRUE_CAL)
+    return So101Arm(link.url, **kw)  # type: ignore[arg-type]
+
+
+async def ready_arm(link: BusLink, **kw: object) -> So101Arm:
+    arm = arm_on(link, **kw)
+    await arm.connect()
+    await arm.initialize()
+    assert arm.status is RobotStatus.READY
+    return arm
+
+
+# ---------------------------------------------------------------- handshake
+async def test_connect_reads_the_arm_and_initialise_configures_it(link: BusLink) -> None:
+    arm = arm_on(link)
+    assert isinstance(arm, Robot)
+    await arm.connect()
+    assert arm.status is RobotStatus.CONNECTED
+    np.testing.assert_allclose(arm.joints, MODEL.pose("rest"), atol=STEP_RAD)
+    assert not any(link.servo(i).torque for i in TRUE_CAL.ids)  # connect moves nothing
+    status = arm.servo_status()
+    assert list(status) == list(NAMES)
+    assert status["elbow_flex"].voltage_v == 12.0 and status["elbow_flex"].temperature_c == 30
+    assert status["gripper"].errors == () and status["gripper"].missed_reads == 0
+
+    await arm.initialize()  # to the home pose, "ready"
+    assert arm.status is RobotStatus.READY
+    np.testing.assert_allclose(arm.joints, MODEL.pose("ready"), atol=7 * STEP_RAD)
+    for i in TRUE_CAL.ids:
+        servo = link.servo(i)
+        assert servo.torque and servo.memory[Register.RETURN_DELAY_TIME] == 0
+        assert servo.memory[Register.ACCELERATION] == arm.acceleration_register
+    assert arm.servo_status()["shoulder_lift"].load_percent > 0  # holding, torque on
+    await arm.disconnect()
+    assert link.servo(1).torque  # disconnecting does not drop the arm
+
+
+async def test_a_missing_servo_at_connect_is_named(link: BusLink) -> None:
+    link.servo(3).mute = True
+    arm = arm_on(link, reply_timeout=0.02)
+    with pytest.raises(DeviceError, match=r"servo 3 \(elbow_flex\) does not answer on"):
+        await arm.connect()
+    assert arm.status is RobotStatus.ERROR and "elbow_flex" in arm.status_message
+    assert arm._serial is None and arm._poller is None  # nothing left half open
+    link.servo(3).mute = False
+    await arm.connect()
+    assert arm.status is RobotStatus.CONNECTED
+    await arm.disconnect()
+
+
+async def test_a_servo_of_another_model_is_refused(link: BusLink) -> None:
+    link.servo(5).memory[Register.MODEL_NUMBER : Register.MODEL_NUMBER + 2] = ft.le16(1284)
+    with pytest.raises(
+        DeviceError, match=r"servo 5 \(wrist_roll\) is a servo of model 1284, not an STS3215"
+    ):
+        await arm_on(link).connect()
+
+
+async def test_nothing_on_the_port_is_a_clear_error() -> None:
+    with pytest.raises(DeviceError, match="cannot open the servo bus '/dev/does-not-exist'"):
+        await So101Arm("/dev/does-not-exist", calibration=TRUE_CAL).connect()
+
+
+# ---------------------------------------------------------------- reading
+async def test_sync_read_rate_is_at_least_100_hz(link: BusLink) -> None:
+    arm = arm_on(link)  # the default period: 5 ms
+    await arm.connect()
+    await until(lambda: arm.reads >= 101)
+    rate = arm.read_rate_hz()
+    assert rate >= 100
+    await arm.disconnect()
+    flat_out = arm_on(link, poll_period_s=0.0)
+    await flat_out.connect()
+    await until(lambda: flat_out.reads >= 301)
+    top = flat_out.read_rate_hz()
+    await flat_out.disconnect()
+    print(f"\nsync read of 6 servos ({link.url}): {rate:.0f} Hz paced, {top:.0f} Hz flat out")
+    assert top >= rate
+
+
+async def test_garbage_on_the_bus_is_skipped(link: BusLink) -> None:
+    arm = await ready_arm(link)
+    link.bus.garbage = b"\x13\x00\xff\x42"
+    await until(lambda: link.bus.garbage == b"")
+    reads = arm.reads
+    await until(lambda: arm.reads > reads + 2)
+    assert arm.status is RobotStatus.READY
+    await arm.disconnect()
+
+
+async def test_a_flood_of_garbage_ends_the_read_at_its_limit(link: BusLink) -> None:
+    """MAX_REPLY_JUNK: a read stops taking bytes past its budget; that read misses,
+    the next ones do not, and one miss is within the missed-read limit."""
+    arm = await ready_arm(link)
+    link.bus.garbage = bytes(6000)  # zeros: never a header
+    await until(lambda: arm.counters["flooded"] >= 1)
+    reads = arm.reads
+    await until(lambda: arm.reads > reads + 3)
+    assert arm.status is RobotStatus.READY
+    assert all(s.missed_reads == 0 for s in arm.servo_status().values())
+    await arm.disconnect()
+
+
+def test_the_missed_read_limit() -> None:
+    misses = MissCounter([1, 2], limit=3)
+    for _ in range(3):
+        assert misses.update([1]) == []  # servo 2 silent three times: within the limit
+    assert misses.update([1]) == [2]  # the fourth in a row: lost
+    assert misses.update([1, 2]) == [] and misses.missed == {1: 0, 2: 0}
+    with pytest.raises(ValueError):
+        MissCounter([1], limit=0)
+
+
+# ---------------------------------------------------------------- moving
+async def test_moves_reach_the_target(link: BusLink) -> None:
+    arm = await ready_arm(link)
+    target = np.array([0.4, -0.3, 0.9, 0.8, -0.5, 0.2])
+    await arm.move_joints(target, relative=False)
+    assert arm.status is RobotStatus.MOVING
+    moved: list[float] = []
+    arm.events.moved.subscribe(lambda e: moved.append(e.time))
+    await arm.wait_idle(timeout=5)
+    assert arm.status is RobotStatus.READY
+    np.testing.assert_allclose(arm.joints, target, atol=7 * STEP_RAD)
+    for i, goal in zip(TRUE_CAL.ids, TRUE_CAL.to_steps(target), strict=True):
+        assert abs(link.servo(i).present_position - goal) <= 1
+    assert len(moved) >= 3  # reported while it moved
+    assert arm.snapshot().velocities.shape == (6,)
+    await arm.disconnect()
+
+
+async def test_stop_brakes_without_turning_back(link: BusLink) -> None:
+    arm = await ready_arm(link)
+    spec = arm.stop_spec
+    assert spec.category is StopCategory.CONTROLLED_HOLDING
+    assert spec.decel[0] == pytest.approx(10.0, rel=0.01) and 0 < spec.reaction_s < 0.05
+    start = arm.joints[0]
+    await arm.move_joints(np.array([1.8, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
+    await until(lambda: arm.snapshot().velocities[0] > 1.5)
+    await arm.stop()
+    await arm.wait_idle(timeout=2)
+    assert arm.status is RobotStatus.READY
+    stopped = arm.joints[0]
+    assert start + 0.1 < stopped < 1.8 - 0.1
+    assert link.servo(1).torque  # holding where it stopped
+    await arm.disconnect()
+
+
+# ---------------------------------------------------------------- faults
+async def test_a_servo_that_stops_answering_stops_the_arm(link: BusLink) -> None:
+    arm = await ready_arm(link, reply_timeout=0.01)
+    await arm.move_joints(np.array([0.3, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
+    link.servo(4).mute = True
+    await arm.wait_idle(timeout=5)
+    assert arm.status is RobotStatus.ERROR
+    assert "servo 4 (wrist_flex) stopped answering" in arm.status_message
+    assert "4 reads in a row" in arm.status_message  # one past the limit of 3
+    assert arm.servo_status()["wrist_flex"].missed_reads > 3
+    with pytest.raises(NotReady, match="reconnect"):
+        await arm.move_joints(np.zeros(6), relative=False)
+    link.servo(4).mute = False
+    await arm.connect()
+    await arm.initialize()
+    assert arm.status is RobotStatus.READY
+    await arm.disconnect()
+
+
+@pytest.mark.parametrize(
+    ("bit", "words"),
+    [(ErrorBit.OVERLOAD, "overload"), (ErrorBit.OVERHEAT, "overheating")],
+)
+async def test_overload_and_overheat_stop_the_arm_with_a_clear_message(
+    link: BusLink, bit: ErrorBit, words: str
+) -> None:
+    arm = await ready_arm(link)
+    await arm.move_joints(np.array([1.5, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
+    await until(lambda: arm.snapshot().velocities[0] > 1.0)
+    link.servo(2).temperature_c = 72
+    link.servo(2).error = bit
+    await arm.wait_idle(timeout=2)
+    assert arm.status is RobotStatus.ERROR
+    message = arm.status_message
+    assert f"servo 2 (shoulder_lift) reports {words}" in message and "72 °C" in message
+    assert "The arm was stopped" in message
+    assert words in arm.servo_status()["shoulder_lift"].errors
+    # Every servo was given a goal where it can stop: the pan joint brakes short of 1.5.
+    await until(lambda: link.servo(1).velocity == 0, timeout=2)
+    assert arm.joints[0] < 1.5 - 0.1
+    with pytest.raises(NotReady):
+        await arm.move_joints(np.zeros(6), relative=True)
+    # Still faulted at reconnect: refused with the same message.
+    with pytest.raises(DeviceError, match=words):
+        await arm.connect()
+    link.servo(2).error = 0
+    await arm.connect()
+    await arm.initialize()
+    assert arm.status is RobotStatus.READY
+    await arm.disconnect()
+
+
+# ---------------------------------------------------------------- calibration
+async def test_calibration_recorded_by_hand_stored_and_reloaded(
+    link: BusLink, tmp_path: Path
+) -> None:
+    path = tmp_path / "so101-calibration.json"
+    arm = arm_on(link, calibration=None, calibration_path=path)
+    await arm.connect()  # no file yet: it connects, uncalibrated
+    assert not arm.calibrated
+    with pytest.raises(NotReady, match="not calibrated"):
+        await arm.initialize()
+    await arm.connect()
+    await arm.release()
+    recorder = CalibrationRecorder(MODEL, arm.ids)
+    for pose in ("zero", "quarter", "ready"):
+        steps = TRUE_CAL.to_steps(recorder.poses[pose])
+        for i, s in zip(TRUE_CAL.ids, steps, strict=True):
+            link.servo(i).position = float(s) + 3  # a person's hand: a few steps off
+        await until(lambda s=steps: arm.raw_positions() == [x + 3 for x in s])  # type: ignore[misc]
+        recorder.record_pose(pose, arm.raw_positions(), await arm.read_homing_offsets())
+    calibration = recorder.solve()
+    for got, want in zip(calibration.joints, TRUE_CAL.joints, strict=True):
+        assert got.direction == want.direction and got.id == want.id
+        assert got.zero_steps == pytest.approx(want.zero_steps + 3, abs=1)
+        assert got.homing_offset == 0
+    arm.set_calibration(calibration)  # and stored
+    np.testing.assert_allclose(arm.joints, MODEL.pose("ready"), atol=2 * STEP_RAD)
+    await arm.disconnect()
+
+    again = arm_on(link, calibration=None, calibration_path=path)
+    await again.connect()  # reloaded from the file
+    assert again.calibration == calibration
+    doc = json.loads(path.read_text())
+    assert doc["format"] == "telerobot-so101-calibration" and doc["version"] == 1
+    assert doc["joints"]["shoulder_lift"]["direction"] == -1
+    await again.initialize()
+    np.testing.assert_allclose(again.joints, MODEL.pose("ready"), atol=7 * STEP_RAD)
+    await again.disconnect()
+
+    # The servos no longer hold the offset the calibration was recorded with.
+    link.servo(2).memory[Register.HOMING_OFFSET : Register.HOMING_OFFSET + 2] = ft.le16(
+        ft.encode_signed(-100, 11)
+    )
+    with pytest.raises(DeviceError, match=r"servo 2 \(shoulder_lift\) holds Homing_Offset -100"):
+        await again.connect()
+
+
+async def test_a_corrupt_calibration_file_is_refused(link: BusLink, tmp_path: Path) -> None:
+    path = tmp_path / "cal.json"
+    path.write_text('{"format": "telerobot-so101-calibration", "version": 1, "joi')
+    arm = arm_on(link, calibration=None, calibration_path=path)
+    with pytest.raises(DeviceError, match=r"calibration .*cal\.json cannot be used .*record it"):
+        await arm.connect()
+    assert arm.status is RobotStatus.ERROR
+    path.write_text(json.dumps({"format": "telerobot-so101-calibration", "version": 7}))
+    with pytest.raises(DeviceError, match="not a version-1 telerobot-so101-calibration file"):
+        So101Calibration.load(path, NAMES)
+    doc = TRUE_CAL.to_json()
+    del doc["joints"]["gripper"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DeviceError, match="no calibration for gripper"):
+        So101Calibration.load(path, NAMES)
+    doc = TRUE_CAL.to_json()
+    doc["joints"]["gripper"]["direction"] = 0
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DeviceError, match=r"direction 0 is not \+1 or -1"):
+        So101Calibration.load(path, NAMES)
+    assert So101Calibration.load(tmp_path / "none.json", NAMES) is None
+
+
+def test_calibration_save_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "cal.json"
+    TRUE_CAL.save(path)
+    before = path.read_text()
+
+    def crash(*args: object, **kw: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(json, "dump", crash)
+    with pytest.raises(OSError, match="disk full"):
+        TRUE_CAL.save(path)
+    assert path.read_text() == before and list(tmp_path.iterdir()) == [path]
+
+
+def test_calibration_needs_poses_that_move_every_joint() -> None:
+    recorder = CalibrationRecorder(MODEL)
+    for pose in ("zero", "ready", "rest"):
+        recorder.record_pose(pose, TRUE_CAL.to_steps(MODEL.pose(pose)))
+    with pytest.raises(InvalidCommand, match=r"shoulder_pan \(servo 1\): .*record 'quarter'") as e:
+        recorder.solve()
+    assert "wrist_roll (servo 5)" in str(e.value) and "elbow_flex" not in str(e.value)
+    with pytest.raises(InvalidCommand, match="no pose 'upright'"):
+        recorder.record_pose("upright", [0] * 6)
+    with pytest.raises(InvalidCommand, match="two poses at least"):
+        CalibrationRecorder(MODEL).solve()
+
+
+def test_calibration_refuses_a_pose_not_reached() -> None:
+    recorder = CalibrationRecorder(MODEL)
+    recorder.record_pose("zero", TRUE_CAL.to_steps(np.zeros(6)))
+    quarter = TRUE_CAL.to_steps(np.full(6, math.pi / 2))
+    quarter[2] = TRUE_CAL.to_steps(np.full(6, math.pi / 4))[2]  # the elbow left at 45°
+    recorder.record_pose("quarter", quarter)
+    with pytest.raises(InvalidCommand, match=r"elbow_flex \(servo 3\): the servo turned 50 %"):
+        recorder.solve()
+
+
+def test_calibration_refuses_a_range_across_the_wrap() -> None:
+    recorder = CalibrationRecorder(MODEL)
+    shifted = So101Calibration(
+        NAMES, tuple(JointCalibration(j.id, j.zero_steps, j.direction) for j in TRUE_CAL.joints)
+    )
+    zero = shifted.to_steps(np.zeros(6))
+    zero[0] = 300  # the pan joint's zero 300 steps above the wrap: its range crosses it
+    quarter = shifted.to_steps(np.full(6, math.pi / 2))
+    quarter[0] = 300 + 1024
+    recorder.record_pose("zero", zero)
+    recorder.record_pose("quarter", quarter)
+    with pytest.raises(InvalidCommand, match=r"shoulder_pan .*across the servo's 0/4095 wrap"):
+        recorder.solve()
+
+
+def test_calibration_maps_angles_to_steps_and_back() -> None:
+    q = np.array([0.5, -1.0, 1.2, -1.5, 2.5, 1.0])
+    steps = TRUE_CAL.to_steps(q)
+    np.testing.assert_allclose(TRUE_CAL.to_radians(steps), q, atol=STEP_RAD)
+    assert TRUE_CAL.to_steps(np.zeros(6))[1] == 2100
+    assert TRUE_CAL.to_steps([0, 0.1, 0, 0, 0, 0])[1] < 2100  # mounted the other way
+
+
+def test_lerobot_calibration_imports(tmp_path: Path) -> None:
+    doc = {
+        name: {
+            "id": i + 1,
+            "drive_mode": 0,
+            "homing_offset": 10 * i,
+            "range_min": 800,
+            "range_max": 3200,
+        }
+        for i, name in enumerate(NAMES)
+    }
+    doc["gripper"] = {
+        "id": 6,
+        "drive_mode": 0,
+        "homing_offset": -5,
+        "range_min": 2000,
+        "range_max": 3300,
+    }
+    path = tmp_path / "follower.json"
+    path.write_text(json.dumps(doc, indent=4))
+    cal = from_lerobot(path, MODEL)
+    assert cal.joints[0] == JointCalibration(1, 2000.0, 1, 0)
+    assert cal.joints[3].homing_offset == 30
+    lower = MODEL.qlim[5][0]
+    assert cal.to_steps(np.array([0, 0, 0, 0, 0, lower]))[5] == 2000  # closed: range_min
+    del doc["gripper"]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DeviceError, match=r"LeRobot calibration .* no 'gripper'"):
+        from_lerobot(path, MODEL)
+
+
+# ---------------------------------------------------------------- settings
+def test_the_registry_builds_it_from_the_settings(tmp_path: Path) -> None:
+    assert load_driver("robot", "so101") is So101Arm
+    settings = Settings(
+        robot="so101",
+        robot_model="so101",
+        so101_port="socket://127.0.0.1:5001",
+        so101_baudrate=500_000,
+        state_dir=tmp_path,
+        home_pose="zero",
+    )
+    arm = build_robot(settings)
+    assert isinstance(arm, So101Arm) and isinstance(arm, Robot)
+    assert (arm.port_name, arm.baudrate) == ("socket://127.0.0.1:5001", 500_000)
+    assert arm.calibration_path == tmp_path / CALIBRATION_FILE
+    np.testing.assert_allclose(arm.home, np.zeros(6))
+    assert describe_robot(settings) == "the SO-101 on socket://127.0.0.1:5001"
+    own = build_robot(settings.model_copy(update={"so101_calibration": tmp_path / "a.json"}))
+    assert isinstance(own, So101Arm) and own.calibration_path == tmp_path / "a.json"
+    with pytest.raises(InvalidCommand, match="set robot_model = 'so101'"):
+        build_robot(Settings(robot="so101"))
+
+
+async def test_a_blocked_joint_ends_the_move_where_it_stopped(link: BusLink) -> None:
+    """The gripper closing on an object never reaches its goal: once every servo has
+    been at rest for SETTLE_READS reads the move is over, the arm READY."""
+    arm = await ready_arm(link)
+    link.servo(6).blocked = True
+    before = arm.joints[5]
+    reads = arm.reads
+    await arm.move_joints(np.array([0.0, -0.6, 0.6, 1.2, 0.0, 0.0]), relative=False)
+    await arm.wait_idle(timeout=5)
+    assert arm.status is RobotStatus.READY
+    assert arm.joints[5] == pytest.approx(before, abs=STEP_RAD)
+    assert arm.reads - reads >= SETTLE_READS
+    await arm.disconnect()
+
+
+async def test_a_dropped_link_puts_the_arm_in_error() -> None:
+    with BusLink.on_tcp(FeetechBusEmulator(start=start_steps())) as link:
+        arm = await ready_arm(link)
+        link.drop_client()
+        await until(lambda: arm.status is RobotStatus.ERROR)
+        assert "the servo bus on 'socket://" in arm.status_message
+        await arm.connect()  # the emulator takes a new connection
+        await arm.initialize()
+        assert arm.status is RobotStatus.READY
+        await arm.disconnect()
+
+
+def test_calibration_refuses_a_pose_off_the_others() -> None:
+    recorder = CalibrationRecorder(MODEL)
+    for pose in ("zero", "quarter", "ready"):
+        steps = TRUE_CAL.to_steps(recorder.poses[pose])
+        if pose == "ready":
+            steps[3] += round(math.radians(45) * STEPS_PER_RADIAN)  # the wrist not there
+        recorder.record_pose(pose, steps)
+    with pytest.raises(InvalidCommand, match=r"wrist_flex \(servo 4\): one pose is \d+° off"):
+        recorder.solve()
