@@ -422,6 +422,27 @@ class MasterArm(Protocol):
         ...
 
 
+@runtime_checkable
+class JointLeader(Protocol):
+    """A leader arm: a copy of the follower's joints that the operator moves by hand
+    (the SO-101 leader: the same servos with their torque off), read joint for joint by
+    the joint-mirror bridge. ``read`` gives the model's angles (calibrated, radians)."""
+
+    name: str
+    joint_names: tuple[str, ...]  # must be the follower's, in its order
+
+    def open(self) -> None: ...
+    def close(self) -> None: ...
+    def read(self) -> FloatArray: ...
+    @classmethod
+    def from_options(
+        cls, model: RobotModel, *, port: str, baudrate: int, calibration: str | None
+    ) -> Self:
+        """The leader for the follower's ``model`` on ``port`` (a serial URL), with its
+        joint calibration file (None: where the driver keeps it)."""
+        ...
+
+
 # ---------------------------------------------------------------- construction
 def _no_arm() -> ArmSnapshot:
     raise DriverUnavailable("this driver follows the arm, but it was built without one")

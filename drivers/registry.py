@@ -11,13 +11,14 @@ from __future__ import annotations
 import importlib
 from typing import Final, Literal, overload
 
-from drivers.base import DriverUnavailable, ForceSensor, Robot, StereoCamera
+from drivers.base import DriverUnavailable, ForceSensor, JointLeader, Robot, StereoCamera
 
 # kind → name → (module, class)
 DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
     "robot": {
         "sim": ("drivers.robot.sim", "SimArm"),
         "val": ("drivers.robot.puma560.val_serial", "ValSerialPuma"),
+        "so101": ("drivers.robot.so101.arm", "So101Arm"),
     },
     "force": {
         "sim": ("drivers.force.sim", "SimForceSensor"),
@@ -32,6 +33,11 @@ DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
         "sim": ("drivers.master.sim", "SimMaster"),
         "touch": ("drivers.master.touch", "TouchMaster"),
     },
+    # Leader arms, joint for joint (``telerobot master --device <name>-leader``)
+    "leader": {
+        "sim": ("drivers.master.sim_leader", "SimLeader"),
+        "so101": ("drivers.robot.so101.leader", "So101Leader"),
+    },
 }
 
 
@@ -45,6 +51,8 @@ def load_driver(kind: Literal["robot"], name: str) -> type[Robot]: ...
 def load_driver(kind: Literal["force"], name: str) -> type[ForceSensor]: ...
 @overload
 def load_driver(kind: Literal["camera"], name: str) -> type[StereoCamera]: ...
+@overload
+def load_driver(kind: Literal["leader"], name: str) -> type[JointLeader]: ...
 @overload
 def load_driver(kind: str, name: str) -> type: ...
 def load_driver(kind: str, name: str) -> type:

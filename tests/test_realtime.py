@@ -137,7 +137,7 @@ def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock
         (cart(5, nan=True), "CART_INC.dx is nan"),
         (cart(5, frame=9), "unknown frame 9"),
         (m.encode(m.LEASE, 5, 7), "unknown lease action 7"),
-        (m.encode(m.ACK, 5, 0, 0.0), "ACK is not a client message"),
+        (m.encode(m.ACK, 5, 0, 0.0, 1.0), "ACK is not a client message"),
         # The joints: as many as the arm has (6), finite, whole, at most MAX_JOINTS.
         (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.01] * 5), "must have 6 values"),
         (m.encode(m.JOINT_INC, 5, 1.0, joints=[0, 0, math.nan, 0, 0, 0]), "has NaN"),

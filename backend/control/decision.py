@@ -131,6 +131,7 @@ class Applied:
     applied_at: float  # server clock when the driver took it
     limited: bool  # the speed limit scaled it down
     target: FloatArray
+    scale: float = 1.0  # the share of the increment applied (below 1 when limited)
 
 
 @dataclass(frozen=True)
@@ -684,14 +685,13 @@ class DecisionServer:
             speed = min(speed, lim.contact_speed_m_s)
         factor = min(1.0, speed * dt / step if step else 1.0)
         factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
-        limited = factor < 1.0
         dX, rv = dX * factor, rv * factor
         T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
         if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
             raise SafetyStop("force limit: only moves that back away from the contact are allowed")
         self._check_workspace(T[:3, 3])
         q = self.kinematics.ik(T, seed)
-        return await self._apply(client, q, seed, seq, client_time, limited)
+        return await self._apply(client, q, seed, seq, client_time, factor)
 
     @reported("joint_increment")
     async def joint_increment(
@@ -712,14 +712,13 @@ class DecisionServer:
             raise SafetyStop("force limit: back away with a Cartesian move first")
         now = self.clock.now()
         allowed = lim.max_joint_speed_rad_s * self._interval(client, now)
-        limited = biggest > allowed
-        if limited:
-            dq = dq * (allowed / biggest)
+        factor = min(1.0, allowed / biggest) if biggest > 0 else 1.0
+        dq = dq * factor
         seed = self.robot.target_joints
         q = seed + dq
         self.kinematics.check_joint_limits(q)
         self._check_workspace(self.kinematics.fk(q)[:3, 3])
-        return await self._apply(client, q, seed, seq, client_time, limited)
+        return await self._apply(client, q, seed, seq, client_time, factor)
 
     @reported("move_joints")
     async def move_joints(self, client_id: str, q: FloatArray, *, seq: int = 0) -> Applied:
@@ -732,7 +731,7 @@ class DecisionServer:
             raise SafetyStop("force limit: back away with a Cartesian move first")
         self.kinematics.check_joint_limits(q)
         self._check_workspace(self.kinematics.fk(q)[:3, 3])
-        return await self._apply(client, q, None, seq, None, False)
+        return await self._apply(client, q, None, seq, None, 1.0)
 
     @reported("move_pose")
     async def move_pose(
@@ -748,7 +747,7 @@ class DecisionServer:
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, p
         q = self.kinematics.ik(T, self.robot.target_joints)
-        return await self._apply(client, q, None, seq, None, False)
+        return await self._apply(client, q, None, seq, None, 1.0)
 
     @reported("initialize")
     async def initialize(self, client_id: str, q: FloatArray | None = None) -> None:
@@ -780,7 +779,7 @@ class DecisionServer:
         seed: FloatArray | None,
         seq: int,
         client_time: float | None,
-        limited: bool,
+        scale: float,
     ) -> Applied:
         if seed is not None:
             jump = [abs(a - b) for a, b in zip(q.tolist(), seed.tolist(), strict=True)]
@@ -796,6 +795,6 @@ class DecisionServer:
             target = await self.robot.move_joints(q, relative=False)
             now = self.clock.now()
         client.last_command_at = now
-        applied = Applied(client.id, seq, client_time, now, limited, target)
+        applied = Applied(client.id, seq, client_time, now, scale < 1.0, target, scale)
         self.events.applied.emit(applied)
         return applied

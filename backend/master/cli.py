@@ -31,7 +31,26 @@ def demo_hand(t: float) -> tuple[FloatArray, bool]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--server", default="http://localhost:8000/", help="the server's URL")
     p.add_argument("--token", help="operator token (default: $TELEROBOT_OPERATOR_TOKEN)")
-    p.add_argument("--device", default="sim", choices=driver_names("master"))
+    p.add_argument(
+        "--device",
+        default="sim",
+        choices=[*driver_names("master"), *(f"{n}-leader" for n in driver_names("leader"))],
+        help="a haptic master (sim, touch) or a leader arm mirrored joint for joint"
+        " (so101-leader: the SO-101 leader on --leader-port; sim-leader: a scripted one)",
+    )
+    p.add_argument(
+        "--leader-port",
+        default="/dev/ttyACM1",
+        help="so101-leader: its servo bus (a device, a pty or socket://host:port)",
+    )
+    p.add_argument("--leader-baudrate", type=int, default=1_000_000)
+    p.add_argument("--leader-calibration", help="so101-leader: its joint calibration (JSON) file")
+    p.add_argument(
+        "--align-deg",
+        type=float,
+        default=8.6,
+        help="a leader: every joint this near the arm's before the arm follows",
+    )
     p.add_argument("--motion-scale", type=float, default=1.0, help="robot m per device m")
     p.add_argument("--force-scale", type=float, default=0.05, help="device N per remote N")
     p.add_argument("--no-force", action="store_true", help="do not render the remote force")
@@ -79,11 +98,60 @@ def open_link(server: str, token: str, *, datagrams: bool = True) -> PriorityLin
     return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams)
 
 
+def run_leader(args: argparse.Namespace, token: str) -> int:
+    """A leader arm mirrored joint for joint (``--device <name>-leader``)."""
+    from backend.master.joints import JointMirror, MirrorSettings
+    from drivers.robot.models import load_model
+
+    base = args.server if args.server.endswith("/") else args.server + "/"
+    kind = args.device.removesuffix("-leader")
+    mirror: JointMirror | None = None
+    try:
+        try:
+            described = httpx.get(base + "api/v1/robot/model", timeout=5, verify=False).json()
+        except (httpx.HTTPError, ValueError) as exc:
+            raise TelerobotError(f"cannot ask {base} for its arm's model: {exc}") from None
+        model = load_model(str(described["model"]))
+        leader = load_driver("leader", kind).from_options(
+            model,
+            port=args.leader_port,
+            baudrate=args.leader_baudrate,
+            calibration=args.leader_calibration,
+        )
+        link = open_link(args.server, token, datagrams=False)  # no forces to render
+        settings = MirrorSettings(align_rad=math.radians(args.align_deg)).check()
+        mirror = JointMirror(leader, link, model.joint_names, settings)
+        mirror.start(take_control=bool(token), take_over=args.take_over)
+    except TelerobotError as exc:
+        print(f"telerobot master: {exc}", file=sys.stderr)
+        return 1
+    role = "operator" if link.operator else "observer (no token: watching only)"
+    print(
+        f"Leader {leader.name} mirrored onto the {model.title} at {args.server} as {role}",
+        flush=True,
+    )
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with contextlib.suppress(KeyboardInterrupt):
+        while not stop.wait(1.0):
+            print(
+                f"control {'yes' if mirror.has_control else 'no '}"
+                f" · commands {mirror.commands_sent} · {mirror.status}"
+                + (f" · last error: {mirror.last_error}" if mirror.last_error else ""),
+                flush=True,
+            )
+    mirror.stop()
+    mirror.link.close()
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from backend.tuning import tune_for_realtime
 
     tune_for_realtime()  # a short GIL switch interval: the reader thread gets each sample at once
     token = args.token or os.environ.get("TELEROBOT_OPERATOR_TOKEN", "")
+    if args.device.endswith("-leader"):
+        return run_leader(args, token)
     try:
         settings = BridgeSettings(
             command_rate_hz=args.command_rate,

@@ -18,7 +18,7 @@ import secrets
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,6 +114,7 @@ class PriorityLink:
         self._seq = 0
         self.operator = False
         self.client_id = ""
+        self.joint_count = 0  # the arm's, from WELCOME
         self.offset = 0.0  # server clock − this machine's monotonic clock (s), from PING
         self.best_rtt = float("inf")
         self.closed_reason: str | None = None
@@ -171,6 +172,12 @@ class PriorityLink:
                   frame: m.Frame = m.Frame.BASE) -> int:  # fmt: skip
         seq = self._next()
         self._send(m.encode(m.CART_INC, seq, time.monotonic(), int(frame), *dX, *rotvec))
+        return seq
+
+    def joints(self, dq: Sequence[float]) -> int:
+        """A joint increment (rad), one per joint of the arm; returns its seq."""
+        seq = self._next()
+        self._send(m.encode(m.JOINT_INC, seq, time.monotonic(), joints=dq))
         return seq
 
     def heartbeat(self) -> None:
@@ -299,6 +306,7 @@ class PriorityLink:
                 self._udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, 1))
         if msg is m.WELCOME:
             self.operator = int(fields["role"]) == 1
+            self.joint_count = int(fields["joints"])
             self.client_id = text
             self._welcome.set()
         elif msg is m.STATE:

@@ -206,9 +206,10 @@ ERROR = Message(
 ACK = Message(
     "ACK",
     0x86,
-    ("seq", "result", "server_time"),
-    "IBd",
-    doc="the command reached the driver at server_time",
+    ("seq", "result", "server_time", "scale"),
+    "IBdd",
+    doc="the command reached the driver at server_time; scale: the share of an increment"
+    " applied (1 unless the speed limit scaled it down: LIMITED)",
 )
 PONG = Message(
     "PONG",

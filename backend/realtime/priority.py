@@ -507,7 +507,7 @@ class PriorityChannel:
             self._datagram_keys.pop(client.datagram_key, None)
         client.datagram_key = key
         self._datagram_keys[key] = client
-        return m.encode(m.ACK, seq, m.Ack.APPLIED, self.hub.clock.now())
+        return m.encode(m.ACK, seq, m.Ack.APPLIED, self.hub.clock.now(), 1.0)
 
     def _forget_datagrams(self, client: PriorityClient) -> None:
         if client.datagram_key is not None:

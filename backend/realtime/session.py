@@ -152,7 +152,7 @@ class Session:
 
 def acknowledge(conn: Connection, hub: RealtimeHub, applied: Applied, received: float) -> None:
     result = m.Ack.LIMITED if applied.limited else m.Ack.APPLIED
-    conn.reply(m.encode(m.ACK, applied.seq, result, applied.applied_at))
+    conn.reply(m.encode(m.ACK, applied.seq, result, applied.applied_at, applied.scale))
     hub.command_processing.record((applied.applied_at - received) * 1000.0)
 
 
@@ -193,10 +193,10 @@ async def handle(
             pass  # `seen` above is the heartbeat
         elif msg is m.ESTOP:
             await decision.estop(client_id)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
         elif msg is m.RESET:
             await decision.reset(client_id)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
         elif msg is m.PING:
             conn.reply(m.encode(m.PONG, seq, f["t0"], received, hub.clock.now()))
         elif msg is m.LEASE:
@@ -207,7 +207,7 @@ async def handle(
                 await decision.take_lease(client_id, force=action == m.LeaseAction.TAKE_OVER)
             else:
                 raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now()))
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
         elif msg is m.DATAGRAMS:
             raise m.MalformedMessage(
                 "DATAGRAMS is for the priority channel (forces over UDP), not this one",

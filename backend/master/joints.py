@@ -1,0 +1,233 @@
+"""The joint mirror (``telerobot master --device so101-leader``): a leader arm drives
+the follower joint for joint, the way SO-101 owners teleoperate, through the server.
+
+It runs beside the leader and talks to the server over the priority channel, as the
+Cartesian master bridge does, so the follower moves only through the same lease,
+limits and dead-man as every other input.
+
+- **Aligning first.** The follower does not jump to the leader: until every leader
+  joint is within ``align_rad`` of the follower's (its STATE joints), nothing moves and
+  the status says which joint is how far off. Then it follows.
+- **Following.** Every command period it sends the joint increment that brings its
+  own record of the commanded joints toward the leader's, each joint at most
+  ``max_speed_rad_s`` × period: a quick hand is followed at that speed rather than
+  refused. The server may still scale one down (its joint speed limit over the time
+  since the previous command, which jitter shortens): its ACK says the share applied
+  (``scale``) and the record takes back the rest, so it stays the server's target
+  exactly; a refused one (ERROR) is taken back whole.
+- **The dead-man** is the server's: if this bridge stops sending, the arm stops. A
+  leader has no clutch; letting go of it leaves the follower where the leader rests.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from backend.master.link import PriorityLink, Reply
+from backend.realtime import messages as m
+from drivers.base import FloatArray, InvalidCommand, JointLeader, RobotStatus, TelerobotError
+from drivers.threads import WorkerThread
+
+log = logging.getLogger(__name__)
+
+READY = list(RobotStatus).index(RobotStatus.READY)  # STATE's status is an index
+
+# Increments awaiting their reply at most (a second's worth at 1 kHz): past it the
+# replies are lost, the record is not the server's, and the mirror aligns again.
+MAX_IN_FLIGHT = 1000
+
+
+@dataclass
+class MirrorSettings:
+    rate_hz: float = 100.0  # leader reads and commands per second
+    align_rad: float = 0.15  # every joint this near the follower's before it follows
+    max_speed_rad_s: float = 0.9  # per joint: under the server's joint speed limit
+    heartbeat_s: float = 0.05
+
+    def check(self) -> MirrorSettings:
+        for name in ("rate_hz", "align_rad", "max_speed_rad_s", "heartbeat_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InvalidCommand(f"{name} must be a positive number, not {v}")
+        if self.rate_hz > 1000:
+            raise InvalidCommand("rate_hz must be at most 1000")
+        return self
+
+
+class JointMirror:
+    def __init__(
+        self,
+        leader: JointLeader,
+        link: PriorityLink,
+        follower_joints: tuple[str, ...],
+        settings: MirrorSettings | None = None,
+        *,
+        time_source: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if tuple(leader.joint_names) != tuple(follower_joints):
+            raise InvalidCommand(
+                f"the leader's joints {list(leader.joint_names)} are not the arm's "
+                f"{list(follower_joints)}: a joint-for-joint mirror needs the same arm"
+            )
+        if link.joint_count != len(follower_joints):
+            raise InvalidCommand(
+                f"the server's arm has {link.joint_count} joints, its model names "
+                f"{len(follower_joints)}"
+            )
+        self.leader = leader
+        self.link = link
+        self.names = tuple(follower_joints)
+        self.settings = (settings or MirrorSettings()).check()
+        self._now = time_source
+        self._lock = threading.Lock()
+        self._follower: FloatArray | None = None  # the newest STATE joints
+        self._at_rest = False  # the newest STATE said READY (not moving)
+        self.flags = 0
+        self._commanded: FloatArray | None = None  # None: aligning
+        # Our JOINT_INCs awaiting their reply (seq → increment), and what the replies
+        # took back from the record since the last cycle.
+        self._sent: dict[int, FloatArray] = {}
+        self._taken_back = np.zeros(len(follower_joints))
+        self._last_heartbeat = -math.inf
+        self._worker = WorkerThread(self._run, "joint-mirror")
+        self.status = "waiting for the arm's state"
+        self.commands_sent = 0
+        self.scaled = 0  # increments the server applied in part
+        self.refused = 0
+        self.last_error: str | None = None
+        link.on_state = self._on_state
+        link.on_reply = self._on_reply
+
+    # ------------------------------------------------------------ from the link's thread
+    def _on_state(self, fields: dict[str, Any]) -> None:
+        with self._lock:
+            self._follower = np.array(fields["joints"], dtype=float)
+            self._at_rest = int(fields["status"]) == READY
+            self.flags = int(fields["flags"])
+
+    def _on_reply(self, reply: Reply) -> None:
+        seq = int(reply.fields.get("seq", -1))
+        with self._lock:
+            dq = self._sent.pop(seq, None)
+            if dq is not None and reply.name == "ERROR":
+                self._taken_back += dq
+                self.refused += 1
+            elif dq is not None and reply.name == "ACK" and float(reply.fields["scale"]) < 1.0:
+                self._taken_back += dq * (1.0 - float(reply.fields["scale"]))
+                self.scaled += 1
+        if reply.name == "ERROR":
+            self.last_error = reply.text
+            log.warning("server: %s", reply.text)
+
+    @property
+    def has_control(self) -> bool:
+        return bool(self.flags & m.StateFlags.YOU_HAVE_CONTROL)
+
+    @property
+    def following(self) -> bool:
+        return self._commanded is not None
+
+    # ------------------------------------------------------------ one cycle
+    def step(
+        self, leader: FloatArray, follower: FloatArray | None, at_rest: bool = True
+    ) -> FloatArray | None:
+        """The increment to send for these joints (None: nothing to send), and the
+        status said. Pure but for the mirror's own record: tests call it directly.
+        It starts following only from an arm at rest: the server adds increments to
+        its target, which is where the arm reports it is only once it has stopped."""
+        if follower is None:
+            self.status = "waiting for the arm's state"
+            return None
+        with self._lock:
+            taken_back, self._taken_back = self._taken_back, np.zeros_like(self._taken_back)
+        if self._commanded is not None:
+            self._commanded = self._commanded - taken_back  # what the server did not apply
+        if self._commanded is None and not at_rest:
+            self.status = "waiting for the arm to come to rest"
+            return None
+        if self._commanded is None:
+            off = np.abs(leader - follower)
+            worst = int(np.argmax(off))
+            if off[worst] > self.settings.align_rad:
+                self.status = (
+                    f"align the leader: {self.names[worst]} is "
+                    f"{math.degrees(float(leader[worst] - follower[worst])):+.0f}° from the arm's"
+                )
+                return None
+            self._commanded = follower.copy()
+        cap = self.settings.max_speed_rad_s / self.settings.rate_hz
+        dq = np.clip(leader - self._commanded, -cap, cap)
+        self._commanded = self._commanded + dq
+        lag = np.abs(leader - self._commanded)
+        worst = int(np.argmax(lag))
+        self.status = (
+            f"following (lag {math.degrees(float(lag[worst])):.1f}° at {self.names[worst]})"
+        )
+        return dq if np.any(np.abs(dq) > 1e-9) else None
+
+    def tick(self) -> None:
+        now = self._now()
+        leader = np.asarray(self.leader.read(), dtype=float)
+        with self._lock:
+            follower = None if self._follower is None else self._follower.copy()
+            at_rest = self._at_rest
+        if not self.has_control:
+            self._commanded = None  # taken away or not yet given: align again after
+            self.status = "waiting for control" if follower is not None else self.status
+            dq = None
+        else:
+            dq = self.step(leader, follower, at_rest)
+        if dq is not None:
+            with self._lock:  # recorded before the reply can come back
+                seq = self.link.joints(dq.tolist())
+                self._sent[seq] = dq
+                if len(self._sent) > MAX_IN_FLIGHT:  # replies lost: align again
+                    self._sent.clear()
+                    self._commanded = None
+            self.commands_sent += 1
+            self._last_heartbeat = now
+        elif now - self._last_heartbeat >= self.settings.heartbeat_s:
+            self.link.heartbeat()
+            self._last_heartbeat = now
+
+    # ------------------------------------------------------------ running
+    def start(self, take_control: bool = True, take_over: bool = False) -> None:
+        self.leader.open()
+        if take_control:
+            self.link.lease(m.LeaseAction.TAKE_OVER if take_over else m.LeaseAction.TAKE)
+        self._worker.start()
+
+    def stop(self) -> None:
+        self._worker.stop()
+        self.leader.close()
+        if self.has_control:
+            with contextlib.suppress(OSError):
+                self.link.lease(m.LeaseAction.RELEASE)
+
+    def _run(self) -> None:
+        period = 1.0 / self.settings.rate_hz
+        next_tick = time.monotonic()
+        stop = self._worker.stopping
+        while not stop.is_set():
+            try:
+                self.tick()
+            except TelerobotError as exc:  # the leader failed: say so, stop sending
+                self.last_error = str(exc)
+                self.status = f"leader: {exc}"
+                log.error("leader: %s", exc)
+                return
+            except OSError as exc:
+                self.last_error = f"the priority channel closed: {exc}"
+                self.status = self.last_error
+                return
+            next_tick += period
+            stop.wait(max(0.0, next_tick - time.monotonic()))
