@@ -143,6 +143,36 @@ def _val_emulator(args: argparse.Namespace) -> int:
     return 0
 
 
+def _so101_emulator(args: argparse.Namespace) -> int:
+    from drivers.robot.models import load_model
+    from drivers.robot.so101.calibration import So101Calibration
+    from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+
+    model = load_model("so101")
+    # The emulated arm is assembled as the nominal calibration says (zero at mid-scale).
+    nominal = So101Calibration.nominal(model.joint_names)
+    steps = nominal.to_steps(model.pose(args.pose))
+    bus = FeetechBusEmulator(start=dict(zip(nominal.ids, map(float, steps), strict=True)))
+    if args.tcp:
+        host, _, port = args.tcp.rpartition(":")
+        link = BusLink.on_tcp(bus, host or "127.0.0.1", int(port))
+    else:
+        link = BusLink.on_pty(bus)
+    if args.calibration:
+        nominal.save(Path(args.calibration))
+    link.start()
+    print(f"SO-101 bus emulator listening on {link.url}", flush=True)
+    print(
+        "  run the server against it: telerobot serve --robot so101 --model so101 "
+        f"with TELEROBOT_SO101_PORT={link.url}"
+        + (f" TELEROBOT_SO101_CALIBRATION={args.calibration}" if args.calibration else ""),
+        flush=True,
+    )
+    wait_until_stopped()
+    link.stop()
+    return 0
+
+
 def _netft_emulator(args: argparse.Namespace) -> int:
     from drivers.force.netft_emulator import NetFtEmulator
 
@@ -293,6 +323,16 @@ def main(argv: list[str] | None = None) -> int:
         "--time-scale", type=float, default=1.0, help="scale move durations (0.1 = 10× faster)"
     )
     emu.set_defaults(func=_val_emulator)
+
+    so101 = sub.add_parser(
+        "so101-emulator", help="emulate an SO-101's Feetech servo bus on a pty or TCP port"
+    )
+    so101.add_argument("--tcp", metavar="HOST:PORT", help="listen on TCP instead of a pty")
+    so101.add_argument("--pose", default="rest", help="where the arm is when switched on")
+    so101.add_argument(
+        "--calibration", metavar="FILE", help="write the emulated arm's calibration here"
+    )
+    so101.set_defaults(func=_so101_emulator)
 
     master = sub.add_parser(
         "master", help="bridge a haptic master arm to a server (sim or a 3D Systems Touch)"

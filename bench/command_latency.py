@@ -6,7 +6,15 @@ sent to the server time at which the driver took it (the ACK's time, mapped to t
 client's clock by the ping clock sync); a second client receives every force
 sample meanwhile.
 
-    python -m bench.command_latency [--json] [--commands 10000]
+    python -m bench.command_latency [--json] [--commands 10000] [--robot so101-emulator]
+
+``--robot so101-emulator``: the same against the SO-101 driver on its Feetech bus
+emulator (``telerobot so101-emulator`` over TCP, its own process), the PUMA
+simulation measured first in the same run as the baseline; the JSON adds
+``so101_emulator`` and ``so101_p99_ratio`` (its p99 over the simulation's). The ACK
+comes when the driver has taken the goal; it goes on the bus between two of the
+driver's sync reads (half duplex), and ``goal_to_bus_p50_ms``/``…_p99_ms`` say how long
+that took (the driver's own clock).
 
 Thesis reference (§4.7): a 48-byte command took ~0.7 ms client to server (1.1 ms with video).
 """
@@ -16,13 +24,21 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import secrets
+import tempfile
 import time
 
 import httpx
 import numpy as np
 
 from backend.realtime import messages as m
-from bench.common import emit, machine, parser, percentiles_ms, serve_for_bench
+from bench.common import (
+    emit,
+    machine,
+    parser,
+    percentiles_ms,
+    serve_for_bench,
+    telerobot_process,
+)
 from bench.wsclient import RealtimeClient
 
 
@@ -75,6 +91,37 @@ async def measure(
     }
 
 
+def run_server(
+    env: dict[str, str], commands: int, period_s: float, force_client: bool
+) -> dict[str, float | int]:
+    token = secrets.token_hex(16)
+    with serve_for_bench(env={"TELEROBOT_OPERATOR_TOKEN": token, **env}) as (_, base):
+        port = int(base.rstrip("/").rsplit(":", 1)[1])
+        wait_ready(base)
+        figures = asyncio.run(measure(port, token, commands, period_s, force_client))
+        streams = httpx.get(f"http://127.0.0.1:{port}/api/v1/telemetry").json()["streams"]
+        server = next(s for s in streams if s["name"] == "command_processing")
+        figures["server_processing_p50_ms"] = server["p50"]
+        figures["server_processing_p99_ms"] = server["p99"]
+        # A bus arm: how long the goals then waited for the half-duplex bus.
+        bus = httpx.get(f"http://127.0.0.1:{port}/api/v1/robot/diagnostics").json()
+        for k, v in bus.get("goal_to_bus_ms", {}).items():
+            figures[f"goal_to_bus_{k}_ms" if k != "n" else "goals_on_bus"] = v
+        if "read_rate_hz" in bus:
+            figures["bus_read_rate_hz"] = bus["read_rate_hz"]
+    return figures
+
+
+def wait_ready(base: str, timeout: float = 30.0) -> None:
+    """The arm initialised (the PUMA's qz → qn takes ~3.6 s, the SO-101's rest → ready ~1 s)."""
+    deadline = time.monotonic() + timeout
+    while httpx.get(base + "api/v1/robot/state").json()["status"] != "READY":
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the arm at {base} is not READY after {timeout:g} s")
+        time.sleep(0.1)
+    time.sleep(0.5)
+
+
 def main() -> None:
     p = parser(__doc__ or "")
     p.add_argument("--commands", type=int, default=10_000)
@@ -82,29 +129,44 @@ def main() -> None:
     p.add_argument(
         "--batched-forces", action="store_true", help="the second client takes ~10 ms force batches"
     )
+    p.add_argument("--robot", choices=("sim", "so101-emulator"), default="sim")
     args = p.parse_args()
-    token = secrets.token_hex(16)
-    with (
-        serve_for_bench(env={"TELEROBOT_OPERATOR_TOKEN": token, "TELEROBOT_HOME_POSE": "qn"}) as (
-            _,
-            base,
-        ),
-    ):
-        time.sleep(5.0)  # the simulated arm initialises (qz → qn takes ~3.6 s)
-        port = int(base.rstrip("/").rsplit(":", 1)[1])
-        figures = asyncio.run(
-            measure(port, token, args.commands, args.period_ms / 1000, not args.batched_forces)
-        )
-        streams = httpx.get(f"http://127.0.0.1:{port}/api/v1/telemetry").json()["streams"]
-        server = next(s for s in streams if s["name"] == "command_processing")
-        figures["server_processing_p50_ms"] = server["p50"]
-        figures["server_processing_p99_ms"] = server["p99"]
+    period, every = args.period_ms / 1000, not args.batched_forces
+    figures = run_server({"TELEROBOT_HOME_POSE": "qn"}, args.commands, period, every)
     emit({**figures, "thesis_ms": 0.7}, False)
+    result: dict[str, object] = {
+        "command_latency": {k: figures[k] for k in ("p50_ms", "p99_ms", "max_ms", "n")},
+        "details": figures,
+    }
+    if args.robot == "so101-emulator":
+        with (
+            tempfile.TemporaryDirectory() as tmp,
+            telerobot_process(
+                "so101-emulator", "--tcp", "127.0.0.1:0", "--calibration", f"{tmp}/cal.json",
+                wait_for=r"listening on (socket://\S+)",
+            ) as (_, emulator),
+        ):  # fmt: skip
+            env = {
+                "TELEROBOT_ROBOT": "so101",
+                "TELEROBOT_ROBOT_MODEL": "so101",
+                "TELEROBOT_SO101_PORT": emulator.group(1),
+                "TELEROBOT_SO101_CALIBRATION": f"{tmp}/cal.json",
+            }
+            so101 = run_server(env, args.commands, period, every)
+        print("SO-101 driver on the bus emulator:")
+        emit(so101, False)
+        result["so101_emulator"] = {
+            k: so101[k]
+            for k in ("p50_ms", "p99_ms", "max_ms", "n", "goal_to_bus_p50_ms", "goal_to_bus_p99_ms")
+            if k in so101
+        }
+        result["so101_details"] = so101
+        result["so101_p99_ratio"] = float(so101["p99_ms"]) / float(figures["p99_ms"])
+        print(f"so101 p99 / simulation p99: {result['so101_p99_ratio']:.2f}")
     if args.json:
         import json
 
-        keep = {k: figures[k] for k in ("p50_ms", "p99_ms", "max_ms", "n")}
-        print(json.dumps({"command_latency": keep, "details": figures, "machine": machine()}))
+        print(json.dumps({**result, "machine": machine()}))
 
 
 if __name__ == "__main__":

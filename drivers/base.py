@@ -272,6 +272,11 @@ class Robot(Protocol):
         velocities are zero where the arm does not report them."""
         ...
 
+    def diagnostics(self) -> dict[str, Any]:
+        """What the driver knows of the hardware's health, as JSON (a bus arm: each
+        servo's temperature, voltage, load and errors; its read rate); {} if nothing."""
+        ...
+
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self: ...
     @classmethod

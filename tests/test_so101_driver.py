@@ -209,6 +209,27 @@ async def test_moves_reach_the_target(link: BusLink) -> None:
         assert abs(link.servo(i).present_position - goal) <= 1
     assert len(moved) >= 3  # reported while it moved
     assert arm.snapshot().velocities.shape == (6,)
+    # The goals went out between reads, each within about one read transaction.
+    health = arm.diagnostics()
+    assert health["goal_to_bus_ms"]["n"] >= 2 and health["goal_to_bus_ms"]["max"] < 100
+    assert set(health["servos"]) == set(NAMES) and health["read_rate_hz"] > 50
+    assert health["servos"]["gripper"]["temperature_c"] == 30
+    await arm.disconnect()
+
+
+async def test_goals_waiting_for_the_bus_are_replaced_by_newer_ones(link: BusLink) -> None:
+    arm = await ready_arm(link)
+    first, second = np.array([0.1, 0, 0, 0, 0, 0]), np.array([0.2, 0, 0, 0, 0, 0])
+    bus = arm._bus
+    assert bus is not None
+    with bus.lock:  # the bus busy (a read in flight): goals wait, the newest kept
+        await arm.move_joints(first, relative=False)
+        await arm.move_joints(second, relative=False)  # taken at once, not waiting
+        assert arm._goal_out is not None
+        written = len(arm.goal_to_bus_s)
+    await arm.wait_idle(timeout=5)
+    assert len(arm.goal_to_bus_s) == written + 1  # one goal went out, the second
+    np.testing.assert_allclose(arm.joints, second, atol=7 * STEP_RAD)
     await arm.disconnect()
 
 

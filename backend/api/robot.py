@@ -4,7 +4,7 @@ the DecisionServer (lease, limits, e-stop), like the real-time channel's command
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Response
@@ -118,6 +118,14 @@ def robot_state(robot: Robot, frame: WorkingFrame) -> RobotState:
 @router.get("/state")
 async def state(robot: RobotDep, decision: DecisionDep) -> RobotState:
     return robot_state(robot, decision.frame)
+
+
+@router.get("/diagnostics")
+async def diagnostics(robot: RobotDep) -> dict[str, Any]:
+    """The driver's view of the hardware: for the SO-101 each servo's position, speed,
+    load, voltage, temperature, error bits and missed reads, the bus's read rate and
+    how long goals wait for it (``goal_to_bus_ms``); only ``driver`` for the simulation."""
+    return {"driver": robot.name, **robot.diagnostics()}
 
 
 @router.get("/model")

@@ -171,6 +171,9 @@ class ModelArm(ABC):
             snap = self._reported = ArmSnapshot(0.0, self.joints, np.zeros(self.dof))
         return snap
 
+    def diagnostics(self) -> dict[str, Any]:
+        return {}  # a driver with hardware to report on says more
+
     @property
     def joint_offsets(self) -> FloatArray:
         """Joint-angle corrections: model angle = controller angle + offset."""

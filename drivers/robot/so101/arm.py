@@ -37,8 +37,9 @@ import os
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Self
 
@@ -81,6 +82,7 @@ GOAL_LENGTH = 7
 MAX_REPLY_JUNK = 512
 ARRIVED_STEPS = 6  # within this of the goal (0.5°), at rest: arrived
 SETTLE_READS = 10  # at rest this many reads in a row, not at the goal: blocked, done
+GOAL_DELAYS_KEPT = 10_000
 MIN_SPEED_STEPS = 20  # Goal_Velocity 0 would mean "as fast as it can"
 FAULTS = ErrorBit.VOLTAGE | ErrorBit.ANGLE_SENSOR | ErrorBit.OVERHEAT | ErrorBit.OVERCURRENT
 FAULTS |= ErrorBit.OVERLOAD
@@ -266,6 +268,13 @@ class So101Arm(ModelArm):
         self._bus: FeetechPort | None = None
         self._poller: threading.Thread | None = None
         self._poller_stop = threading.Event()
+        # A goal for the poller to put on the bus between two reads (the bus is half
+        # duplex: one transaction at a time), newest wins; ``_wake`` cuts its wait short.
+        self._goal_lock = threading.Lock()
+        self._goal_out: tuple[bytes, float] | None = None  # packet, when taken
+        # Time from a goal taken to it on the bus (s), the newest few thousand.
+        self.goal_to_bus_s: deque[float] = deque(maxlen=GOAL_DELAYS_KEPT)
+        self._wake = threading.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._latest: _Reading | None = None
         self._handover_pending = threading.Event()
@@ -344,6 +353,26 @@ class So101Arm(ModelArm):
             return {}
         cal = self._cal
         return {cal.name_of(i): s for i, s in reading.servos.items()}
+
+    def diagnostics(self) -> dict[str, Any]:
+        """Each servo's state, the read rate and how long goals wait for the bus."""
+        delays = np.array(self.goal_to_bus_s) * 1000.0
+        waits = (
+            {}
+            if len(delays) == 0
+            else {
+                "p50": float(np.percentile(delays, 50)),
+                "p99": float(np.percentile(delays, 99)),
+                "max": float(delays.max()),
+                "n": len(delays),
+            }
+        )
+        return {
+            "servos": {name: asdict(s) for name, s in self.servo_status().items()},
+            "read_rate_hz": self.read_rate_hz(),
+            "goal_to_bus_ms": waits,
+            "counters": self.counters,
+        }
 
     @property
     def counters(self) -> dict[str, int]:
@@ -445,6 +474,7 @@ class So101Arm(ModelArm):
 
     async def _close(self) -> None:
         self._poller_stop.set()
+        self._wake.set()
         if self._poller is not None:
             await asyncio.to_thread(self._poller.join, 2.0)
             self._poller = None
@@ -515,19 +545,36 @@ class So101Arm(ModelArm):
         misses = MissCounter(self.ids, self.missed_reads_limit)
         seq = 1
         next_at = time.monotonic()
-        while not self._poller_stop.is_set():
-            try:
-                reading = self._read_once(bus, misses, seq)
-            except TelerobotError as exc:
-                if not self._poller_stop.is_set():
-                    self._latest = _Reading(seq, self.clock.now(), {}, exc)
-                    self._hand_over()
-                return
-            self._latest = reading
-            self._hand_over()
-            seq += 1
-            next_at = max(next_at + self.poll_period_s, time.monotonic())
-            self._poller_stop.wait(next_at - time.monotonic())
+        try:
+            while not self._poller_stop.is_set():
+                self._write_goal(bus)  # a goal goes out first, at once
+                if time.monotonic() < next_at:
+                    self._wake.wait(next_at - time.monotonic())
+                    self._wake.clear()
+                    continue
+                try:
+                    reading = self._read_once(bus, misses, seq)
+                except TelerobotError as exc:
+                    if not self._poller_stop.is_set():
+                        self._latest = _Reading(seq, self.clock.now(), {}, exc)
+                        self._hand_over()
+                    return
+                self._latest = reading
+                self._hand_over()
+                seq += 1
+                next_at = max(next_at + self.poll_period_s, time.monotonic())
+        except TelerobotError as exc:  # a goal could not be written
+            if not self._poller_stop.is_set():
+                self._latest = _Reading(seq, self.clock.now(), {}, exc)
+                self._hand_over()
+
+    def _write_goal(self, bus: FeetechPort) -> None:
+        with self._goal_lock:
+            out, self._goal_out = self._goal_out, None
+        if out is not None:
+            packet, taken = out
+            bus.transact(packet, [])  # a failure stops the poller: the arm faults
+            self.goal_to_bus_s.append(time.monotonic() - taken)
 
     def _hand_over(self) -> None:
         """Wake the event loop for the newest reading (once, however many came)."""
@@ -698,10 +745,25 @@ class So101Arm(ModelArm):
             dict(zip(cal.ids, goals, strict=True)),
             {i: max(MIN_SPEED_STEPS, s) for i, s in zip(cal.ids, speeds, strict=True)},
         )
-        await asyncio.to_thread(bus.transact, packet, [])
+        await self._put_on_bus(bus, packet)
         self._goal_steps = goals
         self._goal_seq = self._latest.seq if self._latest is not None else 0
         self._at_rest_reads = 0
+
+    async def _put_on_bus(self, bus: FeetechPort, packet: bytes) -> None:
+        """Hand ``packet`` to the poller, which writes it before its next read (within
+        one read transaction: ``goal_to_bus_s``): taken now, as a controller takes a
+        set point for its next cycle. A goal still waiting when a newer one comes is
+        replaced (newest wins). Without a poller (not yet reading), written here."""
+        poller = self._poller
+        if poller is None or not poller.is_alive():
+            if self._latest is not None and self._latest.fault is not None:
+                raise self._latest.fault
+            await asyncio.to_thread(bus.transact, packet, [])
+            return
+        with self._goal_lock:
+            self._goal_out = (packet, time.monotonic())
+        self._wake.set()
 
     async def _halt(self) -> None:
         bus = self._require_bus()

@@ -38,6 +38,28 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/robot/diagnostics": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Diagnostics
+         * @description The driver's view of the hardware: for the SO-101 each servo's position, speed,
+         *     load, voltage, temperature, error bits and missed reads, the bus's read rate and
+         *     how long goals wait for it (``goal_to_bus_ms``); only ``driver`` for the simulation.
+         */
+        get: operations["diagnostics_api_v1_robot_diagnostics_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/robot/model": {
         parameters: {
             query?: never;
@@ -2212,6 +2234,28 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["RobotState"];
+                };
+            };
+        };
+    };
+    diagnostics_api_v1_robot_diagnostics_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": {
+                        [key: string]: unknown;
+                    };
                 };
             };
         };
