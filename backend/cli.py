@@ -173,6 +173,20 @@ def _so101_emulator(args: argparse.Namespace) -> int:
     return 0
 
 
+def _so101_calibrate(args: argparse.Namespace) -> int:
+    from drivers.robot.so101.arm import default_calibration_path
+    from drivers.robot.so101.calibrate import main
+    from drivers.robot.so101.leader import default_leader_calibration
+
+    if args.out is not None:
+        out = Path(args.out)
+    elif args.leader:
+        out = default_leader_calibration()
+    else:
+        out = default_calibration_path({"state_dir": args.state_dir})
+    return main(args.port, out, args.baudrate, tuple(args.poses.split(",")))
+
+
 def _netft_emulator(args: argparse.Namespace) -> int:
     from drivers.force.netft_emulator import NetFtEmulator
 
@@ -333,6 +347,17 @@ def main(argv: list[str] | None = None) -> int:
         "--calibration", metavar="FILE", help="write the emulated arm's calibration here"
     )
     so101.set_defaults(func=_so101_emulator)
+
+    cal = sub.add_parser(
+        "so101-calibrate", help="record an SO-101's joint calibration (or its leader's) by hand"
+    )
+    cal.add_argument("--port", required=True, help="its servo bus: /dev/ttyACM0, socket://…")
+    cal.add_argument("--baudrate", type=int, default=1_000_000)
+    cal.add_argument("--leader", action="store_true", help="the leader arm's (its own file)")
+    cal.add_argument("--out", help="where to write it (default: where the server reads it)")
+    cal.add_argument("--state-dir", type=Path, help="the server's state folder")
+    cal.add_argument("--poses", default="zero,quarter", help="the poses to record, in order")
+    cal.set_defaults(func=_so101_calibrate)
 
     master = sub.add_parser(
         "master", help="bridge a haptic master arm to a server (sim or a 3D Systems Touch)"

@@ -521,3 +521,54 @@ def test_calibration_refuses_a_pose_off_the_others() -> None:
         recorder.record_pose(pose, steps)
     with pytest.raises(InvalidCommand, match=r"wrist_flex \(servo 4\): one pose is \d+° off"):
         recorder.solve()
+
+
+async def test_the_calibrate_command_records_by_hand_and_writes_the_file(
+    link: BusLink, tmp_path: Path
+) -> None:
+    from drivers.robot.so101.calibrate import record
+
+    out = tmp_path / "cal.json"
+    said: list[str] = []
+
+    def person(prompt: str) -> str:  # moves the arm where the prompt says, then Enter
+        pose = prompt.split("'")[1]
+        steps = TRUE_CAL.to_steps(CalibrationRecorder(MODEL).poses[pose])
+        for i, s in zip(TRUE_CAL.ids, steps, strict=True):
+            link.servo(i).position = float(s)
+        time.sleep(0.1)  # a few of the driver's reads
+        said.append(prompt)
+        return ""
+
+    await record(link.url, out, baudrate=ft.DEFAULT_BAUDRATE, ask=person, say=said.append)
+    assert [p.split("'")[1] for p in said if p.startswith("Move")] == ["zero", "quarter"]
+    assert not any(link.servo(i).torque for i in TRUE_CAL.ids)  # released, never moved
+    stored = So101Calibration.load(out, NAMES)
+    assert stored is not None
+    for got, want in zip(stored.joints, TRUE_CAL.joints, strict=True):
+        assert got.direction == want.direction and got.zero_steps == pytest.approx(
+            want.zero_steps, abs=1
+        )
+    assert said[-1] == f"Calibration written to {out}"
+
+
+def test_the_calibrate_command_says_when_there_is_no_arm(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).parent / "telerobot"
+    out = subprocess.run(
+        [
+            str(exe),
+            "so101-calibrate",
+            "--port",
+            "socket://127.0.0.1:9",
+            "--out",
+            str(tmp_path / "c"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 1 and "cannot open the servo bus" in out.stdout
+    assert not (tmp_path / "c").exists()
