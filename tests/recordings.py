@@ -103,16 +103,20 @@ def build(
     force_hz: float = 1000.0,
     jitter: float = 0.0,
     command_every: float = 0.25,
+    settings: dict[str, Any] | None = None,
 ) -> Built:
     """Write a recording of ``duration`` seconds: state at ``state_hz``, force at
     ``force_hz``, an accepted ``move_joints`` every ``command_every`` s (and a refused one
     between, which must not count), the episodes' start/label/end events, and video at
-    ``video_fps`` (capture times jittered by up to ``jitter`` of a frame)."""
+    ``video_fps`` (capture times jittered by up to ``jitter`` of a frame), and the
+    server's ``settings`` first if given (as a recording starts with them)."""
     if episodes is None:
         episodes = [Episode(0.5, 1.7, "pick the block"), Episode(2.2, 3.6, "place the block")]
     rng = np.random.default_rng(7)
     messages: list[tuple[float, str, dict[str, Any]]] = []  # (t after start, topic, payload)
 
+    if settings is not None:
+        messages.append((0.0, "/settings", settings))
     n_state = int(duration * state_hz)
     for i in range(n_state):
         t = i / state_hz
@@ -238,6 +242,7 @@ def build(
             "/commands": "telerobot.Command",
             "/episodes": "telerobot.Episode",
             "/video/stereo": "foxglove.CompressedVideo",
+            "/settings": "telerobot.Settings",
         }
         channels = {
             topic: writer.register_channel(

@@ -19,6 +19,7 @@ import pytest
 
 from backend.api import export as export_api
 from backend.recording.lerobot import ExportError, export_lerobot
+from drivers.robot.models import load_model
 from tests import recordings
 from tests.recordings import Episode, force_at, joints_at, read_code, target_at
 
@@ -218,6 +219,27 @@ def test_whole_recording_when_no_episodes(tmp_path: Path) -> None:
     times, _ = _frames(tmp_path / "ds/videos/observation.images.left/chunk-000/file-000.mp4")
     np.testing.assert_allclose(times, np.arange(summary.frames) / 10, atol=0.05)
     assert float(Fraction(1, 10)) == pytest.approx(times[1] - times[0])
+
+
+def test_an_so101_recording_exports_as_an_so101_dataset(tmp_path: Path) -> None:
+    built = recordings.build(
+        tmp_path / "rec.mcap", duration=1.0, episodes=[], settings={"robot_model": "so101"}
+    )
+    export_lerobot(built.path, tmp_path / "ds", fps=10)
+    info = json.loads((tmp_path / "ds/meta/info.json").read_text())
+    assert info["robot_type"] == "so101_follower"
+    names = [f"{j}.pos" for j in load_model("so101").joint_names]
+    assert info["features"]["observation.state"]["names"] == names
+    assert info["features"]["action"]["names"] == names
+    assert names[-1] == "gripper.pos"
+
+
+def test_a_recording_of_an_unknown_arm_is_refused(tmp_path: Path) -> None:
+    built = recordings.build(
+        tmp_path / "rec.mcap", duration=1.0, episodes=[], settings={"robot_model": "kuka"}
+    )
+    with pytest.raises(ExportError, match="a robot this version does not know"):
+        export_lerobot(built.path, tmp_path / "ds", fps=10)
 
 
 def test_refuses_a_folder_in_use(tmp_path: Path) -> None:
