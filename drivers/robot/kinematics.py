@@ -10,9 +10,11 @@ satisfy ``ArmKinematics``, so nothing above the drivers asks which arm it holds.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from typing import Protocol
 
 import numpy as np
+import pinocchio as pin
 
 from drivers.base import FloatArray, InvalidCommand, WorkingFrame
 
@@ -125,3 +127,75 @@ def joint_limit_faults(
         for i in range(len(q))
         if not (qlim[i, 0] - tol <= q[i] <= qlim[i, 1] + tol)
     ]
+
+
+class PinocchioKinematics(ABC):
+    """What a kinematic model held as a Pinocchio model with a tool frame does the same
+    for every arm: the tool (checked, its inverse kept), FK of the tool and the flange,
+    the joints' origins, the Jacobian, increments in a working frame, the limits. A
+    subclass builds the model (``_build_model``: sets ``model``, ``_data``,
+    ``_flange_id``, ``_tool_id`` for the current ``_tool``) and solves the IK.
+
+    Not thread-safe (one Pinocchio ``Data`` per instance): give each thread its own."""
+
+    qlim: FloatArray  # (n, 2)
+    model: pin.Model
+    _data: pin.Data
+    _flange_id: int
+    _tool_id: int
+
+    @abstractmethod
+    def _build_model(self) -> None: ...
+
+    @property
+    def tool(self) -> FloatArray:
+        return self._tool.copy()
+
+    @tool.setter
+    def tool(self, T: FloatArray) -> None:
+        T = np.asarray(T, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InvalidCommand("tool transform must be a finite 4x4 matrix")
+        check_rotation("tool rotation", T[:3, :3])
+        self._tool = T.copy()
+        self._tool_inv: FloatArray = np.linalg.inv(T).astype(float)
+        self._tool_is_identity = bool(np.allclose(T, np.eye(4), atol=0, rtol=0))
+        self._build_model()
+
+    def fk(self, q: FloatArray) -> FloatArray:
+        """Tool pose in the base frame as a 4×4 homogeneous matrix."""
+        # Joint placements, then only the tool frame: half the cost of all frames.
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = pin.updateFramePlacement(
+            self.model, self._data, self._tool_id
+        ).homogeneous
+        return result
+
+    def fk_flange(self, q: FloatArray) -> FloatArray:
+        pin.forwardKinematics(self.model, self._data, q)
+        result: FloatArray = pin.updateFramePlacement(
+            self.model, self._data, self._flange_id
+        ).homogeneous
+        return result
+
+    def link_origins(self, q: FloatArray) -> FloatArray:
+        """Origins of the base, each joint and the tool ((n + 2) × 3), for drawing."""
+        pin.framesForwardKinematics(self.model, self._data, q)
+        pts = [self._data.oMi[i].translation for i in range(1, self.model.njoints)]
+        return np.array([np.zeros(3), *pts, self._data.oMf[self._tool_id].translation])
+
+    def jacobian(self, q: FloatArray) -> FloatArray:
+        """6×n geometric Jacobian of the tool point: rows vx vy vz wx wy wz, base frame."""
+        J: FloatArray = pin.computeFrameJacobian(
+            self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
+        )
+        return J
+
+    def apply_increment(
+        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
+    ) -> FloatArray:
+        """The tool pose reached from ``T`` by the increment (dX, dM) in ``frame``."""
+        return apply_increment(T, dX, dM, frame, self._tool, self._tool_inv)
+
+    def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:
+        return bool(np.all(q >= self.qlim[:, 0] - tol) and np.all(q <= self.qlim[:, 1] + tol))

@@ -24,8 +24,8 @@ from typing import Final, TypedDict
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose, WorkingFrame
-from drivers.robot.kinematics import apply_increment, check_rotation, joint_limit_faults
+from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose
+from drivers.robot.kinematics import PinocchioKinematics, joint_limit_faults
 
 MAX_ITERATIONS: Final = 60
 # Converged when a step moves the joints less than this (radians, largest joint).
@@ -37,7 +37,7 @@ STALL_WINDOW: Final = 4
 _I3: Final = np.eye(3)
 
 
-class UrdfKinematics:
+class UrdfKinematics(PinocchioKinematics):
     """FK, Jacobian and numeric IK of the chain from the URDF's root to ``flange`` plus
     the tool. Not thread-safe (one Pinocchio ``Data`` per instance)."""
 
@@ -81,18 +81,7 @@ class UrdfKinematics:
     def joint_names(self) -> tuple[str, ...]:
         return self._names
 
-    @property
-    def tool(self) -> FloatArray:
-        return self._tool.copy()
-
-    @tool.setter
-    def tool(self, T: FloatArray) -> None:
-        T = np.asarray(T, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InvalidCommand("tool transform must be a finite 4x4 matrix")
-        check_rotation("tool rotation", T[:3, :3])
-        self._tool = T.copy()
-        self._tool_inv: FloatArray = np.linalg.inv(T).astype(float)
+    def _build_model(self) -> None:
         model = self._model_base.copy()
         flange = model.frames[model.getFrameId(self._flange_name)]
         self._flange_id = model.getFrameId(self._flange_name)
@@ -114,43 +103,7 @@ class UrdfKinematics:
         self._shoulder = model.jointPlacements[chain[0]].translation.copy()
         self._reach = float(sum(np.linalg.norm(o) for o in [*offsets, last]))
 
-    # ------------------------------------------------------------- forward
-    def fk(self, q: FloatArray) -> FloatArray:
-        pin.forwardKinematics(self.model, self._data, q)
-        result: FloatArray = pin.updateFramePlacement(
-            self.model, self._data, self._tool_id
-        ).homogeneous
-        return result
-
-    def fk_flange(self, q: FloatArray) -> FloatArray:
-        pin.forwardKinematics(self.model, self._data, q)
-        result: FloatArray = pin.updateFramePlacement(
-            self.model, self._data, self._flange_id
-        ).homogeneous
-        return result
-
-    def link_origins(self, q: FloatArray) -> FloatArray:
-        """Origins of the base, each joint and the tool ((n + 2) × 3), for drawing."""
-        pin.framesForwardKinematics(self.model, self._data, q)
-        pts = [self._data.oMi[i].translation for i in range(1, self.model.njoints)]
-        return np.array([np.zeros(3), *pts, self._data.oMf[self._tool_id].translation])
-
-    def jacobian(self, q: FloatArray) -> FloatArray:
-        """6×n geometric Jacobian of the tool point: rows vx vy vz wx wy wz, base frame."""
-        J: FloatArray = pin.computeFrameJacobian(
-            self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
-        )
-        return J
-
-    def apply_increment(
-        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
-    ) -> FloatArray:
-        return apply_increment(T, dX, dM, frame, self._tool, self._tool_inv)
-
     # ------------------------------------------------------------- limits
-    def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:
-        return bool(np.all(q >= self._lo - tol) and np.all(q <= self._hi + tol))
-
     def check_joint_limits(self, q: FloatArray) -> None:
         bad = joint_limit_faults(q, self.qlim, self._names)
         if bad:

@@ -30,9 +30,9 @@ from typing import Final, Literal
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose, WorkingFrame
+from drivers.base import FloatArray, JointLimitError, UnreachablePose
 from drivers.robot.kinematics import (  # re-exported: the PUMA's users import them here
-    apply_increment,
+    PinocchioKinematics,
     check_rotation,
     check_vector,
     tool_transform,
@@ -113,7 +113,7 @@ def _rho(q2: float, q3: float) -> float:
     return A2 * math.cos(q2) + A3 * math.cos(q2 + q3) - D4 * math.sin(q2 + q3)
 
 
-class Puma560Kinematics:
+class Puma560Kinematics(PinocchioKinematics):
     """FK and Jacobian from a Pinocchio model built from the DH table; closed-form IK.
 
     Not thread-safe (one Pinocchio ``Data`` per instance): give each thread its own.
@@ -129,21 +129,6 @@ class Puma560Kinematics:
         self.tool = np.eye(4) if tool is None else tool
 
     # ------------------------------------------------------------- model
-    @property
-    def tool(self) -> FloatArray:
-        return self._tool.copy()
-
-    @tool.setter
-    def tool(self, T: FloatArray) -> None:
-        T = np.asarray(T, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InvalidCommand("tool transform must be a finite 4x4 matrix")
-        check_rotation("tool rotation", T[:3, :3])
-        self._tool = T.copy()
-        self._tool_inv: FloatArray = np.linalg.inv(T).astype(float)
-        self._tool_is_identity = bool(np.allclose(T, np.eye(4), atol=0, rtol=0))
-        self._build_model()
-
     def _build_model(self) -> None:
         model = pin.Model()
         model.name = "puma560"
@@ -173,50 +158,12 @@ class Puma560Kinematics:
         self._data = model.createData()
 
     # ------------------------------------------------------------- forward
-    def fk(self, q: FloatArray) -> FloatArray:
-        """Tool pose in the base frame as a 4×4 homogeneous matrix."""
-        # Joint placements, then only the tool frame: half the cost of all frames.
-        pin.forwardKinematics(self.model, self._data, q)
-        result: FloatArray = pin.updateFramePlacement(
-            self.model, self._data, self._tool_id
-        ).homogeneous
-        return result
-
-    def fk_flange(self, q: FloatArray) -> FloatArray:
-        pin.forwardKinematics(self.model, self._data, q)
-        result: FloatArray = pin.updateFramePlacement(
-            self.model, self._data, self._flange_id
-        ).homogeneous
-        return result
-
     def wrist_centre(self, q: FloatArray) -> FloatArray:
         pin.forwardKinematics(self.model, self._data, q)
         result: FloatArray = self._data.oMi[6].translation
         return result
 
-    def link_origins(self, q: FloatArray) -> FloatArray:
-        """Origins of the base, joints 1..6 and the tool (8×3), for drawing the arm."""
-        pin.framesForwardKinematics(self.model, self._data, q)
-        pts = [self._data.oMi[i].translation for i in range(1, 7)]
-        return np.array([np.zeros(3), *pts, self._data.oMf[self._tool_id].translation])
-
-    def jacobian(self, q: FloatArray) -> FloatArray:
-        """6×6 geometric Jacobian of the tool point: rows vx vy vz wx wy wz in the base frame."""
-        J: FloatArray = pin.computeFrameJacobian(
-            self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
-        )
-        return J
-
-    def apply_increment(
-        self, T: FloatArray, dX: FloatArray, dM: FloatArray, frame: WorkingFrame
-    ) -> FloatArray:
-        """The tool pose reached from ``T`` by the increment (dX, dM) in ``frame``."""
-        return apply_increment(T, dX, dM, frame, self._tool, self._tool_inv)
-
     # ------------------------------------------------------------- limits
-    def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:
-        return bool(np.all(q >= self.qlim[:, 0] - tol) and np.all(q <= self.qlim[:, 1] + tol))
-
     def fit_limits(self, q: FloatArray, seed: FloatArray | None = None) -> FloatArray | None:
         """``q`` with each angle moved by whole turns into its limits, nearest ``seed``
         (or nearest zero); None if some joint cannot be placed inside its limits."""

@@ -14,15 +14,9 @@ deceleration (``StopRamp``), and the monitor prompt comes when the arm is at res
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
-import os
-import select
-import socket
-import threading
 import time
-import tty
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,6 +25,7 @@ from typing import Literal
 import numpy as np
 
 from drivers.base import FloatArray
+from drivers.emulator_link import EmulatorLink as BaseLink
 from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX, StopRamp, SyncMove
 from drivers.robot.puma560 import val_protocol as vp
 from drivers.robot.puma560.kinematics import NAMED_POSES, QLIM_DEG
@@ -202,126 +197,48 @@ class ValControllerEmulator:
         return [vp.ack_line(seq, duration)]
 
 
-class EmulatorLink:
-    """Runs an emulator on a pseudo-terminal (``url`` is the device path) or a TCP
-    port (``url`` is ``socket://host:port``), in a thread of its own."""
+class EmulatorLink(BaseLink):
+    """Runs a VAL controller emulator on a pseudo-terminal or a TCP port
+    (``drivers.emulator_link``): lines in, the controller's lines out, and what it
+    says by itself when a move ends."""
+
+    thread_name = "val-emulator"
 
     def __init__(
         self, emulator: ValControllerEmulator, clock: Callable[[], float] = time.monotonic
     ) -> None:
+        super().__init__(clock)
         self.emulator = emulator
-        self.clock = clock
-        self.url = ""
-        self._master: int | None = None
-        self._slave: int | None = None
-        self._listener: socket.socket | None = None
-        self._client: socket.socket | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._buffer = b""
 
     @classmethod
     def on_pty(cls, emulator: ValControllerEmulator) -> EmulatorLink:
-        link = cls(emulator)
-        link._master, link._slave = os.openpty()
-        tty.setraw(link._master)
-        tty.setraw(link._slave)  # no echo, no line discipline: bytes pass as sent
-        link.url = os.ttyname(link._slave)
-        return link
+        return cls(emulator)._open_pty()
 
     @classmethod
     def on_tcp(
         cls, emulator: ValControllerEmulator, host: str = "127.0.0.1", port: int = 0
     ) -> EmulatorLink:
-        link = cls(emulator)
-        link._listener = socket.create_server((host, port))
-        h, p = link._listener.getsockname()[:2]
-        link.url = f"socket://{h}:{p}"
-        return link
+        return cls(emulator)._open_tcp(host, port)
 
-    def start(self) -> EmulatorLink:
-        self._thread = threading.Thread(target=self._run, name="val-emulator", daemon=True)
-        self._thread.start()
-        return self
+    def _connected(self) -> None:
+        self._buffer = b""
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        for s in (self._client, self._listener):
-            if s is not None:
-                s.close()
+    def _wait_s(self) -> float:
+        deadline = self.emulator.next_deadline()
+        return 0.05 if deadline is None else min(0.05, max(0.0, deadline - self.clock()))
 
-    def drop_client(self) -> None:
-        """Close the TCP connection, as a cable pulled out would."""
-        if self._client is not None:
-            with contextlib.suppress(OSError):
-                self._client.shutdown(socket.SHUT_RDWR)
+    def _tick(self) -> bytes:
+        return _lines(self.emulator.poll(self.clock()))
 
-    def __enter__(self) -> EmulatorLink:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    # ---------------------------------------------------------- thread
-    def _write(self, lines: list[str]) -> None:
-        data = b"".join(line.encode("latin-1") + b"\r\n" for line in lines)
-        if not data:
-            return
-        try:
-            if self._master is not None:
-                os.write(self._master, data)
-            elif self._client is not None:
-                self._client.sendall(data)
-        except OSError as exc:
-            log.info("emulator could not write: %s", exc)
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            deadline = self.emulator.next_deadline()
-            wait = 0.05 if deadline is None else min(0.05, max(0.0, deadline - self.clock()))
-            fds: list[int | socket.socket] = []
-            if self._master is not None:
-                fds.append(self._master)
-            if self._listener is not None:
-                fds.append(self._listener)
-            if self._client is not None:
-                fds.append(self._client)
-            readable, _, _ = select.select(fds, [], [], wait)
-            for r in readable:
-                if r is self._listener:
-                    self._accept()
-                else:
-                    self._read(r)
-            self._write(self.emulator.poll(self.clock()))
-
-    def _accept(self) -> None:
-        assert self._listener is not None
-        conn, _ = self._listener.accept()
-        if self._client is not None:
-            self._client.close()
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._client, self._buffer = conn, b""
-
-    def _read(self, r: int | socket.socket) -> None:
-        try:
-            data = os.read(r, 4096) if isinstance(r, int) else r.recv(4096)
-        except OSError:
-            data = b""
-        if not data:
-            if isinstance(r, socket.socket):
-                r.close()
-                self._client = None
-            else:
-                time.sleep(0.01)  # pty with no reader on the slave side yet
-            return
+    def _received(self, data: bytes) -> bytes:
         # A line ends with CR, LF or CR LF; an empty line asks for a prompt.
         self._buffer += data.replace(b"\r\n", b"\r").replace(b"\n", b"\r")
         *lines, self._buffer = self._buffer.split(b"\r")
-        for raw in lines:
-            self._write(self.emulator.receive(raw.decode("latin-1"), self.clock()))
+        return b"".join(
+            _lines(self.emulator.receive(raw.decode("latin-1"), self.clock())) for raw in lines
+        )
+
+
+def _lines(lines: list[str]) -> bytes:
+    return b"".join(line.encode("latin-1") + b"\r\n" for line in lines)

@@ -24,15 +24,12 @@ import argparse
 import contextlib
 import logging
 import math
-import os
-import select
-import socket
 import threading
 import time
-import tty
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
+from drivers.emulator_link import EmulatorLink
 from drivers.robot.so101 import feetech as ft
 from drivers.robot.so101.feetech import ErrorBit, Instruction, Register
 
@@ -235,69 +232,26 @@ class FeetechBusEmulator:
         return out
 
 
-class BusLink:
-    """Runs a bus emulator on a pseudo-terminal (``url`` is its device path) or a TCP
-    port (``url`` is ``socket://host:port``), in a thread of its own."""
+class BusLink(EmulatorLink):
+    """Runs a bus emulator on a pseudo-terminal or a TCP port
+    (``drivers.emulator_link``): packets in, the servos' replies out."""
+
+    thread_name = "feetech-emulator"
 
     def __init__(
         self, bus: FeetechBusEmulator, clock: Callable[[], float] = time.monotonic
     ) -> None:
+        super().__init__(clock)
         self.bus = bus
-        self.clock = clock
-        self.url = ""
-        self._master: int | None = None
-        self._slave: int | None = None
-        self._listener: socket.socket | None = None
-        self._client: socket.socket | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._lock = threading.Lock()  # the bus is also read by tests
 
     @classmethod
     def on_pty(cls, bus: FeetechBusEmulator) -> BusLink:
-        link = cls(bus)
-        link._master, link._slave = os.openpty()
-        tty.setraw(link._master)
-        tty.setraw(link._slave)  # no echo, no line discipline: bytes pass as sent
-        link.url = os.ttyname(link._slave)
-        return link
+        return cls(bus)._open_pty()
 
     @classmethod
     def on_tcp(cls, bus: FeetechBusEmulator, host: str = "127.0.0.1", port: int = 0) -> BusLink:
-        link = cls(bus)
-        link._listener = socket.create_server((host, port))
-        h, p = link._listener.getsockname()[:2]
-        link.url = f"socket://{h}:{p}"
-        return link
-
-    def start(self) -> BusLink:
-        self._thread = threading.Thread(target=self._run, name="feetech-emulator", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2)
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        for s in (self._client, self._listener):
-            if s is not None:
-                s.close()
-
-    def drop_client(self) -> None:
-        """Close the TCP connection, as a cable pulled out would."""
-        if self._client is not None:
-            with contextlib.suppress(OSError):
-                self._client.shutdown(socket.SHUT_RDWR)
-
-    def __enter__(self) -> BusLink:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+        return cls(bus)._open_tcp(host, port)
 
     def servo(self, servo_id: int) -> EmulatedServo:
         """A servo, its motion brought up to now (to read or change between packets)."""
@@ -305,58 +259,13 @@ class BusLink:
             self.bus.advance(self.clock())
             return self.bus.servos[servo_id]
 
-    # ---------------------------------------------------------- thread
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            fds: list[int | socket.socket] = []
-            if self._master is not None:
-                fds.append(self._master)
-            if self._listener is not None:
-                fds.append(self._listener)
-            if self._client is not None:
-                fds.append(self._client)
-            readable, _, _ = select.select(fds, [], [], 0.05)
-            for r in readable:
-                if r is self._listener:
-                    self._accept()
-                else:
-                    self._read(r)
-
-    def _accept(self) -> None:
-        assert self._listener is not None
-        conn, _ = self._listener.accept()
-        if self._client is not None:
-            self._client.close()
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._client = conn
-
-    def _read(self, r: int | socket.socket) -> None:
-        try:
-            data = os.read(r, 4096) if isinstance(r, int) else r.recv(4096)
-        except OSError:
-            data = b""
-        if not data:
-            if isinstance(r, socket.socket):
-                r.close()
-                self._client = None
-            else:
-                time.sleep(0.01)  # pty with no reader on the slave side yet
-            return
+    def _received(self, data: bytes) -> bytes:
         with self._lock:
             try:
-                reply = self.bus.receive(data, self.clock())
+                return self.bus.receive(data, self.clock())
             except Exception:  # a bug here must not silence the bus: log it, go on
                 log.exception("the emulator failed on %r", data[:64])
-                return
-        if not reply:
-            return
-        try:
-            if isinstance(r, int):
-                os.write(r, reply)
-            else:
-                r.sendall(reply)
-        except OSError as exc:
-            log.info("emulator could not write: %s", exc)
+                return b""
 
 
 def main(argv: list[str] | None = None) -> None:
