@@ -14,6 +14,7 @@ from playwright.sync_api import Browser
 from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
     SHOTS_FOR_DOCS,
     TOKEN,
+    assert_ball_on_the_tool,
     browser,
     open_page,
     server,
@@ -135,14 +136,7 @@ def test_the_ar_ball_sits_where_the_ground_truth_camera_sees_the_gripper(
     browser: Browser, server: str
 ) -> None:
     page, _ = open_page(browser, server)
-    page.evaluate("window.telerobot.setMode('side-by-side')")
-    page.wait_for_timeout(500)
-    cell = httpx.get(server + "api/v1/workcell").json()
-    tool = np.array(httpx.get(server + "api/v1/robot/state").json()["position"] + [1.0])
-    ball = page.evaluate("window.telerobot.ball")
-    for cam, got in zip(cell["cameras"], (ball["left"], ball["right"]), strict=True):
-        u, v, w = np.array(cam["P"]) @ tool
-        assert np.hypot(got[0] - u / w, got[1] - v / w) <= 3.0, (got, u / w, v / w)
+    ball = assert_ball_on_the_tool(page, server)
     # And it is drawn there as a ring in the ball's colour (the tip it marks shows
     # through), in both halves of the view, the timecode rows cropped above it.
     page.uncheck("#ghost")  # nothing else drawn over the ring

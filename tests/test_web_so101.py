@@ -12,7 +12,15 @@ from playwright.sync_api import Browser
 
 from tests.servers import serving
 from tests.test_browser import CHROMIUM
-from tests.webpage import ENV, open_page, take_control, target, until, wait
+from tests.webpage import (
+    ENV,
+    assert_ball_on_the_tool,
+    open_page,
+    take_control,
+    target,
+    until,
+    wait,
+)
 from tests.webpage import browser as browser  # a fixture
 
 pytestmark = pytest.mark.browser
@@ -35,14 +43,7 @@ def test_the_page_names_draws_and_drives_the_so101(browser: Browser, server: str
     wait(page, "document.querySelectorAll('#joints th').length === 6")
     assert page.locator("#joints th").all_inner_texts() == model["joint_names"]
     # The AR ball where the ground-truth cameras see the SO-101's tool point.
-    page.evaluate("window.telerobot.setMode('side-by-side')")
-    page.wait_for_timeout(500)
-    cell = httpx.get(server + "api/v1/workcell").json()
-    tool = np.array(httpx.get(server + "api/v1/robot/state").json()["position"] + [1.0])
-    ball = page.evaluate("window.telerobot.ball")
-    for cam, got in zip(cell["cameras"], (ball["left"], ball["right"]), strict=True):
-        u, v, w = np.array(cam["P"]) @ tool
-        assert np.hypot(got[0] - u / w, got[1] - v / w) <= 3.0, (got, u / w, v / w)
+    assert_ball_on_the_tool(page, server)
     # The ghost: base, the five joints that carry the tool, the tool (not the gripper's
     # jaw, a branch) in each eye.
     chains = page.evaluate("window.telerobot.ghost.pixels.map((c) => c.length)")

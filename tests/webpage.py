@@ -166,6 +166,22 @@ def xr_frames_pass(page: Page, n: int = 2) -> None:
     wait(page, f"window.telerobot.view.xrFrames >= {n0 + n}")
 
 
+def assert_ball_on_the_tool(
+    page: Page, server: str, within_px: float = 3.0
+) -> dict[str, list[float]]:
+    """The AR ball is drawn where the ground-truth cameras see the tool point; returns
+    the ball's pixels in each eye."""
+    page.evaluate("window.telerobot.setMode('side-by-side')")
+    page.wait_for_timeout(500)
+    cell = httpx.get(server + "api/v1/workcell").json()
+    tool = np.array(httpx.get(server + "api/v1/robot/state").json()["position"] + [1.0])
+    ball: dict[str, list[float]] = page.evaluate("window.telerobot.ball")
+    for cam, got in zip(cell["cameras"], (ball["left"], ball["right"]), strict=True):
+        u, v, w = np.array(cam["P"]) @ tool
+        assert np.hypot(got[0] - u / w, got[1] - v / w) <= within_px, (got, u / w, v / w)
+    return ball
+
+
 def take_control(page: Page) -> None:
     page.click("#take")
     wait(page, "(window.telerobot.state.flags & 1) !== 0")
