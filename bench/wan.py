@@ -81,7 +81,12 @@ FREEZE_S = 0.2  # no new frame for longer than this: frozen
 STALE_S = 0.25  # the server's default max_command_age_ms
 RECOVER_S = 1.0  # left out of the steady figures after the outage
 ROLES = ("viewer", "force", "command")
-VIEWERS = ("aiortc", "browser")  # --viewer: the "viewer" role's process
+# --viewer: the "viewer" role's process. "aiortc" asks again for a packet whose
+# retransmission did not come (libwebrtc's NackRequester: again after a round trip, up
+# to 10 times); "aiortc-nack-once" is aiortc's own receiver, which asks once and then
+# waits for its 512-packet jitter buffer to overflow before it asks for a key frame.
+VIEWERS = ("aiortc", "aiortc-nack-once", "browser")
+NACK_RETRIES = 10  # libwebrtc's kMaxNackRetries
 
 
 # ---------------------------------------------------------------- client roles
@@ -106,6 +111,57 @@ def _get_json(base: str, path: str) -> Any:
         return {"error": repr(exc)}
 
 
+def keyframe_skipping_buffer(give_up_s: float) -> Any:
+    """aiortc's video jitter buffer, which waits at a missing packet until 512 more have
+    come (seconds), made to give up as libwebrtc does: a gap the NACKs did not fill
+    within ``give_up_s`` is skipped to the next key frame already received (and a key
+    frame is asked for, once a gap, if none has come)."""
+    from aiortc.jitterbuffer import JitterBuffer
+
+    def key_frame_start(packet: Any) -> bool:
+        data = getattr(packet, "_data", b"")  # depayloaded: Annex B
+        return len(data) > 4 and data[:4] == b"\x00\x00\x00\x01" and data[4] & 0x1F in (5, 7)
+
+    class Skipping(JitterBuffer):  # type: ignore[misc]
+        def __init__(self) -> None:
+            super().__init__(capacity=512, is_video=True)
+            self.gap_since: float | None = None
+            self.asked = False
+            self.skips = 0
+
+        def add(self, packet: Any) -> tuple[bool, Any]:
+            pli, frame = super().add(packet)
+            if frame is not None or self._origin is None:
+                self.gap_since, self.asked = None, False
+                return pli, frame
+            newest = (packet.sequence_number - self._origin) % 65536
+            slots = [
+                self._packets[(self._origin + i) % self._capacity]
+                for i in range(min(newest, self._capacity - 1) + 1)
+            ]
+            if all(p is not None for p in slots):
+                return pli, frame  # a frame still arriving, no gap
+            now = time.monotonic()
+            if self.gap_since is None:
+                self.gap_since = now
+                return pli, frame
+            if now - self.gap_since < give_up_s:
+                return pli, frame
+            hole = slots.index(None)
+            for count in range(hole + 1, len(slots)):
+                p = slots[count]
+                if p is not None and key_frame_start(p):
+                    self.remove(count)
+                    self.skips += 1
+                    self.gap_since, self.asked = None, False
+                    return pli, self._remove_frame(p.sequence_number)
+            ask = not self.asked
+            self.asked = True
+            return pli or ask, frame
+
+    return Skipping()
+
+
 def role_viewer(base: str) -> dict[str, Any]:
     import aiortc.rtcrtpreceiver as receiver
 
@@ -116,12 +172,40 @@ def role_viewer(base: str) -> dict[str, Any]:
     packets: list[float] = []  # arrival of every RTP packet (is video still coming?)
     original = receiver.RTCRtpReceiver._handle_rtp_packet
 
+    ssrc: list[int | None] = [None]
+
     async def count(self: Any, packet: Any, arrival_time_ms: int) -> None:
         received[0] += len(packet.payload) + 12
+        ssrc[0] = packet.ssrc
         packets.append(time.monotonic())
         await original(self, packet, arrival_time_ms)
 
     receiver.RTCRtpReceiver._handle_rtp_packet = count  # type: ignore[method-assign]
+    renack_s = float(os.environ.get("BENCH_WAN_RENACK_MS", "0")) / 1000.0
+    renacks = [0]
+
+    async def renack(pc: Any) -> None:
+        """NACK again what is still missing a round trip after it was last asked for.
+        (aiortc's receiver keeps its NackGenerator private: reached by its mangled name.)"""
+        rx = pc.getTransceivers()[0].receiver
+        nack = rx._RTCRtpReceiver__nack_generator
+        asked: dict[int, tuple[float, int]] = {}  # seq → (last asked, times)
+        while True:
+            await asyncio.sleep(0.02)
+            now = time.monotonic()
+            missing = set(nack.missing)
+            for seq in list(asked):
+                if seq not in missing:
+                    del asked[seq]
+            due = []
+            for seq in missing:
+                last, times = asked.setdefault(seq, (now, 1))  # aiortc asked once already
+                if now - last >= renack_s and times < NACK_RETRIES:
+                    asked[seq] = (now, times + 1)
+                    due.append(seq)
+            if due and ssrc[0] is not None:
+                renacks[0] += len(due)
+                await rx._send_rtcp_nack(ssrc[0], sorted(due))
 
     async def run() -> dict[str, Any]:
         stop = _stop_event(asyncio.get_running_loop())
@@ -153,8 +237,15 @@ def role_viewer(base: str) -> dict[str, Any]:
 
         task = asyncio.create_task(receive())
         poller = asyncio.create_task(poll())
+        tasks = [task, poller]
+        buffer = None
+        if renack_s > 0:
+            tasks.append(asyncio.create_task(renack(pc)))
+            # Given up after the retries a round trip apart would have had their chance.
+            buffer = keyframe_skipping_buffer(3 * renack_s)
+            pc.getTransceivers()[0].receiver._RTCRtpReceiver__jitter_buffer = buffer
         await stop.wait()
-        for t in (task, poller):
+        for t in tasks:
             t.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await t
@@ -166,6 +257,8 @@ def role_viewer(base: str) -> dict[str, Any]:
             "packets": packets,
             "polls": polls,
             "status": status,
+            "renacks": renacks[0],
+            "gaps_skipped": None if buffer is None else buffer.skips,
         }
 
     return asyncio.run(run())
@@ -415,6 +508,8 @@ def video_figures(out: dict[str, Any], segments: Segments, t_up: float) -> dict[
         "frames_after_outage": len(after),
         "rtp_packets_after_outage": sum(1 for t in out["packets"] if t >= t_up),
         "video_mbps": mbps,
+        "nack_retries": out.get("renacks"),
+        "gaps_skipped": out.get("gaps_skipped"),
         "frames_unreadable": None
         if "ages" in out
         else sum(1 for t, age in frames if age is None and _in(t, segments)),
@@ -543,14 +638,23 @@ def command_figures(
 
 # ---------------------------------------------------------------- one profile
 def _spawn(
-    pair: NetemPair, role: str, base: str, token: str, hz: float, viewer: str = "aiortc"
+    pair: NetemPair,
+    role: str,
+    base: str,
+    token: str,
+    hz: float,
+    viewer: str = "aiortc",
+    rtt_ms: float = 100.0,
 ) -> subprocess.Popen[str]:
     process = "browser" if role == "viewer" and viewer == "browser" else role
+    # Asked again 1.5 round trips after the last ask (the link's jitter on top).
+    renack_ms = 1.5 * max(rtt_ms, 10.0) if viewer == "aiortc" else 0.0
     return subprocess.Popen(
         [*pair.client_prefix, sys.executable, "-m", "bench.wan", "--role", process,
          "--base", base, "--command-hz", str(hz)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "BENCH_WAN_TOKEN": token}, cwd=REPO,
+        env={**os.environ, "BENCH_WAN_TOKEN": token, "BENCH_WAN_RENACK_MS": str(renack_ms)},
+        cwd=REPO,
     )  # fmt: skip
 
 
@@ -575,8 +679,9 @@ def run_profile(
     outage_s: float,
     hz: float,
     viewer: str = "aiortc",
+    rtt_ms: float = 100.0,
 ) -> dict[str, Any]:
-    procs = {role: _spawn(pair, role, base, token, hz, viewer) for role in ROLES}
+    procs = {role: _spawn(pair, role, base, token, hz, viewer, rtt_ms) for role in ROLES}
     try:
         deadline = time.monotonic() + 60
         for role, proc in procs.items():
@@ -724,7 +829,14 @@ def main() -> None:
             dense = measure_link(pair, probes=2000, interval_s=0.001)
             time.sleep(max(0.0, ready_at - time.monotonic()))
             row = run_profile(
-                pair, base, token, args.seconds, args.outage, args.command_hz, args.viewer
+                pair,
+                base,
+                token,
+                args.seconds,
+                args.outage,
+                args.command_hz,
+                args.viewer,
+                rtt_ms=float(link.figures().get("rtt_p50_ms") or 100.0),
             )
             row["viewer"] = args.viewer
             row["link"] = {

@@ -288,3 +288,35 @@ async def test_the_low_layer_is_not_encoded_while_nobody_takes_it() -> None:
         await pc.close()
     finally:
         await pipeline.close()
+
+
+async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None:
+    """After a cut, a receiver asks for packets older than the sender's history: they
+    cannot be resent, so a key frame is sent instead of leaving it to wait."""
+    from types import SimpleNamespace
+
+    from aiortc.rtp import RTCP_RTPFB_NACK, RTP_HISTORY_SIZE, RtcpRtpfbPacket
+
+    from backend.media.pipeline import ViewerLink, follow_link
+
+    asked: list[int] = []
+    handled: list[object] = []
+
+    async def handle(packet: object) -> None:  # aiortc's own handler (resends what it has)
+        handled.append(packet)
+
+    sender = SimpleNamespace(_ssrc=7, _handle_rtcp_packet=handle)
+    kept = {seq % RTP_HISTORY_SIZE: SimpleNamespace(sequence_number=seq) for seq in range(500, 628)}
+    sender._RTCRtpSender__rtp_history = kept
+    sender._send_keyframe = lambda: asked.append(1)
+    link = ViewerLink()
+    follow_link(sender, link)  # type: ignore[arg-type]
+    await sender._handle_rtcp_packet(
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[600, 601])
+    )
+    assert (len(handled), asked, link.nacks_unservable) == (1, [], 0)  # resendable
+    await sender._handle_rtcp_packet(
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[300, 301, 627])
+    )
+    assert (asked, link.nacks_unservable) == ([1], 2)  # 300 and 301 are gone
+    assert link.as_dict()["nacks_unservable"] == 2

@@ -28,7 +28,16 @@ from aiortc import (
     RTCRtpSender,
     RTCSessionDescription,
 )
-from aiortc.rtp import RTCP_PSFB_APP, RtcpPsfbPacket, RtcpRrPacket, RtcpSrPacket, unpack_remb_fci
+from aiortc.rtp import (
+    RTCP_PSFB_APP,
+    RTCP_RTPFB_NACK,
+    RTP_HISTORY_SIZE,
+    RtcpPsfbPacket,
+    RtcpRrPacket,
+    RtcpRtpfbPacket,
+    RtcpSrPacket,
+    unpack_remb_fci,
+)
 
 from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from backend.media.fanout import Broadcaster, SharedVideoTrack
@@ -117,6 +126,9 @@ class ViewerLink:
     packets_lost: int | None = None  # cumulative
     rtt_s: float | None = None
     reports: int = 0
+    # NACKed packets the sender no longer had (older than its history): their frames
+    # can only be replaced, so each such NACK asks for a key frame.
+    nacks_unservable: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -125,6 +137,7 @@ class ViewerLink:
             "packets_lost": self.packets_lost,
             "rtt_ms": None if self.rtt_s is None else self.rtt_s * 1000,
             "reports": self.reports,
+            "nacks_unservable": self.nacks_unservable,
         }
 
 
@@ -147,6 +160,21 @@ def follow_link(sender: RTCRtpSender, link: ViewerLink) -> None:
                 bitrate, ssrcs = unpack_remb_fci(packet.fci)
                 if sender._ssrc in ssrcs:
                     link.estimated_bps = bitrate
+        elif isinstance(packet, RtcpRtpfbPacket) and packet.fmt == RTCP_RTPFB_NACK:
+            # After a cut or a burst of loss the receiver asks for packets older than
+            # the sender's history: nothing can resend them, and a receiver would wait
+            # seconds for its next periodic key frame (or its own give-up). Send one now
+            # (the fan-out gate shares it and spaces them out).
+            history = getattr(sender, "_RTCRtpSender__rtp_history", None)
+            if history is not None:
+                gone = [
+                    seq
+                    for seq in packet.lost
+                    if getattr(history.get(seq % RTP_HISTORY_SIZE), "sequence_number", None) != seq
+                ]
+                if gone:
+                    link.nacks_unservable += len(gone)
+                    sender._send_keyframe()
 
     sender._handle_rtcp_packet = on_rtcp  # type: ignore[method-assign]
 
