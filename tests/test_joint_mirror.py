@@ -100,9 +100,12 @@ def test_replies_that_never_come_make_it_align_again_rather_than_grow() -> None:
     class Sending(FakeLink):
         seq = 0
 
-        def joints(self, dq: list[float]) -> int:
+        def next_seq(self) -> int:
             self.seq += 1
             return self.seq
+
+        def joints(self, dq: list[float], seq: int) -> int:
+            return seq
 
     mir = JointMirror(SimLeader(SO101), Sending(), SO101.joint_names)  # type: ignore[arg-type]
     mir.flags = m.StateFlags.YOU_HAVE_CONTROL
@@ -111,6 +114,18 @@ def test_replies_that_never_come_make_it_align_again_rather_than_grow() -> None:
         mir._commanded = mir._follower.copy()  # always something to send
         mir.tick()
     assert len(mir._sent) == 0 and not mir.following  # cleared at the bound
+
+
+def test_an_arm_stopped_by_the_server_is_aligned_again() -> None:
+    mir = mirror(align_rad=0.15)
+    follower = SO101.pose("ready")
+    leader = follower + 0.1
+    mir._sent = {3: np.full(6, 0.01)}
+    assert mir.step(leader, follower) is not None and mir.following
+    # The dead-man stopped it short: at rest, away from the record.
+    assert mir.step(leader, follower - 0.3, at_rest=True) is None
+    assert not mir.following and mir._sent == {}
+    assert mir.status.startswith("align the leader")
 
 
 def test_a_leader_of_another_arm_is_refused() -> None:

@@ -423,6 +423,31 @@ def test_calibration_refuses_a_range_across_the_wrap() -> None:
         recorder.solve()
 
 
+@pytest.mark.parametrize(
+    ("change", "why"),
+    [
+        ({"zero_steps": float("nan")}, "is not a position"),
+        ({"zero_steps": 5000}, "is not a position"),
+        ({"id": 300}, "is not a bus id"),
+        ({"direction": 2}, "is not \\+1 or -1"),
+    ],
+)
+def test_a_calibration_file_with_impossible_values_is_refused(
+    tmp_path: Path, change: dict[str, object], why: str
+) -> None:
+    doc = TRUE_CAL.to_json()
+    doc["joints"]["elbow_flex"].update(change)
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DeviceError, match=why):
+        So101Calibration.load(path, NAMES)
+    doc = TRUE_CAL.to_json()
+    doc["joints"]["gripper"]["id"] = 1  # the pan's servo twice
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DeviceError, match="the same servo"):
+        So101Calibration.load(path, NAMES)
+
+
 def test_calibration_maps_angles_to_steps_and_back() -> None:
     q = np.array([0.5, -1.0, 1.2, -1.5, 2.5, 1.0])
     steps = TRUE_CAL.to_steps(q)
@@ -497,6 +522,54 @@ async def test_a_blocked_joint_ends_the_move_where_it_stopped(link: BusLink) -> 
     assert arm.status is RobotStatus.READY
     assert arm.joints[5] == pytest.approx(before, abs=STEP_RAD)
     assert arm.reads - reads >= SETTLE_READS
+    # The goal it never reached is withdrawn: freed, the servo stays where it stopped.
+    link.servo(6).blocked = False
+    await asyncio.sleep(0.3)
+    assert arm.joints[5] == pytest.approx(before, abs=2 * STEP_RAD)
+    await arm.disconnect()
+
+
+async def test_a_fault_is_not_lost_when_the_event_loop_is_late(link: BusLink) -> None:
+    """The poller faults the arm while the loop is busy and more readings follow: the
+    fault is kept apart from them, and no goal goes out meanwhile."""
+    arm = await ready_arm(link)
+    link.servo(2).error = ErrorBit.OVERLOAD
+    time.sleep(0.05)  # noqa: ASYNC251  (the event loop held on purpose: ten readings come)
+    link.servo(2).error = 0
+    time.sleep(0.05)  # noqa: ASYNC251  (and more without the fault)
+    with pytest.raises(DeviceError, match="overload"):
+        await arm.move_joints(np.array([0.3, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
+    await asyncio.sleep(0.05)
+    assert arm.status is RobotStatus.ERROR and "overload" in arm.status_message
+    await arm.disconnect()
+
+
+async def test_a_stop_is_not_overtaken_by_a_goal_still_waiting_for_the_bus(link: BusLink) -> None:
+    arm = await ready_arm(link)
+    await arm.move_joints(np.array([1.5, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
+    await until(lambda: arm.snapshot().velocities[0] > 1.0)
+    bus = arm._bus
+    assert bus is not None
+    far = np.array([-1.5, -0.6, 0.6, 1.2, 0.0, 0.5])
+    with bus.lock:  # a read in flight: the next goal waits in the slot
+        await arm.move_joints(far, relative=False)
+        at_stop = arm.joints[0]
+        stopping = asyncio.ensure_future(arm.stop())  # its brake waits for the bus too
+        await asyncio.sleep(0.01)
+    await stopping
+    await arm.wait_idle(timeout=3)
+    await asyncio.sleep(0.2)
+    # Braked on its way to 1.5, never sent back toward -1.5: the waiting goal was dropped.
+    assert arm.joints[0] >= at_stop - 2 * STEP_RAD
+    far_steps = TRUE_CAL.to_steps(far)[0]
+    assert abs(link.servo(1).u16(Register.GOAL_POSITION) - far_steps) > 100
+    # The rule itself, without the race: a brake drops the goal waiting in the slot.
+    with arm._goal_lock:
+        arm._goal_out = (b"not sent", time.monotonic())
+    reading = arm._latest
+    assert reading is not None
+    arm._brake(bus, reading.servos)
+    assert arm._goal_out is None
     await arm.disconnect()
 
 

@@ -128,6 +128,13 @@ class JointMirror:
             self.last_error = reply.text
             log.warning("server: %s", reply.text)
 
+    def _forget(self) -> None:
+        """Not following: the record, the increments in flight and their replies go."""
+        self._commanded = None
+        with self._lock:
+            self._sent.clear()
+            self._taken_back = np.zeros_like(self._taken_back)
+
     @property
     def has_control(self) -> bool:
         return bool(self.flags & m.StateFlags.YOU_HAVE_CONTROL)
@@ -151,6 +158,10 @@ class JointMirror:
             taken_back, self._taken_back = self._taken_back, np.zeros_like(self._taken_back)
         if self._commanded is not None:
             self._commanded = self._commanded - taken_back  # what the server did not apply
+            if at_rest and np.abs(follower - self._commanded).max() > self.settings.align_rad:
+                # The arm came to rest away from the record: the server stopped it (a
+                # dead-man, an e-stop, a limit). Align again from where it is.
+                self._forget()
         if self._commanded is None and not at_rest:
             self.status = "waiting for the arm to come to rest"
             return None
@@ -181,18 +192,22 @@ class JointMirror:
             follower = None if self._follower is None else self._follower.copy()
             at_rest = self._at_rest
         if not self.has_control:
-            self._commanded = None  # taken away or not yet given: align again after
+            if self._commanded is not None:
+                self._forget()  # taken away: align again when it comes back
             self.status = "waiting for control" if follower is not None else self.status
             dq = None
         else:
             dq = self.step(leader, follower, at_rest)
         if dq is not None:
+            seq = self.link.next_seq()
             with self._lock:  # recorded before the reply can come back
-                seq = self.link.joints(dq.tolist())
                 self._sent[seq] = dq
-                if len(self._sent) > MAX_IN_FLIGHT:  # replies lost: align again
-                    self._sent.clear()
-                    self._commanded = None
+                lost = len(self._sent) > MAX_IN_FLIGHT
+            if lost:  # replies lost: the record is not the server's, align again
+                self._forget()
+            else:
+                # Sent outside the lock: the link's reader needs it to hand replies over.
+                self.link.joints(dq.tolist(), seq)
             self.commands_sent += 1
             self._last_heartbeat = now
         elif now - self._last_heartbeat >= self.settings.heartbeat_s:

@@ -174,9 +174,14 @@ class PriorityLink:
         self._send(m.encode(m.CART_INC, seq, time.monotonic(), int(frame), *dX, *rotvec))
         return seq
 
-    def joints(self, dq: Sequence[float]) -> int:
+    def next_seq(self) -> int:
+        """A seq for a command about to be sent (so its reply can be expected first)."""
+        with self._send_lock:
+            return self._next()
+
+    def joints(self, dq: Sequence[float], seq: int | None = None) -> int:
         """A joint increment (rad), one per joint of the arm; returns its seq."""
-        seq = self._next()
+        seq = self.next_seq() if seq is None else seq
         self._send(m.encode(m.JOINT_INC, seq, time.monotonic(), joints=dq))
         return seq
 

@@ -98,6 +98,7 @@ class UrdfKinematics(PinocchioKinematics):
         # How far the tool can be from the first joint: the sum of the links between
         # the joints that move it (a bound, so a pose past it is refused at once).
         chain = [j for j in model.supports[flange.parentJoint] if j > 0]
+        self._carries_tool = np.array([j in chain for j in range(1, model.njoints)])
         offsets = [model.jointPlacements[j].translation for j in chain[1:]]
         last = model.frames[self._tool_id].placement.translation
         self._shoulder = model.jointPlacements[chain[0]].translation.copy()
@@ -132,6 +133,8 @@ class UrdfKinematics(PinocchioKinematics):
             if self.last_residual[0] <= self.position_tol_m:
                 break
             best_q, best = q, self.last_residual
+            # Joints that do not carry the tool (a gripper) keep the seed's value.
+            start = np.where(self._carries_tool, start, q)
             q, more = self._solve(target, start)
             it += more
             if self.last_residual[0] > best[0]:

@@ -279,6 +279,7 @@ class So101Arm(ModelArm):
         self._latest: _Reading | None = None
         self._handover_pending = threading.Event()
         self._faulted = threading.Event()  # the poller stopped the arm for a fault
+        self._fault: TelerobotError | None = None  # what it was, until the next connect
         self._raw = np.zeros(self.dof)
         self._velocity = np.zeros(self.dof)
         self._goal_steps: list[int] | None = None
@@ -419,6 +420,7 @@ class So101Arm(ModelArm):
         await asyncio.to_thread(self._handshake, self._bus)
         self._loop = asyncio.get_running_loop()
         self._faulted.clear()
+        self._fault = None
         self._latest = None
         self.reads = 0
         first = await asyncio.to_thread(self._read_once, self._bus, MissCounter(self.ids, 1), 0)
@@ -530,12 +532,13 @@ class So101Arm(ModelArm):
             ]
         fault: TelerobotError | None = None
         if faults and not self._faulted.is_set():
-            self._faulted.set()
-            self._brake(bus, servos)
             fault = DeviceError(
                 "; ".join(faults) + ". The arm was stopped: the other servos hold it where "
                 "it is. Reconnect and initialise it when fixed."
             )
+            self._fault = fault  # sticky: a later reading must not hide it
+            self._faulted.set()
+            self._brake(bus, servos)
         self.reads += 1
         if self.reads == 1:
             self.reads_started = time.monotonic()
@@ -555,26 +558,37 @@ class So101Arm(ModelArm):
                 try:
                     reading = self._read_once(bus, misses, seq)
                 except TelerobotError as exc:
-                    if not self._poller_stop.is_set():
-                        self._latest = _Reading(seq, self.clock.now(), {}, exc)
-                        self._hand_over()
+                    self._stopped_by(exc, seq)
                     return
                 self._latest = reading
                 self._hand_over()
                 seq += 1
                 next_at = max(next_at + self.poll_period_s, time.monotonic())
         except TelerobotError as exc:  # a goal could not be written
-            if not self._poller_stop.is_set():
-                self._latest = _Reading(seq, self.clock.now(), {}, exc)
-                self._hand_over()
+            self._stopped_by(exc, seq)
+        except Exception as exc:  # a bug must not end the reads unsaid: the arm faults
+            log.exception("the SO-101's bus reader failed")
+            self._stopped_by(DeviceError(f"the SO-101's bus reader failed: {exc}"), seq)
+
+    def _stopped_by(self, exc: TelerobotError, seq: int) -> None:
+        """The reader ends for ``exc``: no goal goes out any more, the arm faults."""
+        if self._poller_stop.is_set():
+            return
+        self._fault = self._fault or exc
+        self._faulted.set()
+        self._latest = _Reading(seq, self.clock.now(), {}, exc)
+        self._hand_over()
 
     def _write_goal(self, bus: FeetechPort) -> None:
+        # Under the goal lock, taken and written as one: a brake (which takes the lock
+        # too) is never overtaken by a goal taken before it.
         with self._goal_lock:
             out, self._goal_out = self._goal_out, None
-        if out is not None:
+            if out is None or self._faulted.is_set():
+                return
             packet, taken = out
             bus.transact(packet, [])  # a failure stops the poller: the arm faults
-            self.goal_to_bus_s.append(time.monotonic() - taken)
+        self.goal_to_bus_s.append(time.monotonic() - taken)
 
     def _hand_over(self) -> None:
         """Wake the event loop for the newest reading (once, however many came)."""
@@ -614,9 +628,12 @@ class So101Arm(ModelArm):
         return ft.sync_write(GOAL_ADDRESS, GOAL_LENGTH, data)
 
     def _brake(self, bus: FeetechPort, servos: Mapping[int, ServoStatus]) -> dict[int, int]:
+        """Stop where the servos can: any goal still waiting is dropped, not sent after."""
         goals = self._brake_goals(servos)
         top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
-        bus.transact(self._goal_packet(goals, dict.fromkeys(goals, top)), [])
+        with self._goal_lock:
+            self._goal_out = None
+            bus.transact(self._goal_packet(goals, dict.fromkeys(goals, top)), [])
         return goals
 
     # ------------------------------------------------------------ on the event loop
@@ -637,9 +654,11 @@ class So101Arm(ModelArm):
             return
         if reading.servos:
             self._take(reading)
-        if reading.fault is not None:
-            self._goal_steps = None
-            self._fail(reading.fault)
+        fault = self._fault
+        if fault is not None:  # whichever reading this is: the fault is kept apart
+            if not self.status_is(RobotStatus.ERROR):
+                self._goal_steps = None
+                self._fail(fault)
             return
         if not self.status_is(RobotStatus.MOVING) or self._goal_steps is None:
             return
@@ -656,6 +675,15 @@ class So101Arm(ModelArm):
             for i, g in zip(cal.ids, self._goal_steps, strict=True)
         )
         if arrived or self._at_rest_reads >= SETTLE_READS:
+            if not arrived:  # held short (blocked): the goal must not stay live
+                here = {i: reading.servos[i].position_steps for i in cal.ids}
+                top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
+                with self._goal_lock:
+                    self._goal_out = (
+                        self._goal_packet(here, dict.fromkeys(here, top)),
+                        time.monotonic(),
+                    )
+                self._wake.set()
             self._goal_steps = None
             self._motion_finished()
 
@@ -692,6 +720,7 @@ class So101Arm(ModelArm):
         bus.transact(ft.sync_write(Register.TORQUE_ENABLE, 1, on), [])
         bus.transact(ft.sync_write(Register.LOCK, 1, on), [])
         self._faulted.clear()
+        self._fault = None
 
     def _write_checked(self, bus: FeetechPort, servo_id: int, address: int, data: bytes) -> None:
         reply = bus.transact(ft.write(servo_id, address, data), [servo_id])
@@ -755,12 +784,11 @@ class So101Arm(ModelArm):
         one read transaction: ``goal_to_bus_s``): taken now, as a controller takes a
         set point for its next cycle. A goal still waiting when a newer one comes is
         replaced (newest wins). Without a poller (not yet reading), written here."""
+        if self._fault is not None:
+            raise self._fault
         poller = self._poller
         if poller is None or not poller.is_alive():
-            if self._latest is not None and self._latest.fault is not None:
-                raise self._latest.fault
-            await asyncio.to_thread(bus.transact, packet, [])
-            return
+            raise DeviceError("the SO-101's bus reader is not running: reconnect the arm")
         with self._goal_lock:
             self._goal_out = (packet, time.monotonic())
         self._wake.set()

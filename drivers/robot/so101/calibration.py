@@ -80,10 +80,16 @@ class JointCalibration:
         direction = int(doc["direction"])
         if direction not in (1, -1):
             raise ValueError(f"direction {direction} is not +1 or -1")
+        servo = int(doc["id"])
+        if not 0 <= servo <= ft.MAX_ID:
+            raise ValueError(f"servo id {servo} is not a bus id (0…{ft.MAX_ID})")
+        zero = float(doc["zero_steps"])
+        if not (math.isfinite(zero) and 0 <= zero < ft.STEPS_PER_TURN):
+            raise ValueError(f"zero_steps {zero} is not a position (0…{ft.STEPS_PER_TURN - 1})")
         offset = doc.get("homing_offset")
         return cls(
-            id=int(doc["id"]),
-            zero_steps=float(doc["zero_steps"]),
+            id=servo,
+            zero_steps=zero,
             direction=direction,
             homing_offset=None if offset is None else int(offset),
         )
@@ -162,11 +168,11 @@ class So101Calibration:
         missing = [n for n in joint_names if n not in joints]
         if missing:
             raise ValueError(f"no calibration for {', '.join(missing)}")
-        return cls(
-            tuple(joint_names),
-            tuple(JointCalibration.from_json(joints[n]) for n in joint_names),
-            float(doc.get("created", 0.0)),
-        )
+        calibrated = tuple(JointCalibration.from_json(joints[n]) for n in joint_names)
+        ids = [j.id for j in calibrated]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"two joints name the same servo (ids {ids})")
+        return cls(tuple(joint_names), calibrated, float(doc.get("created", 0.0)))
 
     def save(self, path: Path) -> None:
         """Write atomically: a crash mid-write leaves the previous file."""

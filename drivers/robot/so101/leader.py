@@ -121,7 +121,9 @@ class So101Leader:
             raise DeviceError(f"the leader's {names} stopped answering")
         previous = self._last or [0.0] * len(ids)
         steps = [
-            float(ft.u16(replies[i].params)) if i in answered else previous[k]
+            float(ft.decode_signed(ft.u16(replies[i].params), 15))  # as the follower reads it
+            if i in answered
+            else previous[k]
             for k, i in enumerate(ids)
         ]
         if self._last is None and len(answered) < len(ids):
