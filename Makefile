@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-web screenshots lint typecheck unit browser-deps turn-deps web web-check bench clean types
+.PHONY: run test test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
@@ -29,7 +29,7 @@ run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser included)
-test: $(STAMP) browser-deps turn-deps lint typecheck web-check web unit
+test: $(STAMP) browser-deps turn-deps media-server-deps lint typecheck web-check web unit
 
 ## make test-web: only the browser tests (the operator page with live video, the status page)
 test-web: $(STAMP) browser-deps web
@@ -69,6 +69,13 @@ turn-deps:
 	@command -v turnserver >/dev/null 2>&1 || { \
 	  echo "installing Debian's coturn for the TURN tests"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq coturn >/dev/null; }
+
+# Debian's Janus for the media-server tests (backend/media/janus.py starts its own, with
+# a generated configuration; the package's system service stays off).
+media-server-deps:
+	@command -v janus >/dev/null 2>&1 || { \
+	  echo "installing Debian's janus for the media-server tests"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends janus >/dev/null; }
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.kinematics

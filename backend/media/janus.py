@@ -1,0 +1,269 @@
+"""Janus as the media server that fans the one encoded stream out to many viewers
+(issue 18, the groundwork): the process started and supervised with a generated
+configuration, the streaming plugin's RTP mountpoint fed with the same H.264 packets
+the encoder already makes (no second encode), and the viewer's side of its HTTP API.
+
+Janus 1.1.2 (Debian's) facts this relies on (docs of the streaming plugin and the REST
+API; checked here): it is configured by a folder of ``.jcfg`` files (``-F``); plugins
+and transports are turned off by a ``disable`` list; the HTTP API binds to 127.0.0.1
+with the admin API off; a mountpoint of type "rtp" listens for H.264 RTP on a UDP port
+and counts a packet as a key frame only if it carries an SPS (our encoder repeats
+SPS/PPS before each IDR); a viewer ``watch``es, gets Janus's SDP offer by long poll and
+``start``s with its answer. A session ends 60 s after its last request (seen here;
+keepalives hold it) and holds a viewer until destroyed: whoever creates one destroys it.
+
+Not yet done (issue 18 continues): the media worker feeding it, the server's
+signalling endpoint sending observers there, supervision and restarts by the server.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+import socket
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from drivers.base import DeviceError, DriverUnavailable
+
+JANUS = "janus"
+LIBS = Path("/usr/lib/x86_64-linux-gnu/janus")
+OTHER_PLUGINS = (
+    "audiobridge duktape echotest lua nosip recordplay sip textroom videocall videoroom voicemail"
+)
+OTHER_TRANSPORTS = "mqtt nanomsg pfunix rabbitmq websockets"
+MOUNTPOINT = 1
+H264_FMTP = "profile-level-id=42e01f;packetization-mode=1"
+READY_TIMEOUT_S = 10.0
+
+
+@dataclass(frozen=True)
+class JanusSettings:
+    http_port: int  # its HTTP API, on 127.0.0.1
+    rtp_port: int  # where the robot's H.264 RTP goes, on 127.0.0.1
+    secret: str  # the mountpoint's secret (its full info, its viewer count)
+    rtp_ports: tuple[int, int] = (20000, 20999)  # its WebRTC side
+
+    @property
+    def api(self) -> str:
+        return f"http://127.0.0.1:{self.http_port}/janus"
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def _disable(names: str) -> str:
+    return ",".join(f"libjanus_{n}.so" for n in names.split())
+
+
+def write_config(folder: Path, settings: JanusSettings) -> None:
+    """The three ``.jcfg`` files: the core, the HTTP transport, the streaming plugin."""
+    folder.mkdir(parents=True, exist_ok=True)
+    lo, hi = settings.rtp_ports
+    (folder / "janus.jcfg").write_text(
+        f"""general: {{
+  configs_folder = "{folder}"
+  plugins_folder = "{LIBS / "plugins"}"
+  transports_folder = "{LIBS / "transports"}"
+  events_folder = "{LIBS / "events"}"
+  loggers_folder = "{LIBS / "loggers"}"
+  debug_level = 4
+  debug_colors = false
+  server_name = "telerobot-janus"
+}}
+certificates: {{ }}
+media: {{ rtp_port_range = "{lo}-{hi}" }}
+nat: {{ ignore_mdns = true }}
+plugins: {{ disable = "{_disable(OTHER_PLUGINS)}" }}
+transports: {{ disable = "{_disable(OTHER_TRANSPORTS)}" }}
+loggers: {{ disable = "libjanus_jsonlog.so" }}
+events: {{ broadcast = false }}
+"""
+    )
+    (folder / "janus.transport.http.jcfg").write_text(
+        f"""general: {{ json = "compact"; base_path = "/janus"; http = true;
+  port = {settings.http_port}; ip = "127.0.0.1"; https = false }}
+admin: {{ admin_http = false; admin_https = false }}
+"""
+    )
+    (folder / "janus.plugin.streaming.jcfg").write_text(
+        f"""general: {{ events = false }}
+robot-stereo: {{
+  type = "rtp"
+  id = {MOUNTPOINT}
+  description = "Telerobot stereo H.264"
+  audio = false
+  video = true
+  videoport = {settings.rtp_port}
+  videoiface = "127.0.0.1"
+  videopt = 96
+  videocodec = "h264"
+  videofmtp = "{H264_FMTP}"
+  secret = "{settings.secret}"
+}}
+"""
+    )
+
+
+class JanusProcess:
+    """Janus started with a generated configuration in a folder of its own, ready when
+    its HTTP API answers; ``stop`` ends it (SIGINT: it says "Bye!")."""
+
+    def __init__(self, settings: JanusSettings) -> None:
+        self.settings = settings
+        self._dir: tempfile.TemporaryDirectory[str] | None = None
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.log: Path | None = None
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def start(self) -> JanusProcess:
+        exe = shutil.which(JANUS)
+        if exe is None:
+            raise DriverUnavailable(
+                "the media server mode needs Janus: apt-get install janus (make test installs it)"
+            )
+        self._dir = tempfile.TemporaryDirectory(prefix="telerobot-janus-")
+        folder = Path(self._dir.name)
+        write_config(folder / "conf", self.settings)
+        self.log = folder / "janus.log"
+        with self.log.open("wb") as out:
+            self.proc = subprocess.Popen(
+                [exe, "-F", str(folder / "conf"), "-o"], stdout=out, stderr=subprocess.STDOUT
+            )
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while True:
+            if not self.alive:
+                raise DeviceError(f"janus exited at start:\n{self.log.read_text()[-2000:]}")
+            with contextlib.suppress(httpx.HTTPError):
+                if httpx.get(self.settings.api + "/info", timeout=1).status_code == 200:
+                    return self
+            if time.monotonic() > deadline:
+                self.stop()
+                raise DeviceError(f"janus did not answer within {READY_TIMEOUT_S:g} s")
+            time.sleep(0.05)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(2)  # SIGINT: a clean exit
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._dir is not None:
+            self._dir.cleanup()
+            self._dir = None
+
+    def __enter__(self) -> JanusProcess:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class JanusViewer:
+    """One viewer's session on the streaming plugin (HTTP API): ``watch`` gives Janus's
+    SDP offer, ``start`` takes the answer, ``close`` destroys the session (1.1.2 never
+    times one out)."""
+
+    def __init__(self, api: str, timeout_s: float = 10.0) -> None:
+        self.api = api
+        self.http = httpx.Client(timeout=timeout_s + 5)
+        self.timeout_s = timeout_s
+        self._n = 0
+        self.session = self._post(api, {"janus": "create"})["data"]["id"]
+        url = f"{api}/{self.session}"
+        self.handle = self._post(url, {"janus": "attach", "plugin": "janus.plugin.streaming"})[
+            "data"
+        ]["id"]
+
+    def _post(self, url: str, body: dict[str, Any]) -> dict[str, Any]:
+        self._n += 1
+        reply: dict[str, Any] = self.http.post(
+            url, json={**body, "transaction": str(self._n)}
+        ).json()
+        if reply.get("janus") == "error":
+            raise DeviceError(f"janus: {reply.get('error', {}).get('reason', reply)}")
+        return reply
+
+    def message(self, body: dict[str, Any], jsep: dict[str, Any] | None = None) -> dict[str, Any]:
+        payload: dict[str, Any] = {"janus": "message", "body": body}
+        if jsep is not None:
+            payload["jsep"] = jsep
+        return self._post(f"{self.api}/{self.session}/{self.handle}", payload)
+
+    def watch(self, mountpoint: int = MOUNTPOINT) -> dict[str, Any]:
+        """Janus's SDP offer for the mountpoint (``{"type": "offer", "sdp": …}``)."""
+        self.message({"request": "watch", "id": mountpoint})
+        deadline = time.monotonic() + self.timeout_s
+        while time.monotonic() < deadline:
+            events = self.http.get(f"{self.api}/{self.session}?maxev=5").json()
+            for event in events if isinstance(events, list) else [events]:
+                if "jsep" in event:
+                    jsep: dict[str, Any] = event["jsep"]
+                    return jsep
+        raise DeviceError(f"janus sent no offer within {self.timeout_s:g} s")
+
+    def start(self, answer_sdp: str) -> None:
+        # aiortc puts its candidates in the answer: no trickle to wait for.
+        self.message({"request": "start"}, {"type": "answer", "sdp": answer_sdp, "trickle": False})
+
+    def info(self, secret: str, mountpoint: int = MOUNTPOINT) -> dict[str, Any]:
+        reply = self.message({"request": "info", "id": mountpoint, "secret": secret})
+        info: dict[str, Any] = reply["plugindata"]["data"]["info"]
+        return info
+
+    def close(self) -> None:
+        with contextlib.suppress(httpx.HTTPError, DeviceError, json.JSONDecodeError):
+            self._post(f"{self.api}/{self.session}", {"janus": "destroy"})
+        self.http.close()
+
+
+class RtpFeed:
+    """The encoder's H.264 packets as RTP to the mountpoint's port: packetised as aiortc
+    packetises them for a peer (single NAL, STAP-A, FU-A), never encoded again."""
+
+    def __init__(self, port: int, ssrc: int = 0x7E1E) -> None:
+        from aiortc.codecs.h264 import H264Encoder  # its packetiser only
+
+        self._packetiser = H264Encoder()
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._to = ("127.0.0.1", port)
+        self._seq = 0
+        self.ssrc = ssrc
+        self.packets = 0
+
+    def send(self, packet: Any) -> None:
+        """One encoded access unit (an ``av.Packet`` with its pts and time base)."""
+        from aiortc.rtp import RtpPacket
+
+        payloads, timestamp = self._packetiser.pack(packet)
+        for i, payload in enumerate(payloads):
+            rtp = RtpPacket(
+                payload_type=96,
+                sequence_number=self._seq & 0xFFFF,
+                timestamp=timestamp,
+                ssrc=self.ssrc,
+                payload=payload,
+            )
+            rtp.marker = int(i == len(payloads) - 1)
+            self._sock.sendto(rtp.serialize(), self._to)
+            self._seq += 1
+            self.packets += 1
+
+    def close(self) -> None:
+        self._sock.close()
