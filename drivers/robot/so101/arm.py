@@ -226,6 +226,44 @@ class FeetechPort:
         return got
 
 
+def open_bus(port: str, baudrate: int, reply_timeout: float) -> tuple[serial.Serial, FeetechPort]:
+    """The servo bus on ``port`` (a device, a pty, socket://host:port); blocking."""
+    try:
+        link = serial.serial_for_url(
+            port, baudrate=baudrate, timeout=min(0.005, reply_timeout), write_timeout=1.0
+        )
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise DeviceError(f"cannot open the servo bus {port!r}: {exc}") from None
+    # socket://: pyserial leaves Nagle on, and a goal written just before a read
+    # would then wait for the peer's delayed ACK (40 ms), past the reply timeout.
+    sock = getattr(link, "_socket", None)
+    if isinstance(sock, socket.socket):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return link, FeetechPort(link, port, reply_timeout)
+
+
+def identify_servos(bus: FeetechPort, cal: So101Calibration, port: str) -> None:
+    """PING each servo and read its model number: a silent one, or one that is not an
+    STS3215, is named (``DeviceError``); blocking."""
+    silent = [i for i in cal.ids if i not in bus.transact(ft.ping(i), [i])]
+    if silent:
+        names = ", ".join(cal.label(i) for i in silent)
+        verb = "does" if len(silent) == 1 else "do"
+        raise DeviceError(
+            f"{names} {verb} not answer on {port!r}: check its power and "
+            "cable, and that its id is set"
+        )
+    for i in cal.ids:
+        reply = bus.transact(ft.read(i, Register.MODEL_NUMBER, 2), [i])
+        if i not in reply or len(reply[i].params) != 2:
+            raise DeviceError(f"{cal.label(i)} did not send its model number")
+        model = ft.u16(reply[i].params)
+        if model != ft.STS3215_MODEL:
+            raise DeviceError(
+                f"{cal.label(i)} is a servo of model {model}, not an STS3215 ({ft.STS3215_MODEL})"
+            )
+
+
 class So101Arm(ModelArm):
     name = "so101"
 
@@ -401,29 +439,17 @@ class So101Arm(ModelArm):
     async def _open(self) -> None:
         if self.calibration_path is not None:
             self.calibration = So101Calibration.load(self.calibration_path, self.model.joint_names)
-        try:
-            self._serial = await asyncio.to_thread(
-                serial.serial_for_url,
-                self.port_name,
-                baudrate=self.baudrate,
-                timeout=min(0.005, self.reply_timeout),
-                write_timeout=1.0,
-            )
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open the servo bus {self.port_name!r}: {exc}") from None
-        # socket://: pyserial leaves Nagle on, and a goal written just before a read
-        # would then wait for the peer's delayed ACK (40 ms), past the reply timeout.
-        sock = getattr(self._serial, "_socket", None)
-        if isinstance(sock, socket.socket):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._bus = FeetechPort(self._serial, self.port_name, self.reply_timeout)
-        await asyncio.to_thread(self._handshake, self._bus)
+        self._serial, bus = await asyncio.to_thread(
+            open_bus, self.port_name, self.baudrate, self.reply_timeout
+        )
+        self._bus = bus
+        await asyncio.to_thread(self._handshake, bus)
         self._loop = asyncio.get_running_loop()
         self._faulted.clear()
         self._fault = None
         self._latest = None
         self.reads = 0
-        first = await asyncio.to_thread(self._read_once, self._bus, MissCounter(self.ids, 1), 0)
+        first = await asyncio.to_thread(self._read_once, bus, MissCounter(self.ids, 1), 0)
         if first.fault is not None:
             raise first.fault
         silent = [i for i, s in first.servos.items() if s.missed_reads]
@@ -438,26 +464,10 @@ class So101Arm(ModelArm):
         self._poller.start()
 
     def _handshake(self, bus: FeetechPort) -> None:
-        """PING each servo and read its model number (blocking: in a thread)."""
+        """The servos identified, then the homing offsets checked (blocking: a thread)."""
         cal = self._cal
-        silent = [i for i in cal.ids if i not in bus.transact(ft.ping(i), [i])]
-        if silent:
-            names = ", ".join(cal.label(i) for i in silent)
-            verb = "does" if len(silent) == 1 else "do"
-            raise DeviceError(
-                f"{names} {verb} not answer on {self.port_name!r}: check its power and "
-                "cable, and that its id is set"
-            )
+        identify_servos(bus, cal, self.port_name)
         for joint in cal.joints:
-            reply = bus.transact(ft.read(joint.id, Register.MODEL_NUMBER, 2), [joint.id])
-            if joint.id not in reply or len(reply[joint.id].params) != 2:
-                raise DeviceError(f"{cal.label(joint.id)} did not send its model number")
-            model = ft.u16(reply[joint.id].params)
-            if model != ft.STS3215_MODEL:
-                raise DeviceError(
-                    f"{cal.label(joint.id)} is a servo of model {model}, not an STS3215 "
-                    f"({ft.STS3215_MODEL})"
-                )
             if joint.homing_offset is not None:
                 offset = self._read_u16(bus, joint.id, Register.HOMING_OFFSET)
                 held = ft.decode_signed(offset, ft.SIGN_BITS[Register.HOMING_OFFSET])

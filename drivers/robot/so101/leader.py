@@ -13,8 +13,6 @@ stops the follower.
 
 from __future__ import annotations
 
-import os
-import socket
 from pathlib import Path
 from typing import Self
 
@@ -24,7 +22,13 @@ import serial
 from drivers.base import DeviceError, FloatArray
 from drivers.robot.models import RobotModel
 from drivers.robot.so101 import feetech as ft
-from drivers.robot.so101.arm import FeetechPort, MissCounter
+from drivers.robot.so101.arm import (
+    FeetechPort,
+    MissCounter,
+    default_calibration_path,
+    identify_servos,
+    open_bus,
+)
 from drivers.robot.so101.calibration import So101Calibration
 from drivers.robot.so101.feetech import Register
 
@@ -34,8 +38,8 @@ REPLY_TIMEOUT_S = 0.02
 
 
 def default_leader_calibration() -> Path:
-    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-    return Path(base) / "telerobot" / LEADER_CALIBRATION_FILE
+    """Beside the follower's, in the state folder."""
+    return default_calibration_path({}).with_name(LEADER_CALIBRATION_FILE)
 
 
 class So101Leader:
@@ -76,29 +80,14 @@ class So101Leader:
         return cls(port, cal, baudrate=baudrate)
 
     def open(self) -> None:
+        self._serial, bus = open_bus(self.port_name, self.baudrate, self.reply_timeout)
+        self._bus = bus
         try:
-            self._serial = serial.serial_for_url(
-                self.port_name, baudrate=self.baudrate, timeout=0.005, write_timeout=1.0
-            )
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open the leader's bus {self.port_name!r}: {exc}") from None
-        sock = getattr(self._serial, "_socket", None)  # socket://: no Nagle delay
-        if isinstance(sock, socket.socket):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        bus = self._bus = FeetechPort(self._serial, self.port_name, self.reply_timeout)
-        cal = self.calibration
-        for i in cal.ids:
-            reply = bus.transact(ft.read(i, Register.MODEL_NUMBER, 2), [i])
-            if i not in reply or len(reply[i].params) != 2:
-                self.close()
-                raise DeviceError(
-                    f"the leader's {cal.label(i)} does not answer on {self.port_name!r}: "
-                    "check its power and cable"
-                )
-            if ft.u16(reply[i].params) != ft.STS3215_MODEL:
-                self.close()
-                raise DeviceError(f"the leader's {cal.label(i)} is not an STS3215")
-            # Torque off: the operator moves the leader by hand.
+            identify_servos(bus, self.calibration, self.port_name)
+        except DeviceError as exc:
+            self.close()
+            raise DeviceError(f"the leader: {exc}") from None
+        for i in self.calibration.ids:  # torque off: the operator moves it by hand
             bus.transact(ft.write(i, Register.TORQUE_ENABLE, b"\x00"), [i])
 
     def close(self) -> None:
