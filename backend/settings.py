@@ -120,7 +120,10 @@ class Settings(BaseSettings):
     # freeze detector: paced key frames arrive up to ~0.1 s late), which it does not
     # without; bench.wan measured the gain for forces on `mobile` (docs/PERFORMANCE.md).
     video_pacing: bool = False
-    keyframe_interval_s: float = Field(2.0, gt=0.0, le=60.0)
+    # Seconds between periodic keyframes; 0 (the default): only when asked (a new viewer,
+    # a PLI, a lost packet the sender no longer holds, a recording every 2 s). Each
+    # periodic one is a burst that queues the forces behind it on a narrow link.
+    keyframe_interval_s: float = Field(0.0, ge=0.0, le=600.0)
     # STUN/TURN for the page and the server's peers (backend/media/ice.py): "stun:host:port",
     # "turn:user:pass@host:port", or "turn:host:port[?transport=tcp]" with credentials
     # minted per peer from turn_secret (coturn: use-auth-secret, static-auth-secret)

@@ -729,6 +729,22 @@ def run_profile(
     }
 
 
+def emulator_figures(before: Any, after: Any) -> dict[str, Any]:
+    """What the user-space forwarder did during one profile's run, per direction: frames
+    in / lost / out, those its rule queued for > 250 ms (the link's own queue) and those
+    it sent more than 5 ms late (CPU the machine did not give it: the machine's share
+    of a figure, not the link's). Empty with the netem backend."""
+    if not before or not after:
+        return {}
+    figures: dict[str, Any] = {}
+    for direction, counts in after.items():
+        was = before.get(direction, {})
+        figures[direction] = {
+            k: v if k.endswith("_max_us") else v - was.get(k, 0) for k, v in counts.items()
+        }
+    return figures
+
+
 def dense_figures(dense: Any) -> dict[str, Any]:
     """One-way figures of a 1 kHz UDP stream, server → client (the forces' direction)."""
     down = [(r - e) * 1000 for _, e, r in dense.answered.values()]
@@ -828,6 +844,7 @@ def main() -> None:
             # one-way delay is the floor for any force transport.
             dense = measure_link(pair, probes=2000, interval_s=0.001)
             time.sleep(max(0.0, ready_at - time.monotonic()))
+            counted = pair.forwarder_counters()
             row = run_profile(
                 pair,
                 base,
@@ -839,6 +856,7 @@ def main() -> None:
                 rtt_ms=float(link.figures().get("rtt_p50_ms") or 100.0),
             )
             row["viewer"] = args.viewer
+            row["emulator"] = emulator_figures(counted, pair.forwarder_counters())
             row["link"] = {
                 "profile": name,
                 "backend": pair.backend or "none",

@@ -38,7 +38,7 @@ W, H = 320, 180
 
 
 def _frame(keyframe: bool, seq: int = 0, data: bytes = b"\x00\x00\x00\x01\x65xx") -> EncodedFrame:
-    return EncodedFrame(data, keyframe, len(data), 1.0 + seq, seq, 1.0)
+    return EncodedFrame(data, keyframe, len(data), 1.0 + seq / 30, seq, 1.0)  # at 30 fps
 
 
 def test_the_wire_format_round_trips() -> None:
@@ -91,6 +91,26 @@ def test_the_hand_over_is_bounded_drops_counts_and_resumes_on_a_keyframe() -> No
         time.sleep(0.001)
     got = [unpack(m) for m in sent]
     assert [(p.seq, p.keyframe, p.dropped) for p in got] == [(1, True, 0), (8, True, 5)]
+    pipe.close()
+
+
+def test_a_recording_asks_for_a_keyframe_every_two_seconds_of_video() -> None:
+    """The encoder makes none unless asked: a recording without them could only be
+    played from its start."""
+    asked: list[int] = []
+    pipe = PacketPipe(lambda _: None, lambda: asked.append(seq), limit=1000)
+    for recording in range(2):
+        pipe.restart()
+        asked.clear()
+        pending = False
+        start = recording * 1000
+        for seq in range(start, start + 32 * 5):  # 5 s at 32 fps (exact in binary)
+            key, pending = seq == start or pending, False  # asked: the next frame is one
+            size = len(asked)
+            pipe.push(EncodedFrame(b"", key, 0, seq / 32, seq, 1.0))
+            pending = len(asked) > size
+        # 64 frames (2 s) after each keyframe; a new recording counts from its own first
+        assert asked == [start + 64, start + 129], recording
     pipe.close()
 
 

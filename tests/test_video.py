@@ -284,3 +284,23 @@ def test_the_simulated_cameras_can_hold_up_a_charuco_board_for_calibration() -> 
             assert found is not None and len(found[0]) > 20, view  # most corners, both eyes
     cam.show_board(None)
     assert detect(cv2.cvtColor(cam.render(0.0), cv2.COLOR_RGB2GRAY)[:, :w], BoardSpec()) is None
+
+
+def test_keyframes_come_only_when_asked_unless_an_interval_is_set() -> None:
+    """A periodic keyframe is a burst of tens of frames' bytes that queues everything
+    behind it on a narrow link: by default there are none."""
+    from backend.media.encoder import H264Encoder, Vp8Encoder
+    from drivers.base import StereoFrame
+
+    rng = np.random.default_rng(1)
+    for codec in (H264Encoder, Vp8Encoder):
+        for interval, want in ((0.0, [0, 45]), (1.0, [0, 30, 45, 75])):
+            enc = codec(320, 180, 30.0, 500_000, keyframe_interval=interval)
+            keys = []
+            for i in range(90):
+                if i == 45:
+                    enc.request_keyframe()  # a new viewer, a PLI
+                picture = rng.integers(0, 255, (180, 640, 3), np.uint8)
+                if any(e.keyframe for e in enc.encode(StereoFrame(i, i / 30, picture))):
+                    keys.append(i)
+            assert keys == want, (codec.codec, interval)

@@ -2,8 +2,12 @@
 
 Low-latency settings: ``ultrafast`` preset, ``zerolatency`` tune (no lookahead, no
 frame threads' delay), no B-frames, a VBV cap so a keyframe cannot flood the link, a
-keyframe every ``keyframe_interval`` seconds and whenever a viewer asks (a new peer,
-a PLI). The level is chosen for the frame size (2560×720 needs level 4.0, beyond the
+keyframe whenever someone asks (a new peer, a PLI, a NACK the sender cannot serve, a
+recording) and, if ``keyframe_interval`` > 0, every that many seconds too. None
+periodic by default, as libwebrtc sends none: a keyframe is tens of frames' bytes in
+one burst, and on a narrow link (4 Mbit/s) each periodic one queued everything behind
+it, the forces included, for ~250 ms (docs/PERFORMANCE.md, "Key frames only when
+asked"). The level is chosen for the frame size (2560×720 needs level 4.0, beyond the
 3.1 WebRTC stacks default to). Timestamps come from the capture time (90 kHz).
 """
 
@@ -62,7 +66,7 @@ class PacketEncoder:
         height: int,
         fps: float,
         bitrate: int,
-        keyframe_interval: float = 2.0,
+        keyframe_interval: float = 0.0,  # s; 0: only when asked
         cbr: bool = False,
     ) -> None:
         self.width, self.height, self.fps, self.bitrate = width, height, fps, bitrate
@@ -73,14 +77,16 @@ class PacketEncoder:
         ctx.time_base = Fraction(1, VIDEO_CLOCK)
         ctx.framerate = Fraction(round(fps * 1000), 1000)
         ctx.bit_rate = bitrate
-        ctx.options = self.options(max(1, round(keyframe_interval * fps)))
+        periodic = keyframe_interval > 0
+        ctx.options = self.options(max(1, round(keyframe_interval * fps)) if periodic else None)
         ctx.open()
         self.ctx = ctx
         self._keyframe = threading.Event()
         self._keyframe.set()  # the first frame is one anyway
         self.frames = 0
 
-    def options(self, keyint: int) -> dict[str, str]:
+    def options(self, keyint: int | None) -> dict[str, str]:
+        """The FFmpeg options; ``keyint``: frames between periodic keyframes (None: none)."""
         raise NotImplementedError
 
     def request_keyframe(self) -> None:
@@ -118,7 +124,7 @@ class PacketEncoder:
 class H264Encoder(PacketEncoder):
     codec, library = "H264", "libx264"
 
-    def options(self, keyint: int) -> dict[str, str]:
+    def options(self, keyint: int | None) -> dict[str, str]:
         kbps = self.bitrate // 1000
         # VBV: at most ~4 frames' worth of bits in flight, so a keyframe stays bounded.
         bufsize = max(kbps // max(1, round(self.fps)) * 4, 1)
@@ -127,11 +133,14 @@ class H264Encoder(PacketEncoder):
             "tune": "zerolatency",
             "profile": "baseline",
             "level": h264_level(self.width, self.height, self.fps),
-            "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:scenecut=0:"
+            "x264-params": (
+                f"keyint={keyint}:min-keyint={keyint}:" if keyint else "keyint=infinite:"
+            )
+            + "bframes=0:scenecut=0:"
             f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1"
             # Constant bitrate: filler data tops every second up to the bitrate (a fixed
             # link budget, and the load the force-under-video benchmark needs).
-            + (":nal-hrd=cbr:filler=1" if self.cbr else ""),
+             + (":nal-hrd=cbr:filler=1" if self.cbr else ""),
         }
 
 
@@ -140,14 +149,15 @@ class Vp8Encoder(PacketEncoder):
 
     codec, library = "VP8", "libvpx"
 
-    def options(self, keyint: int) -> dict[str, str]:
+    def options(self, keyint: int | None) -> dict[str, str]:
         return {
             "deadline": "realtime",
             "cpu-used": "8",
             "lag-in-frames": "0",
             "error-resilient": "1",
             "auto-alt-ref": "0",
-            "g": str(keyint),
+            # libvpx's kf_max_dist; with no periodic keyframe, as far as it goes
+            "g": str(keyint or 2**31 - 1),
         }
 
 

@@ -107,7 +107,7 @@ PACE_MAX_LOSS = 0.05  # a viewer's link losing this much is not paced (_layer_bp
 class VideoSettings:
     fps: float = 30.0
     bitrate: int = 8_000_000
-    keyframe_interval: float = 2.0
+    keyframe_interval: float = 0.0  # s between periodic keyframes; 0: only when asked
     cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
     low_scale: float = LOW_SCALE  # the low layer's size, of each side
     low_bitrate: int = LOW_BITRATE

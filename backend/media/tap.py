@@ -7,6 +7,10 @@ of its own drains into the pipe. When the queue is full its packets are dropped 
 counted, and the next packet handed over is a keyframe (one is asked for), so the
 recording loses a stretch of video but never holds a frame it cannot decode.
 
+The encoder makes keyframes only when asked (backend/media/encoder.py), so while a
+recording runs the tap asks for one every ``RECORDING_KEYFRAME_S`` of capture time: a
+player seeks to the keyframe before a point and decodes from there.
+
 Wire format, one ``send_bytes`` per packet: ``HEADER`` (keyframe, capture time on the
 monotonic clock, frame seq, packets dropped so far) then the Annex B access unit.
 """
@@ -29,6 +33,7 @@ HEADER = struct.Struct("<?dqQ")
 # Packets the worker holds for the server: ~2 s at 30 fps. A keyframe is ~100 kB at
 # the default 8 Mbit/s, so the queue holds at most a few MB.
 TAP_QUEUE = 64
+RECORDING_KEYFRAME_S = 2.0  # the longest stretch a player must decode to seek
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,7 @@ class PacketPipe:
         self._cond = threading.Condition()
         self._closed = False
         self._waiting_for_keyframe = True
+        self._last_keyframe: float | None = None  # capture time; None: none recorded yet
         self.sent = 0
         self.dropped = 0
         self._thread = threading.Thread(target=self._drain, name="video-tap", daemon=True)
@@ -75,6 +81,7 @@ class PacketPipe:
     def restart(self) -> None:
         with self._cond:
             self._waiting_for_keyframe = True
+            self._last_keyframe = None
             self.sent = self.dropped = 0
 
     def push(self, e: EncodedFrame) -> None:
@@ -82,6 +89,11 @@ class PacketPipe:
             if not e.keyframe:
                 return  # a recording starts (and resumes after a drop) on a keyframe
             self._waiting_for_keyframe = False
+        if e.keyframe or self._last_keyframe is None:
+            self._last_keyframe = e.capture_time
+        elif e.capture_time - self._last_keyframe >= RECORDING_KEYFRAME_S:
+            self._last_keyframe = e.capture_time  # asked once a stretch (the gate spaces them)
+            self._request_keyframe()
         with self._cond:
             if len(self._queue) >= self.limit:
                 self.dropped += len(self._queue) + 1
