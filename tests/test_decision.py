@@ -141,6 +141,39 @@ async def test_dead_man_stops_motion_within_200_ms_and_keeps_the_lease_for_its_g
     ticker.cancel()
 
 
+async def test_a_slow_links_lease_grace_covers_the_reconnection(clock: ManualClock) -> None:
+    """A synced client whose commands take 120 ms to arrive keeps the lease 6 one-way
+    trips longer (2.72 s, the time a resume takes to reach us after its link is back);
+    the extension is bounded, and an unsynced client keeps the plain grace."""
+    ds, _ = await make(clock)
+    a = ds.join("alice", TOKEN, synced_clock=True)
+    await ds.take_lease(a.id)
+    ticker = asyncio.create_task(_tick_forever(ds, clock))
+    for _ in range(40):  # a steady 120 ms link
+        await ds.cartesian_increment(
+            a.id, np.array([1e-4, 0, 0]), np.zeros(3), client_time=clock.now() - 0.12
+        )
+        ds.seen(a.id)
+        t_quiet = clock.now()  # the last heartbeat
+        await clock.advance(0.02)
+    grace = ds.lease_grace(a)
+    assert grace == pytest.approx(ds.limits.lease_grace_s + 6 * 0.12, abs=1e-6)
+    await clock.advance(ds.limits.deadman_timeout_s + ds.limits.lease_grace_s + 0.3)
+    assert ds.lease_holder == a.id and ds.state().halted  # past the plain grace: kept
+    while ds.lease_holder is not None:
+        await clock.advance(0.005)
+    lapsed = clock.now() - t_quiet
+    assert (
+        ds.limits.deadman_timeout_s + grace <= lapsed <= ds.limits.deadman_timeout_s + grace + 0.05
+    )
+    ticker.cancel()
+    a.transit_avg = 0.9  # a backlog of seconds: the extension stops at 1 s
+    assert ds.lease_grace(a) == ds.limits.lease_grace_s + 1.0
+    b = ds.join("bob", TOKEN)  # its client_time is not on our clock: its transit says
+    b.transit_avg = 0.2  # nothing of the link (the clocks' offset is in it)
+    assert ds.lease_grace(b) == ds.limits.lease_grace_s
+
+
 async def test_after_a_stall_the_lease_is_kept_and_only_a_fresh_command_moves(
     clock: ManualClock,
 ) -> None:

@@ -320,3 +320,23 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
     )
     assert (asked, link.nacks_unservable) == ([1], 2)  # 300 and 301 are gone
     assert link.as_dict()["nacks_unservable"] == 2
+    # The receiver asks again for the same gap: the key frame asked for (it goes out
+    # after packet 627) replaces those packets, so nothing more is asked.
+    await sender._handle_rtcp_packet(
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[300, 301])
+    )
+    assert (asked, link.nacks_superseded) == ([1], 2)
+    # Later packets lost and gone too (sent after it, at 65535 and across the wrap):
+    # a key frame again.
+    sender._RTCRtpSender__rtp_history = {
+        seq % RTP_HISTORY_SIZE: SimpleNamespace(sequence_number=seq % 65536)
+        for seq in range(65500, 65628)
+    }
+    await sender._handle_rtcp_packet(
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[700])
+    )
+    assert (asked, link.nacks_unservable, link.keyframe_covers_through) == ([1, 1], 3, 91)
+    await sender._handle_rtcp_packet(
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[65400, 65450])
+    )
+    assert (asked, link.nacks_superseded) == ([1, 1], 4)  # both sent before 91 (the wrap)

@@ -83,6 +83,15 @@ RESUME_KEY_BYTES = 24  # a resume key: 192 bits, given once, to the connection t
 # floor a stale command is measured against rises this much per second, so a drift of
 # its clock behind ours is never taken for a delay.
 TRANSIT_DRIFT = 2e-4
+# A lease holder on a slow link gets its grace lengthened by the time a resume takes
+# to reach us once its link is back: ~5 one-way trips (TCP's handshake, the WebSocket
+# upgrade, HELLO), 6 with a margin, at its commands' usual transit time. On `mobile`
+# (one-way ~120 ms) a 1.5 s cut plus a reconnection ran past a fixed 2 s; the arm is
+# stopped all along, so only who may take control over waits longer. Bounded, so a
+# cut of the grace plus a second still releases the lease on any link.
+RECONNECT_ONE_WAYS = 6
+MAX_GRACE_EXTENSION_S = 1.0
+TRANSIT_SMOOTHING = 0.1  # the usual transit: an exponential average of each command's
 
 
 class Role(StrEnum):
@@ -111,6 +120,7 @@ class Client:
     # beyond it is how long it waited on the way (a stalled link's backlog).
     transit_floor: float | None = None
     transit_floor_at: float = 0.0
+    transit_avg: float | None = None  # the usual transit, on our clock (synced clients)
     source: str = "ws"  # where it joined: ws, priority, rest, task (the recording says)
     # Its client_time is on our clock (it syncs with PING): its commands' age is known.
     synced_clock: bool = False
@@ -444,6 +454,15 @@ class DecisionServer:
         self.events.lease_changed.emit(self._lease)
         self.events.safety_changed.emit(self.state())
 
+    def lease_grace(self, client: Client) -> float:
+        """How long past the dead-man's stop ``client`` keeps the lease: the setting,
+        plus the time a resume takes on its link (``RECONNECT_ONE_WAYS`` of its usual
+        transit, known for a client on our clock), at most ``MAX_GRACE_EXTENSION_S``."""
+        extra = 0.0
+        if client.synced_clock and client.transit_avg is not None:
+            extra = min(MAX_GRACE_EXTENSION_S, RECONNECT_ONE_WAYS * max(0.0, client.transit_avg))
+        return self.limits.lease_grace_s + extra
+
     def deadman_limit(self, client: Client) -> float:
         """How long ``client`` may be silent holding the lease: the dead-man's limit,
         or a scripted lease's idle timeout while its arm is not being jogged."""
@@ -485,21 +504,22 @@ class DecisionServer:
         else:
             self._deferred = False
             scripted = limit != self.limits.deadman_timeout_s
-            if scripted or silent > limit + self.limits.lease_grace_s:
+            grace = self.lease_grace(holder)
+            if scripted or silent > limit + grace:
                 await self._lapse(
                     f"dead-man: no heartbeat from {holder.name!r} for {silent * 1000:.0f} ms"
                     f" (the limit is {limit * 1000:.0f} ms"
-                    + ("" if scripted else f", then {self.limits.lease_grace_s:g} s of grace")
+                    + ("" if scripted else f", then {grace:.2g} s of grace")
                     + ")"
                 )
             elif not self._halted:
                 self._halted = True
                 self.deadman_halts += 1
                 log.info(
-                    "dead-man: arm stopped, %s silent for %.0f ms; lease kept %g s",
+                    "dead-man: arm stopped, %s silent for %.0f ms; lease kept %.2g s",
                     holder.name,
                     silent * 1000,
-                    self.limits.lease_grace_s,
+                    grace,
                 )
                 await self.robot.stop()
                 self.events.safety_changed.emit(self.state())
@@ -617,6 +637,8 @@ class DecisionServer:
             if not math.isfinite(client_time):
                 raise InvalidCommand("a command without a valid send time (client_time)")
             age = now - client_time
+            avg = client.transit_avg
+            client.transit_avg = age if avg is None else avg + TRANSIT_SMOOTHING * (age - avg)
             limit = self.limits.max_command_age_s
             if age > limit:
                 client.stale_dropped += 1
