@@ -111,11 +111,19 @@ def _get_json(base: str, path: str) -> Any:
         return {"error": repr(exc)}
 
 
-def keyframe_skipping_buffer(give_up_s: float) -> Any:
+# While it waits for a key frame, libwebrtc's receiver asks again this often (its
+# max_wait_for_keyframe): the server sends key frames only when asked, so a lost
+# request must not leave the picture frozen.
+KEYFRAME_REASK_S = 0.2
+
+
+def keyframe_skipping_buffer(
+    give_up_s: float, reask_s: float = KEYFRAME_REASK_S, clock: Any = time.monotonic
+) -> Any:
     """aiortc's video jitter buffer, which waits at a missing packet until 512 more have
     come (seconds), made to give up as libwebrtc does: a gap the NACKs did not fill
     within ``give_up_s`` is skipped to the next key frame already received (and a key
-    frame is asked for, once a gap, if none has come)."""
+    frame is asked for, again every ``reask_s`` until one has come)."""
     from aiortc.jitterbuffer import JitterBuffer
 
     def key_frame_start(packet: Any) -> bool:
@@ -126,13 +134,13 @@ def keyframe_skipping_buffer(give_up_s: float) -> Any:
         def __init__(self) -> None:
             super().__init__(capacity=512, is_video=True)
             self.gap_since: float | None = None
-            self.asked = False
+            self.asked_at: float | None = None
             self.skips = 0
 
         def add(self, packet: Any) -> tuple[bool, Any]:
             pli, frame = super().add(packet)
             if frame is not None or self._origin is None:
-                self.gap_since, self.asked = None, False
+                self.gap_since, self.asked_at = None, None
                 return pli, frame
             newest = (packet.sequence_number - self._origin) % 65536
             slots = [
@@ -141,7 +149,7 @@ def keyframe_skipping_buffer(give_up_s: float) -> Any:
             ]
             if all(p is not None for p in slots):
                 return pli, frame  # a frame still arriving, no gap
-            now = time.monotonic()
+            now = clock()
             if self.gap_since is None:
                 self.gap_since = now
                 return pli, frame
@@ -153,10 +161,11 @@ def keyframe_skipping_buffer(give_up_s: float) -> Any:
                 if p is not None and key_frame_start(p):
                     self.remove(count)
                     self.skips += 1
-                    self.gap_since, self.asked = None, False
+                    self.gap_since, self.asked_at = None, None
                     return pli, self._remove_frame(p.sequence_number)
-            ask = not self.asked
-            self.asked = True
+            ask = self.asked_at is None or now - self.asked_at >= reask_s
+            if ask:
+                self.asked_at = now
             return pli or ask, frame
 
     return Skipping()

@@ -1,6 +1,7 @@
 """bench.wan's aiortc viewer gives up on a gap as libwebrtc does: after the NACKs had
-their chance it skips to the next key frame received, and asks for one (once) if none
-has come. Fake clock-free timing: a give-up of 0 s."""
+their chance it skips to the next key frame received, and asks for one if none has
+come, again every 0.2 s while none comes (the server sends key frames only when asked).
+An injected clock; a give-up of 0 s."""
 
 from __future__ import annotations
 
@@ -15,12 +16,17 @@ def packet(seq: int, timestamp: int, key: bool = False) -> RtpPacket:
     return p
 
 
-def test_a_gap_is_skipped_to_the_next_key_frame_and_one_is_asked_for_once() -> None:
-    buffer = keyframe_skipping_buffer(0.0)
+def test_a_gap_is_skipped_to_the_next_key_frame_asked_for_until_it_comes() -> None:
+    now = [0.0]
+    buffer = keyframe_skipping_buffer(0.0, reask_s=0.2, clock=lambda: now[0])
     for seq, ts in [(0, 1), (1, 1), (2, 2), (3, 2)]:  # frame 1 comes out, frame 2 waits
         buffer.add(packet(seq, ts, key=seq == 0))
     asks = [buffer.add(packet(seq, 3))[0] for seq in (6, 7, 8)]  # 4 and 5 lost for good
     assert asks == [False, True, False]  # the gap noticed, then one key frame asked for
+    now[0] = 0.19
+    assert not buffer.add(packet(12, 5))[0]
+    now[0] = 0.2  # that request was lost, or its answer: ask again
+    assert buffer.add(packet(13, 5))[0]
     _, frame = buffer.add(packet(9, 4, key=True))
     assert buffer.skips == 1 and frame is None  # skipped to the key frame's start
     _, frame = buffer.add(packet(10, 5))

@@ -156,7 +156,7 @@ def seq_newer(a: int, b: int) -> bool:
 
 def newest_sent(history: dict[int, Any]) -> int | None:
     """The newest sequence number in aiortc's RTP history (128 packets, all close)."""
-    seqs = [p.sequence_number for p in history.values()]
+    seqs: list[int] = [p.sequence_number for p in history.values()]
     if not seqs:
         return None
     return max(seqs, key=lambda s: (s - seqs[0] + 32768) % 65536)
