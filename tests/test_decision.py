@@ -141,6 +141,27 @@ async def test_dead_man_stops_motion_within_200_ms_and_keeps_the_lease_for_its_g
     ticker.cancel()
 
 
+async def test_a_command_that_ages_past_the_limit_waiting_for_the_driver_is_dropped(
+    clock: ManualClock,
+) -> None:
+    """Fresh (240 ms) when it arrives, 260 ms when the driver is free: dropped there."""
+    ds, robot = await make(clock)
+    a = ds.join("alice", TOKEN, synced_clock=True)
+    await ds.take_lease(a.id)
+    before = len(robot.sent)
+    async with ds._lock:  # another command's move in flight
+        pending = asyncio.create_task(
+            ds.cartesian_increment(
+                a.id, np.array([1e-4, 0, 0]), np.zeros(3), client_time=clock.now() - 0.24
+            )
+        )
+        await asyncio.sleep(0)  # it passes the first check and waits for the lock
+        await clock.advance(0.02)
+    with pytest.raises(SafetyStop, match="stale command: sent 260 ms ago"):
+        await pending
+    assert len(robot.sent) == before and a.stale_dropped == 1
+
+
 async def test_a_slow_links_lease_grace_covers_the_reconnection(clock: ManualClock) -> None:
     """A synced client whose commands take 120 ms to arrive keeps the lease 6 one-way
     trips longer (2.72 s, the time a resume takes to reach us after its link is back);

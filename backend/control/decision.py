@@ -623,6 +623,19 @@ class DecisionServer:
         contact = self.robot.pose.rotation @ np.array(self._contact_sensor)
         return float(moved @ contact) < 0.0
 
+    def _check_age(self, client: Client, client_time: float | None, now: float) -> None:
+        """A synced client's command older than ``max_command_age_s`` is dropped."""
+        if not client.synced_clock or client_time is None:
+            return
+        age, limit = now - client_time, self.limits.max_command_age_s
+        if age > limit:
+            client.stale_dropped += 1
+            self.stale_dropped += 1
+            raise SafetyStop(
+                f"stale command: sent {age * 1000:.0f} ms ago, older than the "
+                f"{limit * 1000:.0f} ms limit; dropped ({client.stale_dropped} so far)"
+            )
+
     def _check_fresh(self, client: Client, client_time: float | None) -> None:
         """Refuse an increment that waited on the way longer than the dead-man's limit
         (sent before a stall, read after it): motion resumes only on fresh commands.
@@ -639,14 +652,7 @@ class DecisionServer:
             age = now - client_time
             avg = client.transit_avg
             client.transit_avg = age if avg is None else avg + TRANSIT_SMOOTHING * (age - avg)
-            limit = self.limits.max_command_age_s
-            if age > limit:
-                client.stale_dropped += 1
-                self.stale_dropped += 1
-                raise SafetyStop(
-                    f"stale command: sent {age * 1000:.0f} ms ago, older than the "
-                    f"{limit * 1000:.0f} ms limit; dropped ({client.stale_dropped} so far)"
-                )
+            self._check_age(client, client_time, now)
         if client_time is None or not math.isfinite(client_time):
             return
         transit = now - client_time
@@ -814,6 +820,10 @@ class DecisionServer:
         async with self._lock:
             if self.robot.status not in (RobotStatus.READY, RobotStatus.MOVING):
                 raise NotReady(f"robot is {self.robot.status}: initialise it first")
+            # Again as it goes to the driver: the IK and a wait for the lock (another
+            # command's move in flight) came after the first check. bench.wan saw one
+            # command taken 250.2 ms old.
+            self._check_age(client, client_time, self.clock.now())
             target = await self.robot.move_joints(q, relative=False)
             now = self.clock.now()
         client.last_command_at = now
