@@ -742,7 +742,8 @@ def emulator_figures(before: Any, after: Any) -> dict[str, Any]:
     """What the user-space forwarder did during one profile's run, per direction: frames
     in / lost / out, those its rule queued for > 250 ms (the link's own queue) and those
     it sent more than 5 ms late (CPU the machine did not give it: the machine's share
-    of a figure, not the link's). Empty with the netem backend."""
+    of a figure, not the link's), and ``late_max_us``, the largest lateness since the
+    emulator started. Empty with the netem backend."""
     if not before or not after:
         return {}
     figures: dict[str, Any] = {}
