@@ -46,6 +46,8 @@ figures leave out the outage and the second after it (what is still queued after
 that second, e.g. a TCP stream waiting for its retransmission timer, stays in);
 ``before_outage`` has the same figures from the first half alone, and the outage's
 own figures (video recovery, the backlog's oldest force) are reported beside them.
+``emulator``: what the user-space link emulator itself did in the run (frames its rule
+queued > 250 ms, frames it sent late: see ``emulator_figures``).
 """
 
 from __future__ import annotations
