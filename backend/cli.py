@@ -52,6 +52,9 @@ def _serve(args: argparse.Namespace) -> int:
             auto_initialize=False if args.no_init else None,
             tls=True if args.tls else None,
             state_dir=args.state_dir,
+            media_server=args.media_server,
+            media_server_url=args.media_server_url,
+            media_server_rtp_port=args.media_server_rtp_port,
         )
     except (ValidationError, FileNotFoundError, ValueError) as exc:
         print(f"telerobot: bad settings: {exc}", file=sys.stderr)
@@ -317,6 +320,19 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument(
         "--record", metavar="NAME", help="record from the start (state folder/recordings)"
     )
+    serve.add_argument(
+        "--media-server",
+        choices=("none", "janus"),
+        help="observers watch through a media server (Janus, started and supervised here"
+        " unless --media-server-url): the robot's computer sends the video once",
+    )
+    serve.add_argument(
+        "--media-server-url",
+        metavar="URL",
+        help="a Janus elsewhere: its HTTP API (http://host:8088/janus); its mountpoint's RTP"
+        " port is --media-server-rtp-port (settings: media_server_host, _mountpoint, _secret)",
+    )
+    serve.add_argument("--media-server-rtp-port", type=int, help="its mountpoint's RTP port")
     serve.set_defaults(func=_serve)
 
     recording = sub.add_parser("recording", help="recordings: recover FILE (one with no summary)")
@@ -405,6 +421,8 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    # httpx logs every request at INFO (the media server's API, polled): not news.
+    logging.getLogger("httpx").setLevel(logging.WARNING)
     code: int = args.func(args)
     return code
 

@@ -22,6 +22,8 @@ import numpy as np
 from backend.control.decision import DecisionServer
 from backend.control.limits import SafetyLimits
 from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
+from backend.media.media_server import MediaServerSupervisor
+from backend.media.media_server import resolve as resolve_media_server
 from backend.media.supervisor import MediaSupervisor
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
@@ -138,6 +140,7 @@ class Services:
     hub: RealtimeHub
     priority: PriorityChannel
     media: MediaSupervisor | None
+    media_server: MediaServerSupervisor | None  # observers' video through Janus
     viewer: Viewer3D
     recorder: Recorder
     recording_taps: RecordingTaps
@@ -221,7 +224,12 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         lambda _store: recorder.log("/calibration", calibration_payload(workcell, calibration))
     )
     recorder.events.subscribe(lambda e: _announce_recording(hub, e))
-    media = MediaSupervisor(settings, robot) if settings.video else None
+    media_server = None
+    media_settings = settings
+    if settings.video and settings.media_server != "none":
+        media_settings = resolve_media_server(settings, token.value)
+        media_server = MediaServerSupervisor(media_settings)
+    media = MediaSupervisor(media_settings, robot) if settings.video else None
     if media is not None:  # the video as sent, while a recording runs
         follow_recorder(VideoTap(media), recorder)
     task_runner = TaskRunner(decision, force, clock, operator_token=token.value)
@@ -240,6 +248,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         hub=hub,
         priority=priority,
         media=media,
+        media_server=media_server,
         viewer=build_viewer(settings, workcell, robot, force, calibration.store),
         recorder=recorder,
         recording_taps=RecordingTaps(
@@ -266,7 +275,12 @@ def recording_snapshot(
         # world → camera (R, t): the camera in the base frame is (Rᵀ, −Rᵀ t)
         cams.append(transform("base", f"camera_{cam.name}", cam.R.T, -cam.R.T @ cam.t, wall))
     return [
-        ("/settings", settings.model_dump(mode="json", exclude={"operator_token", "turn_secret"})),
+        (
+            "/settings",
+            settings.model_dump(
+                mode="json", exclude={"operator_token", "turn_secret", "media_server_secret"}
+            ),
+        ),
         ("/calibration", calibration_payload(workcell, calibration)),
         ("/tf", {"transforms": cams}),
     ]
@@ -314,6 +328,8 @@ async def start_services(s: Services) -> None:
     s.recording_taps.start()
     if s.viewer.view is not None:
         s.viewer.view.start()
+    if s.media_server is not None:
+        await s.media_server.start()
     if s.media is not None:
         await s.media.start()
     s.tasks.append(
@@ -334,6 +350,8 @@ async def stop_services(s: Services) -> None:
         await s.viewer.view.stop()
     if s.media is not None:
         await s.media.stop()
+    if s.media_server is not None:
+        await s.media_server.stop()
     await s.priority.stop()
     await s.hub.stop()
     await s.task_runner.stop()

@@ -12,7 +12,7 @@ import math
 import os
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 from pydantic_settings import (
@@ -132,6 +132,24 @@ class Settings(BaseSettings):
     turn_credential_ttl_s: int = Field(3600, ge=60, le=7 * 86400)  # minted credentials' life
     ice_relay_only: bool = False  # video only through TURN (iceTransportPolicy "relay")
     alignment_px: tuple[int, int] = (0, 0)  # default shift of the right image vs the left (x, y)
+    # Observers through a media server (backend/media/relay.py; docs/media-server.md):
+    # "janus" fans the one encoded stream out, so the robot's computer sends it once
+    # whoever watches; the operator keeps the direct path. With media_server_url None
+    # the server starts and supervises Janus itself (HTTP API on 127.0.0.1, ports below,
+    # 0 = any free one); with a URL it uses a Janus elsewhere, whose mountpoint
+    # (media_server_mountpoint) takes RTP on media_server_host:media_server_rtp_port.
+    media_server: Literal["none", "janus"] = "none"
+    media_server_url: str | None = Field(None, pattern=r"^https?://[^\s]+$")
+    media_server_host: str = "127.0.0.1"
+    media_server_rtp_port: int = Field(0, ge=0, le=65535)
+    media_server_rtcp_port: int = Field(0, ge=0, le=65535)  # its PLIs come back from here
+    media_server_http_port: int = Field(0, ge=0, le=65535)
+    media_server_mountpoint: int = Field(1, ge=1)
+    # Janus's WebRTC side (UDP): open these to the viewers
+    media_server_webrtc_ports: tuple[int, int] = (20000, 20999)
+    # The mountpoint's secret; None: derived from the operator token (never sent to a page)
+    media_server_secret: str | None = Field(None, min_length=16, repr=False)
+    media_server_max_viewers: int = Field(500, ge=1, le=100_000)
 
     # Simulated workcell
     # Where the fiducials are (m, robot base), in clicking order; the thesis's affine

@@ -162,3 +162,38 @@ async def open_viewer(base: str, timeout: float = 30.0) -> tuple[Any, Any]:
             raise RuntimeError(f"the server refused the offer: HTTP {r.status_code} {r.text}")
         await pc.setRemoteDescription(RTCSessionDescription(r.json()["sdp"], r.json()["type"]))
     return pc, await asyncio.wait_for(tracks.get(), timeout)
+
+
+async def open_server_offer_viewer(
+    base: str, token: str | None = None, timeout: float = 30.0
+) -> tuple[Any, Any, dict[str, str]]:
+    """An aiortc peer that takes the server's offer (``/webrtc/server-offer``, then
+    ``/webrtc/answer``), as an observer does on a server with a media server (its offer
+    is the media server's) or with ``token`` the operator's direct path. Returns the
+    peer connection, its video track once up, and the peer's id and secret."""
+    import asyncio
+
+    import httpx
+    from aiortc import RTCPeerConnection, RTCSessionDescription
+
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    pc = RTCPeerConnection()
+    tracks: asyncio.Queue[Any] = asyncio.Queue()
+    pc.on("track", tracks.put_nowait)
+    async with httpx.AsyncClient(base_url=base, timeout=timeout, headers=headers) as http:
+        r = await http.post("api/v1/webrtc/server-offer", json={})
+        if r.status_code != 200:
+            await pc.close()
+            raise RuntimeError(f"the server refused to offer: HTTP {r.status_code} {r.text}")
+        offer = r.json()
+        await pc.setRemoteDescription(RTCSessionDescription(offer["sdp"], offer["type"]))
+        await pc.setLocalDescription(await pc.createAnswer())
+        peer = {"peer_id": offer["peer_id"], "peer_secret": offer["peer_secret"]}
+        r = await http.post(
+            "api/v1/webrtc/answer",
+            json={"sdp": pc.localDescription.sdp, "type": "answer", **peer},
+        )
+        if r.status_code != 200:
+            await pc.close()
+            raise RuntimeError(f"the server refused the answer: HTTP {r.status_code} {r.text}")
+    return pc, await asyncio.wait_for(tracks.get(), timeout), peer

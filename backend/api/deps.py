@@ -16,6 +16,7 @@ from fastapi.requests import HTTPConnection
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from backend.control.decision import Client, DecisionServer, NotAllowed
+from backend.media.media_server import MediaServerSupervisor
 from backend.media.supervisor import MediaSupervisor, MediaUnavailable
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
@@ -94,6 +95,10 @@ def _media(s: ServicesDep) -> MediaSupervisor:
     return s.media
 
 
+def _media_server(s: ServicesDep) -> MediaServerSupervisor | None:
+    return s.media_server
+
+
 SettingsDep = Annotated[Settings, Depends(_settings)]
 RobotDep = Annotated[Robot, Depends(_robot)]
 WorkcellDep = Annotated[Workcell, Depends(_workcell)]
@@ -108,6 +113,7 @@ AlignmentsDep = Annotated[Alignments, Depends(_alignments)]
 ViewerDep = Annotated[Viewer3D, Depends(_viewer)]
 MediaOrNoneDep = Annotated[MediaSupervisor | None, Depends(_media_or_none)]
 MediaDep = Annotated[MediaSupervisor, Depends(_media)]
+MediaServerDep = Annotated[MediaServerSupervisor | None, Depends(_media_server)]
 
 
 def bearer_token(authorization: Annotated[str | None, Header()] = None) -> str | None:

@@ -6,6 +6,12 @@ Each peer belongs to the viewer that opened it: its offer's reply carries a
 ``peer_secret``, needed to answer a server offer, to close the peer (header
 ``X-Peer-Secret``; the operator token closes any) and to save that viewer's alignment.
 Peer ids are listed only to the operator.
+
+With a media server (``--media-server janus``) observers watch through it: their
+``/webrtc/server-offer`` is the media server's offer (peer ids ``relay-…``), answered,
+closed and secured the same way, and ``/webrtc/offer`` (the browser offering) tells them
+to use the server's offer instead. The operator (its token) keeps the direct path.
+``GET /video`` says which path the caller gets (``path``).
 """
 
 from __future__ import annotations
@@ -21,12 +27,16 @@ from backend.api.deps import (
     DecisionDep,
     MediaDep,
     MediaOrNoneDep,
+    MediaServerDep,
     SettingsDep,
     bearer_token,
 )
 from backend.api.requests import StrictRequest
+from backend.media.media_server import MediaServerSupervisor
 from backend.media.pipeline import NotYourPeer
+from backend.media.relay import RELAY_PREFIX
 from backend.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaUnavailable
+from drivers.base import TelerobotError
 
 router = APIRouter(tags=["video"])
 
@@ -82,6 +92,24 @@ class VideoStatus(BaseModel):
     layout: str = "side-by-side: left eye in the left half"
     stats: dict[str, Any] | None
     error: str | None = Field(None, description="why there are no stats right now")
+    path: Literal["direct", "relay"] = Field(
+        "direct",
+        description="how this caller's video comes: 'direct' from the robot's server, or"
+        " 'relay' through the media server (negotiate with /webrtc/server-offer then)",
+    )
+    media_server: dict[str, Any] | None = Field(
+        None, description="the media server's state (kind, state, restarts), if there is one"
+    )
+
+
+class UseServerOffer(TelerobotError):
+    code = "use_server_offer"
+    http_status = 409
+
+
+def relayed(media_server: MediaServerSupervisor | None, operator: bool) -> bool:
+    """Whether this caller watches through the media server (observers, when there is one)."""
+    return media_server is not None and not operator
 
 
 class IceServerEntry(BaseModel):
@@ -140,9 +168,17 @@ async def ice_configuration(settings: SettingsDep, response: Response) -> IceCon
 
 
 @router.post("/webrtc/offer")
-async def offer(body: Offer, media: MediaDep) -> PeerDescription:
+async def offer(
+    body: Offer, media: MediaDep, media_server: MediaServerDep, operator: OperatorOrNot
+) -> PeerDescription:
     """Send the browser's offer (with a recvonly video transceiver); get the answer.
-    ICE candidates are in the SDP (no trickle). Keep ``peer_secret``."""
+    ICE candidates are in the SDP (no trickle). Keep ``peer_secret``. (An observer on a
+    server with a media server gets 409 ``use_server_offer``.)"""
+    if relayed(media_server, operator):
+        raise UseServerOffer(
+            "observers watch through this server's media server, which makes the offer:"
+            " POST /api/v1/webrtc/server-offer, then /api/v1/webrtc/answer"
+        )
     reply = await media.request("answer", sdp=body.sdp, type=body.type, layer=body.layer)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
@@ -150,18 +186,29 @@ async def offer(body: Offer, media: MediaDep) -> PeerDescription:
 @router.post("/webrtc/server-offer")
 async def server_offer(
     media: MediaDep,
+    media_server: MediaServerDep,
+    operator: OperatorOrNot,
     layer: Annotated[
         Literal["auto", "full", "low"], Query(description="as for /webrtc/offer")
     ] = "auto",
 ) -> PeerDescription:
     """For browsers that need the server to offer: answer it with /webrtc/answer (with
-    the ``peer_secret``) within a few seconds, or the offer is dropped."""
-    reply = await media.request("offer", layer=layer)
+    the ``peer_secret``) within a few seconds, or the offer is dropped. An observer on a
+    server with a media server gets the media server's offer (the full layer)."""
+    if relayed(media_server, operator):
+        reply = await media.request("relay_offer")
+    else:
+        reply = await media.request("offer", layer=layer)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/answer")
 async def answer(body: Answer, media: MediaDep) -> dict[str, str]:
+    if body.peer_id.startswith(RELAY_PREFIX):
+        await media.request(
+            "relay_accept", peer_id=body.peer_id, sdp=body.sdp, peer_secret=body.peer_secret
+        )
+        return {"peer_id": body.peer_id}
     await media.request(
         "accept",
         peer_id=body.peer_id,
@@ -181,7 +228,7 @@ async def close_peer(
 ) -> dict[str, str]:
     """Close your own peer (header ``X-Peer-Secret``), or any (the operator token)."""
     await media.request(
-        "close_peer",
+        "relay_close" if peer_id.startswith(RELAY_PREFIX) else "close_peer",
         peer_id=peer_id,
         peer_secret=x_peer_secret,
         operator=operator,
@@ -191,7 +238,10 @@ async def close_peer(
 
 @router.get("/video")
 async def video_status(
-    media: MediaOrNoneDep, settings: SettingsDep, operator: OperatorOrNot
+    media: MediaOrNoneDep,
+    settings: SettingsDep,
+    operator: OperatorOrNot,
+    media_server: MediaServerDep,
 ) -> VideoStatus:
     stats, error = None, None
     if media is not None and media.alive:
@@ -211,6 +261,8 @@ async def video_status(
         bitrate=settings.video_bitrate,
         stats=stats,
         error=error,
+        path="relay" if relayed(media_server, operator) else "direct",
+        media_server=media_server.status() if media_server is not None else None,
     )
 
 

@@ -12,8 +12,8 @@ SPS/PPS before each IDR); a viewer ``watch``es, gets Janus's SDP offer by long p
 ``start``s with its answer. A session ends 60 s after its last request (seen here;
 keepalives hold it) and holds a viewer until destroyed: whoever creates one destroys it.
 
-Not yet done (issue 18 continues): the media worker feeding it, the server's
-signalling endpoint sending observers there, supervision and restarts by the server.
+The media worker feeds it and signals for observers (backend/media/relay.py); the
+server starts and supervises it (backend/media/media_server.py).
 """
 
 from __future__ import annotations
@@ -50,6 +50,9 @@ class JanusSettings:
     rtp_port: int  # where the robot's H.264 RTP goes, on 127.0.0.1
     secret: str  # the mountpoint's secret (its full info, its viewer count)
     rtp_ports: tuple[int, int] = (20000, 20999)  # its WebRTC side
+    # Where it sends its viewers' key frame requests from (to the address that sent it
+    # RTCP last); None: they go nowhere, and the feed must make key frames by itself.
+    rtcp_port: int | None = None
 
     @property
     def api(self) -> str:
@@ -97,6 +100,7 @@ events: {{ broadcast = false }}
 admin: {{ admin_http = false; admin_https = false }}
 """
     )
+    rtcp = "" if settings.rtcp_port is None else f"\n  videortcpport = {settings.rtcp_port}"
     (folder / "janus.plugin.streaming.jcfg").write_text(
         f"""general: {{ events = false }}
 robot-stereo: {{
@@ -110,7 +114,7 @@ robot-stereo: {{
   videopt = 96
   videocodec = "h264"
   videofmtp = "{H264_FMTP}"
-  secret = "{settings.secret}"
+  secret = "{settings.secret}"{rtcp}
 }}
 """
     )
@@ -235,17 +239,69 @@ class JanusViewer:
 
 class RtpFeed:
     """The encoder's H.264 packets as RTP to the mountpoint's port: packetised as aiortc
-    packetises them for a peer (single NAL, STAP-A, FU-A), never encoded again."""
+    packetises them for a peer (single NAL, STAP-A, FU-A), never encoded again. With
+    ``rtcp_port`` (the mountpoint's ``videortcpport``) it also sends RTCP sender reports
+    there, from the same socket: Janus sends its viewers' key frame requests (PLI) back
+    to the address they came from (``read_feedback``)."""
 
-    def __init__(self, port: int, ssrc: int = 0x7E1E) -> None:
+    def __init__(
+        self,
+        port: int,
+        ssrc: int = 0x7E1E,
+        host: str = "127.0.0.1",
+        rtcp_port: int | None = None,
+    ) -> None:
         from aiortc.codecs.h264 import H264Encoder  # its packetiser only
 
         self._packetiser = H264Encoder()
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._to = ("127.0.0.1", port)
+        self._sock.setblocking(False)
+        self._to = (host, port)
+        self._rtcp_to = None if rtcp_port is None else (host, rtcp_port)
         self._seq = 0
+        self._last_timestamp = 0
         self.ssrc = ssrc
         self.packets = 0
+        self.octets = 0
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def send_report(self) -> None:
+        """An RTCP sender report to the RTCP port (nothing without one)."""
+        if self._rtcp_to is None:
+            return
+        from aiortc.clock import current_ntp_time
+        from aiortc.rtp import RtcpSenderInfo, RtcpSrPacket
+
+        report = RtcpSrPacket(
+            ssrc=self.ssrc,
+            sender_info=RtcpSenderInfo(
+                ntp_timestamp=current_ntp_time(),
+                rtp_timestamp=self._last_timestamp,
+                packet_count=self.packets & 0xFFFFFFFF,
+                octet_count=self.octets & 0xFFFFFFFF,
+            ),
+        )
+        with contextlib.suppress(OSError):
+            self._sock.sendto(bytes(report), self._rtcp_to)
+
+    def read_feedback(self) -> bool:
+        """Read what came back; True if it asked for a key frame (PLI or FIR)."""
+        from aiortc.rtp import RtcpPacket, RtcpPsfbPacket
+
+        asked = False
+        while True:
+            try:
+                data = self._sock.recv(2048)
+            except (BlockingIOError, InterruptedError):
+                return asked
+            except OSError:  # e.g. ICMP port unreachable while Janus restarts
+                continue
+            with contextlib.suppress(ValueError):
+                for packet in RtcpPacket.parse(data):
+                    if isinstance(packet, RtcpPsfbPacket) and packet.fmt in (1, 4):
+                        asked = True  # PLI (1) or FIR (4)
 
     def send(self, packet: Any) -> None:
         """One encoded access unit (an ``av.Packet`` with its pts and time base)."""
@@ -261,9 +317,12 @@ class RtpFeed:
                 payload=payload,
             )
             rtp.marker = int(i == len(payloads) - 1)
-            self._sock.sendto(rtp.serialize(), self._to)
+            with contextlib.suppress(BlockingIOError, OSError):  # UDP: a full buffer drops
+                self._sock.sendto(rtp.serialize(), self._to)
             self._seq += 1
             self.packets += 1
+            self.octets += len(payload)
+        self._last_timestamp = timestamp
 
     def close(self) -> None:
         self._sock.close()

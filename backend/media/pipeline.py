@@ -299,10 +299,12 @@ class VideoPipeline:
         self.keyframe_bytes = StreamStats("video_keyframe_bytes", "B", capacity=100)
         self.frames_encoded = 0
         self._no_signal_seq = 0
-        # The recording's tap (backend/recording/video.py), while a recording runs: every
-        # H.264 packet the viewers get, the same bytes (no second encode). While it is
-        # set the pipeline captures and encodes H.264 even with nobody watching.
-        self.tap: Callable[[EncodedFrame], None] | None = None
+        # Taps on the full layer's H.264, by name: the recording's (backend/recording/
+        # video.py) while one runs, the media server's feed (backend/media/relay.py) while
+        # someone watches through it. Each gets every packet the viewers get, the same
+        # bytes (no second encode); while any is set the pipeline captures and encodes
+        # H.264 even with no direct viewer.
+        self.taps: dict[str, Callable[[EncodedFrame], None]] = {}
 
     def layer_size(self, layer: Layer) -> tuple[int, int]:
         """One eye's size in ``layer``."""
@@ -327,14 +329,14 @@ class VideoPipeline:
             self.broadcasters[key] = Broadcaster(enc.request_keyframe, self.clock.now)
         return self.encoders[key]
 
-    def start_tap(self, tap: Callable[[EncodedFrame], None]) -> None:
+    def start_tap(self, tap: Callable[[EncodedFrame], None], name: str = "recording") -> None:
         """Hand every H.264 packet to ``tap`` from now on, and ask for a keyframe (shared
-        and rate-limited like a viewer's) so the recording can start on one."""
-        self.tap = tap
+        and rate-limited like a viewer's) so it can start on one."""
+        self.taps[name] = tap
         self.broadcaster.request_keyframe()
 
-    def stop_tap(self) -> None:
-        self.tap = None
+    def stop_tap(self, name: str = "recording") -> None:
+        self.taps.pop(name, None)
 
     @property
     def broadcaster(self) -> Broadcaster:
@@ -369,7 +371,7 @@ class VideoPipeline:
         loop = asyncio.get_running_loop()
         seq = 0
         while True:
-            if self.viewers == 0 and self.tap is None:
+            if self.viewers == 0 and not self.taps:
                 # Nobody to send to and nothing recorded: pull no frames, so a camera that
                 # renders on demand (the simulated one) does not take ~10 % of a core from
                 # the force stream.
@@ -402,8 +404,8 @@ class VideoPipeline:
         small: StereoFrame | None = None
         for key, broadcaster in list(self.broadcasters.items()):
             layer = key[1]
-            tap = self.tap if key == ("H264", "full") else None
-            if broadcaster.sending == 0 and tap is None:
+            tapped = bool(self.taps) and key == ("H264", "full")
+            if broadcaster.sending == 0 and not tapped:
                 continue  # nobody on this layer, nothing recorded: no encoding
             if layer == "low" and small is None:
                 small = await loop.run_in_executor(self._encode, self._shrink, frame)
@@ -418,8 +420,8 @@ class VideoPipeline:
                     self.layer_rate[key[1]].add(encoded.size * 8, now)
                 if key == ("H264", "full"):
                     self._record(encoded)
-                    if self.tap is not None:
-                        self.tap(encoded)  # must not block: a bounded hand-over
+                    for tap in list(self.taps.values()):
+                        tap(encoded)  # must not block: a bounded hand-over
                 self.broadcasters[key].publish(encoded)
 
     def _shrink(self, frame: StereoFrame) -> StereoFrame:

@@ -51,6 +51,7 @@ def worker_main(
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s media-worker: %(message)s"
     )
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # each media server request
     # Video yields the CPU to forces and control: on a busy machine the scheduler runs
     # the server's sensor and priority-channel threads first (a frame late by a
     # millisecond is not seen; a force sample late by one is felt).
@@ -88,6 +89,28 @@ async def _serve(
         ),
     )
     pipeline.start()
+    relay = None
+    if settings.media_server == "janus":  # observers through the media server
+        from backend.media.relay import JanusRelay
+
+        assert settings.media_server_url is not None  # resolved by the server
+
+        def start_feed() -> None:
+            assert relay is not None
+            pipeline.start_tap(relay.send, "relay")
+
+        relay = JanusRelay(
+            settings.media_server_url,
+            settings.media_server_rtp_port,
+            settings.media_server_rtcp_port or None,
+            pipeline.broadcaster.request_keyframe,
+            start_feed=start_feed,
+            stop_feed=lambda: pipeline.stop_tap("relay"),
+            host=settings.media_server_host,
+            mountpoint=settings.media_server_mountpoint,
+            max_viewers=settings.media_server_max_viewers,
+        )
+        relay.start()
     tap = (
         PacketPipe(video.send_bytes, pipeline.broadcaster.request_keyframe)
         if video is not None
@@ -132,6 +155,21 @@ async def _serve(
                 pipeline.claim_viewer(req["peer_id"], req.get("peer_secret"), req["viewer"])
             elif op == "stats":
                 reply["stats"] = pipeline.stats(peer_ids=bool(req.get("peer_ids")))
+                if relay is not None:
+                    reply["stats"]["relay"] = relay.stats()
+            elif op.startswith("relay_"):
+                if relay is None:
+                    raise TelerobotError("this server has no media server (--media-server)")
+                if op == "relay_offer":
+                    reply.update(await relay.offer())
+                elif op == "relay_accept":
+                    await relay.accept(req["peer_id"], req.get("peer_secret"), req["sdp"])
+                elif op == "relay_close":
+                    await relay.close_viewer(
+                        req["peer_id"], req.get("peer_secret"), bool(req.get("operator"))
+                    )
+                else:
+                    raise TelerobotError(f"unknown media request {op!r}")
             elif op == "keyframe":
                 pipeline.broadcaster.request_keyframe()  # shared and rate-limited like any
             elif op == "record":
@@ -164,4 +202,6 @@ async def _serve(
         task = asyncio.create_task(handle(req))
         tasks.add(task)
         task.add_done_callback(tasks.discard)
+    if relay is not None:
+        await relay.shutdown()
     await pipeline.close()

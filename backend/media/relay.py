@@ -1,0 +1,304 @@
+"""The media worker's side of the media server (issue 18): observers watch through Janus,
+so the robot's computer sends the one encoded stream once, whoever watches.
+
+- **The feed**: while anyone watches through it, the full layer's H.264 packets (a tap
+  on the pipeline, the same bytes the direct viewers get, no second encode) go as RTP
+  to the mountpoint's port (``RtpFeed``). An RTCP sender report a second goes to its
+  RTCP port: Janus latches that address and sends the viewers' key frame requests
+  (PLI) back to it, and the encoder makes a key frame only when asked.
+- **Signalling**: the server's ``/webrtc/server-offer`` for an observer comes here. A
+  session on Janus's HTTP API watches the mountpoint and gives Janus's SDP offer; the
+  answer starts it; a DELETE (or the viewer's peer failing: Janus's ``hangup``)
+  destroys it. Each session's events are long-polled, which also keeps it alive.
+- **Limits**: at most ``max_viewers`` sessions and ``max_pending`` not yet answered
+  (answered within ``pending_expiry_s`` or destroyed): a flood of connects costs
+  sessions on the media server, refused beyond the limits, and never reaches the
+  control plane (which is in another process).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import secrets
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import httpx
+
+from backend.media.encoder import EncodedFrame
+from backend.media.janus import MOUNTPOINT, RtpFeed
+from drivers.base import TelerobotError
+
+log = logging.getLogger(__name__)
+
+RELAY_PREFIX = "relay-"  # the peer ids of viewers through the media server
+MAX_RELAY_VIEWERS = 500
+MAX_RELAY_PENDING = 100  # offered, not yet answered
+RELAY_PENDING_EXPIRY_S = 20.0
+REPORT_INTERVAL_S = 1.0  # RTCP sender reports to the mountpoint (and the address latch)
+OFFER_TIMEOUT_S = 10.0
+HTTP_CONNECTIONS = 64  # to Janus's HTTP API, shared by every session's requests
+
+
+class RelayUnavailable(TelerobotError):
+    code = "relay_unavailable"
+    http_status = 503
+
+
+class RelayFull(TelerobotError):
+    code = "relay_full"
+    http_status = 503
+
+
+class RelayPeerUnknown(TelerobotError):
+    code = "relay_peer_unknown"
+    http_status = 404
+
+
+@dataclass
+class RelaySession:
+    peer_id: str
+    session: int
+    handle: int
+    created: float
+    secret: str = field(default_factory=lambda: secrets.token_urlsafe(16))
+    started: bool = False
+    destroyed: bool = False
+    poller: asyncio.Task[None] | None = None
+
+    def owned_by(self, secret: str | None) -> bool:
+        return secret is not None and secrets.compare_digest(self.secret.encode(), secret.encode())
+
+
+class JanusRelay:
+    """Observers' peers on Janus, and the RTP feed they watch."""
+
+    def __init__(
+        self,
+        api: str,
+        rtp_port: int,
+        rtcp_port: int | None,
+        request_keyframe: Any,
+        start_feed: Any,
+        stop_feed: Any,
+        *,
+        host: str = "127.0.0.1",
+        mountpoint: int = MOUNTPOINT,
+        max_viewers: int = MAX_RELAY_VIEWERS,
+        max_pending: int = MAX_RELAY_PENDING,
+        pending_expiry_s: float = RELAY_PENDING_EXPIRY_S,
+    ) -> None:
+        self.api = api.rstrip("/")
+        self.mountpoint = mountpoint
+        self.max_viewers, self.max_pending = max_viewers, max_pending
+        self.pending_expiry_s = pending_expiry_s
+        self.feed = RtpFeed(rtp_port, host=host, rtcp_port=rtcp_port)
+        self._request_keyframe = request_keyframe
+        self._start_feed, self._stop_feed = start_feed, stop_feed
+        self.sessions: dict[str, RelaySession] = {}
+        self.http = httpx.AsyncClient(
+            timeout=httpx.Timeout(OFFER_TIMEOUT_S, read=40.0),
+            limits=httpx.Limits(max_connections=HTTP_CONNECTIONS),
+        )
+        self._n = 0
+        self._tasks: list[asyncio.Task[None]] = []
+        self.feeding = False
+        self.plis = 0  # key frame requests from the media server
+        self.refused = 0  # connects refused by the limits
+        self.ended = 0  # sessions ended by the media server (the viewer's peer failed)
+        self.errors = 0  # requests the media server failed
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        loop.add_reader(self.feed.fileno(), self._feedback)
+        self._tasks = [
+            asyncio.create_task(self._report_loop(), name="relay-reports"),
+            asyncio.create_task(self._expire_loop(), name="relay-expiry"),
+        ]
+
+    async def shutdown(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        with contextlib.suppress(Exception):
+            asyncio.get_running_loop().remove_reader(self.feed.fileno())
+        await asyncio.gather(
+            *(self._destroy(s) for s in list(self.sessions.values())), return_exceptions=True
+        )
+        self._set_feeding()
+        await self.http.aclose()
+        self.feed.close()
+
+    def send(self, encoded: EncodedFrame) -> None:
+        """The pipeline's tap: one access unit to the mountpoint (never blocks: UDP)."""
+        self.feed.send(encoded.packet)
+
+    def _feedback(self) -> None:
+        if self.feed.read_feedback():
+            self.plis += 1
+            self._request_keyframe()  # shared and spaced by the fan-out's gate
+
+    async def _report_loop(self) -> None:
+        while True:
+            self.feed.send_report()
+            await asyncio.sleep(REPORT_INTERVAL_S)
+
+    async def _expire_loop(self) -> None:
+        while True:
+            await asyncio.sleep(1.0)
+            now = time.monotonic()
+            for s in list(self.sessions.values()):
+                if not s.started and now - s.created > self.pending_expiry_s:
+                    await self._destroy(s)
+
+    def _set_feeding(self) -> None:
+        """Encode and send only while someone watches (or is about to) through Janus."""
+        want = bool(self.sessions)
+        if want and not self.feeding:
+            self._start_feed()
+        elif not want and self.feeding:
+            self._stop_feed()
+        self.feeding = want
+
+    # ------------------------------------------------------------ Janus's HTTP API
+    async def _post(self, url: str, body: dict[str, Any]) -> dict[str, Any]:
+        self._n += 1
+        try:
+            response = await self.http.post(url, json={**body, "transaction": str(self._n)})
+            reply: dict[str, Any] = response.json()
+        except (httpx.HTTPError, ValueError) as exc:
+            self.errors += 1
+            raise RelayUnavailable(
+                f"the media server does not answer ({type(exc).__name__}): it is restarting"
+                " or down; try again in a few seconds"
+            ) from exc
+        if reply.get("janus") == "error":
+            self.errors += 1
+            reason = reply.get("error", {}).get("reason", reply)
+            raise RelayUnavailable(f"the media server refused: {reason}")
+        return reply
+
+    async def _message(
+        self, s: RelaySession, body: dict[str, Any], jsep: dict[str, Any] | None = None
+    ) -> dict[str, Any]:
+        payload: dict[str, Any] = {"janus": "message", "body": body}
+        if jsep is not None:
+            payload["jsep"] = jsep
+        return await self._post(f"{self.api}/{s.session}/{s.handle}", payload)
+
+    # ------------------------------------------------------------ signalling
+    async def offer(self) -> dict[str, Any]:
+        """A new observer: Janus's SDP offer for the mountpoint, with the peer's id and
+        secret (for ``accept`` and ``close``)."""
+        pending = sum(1 for s in self.sessions.values() if not s.started)
+        if len(self.sessions) >= self.max_viewers or pending >= self.max_pending:
+            self.refused += 1
+            raise RelayFull(
+                f"the media server has {len(self.sessions)} viewers ({pending} connecting):"
+                f" the limit is {self.max_viewers} ({self.max_pending} connecting); try later"
+            )
+        session = (await self._post(self.api, {"janus": "create"}))["data"]["id"]
+        s = RelaySession(RELAY_PREFIX + secrets.token_urlsafe(9), session, 0, time.monotonic())
+        try:
+            attached = await self._post(
+                f"{self.api}/{session}", {"janus": "attach", "plugin": "janus.plugin.streaming"}
+            )
+            s.handle = attached["data"]["id"]
+            self.sessions[s.peer_id] = s
+            self._set_feeding()
+            await self._message(s, {"request": "watch", "id": self.mountpoint})
+            jsep = await self._next_offer(s)
+        except BaseException:
+            await self._destroy(s)
+            raise
+        s.poller = asyncio.create_task(self._poll(s), name=f"relay-{s.peer_id}")
+        return {"peer_id": s.peer_id, "peer_secret": s.secret, "sdp": jsep["sdp"], "type": "offer"}
+
+    async def _next_offer(self, s: RelaySession) -> dict[str, Any]:
+        deadline = time.monotonic() + OFFER_TIMEOUT_S
+        while time.monotonic() < deadline:
+            for event in await self._events(s):
+                if "jsep" in event:
+                    jsep: dict[str, Any] = event["jsep"]
+                    return jsep
+                if event.get("janus") == "event" and "error" in str(event.get("plugindata")):
+                    raise RelayUnavailable(f"the media server refused to watch: {event}")
+        raise RelayUnavailable(f"the media server sent no offer within {OFFER_TIMEOUT_S:g} s")
+
+    async def _events(self, s: RelaySession) -> list[dict[str, Any]]:
+        try:
+            got = (await self.http.get(f"{self.api}/{s.session}?maxev=5")).json()
+        except (httpx.HTTPError, ValueError) as exc:
+            raise RelayUnavailable(f"the media server's events failed: {exc!r}") from exc
+        events = got if isinstance(got, list) else [got]
+        if any(e.get("janus") == "error" for e in events):
+            raise RelayUnavailable(f"the media server lost the session: {events}")
+        return events
+
+    async def _poll(self, s: RelaySession) -> None:
+        """The session's events until it ends: a ``hangup`` (its peer failed or closed)
+        or the media server gone ends it here too. Each poll keeps it alive."""
+        try:
+            while s.peer_id in self.sessions:
+                events = await self._events(s)
+                if any(e.get("janus") in ("hangup", "detached", "timeout") for e in events):
+                    self.ended += 1
+                    break
+        except RelayUnavailable:
+            pass  # Janus is gone: the session with it
+        except asyncio.CancelledError:
+            return
+        await self._destroy(s, poller=False)
+
+    async def accept(self, peer_id: str, secret: str | None, sdp: str) -> None:
+        s = self._own(peer_id, secret)
+        await self._message(
+            s, {"request": "start"}, {"type": "answer", "sdp": sdp, "trickle": False}
+        )
+        s.started = True
+
+    async def close_viewer(self, peer_id: str, secret: str | None, operator: bool = False) -> None:
+        s = self.sessions.get(peer_id)
+        if s is None:
+            return  # already gone (its peer failed): nothing to do
+        if not operator:
+            self._own(peer_id, secret)
+        await self._destroy(s)
+
+    def _own(self, peer_id: str, secret: str | None) -> RelaySession:
+        s = self.sessions.get(peer_id)
+        if s is None or not s.owned_by(secret):
+            # The same answer for an unknown id and a wrong secret: ids are not probed.
+            raise RelayPeerUnknown(f"no viewer {peer_id!r} with this secret on the media server")
+        return s
+
+    async def _destroy(self, s: RelaySession, poller: bool = True) -> None:
+        if s.destroyed:
+            return
+        s.destroyed = True
+        self.sessions.pop(s.peer_id, None)
+        if poller and s.poller is not None:
+            s.poller.cancel()
+        with contextlib.suppress(RelayUnavailable):
+            await self._post(f"{self.api}/{s.session}", {"janus": "destroy"})
+        self._set_feeding()
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "api": self.api,
+            "viewers": sum(1 for s in self.sessions.values() if s.started),
+            "pending": sum(1 for s in self.sessions.values() if not s.started),
+            "max_viewers": self.max_viewers,
+            "max_pending": self.max_pending,
+            "feeding": self.feeding,
+            "rtp_packets": self.feed.packets,
+            "key_frame_requests": self.plis,
+            "refused": self.refused,
+            "ended_by_media_server": self.ended,
+            "errors": self.errors,
+        }
