@@ -150,6 +150,8 @@ class Settings(BaseSettings):
     # The mountpoint's secret; None: derived from the operator token (never sent to a page)
     media_server_secret: str | None = Field(None, min_length=16, repr=False)
     media_server_max_viewers: int = Field(500, ge=1, le=100_000)
+    media_server_max_pending: int = Field(100, ge=1, le=10_000)  # offered, not yet answered
+    media_server_pending_expiry_s: float = Field(20.0, ge=0.5, le=300.0)
 
     # Simulated workcell
     # Where the fiducials are (m, robot base), in clicking order; the thesis's affine

@@ -181,8 +181,8 @@ class JanusProcess:
 
 class JanusViewer:
     """One viewer's session on the streaming plugin (HTTP API): ``watch`` gives Janus's
-    SDP offer, ``start`` takes the answer, ``close`` destroys the session (1.1.2 never
-    times one out)."""
+    SDP offer, ``start`` takes the answer, ``close`` destroys the session. Janus ends a
+    session ~60 s after its last request, watching or not: one kept open must poll."""
 
     def __init__(self, api: str, timeout_s: float = 10.0) -> None:
         self.api = api

@@ -202,14 +202,16 @@ class JanusRelay:
                 f"the media server has {len(self.sessions)} viewers ({pending} connecting):"
                 f" the limit is {self.max_viewers} ({self.max_pending} connecting); try later"
             )
-        session = (await self._post(self.api, {"janus": "create"}))["data"]["id"]
-        s = RelaySession(RELAY_PREFIX + secrets.token_urlsafe(9), session, 0, time.monotonic())
+        # Counted from now, before the first request to Janus: connects arriving at once
+        # all see each other.
+        s = RelaySession(RELAY_PREFIX + secrets.token_urlsafe(9), 0, 0, time.monotonic())
+        self.sessions[s.peer_id] = s
         try:
+            s.session = (await self._post(self.api, {"janus": "create"}))["data"]["id"]
             attached = await self._post(
-                f"{self.api}/{session}", {"janus": "attach", "plugin": "janus.plugin.streaming"}
+                f"{self.api}/{s.session}", {"janus": "attach", "plugin": "janus.plugin.streaming"}
             )
             s.handle = attached["data"]["id"]
-            self.sessions[s.peer_id] = s
             self._set_feeding()
             await self._message(s, {"request": "watch", "id": self.mountpoint})
             jsep = await self._next_offer(s)
@@ -284,8 +286,9 @@ class JanusRelay:
         self.sessions.pop(s.peer_id, None)
         if poller and s.poller is not None:
             s.poller.cancel()
-        with contextlib.suppress(RelayUnavailable):
-            await self._post(f"{self.api}/{s.session}", {"janus": "destroy"})
+        if s.session:
+            with contextlib.suppress(RelayUnavailable):
+                await self._post(f"{self.api}/{s.session}", {"janus": "destroy"})
         self._set_feeding()
 
     def stats(self) -> dict[str, Any]:

@@ -109,6 +109,8 @@ async def _serve(
             host=settings.media_server_host,
             mountpoint=settings.media_server_mountpoint,
             max_viewers=settings.media_server_max_viewers,
+            max_pending=settings.media_server_max_pending,
+            pending_expiry_s=settings.media_server_pending_expiry_s,
         )
         relay.start()
     tap = (

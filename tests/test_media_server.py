@@ -1,0 +1,211 @@
+"""Observers through a media server (issue 18): `telerobot serve --media-server janus`
+with a real Janus it starts and supervises. Observers get Janus's offer and decode the
+picture's timecode through it while the operator keeps the direct path; Janus killed is
+restarted and a viewer watches again; a flood of 200 connects is bounded by the relay's
+limits, expires, and never reaches the control plane; nothing on this path gives control."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import secrets
+import shutil
+import signal
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import httpx
+import pytest
+
+from bench.common import open_server_offer_viewer
+from drivers.camera import timecode
+from tests.servers import served
+
+WIDTH, HEIGHT = 640, 360  # per eye: the smallest the timecode reads at
+CLIENT = {"X-Telerobot-Client": "test"}  # a request that changes something says who it is
+
+
+@pytest.fixture(scope="module")
+def token() -> str:
+    return secrets.token_hex(16)
+
+
+@pytest.fixture(scope="module")
+def server(token: str) -> Iterator[str]:
+    if shutil.which("janus") is None:
+        pytest.fail("Debian's janus is missing: `make test` installs it (make media-server-deps)")
+    env = {
+        "TELEROBOT_MEDIA_SERVER": "janus",
+        "TELEROBOT_VIDEO": "true",
+        "TELEROBOT_VIDEO_WIDTH": str(WIDTH),
+        "TELEROBOT_VIDEO_HEIGHT": str(HEIGHT),
+        "TELEROBOT_VIEWER": "false",
+        "TELEROBOT_MEDIA_SERVER_MAX_PENDING": "40",
+        "TELEROBOT_MEDIA_SERVER_PENDING_EXPIRY_S": "3",
+    }
+    with served(token, **env) as base:
+        yield base + "/"
+
+
+def status(base: str, token: str | None = None) -> dict[str, Any]:
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    reply: dict[str, Any] = httpx.get(base + "api/v1/video", headers=headers, timeout=10).json()
+    return reply
+
+
+async def ages(track: Any, frames: int = 5) -> list[float]:
+    """Capture → decoded of ``frames`` frames, from the picture's timecode."""
+    out: list[float] = []
+    while len(out) < frames:
+        frame = await asyncio.wait_for(track.recv(), 15)
+        luma = frame.to_ndarray()[: frame.height, : frame.width // 2]
+        code = timecode.read(luma)
+        if code is not None:
+            out.append(timecode.elapsed(code, time.monotonic()))
+    return out
+
+
+async def close(base: str, pc: Any, peer: dict[str, str]) -> None:
+    await pc.close()
+    async with httpx.AsyncClient(base_url=base, timeout=10) as http:
+        r = await http.delete(
+            f"api/v1/webrtc/{peer['peer_id']}",
+            headers={"X-Peer-Secret": peer["peer_secret"], **CLIENT},
+        )
+        assert r.status_code == 200, r.text
+
+
+def wait_for(what: str, check: Any, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, f"not within {timeout:g} s: {what}"
+        time.sleep(0.2)
+
+
+def test_observers_watch_through_janus_and_the_operator_directly(server: str, token: str) -> None:
+    assert status(server)["path"] == "relay" and status(server, token)["path"] == "direct"
+    assert status(server)["media_server"]["state"] == "running"
+    # The browser offering is for the direct path: an observer is told what to do instead.
+    r = httpx.post(server + "api/v1/webrtc/offer", json={"sdp": "v=0", "type": "offer"})
+    assert r.status_code == 409 and r.json()["type"].endswith(":use_server_offer")
+
+    async def both() -> None:
+        pc, track, peer = await open_server_offer_viewer(server)
+        op_pc, op_track, op_peer = await open_server_offer_viewer(server, token)
+        try:
+            assert peer["peer_id"].startswith("relay-")
+            assert not op_peer["peer_id"].startswith("relay-")
+            relayed, direct = await ages(track), await ages(op_track)
+            # Live, not a backlog (the first frames may wait for the key frame).
+            assert sorted(relayed)[2] < 0.5 and sorted(direct)[2] < 0.5, (relayed, direct)
+            stats = status(server, token)["stats"]
+            assert stats["relay"]["viewers"] == 1 and stats["relay"]["feeding"]
+            assert stats["viewer_count"] == 1  # the robot's own peers: the operator's only
+            # Janus asked for a key frame for its viewer (its PLI, back through RTCP).
+            assert stats["relay"]["key_frame_requests"] >= 1
+            # Another observer's secret does not close this viewer.
+            r = httpx.delete(
+                server + f"api/v1/webrtc/{peer['peer_id']}",
+                headers={"X-Peer-Secret": "x" * 22, **CLIENT},
+            )
+            assert r.status_code == 404, r.text
+        finally:
+            await close(server, pc, peer)
+            await close(server, op_pc, op_peer)
+        wait_for("the relay emptied", lambda: status(server)["stats"]["relay"]["viewers"] == 0)
+        assert not status(server)["stats"]["relay"]["feeding"]  # nobody: no feed
+
+    asyncio.run(both())
+
+
+def test_nothing_on_the_relay_path_gives_control(server: str) -> None:
+    """An observer holds a relay peer's id and secret: neither is a token, and the
+    media server's own API and secret are never handed out."""
+
+    async def observe() -> dict[str, str]:
+        pc, track, peer = await open_server_offer_viewer(server)
+        await ages(track, frames=1)
+        await pc.close()
+        return peer
+
+    peer = asyncio.run(observe())
+    for credential in (peer["peer_secret"], peer["peer_id"]):
+        r = httpx.post(
+            server + "api/v1/lease",
+            json={"name": "observer"},
+            headers={"Authorization": f"Bearer {credential}"},
+        )
+        assert r.status_code in (401, 403), r.text
+    seen = httpx.get(server + "api/v1/video").text + httpx.get(server + "api/v1/recordings").text
+    assert "secret" not in status(server)["media_server"]
+    assert "media_server_secret" not in seen
+    httpx.delete(
+        server + f"api/v1/webrtc/{peer['peer_id']}",
+        headers={"X-Peer-Secret": peer["peer_secret"], **CLIENT},
+    )
+
+
+def test_a_flood_of_connects_is_bounded_and_never_reaches_the_control_plane(
+    server: str, token: str
+) -> None:
+    """200 observers ask at once (never answering): at most the relay's 40 pending,
+    the rest refused with the reason; their sessions expire; the operator's lease,
+    heartbeats and commands go on meanwhile on the control plane (another process's
+    event loop is not involved: the media worker does the relay's signalling)."""
+    auth = {"Authorization": f"Bearer {token}"}
+    http = httpx.Client(base_url=server, timeout=30, headers=auth)
+    lease = http.post("api/v1/lease", json={"name": "operator"})
+    assert lease.status_code == 200, lease.text
+    http.headers["X-Client-Id"] = lease.json()["client_id"]
+    before = http.get("api/v1/safety").json()
+
+    async def flood() -> list[httpx.Response]:
+        async with httpx.AsyncClient(base_url=server, timeout=60) as anon:
+            return await asyncio.gather(
+                *(anon.post("api/v1/webrtc/server-offer", json={}) for _ in range(200))
+            )
+
+    replies = asyncio.run(flood())
+    codes = sorted({r.status_code for r in replies})
+    offered = [r for r in replies if r.status_code == 200]
+    refused = [r for r in replies if r.status_code == 503]
+    assert codes in ([200, 503], [503]) and 0 < len(offered) <= 40, codes
+    assert len(offered) + len(refused) == 200
+    assert all(r.json()["type"].endswith(":relay_full") for r in refused)
+    relay = status(server)["stats"]["relay"]
+    assert relay["pending"] <= 40 and relay["refused"] >= 160
+    # The operator was never disturbed: the lease is its own, the arm not halted, and
+    # a heartbeat and a command go through now.
+    assert http.post("api/v1/lease/heartbeat").status_code == 200
+    after = http.get("api/v1/safety").json()
+    assert after["controller"] == "operator" and not after["halted"]
+    assert after["deadman_halts"] == before["deadman_halts"]
+    # Never answered: their sessions on the media server expire (3 s here).
+    wait_for(
+        "the pending sessions expired", lambda: status(server)["stats"]["relay"]["pending"] == 0
+    )
+    assert http.delete("api/v1/lease").status_code == 200
+
+
+def test_janus_killed_is_restarted_and_viewers_watch_again(server: str, token: str) -> None:
+    first = status(server)["media_server"]
+    os.kill(first["pid"], signal.SIGKILL)
+    wait_for(
+        "Janus restarted",
+        lambda: (
+            (s := status(server)["media_server"])["restarts"] == first["restarts"] + 1
+            and s["state"] == "running"
+        ),
+    )
+    assert "exited" in (status(server)["media_server"]["last_error"] or "")
+    assert httpx.get(server + "api/v1/health").status_code == 200  # the server went on
+
+    async def again() -> None:
+        pc, track, peer = await open_server_offer_viewer(server)
+        try:
+            assert len(await ages(track, frames=3)) == 3
+        finally:
+            await close(server, pc, peer)
+
+    asyncio.run(again())
