@@ -99,24 +99,26 @@ def test_observers_watch_through_janus_and_the_operator_directly(server: str, to
             relayed, direct = await ages(track), await ages(op_track)
             # Live, not a backlog (the first frames may wait for the key frame).
             assert sorted(relayed)[2] < 0.5 and sorted(direct)[2] < 0.5, (relayed, direct)
-            stats = status(server, token)["stats"]
+            stats = await asyncio.to_thread(status, server, token)
+            stats = stats["stats"]
             assert stats["relay"]["viewers"] == 1 and stats["relay"]["feeding"]
             assert stats["viewer_count"] == 1  # the robot's own peers: the operator's only
             # Janus asked for a key frame for its viewer (its PLI, back through RTCP).
             assert stats["relay"]["key_frame_requests"] >= 1
             # Another observer's secret does not close this viewer.
-            r = httpx.delete(
-                server + f"api/v1/webrtc/{peer['peer_id']}",
-                headers={"X-Peer-Secret": "x" * 22, **CLIENT},
-            )
+            async with httpx.AsyncClient(base_url=server, timeout=10) as http:
+                r = await http.delete(
+                    f"api/v1/webrtc/{peer['peer_id']}",
+                    headers={"X-Peer-Secret": "x" * 22, **CLIENT},
+                )
             assert r.status_code == 404, r.text
         finally:
             await close(server, pc, peer)
             await close(server, op_pc, op_peer)
-        wait_for("the relay emptied", lambda: status(server)["stats"]["relay"]["viewers"] == 0)
-        assert not status(server)["stats"]["relay"]["feeding"]  # nobody: no feed
 
     asyncio.run(both())
+    wait_for("the relay emptied", lambda: status(server)["stats"]["relay"]["viewers"] == 0)
+    assert not status(server)["stats"]["relay"]["feeding"]  # nobody: no feed
 
 
 def test_nothing_on_the_relay_path_gives_control(server: str) -> None:
