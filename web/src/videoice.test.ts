@@ -40,7 +40,7 @@ describe("connectVideo", () => {
     const api = {
       request: (method: string, path: string) => {
         asked.push(`${method} ${path}`);
-        return Promise.resolve(RELAY);
+        return Promise.resolve(path === "/api/v1/video" ? { path: "direct" } : RELAY);
       },
     } as unknown as Api;
     vi.stubGlobal(
@@ -54,9 +54,58 @@ describe("connectVideo", () => {
     );
     await expect(connectVideo(api, () => undefined)).rejects.toThrow("no WebRTC here");
     await expect(connectVideo(api, () => undefined)).rejects.toThrow("no WebRTC here");
-    expect(asked).toEqual(["get /api/v1/video/ice", "get /api/v1/video/ice"]);
+    expect(asked).toEqual(["get /api/v1/video/ice", "get /api/v1/video", "get /api/v1/video/ice", "get /api/v1/video"]);
     expect(made).toEqual([rtcConfiguration(RELAY), rtcConfiguration(RELAY)]);
     expect(made[0]?.iceTransportPolicy).toBe("relay");
+  });
+});
+
+describe("connectVideo through a media server", () => {
+  afterEach(() => vi.unstubAllGlobals());
+
+  it("takes the server's offer and answers it when its path is the relay", async () => {
+    const asked: { call: string; body?: unknown }[] = [];
+    const api = {
+      request: (method: string, path: string, options?: { body?: unknown }) => {
+        asked.push({ call: `${method} ${path}`, body: options?.body });
+        if (path === "/api/v1/video/ice") return Promise.resolve({ ice_servers: [], ice_transport_policy: "all" });
+        if (path === "/api/v1/video") return Promise.resolve({ path: "relay" });
+        if (path === "/api/v1/webrtc/server-offer") return Promise.resolve({ peer_id: "relay-abc", peer_secret: "s3cret", sdp: "v=0 janus", type: "offer" });
+        return Promise.resolve({ peer_id: "relay-abc" });
+      },
+    } as unknown as Api;
+    const remote: RTCSessionDescriptionInit[] = [];
+    let transceivers = 0;
+    vi.stubGlobal(
+      "RTCPeerConnection",
+      class {
+        iceGatheringState = "complete";
+        localDescription: RTCSessionDescriptionInit | null = null;
+        addTransceiver() {
+          transceivers += 1;
+        }
+        addEventListener() {}
+        setRemoteDescription(d: RTCSessionDescriptionInit) {
+          remote.push(d);
+          return Promise.resolve();
+        }
+        createAnswer() {
+          return Promise.resolve({ type: "answer", sdp: "v=0 ours" });
+        }
+        setLocalDescription(d: RTCSessionDescriptionInit) {
+          this.localDescription = d;
+          return Promise.resolve();
+        }
+      },
+    );
+    vi.stubGlobal("window", { addEventListener: () => undefined, removeEventListener: () => undefined });
+    const peer = await connectVideo(api, () => undefined);
+    expect(asked.map((a) => a.call)).toEqual(["get /api/v1/video/ice", "get /api/v1/video", "post /api/v1/webrtc/server-offer", "post /api/v1/webrtc/answer"]);
+    expect(remote).toEqual([{ sdp: "v=0 janus", type: "offer" }]);
+    expect(asked[3]?.body).toEqual({ sdp: "v=0 ours", type: "answer", peer_id: "relay-abc", peer_secret: "s3cret" });
+    expect(transceivers).toBe(0); // the media server's offer has the video in it
+    expect(peer.peerId).toBe("relay-abc");
+    expect(peer.secret).toBe("s3cret");
   });
 });
 

@@ -438,7 +438,8 @@ export interface paths {
         /**
          * Offer
          * @description Send the browser's offer (with a recvonly video transceiver); get the answer.
-         *     ICE candidates are in the SDP (no trickle). Keep ``peer_secret``.
+         *     ICE candidates are in the SDP (no trickle). Keep ``peer_secret``. (An observer on a
+         *     server with a media server gets 409 ``use_server_offer``.)
          */
         post: operations["offer_api_v1_webrtc_offer_post"];
         delete?: never;
@@ -459,7 +460,8 @@ export interface paths {
         /**
          * Server Offer
          * @description For browsers that need the server to offer: answer it with /webrtc/answer (with
-         *     the ``peer_secret``) within a few seconds, or the offer is dropped.
+         *     the ``peer_secret``) within a few seconds, or the offer is dropped. An observer on a
+         *     server with a media server gets the media server's offer (the full layer).
          */
         post: operations["server_offer_api_v1_webrtc_server_offer_post"];
         delete?: never;
@@ -2148,6 +2150,20 @@ export interface components {
              * @description why there are no stats right now
              */
             error?: string | null;
+            /**
+             * Path
+             * @description how this caller's video comes: 'direct' from the robot's server, or 'relay' through the media server (negotiate with /webrtc/server-offer then)
+             * @default direct
+             * @enum {string}
+             */
+            path: "direct" | "relay";
+            /**
+             * Media Server
+             * @description the media server's state (kind, state, restarts), if there is one
+             */
+            media_server?: {
+                [key: string]: unknown;
+            } | null;
         };
         /** ViewerState */
         ViewerState: {
@@ -2846,7 +2862,9 @@ export interface operations {
     offer_api_v1_webrtc_offer_post: {
         parameters: {
             query?: never;
-            header?: never;
+            header?: {
+                authorization?: string | null;
+            };
             path?: never;
             cookie?: never;
         };
@@ -2882,7 +2900,9 @@ export interface operations {
                 /** @description as for /webrtc/offer */
                 layer?: "auto" | "full" | "low";
             };
-            header?: never;
+            header?: {
+                authorization?: string | null;
+            };
             path?: never;
             cookie?: never;
         };

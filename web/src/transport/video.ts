@@ -4,6 +4,9 @@
 // VideoConnection keeps it up: when the peer fails or no frame has come for a while
 // (a server restart, a dropped peer), it closes the old peer and negotiates a new one,
 // retrying with a doubling backoff (0.5 s … 8 s) until frames flow again.
+// On a server with a media server an observer's video comes through it (GET
+// /api/v1/video says `path: "relay"`): the media server makes the offer, so the page
+// takes the server's offer (POST /webrtc/server-offer) and answers it instead.
 import type { Api, Schema } from "../api";
 
 /** This page's video connection, and the secret that proves the server's peer is ours
@@ -46,29 +49,50 @@ export function layerParam(search: string): VideoLayer {
 /** `layer`: "auto" lets the server choose by this page's link; "full" pins the full
  * picture (the calibration page measures pixels in it). */
 export async function connectVideo(api: Api, onStream: (stream: MediaStream) => void, layer: VideoLayer = "auto"): Promise<VideoPeer> {
-  // Fetched for each peer: TURN credentials are time-limited.
-  const config = rtcConfiguration(await api.request("get", "/api/v1/video/ice"));
+  // Fetched for each peer: TURN credentials are time-limited, and the media server
+  // may have come or gone.
+  const [ice, status] = await Promise.all([api.request("get", "/api/v1/video/ice"), api.request("get", "/api/v1/video")]);
+  const config = rtcConfiguration(ice);
   const pc = new RTCPeerConnection(config);
-  const transceiver = pc.addTransceiver("video", { direction: "recvonly" });
-  // No jitter buffer beyond what decoding needs: render frames as they arrive.
-  const receiver = transceiver.receiver as RTCRtpReceiver & { jitterBufferTarget?: number; playoutDelayHint?: number };
-  receiver.jitterBufferTarget = 0;
-  receiver.playoutDelayHint = 0;
-  pc.ontrack = (ev) => onStream(ev.streams[0] ?? new MediaStream([ev.track]));
-  await pc.setLocalDescription(await pc.createOffer());
-  await new Promise<void>((resolve) => {
-    if (pc.iceGatheringState === "complete") return resolve();
-    pc.addEventListener("icegatheringstatechange", () => pc.iceGatheringState === "complete" && resolve());
-    setTimeout(resolve, gatherTimeoutMs(config));
-  });
-  const answer = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer", layer } });
-  await pc.setRemoteDescription({ sdp: answer.sdp, type: answer.type as RTCSdpType });
-  const peer = { pc, peerId: answer.peer_id, secret: answer.peer_secret };
+  pc.ontrack = (ev) => {
+    lowLatency(ev.receiver);
+    onStream(ev.streams[0] ?? new MediaStream([ev.track]));
+  };
+  const gathered = () =>
+    new Promise<void>((resolve) => {
+      if (pc.iceGatheringState === "complete") return resolve();
+      pc.addEventListener("icegatheringstatechange", () => pc.iceGatheringState === "complete" && resolve());
+      setTimeout(resolve, gatherTimeoutMs(config));
+    });
+  let described: Schema<"PeerDescription">;
+  if (status.path === "relay") {
+    described = await api.request("post", "/api/v1/webrtc/server-offer");
+    await pc.setRemoteDescription({ sdp: described.sdp, type: "offer" });
+    await pc.setLocalDescription(await pc.createAnswer());
+    await gathered();
+    await api.request("post", "/api/v1/webrtc/answer", {
+      body: { sdp: pc.localDescription?.sdp ?? "", type: "answer", peer_id: described.peer_id, peer_secret: described.peer_secret },
+    });
+  } else {
+    lowLatency(pc.addTransceiver("video", { direction: "recvonly" }).receiver);
+    await pc.setLocalDescription(await pc.createOffer());
+    await gathered();
+    described = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer", layer } });
+    await pc.setRemoteDescription({ sdp: described.sdp, type: described.type as RTCSdpType });
+  }
+  const peer = { pc, peerId: described.peer_id, secret: described.peer_secret };
   // Leaving the page frees the server's peer at once, not after ICE gives up.
   const onHide = () => closeVideo(api, peer);
   window.addEventListener("pagehide", onHide);
   onClose.set(peer, () => window.removeEventListener("pagehide", onHide));
   return peer;
+}
+
+/** No jitter buffer beyond what decoding needs: render frames as they arrive. */
+function lowLatency(receiver: RTCRtpReceiver): void {
+  const r = receiver as RTCRtpReceiver & { jitterBufferTarget?: number; playoutDelayHint?: number };
+  r.jitterBufferTarget = 0;
+  r.playoutDelayHint = 0;
 }
 
 const onClose = new WeakMap<VideoPeer, () => void>();
