@@ -24,6 +24,7 @@ from backend.control.limits import SafetyLimits
 from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
 from backend.media.media_server import MediaServerSupervisor
 from backend.media.media_server import resolve as resolve_media_server
+from backend.media.observer_feed import ObserverFeed
 from backend.media.supervisor import MediaSupervisor
 from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import PriorityChannel
@@ -141,6 +142,7 @@ class Services:
     priority: PriorityChannel
     media: MediaSupervisor | None
     media_server: MediaServerSupervisor | None  # observers' video through Janus
+    observer_feed: ObserverFeed | None  # their state and forces, through its data channel
     viewer: Viewer3D
     recorder: Recorder
     recording_taps: RecordingTaps
@@ -249,6 +251,14 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         priority=priority,
         media=media,
         media_server=media_server,
+        observer_feed=ObserverFeed(
+            hub,
+            force,
+            media_settings.media_server_host,
+            media_settings.media_server_data_port,
+        )
+        if media_server is not None and media_settings.media_server_data_port
+        else None,
         viewer=build_viewer(settings, workcell, robot, force, calibration.store),
         recorder=recorder,
         recording_taps=RecordingTaps(
@@ -330,6 +340,8 @@ async def start_services(s: Services) -> None:
         s.viewer.view.start()
     if s.media_server is not None:
         await s.media_server.start()
+    if s.observer_feed is not None:
+        s.observer_feed.start()
     if s.media is not None:
         await s.media.start()
     s.tasks.append(
@@ -350,6 +362,8 @@ async def stop_services(s: Services) -> None:
         await s.viewer.view.stop()
     if s.media is not None:
         await s.media.stop()
+    if s.observer_feed is not None:
+        await s.observer_feed.stop()
     if s.media_server is not None:
         await s.media_server.stop()
     await s.priority.stop()

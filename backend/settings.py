@@ -143,6 +143,8 @@ class Settings(BaseSettings):
     media_server_host: str = "127.0.0.1"
     media_server_rtp_port: int = Field(0, ge=0, le=65535)
     media_server_rtcp_port: int = Field(0, ge=0, le=65535)  # its PLIs come back from here
+    # Its data port: state and forces for its viewers' data channels (0 with a URL: none)
+    media_server_data_port: int = Field(0, ge=0, le=65535)
     media_server_http_port: int = Field(0, ge=0, le=65535)
     media_server_mountpoint: int = Field(1, ge=1)
     # Janus's WebRTC side (UDP): open these to the viewers

@@ -148,6 +148,70 @@ def test_nothing_on_the_relay_path_gives_control(server: str) -> None:
     )
 
 
+def test_observers_get_state_and_forces_through_its_data_channel_and_nothing_back(
+    server: str, token: str
+) -> None:
+    """An observer opens Janus's data channel before answering: STATE (as an observer
+    sees it) and FORCE batches arrive at the reduced rate; what it sends there goes
+    nowhere (no client joins the control plane, the lease is untouched)."""
+    from aiortc import RTCPeerConnection, RTCSessionDescription
+
+    from backend.realtime import messages as m
+
+    auth = {"Authorization": f"Bearer {token}"}
+    before = httpx.get(server + "api/v1/safety", headers=auth).json()
+
+    async def observe() -> tuple[list[dict[str, Any]], list[Any]]:
+        states: list[dict[str, Any]] = []
+        samples: list[Any] = []
+        pc = RTCPeerConnection()
+        channel = pc.createDataChannel("JanusDataChannel")  # Janus opens none itself
+
+        @channel.on("message")
+        def on_message(data: bytes) -> None:
+            if data[:1] == bytes([m.FORCE.type_id]):
+                samples.extend(m.decode_force(data))
+            else:
+                kind, fields, _ = m.decode(data)
+                assert kind is m.STATE
+                states.append(fields)
+
+        async with httpx.AsyncClient(base_url=server, timeout=30) as http:
+            offer = (await http.post("api/v1/webrtc/server-offer", json={})).json()
+            await pc.setRemoteDescription(RTCSessionDescription(offer["sdp"], "offer"))
+            await pc.setLocalDescription(await pc.createAnswer())
+            r = await http.post(
+                "api/v1/webrtc/answer",
+                json={
+                    "sdp": pc.localDescription.sdp,
+                    "type": "answer",
+                    "peer_id": offer["peer_id"],
+                    "peer_secret": offer["peer_secret"],
+                },
+            )
+            assert r.status_code == 200, r.text
+            deadline = time.monotonic() + 20
+            while len(states) < 20 and time.monotonic() < deadline:
+                if channel.readyState == "open":  # an observer trying to steer
+                    channel.send(m.encode(m.LEASE, 1, m.LeaseAction.TAKE_OVER))
+                    channel.send(b"\x01" * 64)
+                await asyncio.sleep(0.05)
+            await pc.close()
+            await http.delete(
+                f"api/v1/webrtc/{offer['peer_id']}",
+                headers={"X-Peer-Secret": offer["peer_secret"], **CLIENT},
+            )
+        return states, samples
+
+    states, samples = asyncio.run(observe())
+    assert len(states) >= 20, len(states)
+    assert all(not s["flags"] & m.StateFlags.YOU_HAVE_CONTROL for s in states)
+    seqs = [s[0] for s in samples]
+    assert samples and all(q % 10 == 0 for q in seqs)  # 1 kHz thinned to 100 Hz
+    after = httpx.get(server + "api/v1/safety", headers=auth).json()
+    assert after["controller"] == before["controller"] and not after["estop"]
+
+
 def test_a_flood_of_connects_is_bounded_and_never_reaches_the_control_plane(
     server: str, token: str
 ) -> None:

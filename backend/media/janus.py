@@ -53,6 +53,9 @@ class JanusSettings:
     # Where it sends its viewers' key frame requests from (to the address that sent it
     # RTCP last); None: they go nowhere, and the feed must make key frames by itself.
     rtcp_port: int | None = None
+    # Datagrams to this port (on 127.0.0.1) go to every viewer's data channel, as bytes
+    # (observers' state and forces); None: no data channel.
+    data_port: int | None = None
 
     @property
     def api(self) -> str:
@@ -101,6 +104,11 @@ admin: {{ admin_http = false; admin_https = false }}
 """
     )
     rtcp = "" if settings.rtcp_port is None else f"\n  videortcpport = {settings.rtcp_port}"
+    if settings.data_port is not None:  # not databuffermsg: 1.1.2 leaks each datagram
+        rtcp += (
+            f'\n  data = true\n  dataport = {settings.data_port}\n  dataiface = "127.0.0.1"'
+            '\n  datatype = "binary"'
+        )
     (folder / "janus.plugin.streaming.jcfg").write_text(
         f"""general: {{ events = false }}
 robot-stereo: {{

@@ -51,7 +51,7 @@ def resolve(settings: Settings, token: str) -> Settings:
         update["media_server_http_port"] = http
         update["media_server_url"] = f"http://127.0.0.1:{http}/janus"
         update["media_server_host"] = "127.0.0.1"
-        for name in ("media_server_rtp_port", "media_server_rtcp_port"):
+        for name in ("media_server_rtp_port", "media_server_rtcp_port", "media_server_data_port"):
             update[name] = getattr(settings, name) or free_port(socket.SOCK_DGRAM)
     elif not settings.media_server_rtp_port:
         raise TelerobotError(
@@ -76,6 +76,7 @@ class MediaServerSupervisor:
                     secret=settings.media_server_secret,
                     rtp_ports=settings.media_server_webrtc_ports,
                     rtcp_port=settings.media_server_rtcp_port or None,
+                    data_port=settings.media_server_data_port or None,
                 )
             )
         self.state = "stopped"

@@ -220,11 +220,16 @@ class RealtimeHub:
         self.broadcast_event(m.EventKind.SAFETY, "; ".join(parts))
 
     def encode_state(self, conn: Connection) -> bytes:
+        return self.encode_state_for(conn.client_id, conn.operator)
+
+    def encode_state_for(self, client_id: str | None, operator: bool) -> bytes:
+        """STATE as ``client_id`` sees it (None: an observer with no connection here,
+        e.g. one watching through the media server)."""
         q = self.robot.joints
         pose = self.robot.pose
         safety = self.decision.state()
         flags = 0
-        if safety.lease_holder == conn.client_id:
+        if client_id is not None and safety.lease_holder == client_id:
             flags |= m.StateFlags.YOU_HAVE_CONTROL
         if safety.lease_holder is not None:
             flags |= m.StateFlags.SOMEONE_HAS_CONTROL
@@ -234,7 +239,7 @@ class RealtimeHub:
             flags |= m.StateFlags.FORCE_LIMITED
         if safety.halted:
             flags |= m.StateFlags.HALTED
-        if conn.operator:
+        if operator:
             flags |= m.StateFlags.OPERATOR
         return m.encode(
             m.STATE,
