@@ -224,6 +224,32 @@ def _export_lerobot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _media_server(args: argparse.Namespace) -> int:
+    """Janus in the foreground with a generated configuration, until it exits (or ^C)."""
+    import os
+    import tempfile
+
+    from backend.media.janus import JanusSettings, run_foreground
+
+    secret = os.environ.get(args.secret_env, "")
+    if len(secret) < 16:
+        print(f"telerobot: set {args.secret_env} (at least 16 characters)", file=sys.stderr)
+        return 2
+    lo, _, hi = args.webrtc_ports.partition("-")
+    settings = JanusSettings(
+        http_port=args.http_port,
+        rtp_port=args.rtp_port,
+        secret=secret,
+        rtp_ports=(int(lo), int(hi or lo)),
+        rtcp_port=args.rtcp_port,
+        data_port=args.data_port,
+        api_host=args.api_host,
+        feed_host=args.feed_host,
+    )
+    with tempfile.TemporaryDirectory(prefix="telerobot-janus-") as folder:
+        return run_foreground(settings, Path(folder))
+
+
 def _bench(args: argparse.Namespace) -> int:
     sys.argv = [f"bench.{args.name}", *args.rest]
     runpy.run_module(f"bench.{args.name}", run_name="__main__", alter_sys=True)
@@ -334,6 +360,32 @@ def main(argv: list[str] | None = None) -> int:
     )
     serve.add_argument("--media-server-rtp-port", type=int, help="its mountpoint's RTP port")
     serve.set_defaults(func=_serve)
+
+    janus = sub.add_parser(
+        "media-server",
+        help="run Janus for `telerobot serve --media-server-url` on another machine or container",
+    )
+    janus.add_argument("--http-port", type=int, default=8088, help="its HTTP API (on --api-host)")
+    janus.add_argument(
+        "--api-host", default="127.0.0.1", help="where its HTTP API listens (the robot's server)"
+    )
+    janus.add_argument(
+        "--rtp-port", type=int, default=5004, help="the robot's H.264 RTP comes here"
+    )
+    janus.add_argument(
+        "--rtcp-port", type=int, default=5005, help="key frame requests go back from here"
+    )
+    janus.add_argument("--data-port", type=int, default=5006, help="observers' state and forces")
+    janus.add_argument(
+        "--feed-host", default="127.0.0.1", help="where it takes the RTP and data (its interface)"
+    )
+    janus.add_argument("--webrtc-ports", default="20000-20999", help="its WebRTC UDP range")
+    janus.add_argument(
+        "--secret-env",
+        default="TELEROBOT_MEDIA_SERVER_SECRET",
+        help="the environment variable holding the mountpoint's secret (≥ 16 characters)",
+    )
+    janus.set_defaults(func=_media_server)
 
     recording = sub.add_parser("recording", help="recordings: recover FILE (one with no summary)")
     recording_sub = recording.add_subparsers(dest="recording_command", required=True)

@@ -275,3 +275,48 @@ def test_janus_killed_is_restarted_and_viewers_watch_again(server: str, token: s
             await close(server, pc, peer)
 
     asyncio.run(again())
+
+
+def test_a_media_server_on_another_machine_given_by_url() -> None:
+    """`telerobot media-server` (what another machine or container runs) and a server
+    pointed at it with --media-server-url: observers watch through it as before; the
+    server does not start or restart that one, it only watches that it answers."""
+    import socket
+
+    from backend.media.janus import free_port
+    from tests.servers import telerobot
+
+    http_port = free_port()
+    udp = [free_port(socket.SOCK_DGRAM) for _ in range(3)]
+    secret = secrets.token_hex(16)
+    token = secrets.token_hex(16)
+    with telerobot(
+        "media-server", "--http-port", str(http_port), "--rtp-port", str(udp[0]),
+        "--rtcp-port", str(udp[1]), "--data-port", str(udp[2]),
+        wait_for=r"HTTP webserver started", env={"TELEROBOT_MEDIA_SERVER_SECRET": secret},
+    ):  # fmt: skip
+        env = {
+            "TELEROBOT_VIDEO": "true",
+            "TELEROBOT_VIDEO_WIDTH": str(WIDTH),
+            "TELEROBOT_VIDEO_HEIGHT": str(HEIGHT),
+            "TELEROBOT_MEDIA_SERVER": "janus",
+            "TELEROBOT_MEDIA_SERVER_URL": f"http://127.0.0.1:{http_port}/janus",
+            "TELEROBOT_MEDIA_SERVER_RTP_PORT": str(udp[0]),
+            "TELEROBOT_MEDIA_SERVER_RTCP_PORT": str(udp[1]),
+            "TELEROBOT_MEDIA_SERVER_DATA_PORT": str(udp[2]),
+            "TELEROBOT_MEDIA_SERVER_SECRET": secret,
+        }
+        with served(token, **env) as base:
+            base += "/"
+            ms = status(base)["media_server"]
+            assert ms["managed"] is False and ms["pid"] is None and ms["state"] == "running"
+
+            async def watch() -> None:
+                pc, track, peer = await open_server_offer_viewer(base)
+                try:
+                    assert peer["peer_id"].startswith("relay-")
+                    assert len(await ages(track, frames=3)) == 3
+                finally:
+                    await close(base, pc, peer)
+
+            asyncio.run(watch())

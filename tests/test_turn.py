@@ -365,7 +365,7 @@ def test_the_compose_file_runs_coturn_beside_the_server_with_one_secret() -> Non
     from backend.settings import Settings
 
     path = Path(__file__).resolve().parents[1] / "docker" / "compose.yaml"
-    env = {"TURN_HOST": "robot.example.org", "TURN_SECRET": SECRET}
+    env = {"TURN_HOST": "robot.example.org", "TURN_SECRET": SECRET, "MEDIA_SERVER_SECRET": SECRET}
     compose = yaml.safe_load(compose_interpolate(path.read_text(), env))
     server, turn_server = compose["services"]["telerobot"], compose["services"]["coturn"]
     assert server["network_mode"] == turn_server["network_mode"] == "host"  # UDP media
@@ -381,3 +381,33 @@ def test_the_compose_file_runs_coturn_beside_the_server_with_one_secret() -> Non
         assert option in command
     with pytest.raises(AssertionError, match="set TURN_SECRET"):
         compose_interpolate(path.read_text(), {"TURN_HOST": "robot.example.org"})
+
+
+def test_the_compose_files_media_server_is_the_one_the_server_is_pointed_at() -> None:
+    """The janus service runs `telerobot media-server` on the ports and with the secret
+    the telerobot service's settings name (issue 18)."""
+    from pathlib import Path
+
+    import yaml
+
+    from backend.cli import main as _  # noqa: F401  (the command exists)
+    from backend.settings import Settings
+
+    path = Path(__file__).resolve().parents[1] / "docker" / "compose.yaml"
+    env = {"TURN_HOST": "robot.example.org", "TURN_SECRET": SECRET, "MEDIA_SERVER_SECRET": SECRET}
+    services = yaml.safe_load(compose_interpolate(path.read_text(), env))["services"]
+    server, janus = services["telerobot"], services["janus"]
+    assert janus["network_mode"] == "host" and "janus" in server["depends_on"]
+    given = {k.removeprefix("TELEROBOT_").lower(): v for k, v in server["environment"].items()}
+    settings = Settings.model_validate({**given, "ice_servers": json.loads(given["ice_servers"])})
+    command = janus["command"]
+    assert command[:2] == ["telerobot", "media-server"]
+    option = dict(zip(command[2::2], command[3::2], strict=True))
+    assert settings.media_server == "janus"
+    assert settings.media_server_url == f"http://127.0.0.1:{option['--http-port']}/janus"
+    assert settings.media_server_rtp_port == int(option["--rtp-port"])
+    assert settings.media_server_rtcp_port == int(option["--rtcp-port"])
+    assert settings.media_server_data_port == int(option["--data-port"])
+    assert settings.media_server_secret == janus["environment"]["TELEROBOT_MEDIA_SERVER_SECRET"]
+    with pytest.raises(AssertionError, match="set MEDIA_SERVER_SECRET"):
+        compose_interpolate(path.read_text(), {k: v for k, v in env.items() if "MEDIA" not in k})

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
@@ -56,10 +57,16 @@ class JanusSettings:
     # Datagrams to this port (on 127.0.0.1) go to every viewer's data channel, as bytes
     # (observers' state and forces); None: no data channel.
     data_port: int | None = None
+    # Where its HTTP API listens, and where it takes the RTP and data: 127.0.0.1 when the
+    # robot's server runs beside it (the server starts it), the host's address for a
+    # Janus the server reaches over the network (`telerobot media-server`).
+    api_host: str = "127.0.0.1"
+    feed_host: str = "127.0.0.1"
 
     @property
     def api(self) -> str:
-        return f"http://127.0.0.1:{self.http_port}/janus"
+        host = "127.0.0.1" if self.api_host in ("0.0.0.0", "") else self.api_host
+        return f"http://{host}:{self.http_port}/janus"
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -99,15 +106,15 @@ events: {{ broadcast = false }}
     )
     (folder / "janus.transport.http.jcfg").write_text(
         f"""general: {{ json = "compact"; base_path = "/janus"; http = true;
-  port = {settings.http_port}; ip = "127.0.0.1"; https = false }}
+  port = {settings.http_port}; ip = "{settings.api_host}"; https = false }}
 admin: {{ admin_http = false; admin_https = false }}
 """
     )
     rtcp = "" if settings.rtcp_port is None else f"\n  videortcpport = {settings.rtcp_port}"
     if settings.data_port is not None:  # not databuffermsg: 1.1.2 leaks each datagram
         rtcp += (
-            f'\n  data = true\n  dataport = {settings.data_port}\n  dataiface = "127.0.0.1"'
-            '\n  datatype = "binary"'
+            f"\n  data = true\n  dataport = {settings.data_port}"
+            f'\n  dataiface = "{settings.feed_host}"\n  datatype = "binary"'
         )
     (folder / "janus.plugin.streaming.jcfg").write_text(
         f"""general: {{ events = false }}
@@ -118,7 +125,7 @@ robot-stereo: {{
   audio = false
   video = true
   videoport = {settings.rtp_port}
-  videoiface = "127.0.0.1"
+  videoiface = "{settings.feed_host}"
   videopt = 96
   videocodec = "h264"
   videofmtp = "{H264_FMTP}"
@@ -185,6 +192,23 @@ class JanusProcess:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def run_foreground(settings: JanusSettings, folder: Path) -> int:
+    """Janus with a configuration written into ``folder``, in the foreground (its log on
+    stdout) until it exits or is interrupted; its exit code."""
+    exe = shutil.which(JANUS)
+    if exe is None:
+        raise DriverUnavailable("Janus is missing: apt-get install janus")
+    write_config(folder / "conf", settings)
+    proc = subprocess.Popen([exe, "-F", str(folder / "conf"), "-o"])
+
+    def forward(signum: int, _frame: object) -> None:  # stopped: Janus stops too
+        proc.send_signal(signal.SIGINT)
+
+    signal.signal(signal.SIGTERM, forward)
+    signal.signal(signal.SIGINT, forward)
+    return proc.wait()
 
 
 class JanusViewer:

@@ -62,10 +62,11 @@ def resolve(settings: Settings, token: str) -> Settings:
 
 
 class MediaServerSupervisor:
-    def __init__(self, settings: Settings) -> None:
-        """``settings`` as ``resolve`` gives them."""
+    def __init__(self, settings: Settings, managed: bool) -> None:
+        """``settings`` as ``resolve`` gives them; ``managed``: Janus is ours to start
+        (no ``media_server_url`` was given)."""
         self.settings = settings
-        self.managed = settings.media_server != "none" and settings.media_server_http_port > 0
+        self.managed = settings.media_server != "none" and managed
         self.process: JanusProcess | None = None
         if self.managed:
             assert settings.media_server_secret is not None  # resolve() sets it
