@@ -120,6 +120,9 @@ class Settings(BaseSettings):
     # freeze detector: paced key frames arrive up to ~0.1 s late), which it does not
     # without; bench.wan measured the gain for forces on `mobile` (docs/PERFORMANCE.md).
     video_pacing: bool = False
+    # WebRTC peers of the robot's own server (each costs it encryption and sending; with
+    # a media server only the operator's and the observers' when it is off are)
+    video_max_viewers: int = Field(16, ge=1, le=1000)
     # Seconds between periodic keyframes; 0 (the default): only when asked (a new viewer,
     # a PLI, a lost packet the sender no longer holds, a recording every 2 s). Each
     # periodic one is a burst that queues the forces behind it on a narrow link.

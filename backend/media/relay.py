@@ -103,6 +103,12 @@ class JanusRelay:
             timeout=httpx.Timeout(OFFER_TIMEOUT_S, read=40.0),
             limits=httpx.Limits(max_connections=HTTP_CONNECTIONS),
         )
+        # Every session's long poll holds a connection for up to 30 s: on a pool of
+        # their own (one each), so they never keep a new viewer's requests waiting.
+        self.polls = httpx.AsyncClient(
+            timeout=httpx.Timeout(OFFER_TIMEOUT_S, read=40.0),
+            limits=httpx.Limits(max_connections=max_viewers, max_keepalive_connections=64),
+        )
         self._n = 0
         self._tasks: list[asyncio.Task[None]] = []
         self.feeding = False
@@ -132,6 +138,7 @@ class JanusRelay:
         )
         self._set_feeding()
         await self.http.aclose()
+        await self.polls.aclose()
         self.feed.close()
 
     def send(self, encoded: EncodedFrame) -> None:
@@ -234,7 +241,7 @@ class JanusRelay:
 
     async def _events(self, s: RelaySession) -> list[dict[str, Any]]:
         try:
-            got = (await self.http.get(f"{self.api}/{s.session}?maxev=5")).json()
+            got = (await self.polls.get(f"{self.api}/{s.session}?maxev=5")).json()
         except (httpx.HTTPError, ValueError) as exc:
             raise RelayUnavailable(f"the media server's events failed: {exc!r}") from exc
         events = got if isinstance(got, list) else [got]

@@ -87,6 +87,7 @@ async def _serve(
             pacing=settings.video_pacing,
             ice=settings.ice_config,
         ),
+        max_viewers=settings.video_max_viewers,
     )
     pipeline.start()
     relay = None
