@@ -236,6 +236,15 @@ def _media_server(args: argparse.Namespace) -> int:
         print(f"telerobot: set {args.secret_env} (at least 16 characters)", file=sys.stderr)
         return 2
     lo, _, hi = args.webrtc_ports.partition("-")
+    if not (lo.isdigit() and (hi or lo).isdigit() and 1024 <= int(lo) <= int(hi or lo) <= 65535):
+        print(
+            f"telerobot: --webrtc-ports LOW-HIGH (1024…65535), got {args.webrtc_ports!r}",
+            file=sys.stderr,
+        )
+        return 2
+    if not secret.replace("-", "").replace("_", "").isalnum():
+        print(f"telerobot: {args.secret_env}: letters, digits, - and _ only", file=sys.stderr)
+        return 2
     settings = JanusSettings(
         http_port=args.http_port,
         rtp_port=args.rtp_port,

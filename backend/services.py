@@ -254,7 +254,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         observer_feed=ObserverFeed(
             hub,
             force,
-            media_settings.media_server_host,
+            media_settings.media_server_host or "127.0.0.1",
             media_settings.media_server_data_port,
         )
         if media_server is not None and media_settings.media_server_data_port
@@ -288,7 +288,13 @@ def recording_snapshot(
         (
             "/settings",
             settings.model_dump(
-                mode="json", exclude={"operator_token", "turn_secret", "media_server_secret"}
+                mode="json",
+                exclude={
+                    "operator_token",
+                    "turn_secret",
+                    "media_server_secret",
+                    "media_server_api_secret",
+                },
             ),
         ),
         ("/calibration", calibration_payload(workcell, calibration)),

@@ -143,7 +143,7 @@ class Settings(BaseSettings):
     # (media_server_mountpoint) takes RTP on media_server_host:media_server_rtp_port.
     media_server: Literal["none", "janus"] = "none"
     media_server_url: str | None = Field(None, pattern=r"^https?://[^\s]+$")
-    media_server_host: str = "127.0.0.1"
+    media_server_host: str | None = None  # None: the URL's host (127.0.0.1 for ours)
     media_server_rtp_port: int = Field(0, ge=0, le=65535)
     media_server_rtcp_port: int = Field(0, ge=0, le=65535)  # its PLIs come back from here
     # Its data port: state and forces for its viewers' data channels (0 with a URL: none)
@@ -152,11 +152,19 @@ class Settings(BaseSettings):
     media_server_mountpoint: int = Field(1, ge=1)
     # Janus's WebRTC side (UDP): open these to the viewers
     media_server_webrtc_ports: tuple[int, int] = (20000, 20999)
-    # The mountpoint's secret; None: derived from the operator token (never sent to a page)
-    media_server_secret: str | None = Field(None, min_length=16, repr=False)
+    # The mountpoint's secret, and the one every request to Janus's API carries (its
+    # api_secret); None: derived from the operator token. Never sent to a page.
+    media_server_secret: str | None = Field(
+        None, min_length=16, max_length=128, pattern=r"^[A-Za-z0-9_-]+$", repr=False
+    )
+    media_server_api_secret: str | None = Field(
+        None, min_length=16, max_length=128, pattern=r"^[A-Za-z0-9_-]+$", repr=False
+    )
     media_server_max_viewers: int = Field(500, ge=1, le=100_000)
     media_server_max_pending: int = Field(100, ge=1, le=10_000)  # offered, not yet answered
     media_server_pending_expiry_s: float = Field(20.0, ge=0.5, le=300.0)
+    # A viewer through it whose page stops saying it is alive (every 15 s) is dropped
+    media_server_viewer_timeout_s: float = Field(45.0, ge=1.0, le=3600.0)
 
     # Simulated workcell
     # Where the fiducials are (m, robot base), in clicking order; the thesis's affine
@@ -179,6 +187,22 @@ class Settings(BaseSettings):
         if not all(math.isfinite(c) for p in v for c in p):
             raise ValueError("fiducials must be finite numbers")
         return v
+
+    @model_validator(mode="after")
+    def _media_server_usable(self) -> Settings:
+        """A Janus given by URL needs where its mountpoint takes RTP and sends its key
+        frame requests from; a URL alone (no media_server) would be silently unused."""
+        if self.media_server_url is None:
+            return self
+        if self.media_server != "janus":
+            raise ValueError("media_server_url is for media_server = janus (--media-server janus)")
+        if not self.media_server_rtp_port or not self.media_server_rtcp_port:
+            raise ValueError(
+                "a media server given by URL needs media_server_rtp_port and"
+                " media_server_rtcp_port: its mountpoint's RTP port, and its videortcpport"
+                " (viewers' key frame requests come back from there)"
+            )
+        return self
 
     @model_validator(mode="after")
     def _ice_usable(self) -> Settings:

@@ -121,7 +121,7 @@ def test_observers_watch_through_janus_and_the_operator_directly(server: str, to
     assert not status(server)["stats"]["relay"]["feeding"]  # nobody: no feed
 
 
-def test_nothing_on_the_relay_path_gives_control(server: str) -> None:
+def test_nothing_on_the_relay_path_gives_control(server: str, token: str) -> None:
     """An observer holds a relay peer's id and secret: neither is a token, and the
     media server's own API and secret are never handed out."""
 
@@ -139,9 +139,11 @@ def test_nothing_on_the_relay_path_gives_control(server: str) -> None:
             headers={"Authorization": f"Bearer {credential}"},
         )
         assert r.status_code in (401, 403), r.text
-    seen = httpx.get(server + "api/v1/video").text + httpx.get(server + "api/v1/recordings").text
-    assert "secret" not in status(server)["media_server"]
-    assert "media_server_secret" not in seen
+    # Where Janus is (its unauthenticated-by-default API) is the operator's to know.
+    where = status(server, token)["media_server"]
+    seen = httpx.get(server + "api/v1/video").text
+    assert set(status(server)["media_server"]) == {"kind", "state", "restarts"}
+    assert where["url"] not in seen and "/janus" not in seen
     httpx.delete(
         server + f"api/v1/webrtc/{peer['peer_id']}",
         headers={"X-Peer-Secret": peer["peer_secret"], **CLIENT},
@@ -255,7 +257,7 @@ def test_a_flood_of_connects_is_bounded_and_never_reaches_the_control_plane(
 
 
 def test_janus_killed_is_restarted_and_viewers_watch_again(server: str, token: str) -> None:
-    first = status(server)["media_server"]
+    first = status(server, token)["media_server"]
     os.kill(first["pid"], signal.SIGKILL)
     wait_for(
         "Janus restarted",
@@ -264,7 +266,7 @@ def test_janus_killed_is_restarted_and_viewers_watch_again(server: str, token: s
             and s["state"] == "running"
         ),
     )
-    assert "exited" in (status(server)["media_server"]["last_error"] or "")
+    assert "exited" in (status(server, token)["media_server"]["last_error"] or "")
     assert httpx.get(server + "api/v1/health").status_code == 200  # the server went on
 
     async def again() -> None:
@@ -293,7 +295,7 @@ def test_a_media_server_on_another_machine_given_by_url() -> None:
     with telerobot(
         "media-server", "--http-port", str(http_port), "--rtp-port", str(udp[0]),
         "--rtcp-port", str(udp[1]), "--data-port", str(udp[2]),
-        wait_for=r"HTTP webserver started", env={"TELEROBOT_MEDIA_SERVER_SECRET": secret},
+        wait_for=r"media server ready", env={"TELEROBOT_MEDIA_SERVER_SECRET": secret},
     ):  # fmt: skip
         env = {
             "TELEROBOT_VIDEO": "true",
@@ -308,7 +310,7 @@ def test_a_media_server_on_another_machine_given_by_url() -> None:
         }
         with served(token, **env) as base:
             base += "/"
-            ms = status(base)["media_server"]
+            ms = status(base, token)["media_server"]
             assert ms["managed"] is False and ms["pid"] is None and ms["state"] == "running"
 
             async def watch() -> None:
@@ -320,3 +322,79 @@ def test_a_media_server_on_another_machine_given_by_url() -> None:
                     await close(base, pc, peer)
 
             asyncio.run(watch())
+
+
+def test_viewers_are_bounded_and_a_silent_one_is_dropped(token: str) -> None:
+    """At most media_server_max_viewers (2 here) through Janus; a viewer whose page
+    stops saying it is alive (POST /webrtc/{id}/alive) is dropped after the timeout
+    (2 s here), its peer still open: Janus itself does not notice a page that
+    vanished. A relay peer saves its viewer's alignment like a direct one."""
+    env = {
+        "TELEROBOT_MEDIA_SERVER": "janus",
+        "TELEROBOT_VIDEO": "true",
+        "TELEROBOT_VIDEO_WIDTH": str(WIDTH),
+        "TELEROBOT_VIDEO_HEIGHT": str(HEIGHT),
+        "TELEROBOT_MEDIA_SERVER_MAX_VIEWERS": "2",
+        "TELEROBOT_MEDIA_SERVER_VIEWER_TIMEOUT_S": "2",
+    }
+    with served(token, **env) as base:
+        base += "/"
+
+        async def run() -> None:
+            a_pc, a_track, a = await open_server_offer_viewer(base)
+            b_pc, _, _ = await open_server_offer_viewer(base)
+            async with httpx.AsyncClient(base_url=base, timeout=10, headers=CLIENT) as http:
+                third = await http.post("api/v1/webrtc/server-offer", json={})
+                assert third.status_code == 503 and third.json()["type"].endswith(":relay_full")
+                saved = await http.put(
+                    "api/v1/video/alignment",
+                    params={"viewer": "left-seat"},
+                    json={"dx": 3, "dy": -1},
+                    headers={"X-Peer-Id": a["peer_id"], "X-Peer-Secret": a["peer_secret"]},
+                )
+                assert saved.status_code == 200, saved.text
+                for _ in range(4):  # 3 s: only A says it is alive
+                    r = await http.post(
+                        f"api/v1/webrtc/{a['peer_id']}/alive",
+                        headers={"X-Peer-Secret": a["peer_secret"]},
+                    )
+                    assert r.status_code == 200, r.text
+                    await asyncio.sleep(0.75)
+                relay = (await asyncio.to_thread(status, base))["stats"]["relay"]
+                assert relay["viewers"] == 1 and relay["dropped_silent"] == 1, relay
+                assert len(await ages(a_track, frames=2)) == 2  # A still watches
+                wrong = await http.post(
+                    f"api/v1/webrtc/{a['peer_id']}/alive", headers={"X-Peer-Secret": "x" * 22}
+                )
+                assert wrong.status_code == 404
+            await asyncio.sleep(3.0)  # A falls silent too
+            relay = (await asyncio.to_thread(status, base))["stats"]["relay"]
+            assert relay["viewers"] == 0 and relay["dropped_silent"] == 2, relay
+            await a_pc.close()
+            await b_pc.close()
+
+        asyncio.run(run())
+
+
+@pytest.mark.parametrize(
+    ("args", "secret", "said"),
+    [
+        (["--webrtc-ports", "20000:20999"], "a" * 20, "--webrtc-ports LOW-HIGH"),
+        ([], "short", "at least 16"),
+        ([], 'quote"d-secret-0123456789', "letters, digits"),
+    ],
+)
+def test_media_server_refuses_bad_input_with_the_reason(
+    args: list[str], secret: str, said: str
+) -> None:
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "backend.cli", "media-server", *args],
+        env={**os.environ, "TELEROBOT_MEDIA_SERVER_SECRET": secret},
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert done.returncode == 2 and said in done.stderr, done.stderr

@@ -98,7 +98,9 @@ class VideoStatus(BaseModel):
         " 'relay' through the media server (negotiate with /webrtc/server-offer then)",
     )
     media_server: dict[str, Any] | None = Field(
-        None, description="the media server's state (kind, state, restarts), if there is one"
+        None,
+        description="the media server's state (kind, state, restarts), if there is one; to"
+        " the operator also where it is (url, pid, managed, last_error)",
     )
 
 
@@ -219,6 +221,20 @@ async def answer(body: Answer, media: MediaDep) -> dict[str, str]:
     return {"peer_id": body.peer_id}
 
 
+@router.post("/webrtc/{peer_id}/alive")
+async def peer_alive(
+    peer_id: Annotated[str, Path(max_length=64)],
+    media: MediaDep,
+    x_peer_secret: PeerSecret = None,
+) -> dict[str, str]:
+    """This page still watches (header ``X-Peer-Secret``): a peer through the media
+    server is dropped after ``media_server_viewer_timeout_s`` (45 s) without it (the
+    page says so every 15 s). A direct peer needs none: its loss is noticed by ICE."""
+    if peer_id.startswith(RELAY_PREFIX):
+        await media.request("relay_alive", peer_id=peer_id, peer_secret=x_peer_secret)
+    return {"peer_id": peer_id}
+
+
 @router.delete("/webrtc/{peer_id}")
 async def close_peer(
     peer_id: Annotated[str, Path(max_length=64)],
@@ -262,7 +278,7 @@ async def video_status(
         stats=stats,
         error=error,
         path="relay" if relayed(media_server, operator) else "direct",
-        media_server=media_server.status() if media_server is not None else None,
+        media_server=media_server.status(operator) if media_server is not None else None,
     )
 
 

@@ -35,7 +35,11 @@ import httpx
 from drivers.base import DeviceError, DriverUnavailable
 
 JANUS = "janus"
-LIBS = Path("/usr/lib/x86_64-linux-gnu/janus")
+# Debian's multiarch folder for this machine's architecture (x86_64-linux-gnu,
+# aarch64-linux-gnu, …), wherever Janus's plugins were installed.
+LIBS = next(
+    iter(sorted(Path("/usr/lib").glob("*/janus/plugins"))), Path("/usr/lib/janus/plugins")
+).parent
 OTHER_PLUGINS = (
     "audiobridge duktape echotest lua nosip recordplay sip textroom videocall videoroom voicemail"
 )
@@ -62,6 +66,11 @@ class JanusSettings:
     # Janus the server reaches over the network (`telerobot media-server`).
     api_host: str = "127.0.0.1"
     feed_host: str = "127.0.0.1"
+    # ICE connectivity checks as keep-alives: how Janus notices a viewer that vanished
+    # without closing (a laptop shut, a crash) and hangs its peer up.
+    conncheck: bool = True
+    # Every request to its API carries this (its api_secret); None: none needed.
+    api_secret: str | None = None
 
     @property
     def api(self) -> str:
@@ -84,6 +93,7 @@ def write_config(folder: Path, settings: JanusSettings) -> None:
     """The three ``.jcfg`` files: the core, the HTTP transport, the streaming plugin."""
     folder.mkdir(parents=True, exist_ok=True)
     lo, hi = settings.rtp_ports
+    api_secret = "" if settings.api_secret is None else f'\n  api_secret = "{settings.api_secret}"'
     (folder / "janus.jcfg").write_text(
         f"""general: {{
   configs_folder = "{folder}"
@@ -91,13 +101,13 @@ def write_config(folder: Path, settings: JanusSettings) -> None:
   transports_folder = "{LIBS / "transports"}"
   events_folder = "{LIBS / "events"}"
   loggers_folder = "{LIBS / "loggers"}"
-  debug_level = 4
+  debug_level = 3
   debug_colors = false
-  server_name = "telerobot-janus"
+  server_name = "telerobot-janus"{api_secret}
 }}
 certificates: {{ }}
 media: {{ rtp_port_range = "{lo}-{hi}" }}
-nat: {{ ignore_mdns = true }}
+nat: {{ ignore_mdns = true{"; ice_keepalive_conncheck = true" if settings.conncheck else ""} }}
 plugins: {{ disable = "{_disable(OTHER_PLUGINS)}" }}
 transports: {{ disable = "{_disable(OTHER_TRANSPORTS)}" }}
 loggers: {{ disable = "libjanus_jsonlog.so" }}
@@ -175,6 +185,14 @@ class JanusProcess:
                 raise DeviceError(f"janus did not answer within {READY_TIMEOUT_S:g} s")
             time.sleep(0.05)
 
+    def log_tail(self, chars: int = 400) -> str:
+        """The end of its log (why it died), before ``stop`` removes it."""
+        if self.log is None or not self.log.exists():
+            return ""
+        with self.log.open("rb") as f:
+            f.seek(max(0, self.log.stat().st_size - chars))
+            return f.read().decode("utf-8", "replace").strip()
+
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.send_signal(2)  # SIGINT: a clean exit
@@ -208,6 +226,17 @@ def run_foreground(settings: JanusSettings, folder: Path) -> int:
 
     signal.signal(signal.SIGTERM, forward)
     signal.signal(signal.SIGINT, forward)
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while proc.poll() is None and time.monotonic() < deadline:
+        with contextlib.suppress(httpx.HTTPError):
+            if httpx.get(settings.api + "/info", timeout=1).status_code == 200:
+                print(
+                    f"media server ready: its HTTP API on {settings.api_host}:{settings.http_port},"
+                    f" RTP to {settings.feed_host}:{settings.rtp_port}",
+                    flush=True,
+                )
+                break
+        time.sleep(0.05)
     return proc.wait()
 
 
@@ -216,8 +245,9 @@ class JanusViewer:
     SDP offer, ``start`` takes the answer, ``close`` destroys the session. Janus ends a
     session ~60 s after its last request, watching or not: one kept open must poll."""
 
-    def __init__(self, api: str, timeout_s: float = 10.0) -> None:
+    def __init__(self, api: str, timeout_s: float = 10.0, api_secret: str | None = None) -> None:
         self.api = api
+        self._secret = {"apisecret": api_secret} if api_secret else {}
         self.http = httpx.Client(timeout=timeout_s + 5)
         self.timeout_s = timeout_s
         self._n = 0
@@ -230,7 +260,7 @@ class JanusViewer:
     def _post(self, url: str, body: dict[str, Any]) -> dict[str, Any]:
         self._n += 1
         reply: dict[str, Any] = self.http.post(
-            url, json={**body, "transaction": str(self._n)}
+            url, json={**body, **self._secret, "transaction": str(self._n)}
         ).json()
         if reply.get("janus") == "error":
             raise DeviceError(f"janus: {reply.get('error', {}).get('reason', reply)}")
@@ -247,7 +277,8 @@ class JanusViewer:
         self.message({"request": "watch", "id": mountpoint})
         deadline = time.monotonic() + self.timeout_s
         while time.monotonic() < deadline:
-            events = self.http.get(f"{self.api}/{self.session}?maxev=5").json()
+            params = {"maxev": "5", **self._secret}
+            events = self.http.get(f"{self.api}/{self.session}", params=params).json()
             for event in events if isinstance(events, list) else [events]:
                 if "jsep" in event:
                     jsep: dict[str, Any] = event["jsep"]

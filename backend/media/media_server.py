@@ -16,15 +16,17 @@ import contextlib
 import hashlib
 import hmac
 import logging
+import shutil
 import socket
 import time
 from typing import Any
+from urllib.parse import urlsplit
 
 import httpx
 
-from backend.media.janus import JanusProcess, JanusSettings, free_port
+from backend.media.janus import JANUS, JanusProcess, JanusSettings, free_port
 from backend.settings import Settings
-from drivers.base import TelerobotError
+from drivers.base import DriverUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +35,9 @@ PROBE_S = 2.0  # how often a Janus elsewhere is asked whether it answers
 FIRST_BACKOFF_S, MAX_BACKOFF_S = 0.5, 8.0
 
 
-def derived_secret(token: str) -> str:
-    """The mountpoint's secret when none is set: from the operator token, one way."""
-    return hmac.new(token.encode(), b"telerobot media server", hashlib.sha256).hexdigest()[:32]
+def derived_secret(token: str, what: bytes = b"telerobot media server") -> str:
+    """A secret for the media server when none is set: from the operator token, one way."""
+    return hmac.new(token.encode(), what, hashlib.sha256).hexdigest()[:32]
 
 
 def resolve(settings: Settings, token: str) -> Settings:
@@ -46,6 +48,8 @@ def resolve(settings: Settings, token: str) -> Settings:
     update: dict[str, Any] = {}
     if settings.media_server_secret is None:
         update["media_server_secret"] = derived_secret(token)
+    if settings.media_server_api_secret is None:
+        update["media_server_api_secret"] = derived_secret(token, b"telerobot media server api")
     if settings.media_server_url is None:  # ours: on this machine
         http = settings.media_server_http_port or free_port()
         update["media_server_http_port"] = http
@@ -53,11 +57,8 @@ def resolve(settings: Settings, token: str) -> Settings:
         update["media_server_host"] = "127.0.0.1"
         for name in ("media_server_rtp_port", "media_server_rtcp_port", "media_server_data_port"):
             update[name] = getattr(settings, name) or free_port(socket.SOCK_DGRAM)
-    elif not settings.media_server_rtp_port:
-        raise TelerobotError(
-            "a media server given by URL needs media_server_rtp_port: the UDP port its"
-            " mountpoint takes the robot's RTP on (media_server_host is its address)"
-        )
+    elif settings.media_server_host is None:  # the settings checked the ports
+        update["media_server_host"] = urlsplit(settings.media_server_url).hostname
     return settings.model_copy(update=update)
 
 
@@ -78,6 +79,7 @@ class MediaServerSupervisor:
                     rtp_ports=settings.media_server_webrtc_ports,
                     rtcp_port=settings.media_server_rtcp_port or None,
                     data_port=settings.media_server_data_port or None,
+                    api_secret=settings.media_server_api_secret,
                 )
             )
         self.state = "stopped"
@@ -86,6 +88,9 @@ class MediaServerSupervisor:
         self.started_at: float | None = None
         self._task: asyncio.Task[None] | None = None
         self._stopping = False
+        # Starting and stopping the process (each in a thread) never overlap: a stop
+        # during a restart waits for the start, then stops what it started.
+        self._lock = asyncio.Lock()
 
     @property
     def url(self) -> str | None:
@@ -95,6 +100,11 @@ class MediaServerSupervisor:
         if self.settings.media_server == "none":
             return
         if self.process is not None:
+            if shutil.which(JANUS) is None:
+                raise DriverUnavailable(
+                    "--media-server janus needs Janus on this machine: apt-get install janus"
+                    " (make test installs it), or give one elsewhere with --media-server-url"
+                )
             await self._start_process()
         else:
             await self._probe()
@@ -103,12 +113,15 @@ class MediaServerSupervisor:
     async def _start_process(self) -> bool:
         assert self.process is not None
         self.state = "starting"
-        try:
-            await asyncio.to_thread(self.process.start)
-        except TelerobotError as exc:
-            self.state, self.last_error = "down", str(exc)
-            log.error("the media server did not start: %s", exc)
-            return False
+        async with self._lock:
+            if self._stopping:
+                return False
+            try:
+                await asyncio.to_thread(self.process.start)
+            except Exception as exc:  # any failure: said, and tried again later
+                self.state, self.last_error = "down", str(exc)
+                log.error("the media server did not start: %s", exc)
+                return False
         self.state, self.started_at = "running", time.monotonic()
         # Not its URL: the line `telerobot serve` prints with ours is found by its "http://"
         log.info("media server (Janus) running, its HTTP API on 127.0.0.1 port %d",
@@ -137,10 +150,12 @@ class MediaServerSupervisor:
                 continue
             proc = self.process.proc
             code = proc.returncode if proc is not None else None
-            self.last_error = f"Janus exited (code {code})"
+            said = self.process.log_tail()
+            self.last_error = f"Janus exited (code {code})" + (f": {said}" if said else "")
             log.error("the media server died (exit code %s); restarting it in %g s", code, backoff)
             self.state = "restarting"
-            await asyncio.to_thread(self.process.stop)  # its old folder and log
+            async with self._lock:
+                await asyncio.to_thread(self.process.stop)  # its old folder and log
             await asyncio.sleep(backoff)
             backoff = min(MAX_BACKOFF_S, backoff * 2)
             self.restarts += 1
@@ -148,23 +163,32 @@ class MediaServerSupervisor:
 
     async def stop(self) -> None:
         self._stopping = True
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-        if self.process is not None:
-            await asyncio.to_thread(self.process.stop)
+        # The lock first: a start in flight (in its thread) ends before anything else,
+        # and then the watchdog is cancelled where it cannot be starting one.
+        async with self._lock:
+            if self._task is not None:
+                self._task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._task
+            if self.process is not None:
+                await asyncio.to_thread(self.process.stop)
         self.state = "stopped"
 
-    def status(self) -> dict[str, Any]:
-        return {
+    def status(self, operator: bool = False) -> dict[str, Any]:
+        """Its state for anyone; where it is (its API's URL, its process, what it
+        said when it died) for the operator only."""
+        shown: dict[str, Any] = {
             "kind": self.settings.media_server,
-            "managed": self.managed,
-            "url": self.url,
             "state": self.state,
             "restarts": self.restarts,
-            "last_error": self.last_error,
-            "pid": self.process.proc.pid
-            if self.process is not None and self.process.proc is not None
-            else None,
         }
+        if operator:
+            shown.update(
+                managed=self.managed,
+                url=self.url,
+                last_error=self.last_error,
+                pid=self.process.proc.pid
+                if self.process is not None and self.process.proc is not None
+                else None,
+            )
+        return shown

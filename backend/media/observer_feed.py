@@ -76,8 +76,13 @@ class ObserverFeed:
 
     def tick(self) -> None:
         """One STATE and the FORCE samples since the last tick (if any), two datagrams."""
-        batch = [(s.seq, s.time, s.values) for s in list(self._samples)]
-        self._samples.clear()
+        batch = []
+        while True:  # popleft: a sample the sensor's thread adds meanwhile stays
+            try:
+                s = self._samples.popleft()
+            except IndexError:
+                break
+            batch.append((s.seq, s.time, s.values))
         out = [self.hub.encode_state_for(None, False)]
         if batch:
             out.append(m.encode_force(batch))

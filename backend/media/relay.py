@@ -38,8 +38,13 @@ RELAY_PREFIX = "relay-"  # the peer ids of viewers through the media server
 MAX_RELAY_VIEWERS = 500
 MAX_RELAY_PENDING = 100  # offered, not yet answered
 RELAY_PENDING_EXPIRY_S = 20.0
+# A watching viewer whose page has not said it is alive for this long is dropped: Janus
+# 1.1.2 does not notice a viewer that vanished without closing (a laptop shut, a crash;
+# not within 75 s here, ICE keep-alive checks on), and would send it video for good.
+RELAY_VIEWER_TIMEOUT_S = 45.0
 REPORT_INTERVAL_S = 1.0  # RTCP sender reports to the mountpoint (and the address latch)
 OFFER_TIMEOUT_S = 10.0
+POLL_RETRIES = 3  # failed long polls in a row before a session is given up
 HTTP_CONNECTIONS = 64  # to Janus's HTTP API, shared by every session's requests
 
 
@@ -68,6 +73,8 @@ class RelaySession:
     started: bool = False
     destroyed: bool = False
     poller: asyncio.Task[None] | None = None
+    viewer: str | None = None  # the one viewer name whose alignment this peer may save
+    seen: float = 0.0  # its page last said it is alive (monotonic)
 
     def owned_by(self, secret: str | None) -> bool:
         return secret is not None and secrets.compare_digest(self.secret.encode(), secret.encode())
@@ -85,16 +92,20 @@ class JanusRelay:
         start_feed: Any,
         stop_feed: Any,
         *,
+        api_secret: str | None = None,
         host: str = "127.0.0.1",
         mountpoint: int = MOUNTPOINT,
         max_viewers: int = MAX_RELAY_VIEWERS,
         max_pending: int = MAX_RELAY_PENDING,
         pending_expiry_s: float = RELAY_PENDING_EXPIRY_S,
+        viewer_timeout_s: float = RELAY_VIEWER_TIMEOUT_S,
     ) -> None:
         self.api = api.rstrip("/")
+        self._secret = {"apisecret": api_secret} if api_secret else {}
         self.mountpoint = mountpoint
         self.max_viewers, self.max_pending = max_viewers, max_pending
         self.pending_expiry_s = pending_expiry_s
+        self.viewer_timeout_s = viewer_timeout_s
         self.feed = RtpFeed(rtp_port, host=host, rtcp_port=rtcp_port)
         self._request_keyframe = request_keyframe
         self._start_feed, self._stop_feed = start_feed, stop_feed
@@ -115,6 +126,7 @@ class JanusRelay:
         self.plis = 0  # key frame requests from the media server
         self.refused = 0  # connects refused by the limits
         self.ended = 0  # sessions ended by the media server (the viewer's peer failed)
+        self.silent = 0  # watching sessions dropped: their page stopped saying it is alive
         self.errors = 0  # requests the media server failed
 
     # ------------------------------------------------------------ lifecycle
@@ -162,6 +174,9 @@ class JanusRelay:
             for s in list(self.sessions.values()):
                 if not s.started and now - s.created > self.pending_expiry_s:
                     await self._destroy(s)
+                elif s.started and now - s.seen > self.viewer_timeout_s:
+                    self.silent += 1
+                    await self._destroy(s)
 
     def _set_feeding(self) -> None:
         """Encode and send only while someone watches (or is about to) through Janus."""
@@ -176,7 +191,9 @@ class JanusRelay:
     async def _post(self, url: str, body: dict[str, Any]) -> dict[str, Any]:
         self._n += 1
         try:
-            response = await self.http.post(url, json={**body, "transaction": str(self._n)})
+            response = await self.http.post(
+                url, json={**body, **self._secret, "transaction": str(self._n)}
+            )
             reply: dict[str, Any] = response.json()
         except (httpx.HTTPError, ValueError) as exc:
             self.errors += 1
@@ -214,7 +231,11 @@ class JanusRelay:
         s = RelaySession(RELAY_PREFIX + secrets.token_urlsafe(9), 0, 0, time.monotonic())
         self.sessions[s.peer_id] = s
         try:
-            s.session = (await self._post(self.api, {"janus": "create"}))["data"]["id"]
+            session = (await self._post(self.api, {"janus": "create"}))["data"]["id"]
+            if s.destroyed:  # expired (or shut down) while Janus made it: undo it there
+                await self._post(f"{self.api}/{session}", {"janus": "destroy"})
+                raise RelayUnavailable("the media server took too long to answer; try again")
+            s.session = session
             attached = await self._post(
                 f"{self.api}/{s.session}", {"janus": "attach", "plugin": "janus.plugin.streaming"}
             )
@@ -222,6 +243,8 @@ class JanusRelay:
             self._set_feeding()
             await self._message(s, {"request": "watch", "id": self.mountpoint})
             jsep = await self._next_offer(s)
+            if s.destroyed:
+                raise RelayUnavailable("the media server took too long to answer; try again")
         except BaseException:
             await self._destroy(s)
             raise
@@ -241,7 +264,8 @@ class JanusRelay:
 
     async def _events(self, s: RelaySession) -> list[dict[str, Any]]:
         try:
-            got = (await self.polls.get(f"{self.api}/{s.session}?maxev=5")).json()
+            params = {"maxev": "5", **self._secret}
+            got = (await self.polls.get(f"{self.api}/{s.session}", params=params)).json()
         except (httpx.HTTPError, ValueError) as exc:
             raise RelayUnavailable(f"the media server's events failed: {exc!r}") from exc
         events = got if isinstance(got, list) else [got]
@@ -252,24 +276,44 @@ class JanusRelay:
     async def _poll(self, s: RelaySession) -> None:
         """The session's events until it ends: a ``hangup`` (its peer failed or closed)
         or the media server gone ends it here too. Each poll keeps it alive."""
+        failures = 0
         try:
             while s.peer_id in self.sessions:
-                events = await self._events(s)
+                try:
+                    events = await self._events(s)
+                except RelayUnavailable as exc:
+                    # A dropped keep-alive connection is no reason to end a viewer; a
+                    # session Janus no longer knows (or Janus gone for good) is.
+                    failures += 1
+                    if "lost the session" in str(exc) or failures >= POLL_RETRIES:
+                        break
+                    await asyncio.sleep(0.2 * failures)
+                    continue
+                failures = 0
                 if any(e.get("janus") in ("hangup", "detached", "timeout") for e in events):
                     self.ended += 1
                     break
-        except RelayUnavailable:
-            pass  # Janus is gone: the session with it
         except asyncio.CancelledError:
             return
         await self._destroy(s, poller=False)
+
+    def claim_viewer(self, peer_id: str, secret: str | None, viewer: str) -> None:
+        """May this peer save ``viewer``'s alignment? One viewer name per peer."""
+        s = self._own(peer_id, secret)
+        if s.viewer is not None and s.viewer != viewer:
+            raise RelayPeerUnknown(f"this peer saves the alignment of viewer {s.viewer!r} only")
+        s.viewer = viewer
 
     async def accept(self, peer_id: str, secret: str | None, sdp: str) -> None:
         s = self._own(peer_id, secret)
         await self._message(
             s, {"request": "start"}, {"type": "answer", "sdp": sdp, "trickle": False}
         )
-        s.started = True
+        s.started, s.seen = True, time.monotonic()
+
+    def alive(self, peer_id: str, secret: str | None) -> None:
+        """Its page is still there (every ~15 s; see ``RELAY_VIEWER_TIMEOUT_S``)."""
+        self._own(peer_id, secret).seen = time.monotonic()
 
     async def close_viewer(self, peer_id: str, secret: str | None, operator: bool = False) -> None:
         s = self.sessions.get(peer_id)
@@ -291,16 +335,15 @@ class JanusRelay:
             return
         s.destroyed = True
         self.sessions.pop(s.peer_id, None)
+        self._set_feeding()  # at once: the count is right before Janus answers
         if poller and s.poller is not None:
             s.poller.cancel()
         if s.session:
             with contextlib.suppress(RelayUnavailable):
                 await self._post(f"{self.api}/{s.session}", {"janus": "destroy"})
-        self._set_feeding()
 
     def stats(self) -> dict[str, Any]:
         return {
-            "api": self.api,
             "viewers": sum(1 for s in self.sessions.values() if s.started),
             "pending": sum(1 for s in self.sessions.values() if not s.started),
             "max_viewers": self.max_viewers,
@@ -310,5 +353,7 @@ class JanusRelay:
             "key_frame_requests": self.plis,
             "refused": self.refused,
             "ended_by_media_server": self.ended,
+            "dropped_silent": self.silent,
+            "viewer_timeout_s": self.viewer_timeout_s,
             "errors": self.errors,
         }

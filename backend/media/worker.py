@@ -74,6 +74,7 @@ async def _serve(
     video: multiprocessing.connection.Connection | None = None,
 ) -> None:
     from backend.media.pipeline import VideoPipeline, VideoSettings
+    from backend.media.relay import RELAY_PREFIX
     from backend.media.tap import PacketPipe
 
     camera = build_camera(settings, shared_arm_probe(arm))
@@ -107,11 +108,13 @@ async def _serve(
             pipeline.broadcaster.request_keyframe,
             start_feed=start_feed,
             stop_feed=lambda: pipeline.stop_tap("relay"),
-            host=settings.media_server_host,
+            api_secret=settings.media_server_api_secret,
+            host=settings.media_server_host or "127.0.0.1",
             mountpoint=settings.media_server_mountpoint,
             max_viewers=settings.media_server_max_viewers,
             max_pending=settings.media_server_max_pending,
             pending_expiry_s=settings.media_server_pending_expiry_s,
+            viewer_timeout_s=settings.media_server_viewer_timeout_s,
         )
         relay.start()
     tap = (
@@ -154,6 +157,12 @@ async def _serve(
                     await pipeline.close_peer(req["peer_id"])
                 else:
                     await pipeline.close_own_peer(req["peer_id"], req.get("peer_secret"))
+            elif (
+                op == "claim_viewer"
+                and relay is not None
+                and req["peer_id"].startswith(RELAY_PREFIX)
+            ):
+                relay.claim_viewer(req["peer_id"], req.get("peer_secret"), req["viewer"])
             elif op == "claim_viewer":
                 pipeline.claim_viewer(req["peer_id"], req.get("peer_secret"), req["viewer"])
             elif op == "stats":
@@ -167,6 +176,8 @@ async def _serve(
                     reply.update(await relay.offer())
                 elif op == "relay_accept":
                     await relay.accept(req["peer_id"], req.get("peer_secret"), req["sdp"])
+                elif op == "relay_alive":
+                    relay.alive(req["peer_id"], req.get("peer_secret"))
                 elif op == "relay_close":
                     await relay.close_viewer(
                         req["peer_id"], req.get("peer_secret"), bool(req.get("operator"))

@@ -107,6 +107,48 @@ describe("connectVideo through a media server", () => {
     expect(peer.peerId).toBe("relay-abc");
     expect(peer.secret).toBe("s3cret");
   });
+
+  it("says it is alive every 15 s, and a failed answer leaves no peer behind", async () => {
+    vi.useFakeTimers();
+    const asked: string[] = [];
+    let failAnswer = false;
+    let closed = 0;
+    const api = {
+      request: (method: string, path: string) => {
+        asked.push(`${method} ${path}`);
+        if (path === "/api/v1/video/ice") return Promise.resolve({ ice_servers: [], ice_transport_policy: "all" });
+        if (path === "/api/v1/video") return Promise.resolve({ path: "relay" });
+        if (path === "/api/v1/webrtc/server-offer") return Promise.resolve({ peer_id: "relay-abc", peer_secret: "s3cret", sdp: "v=0", type: "offer" });
+        if (path === "/api/v1/webrtc/answer" && failAnswer) return Promise.reject(new Error("503 relay_full"));
+        return Promise.resolve({});
+      },
+    } as unknown as Api;
+    vi.stubGlobal(
+      "RTCPeerConnection",
+      class {
+        iceGatheringState = "complete";
+        localDescription = { type: "answer", sdp: "v=0" };
+        addEventListener() {}
+        setRemoteDescription = () => Promise.resolve();
+        createAnswer = () => Promise.resolve({ type: "answer", sdp: "v=0" });
+        setLocalDescription = () => Promise.resolve();
+        close() {
+          closed += 1;
+        }
+      },
+    );
+    vi.stubGlobal("window", { addEventListener: () => undefined, removeEventListener: () => undefined });
+    await connectVideo(api, () => undefined);
+    asked.length = 0;
+    await vi.advanceTimersByTimeAsync(31_000);
+    expect(asked).toEqual(["post /api/v1/webrtc/{peer_id}/alive", "post /api/v1/webrtc/{peer_id}/alive"]);
+    failAnswer = true;
+    asked.length = 0;
+    await expect(connectVideo(api, () => undefined)).rejects.toThrow("relay_full");
+    expect(closed).toBe(1);
+    expect(asked).toContain("delete /api/v1/webrtc/{peer_id}"); // the server's half, freed
+    vi.useRealTimers();
+  });
 });
 
 describe("the page's video layer", () => {

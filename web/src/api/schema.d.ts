@@ -487,6 +487,28 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/webrtc/{peer_id}/alive": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Peer Alive
+         * @description This page still watches (header ``X-Peer-Secret``): a peer through the media
+         *     server is dropped after ``media_server_viewer_timeout_s`` (45 s) without it (the
+         *     page says so every 15 s). A direct peer needs none: its loss is noticed by ICE.
+         */
+        post: operations["peer_alive_api_v1_webrtc__peer_id__alive_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/webrtc/{peer_id}": {
         parameters: {
             query?: never;
@@ -2159,7 +2181,7 @@ export interface components {
             path: "direct" | "relay";
             /**
              * Media Server
-             * @description the media server's state (kind, state, restarts), if there is one
+             * @description the media server's state (kind, state, restarts), if there is one; to the operator also where it is (url, pid, managed, last_error)
              */
             media_server?: {
                 [key: string]: unknown;
@@ -2940,6 +2962,41 @@ export interface operations {
                 "application/json": components["schemas"]["Answer"];
             };
         };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": {
+                        [key: string]: string;
+                    };
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    peer_alive_api_v1_webrtc__peer_id__alive_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-peer-secret"?: string | null;
+            };
+            path: {
+                peer_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
         responses: {
             /** @description Successful Response */
             200: {

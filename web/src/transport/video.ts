@@ -64,28 +64,50 @@ export async function connectVideo(api: Api, onStream: (stream: MediaStream) => 
       pc.addEventListener("icegatheringstatechange", () => pc.iceGatheringState === "complete" && resolve());
       setTimeout(resolve, gatherTimeoutMs(config));
     });
-  let described: Schema<"PeerDescription">;
-  if (status.path === "relay") {
-    described = await api.request("post", "/api/v1/webrtc/server-offer");
-    await pc.setRemoteDescription({ sdp: described.sdp, type: "offer" });
-    await pc.setLocalDescription(await pc.createAnswer());
-    await gathered();
-    await api.request("post", "/api/v1/webrtc/answer", {
-      body: { sdp: pc.localDescription?.sdp ?? "", type: "answer", peer_id: described.peer_id, peer_secret: described.peer_secret },
-    });
-  } else {
-    lowLatency(pc.addTransceiver("video", { direction: "recvonly" }).receiver);
-    await pc.setLocalDescription(await pc.createOffer());
-    await gathered();
-    described = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer", layer } });
-    await pc.setRemoteDescription({ sdp: described.sdp, type: described.type as RTCSdpType });
+  let described: Schema<"PeerDescription"> | undefined;
+  try {
+    if (status.path === "relay") {
+      described = await api.request("post", "/api/v1/webrtc/server-offer");
+      await pc.setRemoteDescription({ sdp: described.sdp, type: "offer" });
+      await pc.setLocalDescription(await pc.createAnswer());
+      await gathered();
+      await api.request("post", "/api/v1/webrtc/answer", {
+        body: { sdp: pc.localDescription?.sdp ?? "", type: "answer", peer_id: described.peer_id, peer_secret: described.peer_secret },
+      });
+    } else {
+      lowLatency(pc.addTransceiver("video", { direction: "recvonly" }).receiver);
+      await pc.setLocalDescription(await pc.createOffer());
+      await gathered();
+      described = await api.request("post", "/api/v1/webrtc/offer", { body: { sdp: pc.localDescription?.sdp ?? "", type: "offer", layer } });
+      await pc.setRemoteDescription({ sdp: described.sdp, type: described.type as RTCSdpType });
+    }
+  } catch (e) {
+    // A failed attempt leaves nothing behind: neither this peer nor the server's.
+    if (described) closeVideo(api, { pc, peerId: described.peer_id, secret: described.peer_secret });
+    else pc.close();
+    throw e;
   }
   const peer = { pc, peerId: described.peer_id, secret: described.peer_secret };
   // Leaving the page frees the server's peer at once, not after ICE gives up.
   const onHide = () => closeVideo(api, peer);
   window.addEventListener("pagehide", onHide);
-  onClose.set(peer, () => window.removeEventListener("pagehide", onHide));
+  // Through the media server, say we still watch: it cannot tell a page that vanished.
+  const alive = status.path === "relay" ? setInterval(() => void sayAlive(api, peer), ALIVE_MS) : null;
+  onClose.set(peer, () => {
+    window.removeEventListener("pagehide", onHide);
+    if (alive !== null) clearInterval(alive);
+  });
   return peer;
+}
+
+/** How often a page watching through the media server says it still does (the server
+ * drops a peer after 45 s without: media_server_viewer_timeout_s). */
+export const ALIVE_MS = 15_000;
+
+async function sayAlive(api: Api, peer: VideoPeer): Promise<void> {
+  await api
+    .request("post", "/api/v1/webrtc/{peer_id}/alive", { params: { peer_id: peer.peerId }, headers: { "X-Peer-Secret": peer.secret } })
+    .catch(() => undefined); // a lost one is made up by the next; a gone peer is renegotiated
 }
 
 /** No jitter buffer beyond what decoding needs: render frames as they arrive. */
