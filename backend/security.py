@@ -50,7 +50,8 @@ def operator_token(settings: Settings) -> tuple[str, bool]:
 
 
 def token_matches(candidate: str | None, token: str) -> bool:
-    """The operator token check, in constant time (every place that checks it)."""
+    """A token or secret check in constant time: the operator token, a peer's secret, a
+    session's resume key (every place that checks one)."""
     return candidate is not None and secrets.compare_digest(candidate.encode(), token.encode())
 
 

@@ -358,9 +358,7 @@ class DecisionServer:
         through the dead-man's grace stays, with the arm halted until a fresh command."""
         found = None
         for client in self._clients.values():  # bounded by max_clients; no early exit
-            if client.resume_key is not None and secrets.compare_digest(
-                client.resume_key.encode(), key.encode()
-            ):
+            if client.resume_key is not None and token_matches(key, client.resume_key):
                 found = client
         if found is None:
             raise NotAllowed(

@@ -55,6 +55,7 @@ from backend.media.layers import (
 from backend.media.pacer import Pacer, pace_peer
 from backend.media.supervisor import MediaUnavailable
 from backend.netprio import mark_peer_low_priority
+from backend.security import token_matches
 from backend.telemetry.stats import InterArrival, StreamStats
 from drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
 from drivers.clock import Clock, MonotonicClock
@@ -219,8 +220,7 @@ class Peer:
     pacer: Pacer | None = None  # in front of its transport's RTP, once connected
 
     def owned_by(self, secret: str | None) -> bool:
-        """Constant-time comparison with the peer's secret."""
-        return secret is not None and secrets.compare_digest(self.secret.encode(), secret.encode())
+        return token_matches(secret, self.secret)
 
 
 IDLE_POLL_S = 0.05  # with no viewer, how often the pipeline looks for one

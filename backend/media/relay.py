@@ -30,6 +30,7 @@ import httpx
 
 from backend.media.encoder import EncodedFrame
 from backend.media.janus import MOUNTPOINT, RtpFeed
+from backend.security import token_matches
 from drivers.base import TelerobotError
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,7 @@ class RelaySession:
     seen: float = 0.0  # its page last said it is alive (monotonic)
 
     def owned_by(self, secret: str | None) -> bool:
-        return secret is not None and secrets.compare_digest(self.secret.encode(), secret.encode())
+        return token_matches(secret, self.secret)
 
 
 class JanusRelay:
