@@ -145,6 +145,32 @@ robot-stereo: {{
     )
 
 
+def launch(settings: JanusSettings, folder: Path, **io: Any) -> subprocess.Popen[bytes]:
+    """Janus started with a configuration written into ``folder``/conf (``io``: where
+    its log goes; by default this process's stdout)."""
+    exe = shutil.which(JANUS)
+    if exe is None:
+        raise DriverUnavailable(
+            "the media server mode needs Janus: apt-get install janus (make test installs it)"
+        )
+    write_config(folder / "conf", settings)
+    return subprocess.Popen([exe, "-F", str(folder / "conf"), "-o"], **io)
+
+
+def wait_ready(proc: subprocess.Popen[bytes], api: str) -> bool | None:
+    """True once its HTTP API answers; False if it exited first; None if neither within
+    ``READY_TIMEOUT_S``."""
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while proc.poll() is None:
+        with contextlib.suppress(httpx.HTTPError):
+            if httpx.get(api + "/info", timeout=1).status_code == 200:
+                return True
+        if time.monotonic() > deadline:
+            return None
+        time.sleep(0.05)
+    return False
+
+
 class JanusProcess:
     """Janus started with a generated configuration in a folder of its own, ready when
     its HTTP API answers; ``stop`` ends it (SIGINT: it says "Bye!")."""
@@ -160,30 +186,18 @@ class JanusProcess:
         return self.proc is not None and self.proc.poll() is None
 
     def start(self) -> JanusProcess:
-        exe = shutil.which(JANUS)
-        if exe is None:
-            raise DriverUnavailable(
-                "the media server mode needs Janus: apt-get install janus (make test installs it)"
-            )
         self._dir = tempfile.TemporaryDirectory(prefix="telerobot-janus-")
         folder = Path(self._dir.name)
-        write_config(folder / "conf", self.settings)
         self.log = folder / "janus.log"
         with self.log.open("wb") as out:
-            self.proc = subprocess.Popen(
-                [exe, "-F", str(folder / "conf"), "-o"], stdout=out, stderr=subprocess.STDOUT
-            )
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while True:
-            if not self.alive:
-                raise DeviceError(f"janus exited at start:\n{self.log.read_text()[-2000:]}")
-            with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(self.settings.api + "/info", timeout=1).status_code == 200:
-                    return self
-            if time.monotonic() > deadline:
-                self.stop()
-                raise DeviceError(f"janus did not answer within {READY_TIMEOUT_S:g} s")
-            time.sleep(0.05)
+            self.proc = launch(self.settings, folder, stdout=out, stderr=subprocess.STDOUT)
+        ready = wait_ready(self.proc, self.settings.api)
+        if ready is False:
+            raise DeviceError(f"janus exited at start:\n{self.log.read_text()[-2000:]}")
+        if ready is None:
+            self.stop()
+            raise DeviceError(f"janus did not answer within {READY_TIMEOUT_S:g} s")
+        return self
 
     def log_tail(self, chars: int = 400) -> str:
         """The end of its log (why it died), before ``stop`` removes it."""
@@ -215,28 +229,19 @@ class JanusProcess:
 def run_foreground(settings: JanusSettings, folder: Path) -> int:
     """Janus with a configuration written into ``folder``, in the foreground (its log on
     stdout) until it exits or is interrupted; its exit code."""
-    exe = shutil.which(JANUS)
-    if exe is None:
-        raise DriverUnavailable("Janus is missing: apt-get install janus")
-    write_config(folder / "conf", settings)
-    proc = subprocess.Popen([exe, "-F", str(folder / "conf"), "-o"])
+    proc = launch(settings, folder)
 
     def forward(signum: int, _frame: object) -> None:  # stopped: Janus stops too
         proc.send_signal(signal.SIGINT)
 
     signal.signal(signal.SIGTERM, forward)
     signal.signal(signal.SIGINT, forward)
-    deadline = time.monotonic() + READY_TIMEOUT_S
-    while proc.poll() is None and time.monotonic() < deadline:
-        with contextlib.suppress(httpx.HTTPError):
-            if httpx.get(settings.api + "/info", timeout=1).status_code == 200:
-                print(
-                    f"media server ready: its HTTP API on {settings.api_host}:{settings.http_port},"
-                    f" RTP to {settings.feed_host}:{settings.rtp_port}",
-                    flush=True,
-                )
-                break
-        time.sleep(0.05)
+    if wait_ready(proc, settings.api):
+        print(
+            f"media server ready: its HTTP API on {settings.api_host}:{settings.http_port},"
+            f" RTP to {settings.feed_host}:{settings.rtp_port}",
+            flush=True,
+        )
     return proc.wait()
 
 
