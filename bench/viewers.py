@@ -76,7 +76,7 @@ from typing import IO, Any
 
 import httpx
 
-from bench.common import machine, parser, percentiles_ms, serve_for_bench
+from bench.common import answer_server_offer, machine, parser, percentiles_ms, serve_for_bench
 
 REPO = Path(__file__).resolve().parents[1]
 PATHS = ("direct", "relay")
@@ -215,35 +215,27 @@ def _say(event: str, **figures: Any) -> None:
 
 
 async def _connect(http: httpx.AsyncClient, v: Viewer, layer: str, data: bool) -> None:
-    from aiortc import RTCPeerConnection, RTCSessionDescription
+    from aiortc import RTCPeerConnection
 
     v.pc = pc = RTCPeerConnection()
     tracks: asyncio.Queue[Any] = asyncio.Queue()
     pc.on("track", tracks.put_nowait)
-    r = await http.post("api/v1/webrtc/server-offer", params={"layer": layer}, json={})
-    if r.status_code != 200:
-        raise RuntimeError(f"server-offer: HTTP {r.status_code} {r.text[:300]}")
-    offer = r.json()
-    v.peer = {"peer_id": offer["peer_id"], "peer_secret": offer["peer_secret"]}
-    if data and "m=application" in offer["sdp"]:
-        # As an observer's page does: the media server opens none itself, and sends its
-        # state and forces on this one.
-        channel = pc.createDataChannel("JanusDataChannel")
 
-        @channel.on("message")
-        def on_message(message: bytes | str) -> None:
-            v.count.data_messages += 1
+    def before_answer(offer: dict[str, Any]) -> None:
+        v.peer = {"peer_id": offer["peer_id"], "peer_secret": offer["peer_secret"]}
+        if data and "m=application" in offer["sdp"]:
+            # As an observer's page does: the media server opens none itself, and sends
+            # its state and forces on this one.
+            channel = pc.createDataChannel("JanusDataChannel")
 
-    await pc.setRemoteDescription(RTCSessionDescription(offer["sdp"], offer["type"]))
-    for transceiver in pc.getTransceivers():
-        transceiver.receiver.bench_count = v.count  # type: ignore[attr-defined]
-    await pc.setLocalDescription(await pc.createAnswer())
-    r = await http.post(
-        "api/v1/webrtc/answer",
-        json={"sdp": pc.localDescription.sdp, "type": "answer", **v.peer},
-    )
-    if r.status_code != 200:
-        raise RuntimeError(f"answer: HTTP {r.status_code} {r.text[:300]}")
+            @channel.on("message")
+            def on_message(message: bytes | str) -> None:
+                v.count.data_messages += 1
+
+        for transceiver in pc.getTransceivers():
+            transceiver.receiver.bench_count = v.count  # type: ignore[attr-defined]
+
+    await answer_server_offer(http, pc, layer, before_answer)
     v.track = await asyncio.wait_for(tracks.get(), 10)
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import httpx
 import pytest
 
-from bench.common import open_server_offer_viewer
+from bench.common import answer_server_offer, open_server_offer_viewer
 from drivers.camera import timecode
 from tests.servers import served
 
@@ -156,7 +156,7 @@ def test_observers_get_state_and_forces_through_its_data_channel_and_nothing_bac
     """An observer opens Janus's data channel before answering: STATE (as an observer
     sees it) and FORCE batches arrive at the reduced rate; what it sends there goes
     nowhere (no client joins the control plane, the lease is untouched)."""
-    from aiortc import RTCPeerConnection, RTCSessionDescription
+    from aiortc import RTCPeerConnection
 
     from backend.realtime import messages as m
 
@@ -167,9 +167,8 @@ def test_observers_get_state_and_forces_through_its_data_channel_and_nothing_bac
         states: list[dict[str, Any]] = []
         samples: list[Any] = []
         pc = RTCPeerConnection()
-        channel = pc.createDataChannel("JanusDataChannel")  # Janus opens none itself
+        channels: list[Any] = []
 
-        @channel.on("message")
         def on_message(data: bytes) -> None:
             if data[:1] == bytes([m.FORCE.type_id]):
                 samples.extend(m.decode_force(data))
@@ -178,20 +177,13 @@ def test_observers_get_state_and_forces_through_its_data_channel_and_nothing_bac
                 assert kind is m.STATE
                 states.append(fields)
 
+        def open_channel(_offer: dict[str, Any]) -> None:  # Janus opens none itself
+            channels.append(pc.createDataChannel("JanusDataChannel"))
+            channels[0].on("message", on_message)
+
         async with httpx.AsyncClient(base_url=server, timeout=30) as http:
-            offer = (await http.post("api/v1/webrtc/server-offer", json={})).json()
-            await pc.setRemoteDescription(RTCSessionDescription(offer["sdp"], "offer"))
-            await pc.setLocalDescription(await pc.createAnswer())
-            r = await http.post(
-                "api/v1/webrtc/answer",
-                json={
-                    "sdp": pc.localDescription.sdp,
-                    "type": "answer",
-                    "peer_id": offer["peer_id"],
-                    "peer_secret": offer["peer_secret"],
-                },
-            )
-            assert r.status_code == 200, r.text
+            peer = await answer_server_offer(http, pc, before_answer=open_channel)
+            channel = channels[0]
             deadline = time.monotonic() + 20
             while len(states) < 20 and time.monotonic() < deadline:
                 if channel.readyState == "open":  # an observer trying to steer
@@ -200,8 +192,8 @@ def test_observers_get_state_and_forces_through_its_data_channel_and_nothing_bac
                 await asyncio.sleep(0.05)
             await pc.close()
             await http.delete(
-                f"api/v1/webrtc/{offer['peer_id']}",
-                headers={"X-Peer-Secret": offer["peer_secret"], **CLIENT},
+                f"api/v1/webrtc/{peer['peer_id']}",
+                headers={"X-Peer-Secret": peer["peer_secret"], **CLIENT},
             )
         return states, samples
 
