@@ -12,7 +12,7 @@ direct ones ask for the full layer (``?layer=full``), which is what Janus is fed
 paths carry the same packets.
 
 * **CPU** (cores) = (utime + stime) of a set of processes over a window ÷ the window,
-  read from /proc. ``robot_cpu``: the server's process and all its descendants except
+  per process (psutil). ``robot_cpu``: the server's process and all its descendants except
   Janus (the media worker, ``telerobot-media``; the names are in ``robot_processes``).
   ``relay_cpu``: Janus's process (``media_server.pid`` of GET /api/v1/video), measured
   on both paths (idle on the direct one). Beside them, for judging the noise:
@@ -75,6 +75,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import httpx
+import psutil
 
 from bench.common import answer_server_offer, machine, parser, percentiles_ms, serve_for_bench
 
@@ -388,55 +389,38 @@ def role_receivers(
     asyncio.run(run())
 
 
-# ---------------------------------------------------------------- CPU from /proc
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-
-
+# ---------------------------------------------------------------- CPU per process
 @dataclass(frozen=True)
 class ProcStat:
     name: str
-    ppid: int
-    started: int  # clock ticks after boot: with the pid, names one process
+    started: float  # its creation time: with the pid, names one process
     cpu_s: float  # user + system, all its threads
-
-
-def _stat(pid: int) -> ProcStat | None:
-    """From /proc/<pid>/stat; None if the process is gone."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            text = f.read()
-    except OSError:
-        return None
-    rest = text[text.rindex(")") + 2 :].split()  # fields 3… (the name may hold spaces)
-    cpu = (int(rest[11]) + int(rest[12])) / CLOCK_TICKS
-    return ProcStat(text[text.index("(") + 1 : text.rindex(")")], int(rest[1]), int(rest[19]), cpu)
 
 
 def every_process() -> dict[int, ProcStat]:
     found = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit() and (s := _stat(int(entry))) is not None:
-            found[int(entry)] = s
+    for p in psutil.process_iter(["name", "create_time", "cpu_times"]):
+        times = p.info["cpu_times"]
+        if times is not None:  # None: gone, or not ours to read
+            found[p.pid] = ProcStat(
+                p.info["name"] or "?", p.info["create_time"], times.user + times.system
+            )
     return found
 
 
 def descendants(root: int) -> list[int]:
-    parents = {pid: s.ppid for pid, s in every_process().items()}
-    found, frontier = [], [root]
-    while frontier:
-        pid = frontier.pop()
-        children = [c for c, p in parents.items() if p == pid]
-        found.extend(children)
-        frontier.extend(children)
-    return found
+    with contextlib.suppress(psutil.NoSuchProcess):
+        return [c.pid for c in psutil.Process(root).children(recursive=True)]
+    return []
 
 
-def _cmdline(pid: int) -> str:
+def _describe(pid: int) -> str:
+    """Its pid, name and command line (cut), for the record."""
     try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode(errors="replace").strip()[:120]
-    except OSError:
-        return ""
+        p = psutil.Process(pid)
+        return f"{pid} {p.name()}: {' '.join(p.cmdline())[:120]}"
+    except psutil.Error:
+        return f"{pid} ?"
 
 
 @dataclass
@@ -585,13 +569,8 @@ class Bench:
             janus_family = {self.janus_pid, *descendants(self.janus_pid)}
         self.robot = [self.server_pid, *(p for p in below if p not in janus_family)]
         return {
-            "robot_processes": [
-                f"{pid} {s.name if (s := _stat(pid)) else '?'}: {_cmdline(pid)}"
-                for pid in self.robot
-            ],
-            "janus_process": None
-            if self.janus_pid is None
-            else f"{self.janus_pid} {_cmdline(self.janus_pid)}",
+            "robot_processes": [_describe(pid) for pid in self.robot],
+            "janus_process": None if self.janus_pid is None else _describe(self.janus_pid),
             "janus_is_server_child": self.janus_pid in below,
         }
 
