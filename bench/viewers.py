@@ -75,7 +75,9 @@ from pathlib import Path
 from typing import IO, Any
 
 import httpx
-import psutil
+
+# No stubs installed for psutil (bench/ is outside the project's mypy files).
+import psutil  # type: ignore[import-untyped]
 
 from bench.common import answer_server_offer, machine, parser, percentiles_ms, serve_for_bench
 
