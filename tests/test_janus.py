@@ -6,21 +6,85 @@ timecode; killed and started again, the viewer comes back."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 import secrets
 import shutil
 import threading
 import time
+from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
 from backend.media.encoder import H264Encoder
-from backend.media.janus import JanusProcess, JanusSettings, JanusViewer, RtpFeed, free_port
-from drivers.base import StereoFrame
+from backend.media.janus import MOUNTPOINT, JanusProcess, JanusSettings, RtpFeed, free_port
+from drivers.base import DeviceError, StereoFrame
 from drivers.camera import timecode
 
 WIDTH, HEIGHT, FPS = 1280, 360, 30.0  # side by side: two 640×360 eyes (the timecode needs 520 px)
+
+
+class JanusViewer:
+    """One viewer's session on the streaming plugin (HTTP API): ``watch`` gives Janus's
+    SDP offer, ``start`` takes the answer, ``close`` destroys the session. Janus ends a
+    session ~60 s after its last request, watching or not: one kept open must poll."""
+
+    def __init__(self, api: str, timeout_s: float = 10.0, api_secret: str | None = None) -> None:
+        self.api = api
+        self._secret = {"apisecret": api_secret} if api_secret else {}
+        self.http = httpx.Client(timeout=timeout_s + 5)
+        self.timeout_s = timeout_s
+        self._n = 0
+        self.session = self._post(api, {"janus": "create"})["data"]["id"]
+        url = f"{api}/{self.session}"
+        self.handle = self._post(url, {"janus": "attach", "plugin": "janus.plugin.streaming"})[
+            "data"
+        ]["id"]
+
+    def _post(self, url: str, body: dict[str, Any]) -> dict[str, Any]:
+        self._n += 1
+        reply: dict[str, Any] = self.http.post(
+            url, json={**body, **self._secret, "transaction": str(self._n)}
+        ).json()
+        if reply.get("janus") == "error":
+            raise DeviceError(f"janus: {reply.get('error', {}).get('reason', reply)}")
+        return reply
+
+    def message(self, body: dict[str, Any], jsep: dict[str, Any] | None = None) -> dict[str, Any]:
+        payload: dict[str, Any] = {"janus": "message", "body": body}
+        if jsep is not None:
+            payload["jsep"] = jsep
+        return self._post(f"{self.api}/{self.session}/{self.handle}", payload)
+
+    def watch(self, mountpoint: int = MOUNTPOINT) -> dict[str, Any]:
+        """Janus's SDP offer for the mountpoint (``{"type": "offer", "sdp": …}``)."""
+        self.message({"request": "watch", "id": mountpoint})
+        deadline = time.monotonic() + self.timeout_s
+        while time.monotonic() < deadline:
+            params = {"maxev": "5", **self._secret}
+            events = self.http.get(f"{self.api}/{self.session}", params=params).json()
+            for event in events if isinstance(events, list) else [events]:
+                if "jsep" in event:
+                    jsep: dict[str, Any] = event["jsep"]
+                    return jsep
+        raise DeviceError(f"janus sent no offer within {self.timeout_s:g} s")
+
+    def start(self, answer_sdp: str) -> None:
+        # aiortc puts its candidates in the answer: no trickle to wait for.
+        self.message({"request": "start"}, {"type": "answer", "sdp": answer_sdp, "trickle": False})
+
+    def info(self, secret: str, mountpoint: int = MOUNTPOINT) -> dict[str, Any]:
+        reply = self.message({"request": "info", "id": mountpoint, "secret": secret})
+        info: dict[str, Any] = reply["plugindata"]["data"]["info"]
+        return info
+
+    def close(self) -> None:
+        with contextlib.suppress(httpx.HTTPError, DeviceError, json.JSONDecodeError):
+            self._post(f"{self.api}/{self.session}", {"janus": "destroy"})
+        self.http.close()
 
 
 @pytest.fixture

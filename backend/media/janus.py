@@ -1,7 +1,8 @@
 """Janus as the media server that fans the one encoded stream out to many viewers
 (issue 18, the groundwork): the process started and supervised with a generated
 configuration, the streaming plugin's RTP mountpoint fed with the same H.264 packets
-the encoder already makes (no second encode), and the viewer's side of its HTTP API.
+the encoder already makes (no second encode). Its HTTP API's client is the media
+worker's (backend/media/relay.py).
 
 Janus 1.1.2 (Debian's) facts this relies on (docs of the streaming plugin and the REST
 API; checked here): it is configured by a folder of ``.jcfg`` files (``-F``); plugins
@@ -19,7 +20,6 @@ server starts and supervises it (backend/media/media_server.py).
 from __future__ import annotations
 
 import contextlib
-import json
 import shutil
 import signal
 import socket
@@ -243,66 +243,6 @@ def run_foreground(settings: JanusSettings, folder: Path) -> int:
             flush=True,
         )
     return proc.wait()
-
-
-class JanusViewer:
-    """One viewer's session on the streaming plugin (HTTP API): ``watch`` gives Janus's
-    SDP offer, ``start`` takes the answer, ``close`` destroys the session. Janus ends a
-    session ~60 s after its last request, watching or not: one kept open must poll."""
-
-    def __init__(self, api: str, timeout_s: float = 10.0, api_secret: str | None = None) -> None:
-        self.api = api
-        self._secret = {"apisecret": api_secret} if api_secret else {}
-        self.http = httpx.Client(timeout=timeout_s + 5)
-        self.timeout_s = timeout_s
-        self._n = 0
-        self.session = self._post(api, {"janus": "create"})["data"]["id"]
-        url = f"{api}/{self.session}"
-        self.handle = self._post(url, {"janus": "attach", "plugin": "janus.plugin.streaming"})[
-            "data"
-        ]["id"]
-
-    def _post(self, url: str, body: dict[str, Any]) -> dict[str, Any]:
-        self._n += 1
-        reply: dict[str, Any] = self.http.post(
-            url, json={**body, **self._secret, "transaction": str(self._n)}
-        ).json()
-        if reply.get("janus") == "error":
-            raise DeviceError(f"janus: {reply.get('error', {}).get('reason', reply)}")
-        return reply
-
-    def message(self, body: dict[str, Any], jsep: dict[str, Any] | None = None) -> dict[str, Any]:
-        payload: dict[str, Any] = {"janus": "message", "body": body}
-        if jsep is not None:
-            payload["jsep"] = jsep
-        return self._post(f"{self.api}/{self.session}/{self.handle}", payload)
-
-    def watch(self, mountpoint: int = MOUNTPOINT) -> dict[str, Any]:
-        """Janus's SDP offer for the mountpoint (``{"type": "offer", "sdp": …}``)."""
-        self.message({"request": "watch", "id": mountpoint})
-        deadline = time.monotonic() + self.timeout_s
-        while time.monotonic() < deadline:
-            params = {"maxev": "5", **self._secret}
-            events = self.http.get(f"{self.api}/{self.session}", params=params).json()
-            for event in events if isinstance(events, list) else [events]:
-                if "jsep" in event:
-                    jsep: dict[str, Any] = event["jsep"]
-                    return jsep
-        raise DeviceError(f"janus sent no offer within {self.timeout_s:g} s")
-
-    def start(self, answer_sdp: str) -> None:
-        # aiortc puts its candidates in the answer: no trickle to wait for.
-        self.message({"request": "start"}, {"type": "answer", "sdp": answer_sdp, "trickle": False})
-
-    def info(self, secret: str, mountpoint: int = MOUNTPOINT) -> dict[str, Any]:
-        reply = self.message({"request": "info", "id": mountpoint, "secret": secret})
-        info: dict[str, Any] = reply["plugindata"]["data"]["info"]
-        return info
-
-    def close(self) -> None:
-        with contextlib.suppress(httpx.HTTPError, DeviceError, json.JSONDecodeError):
-            self._post(f"{self.api}/{self.session}", {"janus": "destroy"})
-        self.http.close()
 
 
 class RtpFeed:
