@@ -390,3 +390,35 @@ def test_media_server_refuses_bad_input_with_the_reason(
         timeout=30,
     )
     assert done.returncode == 2 and said in done.stderr, done.stderr
+
+
+def test_the_observer_feed_thins_the_forces_and_keeps_the_newest_within_its_bound() -> None:
+    """Every tenth sample, at most MAX_BATCH in a datagram: a late tick sends the newest."""
+    import socket
+
+    from backend.media.observer_feed import MAX_BATCH, ObserverFeed
+    from backend.realtime import messages as m
+    from drivers.base import ForceSample
+
+    class Hub:
+        def encode_state_for(self, client_id: str | None, operator: bool) -> bytes:
+            assert client_id is None and not operator  # an observer's view
+            return b"STATE"
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(2)
+        feed = ObserverFeed(Hub(), None, "127.0.0.1", rx.getsockname()[1])  # type: ignore[arg-type]
+        for seq in range(1000):  # a second of samples before the tick
+            feed._on_force(ForceSample(seq, seq / 1000, (0.0,) * 6))
+        feed.tick()
+        assert rx.recv(2048) == b"STATE"
+        batch = m.decode_force(rx.recv(2048))
+        assert len(batch) == MAX_BATCH == 20
+        assert [s[0] for s in batch] == list(range(800, 1000, 10))  # the newest, thinned
+        feed.tick()  # nothing new: a STATE alone
+        assert rx.recv(2048) == b"STATE"
+        rx.settimeout(0.2)
+        with pytest.raises(TimeoutError):
+            rx.recv(2048)
+        feed._sock.close()
