@@ -110,22 +110,43 @@ SERVED = r"https?://(\S+?):(\d+)/"  # the URL `telerobot serve` prints: host, po
 
 @contextlib.contextmanager
 def serve_for_bench(
-    *args: str, env: dict[str, str] | None = None, prefix: tuple[str, ...] = ()
+    *args: str,
+    env: dict[str, str] | None = None,
+    prefix: tuple[str, ...] = (),
+    port: int = 0,
+    ready: bool = False,
 ) -> Iterator[tuple[subprocess.Popen[str], str]]:
-    """`telerobot serve ARGS` for a benchmark: any free HTTP and priority ports (so a
-    running `make run` is never in the way), a throw-away state folder, no 3D view.
-    Yields the process and its base URL (http://host:port/)."""
+    """`telerobot serve ARGS` for a benchmark or a test (the one way both start a
+    server): this HTTP port (0: any free one, so a running `make run` is never in the
+    way), any priority port, a throw-away state folder, no 3D view. With ``ready``, once
+    its robot is READY. Yields the process and its base URL (http://host:port/)."""
     import tempfile
 
     with (
         tempfile.TemporaryDirectory() as state,
         telerobot_process(
-            "serve", "--http-port", "0", "--priority-port", "0", "--state-dir", state, *args,
-            wait_for=SERVED, env={"TELEROBOT_VIEWER": "false", **(env or {})}, prefix=prefix,
+            "serve", "--http-port", str(port), "--priority-port", "0", "--state-dir", state,
+            *args, wait_for=SERVED, env={"TELEROBOT_VIEWER": "false", **(env or {})},
+            prefix=prefix,
         ) as (proc, m),
     ):  # fmt: skip
         host = "127.0.0.1" if m.group(1) == "localhost" else m.group(1)
-        yield proc, f"http://{host}:{m.group(2)}/"
+        base = f"http://{host}:{m.group(2)}/"
+        if ready:
+            wait_until_ready(base)
+        yield proc, base
+
+
+def wait_until_ready(base: str, timeout: float = 30.0) -> None:
+    """Wait until the server at ``base`` says its robot is READY (the simulated arm
+    initialises to its home pose first)."""
+    import httpx
+
+    deadline = time.monotonic() + timeout
+    while (status := httpx.get(base + "api/v1/robot/state").json()["status"]) != "READY":
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the robot never became READY (still {status})")
+        time.sleep(0.05)
 
 
 def percentiles_ms(values_s: list[float]) -> dict[str, float]:

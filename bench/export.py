@@ -16,7 +16,7 @@ from typing import Any
 
 from backend.recording.lerobot import export_lerobot
 from bench.common import emit, machine, parser
-from tests.recordings import Episode, build
+from bench.recordings import Episode, build
 
 
 def measure(

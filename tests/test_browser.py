@@ -3,49 +3,23 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, sync_playwright
+from playwright.sync_api import Browser
 
-from tests.servers import telerobot
+from tests.support.servers import serving
 
-CHROMIUM = Path("/usr/bin/chromium")
 pytestmark = pytest.mark.browser
 
 
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    if not CHROMIUM.exists():
-        if os.environ.get("TELEROBOT_SKIP_BROWSER") == "1":
-            pytest.skip("TELEROBOT_SKIP_BROWSER=1 and no /usr/bin/chromium")
-        pytest.fail(
-            "Debian's chromium is missing: `make test` installs it (apt-get install chromium)"
-        )
-    with sync_playwright() as p:
-        b = p.chromium.launch(
-            executable_path=str(CHROMIUM),
-            args=[
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--no-first-run",
-            ],
-        )
-        yield b
-        b.close()
-
-
 def test_status_page_shows_the_robot_moving_then_ready(browser: Browser, tmp_path: Path) -> None:
-    with telerobot("serve", "--http-port", "0", wait_for=r"(http://localhost:\d+/)") as (_, m):
+    with serving(ready=False) as base:
         page = browser.new_page()
         errors: list[str] = []
         page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
         page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(m.group(1) + "status")
+        page.goto(base + "status")
         status = page.locator("#status")
         # The sim starts at qz and initialises to qn, which takes ~3.6 s.
         page.wait_for_function(
@@ -68,8 +42,7 @@ def test_status_page_shows_the_robot_moving_then_ready(browser: Browser, tmp_pat
 
 
 def test_the_api_docs_render_with_no_internet(browser: Browser) -> None:
-    with telerobot("serve", "--http-port", "0", wait_for=r"(http://localhost:\d+/)") as (_, m):
-        base = m.group(1)
+    with serving(ready=False) as base:
         page = browser.new_page()
         outside: list[str] = []
 

@@ -20,10 +20,10 @@ from calibration.model import CalibrationError, CameraModel
 from calibration.store import CalibrationStore
 from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
 from drivers.sim.workcell import default_workcell
+from tests.support import TOKEN
 
 CELL = default_workcell()
 GRID = work_area()
-TOKEN = "calibration-token-0123456789"
 
 
 def errors_px(model: CameraModel, cam: object) -> np.ndarray:

@@ -7,7 +7,7 @@ import time
 
 import httpx
 
-from tests.servers import BIN, telerobot
+from tests.support.servers import BIN, telerobot
 
 URL = r"(http://localhost:\d+/)"
 

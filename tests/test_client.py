@@ -15,10 +15,10 @@ import httpx
 import pytest
 
 from telerobot.client import Telerobot, TelerobotError
-from tests.servers import served
+from tests.support import TOKEN
+from tests.support.servers import serving
 
 ROOT = Path(__file__).resolve().parents[1]
-TOKEN = "client-test-token-0123456789abcdef"
 
 
 def readme_block(kind: str) -> str:
@@ -31,11 +31,7 @@ def readme_block(kind: str) -> str:
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[str]:
-    with served(TOKEN) as base:
-        deadline = time.monotonic() + 30
-        while httpx.get(base + "/api/v1/robot/state").json()["status"] != "READY":
-            assert time.monotonic() < deadline, "the arm never became READY"
-            time.sleep(0.1)
+    with serving() as base:
         yield base
 
 
@@ -44,7 +40,7 @@ def env_for(base: str) -> dict[str, str]:
 
 
 def controller(base: str) -> object:
-    return httpx.get(base + "/api/v1/safety").json()["controller"]
+    return httpx.get(base + "api/v1/safety").json()["controller"]
 
 
 def test_the_readme_python_example_runs_as_written(server: str) -> None:
@@ -83,7 +79,7 @@ def test_an_error_in_the_block_stops_the_arm_and_releases_the_lease(server: str)
         robot.move_cartesian([0.6, -0.05, 0.9], wait=False)
         _ = 1 / 0
     assert controller(server) is None
-    state = httpx.get(server + "/api/v1/robot/state").json()
+    state = httpx.get(server + "api/v1/robot/state").json()
     assert state["status"] in ("READY", "MOVING")
 
 

@@ -12,9 +12,9 @@ from drivers.force.sim import SimForceSensor
 from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 from drivers.robot.puma560.sim import SimPuma
 from drivers.sim.workcell import default_workcell
-from tests.conftest import run_with_clock
-from tests.test_decision import TOKEN
-from tests.test_force_sim import joints_with_tip_at
+from tests.support import TOKEN
+from tests.support.clock import run_with_clock
+from tests.support.puma import joints_with_tip_at
 
 
 async def test_pushing_into_the_table_trips_the_force_limit_and_backing_off_clears_it() -> None:

@@ -20,7 +20,6 @@ from backend.control.decision import (
 )
 from backend.control.limits import SafetyLimits
 from drivers.base import (
-    FloatArray,
     ForceSample,
     InvalidCommand,
     JointLimitError,
@@ -30,40 +29,9 @@ from drivers.base import (
 )
 from drivers.clock import ManualClock
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
-from tests.conftest import run_with_clock
-
-TOKEN = "operator-token-for-tests-0123456789"
-
-
-class RecordingPuma(SimPuma):
-    """The real simulated arm, noting every target that reaches the driver."""
-
-    def __init__(self, **kw: object) -> None:
-        super().__init__(**kw)  # type: ignore[arg-type]
-        self.sent: list[FloatArray] = []
-
-    async def _send_target(self, raw_target: FloatArray) -> None:
-        self.sent.append(raw_target.copy())
-        await super()._send_target(raw_target)
-
-
-async def make(
-    clock: ManualClock, limits: SafetyLimits | None = None
-) -> tuple[DecisionServer, RecordingPuma]:
-    kin = Puma560Kinematics(tool_transform(0.1))
-    robot = RecordingPuma(clock=clock, kinematics=kin, start_joints=NAMED_POSES["qn"])
-    await robot.connect()
-    await run_with_clock(clock, robot.initialize())
-    robot.sent.clear()
-    ds = DecisionServer(
-        robot,
-        kinematics=Puma560Kinematics(tool_transform(0.1)),
-        clock=clock,
-        operator_token=TOKEN,
-        limits=limits,
-    )
-    return ds, robot
+from tests.support import TOKEN
+from tests.support.clock import run_with_clock
+from tests.support.decision import RecordingPuma, make
 
 
 async def in_control(clock: ManualClock) -> tuple[DecisionServer, RecordingPuma, Client]:

@@ -40,7 +40,7 @@ from drivers.registry import DRIVERS
 from drivers.robot.puma560.kinematics import NAMED_POSES
 from drivers.robot.puma560.val_serial import ValSerialPuma
 from drivers.robot.sim import SimArm
-from tests.test_decision import TOKEN
+from tests.support import TOKEN
 
 # A whole simulated force sensor, as a developer would add it: its folder (a package),
 # its class with its config beside it, and nothing else but one registry line.

@@ -28,8 +28,8 @@ from backend.realtime.ratelimit import (
 from backend.security import redact_query_tokens
 from backend.settings import Settings
 from bench.common import telerobot_process
+from tests.support import TOKEN
 
-TOKEN = "edge-test-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 JSON = {"Content-Type": "application/json"}
 

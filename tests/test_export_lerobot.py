@@ -19,9 +19,9 @@ import pytest
 
 from backend.api import export as export_api
 from backend.recording.lerobot import ExportError, export_lerobot
+from bench import recordings
+from bench.recordings import Episode, force_at, joints_at, read_code, target_at
 from drivers.robot.models import load_model
-from tests import recordings
-from tests.recordings import Episode, force_at, joints_at, read_code, target_at
 
 CAMS = ("observation.images.left", "observation.images.right")
 
@@ -297,7 +297,7 @@ def test_a_recording_from_the_real_server_exports(tmp_path: Path) -> None:
 
     import httpx
 
-    from tests.servers import serving
+    from tests.support.servers import serving
 
     token = "t" * 32
     env = {

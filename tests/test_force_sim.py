@@ -9,18 +9,9 @@ import pytest
 from drivers.base import ArmSnapshot, ForceSample, InvalidCommand
 from drivers.force.pipeline import ForcePipeline
 from drivers.force.sim import SimForceSensor
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
+from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics
 from drivers.sim.workcell import default_workcell
-
-TOOL = tool_transform(0.1)
-DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # tool z pointing down
-
-
-def joints_with_tip_at(point: np.ndarray) -> np.ndarray:
-    kin = Puma560Kinematics(TOOL)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = DOWN, point
-    return kin.ik(T, NAMED_POSES["qn"])
+from tests.support.puma import TOOL, joints_with_tip_at
 
 
 class Arm:

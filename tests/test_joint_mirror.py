@@ -24,9 +24,9 @@ from drivers.robot.models import load_model
 from drivers.robot.so101.calibration import JointCalibration, So101Calibration
 from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
 from drivers.robot.so101.leader import So101Leader
-from tests.servers import BIN, served, serving, telerobot
+from tests.support import TOKEN
+from tests.support.servers import BIN, serving, telerobot
 
-TOKEN = "joint-mirror-test-token-0123456789"
 SO101 = load_model("so101")
 
 
@@ -262,7 +262,7 @@ def test_the_so101_leader_drives_the_so101_follower_through_the_server(tmp_path:
 def test_the_master_command_mirrors_a_leader_and_says_so() -> None:
     env = {"TELEROBOT_ROBOT_MODEL": "so101", "TELEROBOT_VIEWER": "false"}
     with (
-        served(TOKEN, **env) as base,
+        serving(env, ready=False) as base,
         telerobot(
             "master", "--server", base, "--token", TOKEN, "--device", "sim-leader",
             wait_for=r"Leader sim-leader mirrored onto the SO-101 .* as operator",
@@ -271,10 +271,10 @@ def test_the_master_command_mirrors_a_leader_and_says_so() -> None:
         home = SO101.pose("ready")
         deadline = time.monotonic() + 10
         # The scripted leader sways the first joint: the arm follows it.
-        while abs(httpx.get(base + "/api/v1/robot/state").json()["target_joints"][0]) < 0.05:
+        while abs(httpx.get(base + "api/v1/robot/state").json()["target_joints"][0]) < 0.05:
             assert time.monotonic() < deadline
             time.sleep(0.1)
-        assert httpx.get(base + "/api/v1/robot/state").json()["target_joints"][1] == (
+        assert httpx.get(base + "api/v1/robot/state").json()["target_joints"][1] == (
             pytest.approx(home[1], abs=1e-6)
         )
     out = subprocess.run(

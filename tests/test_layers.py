@@ -25,8 +25,7 @@ from backend.media.layers import (
 from backend.media.pipeline import VideoPipeline, VideoSettings
 from drivers.camera import timecode
 from drivers.clock import ManualClock
-from tests.test_video import SMALL, camera
-from tests.test_video_limits import Counter, frame
+from tests.support.video import SMALL, Counter, camera, frame
 
 
 @dataclass

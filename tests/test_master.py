@@ -17,10 +17,8 @@ from drivers.base import DriverUnavailable, FloatArray, InvalidCommand
 from drivers.master.impedance import ImpedanceCompensator
 from drivers.master.sim import SimMaster
 from drivers.registry import load_driver
-from tests.servers import telerobot
-from tests.test_priority_channel import until
-
-TOKEN = "master-bridge-token-0123456789"
+from tests.support import TOKEN, until
+from tests.support.servers import serving, telerobot
 
 
 def test_compensation_is_alpha_v_plus_beta_a_from_the_motion_history() -> None:
@@ -112,13 +110,7 @@ def test_bridge_settings_are_checked() -> None:
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[str]:
-    env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_HOME_POSE": "qn"}
-    with telerobot("serve", "--http-port", "0", wait_for=r"(http://localhost:\d+/)", env=env) as (
-        _,
-        match,
-    ):
-        base = match.group(1)
-        until(lambda: httpx.get(base + "api/v1/robot/state").json()["status"] == "READY")
+    with serving({"TELEROBOT_HOME_POSE": "qn"}) as base:
         yield base
 
 

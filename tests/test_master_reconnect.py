@@ -13,10 +13,8 @@ from backend.master.bridge import Backoff, BridgeSettings, MasterBridge
 from backend.master.cli import open_link
 from drivers.base import FloatArray
 from drivers.master.sim import SimMaster
-from tests.servers import free_port, serving
-from tests.test_priority_channel import until
-
-TOKEN = "master-reconnect-token-0123456789"
+from tests.support import TOKEN, until
+from tests.support.servers import free_port, serving
 
 
 def test_the_backoff_doubles_to_its_limit_and_starts_again_after_a_success() -> None:
@@ -40,7 +38,7 @@ def still(t: float) -> tuple[FloatArray, bool]:
 def test_the_bridge_reconnects_after_the_server_restarts() -> None:
     port = free_port()  # the same port again after the restart
     with contextlib.ExitStack() as server:
-        base = server.enter_context(serving(ENV, port))
+        base = server.enter_context(serving(ENV, port=port))
         device = SimMaster(still)
         bridge = MasterBridge(
             device,
@@ -59,7 +57,7 @@ def test_the_bridge_reconnects_after_the_server_restarts() -> None:
             assert np.all(device.rendered == 0)  # the device was let go
             time.sleep(1.5)  # it keeps trying while nothing listens, and does not give up
             assert not bridge.connected and bridge._worker.running
-            server.enter_context(serving(ENV, port))
+            server.enter_context(serving(ENV, port=port))
             until(lambda: bridge.connected, timeout=15)
             assert bridge.reconnects == 1 and bridge.link is not first_link
             states = bridge.states_received

@@ -20,7 +20,7 @@ import pytest
 
 from bench.common import answer_server_offer, open_server_offer_viewer
 from drivers.camera import timecode
-from tests.servers import served
+from tests.support.servers import serving
 
 WIDTH, HEIGHT = 640, 360  # per eye: the smallest the timecode reads at
 CLIENT = {"X-Telerobot-Client": "test"}  # a request that changes something says who it is
@@ -44,8 +44,8 @@ def server(token: str) -> Iterator[str]:
         "TELEROBOT_MEDIA_SERVER_MAX_PENDING": "40",
         "TELEROBOT_MEDIA_SERVER_PENDING_EXPIRY_S": "3",
     }
-    with served(token, **env) as base:
-        yield base + "/"
+    with serving({"TELEROBOT_OPERATOR_TOKEN": token, **env}, ready=False) as base:
+        yield base
 
 
 def status(base: str, token: str | None = None) -> dict[str, Any]:
@@ -278,7 +278,7 @@ def test_a_media_server_on_another_machine_given_by_url() -> None:
     import socket
 
     from backend.media.janus import free_port
-    from tests.servers import telerobot
+    from tests.support.servers import telerobot
 
     http_port = free_port()
     udp = [free_port(socket.SOCK_DGRAM) for _ in range(3)]
@@ -300,8 +300,7 @@ def test_a_media_server_on_another_machine_given_by_url() -> None:
             "TELEROBOT_MEDIA_SERVER_DATA_PORT": str(udp[2]),
             "TELEROBOT_MEDIA_SERVER_SECRET": secret,
         }
-        with served(token, **env) as base:
-            base += "/"
+        with serving({"TELEROBOT_OPERATOR_TOKEN": token, **env}, ready=False) as base:
             ms = status(base, token)["media_server"]
             assert ms["managed"] is False and ms["pid"] is None and ms["state"] == "running"
 
@@ -329,8 +328,7 @@ def test_viewers_are_bounded_and_a_silent_one_is_dropped(token: str) -> None:
         "TELEROBOT_MEDIA_SERVER_MAX_VIEWERS": "2",
         "TELEROBOT_MEDIA_SERVER_VIEWER_TIMEOUT_S": "2",
     }
-    with served(token, **env) as base:
-        base += "/"
+    with serving({"TELEROBOT_OPERATOR_TOKEN": token, **env}, ready=False) as base:
 
         async def run() -> None:
             a_pc, a_track, a = await open_server_offer_viewer(base)

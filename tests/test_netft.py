@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import itertools
 import threading
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
 
@@ -13,16 +12,9 @@ from drivers.base import ForceSample, InvalidCommand
 from drivers.force import netft_protocol as rdt
 from drivers.force.netft import NetFtSensor, parse_address
 from drivers.force.netft_emulator import NetFtEmulator
+from tests.support import until
 
 PUSH = (1.5, -2.0, 10.0, 0.1, -0.2, 0.05)
-
-
-def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
-    """Wait for something the sensor's thread does (polling, with a deadline)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.005)
 
 
 @pytest.fixture

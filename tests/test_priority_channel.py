@@ -11,7 +11,7 @@ import socket
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import httpx
 import pytest
@@ -25,27 +25,13 @@ from backend.netprio import (
 )
 from backend.realtime import messages as m
 from drivers.base import DeviceError, ForceSample
-from tests.servers import telerobot
-
-TOKEN = "priority-channel-token-0123456789"
-
-
-def until(condition: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.01)
+from tests.support import TOKEN, until
+from tests.support.servers import serving
 
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[tuple[str, int]]:
-    env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_HOME_POSE": "qn"}
-    with telerobot("serve", "--http-port", "0", wait_for=r"(http://localhost:\d+/)", env=env) as (
-        _,
-        match,
-    ):
-        base = match.group(1)
-        until(lambda: httpx.get(base + "api/v1/robot/state").json()["status"] == "READY")
+    with serving({"TELEROBOT_HOME_POSE": "qn"}) as base:
         yield base, httpx.get(base + "api/v1/force/channel").json()["port"]
 
 

@@ -25,34 +25,20 @@ from typing import Any, TypeVar
 
 import pytest
 
-from backend.control.decision import DecisionServer
 from backend.realtime import messages as m
-from backend.realtime.hub import RealtimeHub
 from backend.realtime.priority import (
     MAX_QUEUED_FORCES,
     MAX_QUEUED_REPLIES,
     MAX_RX_BYTES,
     REPLY_PAUSE,
     Kind,
-    PriorityChannel,
     PriorityClient,
     Stage,
 )
-from backend.telemetry.stats import Telemetry
-from drivers.base import ForceSample
-from drivers.clock import MonotonicClock
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
+from tests.support import TOKEN, until
+from tests.support.priority import FakeSensor, build_channel
 
-TOKEN = "priority-limits-token-0123456789"
 T = TypeVar("T")
-
-
-def until(condition: Callable[[], object], timeout: float = 8.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.005)
 
 
 def framed(*messages: bytes) -> bytes:
@@ -65,39 +51,6 @@ def hello(token: str = "") -> bytes:
 
 def ping(seq: int) -> bytes:
     return m.encode(m.PING, seq, 0.0)
-
-
-class FakeSensor:
-    """A force sensor whose samples the test sends (from its own thread, as a real
-    sensor's thread would)."""
-
-    def __init__(self) -> None:
-        self.callbacks: list[Callable[[ForceSample], None]] = []
-        self.seq = 0
-
-    def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]:
-        self.callbacks.append(callback)
-        return lambda: self.callbacks.remove(callback)
-
-    def emit(self) -> None:
-        self.seq += 1
-        sample = ForceSample(self.seq, time.monotonic(), (0.0, 0.0, 1.0, 0.0, 0.0, 0.0))
-        for callback in list(self.callbacks):
-            callback(sample)
-
-
-async def build_channel(
-    sensor: FakeSensor | None = None, **limits: Any
-) -> tuple[PriorityChannel, RealtimeHub]:
-    clock = MonotonicClock()
-    kinematics = Puma560Kinematics(tool_transform(0.1))
-    robot = SimPuma(clock=clock, kinematics=kinematics, start_joints=NAMED_POSES["qz"])
-    decision = DecisionServer(robot, kinematics=kinematics, clock=clock, operator_token=TOKEN)
-    hub = RealtimeHub(robot, decision, None, Telemetry(), clock)
-    hub.start()
-    channel = PriorityChannel("127.0.0.1", 0, hub, decision, sensor, **limits)  # type: ignore[arg-type]
-    channel.start()
-    return channel, hub
 
 
 class ChannelServer:
@@ -444,7 +397,7 @@ def test_accept_running_out_of_descriptors_sheds_and_keeps_serving(
 
 EMFILE_SERVER = """
 import asyncio, json, os, resource, sys, threading
-from tests.test_priority_limits import build_channel
+from tests.support.priority import build_channel
 
 async def main():
     resource.setrlimit(resource.RLIMIT_NOFILE, (256, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))

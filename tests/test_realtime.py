@@ -14,7 +14,7 @@ from backend.app import create_app
 from backend.realtime import messages as m
 from backend.settings import Settings
 from drivers.clock import ManualClock
-from tests.test_decision import TOKEN
+from tests.support import TOKEN
 
 WS = "ws://localhost/ws"  # TestClient says "testserver" unless told: not a name we answer to
 

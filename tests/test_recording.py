@@ -19,8 +19,7 @@ from backend.recording import reader
 from backend.recording.recorder import Recorder, RecordingEvent
 from backend.settings import Settings
 from drivers.clock import MonotonicClock
-
-TOKEN = "t" * 32
+from tests.support import TOKEN
 
 
 def _events(rec: Recorder) -> list[RecordingEvent]:

@@ -223,7 +223,7 @@ def test_a_recording_from_the_real_server_holds_the_video_and_reviews(tmp_path: 
     the review's MP4 and timeline answer for it."""
     import httpx
 
-    from tests.servers import serving
+    from tests.support.servers import serving
 
     token = "t" * 32
     env = {

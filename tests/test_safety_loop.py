@@ -14,7 +14,8 @@ from backend.control.decision import DecisionServer, NotAllowed, SafetyStop
 from drivers.base import ForceSample
 from drivers.clock import ManualClock
 from drivers.force.sampled import SampledForceSensor
-from tests.test_decision import TOKEN, make
+from tests.support import TOKEN
+from tests.support.decision import make
 
 
 class ThreadedForceSource(SampledForceSensor):

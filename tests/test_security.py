@@ -10,7 +10,7 @@ from cryptography import x509
 
 from backend.security import ensure_certificate, operator_token, origin_allowed
 from backend.settings import Settings
-from tests.servers import telerobot
+from tests.support.servers import telerobot
 
 
 def test_token_is_generated_once_kept_private_and_reused(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from drivers.clock import ManualClock
 from drivers.robot.motion import PUMA_STOP_DECEL, stop_distance, stop_time
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.robot.puma560.sim import SimPuma
-from tests.conftest import run_with_clock
+from tests.support.clock import run_with_clock
 
 
 def rot_z(a: float) -> np.ndarray:

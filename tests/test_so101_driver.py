@@ -34,6 +34,7 @@ from drivers.robot.so101.calibration import (
 )
 from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
 from drivers.robot.so101.feetech import ErrorBit, Register
+from tests.support import until_async as until
 
 MODEL = load_model("so101")
 NAMES = MODEL.joint_names
@@ -62,14 +63,6 @@ def wait_until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
         if time.monotonic() > deadline:
             raise AssertionError("timed out")
         time.sleep(0.002)
-
-
-async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError("timed out")
-        await asyncio.sleep(0.002)
 
 
 @pytest.fixture(params=["pty", "tcp"])

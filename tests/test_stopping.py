@@ -17,8 +17,8 @@ from drivers.clock import ManualClock
 from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX, cartesian_stop, stop_time
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.robot.puma560.sim import SimPuma
-from tests.conftest import run_with_clock
-from tests.test_decision import TOKEN
+from tests.support import TOKEN
+from tests.support.clock import run_with_clock
 
 LOW = np.array([0.5, 0.9, -2.6, 0.3, 0.5, 0.0])  # bench.stopping's second pose
 

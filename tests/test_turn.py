@@ -23,12 +23,13 @@ from aiortc import (
     RTCPeerConnection,
     RTCSessionDescription,
 )
+from playwright.sync_api import Browser
 from pydantic import ValidationError
 
 from backend.media.ice import IceConfig, IceConfigError, IceServer, turn_rest_credentials
 from drivers.camera import timecode
-from tests.coturn import Coturn, coturn
-from tests.servers import serving
+from tests.support.coturn import Coturn, coturn
+from tests.support.servers import serving
 
 SECRET = "turn-test-shared-secret-0123456789"
 TOOL = {"X-Telerobot-Client": "tests"}
@@ -311,27 +312,13 @@ class PeerRecordingBrowser:
 
 
 @pytest.mark.browser
-def test_the_page_watches_relay_only_video_through_coturn() -> None:
-    from playwright.sync_api import sync_playwright
+def test_the_page_watches_relay_only_video_through_coturn(browser: Browser) -> None:
+    from tests.support.browser import ENV, open_page
 
-    from bench.browser import ARGS
-    from tests.test_browser import CHROMIUM
-    from tests.webpage import ENV, open_page
-
-    if not CHROMIUM.exists():
-        pytest.fail("Debian's chromium is missing: `make test` installs it")
-    with (
-        coturn(SECRET) as server,
-        serving({**ENV, **relay_env(server)}) as base,
-        sync_playwright() as p,
-    ):
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page, errors = open_page(PeerRecordingBrowser(browser), base)  # type: ignore[arg-type]
-            pair = page.evaluate(SELECTED_PAIR)
-            page.close()
-        finally:
-            browser.close()
+    with coturn(SECRET) as server, serving({**ENV, **relay_env(server)}) as base:
+        page, errors = open_page(PeerRecordingBrowser(browser), base)  # type: ignore[arg-type]
+        pair = page.evaluate(SELECTED_PAIR)
+        page.close()
         usage = wait_for_usage(server, {"telerobot-server", "telerobot-viewer"})
     assert pair is not None and pair["policy"] == "relay", (pair, errors)
     assert (pair["local"], pair["remote"]) == ("relay", "relay"), pair

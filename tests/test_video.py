@@ -22,15 +22,7 @@ from drivers.camera import timecode
 from drivers.camera.sim import FIDUCIAL_COLOURS, IDLE_AFTER_S, SimStereoCamera
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.sim.workcell import default_workcell
-
-SMALL = dict(width=640, height=360)  # fast enough for tests; the benchmark runs 1280×720
-
-
-def camera(fps: float = 30.0, **cell: int) -> SimStereoCamera:
-    snap = ArmSnapshot(time.monotonic(), NAMED_POSES["qn"], np.zeros(6))
-    return SimStereoCamera(
-        default_workcell(**cell), lambda: snap, Puma560Kinematics(tool_transform(0.1)), fps=fps
-    )
+from tests.support.video import SMALL, camera
 
 
 def test_rendered_fiducials_sit_where_the_ground_truth_projects_them() -> None:

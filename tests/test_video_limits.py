@@ -9,7 +9,6 @@ import asyncio
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.media.encoder import EncodedFrame
 from backend.media.fanout import KEYFRAME_MIN_INTERVAL_S, TRACK_QUEUE, Broadcaster
 from backend.media.pipeline import (
     PENDING_EXPIRY_S,
@@ -20,20 +19,7 @@ from backend.media.pipeline import (
 )
 from backend.services import Alignments
 from drivers.clock import ManualClock
-from tests.test_video import SMALL, camera
-
-
-def frame(keyframe: bool, seq: int = 0) -> EncodedFrame:
-    return EncodedFrame(packet=None, keyframe=keyframe, size=100, capture_time=0.0, seq=seq,
-                        encode_ms=1.0)  # fmt: skip
-
-
-class Counter:
-    def __init__(self) -> None:
-        self.n = 0
-
-    def __call__(self) -> None:
-        self.n += 1
+from tests.support.video import SMALL, Counter, camera, frame
 
 
 # ---------------------------------------------------------------- keyframes

@@ -9,11 +9,11 @@ import time
 import httpx
 import pytest
 
-from bench.common import open_viewer
+from bench.common import open_viewer, serve_for_bench
 from drivers.camera import timecode
-from tests.servers import telerobot
+from tests.support import TOKEN
+from tests.support.servers import serving
 
-URL = r"(http://localhost:\d+/)"
 SMALL = {"TELEROBOT_VIDEO": "true", "TELEROBOT_VIDEO_WIDTH": "640", "TELEROBOT_VIDEO_HEIGHT": "360"}
 
 
@@ -45,12 +45,11 @@ async def watch(base: str, frames: int) -> list[float]:
 
 
 def test_a_browser_like_viewer_gets_the_stream_from_the_media_worker() -> None:
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
-        ages = asyncio.run(watch(m.group(1), 30))
+    with serving(SMALL, ready=False) as base:
+        ages = asyncio.run(watch(base, 30))
     assert sorted(ages)[len(ages) // 2] < 0.5  # capture → decoded, on loopback
 
 
-TOKEN = "video-test-operator-token-0123456789"
 OPERATOR = {"Authorization": f"Bearer {TOKEN}"}
 # A header no cross-site form can set: what a script sends with requests that change
 # something (the browser's page sends JSON).
@@ -65,8 +64,7 @@ def server_offer(base: str) -> dict[str, str]:
 
 
 def test_video_api_errors_and_alignment() -> None:
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
-        base = m.group(1)
+    with serving(SMALL, ready=False) as base:
         r = httpx.post(
             base + "api/v1/webrtc/offer", json={"sdp": "v=0\r\n", "type": "offer"}, timeout=30
         )
@@ -114,8 +112,7 @@ def viewers(base: str, headers: dict[str, str] | None = None) -> list[dict[str, 
 
 def test_only_a_peers_owner_or_the_operator_closes_it_and_only_the_operator_sees_ids() -> None:
     env = {**SMALL, "TELEROBOT_OPERATOR_TOKEN": TOKEN}
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=env) as (_, m):
-        base = m.group(1)
+    with serving(env, ready=False) as base:
         mine, theirs = server_offer(base), server_offer(base)
         # Observers see how many viewers there are and their figures, never their ids.
         for path in ("api/v1/video", "api/v1/telemetry"):
@@ -145,8 +142,7 @@ def test_only_a_peers_owner_or_the_operator_closes_it_and_only_the_operator_sees
 def test_connecting_viewers_are_capped_with_a_message_a_person_can_act_on() -> None:
     from backend.media.pipeline import MAX_PENDING
 
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (_, m):
-        base = m.group(1)
+    with serving(SMALL, ready=False) as base:
         for _ in range(MAX_PENDING):
             server_offer(base)
         r = httpx.post(base + "api/v1/webrtc/server-offer", headers=TOOL, timeout=30)
@@ -158,8 +154,8 @@ def test_connecting_viewers_are_capped_with_a_message_a_person_can_act_on() -> N
 
 
 def test_video_off_says_so() -> None:
-    with telerobot("serve", "--http-port", "0", wait_for=URL) as (_, m):
-        r = httpx.post(m.group(1) + "api/v1/webrtc/server-offer", headers=TOOL, timeout=30)
+    with serving(ready=False) as base:
+        r = httpx.post(base + "api/v1/webrtc/server-offer", headers=TOOL, timeout=30)
         assert r.status_code == 503 and "video is turned off" in r.json()["detail"]
 
 
@@ -170,8 +166,7 @@ def test_a_missing_real_camera_shows_no_signal_and_the_server_keeps_serving(came
         "TELEROBOT_CAMERA": camera,
         "TELEROBOT_CAMERA_DEVICES": '["/dev/video-none-0", "/dev/video-none-1"]',
     }
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=env) as (_, m):
-        base = m.group(1)
+    with serving(env, ready=False) as base:
         deadline = time.monotonic() + 20
         while True:
             status = httpx.get(base + "api/v1/video", timeout=10).json()
@@ -189,8 +184,7 @@ def test_a_missing_real_camera_shows_no_signal_and_the_server_keeps_serving(came
 def test_a_crashed_media_worker_is_restarted_and_control_never_stops() -> None:
     import psutil
 
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=SMALL) as (proc, m):
-        base = m.group(1)
+    with serve_for_bench(env={"TELEROBOT_OPERATOR_TOKEN": TOKEN, **SMALL}) as (proc, base):
         deadline = time.monotonic() + 30
         while not httpx.get(base + "api/v1/video", timeout=10).json()["worker_alive"]:
             assert time.monotonic() < deadline
@@ -237,8 +231,8 @@ def test_each_viewers_link_is_reported_from_its_rtcp() -> None:
     # What a per-viewer layer choice needs: the receiver's own reports (RR: loss and the
     # round trip; REMB: its bandwidth estimate), per viewer in GET /api/v1/video.
     env = {**SMALL, "TELEROBOT_VIDEO_PACING": "true"}  # (off by default)
-    with telerobot("serve", "--http-port", "0", wait_for=URL, env=env) as (_, m):
-        link = asyncio.run(_watch_link(m.group(1), 15))
+    with serving(env, ready=False) as base:
+        link = asyncio.run(_watch_link(base, 15))
     assert link["layer"] == "full", link
     assert link["reports"] >= 1 and link["loss"] == 0, link  # loopback: nothing lost
     assert link["rtt_ms"] is not None and 0 <= link["rtt_ms"] < 200, link  # type: ignore[operator]

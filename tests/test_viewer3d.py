@@ -15,8 +15,7 @@ from backend.settings import Settings
 from backend.viewer3d import decompose
 from calibration.affine import fit_affine
 from drivers.sim.workcell import default_workcell
-
-TOKEN = "viewer-token-0123456789abc"
+from tests.support import TOKEN
 
 
 def test_a_perspective_projection_decomposes_into_the_camera() -> None:

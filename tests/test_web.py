@@ -11,17 +11,15 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser
 
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
+from tests.support import TOKEN, until
+from tests.support.browser import (
     SHOTS_FOR_DOCS,
-    TOKEN,
     assert_ball_on_the_tool,
-    browser,
     open_page,
-    server,
+    page_said,
     take_control,
     target,
     tool_position,
-    until,
     wait,
     xr_frames_pass,
 )
@@ -41,7 +39,10 @@ def test_gamepad_dead_man_drives_releasing_stops_estop_stops_observer_cannot(
     page.wait_for_timeout(500)
     assert target(server) == start  # nothing moves without the dead-man
     page.evaluate("window.__pad.pressed.add(5)")
-    until(page, lambda: target(server) != start, "the arm moves with the dead-man held")
+    until(
+        lambda: target(server) != start,
+        what=page_said(page, "the arm moves with the dead-man held"),
+    )
     page.evaluate("window.__pad.pressed.delete(5)")  # release: the arm stops
     page.wait_for_timeout(300)
     held = target(server)
@@ -198,7 +199,10 @@ def test_keyboard_space_is_the_dead_man_w_drives_escape_stops_alt_arrows_align(
     x0 = tool_position(server)[0]
     page.keyboard.down("Space")
     # W with Space held: forward along base x
-    until(page, lambda: tool_position(server)[0] >= x0 + 0.005, "the arm moves with Space held")
+    until(
+        lambda: tool_position(server)[0] >= x0 + 0.005,
+        what=page_said(page, "the arm moves with Space held"),
+    )
     page.keyboard.up("Space")
     assert page.is_checked("#ar") == ar_before  # Space drove, it did not toggle the box
     page.wait_for_timeout(300)
@@ -299,9 +303,13 @@ def test_webxr_each_eye_sees_its_camera_the_grip_drives_the_arm_and_contact_puls
         page.evaluate(f"{hand}.position.z -= 0.004")  # 8 cm forward in all
         page.wait_for_timeout(50)
     until(
-        page,
         lambda: (tool_position(server) - p0)[0] >= 0.02,
-        lambda: f"the gripper follows the hand 2 cm forward: moved {tool_position(server) - p0}",
+        what=page_said(
+            page,
+            lambda: (
+                f"the gripper follows the hand 2 cm forward: moved {tool_position(server) - p0}"
+            ),
+        ),
     )
     page.evaluate(tracked, False)  # tracking lost, grip still held
     xr_frames_pass(page)

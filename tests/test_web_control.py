@@ -10,18 +10,16 @@ import httpx
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.servers import free_port, serving
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
+from tests.support import TOKEN, until
+from tests.support.browser import (
     ENV,
-    TOKEN,
-    browser,
     open_page,
-    server,
+    page_said,
     take_control,
     target,
-    until,
     wait,
 )
+from tests.support.servers import free_port, serving
 
 pytestmark = pytest.mark.browser
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -40,7 +38,7 @@ def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
     page.keyboard.down("Space")
     page.keyboard.down("KeyW")
     start = target(server)
-    until(page, lambda: target(server) != start, "Space+W drives")
+    until(lambda: target(server) != start, what=page_said(page, "Space+W drives"))
     # A script takes control over: the page loses it while its keys are held.
     rest = httpx.Client(base_url=server + "api/v1/", headers=AUTH)
     script = rest.post("lease", json={"name": "script", "force": True}).json()["client_id"]
@@ -70,7 +68,7 @@ def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
     page.keyboard.up("Space")
     page.keyboard.down("Space")
     page.keyboard.down("KeyW")
-    until(page, lambda: target(server) != held, "pressed again, the keys drive")
+    until(lambda: target(server) != held, what=page_said(page, "pressed again, the keys drive"))
     page.keyboard.up("KeyW")
     page.keyboard.up("Space")
     page.click("#release")
@@ -108,7 +106,7 @@ def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
     browser: Browser,
 ) -> None:
     port = free_port()  # the same port again after the restart
-    with serving(ENV, port) as base:
+    with serving(ENV, port=port) as base:
         page, errors = open_page(browser, base)
         page.evaluate("window.__same_page = true")
         old_peer = page.evaluate("window.telerobot.video.peer.peerId")
@@ -117,7 +115,7 @@ def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
     wait(page, "document.getElementById('control-alert-text').textContent.includes('dropped')")
     wait(page, "window.telerobot.view.staleMs !== null", timeout=5_000)
     page.evaluate("window.__lastState = window.telerobot.state")
-    with serving(ENV, port):
+    with serving(ENV, port=port):
         # Back without a reload: the offer to take control again, taken only on a click.
         wait(page, "document.getElementById('retake').hidden === false", timeout=30_000)
         assert page.evaluate("window.__same_page") is True

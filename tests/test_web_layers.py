@@ -12,10 +12,8 @@ import pytest
 from playwright.sync_api import Browser, Page
 
 from drivers.camera.sim import FIDUCIAL_COLOURS
-from tests.webpage import (  # noqa: F401  (browser and server are fixtures)
-    browser,
+from tests.support.browser import (
     open_page,
-    server,
     wait,
 )
 

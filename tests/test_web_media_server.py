@@ -11,14 +11,13 @@ import httpx
 import pytest
 from playwright.sync_api import Browser
 
-from tests.servers import serving
-from tests.webpage import (  # noqa: F401  (browser is a fixture)
+from tests.support import TOKEN
+from tests.support.browser import (
     ENV,
-    TOKEN,
-    browser,
     open_page,
     wait,
 )
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 

@@ -6,7 +6,6 @@ and the message log in view."""
 from __future__ import annotations
 
 import re
-import time
 
 import httpx
 import numpy as np
@@ -14,19 +13,16 @@ import pinocchio as pin
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.servers import served
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
+from tests.support import TOKEN, until
+from tests.support.browser import (
     ENV,
-    TOKEN,
-    browser,
     open_page,
-    server,
+    page_said,
     take_control,
     target,
-    tool_position,
-    until,
     wait,
 )
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 
@@ -71,12 +67,8 @@ def test_header_shows_the_estop_latched_and_clears_after_reset(
 
 def test_header_says_disconnected_when_the_server_goes_away(browser: Browser) -> None:
     # A server of its own, to kill (the module's server serves the other tests).
-    with served(TOKEN, **ENV) as base:
-        deadline = time.monotonic() + 30
-        while httpx.get(base + "/api/v1/robot/state").json()["status"] != "READY":
-            assert time.monotonic() < deadline
-            time.sleep(0.2)
-        page, _ = open_page(browser, base + "/")
+    with serving(ENV) as base:
+        page, _ = open_page(browser, base)
         take_control(page)
         wait(page, "document.getElementById('control-owner').textContent === 'you have control'")
     # the server is gone (terminated as its block ended)
@@ -181,9 +173,8 @@ def test_home_button_moves_the_arm_to_the_home_pose(browser: Browser, server: st
     assert not np.allclose(target(server), home, atol=1e-3)
     page.click("#home")
     until(
-        page,
         lambda: np.allclose(target(server), home, atol=1e-9),
-        lambda: f"target {target(server)} reaches the home pose {home}",
+        what=page_said(page, lambda: f"target {target(server)} reaches the home pose {home}"),
         timeout=30,
     )
     wait(page, "document.getElementById('messages').textContent.includes('home: at the home pose')",

@@ -14,14 +14,12 @@ import pytest
 from playwright.sync_api import Browser, Page
 
 from backend.recording.reader import read
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
-    TOKEN,
-    browser,
+from tests.support import TOKEN, until
+from tests.support.browser import (
     open_page,
-    server,
+    page_said,
     take_control,
     tool_position,
-    until,
     wait,
 )
 
@@ -87,7 +85,10 @@ def test_operator_records_an_episode_observer_sees_rec_review_plays_it(
     x0 = tool_position(server)[0]
     page.keyboard.down("KeyW")
     page.keyboard.down("Space")
-    until(page, lambda: tool_position(server)[0] >= x0 + 0.005, "the arm moves with Space+W")
+    until(
+        lambda: tool_position(server)[0] >= x0 + 0.005,
+        what=page_said(page, "the arm moves with Space+W"),
+    )
     page.keyboard.up("Space")
     page.keyboard.up("KeyW")
     page.fill("#rec-notes", NOTES)

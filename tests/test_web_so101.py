@@ -10,26 +10,25 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser
 
-from tests.servers import serving
-from tests.test_browser import CHROMIUM
-from tests.webpage import (
+from tests.support import until
+from tests.support.browser import (
     ENV,
     assert_ball_on_the_tool,
+    chromium_or_fail,
     open_page,
+    page_said,
     take_control,
     target,
-    until,
     wait,
 )
-from tests.webpage import browser as browser  # a fixture
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[str]:
-    if not CHROMIUM.exists():
-        pytest.fail("Debian's chromium is missing: `make test` installs it")
+    chromium_or_fail()
     env = {**ENV, "TELEROBOT_ROBOT_MODEL": "so101", "TELEROBOT_HOME_POSE": "ready"}
     with serving(env) as base:
         yield base
@@ -54,9 +53,8 @@ def test_the_page_names_draws_and_drives_the_so101(browser: Browser, server: str
     position = np.array(httpx.get(server + "api/v1/robot/state").json()["position"])
     page.evaluate("window.__pad.axes[1] = -0.8; window.__pad.pressed.add(5)")
     until(
-        page,
         lambda: np.abs(np.array(target(server)) - start).max() > 0.01,
-        "the SO-101 moves with the dead-man held",
+        what=page_said(page, "the SO-101 moves with the dead-man held"),
     )
     page.evaluate("window.__pad.axes[1] = 0; window.__pad.pressed.delete(5)")
     page.wait_for_timeout(500)

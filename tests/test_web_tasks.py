@@ -15,14 +15,12 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
-    TOKEN,
-    browser,
+from tests.support import TOKEN, until
+from tests.support.browser import (
     open_page,
-    server,
+    page_said,
     take_control,
     tool_position,
-    until,
     wait,
 )
 
@@ -171,9 +169,8 @@ def test_an_episode_previewed_in_both_eyes_runs_from_the_page_and_hands_control_
     final = page.evaluate("window.telerobot.tasks.task")
     assert final["state"] == "done", (final, page.locator("#messages").inner_text())
     until(
-        page,
         lambda: np.linalg.norm(tool_position(server) - end) < 0.003,
-        "the approached task ends at the episode's end",
+        what=page_said(page, "the approached task ends at the episode's end"),
     )
     wait(page, "(window.telerobot.state.flags & 1) !== 0", timeout=10_000)
     page.click("#task-clear")

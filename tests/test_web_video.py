@@ -12,15 +12,14 @@ from collections.abc import Iterator
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.servers import serving
-from tests.webpage import (  # noqa: F401  (browser is a fixture)
+from tests.support import TOKEN
+from tests.support.browser import (
     ENV,
-    TOKEN,
-    browser,
     drop_video_peer,
     open_page,
     wait,
 )
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 

@@ -11,13 +11,12 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
-    browser,
+from tests.support import until
+from tests.support.browser import (
     open_page,
-    server,
+    page_said,
     take_control,
     tool_position,
-    until,
     wait,
 )
 
@@ -60,9 +59,8 @@ def hold(page: Page, server: str, key: str) -> tuple[np.ndarray, np.ndarray]:
     page.keyboard.down("Space")
     try:
         until(
-            page,
             lambda: np.linalg.norm(tool_position(server) - before) >= STEP_M,
-            f"Space+{key} moves the gripper",
+            what=page_said(page, f"Space+{key} moves the gripper"),
             timeout=20,
         )
     finally:

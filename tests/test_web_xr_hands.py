@@ -8,14 +8,13 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.webpage import (  # noqa: F401  (server and browser are fixtures)
-    browser,
+from tests.support import until
+from tests.support.browser import (
     open_page,
-    server,
+    page_said,
     take_control,
     target,
     tool_position,
-    until,
     wait,
     xr_frames_pass,
 )
@@ -137,10 +136,12 @@ def test_a_pinching_hand_in_the_emulated_runtime_moves_the_arm(
         page.evaluate(f"{HAND}.position.x += 0.004")
         page.wait_for_timeout(50)
     until(
-        page,
         lambda: (tool_position(server) - p0)[1] <= -0.02,
-        lambda: (
-            f"the gripper follows the hand 2 cm to the right: moved {tool_position(server) - p0}"
+        what=page_said(
+            page,
+            lambda: (
+                f"the gripper follows the hand 2 cm to the right: moved {tool_position(server) - p0}"
+            ),
         ),
     )
     assert target(server) != start

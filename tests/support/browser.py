@@ -1,12 +1,12 @@
-"""What every browser test of the operator page shares: the server on the simulation
-(video included) with an operator token, Debian's Chromium, a page opened with a
-scripted gamepad (and the emulated WebXR runtime), and waits that say what the page
-said when they fail. Test modules import the fixtures `server` and `browser` from here."""
+"""What every browser test of the operator page shares: Debian's Chromium (launched
+here, once per test session: the ``browser`` fixture in tests/conftest.py), the server's
+settings for the page (video included), a page opened with a scripted gamepad (and the
+emulated WebXR runtime), and waits that say what the page said when they fail."""
 
 from __future__ import annotations
 
+import contextlib
 import os
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -17,10 +17,9 @@ from playwright.sync_api import Browser, Page, sync_playwright
 
 # The same Chromium flags as the browser benchmark, and its software GPU at nice 10.
 from bench.browser import ARGS, yield_software_gpu
-from tests.servers import serving
-from tests.test_browser import CHROMIUM
+from tests.support import TOKEN
 
-TOKEN = "web-test-operator-token-0123456789"
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's: never a downloaded browser
 ENV = {
     "TELEROBOT_VIDEO": "true",
     # 2×640×360 at 20 fps (the timecode needs 520 px of width): this 2-core machine
@@ -32,7 +31,6 @@ ENV = {
     # media worker at nice 10 waits behind the browser's software GPU, and the frames
     # reach the page late (glass-to-glass p50 19 → 63 ms with one core busy elsewhere).
     "TELEROBOT_VIDEO_NICE": "0",
-    "TELEROBOT_OPERATOR_TOKEN": TOKEN,
     # Any free port for the priority channel: another server here may hold 8001.
     "TELEROBOT_PRIORITY_PORT": "0",
     "TELEROBOT_HOME_POSE": "qn",
@@ -75,24 +73,26 @@ window.__xr.installRuntime({ forceInstall: true });
 """
 
 
-def _serve() -> Iterator[str]:
+def chromium_or_fail() -> str:
+    """Debian's Chromium's path; a clear failure where it is missing (`make test`
+    installs it)."""
     if not CHROMIUM.exists():
-        pytest.fail("Debian's chromium is missing: `make test` installs it")
-    with serving(ENV) as base:
-        yield base
+        pytest.fail(
+            "Debian's chromium is missing: `make test` installs it (apt-get install chromium)"
+        )
+    return str(CHROMIUM)
 
 
-@pytest.fixture(scope="module")
-def server() -> Iterator[str]:
-    yield from _serve()
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
+@contextlib.contextmanager
+def chromium(executable: str | None = None) -> Iterator[Browser]:
+    """Debian's Chromium with the browser benchmark's flags (``executable``: another way
+    to start it, e.g. inside a network namespace)."""
     with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        yield b
-        b.close()
+        b = p.chromium.launch(executable_path=executable or chromium_or_fail(), args=ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
 
 
 def open_page(
@@ -143,20 +143,18 @@ def tool_position(server: str) -> np.ndarray:
     return np.array(httpx.get(server + "api/v1/robot/state").json()["position"])
 
 
-def until(
-    page: Page, condition: Callable[[], bool], what: str | Callable[[], str], timeout: float = 10
-) -> None:
-    """Poll the server until ``condition`` holds; on timeout, say what the page said."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            said = page.locator("#messages").inner_text()
-            flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
-            raise AssertionError(
-                f"never: {what if isinstance(what, str) else what()}; flags {flags}; "
-                f"page messages:\n{said}"
-            )
-        time.sleep(0.1)
+def page_said(page: Page, what: str | Callable[[], str]) -> Callable[[], str]:
+    """For ``until``'s ``what``: what was waited for, and what the page said."""
+
+    def said() -> str:
+        messages = page.locator("#messages").inner_text()
+        flags = page.evaluate("window.telerobot.state && window.telerobot.state.flags")
+        return (
+            f"never: {what if isinstance(what, str) else what()}; flags {flags}; "
+            f"page messages:\n{messages}"
+        )
+
+    return said
 
 
 def xr_frames_pass(page: Page, n: int = 2) -> None:
