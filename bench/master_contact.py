@@ -30,6 +30,8 @@ For each round trip, with passivity ("passivity") and without ("none"):
   pays it back each millisecond, so it stays at one step's worth);
 - ``oscillation``: RMS (N) of the contact force band-passed to 0.5–20 Hz over the hold
   (after the first contact + 1 s); ``crossings_hz``: how often that band crosses zero;
+- ``contact_s``: from the first contact (> 1 N) to the end; ``lift_offs``: how often
+  the force fell back below 1 N after it (the tool bouncing off the block);
 - ``drift_mm``: at the end, how far the arm's tool moved minus how far the handle moved
   (motion scale 1): what the bridge lost between master and slave;
 - ``damped_j``: what the passivity controller dissipated.
@@ -40,11 +42,18 @@ without, at 200 ms, it oscillates (> 2 N) or trips.
 
 ``--contact-rule`` runs the earlier comparison instead (no delay): the slow approach
 after a contact (contact_speed_m_s 0.02) against none (0.25 m/s), 3 runs each.
+
+``--virtual`` runs the sweep in virtual time instead (``stepped_press``: the same
+server parts, bridge, master and hand on one stepped clock, in this process). Its
+figures are the same on every machine; tests/test_passivity.py asserts on them. The
+real-time sweep above is the end-to-end figure: it adds how punctually this machine
+runs the bridge's, the sensor's and the server's 1 kHz loops, and the link.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
 import secrets
@@ -52,16 +61,27 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import httpx
 import numpy as np
 
+from backend.control.decision import DecisionServer
+from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
 from backend.master.bridge import BridgeSettings, MasterBridge
 from backend.master.cli import open_link
+from backend.master.link import Reply
+from backend.realtime import messages as m
+from backend.realtime.hub import RealtimeHub
+from backend.realtime.session import FRAMES
+from backend.services import safety_limits
+from backend.settings import Settings
+from backend.telemetry.stats import Telemetry
 from bench.common import emit, machine, parser, serve_for_bench
-from drivers.base import FloatArray, ForceSample
+from drivers.base import FloatArray, ForceSample, TelerobotError, WorkingFrame
+from drivers.clock import ManualClock
+from drivers.force.sim import SimForceSensor
 from drivers.master.sim import SimMaster
 
 FORCE_LIMIT_N = 60.0
@@ -107,16 +127,47 @@ def band(values: FloatArray, rate_hz: float) -> FloatArray:
     return smooth(values - smooth(values, int(2.0 * rate_hz)), int(0.025 * rate_hz))
 
 
-def server_env(token: str, stiffness: float, contact_speed: float | None = 0.25) -> dict[str, str]:
-    env = {
-        "TELEROBOT_OPERATOR_TOKEN": token,
-        "TELEROBOT_HOME_POSE": "qn",
-        "TELEROBOT_BLOCK_STIFFNESS_N_M": str(stiffness),
-        "TELEROBOT_PRIORITY_PORT": "0",
-    }
+def server_settings(stiffness: float, contact_speed: float | None = 0.25) -> dict[str, Any]:
+    """The server's settings for the press (a served one gets them as TELEROBOT_*)."""
+    settings: dict[str, Any] = {"home_pose": "qn", "block_stiffness_n_m": stiffness}
     if contact_speed is not None:
-        env["TELEROBOT_CONTACT_SPEED_M_S"] = str(contact_speed)
-    return env
+        settings["contact_speed_m_s"] = contact_speed
+    return settings
+
+
+def server_env(token: str, stiffness: float, contact_speed: float | None = 0.25) -> dict[str, str]:
+    return {
+        "TELEROBOT_OPERATOR_TOKEN": token,
+        "TELEROBOT_PRIORITY_PORT": "0",
+        **{
+            f"TELEROBOT_{name.upper()}": str(value)
+            for name, value in server_settings(stiffness, contact_speed).items()
+        },
+    }
+
+
+def bridge_settings(rtt_s: float, passivity: bool, jitter_s: float = 0.0) -> BridgeSettings:
+    """The bridge's, for either press: the block's push at 1/20, the injected round trip."""
+    return BridgeSettings(
+        force_scale=0.05, passivity=passivity, delay_rtt_s=rtt_s, delay_jitter_s=jitter_s
+    )
+
+
+def press_figures(
+    samples: list[tuple[float, float]],
+    bridge: MasterBridge,
+    moved_master: FloatArray,
+    moved_arm: FloatArray,
+    depth_m: float,
+) -> dict[str, Any]:
+    """What either press reports (see the module's text)."""
+    return {
+        **force_figures(samples),
+        "energy_j": bridge.passivity.generated,
+        "damped_j": bridge.passivity.dissipated,
+        "drift_mm": float(np.linalg.norm(moved_arm - moved_master) * 1000.0),
+        "depth_mm": max(0.0, depth_m * 1000.0),  # (for --contact-rule)
+    }
 
 
 def one_run(
@@ -177,10 +228,7 @@ def press(
     start = np.array(api.get("robot/state").json()["position"], dtype=float)
     device = SimMaster(hand or pressing_hand(press_m), hand_stiffness_n_m=hand_stiffness)
     link = open_link(base, token)
-    settings = BridgeSettings(
-        force_scale=0.05, passivity=passivity, delay_rtt_s=rtt_s, delay_jitter_s=jitter_s
-    )
-    bridge = MasterBridge(device, link, settings)
+    bridge = MasterBridge(device, link, bridge_settings(rtt_s, passivity, jitter_s))
     forces: list[tuple[float, float]] = []  # (sensor time, |F|)
     lock = threading.Lock()
 
@@ -202,15 +250,162 @@ def press(
     with lock:
         samples = sorted(forces)
     return {
-        **force_figures(samples),
-        "energy_j": bridge.passivity.generated,
-        "damped_j": bridge.passivity.dissipated,
-        "drift_mm": float(np.linalg.norm((end - start) - moved_master) * 1000.0),
+        **press_figures(samples, bridge, moved_master, end - start, top - end[2]),
         "estop_at_end": bool(safety.get("estop")),
         "ping_rtt_ms": bridge.link.best_rtt * 1000.0,
         "force_transport": bridge.link.datagrams,
-        "depth_mm": max(0.0, (top - end[2]) * 1000.0),  # (for --contact-rule)
     }
+
+
+class VirtualLink:
+    """What ``MasterBridge`` uses of a ``PriorityLink``, for ``stepped_press``: no socket
+    and no reader thread. Commands wait in ``commands`` until the loop hands them to the
+    DecisionServer; the loop calls ``on_force`` and ``on_state`` itself. Both sides
+    are on one clock: no offset."""
+
+    def __init__(self, decision: DecisionServer, client_id: str, now: Callable[[], float]) -> None:
+        self.decision = decision
+        self.client_id = client_id
+        self._now = now
+        self.on_force: Callable[[ForceSample, float], None] | None = None
+        self.on_state: Callable[[dict[str, Any]], None] | None = None
+        self.on_reply: Callable[[Reply], None] | None = None
+        self.offset = 0.0
+        self.closed_reason: str | None = None
+        # Sent, not yet applied: (seq, send time, dX, rotation vector, frame).
+        self.commands: list[tuple[int, float, FloatArray, FloatArray, WorkingFrame]] = []
+        self._seq = 0
+
+    def cartesian(
+        self, dX: tuple[float, float, float], rotvec: tuple[float, float, float],
+        frame: m.Frame = m.Frame.BASE,
+    ) -> int:  # fmt: skip
+        self._seq += 1
+        self.commands.append(
+            (self._seq, self._now(), np.array(dX), np.array(rotvec), FRAMES[frame])
+        )
+        return self._seq
+
+    def heartbeat(self) -> None:
+        self.decision.seen(self.client_id)  # what the server does with any message
+
+
+async def stepped_press(
+    *,
+    rtt_s: float,
+    passivity: bool,
+    seconds: float,
+    press_m: float,
+    hand_stiffness: float,
+    stiffness: float,
+    jitter_s: float = 0.0,
+    contact_speed: float | None = 0.25,
+    hand: Callable[[float], tuple[FloatArray, bool]] | None = None,
+) -> dict[str, Any]:
+    """``one_run``'s press in virtual time, for tests (``--virtual`` here).
+
+    The same parts: the server's, built from the same settings by the server's own
+    builders (the simulated PUMA, the block, the force sensor, the DecisionServer with
+    its limits, force limit and dead-man), the same bridge with its injected round trip
+    and passivity controller, the same simulated master and hand. All run on one
+    ``ManualClock``, stepped 1 ms at a time: the arm moves, the sensor takes a sample
+    (to the DecisionServer and the bridge, as the priority channel sends every one),
+    STATE goes out every 20 ms as the hub's, the bridge ticks, and its commands are
+    applied as the priority channel applies them. No thread, socket or sleep: the
+    figures are the same on any machine. What it leaves out is what ``one_run``
+    measures on top: how punctually a machine runs the 1 kHz loops (bridge, sensor,
+    server), and the real link's transit."""
+    settings = Settings(
+        robot="sim", force="sim", robot_model="puma560", **server_settings(stiffness, contact_speed)
+    )
+    clock = ManualClock()
+    token = secrets.token_hex(16)
+    workcell = build_workcell(settings)
+    robot = build_robot(settings, clock)
+    sensor = build_force_sensor(settings, robot, workcell)
+    assert isinstance(sensor, SimForceSensor)  # sampled here (sample_at), not by its thread
+    decision = DecisionServer(
+        robot,
+        kinematics=make_kinematics(settings),
+        clock=clock,
+        operator_token=token,
+        limits=safety_limits(settings),
+        force=sensor,
+    )
+    hub = RealtimeHub(robot, decision, None, Telemetry(), clock)  # (only to encode STATE)
+
+    async def until_done(work: Awaitable[Any]) -> None:
+        task = asyncio.ensure_future(work)
+        while not task.done():
+            await clock.advance(0.01)
+        task.result()
+
+    await robot.connect()
+    await until_done(robot.initialize())
+    # The tool 2 cm above the block's middle, as ``press`` puts it (a REST client's
+    # move, before the dead-man runs: this client says nothing while the arm moves).
+    top = float(workcell.block.upper[2])
+    setup = decision.join("setup", token, source="rest")
+    await decision.take_lease(setup.id)
+    above = np.array([*workcell.block.centre[:2], top + START_ABOVE_M])
+    await decision.move_pose(setup.id, above, robot.pose.rotation)
+    await until_done(robot.wait_idle())
+    await decision.release_lease(setup.id)
+    start = robot.pose.position.copy()
+    decision.start()  # the force limit and the dead-man, as in the server
+    try:
+        client = decision.join("master", token, source="priority")
+        await decision.take_lease(client.id)  # (the bridge's LEASE TAKE)
+        link = VirtualLink(decision, client.id, clock.now)
+        device = SimMaster(
+            hand or pressing_hand(press_m), hand_stiffness_n_m=hand_stiffness,
+            time_source=clock.now,
+        )  # fmt: skip
+        settings_ = bridge_settings(rtt_s, passivity, jitter_s)
+        # (a VirtualLink has all of a PriorityLink that the bridge uses)
+        bridge = MasterBridge(device, link, settings_, time_source=clock.now)  # type: ignore[arg-type]
+        forces: list[tuple[float, float]] = []
+        bridge.on_sample = lambda s, _: forces.append((s.time, float(np.linalg.norm(s.values[:3]))))
+
+        def to_bridge(sample: ForceSample) -> None:
+            if link.on_force is not None:
+                link.on_force(sample, clock.now())
+
+        sensor.subscribe(to_bridge)
+        device.open()
+        p0 = device.position.copy()
+        period = 1.0 / settings_.rate_hz
+        state_every = round(hub.state_period / period)
+        for n in range(round(seconds / period)):
+            await clock.advance(period)
+            sensor.sample_at(clock.now())
+            if n % state_every == 0 and link.on_state is not None:
+                link.on_state(m.decode(hub.encode_state_for(client.id, True))[1])
+            bridge.tick()
+            sent, link.commands = link.commands, []
+            for seq, sent_at, dX, rv, frame in sent:
+                try:
+                    await decision.cartesian_increment(
+                        client.id, dX, rv, frame=frame, seq=seq, client_time=sent_at
+                    )
+                except TelerobotError as exc:  # the server's ERROR
+                    if link.on_reply is not None:
+                        link.on_reply(Reply("ERROR", {"seq": seq}, str(exc)))
+        end = robot.pose.position.copy()
+        return {
+            **press_figures(forces, bridge, device.position - p0, end - start, top - end[2]),
+            "estop_at_end": decision.state().estop,
+            "ping_rtt_ms": 0.0,
+            "force_transport": "virtual",
+        }
+    finally:
+        await decision.stop()
+        await robot.disconnect()
+
+
+def stepped_run(**kwargs: Any) -> dict[str, Any]:
+    """``stepped_press`` from synchronous code: the same keywords as ``one_run``."""
+    return asyncio.run(stepped_press(**kwargs))
 
 
 def force_figures(samples: list[tuple[float, float]]) -> dict[str, Any]:
@@ -218,7 +413,8 @@ def force_figures(samples: list[tuple[float, float]]) -> dict[str, Any]:
     resampled to 1 kHz (a lossy link delivers fewer, and a thinned stream fewer still)."""
     if len(samples) < 2:
         return {"peak_n": 0.0, "limit_trips": 0, "oscillation": 0.0, "crossings_hz": 0.0,
-                "contact_s": 0.0, "mean_force_n": 0.0, "samples": len(samples)}  # fmt: skip
+                "contact_s": 0.0, "lift_offs": 0, "mean_force_n": 0.0,
+                "samples": len(samples)}  # fmt: skip
     t = np.array([s for s, _ in samples])
     f = np.array([v for _, v in samples])
     grid = np.arange(t[0], t[-1], 0.001)
@@ -227,6 +423,7 @@ def force_figures(samples: list[tuple[float, float]]) -> dict[str, Any]:
     hold = g[touching[0] + 1000 :] if len(touching) else np.array([])
     b = band(hold, 1000.0) if len(hold) > 100 else np.zeros(1)
     crossings = np.sum(np.signbit(b[1:]) != np.signbit(b[:-1])) if len(b) > 1 else 0
+    pressed = g[touching[0] :] > 1.0 if len(touching) else np.zeros(0, dtype=bool)
     above = f > FORCE_LIMIT_N  # (trips from the samples themselves: no made-up crossings)
     return {
         "peak_n": float(f.max()),
@@ -234,6 +431,7 @@ def force_figures(samples: list[tuple[float, float]]) -> dict[str, Any]:
         "oscillation": float(np.sqrt(np.mean(b**2))),
         "crossings_hz": float(crossings / (len(hold) / 1000.0)) if len(hold) else 0.0,
         "contact_s": float(grid[-1] - grid[touching[0]]) if len(touching) else 0.0,
+        "lift_offs": int(np.sum(pressed[:-1] & ~pressed[1:])),  # after the first contact
         "mean_force_n": float(np.mean(hold)) if len(hold) else 0.0,
         "samples": len(samples),
     }
@@ -287,10 +485,11 @@ def line(label: str, r: dict[str, Any]) -> str:
 
 def sweep(args: Any) -> dict[str, Any]:
     figures: dict[str, Any] = {}
+    run = stepped_run if args.virtual else one_run
     for rtt_ms in [int(x) for x in args.rtts.split(",")]:
         row: dict[str, Any] = {}
         for label, on in (("passivity", True), ("none", False)):
-            r = one_run(
+            r = run(
                 rtt_s=rtt_ms / 1000.0,
                 passivity=on,
                 seconds=args.seconds,
@@ -319,6 +518,7 @@ def sweep(args: Any) -> dict[str, Any]:
         "seconds": args.seconds,
         "jitter_ms": args.jitter_ms,
         "force_scale": 0.05,
+        "time": "virtual" if args.virtual else "real",
     }
     return figures
 
@@ -357,6 +557,9 @@ def main() -> None:
     p.add_argument("--stiffness", type=float, default=5.0e4, help="the block's, N/m")
     p.add_argument("--jitter-ms", type=float, default=0.0, help="σ on each half of the delay")
     p.add_argument("--contact-rule", action="store_true", help="the earlier comparison")
+    p.add_argument(
+        "--virtual", action="store_true", help="the sweep in virtual time (stepped_press)"
+    )
     p.add_argument(
         "--links", help="instead of injected delays: these bench.netem profiles, e.g. wan,mobile"
     )
