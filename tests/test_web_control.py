@@ -102,6 +102,12 @@ def test_a_stalled_page_halts_the_arm_but_keeps_control_and_a_long_stall_loses_i
     assert not errors, errors
 
 
+# The lease is taken back once the new server's video is up (issue 25): while the new
+# media worker starts, the peer negotiates and the browser's decoder starts, a page on a
+# loaded 2-core machine was measured frozen 2.5–8 s at a time (browser work outside its
+# JavaScript, its software GPU at nice 10); a page silent > 1 s stops its heartbeats by
+# design and the lease lapses 2.18 s later, by design
+# (test_a_stalled_page_halts_the_arm_but_keeps_control_and_a_long_stall_loses_it).
 def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
     browser: Browser,
 ) -> None:
@@ -116,16 +122,10 @@ def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
     wait(page, "window.telerobot.view.staleMs !== null", timeout=5_000)
     page.evaluate("window.__lastState = window.telerobot.state")
     with serving(ENV, port=port):
-        # Back without a reload: the offer to take control again, taken only on a click.
-        wait(page, "document.getElementById('retake').hidden === false", timeout=30_000)
+        # Back without a reload: state flows again, and the video: a new peer, frames
+        # arriving, no longer stale.
+        wait(page, "window.telerobot.state !== window.__lastState", timeout=30_000)
         assert page.evaluate("window.__same_page") is True
-        page.wait_for_timeout(500)
-        assert httpx.get(base + "api/v1/safety").json()["controller"] is None  # not by itself
-        page.click("#retake")
-        wait(page, "(window.telerobot.state.flags & 1) !== 0")
-        assert page.is_hidden("#control-alert")
-        # State flows again, and the video: a new peer, frames arriving, no longer stale.
-        wait(page, "window.telerobot.state !== window.__lastState")
         wait(
             page,
             f"window.telerobot.video.peer && window.telerobot.video.peer.peerId !== '{old_peer}'",
@@ -135,6 +135,13 @@ def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
         wait(page, f"window.telerobot.view.frames > {frames + 10}", timeout=30_000)
         wait(page, "window.telerobot.view.staleMs === null")
         assert httpx.get(base + "api/v1/video").json()  # the new server streams to it
+        # The offer to take control again, taken only on a click.
+        wait(page, "document.getElementById('retake').hidden === false", timeout=30_000)
+        page.wait_for_timeout(500)
+        assert httpx.get(base + "api/v1/safety").json()["controller"] is None  # not by itself
+        page.click("#retake")
+        wait(page, "(window.telerobot.state.flags & 1) !== 0")
+        assert page.is_hidden("#control-alert")
         page.click("#release")
         page.close()
     # While the server was away the browser logged its failed requests; nothing else.

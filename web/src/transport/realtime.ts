@@ -49,8 +49,10 @@ export class RealtimeClient {
   private pendingPing = new Map<number, number>();
   private sentAt = new Map<number, number>();
   // The server's clock, from PING/PONG: commands carry their send time on it (HELLO's
-  // SYNCED_CLOCK), and the server drops one older than its max command age.
-  private readonly clock = new ClockSync();
+  // SYNCED_CLOCK), and the server drops one older than its max command age. Measured
+  // afresh on each new session (connect): the server reached now may be another process
+  // on another clock (a restart); a resumed session keeps it (the same server).
+  private clock = new ClockSync();
   private pinger: ReturnType<typeof setInterval> | undefined;
   private watchdog: ReturnType<typeof setInterval> | undefined;
   private resumeKey = "";
@@ -78,6 +80,7 @@ export class RealtimeClient {
     ws.binaryType = "arraybuffer";
     this.ws = ws;
     this.resumeKey = "";
+    this.clock = new ClockSync();
     this.stopResuming();
     ws.onopen = () => {
       const flags = M.HelloFlags.SYNCED_CLOCK | M.HelloFlags.RESUMABLE;
