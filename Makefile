@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps web web-check bench clean types
+.PHONY: run test test-slow-machine test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
@@ -30,6 +30,18 @@ run: $(STAMP) web
 
 ## make test: install what is missing, then lint, type-check and run every test (browser included)
 test: $(STAMP) browser-deps turn-deps media-server-deps lint typecheck web-check web unit
+
+## make test-slow-machine: the whole of `make test` with one of the cores kept busy
+## (Debian's stress-ng): the suite is meant to pass under it, every time
+test-slow-machine: slow-machine-deps
+	@stress-ng --cpu 1 --timeout 3600 --quiet & STRESS=$$!; \
+	  trap 'kill $$STRESS 2>/dev/null' EXIT; \
+	  $(MAKE) test
+
+slow-machine-deps:
+	@command -v stress-ng >/dev/null 2>&1 || { \
+	  echo "installing Debian's stress-ng to keep a core busy"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq stress-ng >/dev/null; }
 
 ## make test-web: only the browser tests (the operator page with live video, the status page)
 test-web: $(STAMP) browser-deps web

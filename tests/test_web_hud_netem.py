@@ -13,14 +13,12 @@ import tempfile
 from collections.abc import Iterator
 
 import pytest
-from playwright.sync_api import Browser, sync_playwright
+from playwright.sync_api import Browser
 
-from bench.browser import ARGS
-from bench.common import serve_for_bench
 from bench.netem import NetemPair, emulator_available
-from tests.test_browser import CHROMIUM
-from tests.test_web_hud import HUD, hud_wait, row_is, rows, said
-from tests.webpage import ENV, open_page
+from tests.support.browser import ENV, chromium, chromium_or_fail, open_page
+from tests.support.hud import HUD, hud_when, row_is, row_of
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 
@@ -34,18 +32,11 @@ def linked() -> Iterator[tuple[NetemPair, str, Browser]]:
         pytest.skip(f"no link emulator here: {why}")
     with (
         NetemPair("lan") as pair,
-        serve_for_bench("--host", pair.server_addr, env=ENV, prefix=pair.server_prefix) as (
-            _,
-            base,
-        ),
+        serving(ENV, "--host", pair.server_addr, ready=False, prefix=pair.server_prefix) as base,
         tempfile.TemporaryDirectory() as tmp,
-        sync_playwright() as p,
+        chromium(pair.client_executable(chromium_or_fail(), tmp)) as browser,
     ):
-        browser = p.chromium.launch(
-            executable_path=pair.client_executable(str(CHROMIUM), tmp), args=ARGS
-        )
         yield pair, base, browser
-        browser.close()
 
 
 def test_the_hud_follows_the_link_green_amber_red_and_back(
@@ -56,31 +47,28 @@ def test_the_hud_follows_the_link_green_amber_red_and_back(
         f"http://{pair.server_addr}:"
     )  # not loopback: the page is behind the link
     page, errors = open_page(browser, base)
-    # (The link's rows; the freezes of the page's start-up on this loaded machine may
-    # keep the box amber or red for a while, test_web_hud.py covers that row.)
-    hud_wait(
-        page,
-        row_is("rtt", "r.level === 'ok'") + " && " + row_is("loss", "r.level === 'ok'"),
-        30_000,
-    )
+    # Only the link's rows are judged (round trip, loss: the emulated link's figures);
+    # the frame rate and the freezes are this machine's CPU's too, and the box's overall
+    # level is judged only where a red link row makes it red on any machine. Each check
+    # reads the HUD at the instant its wait held (it is redrawn every 0.5 s).
+    link_ok = row_is("rtt", "r.level === 'ok'") + " && " + row_is("loss", "r.level === 'ok'")
+    hud_when(page, link_ok, 30_000)
 
     pair.apply("mobile")  # ~170 ms round trip: over the 100 ms amber line, under 250
-    hud_wait(page, row_is("rtt", "r.level === 'amber'"), 20_000)
-    text = rows(page)["rtt"]["text"]
-    assert text.endswith("(> 100 ms)"), said(page)
-    assert all(int(ms) > 100 for ms in re.findall(r"(\d+)(?:\.\d+)? ms", text)[:1]), said(page)
+    d = hud_when(page, row_is("rtt", "r.level === 'amber'"), 20_000)
+    text = row_of(d, "rtt")["text"]
+    assert text.endswith("(> 100 ms)"), d
+    # Judged by the slower of the video's and the ping's round trip: that one is over.
+    figures = [float(ms) for ms in re.findall(r"([\d.]+) ms", text)[:-1]]
+    assert figures and 100 < max(figures) <= 250, d
 
     pair.apply("bad")  # ~320 ms round trip and 5 % loss: red, the round trip among the reasons
-    hud_wait(page, f"{HUD}.level === 'red' && " + row_is("rtt", "r.level === 'red'"), 30_000)
-    assert "RTT" in page.evaluate(f"{HUD}.reason"), said(page)
-    assert page.locator("#hud").get_attribute("class") == "hud-red"
+    d = hud_when(page, f"{HUD}.level === 'red' && " + row_is("rtt", "r.level === 'red'"), 30_000)
+    assert "RTT: " in d["reason"], d
+    assert d["cls"] == "hud-red", d
 
     pair.apply("lan")  # back by itself
-    hud_wait(
-        page,
-        row_is("rtt", "r.level === 'ok'") + " && " + row_is("loss", "r.level === 'ok'"),
-        30_000,
-    )
+    hud_when(page, link_ok, 30_000)
     page.close()
     # (Errors the page logged while the link was bad are the page's to explain in its
     # log; none may be an uncaught exception.)

@@ -1,4 +1,4 @@
-import { describe, expect, it } from "vitest";
+import { afterEach, describe, expect, it, vi } from "vitest";
 import { Rolling } from "./stats";
 import {
   COMMAND_AGE_AMBER_MS,
@@ -17,6 +17,7 @@ import {
   RTT_AMBER_MS,
   RTT_RED_MS,
   STATS_WINDOW_MS,
+  drawHud,
   fpsLimits,
   layerOf,
   hudView,
@@ -25,6 +26,7 @@ import {
   type HudFigures,
   type HudKey,
   type HudRow,
+  type HudView,
 } from "./ui/connection-hud";
 
 // A healthy loopback link: the figures the browser test sees.
@@ -121,7 +123,7 @@ describe("the connection HUD's rows", () => {
     expect(layerOf(1280, null)).toBe("full"); // the server's size unknown: nothing to compare
   });
 
-  it("freezes: one in 10 s is amber, five red", () => {
+  it("freezes: one in 10 s is amber, three red", () => {
     expect(row({ freezes: 1, longestFreezeMs: 450 }, "freezes")).toMatchObject({ level: "amber", text: "1 in 10 s (longest 0.5 s)" });
     expect(row({ freezes: FREEZES_RED - 1, longestFreezeMs: 300 }, "freezes").level).toBe("amber");
     expect(row({ freezes: FREEZES_RED, longestFreezeMs: 300 }, "freezes").level).toBe("red");
@@ -263,5 +265,276 @@ describe("the collector", () => {
     await hud.update(2500);
     expect(hud.figures).toMatchObject({ fps: null, bitrateKbps: null, freezes: 1, longestFreezeMs: 2500 });
     expect(hud.rows.find((r) => r.key === "freezes")).toMatchObject({ level: "amber", text: "1 in 10 s (longest 2.5 s)" });
+  });
+});
+
+describe("each row's amber and red, with the reason the HUD gives", () => {
+  // One row off at a time, on the healthy link's figures: the box takes that row's
+  // level, and its reason is exactly that row's label and text.
+  const cases: [string, Partial<HudFigures>, "amber" | "red", string][] = [
+    ["RTT amber", { videoRttMs: 150 }, "amber", "RTT: video 150 ms · ping 0.4 ms (> 100 ms)"],
+    ["RTT red", { pingRttMs: 300 }, "red", "RTT: video 0.6 ms · ping 300 ms (> 250 ms)"],
+    ["RTT unmeasured", { videoRttMs: null, pingRttMs: null }, "amber", "RTT: not measured yet"],
+    ["loss amber", { lossPercent: 2.5 }, "amber", "loss: 2.5 % (> 1 %)"],
+    ["loss red", { lossPercent: 7 }, "red", "loss: 7.0 % (> 5 %)"],
+    ["video slow", { fps: 14, nominalFps: 20 }, "amber", "video: 14 fps of 20 (< 15) · 2400 kbit/s · full 1280×360"],
+    ["video very slow", { fps: 8, nominalFps: 20 }, "red", "video: 8 fps of 20 (< 10) · 2400 kbit/s · full 1280×360"],
+    ["video paused", { sinceFrameMs: 300 }, "amber", "video: frozen: no new frame for 0.3 s"],
+    ["video frozen", { sinceFrameMs: 2000 }, "red", "video: frozen: no new frame for 2.0 s"],
+    ["video peer dropped", { videoUp: false }, "red", "video: no video peer (reconnecting)"],
+    ["video not started", { sinceFrameMs: null }, "amber", "video: waiting for the first frame"],
+    ["one freeze", { freezes: 1, longestFreezeMs: 300 }, "amber", "freezes: 1 in 10 s (longest 0.3 s)"],
+    ["freezes", { freezes: 3, longestFreezeMs: 300 }, "red", "freezes: 3 in 10 s (longest 0.3 s)"],
+    ["force late", { forceAgeMs: 80 }, "amber", "force age: 80 ms (> 50 ms)"],
+    ["force stopped", { forceAgeMs: 2500 }, "red", "force age: no new sample for 2.5 s (> 200 ms)"],
+    ["no force", { forceAgeMs: null }, "red", "force age: no force samples yet"],
+    ["link cut", { linkOpen: false }, "red", "force age: realtime link down"],
+    ["command late", { commandAgeMs: 120, commandSeenAgoMs: 10 }, "amber", "command age: 120 ms (> 100 ms)"],
+    ["command stale", { commandAgeMs: 300, commandSeenAgoMs: 10 }, "red", "command age: 300 ms (> 250 ms)"],
+  ];
+  it.each(cases)("%s", (_, over, level, reason) => {
+    const v = view(over);
+    expect(v.level).toBe(level);
+    expect(v.reason).toBe(reason);
+    expect(v.rows.filter((r) => r.level !== "ok")).toHaveLength(1);
+  });
+
+  it("not synced yet: the force row and the clock row wait, amber", () => {
+    const v = view({ synced: false });
+    expect(v.level).toBe("amber");
+    expect(v.reason).toBe("force age: waiting for the clock sync; clock offset: not synced yet");
+  });
+
+  it("red rows come before amber ones, each level in the box's order", () => {
+    const v = view({ videoRttMs: 150, lossPercent: 2, forceAgeMs: 900, videoUp: false });
+    expect(v.level).toBe("red");
+    expect(v.reason).toBe("video: no video peer (reconnecting); force age: 900 ms (> 200 ms); RTT: video 150 ms · ping 0.4 ms (> 100 ms); loss: 2.0 % (> 1 %)");
+  });
+});
+
+describe("the box drawn", () => {
+  // No DOM under vitest (node): the few element members drawHud uses.
+  class El {
+    className = "";
+    title = "";
+    textContent = "";
+    dataset: Record<string, string> = {};
+    children: El[] = [];
+    append(...c: El[]) {
+      this.children.push(...c);
+    }
+    replaceChildren(...c: El[]) {
+      this.children = c;
+    }
+  }
+  afterEach(() => vi.unstubAllGlobals());
+  const draw = (v: HudView): El => {
+    vi.stubGlobal("document", { createElement: () => new El() });
+    const box = new El();
+    drawHud(box as unknown as HTMLElement, v);
+    return box;
+  };
+
+  it("green, titled ok, one line per row with its level, key and thresholds", () => {
+    const v = view();
+    const box = draw(v);
+    expect(box.className).toBe("hud-ok");
+    expect(box.title).toBe("connection ok");
+    expect(box.children[0]).toMatchObject({ className: "hud-title", textContent: "connection ok" });
+    const lines = box.children.slice(1);
+    expect(lines.map((l) => l.dataset.key)).toEqual(v.rows.map((r) => r.key));
+    expect(lines.every((l) => l.className === "hud-row hud-ok")).toBe(true);
+    expect(lines[2]?.title).toBe(v.rows[2]?.limits);
+    expect(lines[2]?.children.map((c) => c.textContent)).toEqual(["video", "30 fps · 2400 kbit/s · full 1280×360"]);
+  });
+
+  it("amber, degraded; red, bad, the reason in the tooltip", () => {
+    const amber = draw(view({ lossPercent: 2 }));
+    expect(amber.className).toBe("hud-amber");
+    expect(amber.children[0]?.textContent).toBe("connection degraded");
+    expect(amber.children.find((l) => l.dataset.key === "loss")?.className).toBe("hud-row hud-amber");
+    const red = draw(view({ forceAgeMs: 3000 }));
+    expect(red.className).toBe("hud-red");
+    expect(red.children[0]?.textContent).toBe("connection bad");
+    expect(red.title).toBe("force age: no new sample for 3.0 s (> 200 ms)");
+    expect(red.children.find((l) => l.dataset.key === "force")?.className).toBe("hud-row hud-red");
+  });
+});
+
+describe("the collector over time (an injected clock)", () => {
+  // A peer whose counters the test advances, a link and a force stream it controls, and
+  // the clock passed to frame() and update(): a 20 fps stream, sampled every 500 ms.
+  function rig() {
+    const counters = { frames: 0, bytes: 0, packets: 0, lost: 0 };
+    const makePc = () =>
+      ({
+        connectionState: "connected",
+        getStats: () =>
+          Promise.resolve(
+            new Map<string, Record<string, unknown>>([
+              ["v", { type: "inbound-rtp", kind: "video", framesDecoded: counters.frames, bytesReceived: counters.bytes, packetsLost: counters.lost, packetsReceived: counters.packets, frameWidth: 2560, frameHeight: 720 }],
+              ["p", { type: "candidate-pair", id: "p", nominated: true, state: "succeeded", currentRoundTripTime: 0.001 }],
+            ]),
+          ),
+      }) as unknown as RTCPeerConnection;
+    const s = {
+      counters,
+      pc: makePc() as RTCPeerConnection | null,
+      makePc,
+      link: { open: true, bestRtt: 0.0005, offset: 0, commandLatency: new Rolling() },
+      forceFlowing: true,
+      lastForce: null as { time: number } | null,
+      now: 0,
+      framesFlowing: true,
+      hud: null as unknown as ConnectionHud,
+    };
+    s.hud = new ConnectionHud({ pc: () => s.pc, link: s.link, force: () => s.lastForce, video: Promise.resolve({ fps: 20, width: 1280 }) });
+    /** Advance the clock by `ms` in 50 ms frames, the force stream's 10 ms batches
+     * and the peer's counters following what flows; the HUD updates every 500 ms. */
+    const run = async (ms: number) => {
+      for (const end = s.now + ms; s.now < end; ) {
+        s.now += 50;
+        if (s.forceFlowing) s.lastForce = { time: (s.now - 20) / 1000 };
+        if (s.framesFlowing && s.pc) {
+          s.hud.frame(s.now);
+          counters.frames += 1;
+          counters.bytes += 10_000;
+          counters.packets += 10;
+        }
+        if (s.now % 500 === 0) await s.hud.update(s.now);
+      }
+    };
+    return { s, run, row: (key: HudKey) => s.hud.rows.find((r) => r.key === key) };
+  }
+
+  it("green on a good link, measured figures shown", async () => {
+    const { s, run, row } = rig();
+    await run(3000);
+    expect(s.hud.level).toBe("ok");
+    expect(s.hud.reason).toBe("");
+    expect(row("video")?.text).toBe("20 fps · 1600 kbit/s · full 2560×720");
+    expect(row("rtt")?.text).toBe("video 1.0 ms · ping 0.5 ms");
+    expect(row("loss")?.text).toBe("0.0 %");
+    expect(row("force")?.text).toBe("20 ms");
+  });
+
+  it("the force stream stops: red within the red limit, with the reason; ok again once it resumes", async () => {
+    const { s, run, row } = rig();
+    await run(3000);
+    s.forceFlowing = false;
+    await run(500); // the newest sample is now 520 ms old
+    expect(s.hud.level).toBe("red");
+    expect(s.hud.reason).toBe("force age: 520 ms (> 200 ms)");
+    await run(1500);
+    expect(row("force")).toMatchObject({ level: "red", text: "no new sample for 2.0 s (> 200 ms)" });
+    s.forceFlowing = true;
+    await run(500);
+    expect(row("force")).toMatchObject({ level: "ok", text: "20 ms" });
+    expect(s.hud.level).toBe("ok");
+  });
+
+  it("the realtime link is cut: red, 'realtime link down'; back when it reopens", async () => {
+    const { s, run } = rig();
+    await run(2000);
+    s.link.open = false;
+    await run(500);
+    expect(s.hud).toMatchObject({ level: "red", reason: "force age: realtime link down" });
+    s.link.open = true;
+    await run(500);
+    expect(s.hud.level).toBe("ok");
+  });
+
+  it("loss over the 2 s window: red while packets are lost, ok once the window has passed", async () => {
+    const { s, run, row } = rig();
+    await run(3000);
+    s.counters.lost += 40; // 40 of ~540 packets over the window
+    await run(500);
+    expect(row("loss")).toMatchObject({ level: "red" });
+    expect(s.hud.reason).toMatch(/^loss: [\d.]+ % \(> 5 %\)$/);
+    await run(STATS_WINDOW_MS + 500);
+    expect(row("loss")).toMatchObject({ level: "ok", text: "0.0 %" });
+    expect(s.hud.level).toBe("ok");
+  });
+
+  it("the video pauses: amber, then red with how long; the freeze counted for 10 s, then green", async () => {
+    const { s, run, row } = rig();
+    await run(3000);
+    s.framesFlowing = false;
+    await run(500);
+    expect(row("video")).toMatchObject({ level: "amber", text: "frozen: no new frame for 0.5 s" });
+    expect(s.hud.reason).toBe("video: frozen: no new frame for 0.5 s");
+    await run(500);
+    expect(row("video")).toMatchObject({ level: "red", text: "frozen: no new frame for 1.0 s" });
+    expect(s.hud.level).toBe("red");
+    s.framesFlowing = true;
+    await run(500);
+    // Frames again; the rate over the stats window still has the pause in it.
+    expect(row("video")).toMatchObject({ level: "amber", text: "10 fps of 20 (< 15) · 800 kbit/s · full 2560×720" });
+    expect(row("freezes")).toMatchObject({ level: "amber", text: "1 in 10 s (longest 1.1 s)" });
+    await run(STATS_WINDOW_MS);
+    expect(row("video")?.level).toBe("ok");
+    expect(s.hud.reason).toBe("freezes: 1 in 10 s (longest 1.1 s)");
+    await run(FREEZE_WINDOW_MS - 3000);
+    expect(row("freezes")?.level).toBe("amber"); // still inside the window
+    await run(1000);
+    expect(row("freezes")).toMatchObject({ level: "ok", text: "none in 10 s" });
+    expect(s.hud.level).toBe("ok");
+  });
+
+  it("three freezes in 10 s are red; they leave the window one by one", async () => {
+    const { s, run, row } = rig();
+    await run(1000);
+    for (let i = 0; i < FREEZES_RED; i += 1) {
+      s.framesFlowing = false;
+      await run(300);
+      s.framesFlowing = true;
+      await run(1700);
+    }
+    // Freezes ended at 1350, 3350 and 5350 ms; now is 7000.
+    expect(row("freezes")).toMatchObject({ level: "red", text: "3 in 10 s (longest 0.3 s)" });
+    expect(s.hud.level).toBe("red");
+    await run(4500); // 11 500: the first has left the window
+    expect(row("freezes")).toMatchObject({ level: "amber", text: "2 in 10 s (longest 0.3 s)" });
+    await run(4000); // 15 500: all three have
+    expect(row("freezes")?.level).toBe("ok");
+    expect(s.hud.level).toBe("ok");
+  });
+
+  it("the video peer is dropped: red; a new peer and its frames bring the row back, the gap counted", async () => {
+    const { s, run, row } = rig();
+    await run(3000);
+    s.pc = null;
+    await run(1000);
+    expect(row("video")).toMatchObject({ level: "red", text: "no video peer (reconnecting)" });
+    expect(s.hud.reason).toContain("video: no video peer (reconnecting)");
+    s.pc = s.makePc(); // its counters go on from the old ones here; the HUD starts afresh
+    await run(1000);
+    expect(row("video")).toMatchObject({ level: "ok", text: "20 fps · 1600 kbit/s · full 2560×720" });
+    expect(row("freezes")).toMatchObject({ level: "amber", text: "1 in 10 s (longest 1.1 s)" });
+  });
+
+  it("a command's age: amber while driving late, idle (ok) 5 s after the last", async () => {
+    const { s, run, row } = rig();
+    await run(1000);
+    s.link.commandLatency.add(150);
+    await run(500);
+    expect(row("command")).toMatchObject({ level: "amber", text: "150 ms (> 100 ms)" });
+    await run(COMMAND_IDLE_MS + 500); // acknowledged (seen) at the update after it
+    expect(row("command")).toMatchObject({ level: "ok", text: "idle (last 150 ms)" });
+  });
+
+  it("the test seam: pinned figures replace the measured ones, the rest is still judged", async () => {
+    const { s, run, row } = rig();
+    await run(1000);
+    s.framesFlowing = false;
+    s.hud.pinned = { fps: 20, freezes: 0, longestFreezeMs: 0, sinceFrameMs: 10 };
+    s.forceFlowing = false;
+    await run(1000);
+    expect(row("video")?.level).toBe("ok");
+    expect(row("freezes")?.level).toBe("ok");
+    expect(s.hud.reason).toMatch(/^force age: /);
+    s.hud.pinned = null;
+    await run(500);
+    expect(row("video")?.level).toBe("red");
   });
 });
