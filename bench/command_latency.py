@@ -14,7 +14,11 @@ simulation measured first in the same run as the baseline; the JSON adds
 ``so101_emulator`` and ``so101_p99_ratio`` (its p99 over the simulation's). The ACK
 comes when the driver has taken the goal; it goes on the bus between two of the
 driver's sync reads (half duplex), and ``goal_to_bus_p50_ms``/``…_p99_ms`` say how long
-that took (the driver's own clock).
+that took (the driver's own clock). It adds ``so101_sync_read_hz``: the driver's sync
+reads of all six servos per second on the emulator in this process, over a
+pseudo-terminal and over TCP, paced (the default 5 ms period: 200 Hz) and flat out
+(no period), each over ``READ_WINDOW_S`` after the first 0.5 s
+(tests/test_so101_driver.py asserts the pacing, not these rates).
 
 Thesis reference (§4.7): a 48-byte command took ~0.7 ms client to server (1.1 ms with video).
 """
@@ -112,6 +116,41 @@ def run_server(
     return figures
 
 
+READ_WINDOW_S = 2.0
+
+
+async def sync_read_rate_hz(make_link: str, poll_period_s: float) -> float:
+    """Sync reads per second of the SO-101 driver on the bus emulator (in this process)."""
+    from drivers.robot.models import load_model
+    from drivers.robot.so101.arm import So101Arm
+    from drivers.robot.so101.calibration import JointCalibration, So101Calibration
+    from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+
+    names = load_model("so101").joint_names
+    cal = So101Calibration(
+        names, tuple(JointCalibration(i + 1, 2048.0, 1) for i in range(len(names)))
+    )
+    bus = FeetechBusEmulator(start=dict.fromkeys(cal.ids, 2048.0))
+    with getattr(BusLink, make_link)(bus) as link:
+        arm = So101Arm(link.url, calibration=cal, poll_period_s=poll_period_s)
+        await arm.connect()
+        try:
+            await asyncio.sleep(0.5)  # past the first reads
+            r0, t0 = arm.reads, time.monotonic()
+            await asyncio.sleep(READ_WINDOW_S)
+            return (arm.reads - r0) / (time.monotonic() - t0)
+        finally:
+            await arm.disconnect()
+
+
+def sync_read_rates() -> dict[str, float]:
+    return {
+        f"{where}_{how}": asyncio.run(sync_read_rate_hz(f"on_{where}", period))
+        for where in ("pty", "tcp")
+        for how, period in (("paced", 0.005), ("flat_out", 0.0))
+    }
+
+
 def wait_ready(base: str, timeout: float = 30.0) -> None:
     """The arm initialised (the PUMA's qz → qn takes ~3.6 s, the SO-101's rest → ready ~1 s)."""
     deadline = time.monotonic() + timeout
@@ -161,6 +200,9 @@ def main() -> None:
             if k in so101
         }
         result["so101_details"] = so101
+        result["so101_sync_read_hz"] = reads = sync_read_rates()
+        print("SO-101 sync reads of six servos on the emulator (Hz):")
+        emit(reads, False)
         result["so101_p99_ratio"] = float(so101["p99_ms"]) / float(figures["p99_ms"])
         print(f"so101 p99 / simulation p99: {result['so101_p99_ratio']:.2f}")
     if args.json:

@@ -24,6 +24,12 @@ Figures, medians over ``--repeats`` runs:
 Then ``max``: a scripted joint move at the arm's full speed (joint 1 at 1 rad/s)
 stopped by the e-stop (POST /api/v1/safety/estop), timed from the e-stop.
 
+Then ``val_serial_stop_s``: the VAL serial driver (``ValSerialPuma``) against its
+controller emulator in this process, over a pseudo-terminal and over TCP (9600 baud,
+moves at a quarter of their real time): joint 1 cruising on a 2.5 rad increment, from
+``stop()`` (ABORT on the wire) to the driver idle at where the arm braked to, median
+over the repeats (tests/test_val_serial.py asserts that it stops short, not this time).
+
     python -m bench.stopping [--json] [--repeats 3]
 
 The baseline (``BASELINE``) was measured with this bench before the stop decelerated
@@ -317,6 +323,29 @@ class Bench:
         return {"results": results, "predicted": predicted, "safety": safety}
 
 
+async def val_serial_stop_s(make_link: str) -> float:
+    """stop() → idle of the VAL serial driver on its emulator, joint 1 cruising."""
+    from drivers.base import SerialSettings
+    from drivers.robot.puma560.kinematics import NAMED_POSES
+    from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+    from drivers.robot.puma560.val_serial import ValSerialPuma
+
+    emulator = ValControllerEmulator(list(np.degrees(NAMED_POSES["qn"])), time_scale=0.25)
+    with getattr(EmulatorLink, make_link)(emulator) as link:
+        robot = ValSerialPuma(SerialSettings(port=link.url, reply_timeout=1.0, move_margin=0.5))
+        await robot.connect()
+        await robot.initialize()
+        try:
+            await robot.move_joints(np.array([2.5, 0, 0, 0, 0, 0]), relative=True)
+            await asyncio.sleep(0.3)
+            t0 = time.monotonic()
+            await robot.stop()
+            await robot.wait_idle(timeout=5)
+            return time.monotonic() - t0
+        finally:
+            await robot.disconnect()
+
+
 def main() -> None:
     p = parser(__doc__ or "")
     p.add_argument("--repeats", type=int, default=3)
@@ -331,6 +360,13 @@ def main() -> None:
     with serve_for_bench(env=env) as (_, base):
         out = asyncio.run(Bench(base, token).run(args.repeats))
     results = out["results"]
+    val_stop = {
+        where: statistics.median(
+            asyncio.run(val_serial_stop_s(f"on_{where}")) for _ in range(args.repeats)
+        )
+        for where in ("pty", "tcp")
+    }
+    emit({f"val_serial_stop_ms {k}": v * 1000 for k, v in val_stop.items()}, False)
     summary: dict[str, dict[str, float]] = {}
     for key, r in results.items():
         row = {"time_ms": r["time_s"] * 1000, "distance_mm": r["distance_m"] * 1000}
@@ -355,6 +391,7 @@ def main() -> None:
                     "details": results,
                     "stop_category": out["safety"].get("stop_category"),
                     "stated": out["safety"].get("stopping"),
+                    "val_serial_stop_s": val_stop,
                     "machine": machine(),
                     "repeats": args.repeats,
                 }

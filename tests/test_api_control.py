@@ -204,9 +204,10 @@ def test_telemetry_reports_the_force_stream(client: TestClient) -> None:
     time.sleep(0.05)  # let some samples arrive
     streams = {s["name"]: s for s in client.get("/api/v1/telemetry").json()["streams"]}
     force = streams["force_at_server"]
-    # A 1 kHz stream: a sensor thread that was held up delivers its samples back to
-    # back (p50 of a few µs on a busy machine), so only the upper side is a check.
-    assert force["count"] > 10 and 0 <= force["p50"] < 5.0, force
+    # The stream's inter-arrival is reported; its figure (1 ms at 1 kHz, how punctually
+    # the machine runs the sensor's thread) is bench.force_stream's, not a line here
+    # (issue 25).
+    assert force["count"] > 10 and 0 <= force["p50"] <= force["p99"], force
 
 
 def test_openapi_documents_the_control_plane(client: TestClient) -> None:

@@ -2,11 +2,13 @@ from __future__ import annotations
 
 import math
 import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from drivers.base import ArmSnapshot, ForceSample, InvalidCommand
+from drivers.force import sim as sim_module
 from drivers.force.pipeline import ForcePipeline
 from drivers.force.sim import SimForceSensor
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics
@@ -106,8 +108,30 @@ def test_bad_settings_are_refused(setting: str, value: float) -> None:
         setattr(s, setting, value)
 
 
-def test_sampling_thread_delivers_numbered_samples_at_the_rate() -> None:
-    s = sensor_for(Arm(NAMED_POSES["qn"]), noise=0.01)
+class ThreadTime:
+    """Virtual time for the sampling thread: its sleeps advance the clock at once."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+
+
+def test_sampling_thread_delivers_numbered_samples_at_the_rate(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The real sampling thread on virtual time (issue 25): the period is exact on any
+    # machine. How punctually a busy machine runs the 1 kHz thread is bench.force_stream's.
+    clock = ThreadTime()
+    monkeypatch.setattr(sim_module, "time", SimpleNamespace(sleep=clock.sleep))
+    s = SimForceSensor(
+        default_workcell(), Arm(NAMED_POSES["qn"]), Puma560Kinematics(TOOL), noise_n=0.01,
+        time_source=clock.now,
+    )  # fmt: skip
     got: list[ForceSample] = []
     enough = threading.Event()
 
@@ -118,10 +142,11 @@ def test_sampling_thread_delivers_numbered_samples_at_the_rate() -> None:
 
     s.subscribe(on_sample)
     s.start()
-    assert enough.wait(5.0), "fewer than 200 samples in 5 s"
+    assert enough.wait(10.0), "fewer than 200 samples in 10 s"
     s.stop()
     assert not s.running
     seqs = [g.seq for g in got]
     assert seqs == list(range(1, len(seqs) + 1))  # threshold 0: every sample, none lost
     span = got[199].time - got[0].time
-    assert 0.15 < span < 0.6  # 199 periods of 1 ms, on a shared machine
+    assert span == pytest.approx(0.199)  # 199 periods of 1 ms
+    assert s.overruns == 0

@@ -24,7 +24,7 @@ from drivers.robot.models import load_model
 from drivers.robot.so101.calibration import JointCalibration, So101Calibration
 from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
 from drivers.robot.so101.leader import So101Leader
-from tests.support import TOKEN
+from tests.support import TOKEN, until
 from tests.support.servers import BIN, serving, telerobot
 
 SO101 = load_model("so101")
@@ -138,12 +138,14 @@ def test_a_leader_of_another_arm_is_refused() -> None:
 def test_a_scripted_leader_drives_the_simulated_so101_through_the_server() -> None:
     home = SO101.pose("ready")
     target = home + np.array([0.3, 0.0, -0.2, 0.0, 0.4, 0.3])
-    started = time.monotonic()
+    # The hand's script goes step by step when the test says, not on the wall clock
+    # (issue 25): a busy machine must not find it a step further than the test thinks.
+    step = ["off"]
 
     def hand(t: float) -> FloatArray:
-        if t < 1.5:  # held 0.6 rad off at the wrist: the arm must not follow
+        if step[0] == "off":  # held 0.6 rad off at the wrist: the arm must not follow
             return home + np.array([0.0, 0.0, 0.0, 0.6, 0.0, 0.0])
-        return target if t > 2.0 else home
+        return target if step[0] == "target" else home
 
     env = {
         "TELEROBOT_OPERATOR_TOKEN": TOKEN,
@@ -160,15 +162,23 @@ def test_a_scripted_leader_drives_the_simulated_so101_through_the_server() -> No
             def target_joints() -> np.ndarray:
                 return np.array(httpx.get(base + "api/v1/robot/state").json()["target_joints"])
 
-            time.sleep(1.0)
-            assert np.allclose(target_joints(), home, atol=1e-6), "moved before aligned"
+            until(lambda: "align the leader: wrist_flex" in mir.status, what=lambda: mir.status)
+            time.sleep(0.5)  # the chance to go wrong
             assert "align the leader: wrist_flex" in mir.status, mir.status
-            deadline = time.monotonic() + 10
-            while np.abs(target_joints() - target).max() > 1e-3:
-                assert time.monotonic() < deadline, (mir.status, mir.last_error, target_joints())
-                time.sleep(0.1)
-            assert mir.commands_sent > 0 and mir.last_error is None
-            assert time.monotonic() - started > 2.0
+            assert np.allclose(target_joints(), home, atol=1e-6), "moved before aligned"
+            assert mir.commands_sent == 0
+            step[0] = "home"  # aligned: it follows, and the arm stays where it is
+            until(lambda: mir.following, what=lambda: mir.status)
+            assert np.allclose(target_joints(), home, atol=1e-3)
+            step[0] = "target"
+            until(
+                lambda: np.abs(target_joints() - target).max() <= 1e-3,
+                what=lambda: f"{mir.status}, {mir.last_error}, {target_joints()}",
+            )
+            # (A command the server found stale, held up past the dead-man on a loaded
+            # machine, is dropped and said; the mirror carries on: issue 25.)
+            error = mir.last_error
+            assert mir.commands_sent > 0 and (error is None or "stale command" in error), error
         finally:
             mir.stop()
             link.close()
@@ -227,7 +237,9 @@ def test_the_so101_leader_drives_the_so101_follower_through_the_server(tmp_path:
 
             assert np.abs(follower() - ready).max() < 0.01
             link = open_link(base, TOKEN, datagrams=False)
-            leader = So101Leader(leader_bus.url, LEADER_CAL)
+            # A servo has 0.25 s to answer, not the driver's 20 ms: the emulator is a thread
+            # here, kept off the CPU for longer on a loaded machine (issue 25).
+            leader = So101Leader(leader_bus.url, LEADER_CAL, reply_timeout=0.25)
             mir = JointMirror(leader, link, SO101.joint_names)
             mir.start()
             try:

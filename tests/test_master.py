@@ -177,12 +177,13 @@ def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) 
     assert top - 0.003 < min(heights) < top, (min(heights), top, bridge.last_error)
     if any(limited):  # a stop on the force limit, if any, left only backing away
         assert bridge.last_error is None or "back away" in bridge.last_error
-    # Forces arrived at 1 kHz and the block's push was rendered upward on the device,
-    # against the operator's hand.
-    assert bridge.forces_received > 3000
+    # Forces arrived and the block's push was rendered upward on the device, against
+    # the operator's hand. How many forces and commands a second, and how often the
+    # bridge's loop was late (overruns), depend on this machine: they are
+    # bench.master_contact's forces_per_s, commands_per_s and overruns (issue 25).
+    assert bridge.forces_received > 0 and bridge.commands_sent > 0
     assert max(felt) > 0.5 * device.max_force_n
     assert min(hand_push) < -0.5 * device.max_force_n
-    assert bridge.commands_sent > 50 and bridge.overruns < 50
     until(lambda: httpx.get(server + "api/v1/safety").json()["controller"] is None)
 
 

@@ -85,19 +85,24 @@ def test_netem_keeps_jittered_packets_in_order_by_always_setting_a_rate() -> Non
 # ---------------------------------------------------------------- measured
 @needs_emulator
 def test_wifi_round_trip_is_twice_the_one_way_delay(link: NetemPair) -> None:
+    # What the link adds on this machine now (the processes' wake-ups, the forwarder):
+    # the baseline the profile's delay is added to, so that a loaded or slower machine
+    # moves both (issue 25; the emulator's figures are bench.netem's).
+    base = measure_link(link, probes=200, interval_s=0.005)
     link.apply("wifi")
     m = measure_link(link, probes=400, interval_s=0.005)
-    print(f"wifi ({link.backend}): {m}")
-    # A loaded machine only adds (the processes' wake-ups): more room above than below.
-    assert 2 * 5 - 1.5 <= m.rtt_p50_ms <= 2 * 5 + 5, m
-    assert 5 - 1 <= m.up_p50_ms <= 5 + 3, m
-    assert 5 - 1 <= m.down_p50_ms <= 5 + 3, m
+    print(f"wifi ({link.backend}): {m}\nlan baseline: {base}")
+    # A loaded machine only adds: more room above than below.
+    assert 2 * 5 - 1.5 <= m.rtt_p50_ms <= 2 * 5 + 5 + base.rtt_p90_ms, (m, base)
+    assert 5 - 1 <= m.up_p50_ms <= 5 + 3 + base.rtt_p90_ms, (m, base)
+    assert 5 - 1 <= m.down_p50_ms <= 5 + 3 + base.rtt_p90_ms, (m, base)
     assert m.loss_round_trip <= _band(1 - 0.995**2, m.probes)[1], m
     assert m.reordered == 0, m
 
 
 @needs_emulator
 def test_mobile_delay_and_loss_are_what_the_profile_says(link: NetemPair) -> None:
+    base = measure_link(link, probes=200, interval_s=0.005)  # as in the wifi test
     link.apply("mobile")
     # Sparse probes (50 ms apart, > 1.5 σ of jitter) see the profile's delay: the FIFO
     # rarely holds one behind the one before (a simulation of the rule: +2 ms median).
@@ -107,10 +112,11 @@ def test_mobile_delay_and_loss_are_what_the_profile_says(link: NetemPair) -> Non
     dense = measure_link(link, probes=2000, interval_s=0.001)
     print(f"mobile ({link.backend}) sparse: {sparse}\nmobile dense: {dense}")
     # The median of 120 draws with σ = 30 ms (42 ms a round trip) is good to ~±5 ms a
-    # standard error; a loaded machine only adds.
-    assert -25 <= sparse.rtt_p50_ms - 2 * 80 <= 35, sparse
-    assert -15 <= sparse.up_p50_ms - 80 <= 22, sparse
-    assert -15 <= sparse.down_p50_ms - 80 <= 22, sparse
+    # standard error; a loaded machine only adds (its own round trip, ``base``).
+    extra = base.rtt_p90_ms
+    assert -25 <= sparse.rtt_p50_ms - 2 * 80 <= 35 + extra, (sparse, base)
+    assert -15 <= sparse.up_p50_ms - 80 <= 22 + extra, (sparse, base)
+    assert -15 <= sparse.down_p50_ms - 80 <= 22 + extra, (sparse, base)
     low, high = _band(0.02, dense.probes)
     assert low <= dense.loss_up <= high, dense
     assert low <= dense.loss_down <= high, dense
@@ -139,29 +145,34 @@ def test_an_outage_drops_everything_for_its_length_then_the_link_recovers(
     flowing = threading.Event()
     prober = threading.Thread(
         target=lambda: result.append(
-            measure_link(link, probes=500, interval_s=0.005, started=flowing.set)
+            measure_link(link, probes=700, interval_s=0.005, started=flowing.set)
         )
     )
     prober.start()
     assert flowing.wait(timeout=20)
-    time.sleep(0.4)  # probes flow before the outage…
+    time.sleep(0.8)  # probes flow before the outage…
+    going_down = time.monotonic()
     link.down()
     went_down = time.monotonic()
     time.sleep(1.0)
     came_up = time.monotonic()
     link.up()
-    back_up = time.monotonic()  # …and ~1 s after it
+    back_up = time.monotonic()  # …and after it
     prober.join(timeout=30)
     m = result[0]
     sent, arrived = _lost_during(m, went_down, came_up)
     assert sent >= 150 and arrived == 0, (sent, arrived)
-    # The gap in answers is the outage's length (packets already delayed still arrive).
+    # The gap in answers is the outage's length (packets already delayed still arrive):
+    # at least the 1 s slept, and at most the outage as measured here plus what a loaded
+    # machine adds to a probe's round trip (a generous 0.5 s, not a figure: issue 25).
     received = sorted(r for _, _, r in m.answered.values())
     gap = max(b - a for a, b in itertools.pairwise(received))
     print(f"{profile} ({link.backend}): answers stopped for {gap * 1000:.0f} ms")
-    assert 0.95 <= gap <= 1.3, gap
-    before, share_before = _answered_share(m, 0, went_down - 0.05)
-    after, share_after = _answered_share(m, back_up + 0.05, math.inf)
+    assert 0.95 <= gap <= back_up - going_down + 0.5, (gap, back_up - going_down)
+    # Away from the outage's edges (probes a loaded forwarder still held then are lost
+    # with it), nearly every probe was answered.
+    before, share_before = _answered_share(m, 0, going_down - 0.25)
+    after, share_after = _answered_share(m, back_up + 0.25, math.inf)
     assert before >= 40 and share_before >= 0.9, (before, share_before)
     assert after >= 40 and share_after >= 0.9, (after, share_after)
 

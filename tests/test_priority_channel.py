@@ -66,8 +66,10 @@ def test_every_force_sample_arrives_alone_and_in_order(server: tuple[str, int]) 
         until(lambda: len(rec.forces) >= 500)
         seqs = [s.seq for s, _ in rec.forces[:500]]
         assert seqs == list(range(seqs[0], seqs[0] + 500))  # nothing lost, nothing batched late
-        # Sensor time and receive time are the same machine's monotonic clock.
-        assert all(0 <= at - s.time < 1.0 for s, at in rec.forces[:500])
+        # Sensor time and receive time are the same machine's monotonic clock: never
+        # negative, and not from another time base (a sanity bound, not a latency: the
+        # latency on this channel is bench.force_under_video's, issue 25).
+        assert all(0 <= at - s.time < 30.0 for s, at in rec.forces[:500])
         state = httpx.get(base + "api/v1/force/channel").json()
         assert state["clients"] >= 1 and state["samples_sent"] >= 500
     finally:
@@ -197,12 +199,14 @@ def test_forces_come_as_datagrams_when_asked_and_commands_stay_on_tcp(
         until(lambda: link.datagrams == "udp" and link.datagrams_received >= 500)
         assert rec.reply_to(link._datagram_seq).name == "ACK"
         # From the switch on, every sample came by UDP (on loopback none is lost), in order.
-        n = len(rec.forces)
+        n, on_tcp = len(rec.forces), link.received - link.datagrams_received
         until(lambda: len(rec.forces) >= n + 300)
         seqs = [s.seq for s, _ in rec.forces[n : n + 300]]
         assert seqs == list(range(seqs[0], seqs[0] + 300))
-        assert all(0 <= at - s.time < 1.0 for s, at in rec.forces[n : n + 300])
-        assert link.received - link.datagrams_received < 100  # on TCP until the ACK (ms)
+        assert all(0 <= at - s.time < 30.0 for s, at in rec.forces[n : n + 300])
+        # On TCP only until the switch: none of those 300 came by TCP (±1: the two
+        # counters are not read at one instant). How long the switch took is no line here.
+        assert abs(link.received - link.datagrams_received - on_tcp) <= 1, on_tcp
         limits = httpx.get(base + "api/v1/force/channel").json()["limits"]
         assert limits["datagrams_sent"] >= 500
         # Commands and their replies still travel on TCP.

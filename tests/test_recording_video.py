@@ -72,7 +72,6 @@ def test_the_hand_over_is_bounded_drops_counts_and_resumes_on_a_keyframe() -> No
     pipe = PacketPipe(slow_send, lambda: asked.append(1), limit=4)
     pipe.restart()
     pipe.push(_frame(False, 0))  # before the first keyframe: not handed over
-    started = time.perf_counter()
     pipe.push(_frame(True, 1))  # the first; the thread takes it and blocks in send
     deadline = time.monotonic() + 5
     while pipe._queue:  # the thread holds it
@@ -80,7 +79,8 @@ def test_the_hand_over_is_bounded_drops_counts_and_resumes_on_a_keyframe() -> No
         time.sleep(0.001)
     for seq in range(2, 2 + 4 + 1):  # four fit, the fifth finds the queue full
         pipe.push(_frame(False, seq))
-    assert time.perf_counter() - started < 0.5  # push never waited for the pipe
+    # push never waited for the pipe: every push returned while the send still blocks.
+    assert sent == [] and not release.is_set()
     assert pipe.dropped == 5 and asked == [1] and not pipe._queue
     pipe.push(_frame(False, 7))  # not a keyframe: still waiting for one
     pipe.push(_frame(True, 8))  # the asked-for keyframe: the stream resumes here
@@ -210,7 +210,10 @@ async def test_the_media_worker_sends_the_recording_its_packets(tmp_path: Any) -
         decoded = list(mp4.decode(stream))
         assert len(decoded) == n
         duration = float(decoded[-1].time or 0)
-    assert 0.5 * n / 30 < duration < 2 * n / 30  # timed by the capture times (30 fps)
+    # Timed by the capture times: the last frame where the last packet was captured
+    # (how many frames a busy machine captured in that time does not matter: issue 25).
+    captured = [p["timestamp"]["sec"] + p["timestamp"]["nsec"] / 1e9 for _, p in logged]
+    assert duration == pytest.approx(captured[-1] - captured[0], abs=1 / 30), captured
 
 
 if __name__ == "__main__":

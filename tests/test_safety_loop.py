@@ -14,7 +14,7 @@ from backend.control.decision import DecisionServer, NotAllowed, SafetyStop
 from drivers.base import ForceSample
 from drivers.clock import ManualClock
 from drivers.force.sampled import SampledForceSensor
-from tests.support import TOKEN
+from tests.support import TOKEN, until_async
 from tests.support.decision import make
 
 
@@ -51,11 +51,9 @@ async def test_the_force_limit_stops_the_arm_with_no_transport_running() -> None
         await ds.take_lease(op.id)
         await ds.cartesian_increment(op.id, np.array([0.005, 0, 0]), np.zeros(3))
         sensor.press((0.0, 0.0, 100.0, 0.0, 0.0, 0.0))
-        for _ in range(20):  # the sample crosses from the sensor's thread to the loop
-            await asyncio.sleep(0.005)
-            if ds.state().force_limited:
-                break
-        assert ds.state().force_limited
+        # The sample crosses from the sensor's thread to the loop (a deadline, not a
+        # figure: the reaction time is the sensor's period plus a tick, issue 25).
+        await until_async(lambda: ds.state().force_limited)
         refused = None
         try:
             await ds.cartesian_increment(op.id, np.array([0, 0, -0.005]), np.zeros(3))

@@ -4,8 +4,10 @@ TCP socket, real threads (ARCHITECTURE rule 4), and its calibration."""
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -73,8 +75,17 @@ def link(request: pytest.FixtureRequest) -> Iterator[BusLink]:
         yield running
 
 
+# How long a servo has to answer in these tests. The driver's 30 ms is for a real bus
+# (a servo answers within a millisecond); here the emulator is a thread of this process,
+# and on a loaded machine it can be kept off the CPU longer than that, which reads as a
+# silent servo (issue 25). The tests of a silent servo set their own, shorter one.
+REPLY_TIMEOUT = 1.0
+SILENT = 0.25  # a muted servo: long enough for the others on a loaded machine
+
+
 def arm_on(link: BusLink, **kw: object) -> So101Arm:
     kw.setdefault("calibration", TRUE_CAL)
+    kw.setdefault("reply_timeout", REPLY_TIMEOUT)
     return So101Arm(link.url, **kw)  # type: ignore[arg-type]
 
 
@@ -113,7 +124,7 @@ async def test_connect_reads_the_arm_and_initialise_configures_it(link: BusLink)
 
 async def test_a_missing_servo_at_connect_is_named(link: BusLink) -> None:
     link.servo(3).mute = True
-    arm = arm_on(link, reply_timeout=0.02)
+    arm = arm_on(link, reply_timeout=SILENT)
     with pytest.raises(DeviceError, match=r"servo 3 \(elbow_flex\) does not answer on"):
         await arm.connect()
     assert arm.status is RobotStatus.ERROR and "elbow_flex" in arm.status_message
@@ -138,20 +149,49 @@ async def test_nothing_on_the_port_is_a_clear_error() -> None:
 
 
 # ---------------------------------------------------------------- reading
-async def test_sync_read_rate_is_at_least_100_hz(link: BusLink) -> None:
-    arm = arm_on(link)  # the default period: 5 ms
+class _CountingEvent(threading.Event):
+    """The poller's wake-up event, counting the waits between reads."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waits = 0
+
+    def wait(self, timeout: float | None = None) -> bool:
+        self.waits += 1
+        return super().wait(timeout)
+
+
+def reads_in(arm: So101Arm, seconds: float) -> tuple[int, float]:
+    """Sync reads completed in a window of at least ``seconds`` (wall clock), and its length:
+    the window opens before the first count is taken and closes after the last."""
+    t0 = time.monotonic()
+    r0 = arm.reads
+    time.sleep(seconds)
+    r1 = arm.reads
+    return r1 - r0, time.monotonic() - t0
+
+
+async def test_sync_reads_are_paced_at_the_period_and_flat_out_without_it(link: BusLink) -> None:
+    # Issue 25: no rate line here (200 Hz paced and 1000-3400 Hz flat out are
+    # bench.command_latency --robot so101-emulator's `so101_sync_read_hz`). What holds on
+    # any machine: the reads happen, and the paced poller never starts reads closer than
+    # its period on average: after a read the next is due a period after the one before
+    # (or at once when late, never earlier), so a window of W s holds at most W/period + 3
+    # completed reads. A slower or busier machine only reads fewer.
+    arm = arm_on(link)
+    assert arm.poll_period_s == 0.005  # the default: 200 Hz
     await arm.connect()
     await until(lambda: arm.reads >= 101)
-    rate = arm.read_rate_hz()
-    assert rate >= 100
+    n, window = await asyncio.to_thread(reads_in, arm, 0.3)
+    assert 0 < n <= window / arm.poll_period_s + 3, (n, window)
     await arm.disconnect()
+    # Flat out: one read after the other, the poller never waits between them.
     flat_out = arm_on(link, poll_period_s=0.0)
+    flat_out._wake = wake = _CountingEvent()
     await flat_out.connect()
     await until(lambda: flat_out.reads >= 301)
-    top = flat_out.read_rate_hz()
     await flat_out.disconnect()
-    print(f"\nsync read of 6 servos ({link.url}): {rate:.0f} Hz paced, {top:.0f} Hz flat out")
-    assert top >= rate
+    assert wake.waits == 0
 
 
 async def test_garbage_on_the_bus_is_skipped(link: BusLink) -> None:
@@ -202,10 +242,13 @@ async def test_moves_reach_the_target(link: BusLink) -> None:
         assert abs(link.servo(i).present_position - goal) <= 1
     assert len(moved) >= 3  # reported while it moved
     assert arm.snapshot().velocities.shape == (6,)
-    # The goals went out between reads, each within about one read transaction.
+    # The goals went out between reads, and the wait is reported (how long it is, about
+    # one read transaction, is bench.command_latency --robot so101-emulator's
+    # goal_to_bus_p50_ms/_p99_ms: no line here, issue 25).
     health = arm.diagnostics()
-    assert health["goal_to_bus_ms"]["n"] >= 2 and health["goal_to_bus_ms"]["max"] < 100
-    assert set(health["servos"]) == set(NAMES) and health["read_rate_hz"] > 50
+    waits = health["goal_to_bus_ms"]
+    assert waits["n"] >= 2 and 0 <= waits["p50"] <= waits["p99"] <= waits["max"], waits
+    assert set(health["servos"]) == set(NAMES) and health["read_rate_hz"] > 0
     assert health["servos"]["gripper"]["temperature_c"] == 30
     await arm.disconnect()
 
@@ -230,7 +273,9 @@ async def test_stop_brakes_without_turning_back(link: BusLink) -> None:
     arm = await ready_arm(link)
     spec = arm.stop_spec
     assert spec.category is StopCategory.CONTROLLED_HOLDING
-    assert spec.decel[0] == pytest.approx(10.0, rel=0.01) and 0 < spec.reaction_s < 0.05
+    assert spec.decel[0] == pytest.approx(10.0, rel=0.01)
+    assert 0 < spec.reaction_s - arm.reply_timeout < 0.001  # a silent servo, then the goal
+    assert arm_on(link, reply_timeout=0.03).stop_spec.reaction_s < 0.05  # the driver's own
     start = arm.joints[0]
     await arm.move_joints(np.array([1.8, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
     await until(lambda: arm.snapshot().velocities[0] > 1.5)
@@ -245,11 +290,10 @@ async def test_stop_brakes_without_turning_back(link: BusLink) -> None:
 
 # ---------------------------------------------------------------- faults
 async def test_a_servo_that_stops_answering_stops_the_arm(link: BusLink) -> None:
-    arm = await ready_arm(link, reply_timeout=0.01)
+    arm = await ready_arm(link, reply_timeout=SILENT)
     await arm.move_joints(np.array([0.3, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
     link.servo(4).mute = True
-    await arm.wait_idle(timeout=5)
-    assert arm.status is RobotStatus.ERROR
+    await until(lambda: arm.status is RobotStatus.ERROR)  # (the move may end first)
     assert "servo 4 (wrist_flex) stopped answering" in arm.status_message
     assert "4 reads in a row" in arm.status_message  # one past the limit of 3
     assert arm.servo_status()["wrist_flex"].missed_reads > 3
@@ -590,9 +634,14 @@ def test_calibration_refuses_a_pose_off_the_others() -> None:
 
 
 async def test_the_calibrate_command_records_by_hand_and_writes_the_file(
-    link: BusLink, tmp_path: Path
+    link: BusLink, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from drivers.robot.so101 import calibrate
     from drivers.robot.so101.calibrate import record
+
+    monkeypatch.setattr(
+        calibrate, "So101Arm", functools.partial(So101Arm, reply_timeout=REPLY_TIMEOUT)
+    )
 
     out = tmp_path / "cal.json"
     said: list[str] = []
