@@ -69,12 +69,12 @@ def browser() -> Iterator[Browser]:
 
 
 @pytest.fixture(scope="module")
-def server() -> Iterator[str]:
-    """The operator page's server (tests.support.browser.ENV: the simulation with video),
-    one per module; its URL."""
+def server(request: pytest.FixtureRequest) -> Iterator[str]:
+    """The operator page's server, one per module; its URL. The simulation with video
+    (tests.support.browser.ENV) unless the module sets ``SERVER_ENV`` (e.g. NO_VIDEO)."""
     from tests.support.browser import ENV, chromium_or_fail
     from tests.support.servers import serving
 
     chromium_or_fail()
-    with serving(ENV) as base:
+    with serving(getattr(request.module, "SERVER_ENV", ENV)) as base:
         yield base

@@ -13,6 +13,7 @@ from playwright.sync_api import Browser, Page
 from tests.support import TOKEN, until
 from tests.support.browser import (
     ENV,
+    NO_VIDEO,
     open_page,
     page_said,
     take_control,
@@ -22,6 +23,8 @@ from tests.support.browser import (
 from tests.support.servers import free_port, serving
 
 pytestmark = pytest.mark.browser
+# The module's server has no video: only the restart test, with its own servers, needs it.
+SERVER_ENV = NO_VIDEO
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
@@ -32,7 +35,7 @@ def alert_text(page: Page) -> str:
 def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
     browser: Browser, server: str
 ) -> None:
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     take_control(page)
     page.click("#view")  # focus on the page, not a control
     page.keyboard.down("Space")
@@ -78,7 +81,7 @@ def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
 def test_a_stalled_page_halts_the_arm_but_keeps_control_and_a_long_stall_loses_it(
     browser: Browser, server: str
 ) -> None:
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     take_control(page)
     played = page.evaluate("window.telerobot.alarm.played")
     # The page's thread hangs for 1.4 s: its worker stops the heartbeat after 1 s (a

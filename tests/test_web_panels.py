@@ -15,7 +15,7 @@ from playwright.sync_api import Browser, Page
 
 from tests.support import TOKEN, until
 from tests.support.browser import (
-    ENV,
+    NO_VIDEO,
     open_page,
     page_said,
     take_control,
@@ -25,6 +25,8 @@ from tests.support.browser import (
 from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
+# Nothing here needs the picture: the page without video, the machine's CPU for the rest.
+SERVER_ENV = NO_VIDEO
 
 BADGE = "document.getElementById('status').textContent"
 ESTOP_LATCHED = "document.getElementById('estop').classList.contains('latched')"
@@ -43,7 +45,7 @@ def reset_estop(page: Page) -> None:
 def test_header_shows_the_estop_latched_and_clears_after_reset(
     browser: Browser, server: str
 ) -> None:
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     take_control(page)
     wait(page, "document.getElementById('control-owner').textContent === 'you have control'")
     wait(page, f"{BADGE} === 'READY' && !{ESTOP_LATCHED}")
@@ -67,8 +69,8 @@ def test_header_shows_the_estop_latched_and_clears_after_reset(
 
 def test_header_says_disconnected_when_the_server_goes_away(browser: Browser) -> None:
     # A server of its own, to kill (the module's server serves the other tests).
-    with serving(ENV) as base:
-        page, _ = open_page(browser, base)
+    with serving(NO_VIDEO) as base:
+        page, _ = open_page(browser, base, video=False)
         take_control(page)
         wait(page, "document.getElementById('control-owner').textContent === 'you have control'")
     # the server is gone (terminated as its block ended)
@@ -86,7 +88,7 @@ def test_header_says_disconnected_when_the_server_goes_away(browser: Browser) ->
 def test_question_mark_opens_the_help_escape_closes_it_and_still_estops(
     browser: Browser, server: str
 ) -> None:
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     take_control(page)
     assert page.locator("#help").is_hidden()
     page.keyboard.press("?")
@@ -111,7 +113,7 @@ def test_question_mark_opens_the_help_escape_closes_it_and_still_estops(
 
 
 def test_labels_joints_speed_forces_and_orientation(browser: Browser, server: str) -> None:
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     names = httpx.get(server + "api/v1/robot/model").json()["joint_names"]
     wait(page, f"document.querySelectorAll('#joints th').length === {len(names)}")
     assert page.locator("#joints th").all_inner_texts() == names  # joint1 … joint6
@@ -152,7 +154,7 @@ def test_labels_joints_speed_forces_and_orientation(browser: Browser, server: st
 def test_home_button_moves_the_arm_to_the_home_pose(browser: Browser, server: str) -> None:
     model = httpx.get(server + "api/v1/robot/model").json()
     home = model["named_poses"][model["home_pose"]]
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     wait(page, "window.telerobot.state !== null")
     assert page.locator("#home").is_hidden()  # only with control
     take_control(page)
@@ -188,7 +190,7 @@ def test_home_button_moves_the_arm_to_the_home_pose(browser: Browser, server: st
 
 
 def test_the_message_log_is_in_view_and_shows_a_new_message(browser: Browser, server: str) -> None:
-    page, errors = open_page(browser, server)
+    page, errors = open_page(browser, server, video=False)
     log = page.locator("#messages")
 
     def in_viewport(box: dict[str, float] | None) -> bool:
