@@ -63,6 +63,9 @@ class Settings(BaseSettings):
     so101_port: str = "/dev/ttyACM0"
     so101_baudrate: int = Field(1_000_000, gt=0)
     so101_calibration: Path | None = None
+    # How long a servo has to answer (a real bus answers in < 1 ms; an emulated bus on a
+    # loaded machine, a process of its own behind a pty, may need longer).
+    so101_reply_timeout: float = Field(0.03, gt=0, le=2.0)
 
     force: str = "sim"
     force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)

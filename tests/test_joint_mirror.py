@@ -226,6 +226,9 @@ def test_the_so101_leader_drives_the_so101_follower_through_the_server(tmp_path:
             "TELEROBOT_ROBOT": "so101",
             "TELEROBOT_ROBOT_MODEL": "so101",
             "TELEROBOT_SO101_PORT": follower_bus.url,
+            # The emulated bus is a thread behind a pty: on a loaded machine it can
+            # take longer than a real servo's 30 ms to answer.
+            "TELEROBOT_SO101_REPLY_TIMEOUT": "0.25",
             "TELEROBOT_SO101_CALIBRATION": str(follower_cal),
             "TELEROBOT_PRIORITY_PORT": "0",
             "TELEROBOT_VIEWER": "false",

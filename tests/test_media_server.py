@@ -232,11 +232,17 @@ def test_a_flood_of_connects_is_bounded_and_never_reaches_the_control_plane(
     codes = sorted({r.status_code for r in replies})
     offered = [r for r in replies if r.status_code == 200]
     refused = [r for r in replies if r.status_code == 503]
-    assert codes in ([200, 503], [503]) and 0 < len(offered) <= 40, codes
-    assert len(offered) + len(refused) == 200
-    assert all(r.json()["type"].endswith(":relay_full") for r in refused)
     relay = status(server)["stats"]["relay"]
-    assert relay["pending"] <= 40 and relay["refused"] >= 160
+    # Never more than 40 connecting at once. A flood that outlasts the 3 s expiry (a
+    # loaded machine) frees the slots of those that expired meanwhile, and one that
+    # expired while Janus was making it is refused as unavailable, not full.
+    assert codes in ([200, 503], [503]) and len(offered) > 0, codes
+    assert relay["pending_peak"] <= 40 and relay["pending"] <= 40, relay
+    assert len(offered) <= 40 + relay["expired"], (len(offered), relay)
+    assert len(offered) + len(refused) == 200
+    full = [r for r in refused if r.json()["type"].endswith(":relay_full")]
+    assert len(full) == relay["refused"] >= 160 - relay["expired"], relay
+    assert all(r.json()["type"].endswith(":relay_unavailable") for r in refused if r not in full)
     # The operator was never disturbed: the lease is its own, the arm not halted, and
     # a heartbeat and a command go through now.
     assert http.post("api/v1/lease/heartbeat").status_code == 200

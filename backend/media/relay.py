@@ -126,6 +126,8 @@ class JanusRelay:
         self.feeding = False
         self.plis = 0  # key frame requests from the media server
         self.refused = 0  # connects refused by the limits
+        self.expired = 0  # connects never answered within pending_expiry_s
+        self.pending_peak = 0  # the most connecting at once (never above max_pending)
         self.ended = 0  # sessions ended by the media server (the viewer's peer failed)
         self.silent = 0  # watching sessions dropped: their page stopped saying it is alive
         self.errors = 0  # requests the media server failed
@@ -174,6 +176,7 @@ class JanusRelay:
             now = time.monotonic()
             for s in list(self.sessions.values()):
                 if not s.started and now - s.created > self.pending_expiry_s:
+                    self.expired += 1
                     await self._destroy(s)
                 elif s.started and now - s.seen > self.viewer_timeout_s:
                     self.silent += 1
@@ -231,6 +234,7 @@ class JanusRelay:
         # all see each other.
         s = RelaySession(RELAY_PREFIX + secrets.token_urlsafe(9), 0, 0, time.monotonic())
         self.sessions[s.peer_id] = s
+        self.pending_peak = max(self.pending_peak, pending + 1)
         try:
             session = (await self._post(self.api, {"janus": "create"}))["data"]["id"]
             if s.destroyed:  # expired (or shut down) while Janus made it: undo it there
@@ -353,6 +357,8 @@ class JanusRelay:
             "rtp_packets": self.feed.packets,
             "key_frame_requests": self.plis,
             "refused": self.refused,
+            "expired": self.expired,
+            "pending_peak": self.pending_peak,
             "ended_by_media_server": self.ended,
             "dropped_silent": self.silent,
             "viewer_timeout_s": self.viewer_timeout_s,

@@ -114,6 +114,7 @@ class So101Config(ArmConfig):
     port: str = "/dev/ttyACM0"
     baudrate: int = ft.DEFAULT_BAUDRATE
     calibration_path: Path = field(default_factory=lambda: Path(CALIBRATION_FILE))
+    reply_timeout: float = 0.03
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> Self:
@@ -130,6 +131,7 @@ class So101Config(ArmConfig):
             port=str(settings["so101_port"]),
             baudrate=int(settings["so101_baudrate"]),
             calibration_path=default_calibration_path(settings) if path is None else Path(path),
+            reply_timeout=float(settings.get("so101_reply_timeout", 0.03)),
         )
 
 
@@ -336,6 +338,7 @@ class So101Arm(ModelArm):
             config.port,
             baudrate=config.baudrate,
             calibration_path=config.calibration_path,
+            reply_timeout=config.reply_timeout,
             kinematics=context.kinematics(),
             clock=context.clock,
             home=config.home,
