@@ -29,6 +29,18 @@ def pytest_configure() -> None:
     os.environ.setdefault("TELEROBOT_VIEWER_PORT", "0")
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The browser tests last (a stable sort: each module's stay in order). Playwright's
+    sync API runs an event loop in this thread from the session's Chromium's start to
+    the session's end, and an async test after it could not run its own."""
+    items.sort(
+        key=lambda item: (
+            item.get_closest_marker("browser") is not None
+            or "browser" in getattr(item, "fixturenames", ())
+        )
+    )
+
+
 @pytest.fixture(autouse=True)
 def _no_realtime_test_process() -> Iterator[None]:
     """A test that leaves this process in a realtime scheduling class fails here, by name:

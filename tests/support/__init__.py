@@ -1,4 +1,4 @@
-"""The one test harness every test module shares (docs/architecture.md, "Tests").
+"""The one test harness every test module shares.
 
 - ``TOKEN``: the operator token every server and DecisionServer under test is given.
 - ``waiting``: ``until`` (and ``until_async``), the one poll-with-a-deadline.
