@@ -34,6 +34,23 @@ class FakeSocket {
   deliver(data: ArrayBuffer): void {
     this.onmessage?.({ data });
   }
+  /** The server answers every PING sent so far, its clock `offset` s ahead of the page's
+   * (received and answered at once, half-way through the round trip). */
+  pong(offset: number): void {
+    const now = performance.now() / 1000;
+    for (const d of this.sent) {
+      const m = decode(d);
+      if (m.type !== "PING") continue;
+      const t = (m.t0 + now) / 2 + offset;
+      this.onmessage?.({ data: encode(M.PONG, { seq: m.seq, t0: m.t0, t1: t, t2: t }) });
+    }
+    this.sent = this.sent.filter((d) => decode(d).type !== "PING");
+  }
+  /** client_time of the last CART_INC sent. */
+  lastCommandTime(): number {
+    const m = decode(this.sent.filter((d) => decode(d).type === "CART_INC").at(-1)!);
+    return (m as unknown as { client_time: number }).client_time;
+  }
   hellos(): { flags: number; token: string }[] {
     return this.sent
       .map((d) => decode(d))
@@ -137,5 +154,60 @@ describe("a stalled link", () => {
     expect(FakeSocket.all.at(-1)!.hellos).toBeDefined();
     FakeSocket.all.at(-1)!.open();
     expect(FakeSocket.all.at(-1)!.hellos()[0]!.token).toBe("secret"); // a fresh session
+  });
+});
+
+// After the link drops and the page connects afresh (a server restart), it syncs its
+// clock with the server it reaches now: the offset measured against the server before
+// is not carried over.
+describe("a fresh connection after a server restart", () => {
+  beforeEach(() => {
+    FakeSocket.all = [];
+    vi.useFakeTimers();
+    vi.stubGlobal("WebSocket", FakeSocket);
+  });
+  afterEach(() => {
+    vi.useRealTimers();
+    vi.unstubAllGlobals();
+  });
+
+  it("syncs the clock with the new server, not the one before", () => {
+    const client = new RealtimeClient("ws://x/ws", "secret", {});
+    client.connect();
+    const old = FakeSocket.all[0]!;
+    old.open();
+    vi.advanceTimersByTime(1); // the first PING
+    old.pong(100); // the old server's clock: 100 s ahead, round trip 0 (none better)
+    expect(client.offset).toBeCloseTo(100, 6);
+    old.close(); // the server is gone
+    vi.advanceTimersByTime(1000); // reconnecting…
+    const fresh = FakeSocket.all[1]!;
+    expect(fresh).not.toBe(old);
+    fresh.open(); // a new server process, its clock 5 s ahead (e.g. its machine rebooted)
+    vi.advanceTimersByTime(1); // the first PING…
+    vi.advanceTimersByTime(10); // …answered 10 ms later: a longer round trip than the old one's
+    fresh.pong(5);
+    expect(client.offset).toBeCloseTo(5, 6);
+    // Commands carry their send time on the new server's clock (else it finds them
+    // seconds old, or from the future, and its stale-command checks go wrong).
+    client.cartesian([0.001, 0, 0], [0, 0, 0], M.Frame.BASE);
+    expect(fresh.lastCommandTime() - performance.now() / 1000).toBeCloseTo(5, 2);
+  });
+
+  it("keeps the clock when the session resumes on a new connection to the same server", async () => {
+    // (the resume itself is the tests above; here only that the offset stays.)
+    const client = new RealtimeClient("ws://x/ws", "secret", {});
+    client.connect();
+    const first = FakeSocket.all[0]!;
+    first.open();
+    first.onmessage?.({ data: encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0, joints: 6 }, `abc ${"k".repeat(32)}`) });
+    vi.advanceTimersByTime(1);
+    first.pong(7);
+    vi.advanceTimersByTime(1000); // silent: stalled, resume attempts go out
+    const attempt = FakeSocket.all[1]!;
+    attempt.open();
+    attempt.onmessage?.({ data: encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0, joints: 6 }, `abc ${"k".repeat(32)}`) });
+    expect(client.resumes).toBe(1);
+    expect(client.offset).toBeCloseTo(7, 6);
   });
 });
