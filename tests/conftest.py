@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 from fastapi.testclient import TestClient
-from playwright.sync_api import Browser
+from playwright.sync_api import Browser, Playwright
 
 from tests.support import TOKEN
 
@@ -72,12 +72,34 @@ def client() -> Iterator[TestClient]:
 
 
 @pytest.fixture(scope="session")
-def browser() -> Iterator[Browser]:
-    """Debian's Chromium, one for the whole session: each test opens its own pages."""
+def playwright() -> Iterator[Playwright]:
+    """Playwright's sync API, once for the session (a second one in the same thread is
+    refused: it runs an event loop there)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        yield p
+
+
+@pytest.fixture(scope="session")
+def browser(playwright: Playwright) -> Iterator[Browser]:
+    """Debian's Chromium, one for the whole session: each test opens its own pages
+    (closed after it by ``_pages_closed``)."""
     from tests.support.browser import chromium
 
-    with chromium() as b:
+    with chromium(playwright) as b:
         yield b
+
+
+@pytest.fixture(autouse=True)
+def _pages_closed(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Whatever a browser test left open (a failed test never reaches its page.close())
+    is closed after it: a page left playing video would take the CPU of every test after
+    it in the session's one browser."""
+    yield
+    if "browser" in request.fixturenames:
+        for context in request.getfixturevalue("browser").contexts:
+            context.close()
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Iterator
 
 import pytest
-from playwright.sync_api import Browser
+from playwright.sync_api import Browser, Playwright
 
 from bench.netem import NetemPair, emulator_available
 from tests.support.browser import ENV, chromium, chromium_or_fail, open_page
@@ -24,7 +24,7 @@ pytestmark = pytest.mark.browser
 
 
 @pytest.fixture(scope="module")
-def linked() -> Iterator[tuple[NetemPair, str, Browser]]:
+def linked(playwright: Playwright) -> Iterator[tuple[NetemPair, str, Browser]]:
     """The pair (on `lan`), the server's URL as the client namespace reaches it, and a
     browser in the client namespace."""
     why = emulator_available()
@@ -34,7 +34,7 @@ def linked() -> Iterator[tuple[NetemPair, str, Browser]]:
         NetemPair("lan") as pair,
         serving(ENV, "--host", pair.server_addr, ready=False, prefix=pair.server_prefix) as base,
         tempfile.TemporaryDirectory() as tmp,
-        chromium(pair.client_executable(chromium_or_fail(), tmp)) as browser,
+        chromium(playwright, pair.client_executable(chromium_or_fail(), tmp)) as browser,
     ):
         yield pair, base, browser
 

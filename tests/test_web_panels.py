@@ -61,7 +61,7 @@ def test_header_shows_the_estop_latched_and_clears_after_reset(
     wait(page, f"{BADGE} === 'READY' && !{ESTOP_LATCHED}")
     assert page.locator("#estop").text_content() == "E-STOP"
     assert page.locator("#reset").is_hidden()
-    assert page.locator("#banner").is_hidden()
+    wait(page, "document.getElementById('banner').hidden")
     release(page)
     assert errors == []
     page.close()

@@ -14,7 +14,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from playwright.sync_api import Browser, Page, sync_playwright
+from playwright.sync_api import Browser, Page, Playwright
 
 # The same Chromium flags as the browser benchmark, and its software GPU at nice 10.
 from bench.browser import ARGS, yield_software_gpu
@@ -69,7 +69,7 @@ navigator.getGamepads = () => __getGamepads().map((p) => Object.assign(p, { vibr
 # WebXR in a browser with no headset: Meta's Immersive Web Emulation Runtime (iwer,
 # an npm devDependency of web/) emulates a Quest 3 with its two controllers.
 IWER = (
-    Path(__file__).resolve().parents[1] / "web" / "node_modules" / "iwer" / "build" / "iwer.min.js"
+    Path(__file__).resolve().parents[2] / "web" / "node_modules" / "iwer" / "build" / "iwer.min.js"
 )
 XR_RUNTIME = """
 window.__xr = new IWER.XRDevice(IWER.metaQuest3);
@@ -89,15 +89,15 @@ def chromium_or_fail() -> str:
 
 
 @contextlib.contextmanager
-def chromium(executable: str | None = None) -> Iterator[Browser]:
+def chromium(playwright: Playwright, executable: str | None = None) -> Iterator[Browser]:
     """Debian's Chromium with the browser benchmark's flags (``executable``: another way
-    to start it, e.g. inside a network namespace)."""
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=executable or chromium_or_fail(), args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
+    to start it, e.g. inside a network namespace), from the session's Playwright (one
+    per test process: its sync API keeps an event loop in this thread)."""
+    b = playwright.chromium.launch(executable_path=executable or chromium_or_fail(), args=ARGS)
+    try:
+        yield b
+    finally:
+        b.close()
 
 
 def open_page(
