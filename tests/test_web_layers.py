@@ -66,6 +66,16 @@ def test_the_low_layer_is_shown_at_the_cameras_size_and_stays_registered(
     assert layers == ["full", "low"]
     # Both views are the camera's size, and the fiducials are where the camera sees them
     # in both (the low picture stretched, not drawn in a corner at half size).
+    # Read once each view shows live frames again: on a loaded machine a page may have
+    # dimmed its view as stale for a moment (VIDEO STALE), which changes every colour.
+    for page in (full, low):
+        wait(page, "window.telerobot.view.staleMs === null", timeout=30_000)
+        n = page.evaluate("window.telerobot.view.frames")
+        wait(
+            page,
+            f"window.telerobot.view.frames > {n + 2} && window.telerobot.view.staleMs === null",
+            timeout=30_000,
+        )
     seen = {name: fiducials_seen(page, server) for name, page in (("full", full), ("low", low))}
     for name, (got, hits) in seen.items():
         assert got["size"] == [2 * width, height - got["crop"]], (name, got)

@@ -61,7 +61,9 @@ def hold(page: Page, server: str, key: str) -> tuple[np.ndarray, np.ndarray]:
         until(
             lambda: np.linalg.norm(tool_position(server) - before) >= STEP_M,
             what=page_said(page, f"Space+{key} moves the gripper"),
-            timeout=20,
+            # A deadline, not a figure: with one core busy the page's software rendering
+            # can stall its heartbeats past the 180 ms dead-man, each stall a halt.
+            timeout=60,
         )
     finally:
         page.keyboard.up("Space")
