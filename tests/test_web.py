@@ -13,6 +13,7 @@ from playwright.sync_api import Browser
 
 from tests.support import TOKEN, until
 from tests.support.browser import (
+    DRIVE_S,
     SHOTS_FOR_DOCS,
     assert_ball_on_the_tool,
     open_page,
@@ -41,6 +42,7 @@ def test_gamepad_dead_man_drives_releasing_stops_estop_stops_observer_cannot(
     page.evaluate("window.__pad.pressed.add(5)")
     until(
         lambda: target(server) != start,
+        timeout=DRIVE_S,
         what=page_said(page, "the arm moves with the dead-man held"),
     )
     page.evaluate("window.__pad.pressed.delete(5)")  # release: the arm stops
@@ -199,6 +201,7 @@ def test_keyboard_space_is_the_dead_man_w_drives_escape_stops_alt_arrows_align(
     # W with Space held: forward along base x
     until(
         lambda: tool_position(server)[0] >= x0 + 0.005,
+        timeout=DRIVE_S,
         what=page_said(page, "the arm moves with Space held"),
     )
     page.keyboard.up("Space")
@@ -302,6 +305,7 @@ def test_webxr_each_eye_sees_its_camera_the_grip_drives_the_arm_and_contact_puls
         page.wait_for_timeout(50)
     until(
         lambda: (tool_position(server) - p0)[0] >= 0.02,
+        timeout=DRIVE_S,
         what=page_said(
             page,
             lambda: (

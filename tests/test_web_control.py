@@ -12,6 +12,7 @@ from playwright.sync_api import Browser, Page
 
 from tests.support import TOKEN, until
 from tests.support.browser import (
+    DRIVE_S,
     ENV,
     NO_VIDEO,
     open_page,
@@ -41,7 +42,7 @@ def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
     page.keyboard.down("Space")
     page.keyboard.down("KeyW")
     start = target(server)
-    until(lambda: target(server) != start, what=page_said(page, "Space+W drives"))
+    until(lambda: target(server) != start, timeout=DRIVE_S, what=page_said(page, "Space+W drives"))
     # A script takes control over: the page loses it while its keys are held.
     rest = httpx.Client(base_url=server + "api/v1/", headers=AUTH)
     script = rest.post("lease", json={"name": "script", "force": True}).json()["client_id"]
@@ -71,7 +72,11 @@ def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
     page.keyboard.up("Space")
     page.keyboard.down("Space")
     page.keyboard.down("KeyW")
-    until(lambda: target(server) != held, what=page_said(page, "pressed again, the keys drive"))
+    until(
+        lambda: target(server) != held,
+        timeout=DRIVE_S,
+        what=page_said(page, "pressed again, the keys drive"),
+    )
     page.keyboard.up("KeyW")
     page.keyboard.up("Space")
     page.click("#release")

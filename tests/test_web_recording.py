@@ -16,6 +16,7 @@ from playwright.sync_api import Browser, Page
 from backend.recording.reader import read
 from tests.support import TOKEN, until
 from tests.support.browser import (
+    DRIVE_S,
     open_page,
     page_said,
     take_control,
@@ -87,6 +88,7 @@ def test_operator_records_an_episode_observer_sees_rec_review_plays_it(
     page.keyboard.down("Space")
     until(
         lambda: tool_position(server)[0] >= x0 + 0.005,
+        timeout=DRIVE_S,
         what=page_said(page, "the arm moves with Space+W"),
     )
     page.keyboard.up("Space")

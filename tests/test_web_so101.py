@@ -12,6 +12,7 @@ from playwright.sync_api import Browser
 
 from tests.support import until
 from tests.support.browser import (
+    DRIVE_S,
     ENV,
     assert_ball_on_the_tool,
     chromium_or_fail,
@@ -54,6 +55,7 @@ def test_the_page_names_draws_and_drives_the_so101(browser: Browser, server: str
     page.evaluate("window.__pad.axes[1] = -0.8; window.__pad.pressed.add(5)")
     until(
         lambda: np.abs(np.array(target(server)) - start).max() > 0.01,
+        timeout=DRIVE_S,
         what=page_said(page, "the SO-101 moves with the dead-man held"),
     )
     page.evaluate("window.__pad.axes[1] = 0; window.__pad.pressed.delete(5)")

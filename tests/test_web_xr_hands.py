@@ -10,6 +10,7 @@ from playwright.sync_api import Browser, Page
 
 from tests.support import until
 from tests.support.browser import (
+    DRIVE_S,
     open_page,
     page_said,
     take_control,
@@ -137,6 +138,7 @@ def test_a_pinching_hand_in_the_emulated_runtime_moves_the_arm(
         page.wait_for_timeout(50)
     until(
         lambda: (tool_position(server) - p0)[1] <= -0.02,
+        timeout=DRIVE_S,
         what=page_said(
             page,
             lambda: (

@@ -39,6 +39,10 @@ ENV = {
     # page on this loaded 2-core machine can stall its timers for 150 ms.
     "TELEROBOT_DEADMAN_TIMEOUT_S": "0.18",
 }
+# How long a test waits for the arm to move while it holds a key or the dead-man: a
+# deadline, not a figure. With one core busy the page's software rendering can stall its
+# heartbeats past the 180 ms dead-man (the longest the settings allow), each stall a halt.
+DRIVE_S = 60.0
 # For the tests of what the page does with no picture needed (panels, control, keys): no
 # media worker on the server, no decoder in the browser, half this machine's CPU back.
 NO_VIDEO = {**ENV, "TELEROBOT_VIDEO": "false"}
