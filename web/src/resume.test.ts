@@ -65,17 +65,18 @@ class FakeSocket {
 const welcome = (text: string) => encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0 , joints: 6 }, text);
 const KEY = "k".repeat(32);
 
-describe("a stalled link", () => {
-  beforeEach(() => {
-    FakeSocket.all = [];
-    vi.useFakeTimers();
-    vi.stubGlobal("WebSocket", FakeSocket);
-  });
-  afterEach(() => {
-    vi.useRealTimers();
-    vi.unstubAllGlobals();
-  });
+// Every test: a fake WebSocket and fake timers.
+beforeEach(() => {
+  FakeSocket.all = [];
+  vi.useFakeTimers();
+  vi.stubGlobal("WebSocket", FakeSocket);
+});
+afterEach(() => {
+  vi.useRealTimers();
+  vi.unstubAllGlobals();
+});
 
+describe("a stalled link", () => {
   function connected() {
     const seen: string[] = [];
     const client = new RealtimeClient("ws://x/ws", "secret", { connection: (up, why) => seen.push(`${up} ${why}`) });
@@ -161,16 +162,6 @@ describe("a stalled link", () => {
 // clock with the server it reaches now: the offset measured against the server before
 // is not carried over.
 describe("a fresh connection after a server restart", () => {
-  beforeEach(() => {
-    FakeSocket.all = [];
-    vi.useFakeTimers();
-    vi.stubGlobal("WebSocket", FakeSocket);
-  });
-  afterEach(() => {
-    vi.useRealTimers();
-    vi.unstubAllGlobals();
-  });
-
   it("syncs the clock with the new server, not the one before", () => {
     const client = new RealtimeClient("ws://x/ws", "secret", {});
     client.connect();
@@ -200,13 +191,13 @@ describe("a fresh connection after a server restart", () => {
     client.connect();
     const first = FakeSocket.all[0]!;
     first.open();
-    first.onmessage?.({ data: encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0, joints: 6 }, `abc ${"k".repeat(32)}`) });
+    first.onmessage?.({ data: welcome(`abc ${KEY}`) });
     vi.advanceTimersByTime(1);
     first.pong(7);
     vi.advanceTimersByTime(1000); // silent: stalled, resume attempts go out
     const attempt = FakeSocket.all[1]!;
     attempt.open();
-    attempt.onmessage?.({ data: encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0, joints: 6 }, `abc ${"k".repeat(32)}`) });
+    attempt.onmessage?.({ data: welcome(`abc ${KEY}`) });
     expect(client.resumes).toBe(1);
     expect(client.offset).toBeCloseTo(7, 6);
   });
