@@ -272,3 +272,82 @@ def _video(t: float, data: bytes) -> dict[str, Any]:
         "format": "h264",
         "data": base64.b64encode(data).decode("ascii"),
     }
+
+
+def build_listed(
+    path: Path,
+    *,
+    name: str,
+    duration: float = 1.0,
+    episodes: list[dict[str, Any]] | None = None,
+    state_hz: float = 50.0,
+    stop_reason: str = "stopped by the operator",
+    episode_events: bool = True,
+) -> Path:
+    """A small recording as ``GET /api/v1/recordings`` sees one, made fast (no video):
+    states at ``state_hz``, each episode's start/end/label events, and the metadata the
+    server writes when it closes a recording (recorder.py's ``_metadata``: name, times,
+    ``duration_s``, ``stop_reason``, the episodes as JSON). ``episodes``: the recorder's
+    episode records (``listed_episodes`` makes them); ``episode_events`` False writes them
+    in the metadata only (all the listing reads: 10,000 long labels stay one copy). For
+    benches that need hundreds."""
+    episodes = episodes or []
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(profile="", library="telerobot bench")
+        state = writer.register_channel(
+            topic="/robot/state",
+            message_encoding="json",
+            schema_id=_schema(writer, "telerobot.RobotState"),
+        )
+        events = writer.register_channel(
+            topic="/episodes",
+            message_encoding="json",
+            schema_id=_schema(writer, "telerobot.Episode"),
+        )
+        for i in range(int(duration * state_hz)):
+            t = i / state_hz
+            ns = WALL0_NS + round(t * 1e9)
+            q = joints_at(t)
+            payload = {"t": MONO0 + t, "status": "ready", "joints": q, "target_joints": q}
+            writer.add_message(
+                state, log_time=ns, data=json.dumps(payload).encode(), publish_time=ns, sequence=i
+            )
+        for ep in episodes if episode_events else []:
+            for event, t in (("start", ep["started"]), ("end", ep["ended"])):
+                ns = WALL0_NS + round((t - MONO0) * 1e9)
+                payload = {**ep, "event": event, "t": t}
+                writer.add_message(
+                    events, log_time=ns, data=json.dumps(payload).encode(), publish_time=ns
+                )
+        writer.add_metadata(
+            "telerobot",
+            {
+                "name": name,
+                "started": "2026-01-01T00:00:00+00:00",
+                "stopped": "2026-01-01T00:00:01+00:00",
+                "duration_s": f"{duration:.3f}",
+                "stop_reason": stop_reason,
+                "episodes": json.dumps(episodes),
+            },
+        )
+        writer.finish()
+    return path
+
+
+def listed_episodes(count: int, label_chars: int, duration: float = 1.0) -> list[dict[str, Any]]:
+    """``count`` episode records as the recorder keeps them (``EpisodeInfo``), spread
+    over ``duration`` s, each task label ``label_chars`` characters long."""
+    step = duration / max(count, 1)
+    return [
+        {
+            "episode": n,
+            "task": (f"episode {n} " + "x" * label_chars)[:label_chars],
+            "started": MONO0 + n * step,
+            "ended": MONO0 + (n + 0.5) * step,
+            "success": True,
+            "notes": "",
+        }
+        for n in range(count)
+    ]
