@@ -41,8 +41,9 @@ class RealtimeClient:
 
     @classmethod
     async def resume(cls, ws: Any, key: str, flags: int = 0) -> RealtimeClient:
-        """The session of ``key`` continued on ``ws``, a new connection (the server drops
-        the old one): what a client does when its link stalled (the page: realtime.ts).
+        """The session of ``key`` continued on ``ws``, a new connection (the server
+        closes the old one): what a client does when its link stalled (the page:
+        realtime.ts). The key is spent: the returned client's ``resume_key`` is the next.
         One resume at a time: a later one would supersede this, so open connections in
         parallel (a SYN lost in the cut waits 1 s to be resent) but resume on the first
         that opens."""
@@ -174,6 +175,7 @@ class StallResumer:
         self.attempts.append((time.monotonic(), "resumed"))
         self.last_resumed = time.monotonic()
         old, self.client.ws = self.client.ws, new.ws
+        self.client.resume_key = new.resume_key  # a key resumes once: the next one
         self.heard()
         self.resumed += 1
         closing = asyncio.create_task(asyncio.wait_for(old.close(), 1.0))

@@ -6,6 +6,11 @@ samples a bounded buffer (every sample is delivered unless a client falls 2 s
 behind, which is counted as loss), control replies a small queue. One sender task
 per connection drains it in priority order: replies, forces, then state.
 
+A connection replaced by a session's resume (``supersede``) is closed at once, by its
+framing (``close_transport``): a client resuming in a loop must not pile up sockets.
+Until its framing has let it go it still counts (``open_connections``) against the
+client cap, and resumes are limited per address (``resume_limits``).
+
 Force samples come from the sensor's thread through ``call_soon_threadsafe``; for
 browsers they are batched (~10 ms), for clients that asked, sent one by one.
 """
@@ -21,6 +26,7 @@ from dataclasses import dataclass, field
 
 from backend.control.decision import DecisionServer, SafetyState
 from backend.realtime import messages as m
+from backend.realtime.ratelimit import PeerLimits
 from backend.telemetry.stats import Telemetry
 from drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
 from drivers.clock import Clock
@@ -31,6 +37,10 @@ STATUS_INDEX = {s: i for i, s in enumerate(RobotStatus)}
 FORCE_BATCH = 10  # samples per FORCE message for batching clients
 FORCE_BATCH_S = 0.010  # …or this long after the first buffered sample
 FORCE_BUFFER = 2000  # samples a client may fall behind before the oldest are dropped
+# Resumes per address: a page on a flaky link resumes once per stall (≥ 400 ms of
+# silence, one attempt at a time), so a few a second at most; more is a loop.
+RESUMES_PER_S = 2.0
+RESUME_BURST = 10
 
 
 @dataclass
@@ -50,8 +60,11 @@ class Connection:
         operator: bool,
         every_force_sample: bool,
         direct_forces: bool = False,
+        close_transport: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
         self._send = send
+        # Closes the socket under it (the framing's): called once it is superseded.
+        self.close_transport = close_transport
         # The priority channel writes forces from the sensor's thread itself.
         self.direct_forces = direct_forces
         self.client_id = client_id
@@ -147,6 +160,14 @@ class RealtimeHub:
         self.clock = clock
         self.state_period = 1.0 / state_rate_hz
         self.connections: dict[str, Connection] = {}
+        # Replaced by a resume, their sockets being closed: gone once their framing
+        # has let them go (``remove``).
+        self.superseded: set[Connection] = set()
+        self.superseded_total = 0
+        self._closing: set[asyncio.Task[None]] = set()
+        self.resume_limits = PeerLimits(
+            connections_per_s=RESUMES_PER_S, connection_burst=RESUME_BURST
+        )
         self._state_seq = 0
         self._tasks: list[asyncio.Task[None]] = []
         self._unsubscribe: list[Callable[[], None]] = []
@@ -175,18 +196,49 @@ class RealtimeHub:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
-        for conn in list(self.connections.values()):
+        for task in list(self._closing):
+            task.cancel()
+        for conn in [*self.connections.values(), *self.superseded]:
             await conn.close()
+
+    @property
+    def open_connections(self) -> int:
+        """Connections whose sockets are open: in the fan-out, or superseded and closing."""
+        return len(self.connections) + len(self.superseded)
 
     def add(self, conn: Connection) -> None:
         self.connections[conn.client_id] = conn
         conn.start()
         conn.set_state(self.encode_state(conn))
 
+    def supersede(self, client_id: str) -> None:
+        """The client resumed on a new connection: its old one gets nothing more, its
+        reader stops at its next message, and its socket is closed now (a stalled
+        link's peer may never send that message)."""
+        old = self.connections.pop(client_id, None)
+        if old is None:
+            return
+        old.closed = True
+        self.superseded.add(old)
+        self.superseded_total += 1
+        task = asyncio.create_task(self._close_superseded(old), name=f"supersede-{client_id}")
+        self._closing.add(task)
+        task.add_done_callback(self._closing.discard)
+
+    async def _close_superseded(self, conn: Connection) -> None:
+        await conn.close()  # its sender first: one writer on the socket
+        if conn.close_transport is None:
+            return
+        try:
+            await conn.close_transport()
+        except Exception as exc:  # already closed by its peer or its own reader
+            log.debug("superseded connection of %s: %s", conn.client_id, exc)
+
     async def remove(self, conn: Connection) -> None:
         # A resumed session's new connection has the same client id: leave that one be.
         if self.connections.get(conn.client_id) is conn:
             del self.connections[conn.client_id]
+        self.superseded.discard(conn)
         await conn.close()
 
     # ------------------------------------------------------------ streams

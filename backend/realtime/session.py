@@ -10,12 +10,13 @@ and nothing moves; the session and the server stay up.
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Awaitable, Callable
 from typing import Any
 
 import numpy as np
 
-from backend.control.decision import Applied, Client, DecisionServer
+from backend.control.decision import RESUME_KEY_BYTES, Applied, Client, DecisionServer, NotAllowed
 from backend.realtime import messages as m
 from backend.realtime.hub import Connection, RealtimeHub
 from drivers.base import TelerobotError, WorkingFrame
@@ -75,17 +76,36 @@ class Session:
         every_force_sample: bool | None = None,
         direct_forces: bool = False,
         source: str = "ws",
+        address: str = "",
+        close_transport: Callable[[], Awaitable[None]] | None = None,
     ) -> Session:
-        """``every_force_sample`` None: as the HELLO's flags ask."""
+        """``every_force_sample`` None: as the HELLO's flags ask. ``address``: the
+        peer's IP (resumes are limited per address); ``close_transport``: closes this
+        connection's socket, called when a resume supersedes it."""
         fields = check_hello(hello)
         token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
         flags = int(fields["flags"])
+        if hub.open_connections >= decision.max_clients:
+            raise NotAllowed(
+                f"this server already has {hub.open_connections} connections"
+                f" ({len(hub.superseded)} of them closing): try again in a few seconds"
+            )
         if flags & m.HelloFlags.RESUME:
+            # Before the key is looked at: a loop of guesses pays the same budget.
+            if hub.resume_limits.connect(address, hub.clock.now()) is None:
+                limits = hub.resume_limits
+                raise NotAllowed(
+                    f"too many resumes from {address or 'your address'}: at most"
+                    f" {limits.connection_burst:g} at once, then {limits.connections_per_s:g}"
+                    " a second; wait a few seconds or connect afresh"
+                )
             client = decision.resume(token)
-            old = hub.connections.get(client.id)
-            if old is not None:
-                hub.connections.pop(client.id)  # the stalled connection gets nothing more
-                old.closed = True  # its reader stops at its next message
+            hub.supersede(client.id)  # the stalled connection gets nothing more, and closes
+            # A key resumes once: the new one goes out in this connection's WELCOME (a
+            # key seen on the way is worth nothing once its owner has used it).
+            client.resume_key = (
+                secrets.token_urlsafe(RESUME_KEY_BYTES) if flags & m.HelloFlags.RESUMABLE else None
+            )
         else:
             client = decision.join(
                 peer,
@@ -102,6 +122,7 @@ class Session:
             operator=client.role.value == "operator",
             every_force_sample=every_force_sample,
             direct_forces=direct_forces,
+            close_transport=close_transport,
         )
         return cls(decision, hub, client, conn)
 

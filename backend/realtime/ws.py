@@ -1,7 +1,8 @@
 """``/ws``: the real-time protocol over a WebSocket (layouts in ``messages``, session
 logic in ``session``, docs/protocol.md). This module is the framing: origin check,
 HELLO within 5 s, one binary message per WebSocket message, the per-connection rate
-limit, and closing a client that sends nothing but garbage.
+limit, closing a client that sends nothing but garbage, and closing a connection at
+once when its session resumes on another.
 """
 
 from __future__ import annotations
@@ -22,6 +23,26 @@ log = logging.getLogger(__name__)
 router = APIRouter()
 
 HELLO_TIMEOUT_S = 5.0
+# The close of a connection whose session resumed on another (docs/protocol.md), and
+# how long its peer has to answer it before the socket is closed anyway (a stalled
+# link's peer will not, and a client resuming in a loop would pile them up).
+SUPERSEDED_CODE = 4001
+SUPERSEDED_REASON = "this session resumed on a new connection"
+SUPERSEDED_CLOSE_S = 1.0
+
+
+class Reader:
+    """The handler's task while it waits for its peer: a resume that supersedes the
+    connection stops that wait at once (``stop``). A message being carried out is not
+    interrupted: the loop sees the connection closed after it."""
+
+    def __init__(self) -> None:
+        self.task = asyncio.current_task()
+        self.waiting = False
+
+    async def stop(self) -> None:
+        if self.waiting and self.task is not None:
+            self.task.cancel()
 
 
 @router.websocket("/ws")
@@ -41,6 +62,7 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
         await websocket.close(code=1013, reason="too many connections from your address")
         return
     await websocket.accept()
+    reader = Reader()
     try:
         hello = await asyncio.wait_for(websocket.receive_bytes(), HELLO_TIMEOUT_S)
         session = Session.open(
@@ -49,6 +71,8 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
             hub=hub,
             peer=f"ws {peer.host}:{peer.port}" if peer else "ws",
             send=websocket.send_bytes,
+            address=peer.host if peer else "",
+            close_transport=reader.stop,
         )
     except (TimeoutError, m.MalformedMessage, KeyError) as exc:
         reason = "no HELLO within 5 s" if isinstance(exc, TimeoutError) else str(exc)
@@ -67,12 +91,14 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
     garbage = MalformedRun()
     try:
         while not conn.closed:
+            reader.waiting = True
             frame = await websocket.receive()
             if frame["type"] == "websocket.disconnect":
                 break
             wait = bucket.take(hub.clock.now())
             if wait > 0:  # over its rate: read nothing more until it is back within it
                 await hub.clock.sleep(wait)
+            reader.waiting = False
             data = frame.get("bytes")
             if data is None:
                 conn.reply(error(0, "malformed", "binary messages only (see docs/protocol.md)"))
@@ -89,5 +115,31 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
                 break
     except WebSocketDisconnect:
         pass
+    except asyncio.CancelledError:
+        if not session.superseded:
+            raise
+        if reader.task is not None:
+            reader.task.uncancel()  # stopped by the resume (Reader.stop), not shut down
     finally:
+        if session.superseded:
+            await close_superseded(websocket)
         await session.close()
+
+
+_closing: set[asyncio.Future[None]] = set()  # kept until done (the loop holds tasks weakly)
+
+
+async def close_superseded(websocket: WebSocket) -> None:
+    """The close frame, and a short wait for the peer's answer; then the handler ends
+    and the server closes the socket whether it answered or not. (The websockets
+    library's close waits up to 10 s for the peer, and a cancelled one still does.)"""
+    closing = asyncio.ensure_future(websocket.close(SUPERSEDED_CODE, SUPERSEDED_REASON))
+    _closing.add(closing)
+    closing.add_done_callback(_closed)
+    await asyncio.wait({closing}, timeout=SUPERSEDED_CLOSE_S)
+
+
+def _closed(closing: asyncio.Future[None]) -> None:
+    _closing.discard(closing)
+    if not closing.cancelled():
+        closing.exception()  # the peer already gone: nothing to say

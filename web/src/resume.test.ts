@@ -143,6 +143,54 @@ describe("a stalled link", () => {
     expect(fresh.hellos()[0]!.token).toBe("secret"); // a new session, not a resume
   });
 
+  it("takes the next key from each resume's WELCOME: a key resumes once", () => {
+    const { client, first } = connected();
+    vi.advanceTimersByTime(STALL_MS + 200);
+    const attempt = FakeSocket.all[1]!;
+    attempt.open();
+    expect(attempt.hellos()[0]!.token).toBe(KEY);
+    const next = "n".repeat(32);
+    attempt.deliver(welcome(`abc ${next}`));
+    expect(first.closed).toBe(true);
+    vi.advanceTimersByTime(STALL_MS + 200); // stalled again: resumed with the new key
+    const again = FakeSocket.all.at(-1)!;
+    expect(again).not.toBe(attempt);
+    again.open();
+    expect(again.hellos()[0]!.token).toBe(next);
+    again.deliver(welcome(`abc ${"m".repeat(32)}`));
+    expect(client.resumes).toBe(2);
+  });
+
+  it("the server closing the old connection before the resume's WELCOME arrives is no reason to start afresh", () => {
+    const { client, first, seen } = connected();
+    vi.advanceTimersByTime(STALL_MS + 200);
+    const attempt = FakeSocket.all[1]!;
+    attempt.open(); // its HELLO resumes: the server closes the old connection at once…
+    first.close();
+    vi.advanceTimersByTime(50);
+    attempt.deliver(welcome(`abc ${"n".repeat(32)}`)); // …and then welcomes the new one
+    expect(client.resumes).toBe(1);
+    vi.advanceTimersByTime(2000);
+    expect(FakeSocket.all.filter((s) => s.hellos().some((h) => h.token === "secret"))).toEqual([first]); // no fresh session
+    expect(seen.filter((s) => s.startsWith("false"))).toEqual([]);
+    client.heartbeat();
+    expect(decode(attempt.sent.at(-1)!).type).toBe("HEARTBEAT");
+  });
+
+  it("starts afresh when the old connection is gone and the resume closes before its WELCOME", () => {
+    const { first, seen } = connected();
+    vi.advanceTimersByTime(STALL_MS + 200);
+    const attempt = FakeSocket.all[1]!;
+    attempt.open();
+    first.close();
+    attempt.close(); // the key may be spent (the server took the resume): a fresh session
+    expect(seen.at(-1)).toBe("false the connection closed while resuming; reconnecting…");
+    vi.advanceTimersByTime(1);
+    const fresh = FakeSocket.all.at(-1)!;
+    fresh.open();
+    expect(fresh.hellos()[0]!.token).toBe("secret");
+  });
+
   it("connects afresh when the server says the session has ended", () => {
     const { first, seen } = connected();
     vi.advanceTimersByTime(STALL_MS + 200);

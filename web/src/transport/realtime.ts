@@ -100,6 +100,10 @@ export class RealtimeClient {
   private listen(ws: WebSocket): void {
     ws.onclose = (ev) => {
       if (ws !== this.ws) return; // a connection left behind by a resume
+      // The server closes the old connection as it takes our resume, maybe before its
+      // WELCOME reaches us: that WELCOME adopts the new one (or the attempt's failure
+      // starts afresh).
+      if (this.resuming) return;
       this.handlers.connection?.(false, ev.reason || "connection closed; reconnecting…");
       setTimeout(() => this.connect(), 1000);
     };
@@ -118,7 +122,8 @@ export class RealtimeClient {
 
   /** Every 100 ms: has the connection stalled? Then resume the session elsewhere. */
   private watch(now: number): void {
-    if (!this.open || !this.resumeKey || now - this.lastHeard < STALL_MS) return;
+    if (!this.resumeKey || now - this.lastHeard < STALL_MS) return;
+    if (!this.open && !this.resuming) return; // closed: its onclose reconnects
     this.stalledSince ??= now;
     if (now - this.stalledSince > RESUME_GIVE_UP_MS) return this.startAfresh("the link stalled too long");
     if (!this.resuming && now - this.lastAttempt >= RESUME_EVERY_MS) this.attemptResume(now);
@@ -144,18 +149,24 @@ export class RealtimeClient {
     };
     a.onmessage = (ev) => {
       const msg = decode(ev.data as ArrayBuffer);
-      if (msg.type === "WELCOME") this.adopt(a, performance.now());
+      if (msg.type === "WELCOME") this.adopt(a, performance.now(), msg.text);
       else if (msg.type === "ERROR") this.startAfresh(msg.text); // the session has ended
     };
     a.onclose = () => {
       this.attempts = this.attempts.filter((x) => x !== a);
-      if (this.resuming === a) this.resuming = null; // closed before its WELCOME: try again
+      if (this.resuming !== a) return;
+      this.resuming = null; // closed before its WELCOME: try again…
+      // …unless the old connection is gone too (the server may have taken the resume
+      // and closed it, and the key with it): then only a fresh session is left.
+      if (!this.open) this.startAfresh("the connection closed while resuming");
     };
   }
 
-  /** A resume attempt was welcomed: it is the connection from now on. */
-  private adopt(a: WebSocket, now: number): void {
+  /** A resume attempt was welcomed: it is the connection from now on, with the next
+   * resume key from its WELCOME ("<client id> <key>"): a key resumes once. */
+  private adopt(a: WebSocket, now: number, welcome: string): void {
     const old = this.ws;
+    this.resumeKey = welcome.split(" ")[1] ?? "";
     const stalledMs = this.stalledSince === null ? 0 : now - this.stalledSince + STALL_MS;
     this.attempts = this.attempts.filter((x) => x !== a);
     this.stopResuming();
