@@ -7,7 +7,7 @@ worst while a stereo frame was on the wire.
 The server runs on the simulation with the stereo camera at 2×1280×720, 30 fps,
 H.264 at a constant 9 Mbit/s (filler data tops a still scene up to the budget, so
 the link carries all of it). In a separate client process the master-arm bridge
-(simulated master, as an observer) receives every 1 kHz force sample on the priority
+(simulated master, as an operator) receives every 1 kHz force sample on the priority
 channel. One-way latency = receive time − the sample's sensor time: both are the same
 machine's CLOCK_MONOTONIC, also across network namespaces. Each run measures without
 video, then with an aiortc viewer receiving the video (not decoding it: the link and
@@ -25,6 +25,7 @@ import argparse
 import asyncio
 import json
 import multiprocessing
+import os
 import secrets
 import subprocess
 import sys
@@ -117,7 +118,8 @@ def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any
     from drivers.master.sim import SimMaster
 
     tune_for_realtime()  # as `telerobot master` does
-    link = open_link(base, "")
+    # The token: forces as datagrams are for operators only (it does not take control).
+    link = open_link(base, os.environ.get("BENCH_FORCE_TOKEN", ""))
     bridge = MasterBridge(SimMaster(), link, BridgeSettings())
     records: list[tuple[int, float, float]] = []
     bridge.on_sample = lambda s, at: records.append((s.seq, s.time, at))
@@ -191,7 +193,7 @@ def measure(
         "TELEROBOT_VIDEO_FPS": "30",
         "TELEROBOT_VIDEO_BITRATE": str(VIDEO_BITRATE),
         "TELEROBOT_VIDEO_CBR": "true",
-        "TELEROBOT_OPERATOR_TOKEN": secrets.token_hex(16),
+        "TELEROBOT_OPERATOR_TOKEN": (token := secrets.token_hex(16)),
     }
     host = pair.server_addr if pair else "127.0.0.1"
     server_prefix = pair.server_prefix if pair else ()
@@ -202,6 +204,7 @@ def measure(
              "--client", base, "--seconds", str(seconds),
              *(["--compare-ws"] if compare_ws else [])],
             capture_output=True, text=True, timeout=seconds * 2 + 120,
+            env={**os.environ, "BENCH_FORCE_TOKEN": token},
         )  # fmt: skip
         if out.returncode != 0:
             raise RuntimeError(f"the client failed:\n{out.stderr[-3000:]}")

@@ -22,7 +22,7 @@ jitter), then three client processes run in the client namespace at once:
   decoded from the page's own meter (view/glass.ts); no byte or packet counts. On
   this 2-core machine the browser's software GPU takes most of a core, which the
   server's encoder then lacks: its fps is the machine's, not the link's.
-* **force**: the master-arm bridge (simulated master, observer) on the priority
+* **force**: the master-arm bridge (simulated master, operator) on the priority
   channel, forces as UDP datagrams (its default; ``force_transport`` says which it
   got): one-way latency = receive time − the sample's sensor time (one machine's
   CLOCK_MONOTONIC, also across namespaces); lost = gaps in the sample numbers (which
@@ -342,7 +342,7 @@ def role_browser(base: str) -> dict[str, Any]:
     }
 
 
-def role_force(base: str) -> dict[str, Any]:
+def role_force(base: str, token: str) -> dict[str, Any]:
     from backend.master.bridge import BridgeSettings, MasterBridge
     from backend.master.cli import open_link
     from backend.tuning import tune_for_realtime
@@ -350,7 +350,7 @@ def role_force(base: str) -> dict[str, Any]:
 
     tune_for_realtime()
     before = _get_json(base, "api/v1/force/channel")
-    link = open_link(base, "")
+    link = open_link(base, token)  # (forces as datagrams are for operators only)
     bridge = MasterBridge(SimMaster(), link, BridgeSettings())
     records: list[tuple[int, float, float, int]] = []  # seq, sensor time, received, every
     first = threading.Event()
@@ -462,7 +462,7 @@ def run_role(role: str, base: str, token: str, hz: float) -> None:
     elif role == "browser":
         out = role_browser(base)
     elif role == "force":
-        out = role_force(base)
+        out = role_force(base, token)
     else:
         out = role_command(base, token, hz)
     print(json.dumps(out), flush=True)

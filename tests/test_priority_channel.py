@@ -197,7 +197,7 @@ def test_forces_come_as_datagrams_when_asked_and_commands_stay_on_tcp(
     )
     try:
         until(lambda: link.datagrams == "udp" and link.datagrams_received >= 500)
-        assert rec.reply_to(link._datagram_seq).name == "ACK"
+        assert rec.reply_to(link._datagram_seq).name == "DATAGRAMS"  # with the server's key
         # From the switch on, every sample came by UDP (on loopback none is lost), in order.
         n, on_tcp = len(rec.forces), link.received - link.datagrams_received
         until(lambda: len(rec.forces) >= n + 300)
@@ -221,14 +221,15 @@ def test_forces_go_back_to_tcp_when_the_datagrams_stop(server: tuple[str, int]) 
     the server's 2 s the samples come on TCP again."""
     _, port = server
     rec = Recorder()
-    link = PriorityLink("127.0.0.1", port, "", on_force=rec.force, on_reply=rec.reply)
+    link = PriorityLink("127.0.0.1", port, TOKEN, on_force=rec.force, on_reply=rec.reply)
     udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         udp.connect(("127.0.0.1", port))
         udp.settimeout(2)
-        key = bytes(range(1, 17))
-        link.send_raw(m.encode(m.DATAGRAMS, 77, key, 1))
-        assert rec.reply_to(77).name == "ACK"
+        link.send_raw(m.encode(m.DATAGRAMS, 77, bytes(16), 1))
+        registered = rec.reply_to(77)
+        assert registered.name == "DATAGRAMS"
+        key = bytes(registered.fields["key"])
         udp.send(m.encode(m.DATAGRAMS, 0, key, 1))
         first = udp.recv(2048)
         assert first[:1] == bytes((m.FORCE.type_id,)) and len(m.decode_force(first)) == 1
@@ -263,23 +264,14 @@ def test_datagrams_without_a_registered_key_get_nothing(server: tuple[str, int])
     )
 
 
-def test_a_taken_or_empty_datagram_key_is_refused(server: tuple[str, int]) -> None:
+def test_a_short_datagrams_message_is_refused(server: tuple[str, int]) -> None:
+    """(The key is the server's, new at every registration: test_priority_datagrams.)"""
     _, port = server
-    a, arec = connect(port, token="")
-    b, brec = connect(port, token="")
+    b, brec = connect(port)
     try:
-        key = b"k" * 16
-        a.send_raw(m.encode(m.DATAGRAMS, 5, key, 1))
-        assert arec.reply_to(5).name == "ACK"
-        b.send_raw(m.encode(m.DATAGRAMS, 6, key, 1))  # someone else's key
-        taken = brec.reply_to(6)
-        assert taken.name == "ERROR" and "random bytes" in taken.text
-        b.send_raw(m.encode(m.DATAGRAMS, 7, bytes(16), 1))
-        assert brec.reply_to(7).name == "ERROR"
-        b.send_raw(m.encode(m.DATAGRAMS, 8, key, 1)[:-1])  # a byte short
+        b.send_raw(m.encode(m.DATAGRAMS, 8, bytes(16), 1)[:-1])  # a byte short
         until(lambda: any(r.name == "ERROR" and "DATAGRAMS" in r.text for r in brec.replies))
     finally:
-        a.close()
         b.close()
 
 
@@ -302,7 +294,7 @@ def test_a_link_falls_back_to_tcp_when_no_datagram_comes(
 
         monkeypatch.setattr(link_module.socket.socket, "connect", misdirected)
         rec = Recorder()
-        link = PriorityLink("127.0.0.1", port, "", on_force=rec.force, datagrams=True)
+        link = PriorityLink("127.0.0.1", port, TOKEN, on_force=rec.force, datagrams=True)
         monkeypatch.undo()
         try:
             until(lambda: link.datagrams.startswith("tcp: no force datagram"), timeout=5)
@@ -341,7 +333,7 @@ def test_newer_sample_numbers_wrap() -> None:
 def test_every_thins_the_datagrams_and_a_bad_every_is_refused(server: tuple[str, int]) -> None:
     _, port = server
     rec = Recorder()
-    link = PriorityLink("127.0.0.1", port, "", on_reply=rec.reply)
+    link = PriorityLink("127.0.0.1", port, TOKEN, on_reply=rec.reply)
     try:
         link.send_raw(m.encode(m.DATAGRAMS, 40, b"e" * 16, 0))
         zero = rec.reply_to(40)
@@ -349,11 +341,12 @@ def test_every_thins_the_datagrams_and_a_bad_every_is_refused(server: tuple[str,
         link.send_raw(m.encode(m.DATAGRAMS, 39, b"e" * 16, 1001))  # past MAX_EVERY
         assert rec.reply_to(39).name == "ERROR"
         link.send_raw(m.encode(m.DATAGRAMS, 41, b"e" * 16, 1))
-        assert rec.reply_to(41).name == "ACK"
+        registered = rec.reply_to(41)
+        assert registered.name == "DATAGRAMS"
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
             udp.settimeout(2)
             udp.connect(("127.0.0.1", port))
-            udp.send(m.encode(m.DATAGRAMS, 0, b"e" * 16, 10))
+            udp.send(m.encode(m.DATAGRAMS, 0, bytes(registered.fields["key"]), 10))
             seqs = [m.decode_force(udp.recv(2048))[0][0] for _ in range(30)]
             assert all(s % 10 == 0 for s in seqs[5:]), seqs  # (a few were on their way)
             assert all(b - a == 10 for a, b in itertools.pairwise(seqs[5:])), seqs

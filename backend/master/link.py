@@ -4,17 +4,19 @@ moment it arrives. Thread-safe sends; used by the master-arm bridge and the
 force-under-video benchmark.
 
 With ``datagrams=True`` the forces come as UDP datagrams instead (DATAGRAMS in
-docs/protocol.md): on a lossy link a lost sample is then just lost, where on TCP it
-holds every later one back by a retransmission (a round trip or more). A second
-reader thread takes them and keeps the server's mapping alive; if none arrives within
-``DATAGRAM_FALLBACK_S``, or the server refuses, the forces stay on TCP
-(``datagrams`` says which and why)."""
+docs/protocol.md), for an operator (the server sends an observer's on TCP only): on a
+lossy link a lost sample is then just lost, where on TCP it holds every later one back
+by a retransmission (a round trip or more). The server answers with a key of its own,
+new at every registration; a second reader thread takes the datagrams and keeps the
+server's mapping alive with that key. If none arrives within ``DATAGRAM_FALLBACK_S``,
+or the server refuses, the forces stay on TCP (``datagrams`` says which and why); if
+the server goes back to TCP later (the keep-alives lost, or refused because a NAT gave
+the socket a new port), the link registers again, for a new key."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import secrets
 import socket
 import threading
 import time
@@ -128,7 +130,9 @@ class PriorityLink:
         self._udp: socket.socket | None = None
         self._udp_reader: threading.Thread | None = None
         self._datagram_seq = -1
-        self._datagram_key = b""
+        self._datagram_key = b""  # the server's (none until it answers)
+        self._datagram_asked_at = -DATAGRAM_FALLBACK_S  # time.monotonic()
+        self._last_datagram_seq: int | None = None  # the newest sample that came by UDP
         self.thinning = Thinning(0.0)
         self._stopping = threading.Event()
         try:
@@ -218,6 +222,9 @@ class PriorityLink:
 
     # ------------------------------------------------------------ forces as datagrams
     def _ask_for_datagrams(self) -> None:
+        if not self.operator:
+            self.datagrams = "tcp: the server sends an observer's forces on TCP only"
+            return
         try:
             udp = socket.socket(self.sock.family, socket.SOCK_DGRAM)
             udp.connect(self.sock.getpeername()[:2])  # the channel's address, UDP
@@ -227,29 +234,34 @@ class PriorityLink:
         mark_high_priority(udp)
         udp.settimeout(DATAGRAM_KEEPALIVE_S / 2)
         self._udp = udp
-        key = secrets.token_bytes(16)
-        self._datagram_key = key
         self.thinning = Thinning(time.monotonic())
-        self.datagrams = "asking"
-        self._datagram_seq = self._next()
-        self._send(m.encode(m.DATAGRAMS, self._datagram_seq, key, 1))
+        self._register_datagrams()
         self._udp_reader = threading.Thread(
             target=self._read_datagrams, args=(udp,), name="priority-link-udp", daemon=True
         )
         self._udp_reader.start()
 
+    def _register_datagrams(self) -> None:
+        """DATAGRAMS on TCP: the server answers with a new key (the old one is void)."""
+        self._datagram_key = b""
+        self._datagram_asked_at = time.monotonic()
+        self.datagrams = "asking"
+        with self._send_lock:
+            self._datagram_seq = self._next()
+            message = m.encode(m.DATAGRAMS, self._datagram_seq, bytes(16), self.thinning.every)
+            self.sock.sendall(m.LENGTH.pack(len(message)) + message)
+
     def _read_datagrams(self, udp: socket.socket) -> None:
-        asked_at = time.monotonic()
         said_at = -DATAGRAM_KEEPALIVE_S
         while not self._stopping.is_set() and not self.datagrams.startswith("tcp"):
             now = time.monotonic()
-            if self.datagrams == "asking" and now - asked_at > DATAGRAM_FALLBACK_S:
+            if self.datagrams == "asking" and now - self._datagram_asked_at > DATAGRAM_FALLBACK_S:
                 self.datagrams = f"tcp: no force datagram within {DATAGRAM_FALLBACK_S:g} s"
                 log.warning("forces stay on TCP: %s", self.datagrams[5:])
                 return  # no more DATAGRAMS: the server goes back to TCP
-            if now - said_at >= DATAGRAM_KEEPALIVE_S:
+            if now - said_at >= DATAGRAM_KEEPALIVE_S and self._datagram_key:
                 said_at = now
-                every = self.thinning.judge(now) if self.datagrams == "udp" else 1
+                every = self.thinning.judge(now) if self.datagrams == "udp" else self.thinning.every
                 with contextlib.suppress(OSError):
                     udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, every))
             try:
@@ -259,11 +271,31 @@ class PriorityLink:
             except OSError:
                 continue  # (an ICMP error; or closed, and the loop ends)
             if data[:1] == bytes((m.FORCE.type_id,)) and len(data) >= 7:
+                seq = int.from_bytes(data[3:7], "little")
                 self.datagrams = "udp"
                 self.datagrams_received += 1
-                self.thinning.arrived(int.from_bytes(data[3:7], "little"))
+                if self._last_datagram_seq is None or newer(seq, self._last_datagram_seq):
+                    self._last_datagram_seq = seq
+                self.thinning.arrived(seq)
                 with contextlib.suppress(m.MalformedMessage):
                     self._forces(data, time.monotonic())
+
+    def _tcp_force(self, message: bytes) -> None:
+        """A sample on TCP while the datagrams flow: newer than any datagram, it means
+        the server has gone back to TCP (our keep-alives stopped reaching it, or come
+        from a port it does not know: a NAT's new mapping). Register again, at most
+        once per ``DATAGRAM_FALLBACK_S``."""
+        if len(message) < 7 or self._last_datagram_seq is None:
+            return
+        seq = int.from_bytes(message[3:7], "little")
+        now = time.monotonic()
+        if (
+            newer(seq, self._last_datagram_seq)
+            and now - self._datagram_asked_at > DATAGRAM_FALLBACK_S
+        ):
+            log.info("forces came on TCP again: asking for datagrams anew")
+            with contextlib.suppress(OSError):
+                self._register_datagrams()
 
     # ------------------------------------------------------------ receiving
     def _read(self) -> None:
@@ -299,16 +331,20 @@ class PriorityLink:
 
     def _dispatch(self, message: bytes, now: float) -> None:
         if message[0] == m.FORCE.type_id:
+            if self.datagrams == "udp":
+                self._tcp_force(message)
             self._forces(message, now)
             return
         msg, fields, text = m.decode(message)
         if msg is m.ERROR and int(fields["seq"]) == self._datagram_seq:
             self.datagrams = f"tcp: {text}"  # refused: the UDP reader ends
             log.warning("forces stay on TCP: %s", text)
-        elif msg is m.ACK and int(fields["seq"]) == self._datagram_seq and self._udp is not None:
-            # Registered: say it by UDP now (the first one may have come before the key).
+        elif msg is m.DATAGRAMS and int(fields["seq"]) == self._datagram_seq and self._udp:
+            # Registered, with the server's key: say it by UDP now, from the socket the
+            # forces should come to (the server learns its port from this one).
+            self._datagram_key = bytes(fields["key"])
             with contextlib.suppress(OSError):
-                self._udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, 1))
+                self._udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, int(fields["every"])))
         if msg is m.WELCOME:
             self.operator = int(fields["role"]) == 1
             self.joint_count = int(fields["joints"])

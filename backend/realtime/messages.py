@@ -140,10 +140,11 @@ DATAGRAMS = Message(
     0x09,
     ("seq", "key", "every"),
     "I16sH",
-    doc="priority channel only: on TCP, send my forces as UDP datagrams to whoever"
-    " sends this key (16 random bytes); on UDP to the channel's port, from the socket"
-    " that receives them, at least every second; every: send one sample in this many"
-    " (1 = all; a slow link asks for fewer)",
+    doc="priority channel only, operators only: on TCP, send my forces as UDP datagrams"
+    " (key: zeros), answered by a DATAGRAMS with the server's key, new each time; on UDP"
+    " to the channel's port, that key, from the socket that receives them (on the TCP"
+    " connection's IP address), at least every second; every: send one sample in this"
+    " many (1 = all; a slow link asks for fewer)",
 )
 
 WELCOME = Message(

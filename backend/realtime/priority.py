@@ -33,6 +33,14 @@ Bounded at the edge (ARCHITECTURE rule 18; the values are the constants below):
 - What waits to be sent: ``MAX_QUEUED_FORCES`` samples (the oldest dropped), one
   robot state (the newest), ``MAX_QUEUED_REPLIES`` replies (a client this far behind
   is closed).
+- Forces as datagrams (DATAGRAMS; docs/protocol.md) are for operators only, and go
+  only to the IP address of the client's own TCP connection: UDP can be sent from a
+  forged source, TCP cannot, so a datagram from any other address is dropped
+  unanswered, and the first valid one fixes the port. The key is the server's, new at
+  every registration. What goes out is bounded per client by a token bucket at the
+  sensor's rate over ``every`` (bursts of ``DATAGRAM_BURST_S``), whatever the sensor
+  delivers at once. So a sender without the token makes the server send nothing by
+  UDP, to anyone.
 - Accept errors (out of file descriptors or memory) shed the oldest connection still
   waiting for HELLO and pause accepting briefly; the channel's thread is supervised:
   an exception is logged and the loop goes on; if the thread ends anyway, a watchdog
@@ -50,6 +58,7 @@ import errno
 import logging
 import math
 import resource
+import secrets
 import selectors
 import socket
 import threading
@@ -95,6 +104,12 @@ RESTART_BACKOFF_S = (0.05, 1.0)  # the thread's loop waits this long after an ex
 DATAGRAM_TIMEOUT_S = 2.0
 MAX_EVERY = 1000  # DATAGRAMS.every: at least one sample a second
 MAX_DATAGRAMS_PER_STEP = 64  # read at once; a UDP flood then waits behind the TCP clients
+# What one client may be sent as datagrams: the sensor's samples at its ``every``, with
+# this much slack for a sensor's jitter, in bursts of this long (a network sensor's
+# samples can arrive bunched after a hiccup; older than that, lost beats late).
+DATAGRAM_RATE_SLACK = 1.25
+DATAGRAM_BURST_S = 0.05
+DEFAULT_FORCE_RATE_HZ = 1000.0  # a sensor that does not say its rate (ForceSensor.rate_hz)
 
 # accept() errors that mean "out of resources": shed, pause, try again later.
 _OUT_OF_RESOURCES = {errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM}
@@ -131,6 +146,7 @@ class Kind(Enum):
 class PriorityClient:
     sock: socket.socket
     peer: str
+    host: str = ""  # the TCP peer's IP address: the only one datagrams go to
     accepted_at: float = 0.0  # time.monotonic()
     stage: Stage = Stage.HELLO
     # Read, not yet handled: bytes not yet split into messages, then messages.
@@ -148,12 +164,15 @@ class PriorityClient:
     state: bytes | None = field(default=None, repr=False)
     head: memoryview | None = field(default=None, repr=False)
     forces_dropped: int = 0
-    # Forces as datagrams: the key this client registered (DATAGRAMS on TCP), the
-    # address its datagrams come from and when the last one came (time.monotonic()).
+    # Forces as datagrams: the key the server gave this client (DATAGRAMS on TCP; new
+    # at every registration), the address its first datagram with that key came from
+    # (fixed from then on) and when the last one came (time.monotonic()).
     datagram_key: bytes | None = None
     datagram_addr: Any = None
     datagram_heard: float = -math.inf
     datagram_every: int = 1  # one sample in this many (the client's choice)
+    # Datagrams this client may still be sent (the sensor's thread takes, alone).
+    datagram_bucket: TokenBucket | None = field(default=None, repr=False)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     events: int = 0  # what the selector watches for this socket (0: not registered)
     session: Session | None = None  # once HELLO has been answered
@@ -281,7 +300,10 @@ class PriorityChannel:
         self.accept_errors = 0
         self.restarts = 0  # the thread's loop after an exception, or a new thread
         self.datagrams_sent = 0  # force samples sent as UDP datagrams
-        self.datagrams_refused = 0  # UDP datagrams that named no registered key
+        # UDP datagrams refused: no registered key, or not from the key's client's IP
+        # address (a forged source) or its first port.
+        self.datagrams_refused = 0
+        self.datagrams_over_rate = 0  # samples not sent: past a client's rate (bucket)
 
     def stats(self) -> dict[str, int]:
         return {
@@ -295,6 +317,7 @@ class PriorityChannel:
             "restarts": self.restarts,
             "datagrams_sent": self.datagrams_sent,
             "datagrams_refused": self.datagrams_refused,
+            "datagrams_over_rate": self.datagrams_over_rate,
         }
 
     def _datagram_socket(self, host: str) -> socket.socket | None:
@@ -378,7 +401,12 @@ class PriorityChannel:
             addr = client.datagram_addr
             if addr is not None and now - client.datagram_heard < DATAGRAM_TIMEOUT_S:
                 if sample.seq % client.datagram_every == 0:
-                    self._send_datagram(client, message, addr)
+                    bucket = client.datagram_bucket
+                    if bucket is not None and bucket.take(now) > 0:
+                        self.datagrams_over_rate += 1  # a burst past its rate: lost, not late
+                        bucket.tokens += 1  # (not taken: a refused one costs nothing)
+                    else:
+                        self._send_datagram(client, message, addr)
             else:
                 look |= client.push(data, Kind.FORCE)
         if look:
@@ -471,7 +499,9 @@ class PriorityChannel:
     def _read_datagrams(self) -> None:
         """DATAGRAMS from the clients' UDP sockets: where their forces go from now on.
         Anything else is dropped unanswered (no reply: a forged source address gets
-        nothing back)."""
+        nothing back), and so is a datagram with a client's key from anywhere but that
+        client's TCP address (the IP; the port its first one came from): UDP's source
+        can be forged, and the key crosses the network in clear."""
         assert self._udp is not None
         for _ in range(MAX_DATAGRAMS_PER_STEP):
             try:
@@ -484,30 +514,56 @@ class PriorityChannel:
             if len(data) == m.DATAGRAMS.size and data[0] == m.DATAGRAMS.type_id:
                 _, _, key, every = m.DATAGRAMS.struct.unpack(data)
                 client = self._datagram_keys.get(key) if 1 <= every <= MAX_EVERY else None
-            if client is None or client.closed:
+            if client is None or client.closed or addr[0] != client.host:
                 self.datagrams_refused += 1
                 continue
-            client.datagram_every = every
-            if client.datagram_addr != addr:
-                log.info("priority client %s: forces as datagrams to %s", client.peer, addr)
-            client.datagram_addr = addr
-            client.datagram_heard = time.monotonic()
+            with client.lock:  # (against a new registration on the event loop)
+                if client.datagram_key != key or client.datagram_addr not in (None, addr):
+                    self.datagrams_refused += 1
+                    continue
+                if client.datagram_addr is None:
+                    log.info("priority client %s: forces as datagrams to %s", client.peer, addr)
+                client.datagram_addr = addr
+                client.datagram_every = every
+                client.datagram_bucket = self._datagram_bucket(every, client.datagram_bucket)
+                client.datagram_heard = time.monotonic()
+
+    def _datagram_bucket(self, every: int, bucket: TokenBucket | None) -> TokenBucket:
+        """The bucket for ``every``: the same one (its tokens kept) if the rate holds."""
+        rate_hz = getattr(self.force, "rate_hz", None) or DEFAULT_FORCE_RATE_HZ
+        rate = DATAGRAM_RATE_SLACK * float(rate_hz) / every
+        if bucket is not None and bucket.rate == rate:
+            return bucket
+        return TokenBucket(rate, max(2.0, rate * DATAGRAM_BURST_S))
 
     def register_datagrams(self, client: PriorityClient, message: bytes) -> bytes:
-        """DATAGRAMS on the client's TCP socket (on the event loop): the reply."""
+        """DATAGRAMS on the client's TCP socket (on the event loop): the reply, with a
+        new key (the old one, and the address learnt with it, no longer count)."""
         _, fields, _ = m.decode(message)
-        seq, key = int(fields["seq"]), bytes(fields["key"])
-        if not 1 <= int(fields["every"]) <= MAX_EVERY:
+        seq, every = int(fields["seq"]), int(fields["every"])
+        if not 1 <= every <= MAX_EVERY:
             return error(seq, "invalid_command", f"every must be 1 to {MAX_EVERY}")
         if self._udp is None:
             return error(seq, "not_ready", "this server has no UDP port: forces stay on TCP")
-        if key == bytes(16) or self._datagram_keys.get(key, client) is not client:
-            return error(seq, "not_allowed", "use 16 random bytes of your own as the key")
-        if client.datagram_key is not None:
-            self._datagram_keys.pop(client.datagram_key, None)
-        client.datagram_key = key
+        if client.session is None or not client.session.conn.operator:
+            # UDP has no handshake: whatever an unauthenticated client could start would
+            # be sent at someone, so it gets its forces on TCP only.
+            return error(
+                seq,
+                "not_allowed",
+                "forces as datagrams are for operators (the operator token):"
+                " an observer gets them on TCP",
+            )
+        key = secrets.token_bytes(16)
+        with client.lock:
+            old, client.datagram_key = client.datagram_key, key
+            client.datagram_addr = None
+            client.datagram_every = every
+            client.datagram_heard = -math.inf
+        if old is not None:
+            self._datagram_keys.pop(old, None)
         self._datagram_keys[key] = client
-        return m.encode(m.ACK, seq, m.Ack.APPLIED, self.hub.clock.now(), 1.0)
+        return m.encode(m.DATAGRAMS, seq, key, every)
 
     def _forget_datagrams(self, client: PriorityClient) -> None:
         if client.datagram_key is not None:
@@ -556,7 +612,7 @@ class PriorityChannel:
                 self._pause_accepting(exc)
                 return
             self._accept_backoff_s = ACCEPT_BACKOFF_S[0]
-            self._admit(sock, f"{address[0]}:{address[1]}")
+            self._admit(sock, f"{address[0]}:{address[1]}", address[0])
 
     def _pause_accepting(self, exc: OSError) -> None:
         """Out of file descriptors (or memory): free one by shedding the oldest client
@@ -576,7 +632,7 @@ class PriorityChannel:
         self._accept_paused_until = time.monotonic() + self._accept_backoff_s
         self._accept_backoff_s = min(2 * self._accept_backoff_s, ACCEPT_BACKOFF_S[1])
 
-    def _admit(self, sock: socket.socket, peer: str) -> None:
+    def _admit(self, sock: socket.socket, peer: str, host: str = "") -> None:
         try:
             sock.setblocking(False)
             mark_high_priority(sock)
@@ -605,6 +661,7 @@ class PriorityChannel:
         client = PriorityClient(
             sock,
             peer,
+            host=host,
             accepted_at=now,
             bucket=TokenBucket(self.max_messages_per_s, self.max_burst),
         )

@@ -27,7 +27,7 @@ export const PING: MessageSpec<"PING"> = {"name": "PING", "typeId": 6, "size": 1
 export const LEASE: MessageSpec<"LEASE"> = {"name": "LEASE", "typeId": 7, "size": 6, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "action", "kind": "u8", "offset": 5, "size": 1}]};
 /** clear a latched e-stop (the client in control) */
 export const RESET: MessageSpec<"RESET"> = {"name": "RESET", "typeId": 8, "size": 5, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
-/** priority channel only: on TCP, send my forces as UDP datagrams to whoever sends this key (16 random bytes); on UDP to the channel's port, from the socket that receives them, at least every second; every: send one sample in this many (1 = all; a slow link asks for fewer) */
+/** priority channel only, operators only: on TCP, send my forces as UDP datagrams (key: zeros), answered by a DATAGRAMS with the server's key, new each time; on UDP to the channel's port, that key, from the socket that receives them (on the TCP connection's IP address), at least every second; every: send one sample in this many (1 = all; a slow link asks for fewer) */
 export const DATAGRAMS: MessageSpec<"DATAGRAMS"> = {"name": "DATAGRAMS", "typeId": 9, "size": 23, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "key", "kind": "bytes", "offset": 5, "size": 16}, {"name": "every", "kind": "u16", "offset": 21, "size": 2}]};
 /** role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id */
 export const WELCOME: MessageSpec<"WELCOME"> = {"name": "WELCOME", "typeId": 129, "size": 13, "tail": "text", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "role", "kind": "u8", "offset": 3, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 4, "size": 8}, {"name": "joints", "kind": "u8", "offset": 12, "size": 1}]};
@@ -111,7 +111,7 @@ export interface ResetMessage {
   readonly type: "RESET";
   seq: number; // u32
 }
-/** DATAGRAMS (0x09, client → server): priority channel only: on TCP, send my forces as UDP datagrams to whoever sends this key (16 random bytes); on UDP to the channel's port, from the socket that receives them, at least every second; every: send one sample in this many (1 = all; a slow link asks for fewer) */
+/** DATAGRAMS (0x09, client → server): priority channel only, operators only: on TCP, send my forces as UDP datagrams (key: zeros), answered by a DATAGRAMS with the server's key, new each time; on UDP to the channel's port, that key, from the socket that receives them (on the TCP connection's IP address), at least every second; every: send one sample in this many (1 = all; a slow link asks for fewer) */
 export interface DatagramsMessage {
   readonly type: "DATAGRAMS";
   seq: number; // u32
