@@ -168,6 +168,11 @@ class Settings(BaseSettings):
     media_server_pending_expiry_s: float = Field(20.0, ge=0.5, le=300.0)
     # A viewer through it whose page stops saying it is alive (every 15 s) is dropped
     media_server_viewer_timeout_s: float = Field(45.0, ge=1.0, le=3600.0)
+    # Each address's share (backend/media/relay.py): offers a second (a burst of 4 s'
+    # worth), unanswered offers, and viewers watching; 429 beyond
+    media_server_offers_per_address_per_s: float = Field(5.0, ge=0.01, le=1000.0)
+    media_server_max_pending_per_address: int = Field(4, ge=1, le=10_000)
+    media_server_max_viewers_per_address: int = Field(16, ge=1, le=100_000)
 
     # Simulated workcell
     # Where the fiducials are (m, robot base), in clicking order; the thesis's affine

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Header, Path, Query, Response
+from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from pydantic import BaseModel, Field
 
 from backend.api.deps import (
@@ -187,6 +187,7 @@ async def offer(
 
 @router.post("/webrtc/server-offer")
 async def server_offer(
+    request: Request,
     media: MediaDep,
     media_server: MediaServerDep,
     operator: OperatorOrNot,
@@ -198,7 +199,10 @@ async def server_offer(
     the ``peer_secret``) within a few seconds, or the offer is dropped. An observer on a
     server with a media server gets the media server's offer (the full layer)."""
     if relayed(media_server, operator):
-        reply = await media.request("relay_offer")
+        # Each address gets a share of the media server's offers and viewers, 429
+        # relay_busy beyond it (backend/media/relay.py): one address cannot take them all.
+        address = request.client.host if request.client else ""
+        reply = await media.request("relay_offer", address=address)
     else:
         reply = await media.request("offer", layer=layer)
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})

@@ -14,6 +14,12 @@ so the robot's computer sends the one encoded stream once, whoever watches.
   (answered within ``pending_expiry_s`` or destroyed): a flood of connects costs
   sessions on the media server, refused beyond the limits, and never reaches the
   control plane (which is in another process).
+- **Per address**: those limits are shared by everyone, so one address alone could
+  take them all and lock every other observer out. Each address (the caller's IP, as
+  the server saw it) gets a rate of offers (``offers_per_address_per_s``, a burst of
+  ``OFFER_BURST_S`` seconds' worth), at most ``max_pending_per_address`` unanswered
+  and ``max_viewers_per_address`` watching, refused (429, ``RelayBusy``) before
+  any request to the media server.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import httpx
 
 from backend.media.encoder import EncodedFrame
 from backend.media.janus import MOUNTPOINT, RtpFeed
+from backend.realtime.ratelimit import PeerLimits
 from backend.security import token_matches
 from drivers.base import TelerobotError
 
@@ -46,6 +53,12 @@ RELAY_VIEWER_TIMEOUT_S = 45.0
 REPORT_INTERVAL_S = 1.0  # RTCP sender reports to the mountpoint (and the address latch)
 OFFER_TIMEOUT_S = 10.0
 POLL_RETRIES = 3  # failed long polls in a row before a session is given up
+# Per address. A page makes one offer when it opens and one per renegotiation (after
+# backoff); a few a second is a page reloading in a loop, more is a flood.
+RELAY_OFFERS_PER_ADDRESS_PER_S = 5.0
+OFFER_BURST_S = 4.0  # the burst: this many seconds' worth of offers, at least 1
+MAX_RELAY_PENDING_PER_ADDRESS = 4  # a few pages (or tabs) of one machine connecting
+MAX_RELAY_VIEWERS_PER_ADDRESS = 16  # watching, from one address
 HTTP_CONNECTIONS = 64  # to Janus's HTTP API, shared by every session's requests
 
 
@@ -57,6 +70,13 @@ class RelayUnavailable(TelerobotError):
 class RelayFull(TelerobotError):
     code = "relay_full"
     http_status = 503
+
+
+class RelayBusy(TelerobotError):
+    """This address asks for more than its share of the media server."""
+
+    code = "relay_busy"
+    http_status = 429
 
 
 class RelayPeerUnknown(TelerobotError):
@@ -76,6 +96,7 @@ class RelaySession:
     poller: asyncio.Task[None] | None = None
     viewer: str | None = None  # the one viewer name whose alignment this peer may save
     seen: float = 0.0  # its page last said it is alive (monotonic)
+    address: str = ""  # who asked for it (the caller's IP)
 
     def owned_by(self, secret: str | None) -> bool:
         return token_matches(secret, self.secret)
@@ -100,6 +121,9 @@ class JanusRelay:
         max_pending: int = MAX_RELAY_PENDING,
         pending_expiry_s: float = RELAY_PENDING_EXPIRY_S,
         viewer_timeout_s: float = RELAY_VIEWER_TIMEOUT_S,
+        offers_per_address_per_s: float = RELAY_OFFERS_PER_ADDRESS_PER_S,
+        max_pending_per_address: int = MAX_RELAY_PENDING_PER_ADDRESS,
+        max_viewers_per_address: int = MAX_RELAY_VIEWERS_PER_ADDRESS,
     ) -> None:
         self.api = api.rstrip("/")
         self._secret = {"apisecret": api_secret} if api_secret else {}
@@ -107,6 +131,13 @@ class JanusRelay:
         self.max_viewers, self.max_pending = max_viewers, max_pending
         self.pending_expiry_s = pending_expiry_s
         self.viewer_timeout_s = viewer_timeout_s
+        self.max_pending_per_address = max_pending_per_address
+        self.max_viewers_per_address = max_viewers_per_address
+        # Offers a second per address: the /ws table's kind (bounded, oldest dropped).
+        self.offer_limits = PeerLimits(
+            connections_per_s=offers_per_address_per_s,
+            connection_burst=max(1.0, offers_per_address_per_s * OFFER_BURST_S),
+        )
         self.feed = RtpFeed(rtp_port, host=host, rtcp_port=rtcp_port)
         self._request_keyframe = request_keyframe
         self._start_feed, self._stop_feed = start_feed, stop_feed
@@ -126,6 +157,7 @@ class JanusRelay:
         self.feeding = False
         self.plis = 0  # key frame requests from the media server
         self.refused = 0  # connects refused by the limits
+        self.refused_per_address = 0  # connects refused by an address's share
         self.expired = 0  # connects never answered within pending_expiry_s
         self.pending_peak = 0  # the most connecting at once (never above max_pending)
         self.ended = 0  # sessions ended by the media server (the viewer's peer failed)
@@ -220,9 +252,39 @@ class JanusRelay:
         return await self._post(f"{self.api}/{s.session}/{s.handle}", payload)
 
     # ------------------------------------------------------------ signalling
-    async def offer(self) -> dict[str, Any]:
-        """A new observer: Janus's SDP offer for the mountpoint, with the peer's id and
-        secret (for ``accept`` and ``close``)."""
+    def _check_address(self, address: str) -> None:
+        """Refuse an offer beyond ``address``'s share (before any work for it)."""
+        if self.offer_limits.connect(address, time.monotonic()) is None:
+            self.refused_per_address += 1
+            limits = self.offer_limits
+            raise RelayBusy(
+                f"too many offers from {address or 'your address'}: at most"
+                f" {limits.connection_burst:g} at once, then {limits.connections_per_s:g} a"
+                " second; try again in a few seconds"
+            )
+        mine = [s for s in self.sessions.values() if s.address == address]
+        waiting = sum(1 for s in mine if not s.started)
+        if waiting >= self.max_pending_per_address:
+            self.refused_per_address += 1
+            raise RelayBusy(
+                f"{address or 'your address'} has {waiting} offers not yet answered, the"
+                f" most one address may have: answer them (POST /api/v1/webrtc/answer) or"
+                f" close them (DELETE /api/v1/webrtc/{{peer_id}}); unanswered ones expire"
+                f" after {self.pending_expiry_s:g} s"
+            )
+        watching = len(mine) - waiting
+        if watching >= self.max_viewers_per_address:
+            self.refused_per_address += 1
+            raise RelayBusy(
+                f"{address or 'your address'} already has {watching} viewers watching"
+                " through the media server, the most one address may have: close one first"
+                " (DELETE /api/v1/webrtc/{peer_id})"
+            )
+
+    async def offer(self, address: str = "") -> dict[str, Any]:
+        """A new observer at ``address`` (its IP): Janus's SDP offer for the mountpoint,
+        with the peer's id and secret (for ``accept`` and ``close``)."""
+        self._check_address(address)
         pending = sum(1 for s in self.sessions.values() if not s.started)
         if len(self.sessions) >= self.max_viewers or pending >= self.max_pending:
             self.refused += 1
@@ -232,7 +294,9 @@ class JanusRelay:
             )
         # Counted from now, before the first request to Janus: connects arriving at once
         # all see each other.
-        s = RelaySession(RELAY_PREFIX + secrets.token_urlsafe(9), 0, 0, time.monotonic())
+        s = RelaySession(
+            RELAY_PREFIX + secrets.token_urlsafe(9), 0, 0, time.monotonic(), address=address
+        )
         self.sessions[s.peer_id] = s
         self.pending_peak = max(self.pending_peak, pending + 1)
         try:
@@ -357,6 +421,9 @@ class JanusRelay:
             "rtp_packets": self.feed.packets,
             "key_frame_requests": self.plis,
             "refused": self.refused,
+            "refused_per_address": self.refused_per_address,
+            "max_pending_per_address": self.max_pending_per_address,
+            "max_viewers_per_address": self.max_viewers_per_address,
             "expired": self.expired,
             "pending_peak": self.pending_peak,
             "ended_by_media_server": self.ended,

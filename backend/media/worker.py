@@ -115,6 +115,9 @@ async def _serve(
             max_pending=settings.media_server_max_pending,
             pending_expiry_s=settings.media_server_pending_expiry_s,
             viewer_timeout_s=settings.media_server_viewer_timeout_s,
+            offers_per_address_per_s=settings.media_server_offers_per_address_per_s,
+            max_pending_per_address=settings.media_server_max_pending_per_address,
+            max_viewers_per_address=settings.media_server_max_viewers_per_address,
         )
         relay.start()
     tap = (
@@ -173,7 +176,7 @@ async def _serve(
                 if relay is None:
                     raise TelerobotError("this server has no media server (--media-server)")
                 if op == "relay_offer":
-                    reply.update(await relay.offer())
+                    reply.update(await relay.offer(req.get("address", "")))
                 elif op == "relay_accept":
                     await relay.accept(req["peer_id"], req.get("peer_secret"), req["sdp"])
                 elif op == "relay_alive":
