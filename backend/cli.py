@@ -207,11 +207,34 @@ def _netft_emulator(args: argparse.Namespace) -> int:
 
 def _export_lerobot(args: argparse.Namespace) -> int:
     from backend.recording.lerobot import ExportError, export_lerobot
+    from backend.recording.recover import recovered_path
+    from backend.recording.salvage import has_summary, is_mcap
 
+    what = "telerobot export lerobot"
+    rec: Path = args.recording
     try:
-        summary = export_lerobot(args.recording, args.dir, fps=args.fps)
+        if not is_mcap(rec):
+            print(f"{what}: {rec} is not an MCAP recording", file=sys.stderr)
+            return 1
+        if not has_summary(rec):
+            print(
+                f"{what}: {rec} is torn (its writer did not finish it, or it is still being "
+                f"written): run `telerobot recording recover {rec}`, then export "
+                f"{recovered_path(rec)}",
+                file=sys.stderr,
+            )
+            return 1
+        summary = export_lerobot(rec, args.dir, fps=args.fps)
     except (ExportError, OSError) as exc:
-        print(f"telerobot export lerobot: {exc}", file=sys.stderr)
+        print(f"{what}: {exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # a recording damaged inside: one line, not a traceback
+        if args.verbose:
+            raise
+        print(
+            f"{what}: cannot read {rec}: {type(exc).__name__}: {exc} (-v: details)"[:500],
+            file=sys.stderr,
+        )
         return 1
     print(
         f"{summary.out_dir}: {summary.episodes} episodes, {summary.frames} frames at "
@@ -305,16 +328,27 @@ def _move(args: argparse.Namespace) -> int:
 
 
 def _recording_recover(args: argparse.Namespace) -> int:
-    from backend.recording.reader import has_summary, recover
+    """Copy a torn recording, as far as it is valid, into NAME.recovered.mcap beside
+    it (the original is left as it is); a file that is not an MCAP is refused."""
+    from backend.recording.recover import recover_copy
+    from backend.recording.salvage import has_summary
+    from drivers.base import TelerobotError
 
+    what = "telerobot recording recover"
     if not args.file.is_file():
-        print(f"telerobot: no file {args.file}", file=sys.stderr)
+        print(f"{what}: no file {args.file}", file=sys.stderr)
         return 2
-    if has_summary(args.file):
-        print(f"{args.file} is complete (it has its summary): nothing to do")
-        return 0
-    kept = recover(args.file)
-    print(f"{args.file}: recovered {kept} messages; it has its summary now")
+    try:
+        if has_summary(args.file):
+            print(f"{args.file} is complete (it has its summary): nothing to do")
+            return 0
+        result = recover_copy(args.file)
+    except (TelerobotError, OSError) as exc:
+        print(f"{what}: {exc}", file=sys.stderr)
+        return 1
+    print(f"{result.source}: recovered {result.messages} messages into {result.out}")
+    if result.stopped:
+        print(f"the rest of {result.source.name} could not be read: {result.stopped}")
     return 0
 
 
@@ -396,10 +430,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     janus.set_defaults(func=_media_server)
 
-    recording = sub.add_parser("recording", help="recordings: recover FILE (one with no summary)")
+    recording = sub.add_parser(
+        "recording", help="recordings: recover FILE (one with no summary) into a copy"
+    )
     recording_sub = recording.add_subparsers(dest="recording_command", required=True)
     recover = recording_sub.add_parser(
-        "recover", help="rewrite a recording whose writer was killed, with its index and summary"
+        "recover",
+        help="copy a recording whose writer was killed, as far as it is valid, into "
+        "NAME.recovered.mcap beside it, with an index and a summary (the file is left as it is)",
     )
     recover.add_argument("file", type=Path)
     recover.set_defaults(func=_recording_recover)

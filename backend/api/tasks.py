@@ -1,23 +1,30 @@
 """Supervisory tasks (issue 14): repeat a recorded episode, or a time segment of a
 recording, as a server-side task under the DecisionServer's guards. Starting one
 needs the operator token and the control lease (``X-Client-Id``): the lease goes to
-the task for its run and comes back at its end. Reading is open to every client."""
+the task for its run and comes back at its end. Reading is open to every client;
+a preview reads a recording, so without the operator token it is budgeted per
+address and one at a time (429 past it; backend/tasks/source_reader.py). The
+recording being written is refused (409); a torn one is read as far as it is valid."""
 
 from __future__ import annotations
 
-import asyncio
+from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ClientDep, ServicesDep
+from backend.api.deps import ClientDep, DecisionDep, ServicesDep
 from backend.api.requests import StrictRequest
-from backend.recording.recorder import Recorder
+from backend.recording.recorder import Recorder, RecordingError
+from backend.security import bearer
 from backend.tasks.compliance import ComplianceSettings
 from backend.tasks.runner import Task, TaskRunner, TaskSpec
+from backend.tasks.source_reader import PathPreview
 from backend.tasks.trajectory import Trajectory
 from drivers.base import InvalidCommand
+
+MAX_FILE_NAME = 255  # a file name's bytes on every common file system (ASCII names here)
 
 router = APIRouter(prefix="/tasks", tags=["tasks"])
 
@@ -43,7 +50,9 @@ class Compliance(StrictRequest):
 
 
 class TaskSource(StrictRequest):
-    recording: str = Field(description="a recording's file name (GET /api/v1/recordings)")
+    recording: str = Field(
+        max_length=MAX_FILE_NAME, description="a recording's file name (GET /api/v1/recordings)"
+    )
     episode: int | None = Field(None, ge=0, description="repeat this episode")
     segment: tuple[float, float] | None = Field(
         None, description="or this span [t0, t1] s (of the episode, else of the recording)"
@@ -58,6 +67,11 @@ class StartTask(TaskSource):
     )
     approach: bool = Field(
         False, description="the operator confirms a guarded move to the first pose first"
+    )
+    allow_jumps: bool | None = Field(
+        None,
+        description="the operator confirms that the path's jumps (stretches faster than the "
+        "arm may move) are crossed in a straight line at the speed limit (null: no)",
     )
 
 
@@ -83,26 +97,37 @@ class TaskPath(BaseModel):
     forces_n: list[float]  # the recorded force's magnitude at each
 
 
-def _path(task_id: str, traj: Trajectory) -> TaskPath:
-    """The trajectory's positions thinned to at most 400 (ends kept), with the recorded
-    force's magnitude at each."""
-    step = max(1, -(-len(traj) // 400))
-    idx = list(range(0, len(traj), step))
-    if idx[-1] != len(traj) - 1:
-        idx.append(len(traj) - 1)
+def _path(task_id: str, preview: PathPreview) -> TaskPath:
     return TaskPath(
         id=task_id,
-        positions=[(float(a), float(b), float(c)) for a, b, c in traj.positions[idx]],
-        forces_n=[float((traj.forces[i] ** 2).sum() ** 0.5) for i in idx],
+        positions=[(float(a), float(b), float(c)) for a, b, c in preview.positions.tolist()],
+        forces_n=preview.forces_n.tolist(),
     )
 
 
-async def _trajectory(body: TaskSource, recorder: Recorder) -> Trajectory:
-    path = recorder.path_of(body.recording)
+def _source(body: TaskSource, recorder: Recorder) -> Path:
+    """The recording's path; the one being written is refused (it has no end yet)."""
     if body.segment is not None and not body.segment[0] < body.segment[1]:
         raise InvalidCommand("a segment is [t0, t1] with t0 < t1")
-    return await asyncio.to_thread(
-        Trajectory.from_recording, path, episode=body.episode, segment=body.segment
+    path = recorder.path_of(body.recording)
+    active = recorder.status()
+    if active is not None and active["file"] == path.name:
+        raise RecordingError(
+            f"{path.name} is being recorded: stop it first, then preview or repeat it"
+        )
+    return path
+
+
+def _caller(request: Request, decision: DecisionDep) -> tuple[bool, str]:
+    """Whether the request carries the operator token, and its address (the budget's)."""
+    token = bearer(request.headers.get("authorization"))
+    address = request.client.host if request.client is not None else "unknown"
+    return decision.check_token(token), address
+
+
+async def _trajectory(body: TaskSource, recorder: Recorder, runner: TaskRunner) -> Trajectory:
+    return await runner.sources.trajectory(
+        _source(body, recorder), body.episode, body.segment, operator=True, address=""
     )
 
 
@@ -136,7 +161,7 @@ async def start_task(
 ) -> TaskView:
     """Read the recording, build the trajectory and start it (it runs on its own;
     poll GET /tasks/{id})."""
-    trajectory = await _trajectory(body, recorder)
+    trajectory = await _trajectory(body, recorder, runner)
     c = body.compliance
     spec = TaskSpec(
         trajectory,
@@ -144,15 +169,28 @@ async def start_task(
         compliance=None if c is None else ComplianceSettings(**c.model_dump()),
         force_margin_n=body.force_margin_n,
         approach=body.approach,
+        allow_jumps=bool(body.allow_jumps),
     )
     return _view(await runner.start(spec, client.id))
 
 
 @router.post("/preview")
-async def preview_task(body: TaskSource, recorder: RecorderDep) -> TaskPath:
+async def preview_task(
+    body: TaskSource,
+    request: Request,
+    runner: RunnerDep,
+    recorder: RecorderDep,
+    decision: DecisionDep,
+) -> TaskPath:
     """The path a task from this episode or segment would follow, before it runs (the
-    same trajectory POST /tasks builds), for the page's ghost of it. Moves nothing."""
-    return _path("preview", await _trajectory(body, recorder))
+    same trajectory POST /tasks builds), for the page's ghost of it. Moves nothing.
+    Without the operator token: a budget per address and one read at a time (429)."""
+    operator, address = _caller(request, decision)
+    path = _source(body, recorder)
+    preview = await runner.sources.preview(
+        path, body.episode, body.segment, operator=operator, address=address
+    )
+    return _path("preview", preview)
 
 
 @router.get("/{task_id}")
@@ -164,7 +202,7 @@ async def get_task(task_id: str, runner: RunnerDep) -> TaskView:
 async def task_path(task_id: str, runner: RunnerDep) -> TaskPath:
     """The path the task follows, for the page's ghost of it."""
     task = runner.get(task_id)
-    return _path(task.id, task.spec.trajectory)
+    return _path(task.id, PathPreview.of(task.spec.trajectory))
 
 
 @router.post("/{task_id}/pause")

@@ -24,6 +24,17 @@ confirmation), after a slow guarded move there.
 **Compliance**: the admittance offset (``compliance.py``) is added to each commanded
 position along the chosen axes.
 
+**Keeping to the path, and saying so.** The path's clock waits for the arm: while the
+commanded target is more than ``hold_gap_m`` from the path's point (the path moves
+faster than the speed limit lets the arm, or the contact slowing holds it back), the
+task's time does not advance, so no stretch of the path is cut short; an arm that
+gets no closer for ``stall_s`` stops the task, saying where. A recording whose path
+*jumps* (a stretch the arm cannot follow at the taught pace: it would fall more than
+``JUMP_LAG_M`` behind, e.g. a pose 1 m from the one before it) starts only with
+``allow_jumps`` (the operator's confirmation: the arm crosses it in a straight line at
+the speed limit). A task ends ``done`` only with the tool within ``end_tolerance_m``
+of the path's end; otherwise ``stopped``, with how far from it the tool came to rest.
+
 Time is the injected clock's; the loop runs every ``period_s``.
 """
 
@@ -43,6 +54,7 @@ import pinocchio as pin
 
 from backend.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
 from backend.tasks.compliance import Admittance, ComplianceSettings
+from backend.tasks.source_reader import SourceReader
 from backend.tasks.trajectory import Trajectory
 from drivers.base import (
     FloatArray,
@@ -59,6 +71,11 @@ log = logging.getLogger(__name__)
 
 MAX_FINISHED = 32  # finished tasks kept for GET; the oldest goes first
 TRACE_LIMIT = 60_000  # periods traced per task (20 min at 50 Hz)
+# A path the arm would fall this far behind at the speed limits jumps: it needs the
+# operator's confirmation (allow_jumps). Jitter in a taught path's time stamps adds
+# millimetres; a jump is a pose far from the one before it.
+JUMP_LAG_M = 0.02
+JUMP_LAG_RAD = math.radians(10.0)
 
 
 class TaskBusy(TelerobotError):
@@ -66,6 +83,12 @@ class TaskBusy(TelerobotError):
 
     code = "task_busy"
     http_status = 409
+
+
+class PathJumps(InvalidCommand):
+    """The recorded path has a stretch the arm cannot follow at the taught pace."""
+
+    code = "path_jumps"
 
 
 class UnknownTask(TelerobotError):
@@ -93,9 +116,18 @@ class TaskSpec:
     compliance: ComplianceSettings | None = None
     force_margin_n: float | None = 15.0  # None: no unexpected-contact guard
     approach: bool = False  # the operator confirms a guarded move to the first pose
+    allow_jumps: bool = False  # the operator confirms the path's jumps, crossed at the limit
     start_tolerance_m: float = 0.005
     start_tolerance_rad: float = math.radians(3.0)
     approach_speed_m_s: float = 0.02
+    # At the end, the tool within this of the path's last pose: done (else stopped).
+    end_tolerance_m: float = 0.005
+    end_tolerance_rad: float = math.radians(3.0)
+    # The path's clock waits while the commanded target is further than this behind;
+    # a wait with no millimetre gained for stall_s stops the task.
+    hold_gap_m: float = 0.01
+    hold_gap_rad: float = math.radians(3.0)
+    stall_s: float = 2.0
     # The margin compares with the strongest force recorded this near in time.
     margin_window_s: float = 0.25
 
@@ -149,6 +181,10 @@ class Task:
     recorded_n: float = 0.0
     peak_force_n: float = 0.0
     admittance: Admittance | None = None
+    gap_m: float = 0.0  # how far the commanded target was from the path's point
+    gap_rad: float = 0.0
+    held_gap: float = math.inf  # the smallest gap while the path's clock waits…
+    held_since: float | None = None  # …and when it last shrank by a millimetre
     trace: deque[TracePoint] = field(default_factory=lambda: deque(maxlen=TRACE_LIMIT))
     loop: asyncio.Task[None] | None = None
     finished: asyncio.Event = field(default_factory=asyncio.Event)
@@ -200,6 +236,9 @@ class TaskRunner:
         self._token = operator_token
         self._tasks: OrderedDict[str, Task] = OrderedDict()
         self._ids = itertools.count(1)
+        # Reads the recordings tasks and their previews come from (off the loop, one
+        # at a time, budgeted per address).
+        self.sources = SourceReader(clock=clock.now)
 
     # ------------------------------------------------------------ queries
     def get(self, task_id: str) -> Task:
@@ -241,6 +280,7 @@ class TaskRunner:
             raise SafetyStop("the force limit is active: back away from the contact first")
         if self.active is not None:
             raise TaskBusy(f"task {self.active.id} is running: abort it first")
+        self._check_jumps(spec)
         distance, angle = self.distance_to_start(spec.trajectory)
         near = distance <= spec.start_tolerance_m and angle <= spec.start_tolerance_rad
         if not near and not spec.approach:
@@ -271,6 +311,21 @@ class TaskRunner:
         task.loop = asyncio.get_running_loop().create_task(self._run(task), name=f"task-{task_id}")
         self._changed(task)
         return task
+
+    def _check_jumps(self, spec: TaskSpec) -> None:
+        lim = self.decision.limits
+        lag_m, lag_rad, at = spec.trajectory.lag_behind(
+            lim.max_speed_m_s, lim.max_angular_speed_rad_s, spec.speed
+        )
+        if (lag_m > JUMP_LAG_M or lag_rad > JUMP_LAG_RAD) and not spec.allow_jumps:
+            raise PathJumps(
+                f"the recorded path jumps near s = {at:.2f} s: at {spec.speed:g}× the taught "
+                f"pace it moves faster than the arm may ({lim.max_speed_m_s:g} m/s, "
+                f"{math.degrees(lim.max_angular_speed_rad_s):.0f}°/s), so the tool would fall "
+                f"{lag_m * 1000:.0f} mm / {math.degrees(lag_rad):.0f}° behind and cross "
+                "that stretch in a straight line at the speed limit: confirm with "
+                "allow_jumps: true, or choose a segment without it"
+            )
 
     def _remember(self, task: Task) -> None:
         self._tasks[task.id] = task
@@ -314,6 +369,7 @@ class TaskRunner:
 
     async def stop(self) -> None:
         """Server shutdown: end every task."""
+        self.sources.close()
         for task in list(self._tasks.values()):
             if not task.state.finished:
                 await self._end(task, TaskState.ABORTED, "the server is stopping")
@@ -337,7 +393,9 @@ class TaskRunner:
                     settle_until = settle_until if settle_until is not None else now + self.settle_s
                     arrived = self.decision.robot.status is not RobotStatus.MOVING
                     if arrived or now >= settle_until:
-                        await self._end(task, TaskState.DONE, "")
+                        short = self._short_of_end(task, arrived)
+                        state = TaskState.DONE if not short else TaskState.STOPPED
+                        await self._end(task, state, short)
                         return
         except TelerobotError as exc:
             await self._end(task, TaskState.STOPPED, str(exc))
@@ -362,6 +420,49 @@ class TaskRunner:
         except NotAllowed:
             return f"the supervising operator {task.supervisor_name!r} disconnected"
         return None
+
+    def _short_of_end(self, task: Task, arrived: bool) -> str:
+        """Why the task is not done though its path's end was commanded ("" if the
+        tool is at the end, within the tolerance)."""
+        spec, traj = task.spec, task.spec.trajectory
+        p, R, _ = traj.at(traj.duration)
+        if task.admittance is not None:
+            p = p + task.admittance.offset
+        pose = self.decision.robot.pose
+        distance = float(np.linalg.norm(pose.position - p))
+        angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ R)))
+        if distance <= spec.end_tolerance_m and angle <= spec.end_tolerance_rad:
+            return ""
+        where = f"{distance * 1000:.0f} mm / {math.degrees(angle):.1f}° from it"
+        when = (
+            f"came to rest {where}"
+            if arrived
+            else f"was still {where} {self.settle_s:g} s after it was sent there"
+        )
+        return (
+            f"did not reach the path's end: the tool {when} (done is within "
+            f"{spec.end_tolerance_m * 1000:.0f} mm / {math.degrees(spec.end_tolerance_rad):.0f}°)"
+        )
+
+    def _advance(self, task: Task, dt: float) -> None:
+        """The path's clock: it runs while the arm keeps up and waits while the
+        commanded target is behind; a wait that gains nothing for ``stall_s`` ends it."""
+        spec, traj = task.spec, task.spec.trajectory
+        if not self._behind(task):
+            task.s = min(task.s + dt * spec.speed, traj.duration)
+            task.held_gap, task.held_since = math.inf, None
+            return
+        now = self.clock.now()
+        # Progress while waiting: a millimetre, or a tenth of a degree (as metres).
+        gap = task.gap_m + task.gap_rad * 0.001 / math.radians(0.1)
+        if task.held_since is None or gap < task.held_gap - 0.001:
+            task.held_gap, task.held_since = gap, now
+        elif now - task.held_since > spec.stall_s:
+            raise SafetyStop(
+                f"the arm could not follow the path: {task.gap_m * 1000:.0f} mm / "
+                f"{math.degrees(task.gap_rad):.1f}° behind it at s = {task.s:.2f} s, and no "
+                f"closer for {spec.stall_s:g} s"
+            )
 
     def _measured_force(self) -> FloatArray:
         """The newest contact force (x, y, z) in the base frame."""
@@ -389,7 +490,7 @@ class TaskRunner:
                 self._changed(task)
             return False
         if task.state is TaskState.RUNNING:
-            task.s = min(task.s + dt * spec.speed, traj.duration)
+            self._advance(task, dt)
         p, R, recorded = traj.at(task.s)
         task.recorded_n = float(np.linalg.norm(recorded))
         self._check_margin(task, traj.peak_force_near(task.s, spec.margin_window_s))
@@ -407,7 +508,14 @@ class TaskRunner:
             )
         )
         await self._command_towards(task, p, R, None)
-        return task.s >= traj.duration
+        return task.s >= traj.duration and not self._behind(task)
+
+    @staticmethod
+    def _behind(task: Task) -> bool:
+        """The commanded target is too far behind the path's point for the path's
+        clock to run on."""
+        spec = task.spec
+        return task.gap_m > spec.hold_gap_m or task.gap_rad > spec.hold_gap_rad
 
     @staticmethod
     def _check_margin(task: Task, recorded_n: float) -> None:
@@ -431,9 +539,11 @@ class TaskRunner:
         lim = decision.limits
         cap = lim.max_step_m * 0.99 if max_step is None else min(max_step, lim.max_step_m * 0.99)
         step = float(np.linalg.norm(dX))
+        task.gap_m = step
         if step > cap:
             dX = dX * (cap / step)
         angle = float(np.linalg.norm(rv))
+        task.gap_rad = angle
         if angle > lim.max_step_rad * 0.99:
             rv = rv * (lim.max_step_rad * 0.99 / angle)
         # Scale 1 would be applied by the DecisionServer to every client's increments:

@@ -974,6 +974,7 @@ export interface paths {
          * Preview Task
          * @description The path a task from this episode or segment would follow, before it runs (the
          *     same trajectory POST /tasks builds), for the page's ghost of it. Moves nothing.
+         *     Without the operator token: a budget per address and one read at a time (429).
          */
         post: operations["preview_task_api_v1_tasks_preview_post"];
         delete?: never;
@@ -1955,6 +1956,11 @@ export interface components {
              * @default false
              */
             approach: boolean;
+            /**
+             * Allow Jumps
+             * @description the operator confirms that the path's jumps (stretches faster than the arm may move) are crossed in a straight line at the speed limit (null: no)
+             */
+            allow_jumps?: boolean | null;
         };
         /** StoppingView */
         StoppingView: {

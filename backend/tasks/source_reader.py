@@ -1,0 +1,205 @@
+"""Reading tasks' sources (recordings) for the API: off the event loop, one read at a
+time, each bounded in time and memory (``Trajectory.from_recording``); previews cached;
+a budget per address for clients without the operator token.
+
+Anyone may preview a task (the page's ghost of the path before it runs), and a preview
+reads the recording: about a second of CPU per minute recorded. Reads in threads, many
+at once, held the interpreter the event loop needs for the e-stop and the operator's
+commands (issue 26: tokenless preview loops grew the server from 322 to 502 MB and had
+operator commands dropped as stale). So:
+
+- **One read at a time**, in one worker thread of its own: the loop shares the GIL
+  with one reader, not with one per request. A client without the token that finds it
+  busy gets 429 at once (nothing queues for it); the operator's reads wait their turn,
+  ``MAX_QUEUED`` at most.
+- **Previews are cached** by (file, size, modification time, episode, segment): asking
+  again costs a lookup. ``CACHE_SIZE`` previews of at most ``PREVIEW_POINTS`` points.
+- **A budget per address** (a token bucket, as /ws has): an answer from the cache costs
+  1, a read ``READ_COST``, refilled at ``RATE_PER_S`` up to ``BURST``; past it, 429 saying
+  when to come back. The operator token skips the budget, not the one-at-a-time rule.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from backend.realtime.ratelimit import TokenBucket
+from backend.tasks.trajectory import READ_LIMIT_S, Trajectory
+from drivers.base import FloatArray, TelerobotError
+
+PREVIEW_POINTS = 400
+CACHE_SIZE = 64
+RATE_PER_S = 2.0
+BURST = 20.0
+READ_COST = 10.0  # a read is ten looks at the cache: one every 5 s, after a burst of two
+MAX_ADDRESSES = 1024  # addresses with a budget; the one heard from longest ago goes first
+MAX_QUEUED = 4  # the operator's reads waiting for the reader, at most
+
+
+class TooManyPreviews(TelerobotError):
+    """This address has used its budget of reads, or the reader is busy."""
+
+    code = "too_many_previews"
+    http_status = 429
+
+
+@dataclass(frozen=True)
+class PathPreview:
+    """A trajectory's positions thinned to at most ``PREVIEW_POINTS`` (ends kept), with
+    the recorded force's magnitude at each (arrays: a cached preview is 13 kB)."""
+
+    positions: FloatArray  # (k, 3) m, base frame
+    forces_n: FloatArray  # (k,)
+
+    @classmethod
+    def of(cls, traj: Trajectory, max_points: int = PREVIEW_POINTS) -> PathPreview:
+        step = max(1, -(-len(traj) // max_points))
+        idx = list(range(0, len(traj), step))
+        if idx[-1] != len(traj) - 1:
+            idx.append(len(traj) - 1)
+        return cls(traj.positions[idx].copy(), np.linalg.norm(traj.forces[idx], axis=1))
+
+
+Key = tuple[str, int, int, int | None, tuple[float, float] | None]
+
+
+def _key(path: Path, episode: int | None, segment: tuple[float, float] | None) -> Key:
+    """What a preview depends on: the file as it is now (one stat), and the span."""
+    stat = path.stat()
+    return (path.name, stat.st_size, stat.st_mtime_ns, episode, segment)
+
+
+class SourceReader:
+    """Reads recordings into trajectories for ``POST /tasks`` and ``/tasks/preview``."""
+
+    def __init__(
+        self,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        time_limit_s: float = READ_LIMIT_S,
+        rate_per_s: float = RATE_PER_S,
+        burst: float = BURST,
+        read_cost: float = READ_COST,
+        cache_size: int = CACHE_SIZE,
+    ) -> None:
+        self.clock = clock
+        self.time_limit_s = time_limit_s
+        self.rate_per_s, self.burst, self.read_cost = rate_per_s, burst, read_cost
+        self.cache_size = cache_size
+        self.reads = 0  # recordings read (for tests and the bench)
+        self.refused = 0  # requests answered 429
+        self._cache: OrderedDict[Key, PathPreview] = OrderedDict()
+        self._budgets: OrderedDict[str, TokenBucket] = OrderedDict()
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="task-source")
+        self._lock = threading.Lock()
+        self._in_flight = 0  # reads submitted and not yet finished (the thread's count)
+
+    # ------------------------------------------------------------ the API's calls
+    async def trajectory(
+        self,
+        path: Path,
+        episode: int | None,
+        segment: tuple[float, float] | None,
+        *,
+        operator: bool,
+        address: str,
+    ) -> Trajectory:
+        """The trajectory of ``path``'s episode or segment, read now."""
+        if not operator:
+            self._charge(address, self.read_cost)
+        return await self._read(path, episode, segment, operator=operator)
+
+    async def preview(
+        self,
+        path: Path,
+        episode: int | None,
+        segment: tuple[float, float] | None,
+        *,
+        operator: bool,
+        address: str,
+    ) -> PathPreview:
+        """The thinned path of ``path``'s episode or segment, from the cache if it has
+        been read since the file last changed."""
+        key = _key(path, episode, segment)
+        cached = self._cache.get(key)
+        if cached is not None:
+            if not operator:
+                self._charge(address, 1.0)
+            self._cache.move_to_end(key)
+            return cached
+        if not operator:
+            self._charge(address, self.read_cost)
+        found = PathPreview.of(await self._read(path, episode, segment, operator=operator))
+        self._cache[key] = found
+        while len(self._cache) > self.cache_size:
+            self._cache.popitem(last=False)
+        return found
+
+    def close(self) -> None:
+        """Server shutdown: a read under way finishes in its thread (within its time
+        limit); queued ones are dropped."""
+        self._executor.shutdown(wait=False, cancel_futures=True)
+
+    # ------------------------------------------------------------ inside
+    def _charge(self, address: str, cost: float) -> None:
+        bucket = self._budgets.pop(address, None)
+        if bucket is None:
+            bucket = TokenBucket(self.rate_per_s, self.burst)
+        self._budgets[address] = bucket
+        while len(self._budgets) > MAX_ADDRESSES:
+            self._budgets.popitem(last=False)
+        wait = bucket.take(self.clock(), cost)
+        if wait > 0:
+            bucket.tokens += cost  # refused: it costs nothing more
+            self.refused += 1
+            raise TooManyPreviews(
+                f"too many task previews from {address}: try again in {wait:.1f} s (without "
+                f"the operator token an address may read a recording every "
+                f"{self.read_cost / self.rate_per_s:g} s, and look again at one read "
+                f"{self.rate_per_s:g} times a second)"
+            )
+
+    async def _read(
+        self,
+        path: Path,
+        episode: int | None,
+        segment: tuple[float, float] | None,
+        *,
+        operator: bool,
+    ) -> Trajectory:
+        with self._lock:
+            busy = self._in_flight
+            if (busy and not operator) or busy >= MAX_QUEUED:
+                self.refused += 1
+                raise TooManyPreviews(
+                    "another recording is being read for a task: try again in a moment"
+                    + ("" if operator else " (reads without the operator token do not queue)")
+                )
+            self._in_flight += 1
+        self.reads += 1
+        try:
+            future = self._executor.submit(
+                Trajectory.from_recording,
+                path,
+                episode=episode,
+                segment=segment,
+                time_limit_s=self.time_limit_s,
+            )
+        except RuntimeError:  # shut down
+            self._finished(None)
+            raise TooManyPreviews("the server is stopping: no recording is read now") from None
+        future.add_done_callback(self._finished)  # also when the request is gone
+        return await asyncio.wrap_future(future)
+
+    def _finished(self, _future: object) -> None:
+        with self._lock:
+            self._in_flight -= 1
