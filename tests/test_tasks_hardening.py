@@ -256,6 +256,33 @@ async def test_a_task_whose_tool_did_not_reach_the_end_is_not_done() -> None:
         await cell.close()
 
 
+async def test_an_arm_that_cannot_follow_stops_the_task_where_it_stalled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    base = default_workcell()
+    cell = SimCell(base, push_start(base))
+    await cell.setup()
+    try:
+        start = cell.robot.pose.position.copy()
+        path = jumping_path(start, np.array([-0.15, 0.0, 0.0]), seconds=4.0)
+        task = await cell.runner.start(TaskSpec(path, allow_jumps=True), cell.op_id)
+        await cell.advance(1.0)  # the tool still: the path's clock runs to the jump
+        # From here every command is taken but moves nothing (an arm held back).
+        decision = cell.decision
+
+        async def held(*_args: object, **_kwargs: object) -> None:
+            decision.seen(task.client_id)  # the dead-man is fed: only the motion is lost
+
+        monkeypatch.setattr(decision, "cartesian_increment", held)
+        await cell.advance(4.0)
+        assert task.state is TaskState.STOPPED, task.reason
+        assert task.reason.startswith("the arm could not follow the path"), task.reason
+        assert "no closer for 2 s" in task.reason
+        assert 1.9 < task.s < 2.1  # the path's clock waited at the jump
+    finally:
+        await cell.close()
+
+
 def test_a_task_from_a_recording_that_jumps_asks_first_then_reports_done(
     client: TestClient,
 ) -> None:

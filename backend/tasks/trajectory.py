@@ -214,17 +214,10 @@ class Trajectory:
         cos = (np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0
         step_rad = np.arccos(np.clip(cos, -1.0, 1.0))
         # Each interval lasts dt / speed when repeated; the arm covers at most this.
-        reach_m = max_speed_m_s * self.dt / speed
-        reach_rad = max_angular_speed_rad_s * self.dt / speed
-        lag_m = lag_rad = worst_m = worst_rad = 0.0
-        at = 0
-        for i, (d, a) in enumerate(zip(step_m.tolist(), step_rad.tolist(), strict=True)):
-            lag_m = max(0.0, lag_m + d - reach_m)
-            lag_rad = max(0.0, lag_rad + a - reach_rad)
-            if lag_m > worst_m or lag_rad > worst_rad:
-                at = i
-            worst_m, worst_rad = max(worst_m, lag_m), max(worst_rad, lag_rad)
-        return worst_m, worst_rad, at * self.dt
+        lag_m = _lag(step_m - max_speed_m_s * self.dt / speed)
+        lag_rad = _lag(step_rad - max_angular_speed_rad_s * self.dt / speed)
+        at = int(np.argmax(lag_m if lag_m.max() > 0 else lag_rad))  # where it is furthest
+        return float(lag_m.max()), float(lag_rad.max()), at * self.dt
 
     def polyline(self, max_points: int = 400) -> FloatArray:
         """The path's positions, thinned to at most ``max_points`` (ends kept)."""
@@ -234,6 +227,16 @@ class Trajectory:
         idx = np.unique(np.linspace(0, n - 1, max_points).round().astype(int))
         result: FloatArray = self.positions[idx]
         return result
+
+
+def _lag(excess: FloatArray) -> FloatArray:
+    """How far behind a follower is after each interval, when each puts it ``excess``
+    further behind (negative: it catches up) and it is never ahead: L = max(0, L + x),
+    all at once as the running sum less its lowest point so far (from 0)."""
+    total = np.cumsum(excess)
+    lowest = np.minimum.accumulate(np.minimum(total, 0.0))
+    result: FloatArray = total - lowest
+    return result
 
 
 def interpolate_rotation(R0: FloatArray, R1: FloatArray, a: float) -> FloatArray:
