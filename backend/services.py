@@ -219,7 +219,12 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
             f" ({exc.strerror}): set TELEROBOT_PRIORITY_PORT or --priority-port"
         ) from None
     calibration = CalibrationRecord.load(settings)
-    recorder = Recorder(state_dir(settings) / "recordings", clock)
+    recorder = Recorder(
+        state_dir(settings) / "recordings",
+        clock,
+        max_bytes=settings.recording_max_bytes,
+        min_free_bytes=settings.recording_min_free_bytes,
+    )
     recorder.snapshot = lambda: recording_snapshot(settings, workcell, calibration, recorder)
     # A recalibration mid-recording is in the file from that moment on.
     calibration.changed.subscribe(

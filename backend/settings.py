@@ -96,6 +96,12 @@ class Settings(BaseSettings):
     allowed_hosts: list[str] = []
     tls: bool = False  # HTTPS with a per-installation self-signed certificate (WebXR on a LAN)
 
+    # Recordings (docs/recording.md) stop by themselves, the file closed whole and the
+    # reason kept, at this size, or when the disk's free space falls below the second
+    # (and do not start below it): a full disk would leave a file without its summary.
+    recording_max_bytes: int = Field(4 * 1024**3, ge=1024**2)
+    recording_min_free_bytes: int = Field(256 * 1024**2, ge=0)
+
     # Stereo video (a media worker process: capture → one encoder → every WebRTC viewer)
     video: bool = True
     camera: str = "sim"

@@ -1,6 +1,8 @@
 """A recording exported for robot learning (issue 14 part 4): its episodes as a LeRobot
 v3.0 dataset (``backend.recording.lerobot``), written beside the recordings in
-``<state folder>/exports/``. One export at a time, in its own process."""
+``<state folder>/exports/``. One export at a time, in its own process. A recording cut
+short (a killed writer) is exported as far as it is valid; the one being written is
+refused (409) until it stops."""
 
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from fastapi import APIRouter, Body
 from pydantic import BaseModel, Field
 
 from backend.api.deps import OperatorDep, SettingsDep
-from backend.api.recording_review import recording_path
+from backend.api.recordings import RecorderDep
 from backend.recording.lerobot import ExportSummary, export_lerobot
 from backend.security import state_dir
 from drivers.base import TelerobotError
@@ -77,12 +79,13 @@ class LeRobotExport(BaseModel):
 async def export_recording_lerobot(
     recording_id: str,
     settings: SettingsDep,
+    recorder: RecorderDep,
     _token: OperatorDep,
     request: Annotated[LeRobotExportRequest | None, Body()] = None,
 ) -> LeRobotExport:
     """Export the recording's episodes as a LeRobot v3.0 dataset into a new folder under
     ``<state folder>/exports/`` (409 while another export runs)."""
-    path = recording_path(settings, recording_id)
+    path = await asyncio.to_thread(recorder.path_of, recording_id)
     if not _one_at_a_time.acquire(blocking=False):
         raise ExportBusy("another export is running: try again when it has finished")
     try:

@@ -1,18 +1,28 @@
 """Recordings (issue 14, docs/recording.md): start, stop, list, metadata, download,
-delete, and episodes while recording. Reading is open to every client; changing
-anything needs the operator token."""
+delete, and episodes while recording. Changing anything needs the operator token.
+
+Reading is open to every client, within a budget per address (``ReaderDep``; the
+operator's token lifts it), and never parses a file on the event loop (the e-stop's):
+the list is a page of the recordings' index (``backend.recording.index``), and what
+must be parsed is parsed once, in a process of its own (``backend.recording.readjobs``).
+The recording being written is refused (409) by every read that would parse it."""
 
 from __future__ import annotations
 
+import asyncio
+import json
+from dataclasses import dataclass
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends
-from fastapi.responses import FileResponse
+from fastapi import APIRouter, Depends, Query, Request
+from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, Field
 
-from backend.api.deps import OperatorDep, ServicesDep
+from backend.api.deps import DecisionDep, OperatorDep, ServicesDep
 from backend.api.requests import StrictRequest
-from backend.recording.recorder import MAX_NAME, MAX_TEXT, Recorder, RecordingNotFound
+from backend.recording.library import DEFAULT_PAGE, MAX_PAGE
+from backend.recording.recorder import MAX_NAME, MAX_TEXT, Recorder
+from backend.security import bearer
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
 
@@ -22,6 +32,25 @@ def _recorder(s: ServicesDep) -> Recorder:
 
 
 RecorderDep = Annotated[Recorder, Depends(_recorder)]
+
+
+@dataclass(frozen=True)
+class Reader:
+    peer: str  # the client's address: its budget
+    privileged: bool  # it sent the operator token: no budget, never turned away as busy
+
+
+def _reader(request: Request, recorder: RecorderDep, decision: DecisionDep) -> Reader:
+    """Who reads, charged one read of its address's budget (429 past it). The token is
+    looked at, not required (and not declared: the edge would then demand it)."""
+    privileged = decision.check_token(bearer(request.headers.get("authorization")))
+    peer = request.client.host if request.client is not None else ""
+    if not privileged:
+        recorder.library.budgets.read(peer)
+    return Reader(peer, privileged)
+
+
+ReaderDep = Annotated[Reader, Depends(_reader)]
 
 
 class StartRecording(StrictRequest):
@@ -70,7 +99,10 @@ class RecordingEntry(BaseModel):
     name: str
     bytes: int
     duration_s: float | None
-    episodes: list[Episode]
+    episodes: list[Episode] = Field(
+        description="the first 50, task and notes cut to 80 characters (episode_count: all)"
+    )
+    episode_count: int = Field(description="episodes in the recording")
     complete: bool = Field(description="has its summary (else: telerobot recording recover)")
     stop_reason: str
     active: bool
@@ -78,7 +110,10 @@ class RecordingEntry(BaseModel):
 
 class RecordingDetail(RecordingEntry):
     counts: dict[str, int] = Field(description="messages per topic")
-    metadata: dict[str, str]
+    metadata: dict[str, str] = Field(
+        description="the recording's telerobot metadata, each value cut to 500 characters"
+        " (its episodes are in `episodes`)"
+    )
 
 
 def _active(recorder: Recorder) -> ActiveRecording:
@@ -88,10 +123,24 @@ def _active(recorder: Recorder) -> ActiveRecording:
     return ActiveRecording(recording=True, **status)
 
 
-@router.get("")
-async def list_recordings(recorder: RecorderDep) -> list[RecordingEntry]:
-    """The newest recordings first (at most the recorder's ``max_listed``)."""
-    return [RecordingEntry(**e) for e in recorder.listing()]
+@router.get(
+    "",
+    response_model=list[RecordingEntry],
+    responses={200: {"headers": {"X-Total-Count": {"description": "recordings in all"}}}},
+)
+async def list_recordings(
+    recorder: RecorderDep,
+    reader: ReaderDep,
+    limit: Annotated[int, Query(ge=1, le=MAX_PAGE)] = DEFAULT_PAGE,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> Response:
+    """The newest recordings first, a page at a time (``X-Total-Count``: how many
+    there are), from the recordings' index."""
+    entries, total = await recorder.library.listing(
+        limit, offset, peer=reader.peer, privileged=reader.privileged
+    )
+    body = await asyncio.to_thread(lambda: json.dumps(entries, allow_nan=False).encode())
+    return Response(body, media_type="application/json", headers={"X-Total-Count": str(total)})
 
 
 @router.post("")
@@ -110,7 +159,7 @@ async def active_recording(recorder: RecorderDep) -> ActiveRecording:
 @router.post("/active/stop")
 async def stop_recording(recorder: RecorderDep, _op: OperatorDep) -> RecordingEntry:
     path = await recorder.stop()
-    return RecordingEntry(**_entry(recorder, path.name))
+    return RecordingEntry(**await recorder.library.entry(path.name, peer="", privileged=True))
 
 
 @router.post("/active/episodes")
@@ -131,34 +180,27 @@ async def label_episode(
     return Episode(**vars(ep))
 
 
-def _entry(recorder: Recorder, file: str) -> dict[str, Any]:
-    for e in recorder.listing():
-        if e["file"] == file:
-            return e
-    raise RecordingNotFound(f"no recording {file!r}")
-
-
 @router.get("/{file}/metadata")
-async def recording_metadata(file: str, recorder: RecorderDep) -> RecordingDetail:
-    from backend.recording.reader import summary
-
-    entry = _entry(recorder, file)
-    counts: dict[str, int] = {}
-    meta: dict[str, str] = {}
-    if entry["complete"]:
-        counts, meta = summary(recorder.path_of(file))
-    return RecordingDetail(**entry, counts=counts, metadata=meta)
+async def recording_metadata(
+    file: str, recorder: RecorderDep, reader: ReaderDep
+) -> RecordingDetail:
+    """Its list entry with its topics' message counts and its metadata (from the
+    index; the recording being written: what is known so far)."""
+    entry: dict[str, Any] = await recorder.library.entry(
+        file, peer=reader.peer, privileged=reader.privileged
+    )
+    return RecordingDetail(**entry)
 
 
 @router.get("/{file}/download", response_class=FileResponse)
-async def download_recording(file: str, recorder: RecorderDep) -> FileResponse:
-    """The MCAP file as it is (streamed)."""
-    return FileResponse(
-        recorder.path_of(file), media_type="application/octet-stream", filename=file
-    )
+async def download_recording(file: str, recorder: RecorderDep, _reader: ReaderDep) -> FileResponse:
+    """The MCAP file as it is (streamed); not the one being written (409: it grows
+    under the download and has no summary yet)."""
+    path = await asyncio.to_thread(recorder.path_of, file)
+    return FileResponse(path, media_type="application/octet-stream", filename=path.name)
 
 
 @router.delete("/{file}")
 async def delete_recording(file: str, recorder: RecorderDep, _op: OperatorDep) -> None:
     """Refused for the recording being made."""
-    recorder.delete(file)
+    await asyncio.to_thread(recorder.delete, file)

@@ -1,23 +1,45 @@
 """Read a recording back: ``read(path, topics)`` yields ``(topic, log_time_ns, dict)``
 in log-time order (video ``data`` as bytes); ``recover(path)`` rewrites a file whose
 writer was killed before it wrote its summary (every message of every complete chunk
-kept). ``telerobot recording recover FILE`` runs it."""
+kept). ``telerobot recording recover FILE`` runs it.
+
+A file without a valid summary (a writer killed, the recording being written, a copy
+cut short: one byte missing is enough) is still read, as far as it is valid, by
+``backend.recording.salvage``: in file order (the order it was written, which is
+log-time order but for threads racing by a few µs), stopping quietly at the first
+record that is cut or broken. A file that is not an MCAP at all raises
+``NotARecording``, one damaged where its index points ``UnreadableRecording`` (both
+422 over the API), never a parser's exception."""
 
 from __future__ import annotations
 
 import base64
 import json
 import os
+import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel, Message, Schema
+from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
 from backend.recording.schemas import BYTES_FIELDS
+from drivers.base import TelerobotError
+
+# What the mcap reader raises on a file cut short or damaged (struct: a record's length
+# field itself cut; ValueError: zstd or a JSON schema that does not parse).
+BROKEN = (McapError, EOFError, struct.error, ValueError)
+
+
+class UnreadableRecording(TelerobotError, ValueError):
+    """Not an MCAP file, or damaged where its index says the messages are."""
+
+    code = "recording_unreadable"
+    http_status = 422
 
 
 def _decode(topic: str, data: bytes, encoding: str) -> dict[str, Any]:
@@ -30,18 +52,55 @@ def _decode(topic: str, data: bytes, encoding: str) -> dict[str, Any]:
     return message
 
 
+def decode(topic: str, data: bytes, encoding: str) -> dict[str, Any]:
+    """One message's payload as ``read`` gives it (for callers of ``read_raw``)."""
+    return _decode(topic, data, encoding)
+
+
+def valid_summary(f: IO[bytes]) -> Summary | None:
+    """The file's summary when it has a whole one (else None: cut, torn or absent)."""
+    try:
+        s = make_reader(f).get_summary()
+    except BROKEN:
+        return None
+    return s if s is not None and s.statistics is not None else None
+
+
+def read_raw(
+    path: str | os.PathLike[str], topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, int, bytes, str]]:
+    """``(topic, log_time_ns, data, message_encoding)``, nothing decoded: a reader that
+    keeps few of the messages (a decimated timeline) decodes only those."""
+    from backend.recording.salvage import SalvageReader, is_mcap
+
+    wanted = set(topics) if topics is not None else None
+    name = Path(path).name
+    with open(path, "rb") as f:
+        summary = valid_summary(f) if is_mcap(path) else None
+        if summary is not None and summary.chunk_indexes:
+            f.seek(0)
+            reader = make_reader(f)
+            try:
+                for _s, channel, message in reader.iter_messages(
+                    topics=wanted, log_time_order=True
+                ):
+                    yield channel.topic, message.log_time, message.data, channel.message_encoding
+            except BROKEN as exc:
+                raise UnreadableRecording(f"{name} is damaged: {type(exc).__name__}") from None
+            return
+    salvage = SalvageReader(path)  # raises NotARecording for what is not an MCAP
+    for record in salvage.records():
+        if isinstance(record, Message):
+            channel = salvage.channels[record.channel_id]
+            if wanted is None or channel.topic in wanted:
+                yield channel.topic, record.log_time, record.data, channel.message_encoding
+
+
 def read(
     path: str | os.PathLike[str], topics: Iterable[str] | None = None
 ) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    wanted = list(topics) if topics is not None else None
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        for _schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
-            yield (
-                channel.topic,
-                message.log_time,
-                _decode(channel.topic, message.data, channel.message_encoding),
-            )
+    for topic, log_time, data, encoding in read_raw(path, topics):
+        yield topic, log_time, _decode(topic, data, encoding)
 
 
 def summary(path: str | os.PathLike[str]) -> tuple[dict[str, int], dict[str, str]]:
@@ -65,7 +124,7 @@ def summary(path: str | os.PathLike[str]) -> tuple[dict[str, int], dict[str, str
 def has_summary(path: str | os.PathLike[str]) -> bool:
     try:
         summary(path)
-    except (McapError, ValueError, OSError, EOFError):
+    except (*BROKEN, OSError):
         return False
     return True
 

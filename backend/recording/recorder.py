@@ -15,6 +15,12 @@ written so far keeps every complete chunk: ``reader.recover`` gives it a summary
 ``RecordingTaps`` subscribes the recorder to the robot's streams (force samples,
 state at the state rate, every command, safety changes) without touching their
 paths beyond one ``log`` call.
+
+A recording stops by itself, with the reason kept in the list, when its file reaches
+``max_bytes`` (the setting ``recording_max_bytes``) or the disk's free space falls
+below ``min_free_bytes`` (``recording_min_free_bytes``), and does not start below it:
+the file is closed whole rather than cut by ENOSPC. What the list shows of a recording
+is kept in its index (``backend.recording.index``) when it closes, reasons included.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import multiprocessing
 import multiprocessing.process
 import queue
 import re
+import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -41,7 +48,8 @@ import numpy as np
 
 from backend.control.decision import CommandReport, DecisionServer, SafetyState
 from backend.recording import schemas as ch
-from backend.recording.reader import summary
+from backend.recording.library import RecordingLibrary
+from backend.recording.library import RecordingNotFound as RecordingNotFound
 from backend.recording.writer import CHUNK_BYTES, describe, serve_file
 from drivers.base import ForceSample, ForceSensor, InvalidCommand, Robot, TelerobotError
 from drivers.clock import Clock
@@ -56,6 +64,9 @@ MAX_EPISODES = 10_000  # per recording
 MAX_TEXT = 2000  # characters of an episode's task or notes
 BATCH_S = 0.02  # what has queued goes to the writer process this often
 CLOSE_TIMEOUT_S = 60.0  # the writer's index and summary (a long recording: seconds)
+MAX_BYTES = 4 * 1024**3  # a recording's file stops here (the setting recording_max_bytes)
+MIN_FREE_BYTES = 256 * 1024**2  # …and below this much free space (recording_min_free_bytes)
+SPACE_CHECK_S = 0.5  # the writer's progress and the disk's free space are checked this often
 
 
 class RecordingError(TelerobotError):
@@ -63,9 +74,9 @@ class RecordingError(TelerobotError):
     http_status = 409
 
 
-class RecordingNotFound(TelerobotError):
-    code = "not_found"
-    http_status = 404
+class RecordingNoSpace(RecordingError):
+    code = "recording_no_space"
+    http_status = 507
 
 
 @dataclass(frozen=True)
@@ -104,6 +115,24 @@ class _Active:
     stopping: bool = False
     reason: str = ""
     done: threading.Event = field(default_factory=threading.Event)
+    closed: bool = False  # the writer wrote the summary
+    counts: dict[str, int] = field(default_factory=dict)  # per topic, from the writer
+    metadata: dict[str, str] | None = None  # as written at close
+
+
+def _free_bytes(folder: Path) -> int:
+    return shutil.disk_usage(folder).free
+
+
+def size_text(n: float) -> str:
+    """Bytes for a person: ``512 B``, ``1.5 MiB``, ``4.0 GiB``."""
+    if abs(n) < 1024:
+        return f"{n:.0f} B"
+    for unit in ("KiB", "MiB", "GiB"):
+        n /= 1024
+        if abs(n) < 1024 or unit == "GiB":
+            break
+    return f"{n:.1f} {unit}"
 
 
 def file_name(name: str, wall: dt.datetime) -> str:
@@ -121,6 +150,9 @@ class Recorder:
         max_queue: int = MAX_QUEUE,
         max_listed: int = MAX_LISTED,
         chunk_bytes: int = CHUNK_BYTES,
+        max_bytes: int = MAX_BYTES,
+        min_free_bytes: int = MIN_FREE_BYTES,
+        free_bytes: Callable[[Path], int] = _free_bytes,
     ) -> None:
         self.folder = folder
         self.clock = clock
@@ -128,6 +160,12 @@ class Recorder:
         self.max_queue = max_queue
         self.max_listed = max_listed
         self.chunk_bytes = chunk_bytes
+        self.max_bytes = max_bytes
+        self.min_free_bytes = min_free_bytes
+        self.free_bytes = free_bytes
+        # The read side: ids, the list (from an index), the review's reads
+        self.library = RecordingLibrary(folder, active=self.status)
+        self.library.budgets.clock = clock.now
         self.events: Event[RecordingEvent] = Event("recording")
         # What is in force when a recording starts (calibration, settings, transforms):
         # set by whoever knows (services), called on the event loop.
@@ -164,6 +202,15 @@ class Recorder:
         wall = dt.datetime.fromtimestamp(self.wall_ns() / 1e9, dt.UTC)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
+            free = self.free_bytes(self.folder)
+            if free < self.min_free_bytes:
+                reason = (
+                    f"the disk is nearly full: {size_text(free)} free in {self.folder}, a"
+                    f" recording needs {size_text(self.min_free_bytes)}"
+                    " (setting recording_min_free_bytes)"
+                )
+                self.events.emit(RecordingEvent("stopped", name, "", reason))
+                raise RecordingNoSpace(f"the recording cannot start: {reason}")
             path = self.folder / file_name(name, wall)
             n = 1
             while path.exists():
@@ -317,49 +364,25 @@ class Recorder:
         }
 
     def path_of(self, file: str) -> Path:
-        if not re.fullmatch(r"[A-Za-z0-9_.-]+\.mcap", file) or file.startswith("."):
-            raise RecordingNotFound(f"no recording {file!r}")
-        path = self.folder / file
-        if not path.is_file():
-            raise RecordingNotFound(f"no recording {file!r}")
-        return path
+        """A recording's file, to be read: 404 if there is none, 409 for the one being
+        written (its file has no summary yet and grows under the reader), 422 for an id
+        longer than a file name may be (before the disk is touched)."""
+        return self.library.path(file)
 
     def delete(self, file: str) -> None:
-        path = self.path_of(file)
+        path = self.library.path(file, allow_active=True)
         if self._active is not None and self._active.path == path:
             raise RecordingError(f"{file!r} is being recorded: stop it first")
         path.unlink()
+        self.library.forget(path.name)
 
-    def listing(self) -> list[dict[str, Any]]:
-        """The newest ``max_listed`` recordings: file, name, size, duration, episodes."""
-        try:
-            files = sorted(self.folder.glob("*.mcap"), reverse=True)[: self.max_listed]
-        except OSError:
-            return []
-        out = []
-        for path in files:
-            entry: dict[str, Any] = {
-                "file": path.name,
-                "name": path.stem[16:],
-                "bytes": 0,
-                "duration_s": None,
-                "episodes": [],
-                "complete": False,
-                "stop_reason": "",
-                "active": self._active is not None and self._active.path == path,
-            }
-            with contextlib.suppress(OSError):
-                entry["bytes"] = path.stat().st_size
-            if not entry["active"]:
-                with contextlib.suppress(Exception):
-                    _counts, meta = summary(path)
-                    entry["complete"] = True
-                    entry["name"] = meta.get("name", entry["name"])
-                    entry["duration_s"] = float(meta.get("duration_s", "nan"))
-                    entry["episodes"] = json.loads(meta.get("episodes", "[]"))
-                    entry["stop_reason"] = meta.get("stop_reason", "")
-            out.append(entry)
-        return out
+    def listing(self, limit: int | None = None, offset: int = 0) -> list[dict[str, Any]]:
+        """The newest ``max_listed`` recordings (or ``limit`` from ``offset``): file,
+        name, size, duration, episodes, complete, stop_reason, active; from the index,
+        summarising here what is not in it (the server's API lists with
+        ``library.listing``, which never parses in its own process)."""
+        entries, _total = self.library.listing_now(limit or self.max_listed, offset)
+        return entries
 
     # ------------------------------------------------------------ the forwarding thread
     def _forward(self, a: _Active) -> None:
@@ -368,6 +391,7 @@ class Recorder:
         each, on a 2-core machine, showed in the loop's latency). A writer that falls
         behind fills the pipe and then this queue, which drops and counts: the callers
         of ``log`` never wait."""
+        next_check = time.monotonic()
         try:
             while True:
                 time.sleep(BATCH_S)
@@ -382,12 +406,18 @@ class Recorder:
                 if batch:
                     a.conn.send(("batch", batch))
                 self._answers(a)
+                if not a.stopping and time.monotonic() >= next_check:
+                    next_check = time.monotonic() + SPACE_CHECK_S
+                    self._check_space(a)
                 if a.stopping and a.queue.empty():
                     break
-            a.conn.send(("close", self._metadata(a)))
-            if not a.conn.poll(CLOSE_TIMEOUT_S):
-                raise _WriterGone(f"did not finish the file within {CLOSE_TIMEOUT_S:.0f} s")
-            self._answers(a)
+            a.metadata = self._metadata(a)
+            a.conn.send(("close", a.metadata))
+            deadline = time.monotonic() + CLOSE_TIMEOUT_S
+            while not a.closed:  # progress said before it may come first
+                if not a.conn.poll(max(0.0, deadline - time.monotonic())):
+                    raise _WriterGone(f"did not finish the file within {CLOSE_TIMEOUT_S:.0f} s")
+                self._answers(a)
         except _WriterGone as exc:
             a.failed = f"the recording's writer failed: {exc}"
         except (EOFError, OSError) as exc:  # the pipe broke: the writer process is gone
@@ -401,6 +431,7 @@ class Recorder:
             if a.process.is_alive():
                 a.process.kill()
             a.bytes = _size(a.path)
+            self._keep_in_index(a)
             a.done.set()
             loop = self._loop
             if loop is not None and not loop.is_closed():
@@ -415,6 +446,43 @@ class Recorder:
             if answer[0] == "failed":
                 raise _WriterGone(answer[1])
             a.bytes, a.messages = answer[1], answer[2]
+            if answer[0] == "closed":
+                a.closed = True
+                a.counts = dict(answer[3]) if len(answer) > 3 else {}
+
+    def _check_space(self, a: _Active) -> None:
+        """Stop (the file closed whole, the reason kept) at the size cap, or before the
+        disk is full (a write that fails there would leave a file without a summary)."""
+        if a.bytes >= self.max_bytes:
+            why = (
+                f"size cap reached: {size_text(a.bytes)}, at most"
+                f" {size_text(self.max_bytes)} (setting recording_max_bytes)"
+            )
+        else:
+            try:
+                free = self.free_bytes(self.folder)
+            except OSError:
+                return
+            if free >= self.min_free_bytes:
+                return
+            why = (
+                f"the disk is nearly full: {size_text(free)} free, a recording stops below"
+                f" {size_text(self.min_free_bytes)} (setting recording_min_free_bytes)"
+            )
+        log.warning("recording %s stops: %s", a.path.name, why)
+        a.reason = why
+        a.stopping = True
+
+    def _keep_in_index(self, a: _Active) -> None:
+        """What the list shows of this recording, with why it stopped (kept even when
+        the writer failed and the file has no summary to say it)."""
+        try:
+            meta = a.metadata or self._metadata(a)
+            self.library.closed(
+                a.path, meta, a.counts, complete=a.closed, reason=a.failed or a.reason
+            )
+        except Exception:  # the index is a convenience: the recording is on disk
+            log.exception("recording %s: its index entry was not written", a.path.name)
 
     @staticmethod
     def _writer_end(a: _Active, exc: BaseException) -> str:

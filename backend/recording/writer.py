@@ -125,8 +125,8 @@ def serve_file(conn: Connection, path: str, chunk_bytes: int) -> None:
     sends, so none of that holds the server's GIL against the force stream and the
     event loop. Receives ``("batch", [(topic, wall_ns, t, payload), …])`` and
     ``("close", metadata)``; answers ``("progress", bytes, messages)`` after each flush,
-    ``("closed", bytes, messages)`` or ``("failed", reason)``. A dead server (the pipe
-    closed) leaves the file as it is, recoverable."""
+    ``("closed", bytes, messages, {topic: count})`` or ``("failed", reason)``. A dead
+    server (the pipe closed) leaves the file as it is, recoverable."""
     with contextlib.suppress(OSError):
         os.nice(WRITER_NICE)
     messages = 0
@@ -142,7 +142,7 @@ def serve_file(conn: Connection, path: str, chunk_bytes: int) -> None:
                 return
             if kind == "close":
                 file.close(body)
-                conn.send(("closed", os.path.getsize(path), messages))
+                conn.send(("closed", os.path.getsize(path), messages, file.count))
                 return
             for topic, wall_ns, t, payload in body:
                 if isinstance(payload, dict) and "t" not in payload:

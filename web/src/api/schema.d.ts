@@ -721,7 +721,8 @@ export interface paths {
         };
         /**
          * List Recordings
-         * @description The newest recordings first (at most the recorder's ``max_listed``).
+         * @description The newest recordings first, a page at a time (``X-Total-Count``: how many
+         *     there are), from the recordings' index.
          */
         get: operations["list_recordings_api_v1_recordings_get"];
         put?: never;
@@ -825,7 +826,11 @@ export interface paths {
             path?: never;
             cookie?: never;
         };
-        /** Recording Metadata */
+        /**
+         * Recording Metadata
+         * @description Its list entry with its topics' message counts and its metadata (from the
+         *     index; the recording being written: what is known so far).
+         */
         get: operations["recording_metadata_api_v1_recordings__file__metadata_get"];
         put?: never;
         post?: never;
@@ -844,7 +849,8 @@ export interface paths {
         };
         /**
          * Download Recording
-         * @description The MCAP file as it is (streamed).
+         * @description The MCAP file as it is (streamed); not the one being written (409: it grows
+         *     under the download and has no summary yet).
          */
         get: operations["download_recording_api_v1_recordings__file__download_get"];
         put?: never;
@@ -1689,8 +1695,16 @@ export interface components {
             bytes: number;
             /** Duration S */
             duration_s: number | null;
-            /** Episodes */
+            /**
+             * Episodes
+             * @description the first 50, task and notes cut to 80 characters (episode_count: all)
+             */
             episodes: components["schemas"]["Episode"][];
+            /**
+             * Episode Count
+             * @description episodes in the recording
+             */
+            episode_count: number;
             /**
              * Complete
              * @description has its summary (else: telerobot recording recover)
@@ -1707,7 +1721,10 @@ export interface components {
             counts: {
                 [key: string]: number;
             };
-            /** Metadata */
+            /**
+             * Metadata
+             * @description the recording's telerobot metadata, each value cut to 500 characters (its episodes are in `episodes`)
+             */
             metadata: {
                 [key: string]: string;
             };
@@ -1722,8 +1739,16 @@ export interface components {
             bytes: number;
             /** Duration S */
             duration_s: number | null;
-            /** Episodes */
+            /**
+             * Episodes
+             * @description the first 50, task and notes cut to 80 characters (episode_count: all)
+             */
             episodes: components["schemas"]["Episode"][];
+            /**
+             * Episode Count
+             * @description episodes in the recording
+             */
+            episode_count: number;
             /**
              * Complete
              * @description has its summary (else: telerobot recording recover)
@@ -2112,8 +2137,13 @@ export interface components {
              */
             video_start: number | null;
             /**
+             * Complete
+             * @description the file has its summary (else it was read as far as it is valid)
+             */
+            complete: boolean;
+            /**
              * Counts
-             * @description messages per topic in the file
+             * @description messages per topic read from the file
              */
             counts: {
                 [key: string]: number;
@@ -3376,7 +3406,10 @@ export interface operations {
     };
     list_recordings_api_v1_recordings_get: {
         parameters: {
-            query?: never;
+            query?: {
+                limit?: number;
+                offset?: number;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -3386,10 +3419,21 @@ export interface operations {
             /** @description Successful Response */
             200: {
                 headers: {
+                    /** @description recordings in all */
+                    "X-Total-Count"?: unknown;
                     [name: string]: unknown;
                 };
                 content: {
                     "application/json": components["schemas"]["RecordingEntry"][];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };
