@@ -13,10 +13,12 @@ import asyncio
 import contextlib
 import socket
 import struct
+import time
 from collections.abc import Iterator
 from typing import Any
 from urllib.parse import urlsplit
 
+import httpx
 import psutil
 import pytest
 import websockets
@@ -142,6 +144,65 @@ async def test_a_peer_that_never_answers_the_close_is_let_go_too(base: str) -> N
             )
         finally:
             await resumed.close()
+
+
+async def test_a_priority_channel_connection_superseded_by_a_resume_is_closed_too(
+    base: str,
+) -> None:
+    """The same session logic under the priority channel's framing: its connection is
+    closed, saying why, when the session resumes on /ws."""
+    proc = server_process(base)
+    address = "127.0.0.9"
+    async with httpx.AsyncClient(base_url=base, timeout=10) as http:
+        port = (await http.get("api/v1/force/channel")).json()["port"]
+    with socket.socket() as tcp:
+        tcp.bind((address, 0))
+        tcp.settimeout(10)
+        tcp.connect(("127.0.0.1", port))
+        tcp.sendall(m.frame(m.encode(m.HELLO, m.PROTOCOL_VERSION, RESUMABLE, b"")))
+        messages = FramedReader(tcp)
+        welcome = messages.next()
+        assert welcome[0] == m.WELCOME.type_id
+        key = welcome[m.WELCOME.size :].decode().split(" ")[1]
+        resumed = await resume_from(base, "127.0.0.10", key)
+        try:
+            refusal = messages.until(m.ERROR.type_id)
+            assert b"this session resumed on a new connection" in refusal
+            assert messages.closed(), "the server kept the connection open"
+            await until_async(lambda: held_from(proc, address) == 0, timeout=10)
+        finally:
+            await resumed.close()
+
+
+class FramedReader:
+    """Length-framed messages off a priority-channel socket (blocking)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock, self.rx = sock, b""
+
+    def next(self) -> bytes:
+        while len(self.rx) < 2 or len(self.rx) < 2 + m.LENGTH.unpack_from(self.rx)[0]:
+            chunk = self.sock.recv(65536)
+            assert chunk, "the server closed the connection"
+            self.rx += chunk
+        (size,) = m.LENGTH.unpack_from(self.rx)
+        message, self.rx = self.rx[2 : 2 + size], self.rx[2 + size :]
+        return message
+
+    def until(self, type_id: int, timeout: float = 10.0) -> bytes:
+        deadline = time.monotonic() + timeout
+        while (message := self.next())[0] != type_id:
+            assert time.monotonic() < deadline, f"no message 0x{type_id:02x} in {timeout:g} s"
+        return message
+
+    def closed(self) -> bool:
+        """True once the server has closed its side (EOF within the socket's timeout)."""
+        try:
+            while self.sock.recv(65536):
+                pass
+        except TimeoutError:
+            return False
+        return True
 
 
 def read_until(sock: socket.socket, data: bytes, marker: bytes) -> bytes:

@@ -821,6 +821,9 @@ class PriorityChannel:
         async def send(data: bytes) -> None:
             self._send_soon(client, data)
 
+        async def superseded() -> None:  # its session resumed elsewhere: closed now
+            self._close_soon(client, "not_allowed", "this session resumed on a new connection")
+
         try:
             session = Session.open(
                 message,
@@ -831,6 +834,8 @@ class PriorityChannel:
                 every_force_sample=True,
                 direct_forces=True,  # written by the sensor's thread, above
                 source="priority",
+                address=client.host,
+                close_transport=superseded,
             )
         except (m.MalformedMessage, KeyError) as exc:
             self._close_soon(client, "malformed", str(exc))
