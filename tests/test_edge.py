@@ -341,6 +341,29 @@ def test_an_address_shares_one_budget_and_reconnecting_in_a_loop_is_refused() ->
     assert limits.connect("10.0.0.1", 1.0) is not first  # forgotten: a fresh budget
 
 
+def test_the_operator_is_not_slowed_by_a_flood_from_its_own_address(client: TestClient) -> None:
+    """An address's budget is shared by its tokenless connections, but the token's holder
+    has one of its own: a flood from the same address (a NAT, the same machine) leaves
+    the address in debt, and the operator's commands must not wait behind it."""
+    services = client.app.state.services  # type: ignore[attr-defined]
+    with client.websocket_connect("ws://localhost/ws") as flooder:
+        flooder.send_bytes(m.encode(m.HELLO, m.PROTOCOL_VERSION, 0, b""))
+        assert m.decode(flooder.receive_bytes())[0] is m.WELCOME
+        # The address's budget, deep in debt (a flood of 1000 s, at its rate).
+        address = services.ws_limits.connect("testclient", services.hub.clock.now())
+        address.tokens = -1000.0 * address.rate
+        with client.websocket_connect("ws://localhost/ws") as operator:
+            operator.send_bytes(m.encode(m.HELLO, m.PROTOCOL_VERSION, 0, TOKEN.encode()))
+            for seq in range(1, 4):  # each PING is read at once: PONGs come back
+                operator.send_bytes(m.encode(m.PING, seq, 0.0))
+                while True:
+                    msg, fields, _ = m.decode(operator.receive_bytes())
+                    if msg is m.PONG:
+                        assert fields["seq"] == seq
+                        break
+        assert address.tokens < 0  # the flood's debt is still the address's
+
+
 def test_garbage_costs_more_of_the_budget_than_commands() -> None:
     bucket = TokenBucket(rate=1000.0, burst=100)
     for _ in range(10):

@@ -336,6 +336,28 @@ def test_reads_have_a_budget_per_address_that_the_token_lifts(
     assert with_token.status_code == 200
 
 
+def test_what_a_read_sends_is_charged_to_its_address(
+    app: tuple[TestClient, Services, Path],
+) -> None:
+    """A loop of reads of a kept file costs its bytes: a tokenless address may take
+    about READS_PER_S × BYTES_PER_READ a second, not whatever the server can send."""
+    c, s, folder = app
+    path = write_recording(folder / "20260101-000000-r.mcap", seconds=2.0)
+    size = path.stat().st_size
+    s.recorder.library.budgets = readjobs.ReadBudgets(clock=lambda: 300.0)  # no refill
+    url = f"/api/v1/recordings/{path.name}/download"
+    reads = readjobs.READ_BURST / (1 + size / readjobs.BYTES_PER_READ)
+    codes = [c.get(url).status_code for _ in range(int(reads) + 2)]
+    assert codes[: int(reads) - 1] == [200] * (int(reads) - 1)
+    assert codes[-1] == 429, (size, reads, codes)
+    # a range costs what it sends; the token is never charged
+    s.recorder.library.budgets = readjobs.ReadBudgets(clock=lambda: 400.0)
+    n = readjobs.READ_BURST - 1  # each costs a read and 100 bytes
+    small = [c.get(url, headers={"Range": "bytes=0-99"}) for _ in range(n)]
+    assert [r.status_code for r in small] == [206] * n
+    assert all(c.get(url, headers=OP).status_code == 200 for _ in range(int(reads) + 2))
+
+
 # ---------------------------------------------------------------- item 8: size cap, full disk
 def _events(rec: Recorder) -> list[RecordingEvent]:
     seen: list[RecordingEvent] = []

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
-from backend.api.recordings import ReaderDep, RecorderDep
+from backend.api.recordings import ReaderDep, RecorderDep, charge_sent
 from backend.recording.timeline import MAX_POINTS, REVIEW_TOPICS
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
@@ -31,11 +31,12 @@ router = APIRouter(prefix="/recordings", tags=["recordings"])
     responses={200: {"content": {"video/mp4": {}}}},
 )
 async def recording_video(
-    recording_id: str, recorder: RecorderDep, reader: ReaderDep
+    recording_id: str, recorder: RecorderDep, reader: ReaderDep, request: Request
 ) -> FileResponse:
     """The recorded stereo video (side by side) as an MP4: time 0 is the first frame's
     capture time (``video_start`` in the timeline). Seekable (HTTP ranges)."""
     mp4 = await recorder.library.mp4(recording_id, peer=reader.peer, privileged=reader.privileged)
+    charge_sent(recorder, reader, mp4, request.headers.get("range"))
     return FileResponse(mp4, media_type="video/mp4")
 
 
@@ -71,4 +72,5 @@ async def recording_timeline(
     out = await recorder.library.timeline(
         recording_id, wanted, max_points, peer=reader.peer, privileged=reader.privileged
     )
+    charge_sent(recorder, reader, out)
     return FileResponse(out, media_type="application/json")

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request
@@ -51,6 +53,26 @@ def _reader(request: Request, recorder: RecorderDep, decision: DecisionDep) -> R
 
 
 ReaderDep = Annotated[Reader, Depends(_reader)]
+
+RANGE = re.compile(r"bytes=(\d*)-(\d*)$")
+
+
+def charge_sent(recorder: Recorder, reader: Reader, path: Path, range_: str | None = None) -> None:
+    """What the answer sends (the whole file, or the range asked for), charged to a
+    tokenless reader's address: a loop of reads of a kept file costs bytes a second."""
+    if reader.privileged:
+        return
+    size = path.stat().st_size
+    sent = size
+    found = RANGE.match((range_ or "").strip())
+    if found and (found.group(1) or found.group(2)):
+        first, last = found.group(1), found.group(2)
+        if first:
+            end = int(last) + 1 if last else size
+            sent = max(0, min(end, size) - int(first))
+        else:  # the last N bytes
+            sent = min(int(last), size)
+    recorder.library.budgets.sent(reader.peer, sent)
 
 
 class StartRecording(StrictRequest):
@@ -193,10 +215,13 @@ async def recording_metadata(
 
 
 @router.get("/{file}/download", response_class=FileResponse)
-async def download_recording(file: str, recorder: RecorderDep, _reader: ReaderDep) -> FileResponse:
+async def download_recording(
+    file: str, recorder: RecorderDep, reader: ReaderDep, request: Request
+) -> FileResponse:
     """The MCAP file as it is (streamed); not the one being written (409: it grows
     under the download and has no summary yet)."""
     path = await asyncio.to_thread(recorder.path_of, file)
+    charge_sent(recorder, reader, path, request.headers.get("range"))
     return FileResponse(path, media_type="application/octet-stream", filename=path.name)
 
 

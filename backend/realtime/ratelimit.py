@@ -96,3 +96,8 @@ class PeerLimits:
             self.refused_connections += 1
             return None
         return messages
+
+    def charge(self, peer: str, now: float, cost: float) -> None:
+        """Take ``cost`` more connections' worth from the address's budget, into debt if
+        need be (what a connection turned out to cost: its next ones wait for it)."""
+        self._buckets(peer)[1].take(now, cost)

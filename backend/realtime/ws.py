@@ -14,7 +14,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from backend.api.deps import ServicesDep
 from backend.realtime import messages as m
-from backend.realtime.ratelimit import MALFORMED_COST, MalformedRun
+from backend.realtime.ratelimit import MALFORMED_COST, MalformedRun, TokenBucket
 from backend.realtime.session import Session, error
 from backend.security import origin_allowed
 from drivers.base import TelerobotError
@@ -86,6 +86,11 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
     except WebSocketDisconnect:
         return
     conn = session.conn
+    if conn.operator:
+        # The token's holder gets a budget of its own: the address's is shared with
+        # whoever else is there (a NAT, this machine), and a tokenless flood from the
+        # same address must not make the operator's commands wait and go stale.
+        bucket = TokenBucket()
     conn.reply(session.welcome)
     session.attach()
     garbage = MalformedRun()

@@ -10,7 +10,8 @@ process the server's interpreter never waits for it; a read that runs too long i
 killed; its memory is returned when it ends.
 
 Who may make the server read: per remote address, a budget of reads
-(``READS_PER_S``) and a smaller one of reads that start a job (``JOBS_PER_S``: what
+(``READS_PER_S``, an answer costing one more read per ``BYTES_PER_READ`` it sends) and
+a smaller one of reads that start a job (``JOBS_PER_S``: what
 is not kept yet), as ``/ws`` budgets connections (``backend/realtime/ratelimit.py``);
 at most ``MAX_WAITING`` jobs wait behind the running one for clients without the
 operator token (the operator's wait however long the line is). A job already running
@@ -52,6 +53,10 @@ STDERR_KEPT = 4096  # of a failed job's stderr: its last line goes to the log
 
 READS_PER_S = 10.0  # recording reads a second from one address…
 READ_BURST = 40  # …after a burst (the review page's first requests, a seek or two)
+# A read's answer costs one more read per this many bytes: a loop of reads of a kept
+# 2 MB timeline is ~5 MB/s from one address at most, not the 22 MB/s the server sent
+# (and spent its event loop on) before (issue 26's bench).
+BYTES_PER_READ = 512 * 1024
 JOBS_PER_S = 0.5  # reads that start a job, from one address…
 JOB_BURST = 8  # …after a burst (a review page: its list, timeline and MP4; a few of them)
 
@@ -99,8 +104,13 @@ class ReadBudgets:
         if self.reads.connect(peer, self.clock()) is None:
             raise TooManyReads(
                 f"too many recording reads from your address (at most {READS_PER_S:g} a"
-                " second): try again in a second"
+                f" second, each {BYTES_PER_READ >> 10} KiB sent counting as one more): try"
+                " again in a second, or with the operator token"
             )
+
+    def sent(self, peer: str, size: int) -> None:
+        """The answer's size, charged to the address's reads (its next reads wait)."""
+        self.reads.charge(peer, self.clock(), size / BYTES_PER_READ)
 
     def job(self, peer: str) -> None:
         if self.jobs.connect(peer, self.clock()) is None:

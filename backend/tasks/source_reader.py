@@ -8,8 +8,12 @@ at once, held the interpreter the event loop needs for the e-stop and the operat
 commands (issue 26: tokenless preview loops grew the server from 322 to 502 MB and had
 operator commands dropped as stale). So:
 
-- **One read at a time**, in one worker thread of its own: the loop shares the GIL
-  with one reader, not with one per request. A client without the token that finds it
+- **One read at a time**, in one worker process of its own (started on the first
+  read, ``spawn``: the server's threads are not copied): the read never holds the
+  interpreter the event loop runs in. In a thread it did, in slices of up to tens of
+  milliseconds (decompressing, decoding), and the e-stop waited behind them (30 ms
+  under tokenless preview loops, issue 26's bench). Its memory is the worker's, not
+  the server's. A client without the token that finds it
   busy gets 429 at once (nothing queues for it); the operator's reads wait their turn,
   ``MAX_QUEUED`` at most.
 - **Previews are cached** by (file, size, modification time, episode, segment): asking
@@ -22,11 +26,13 @@ operator commands dropped as stale). So:
 from __future__ import annotations
 
 import asyncio
+import multiprocessing
 import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +49,13 @@ BURST = 20.0
 READ_COST = 10.0  # a read is ten looks at the cache: one every 5 s, after a burst of two
 MAX_ADDRESSES = 1024  # addresses with a budget; the one heard from longest ago goes first
 MAX_QUEUED = 4  # the operator's reads waiting for the reader, at most
+
+
+class ReadFailed(TelerobotError):
+    """The reader's process ended without an answer."""
+
+    code = "task_source_read_failed"
+    http_status = 503
 
 
 class TooManyPreviews(TelerobotError):
@@ -99,7 +112,8 @@ class SourceReader:
         self.refused = 0  # requests answered 429
         self._cache: OrderedDict[Key, PathPreview] = OrderedDict()
         self._budgets: OrderedDict[str, TokenBucket] = OrderedDict()
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="task-source")
+        self._executor: ProcessPoolExecutor | None = None  # started on the first read
+        self._closed = False
         self._lock = threading.Lock()
         self._in_flight = 0  # reads submitted and not yet finished (the thread's count)
 
@@ -145,9 +159,11 @@ class SourceReader:
         return found
 
     def close(self) -> None:
-        """Server shutdown: a read under way finishes in its thread (within its time
+        """Server shutdown: a read under way finishes in its process (within its time
         limit); queued ones are dropped."""
-        self._executor.shutdown(wait=False, cancel_futures=True)
+        self._closed = True
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
 
     # ------------------------------------------------------------ inside
     def _charge(self, address: str, cost: float) -> None:
@@ -187,6 +203,12 @@ class SourceReader:
             self._in_flight += 1
         self.reads += 1
         try:
+            if self._closed:
+                raise RuntimeError("closed")
+            if self._executor is None:
+                self._executor = ProcessPoolExecutor(
+                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                )
             future = self._executor.submit(
                 Trajectory.from_recording,
                 path,
@@ -198,7 +220,14 @@ class SourceReader:
             self._finished(None)
             raise TooManyPreviews("the server is stopping: no recording is read now") from None
         future.add_done_callback(self._finished)  # also when the request is gone
-        return await asyncio.wrap_future(future)
+        try:
+            return await asyncio.wrap_future(future)
+        except BrokenProcessPool:  # the worker died (killed, out of memory): a new one next
+            self._executor = None
+            raise ReadFailed(
+                f"reading {path.name} for the task stopped its reader process (out of"
+                " memory?): the server's log says more"
+            ) from None
 
     def _finished(self, _future: object) -> None:
         with self._lock:
