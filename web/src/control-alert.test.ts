@@ -83,6 +83,28 @@ describe("losing control", () => {
     b.w.welcome(false);
     expect(b.seen.map((s) => s.alert?.retake)).toEqual([false]);
   });
+
+  it("clears an alert said before the link dropped once a new session is welcomed (a restarted server)", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.event("control: nobody (dead-man: no heartbeat for 2653 ms)", 10);
+    w.state(NOBODY, 20); // CONTROL LOST, with the server's reason
+    expect(seen[0]!.alert?.text).toContain("CONTROL LOST: dead-man");
+    w.connection(false); // the server restarts…
+    w.connection(true);
+    w.welcome(true); // …and welcomes this page: the old session's loss is history
+    expect(seen.at(-1)).toEqual({ alert: null, sound: false });
+    expect(w.alert).toBeNull();
+  });
+
+  it("keeps an alert said on this connection: only a drop makes it stale", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.state(NOBODY, 20);
+    w.welcome(true); // the first WELCOME (or one without a drop before it)
+    expect(seen).toHaveLength(1);
+    expect(w.alert?.level).toBe("lost");
+  });
 });
 
 describe("refusals of commands already on their way", () => {

@@ -24,6 +24,7 @@ export class ControlWatch {
   private had = false; // this page held control at the last STATE
   private releasing = false; // the operator asked to release: no alarm
   private heldWhenDropped = false;
+  private dropped = false; // the link went down since the last WELCOME
   private reason = "";
   private reasonAt = -Infinity;
   private lostAt = -Infinity; // when this page last saw control go (ms)
@@ -47,6 +48,7 @@ export class ControlWatch {
 
   /** The realtime link went down or came back up. */
   connection(up: boolean): void {
+    if (!up) this.dropped = true;
     if (!up && this.had) {
       this.had = false;
       this.heldWhenDropped = true;
@@ -54,10 +56,17 @@ export class ControlWatch {
     }
   }
 
-  /** The server welcomed this page again; `operator`: with the operator's role. */
+  /** The server welcomed this page (a new session: after a drop, maybe another server
+   * process, restarted); `operator`: with the operator's role. */
   welcome(operator: boolean): void {
+    const dropped = this.dropped;
+    this.dropped = false;
     if (this.heldWhenDropped && operator) {
       this.set({ level: "lost", text: "Reconnected. You had control before the connection dropped.", retake: true }, false);
+    } else if (dropped && !this.heldWhenDropped && this.alert) {
+      // Said before the link dropped (a dead-man's loss, a halt): about a session that
+      // has ended, and maybe a server that has since restarted. Stale now.
+      this.set(null, false);
     }
   }
 
