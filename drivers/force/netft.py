@@ -7,6 +7,12 @@ malformed or stale (re-ordered) packets are counted and dropped. When the sensor
 falls silent (unplugged, rebooting) the driver says so and keeps asking it to stream,
 so it resumes by itself. Timestamps are the receive time on the monotonic clock: the
 RDT record carries none.
+
+A sensor that restarted counts its RDT sequence from the start again. A packet far
+behind the newest (more than ``REORDER_WINDOW``), or the first one after the driver
+had to ask a silent sensor to stream again, is such a restart, not a re-ordered
+packet: the driver follows the new sequence at once, counts it (``restarts``) and
+says so, rather than dropping as "stale" as many packets as it had received before.
 """
 
 from __future__ import annotations
@@ -26,6 +32,10 @@ from drivers.force.sampled import SampledForceSensor
 log = logging.getLogger(__name__)
 
 SEQ_MOD = 1 << 32
+# How far behind the newest a packet may be and still be a re-ordered one (dropped as
+# stale). UDP on a LAN re-orders a packet by a few places; a sequence that goes back
+# further is a sensor that restarted (it counts from the start again).
+REORDER_WINDOW = 256
 
 
 def parse_address(address: str) -> tuple[str, int]:
@@ -89,6 +99,9 @@ class NetFtSensor(SampledForceSensor):
         self.stale = 0  # older than one already delivered
         self.sensor_status = 0  # the last non-zero status word the sensor reported
         self.silences = 0  # times the sensor fell silent
+        self.restarts = 0  # times its sequence started again (a restarted sensor)
+        self._asked_again = False  # silent, asked to stream again: a new sequence may come
+        self._biased = False  # the sensor was asked to bias itself (a restart forgets it)
         self.error: str | None = None  # what is wrong now (None once data flows again)
         self.last_error: str | None = None
 
@@ -110,6 +123,7 @@ class NetFtSensor(SampledForceSensor):
             "bad_packets": self.bad_packets,
             "stale": self.stale,
             "silences": self.silences,
+            "restarts": self.restarts,
         }
 
     def _send(self, command: int) -> None:
@@ -123,6 +137,7 @@ class NetFtSensor(SampledForceSensor):
         """The sensor biases itself (RDT command 0x0042); without a link, the pipeline."""
         if self._sock is not None:
             self._send(rdt.CMD_BIAS)
+            self._biased = True
         else:
             super().tare()
 
@@ -132,6 +147,7 @@ class NetFtSensor(SampledForceSensor):
         if self.running:
             return
         self._last_rdt = None
+        self._asked_again = False
         super().start()
 
     def stop(self) -> None:
@@ -179,6 +195,7 @@ class NetFtSensor(SampledForceSensor):
                         f"{now - last_rx:.1f} s: is it powered and on the network?"
                     )
                     self._send(rdt.CMD_STREAM)  # it may have rebooted: ask again
+                    self._asked_again = True
                     asked = now
                 continue
             except OSError as exc:  # ICMP port unreachable and the like
@@ -194,18 +211,36 @@ class NetFtSensor(SampledForceSensor):
             log.warning("%s", message)
         self.error = self.last_error = message
 
+    def _restarted(self, last: int, seq: int) -> None:
+        self.restarts += 1
+        log.warning(
+            "the Net F/T at %s restarted (its RDT sequence went back from %d to %d): "
+            "following its new sequence%s",
+            self._where(),
+            last,
+            seq,
+            ": its bias was reset, tare it again" if self._biased else "",
+        )
+        self._biased = False
+
     def on_packet(self, data: bytes, now: float) -> None:
         """One datagram from the sensor (the receiving thread calls this)."""
         record = rdt.parse_record(data)
         if record is None:
             self.bad_packets += 1
             return
-        if self._last_rdt is not None:
-            gap = (record.rdt_seq - self._last_rdt) % SEQ_MOD
+        last = self._last_rdt
+        if last is not None:
+            gap = (record.rdt_seq - last) % SEQ_MOD
             if gap == 0 or gap >= SEQ_MOD // 2:  # a repeat or an older packet
-                self.stale += 1
-                return
-            self.lost += gap - 1
+                behind = (last - record.rdt_seq) % SEQ_MOD
+                if not self._asked_again and behind <= REORDER_WINDOW:
+                    self.stale += 1  # re-ordered (or repeated) on the way
+                    return
+                self._restarted(last, record.rdt_seq)
+            else:
+                self.lost += gap - 1
+        self._asked_again = False
         self._last_rdt = record.rdt_seq
         self.received += 1
         self.error = None

@@ -76,9 +76,17 @@ class NetFtEmulator:
         return self._target is not None
 
     def reboot(self) -> None:
-        """Forget the client and the bias, as a power cycle would."""
+        """Forget the client and the bias and count the RDT sequence from the start
+        again, as a power cycle would."""
         self._target = None
-        self._bias = (0.0,) * 6
+        self.restart_sequence()
+
+    def restart_sequence(self) -> None:
+        """Forget the bias and count the RDT sequence from the start again while
+        streaming on: a sensor back from a power dip before its client noticed."""
+        with self._lock:
+            self._rdt_seq = self._ft_seq = 0
+            self._bias = (0.0,) * 6
 
     def drop(self, packets: int) -> None:
         """Skip sending the next ``packets`` records (their sequence numbers are used)."""
@@ -134,13 +142,13 @@ class NetFtEmulator:
                 time.sleep(min(next_t - now, 0.001))
                 continue
             next_t = max(next_t + 1.0 / self.rate_hz, now - 0.1)  # no burst after a stall
-            self._rdt_seq = (self._rdt_seq + 1) % (1 << 32)
-            self._ft_seq = (self._ft_seq + 1) % (1 << 32)
-            with self._lock:
+            with self._lock:  # one step with a restart of the sequence, never half of it
+                self._rdt_seq = rdt_seq = (self._rdt_seq + 1) % (1 << 32)
+                self._ft_seq = ft_seq = (self._ft_seq + 1) % (1 << 32)
                 dropping = self._drop > 0
                 self._drop -= dropping
             if not dropping:
-                record = rdt.Record(self._rdt_seq, self._ft_seq, 0, self._counts(self.signal(now)))
+                record = rdt.Record(rdt_seq, ft_seq, 0, self._counts(self.signal(now)))
                 try:
                     self._sock.sendto(record.pack(), self._target)
                     self.sent += 1
