@@ -13,6 +13,7 @@ import { viewFrame } from "./input/viewframe";
 import { ContactRumble, rumbleStrength } from "./input/rumble";
 import { XRMasterInput } from "./input/xr";
 import { PredictedArm } from "./robot/model";
+import { ServerArmReloader, type ServerArm } from "./robot/server-arm";
 import { Rolling } from "./stats";
 import type { ForceSample } from "./transport/codec";
 import { RealtimeLink } from "./transport/link";
@@ -24,6 +25,7 @@ import { ControlWatch, showControlAlerts } from "./ui/control-alert";
 import { setupControls } from "./ui/controls";
 import { $, numberIn } from "./ui/dom";
 import { HelpOverlay } from "./ui/help";
+import { pageDialogs, routeKey } from "./ui/keys";
 import { RecordingPanel } from "./ui/recording";
 import { showConnection, startPanels } from "./ui/panels";
 import { TasksPanel } from "./ui/tasks";
@@ -61,6 +63,8 @@ async function main(): Promise<void> {
 
   // ---- real-time channel
   const control = new ControlWatch(); // control lost, said over the video
+  let armReloader: ServerArmReloader | null = null; // the arm drawn, read again at each new session
+  let welcomed = false;
   let tasks: TasksPanel | null = null; // a task this page started holds the lease: not lost
   // Recording (issue 14): the header's REC indicator for every viewer, the operator's panel.
   const recording = new RecordingPanel({ api, log, operator: () => link.operator });
@@ -86,6 +90,9 @@ async function main(): Promise<void> {
       control.connection(up);
     },
     welcome: (operator) => {
+      // A new session after the first: the server may have restarted with another arm.
+      if (welcomed) void armReloader?.reload();
+      welcomed = true;
       control.welcome(operator);
       // Remembered only once accepted: a wrong token never replaces a good one.
       const verdict = tokenVerdict(token, operator, localStorage.getItem(TOKEN_KEY));
@@ -147,13 +154,16 @@ async function main(): Promise<void> {
   setupControls(loop, link);
   const alarm = showControlAlerts(control, [keyboard, gamepad], () => loop.take());
   const help = new HelpOverlay();
-  keyboard.onKey = (key, e) => {
-    help.key(e.key); // `?` toggles the help; Escape closes it and still e-stops (below)
-    loop.key(key);
-    alignment.key(key, e);
-    // F toggles fullscreen, except while Space (the dead-man) is held: then F drives down.
-    if (key === "KeyF" && !e.repeat && !e.altKey && !e.ctrlKey && !e.metaKey && !keyboard.read().deadman) toggleFullscreen();
+  // Escape closes an open dialog (the help…) and only that; else it is the e-stop.
+  const keyTargets = {
+    dialogs: () => pageDialogs(document),
+    help,
+    loop,
+    alignment,
+    fullscreen: toggleFullscreen,
+    deadmanHeld: () => keyboard.read().deadman,
   };
+  keyboard.onKey = (key, e) => routeKey(keyTargets, key, e);
   const rumble = new ContactRumble(() => (lastForce ? rumbleStrength(Math.hypot(...lastForce.values.slice(0, 3)), safety.force_limit_n) : 0));
   const rumbleBox = $<HTMLInputElement>("rumble");
   rumble.enabled = rumbleBox.checked;
@@ -180,9 +190,44 @@ async function main(): Promise<void> {
   requestAnimationFrame(tick);
 
   // Repeating a recorded episode as a task, its path shown in both eyes before it runs.
-  tasks = new TasksPanel($("tasks"), { api, log, link, flags: () => state?.flags ?? 0, path: new PathOverlay(cell.cameras, view) });
+  // Run and Approach need the lease: none is known to be held while the link is down.
+  const path = new PathOverlay(cell.cameras, view);
+  tasks = new TasksPanel($("tasks"), { api, log, link, flags: () => (link.open ? (state?.flags ?? 0) : 0), path });
   void tasks.load();
-  const panels = startPanels({ state: () => state, force: () => lastForce, link, glass, videoInterval, forceLimitN: safety.force_limit_n, jointNames: model.joint_names, api, log });
+
+  // The arm drawn follows the server's: read again at each new session (a restart with
+  // another model redraws the labels, the ghost, the ball and the axes for the new arm).
+  const readArm = async (): Promise<ServerArm> => {
+    const [m, c] = await Promise.all([api.request("get", "/api/v1/robot/model"), api.request("get", "/api/v1/calibration")]);
+    return { model: m, cameras: c.cameras };
+  };
+  const arms = new ServerArmReloader(
+    { model, cameras: cell.cameras },
+    readArm,
+    (next) => {
+      arm.setModel(next.model);
+      ar.setCameras(next.cameras);
+      axes.setArm(next.cameras, next.model.tool.flat());
+      if (ghost.setArm(next.model, next.cameras)) view.overlayChanged();
+      path.setCameras(next.cameras);
+      loop.view = next.cameras[0] ? viewFrame(next.cameras[0].P) : null;
+    },
+    log,
+  );
+  armReloader = arms;
+  const panels = startPanels({
+    state: () => state,
+    force: () => lastForce,
+    link,
+    glass,
+    videoInterval,
+    forceLimitN: safety.force_limit_n,
+    get jointNames() {
+      return arms.current.model.joint_names;
+    },
+    api,
+    log,
+  });
 
   // For tests and benchmarks (read-only figures and a few switches).
   Object.assign(window, {
@@ -212,6 +257,7 @@ async function main(): Promise<void> {
       tasks,
       recording,
       hud,
+      arms,
     },
   });
 }

@@ -79,16 +79,26 @@ export class AxisMarker implements OverlayPainter {
   ];
   private frame: DriveFrame | null = null;
   private shown = true;
-  private readonly cameras: (CameraCalibration | undefined)[];
+  private cameras: (CameraCalibration | undefined)[];
 
   /** `cameras`: the left camera's, then the right's; `tool`: the arm's tool transform. */
   constructor(
     cameras: readonly CameraCalibration[],
-    private readonly tool: Mat4,
+    private tool: Mat4,
     private readonly host: OverlayHost | null,
   ) {
     this.cameras = [cameras[0], cameras[1]];
     host?.addOverlay(this);
+  }
+
+  /** Another arm's tool or other cameras (a restarted server): nothing is drawn until
+   * the next update. */
+  setArm(cameras: readonly CameraCalibration[], tool: Mat4): void {
+    this.cameras = [cameras[0], cameras[1]];
+    this.tool = tool;
+    this.frame = null;
+    this.pixels[0] = this.pixels[1] = null;
+    this.host?.overlayChanged();
   }
 
   /** Place the marker for `frame` at the tool pose `T` (null: the arm's pose is not

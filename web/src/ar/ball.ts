@@ -10,12 +10,18 @@ export type CameraCalibration = Pick<Schema<"CameraCalibration">, "name" | "P">;
 export class ArBall {
   /** Pixels in the left and the right image; null until there is a pose. */
   readonly ball: Ball = { left: null, right: null };
-  private readonly left: CameraCalibration | undefined;
-  private readonly right: CameraCalibration | undefined;
+  private left: CameraCalibration | undefined;
+  private right: CameraCalibration | undefined;
 
   /** `cameras`: the left camera's, then the right's. */
   constructor(cameras: readonly CameraCalibration[]) {
+    this.setCameras(cameras);
+  }
+
+  /** Other cameras (a restarted server): the ball is not drawn until the next pose. */
+  setCameras(cameras: readonly CameraCalibration[]): void {
     [this.left, this.right] = cameras;
+    this.ball.left = this.ball.right = null;
   }
 
   /** Move the ball to the tool pose `T` (the last place stays while there is none). */

@@ -44,15 +44,26 @@ export class GhostArm implements OverlayPainter {
   /** The chain as last drawn, in the left and the right camera's pixels. */
   readonly pixels: [Pixel[], Pixel[]] = [[], []];
   private shown = true;
-  private readonly P: [Projection, Projection] | null;
+  private P: [Projection, Projection] | null = null;
 
   /** `cameras`: the left camera's, then the right's. */
   constructor(
-    private readonly model: RobotModelInfo,
+    private model: RobotModelInfo,
     cameras: readonly CameraCalibration[],
   ) {
+    this.setArm(model, cameras);
+  }
+
+  /** Another arm or other cameras (a restarted server): nothing is drawn until the next
+   * update; true when something was drawn (the overlay must be redrawn). */
+  setArm(model: RobotModelInfo, cameras: readonly CameraCalibration[]): boolean {
     const [l, r] = cameras;
+    this.model = model;
     this.P = l && r ? [l.P, r.P] : null;
+    const drawn = this.pixels[0].length + this.pixels[1].length > 0;
+    this.pixels[0] = [];
+    this.pixels[1] = [];
+    return drawn && this.shown;
   }
 
   get enabled(): boolean {

@@ -66,16 +66,23 @@ export class PathOverlay implements OverlayPainter {
   readonly pixels: [Pixel[], Pixel[]] = [[], []];
   /** The path shown (base frame), or null. */
   points: Vec3[] | null = null;
-  private readonly P: [Projection, Projection] | null;
+  private P: [Projection, Projection] | null = null;
 
   /** `cameras`: the left camera's, then the right's; `host`: the stereo view. */
   constructor(
     cameras: readonly CameraCalibration[],
     private readonly host: OverlayHost | null,
   ) {
+    this.setCameras(cameras);
+    host?.addOverlay(this);
+  }
+
+  /** Other cameras (a restarted server, maybe with another arm): a path shown is the old
+   * server's and goes. */
+  setCameras(cameras: readonly CameraCalibration[]): void {
     const [l, r] = cameras;
     this.P = l && r ? [l.P, r.P] : null;
-    host?.addOverlay(this);
+    this.clear();
   }
 
   get shown(): boolean {

@@ -90,6 +90,11 @@ export class InputLoop {
     return this.o.view;
   }
 
+  /** Another left camera (a restarted server). */
+  set view(view: Mat3 | null) {
+    this.o.view = view;
+  }
+
   get hasControl(): boolean {
     return hasControl(this.o.flags());
   }

@@ -146,9 +146,22 @@ export class PredictedArm {
   private jointsStale = false;
 
   constructor(
-    readonly model: RobotModelInfo,
+    private arm: RobotModelInfo,
     private readonly settleMs = 300,
   ) {}
+
+  get model(): RobotModelInfo {
+    return this.arm;
+  }
+
+  /** Another arm (the server restarted with another model): the prediction starts again
+   * from the next reported state. */
+  setModel(model: RobotModelInfo): void {
+    this.arm = model;
+    this.predicted = null;
+    this.predictedJoints = null;
+    this.jointsStale = false;
+  }
 
   get pose(): Mat4 | null {
     return this.predicted;

@@ -1,6 +1,7 @@
 // The help overlay: every key and control of the operator page. `?` or the header's
-// "?" button toggles it; Escape closes it — and Escape is still the e-stop (the input
-// loop sees every key; the overlay never swallows one).
+// "?" button toggles it; Escape closes it and does nothing else (ui/keys.ts: a key
+// pressed to close a window must not latch the e-stop). Every other key still reaches
+// the input loop while it is open, and the E-STOP button stays above it.
 import { FRAMES, FRAME_KEYS } from "../input/loop";
 import { $ } from "./dom";
 
@@ -22,7 +23,7 @@ export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<
         { keys: "A / D", does: "left / right: its y" },
         { keys: "R / F", does: "up / down: its z" },
         { keys: "Q / E", does: "turn left / right about its z (view: about the image's up)" },
-        { keys: "Escape", does: "E-STOP (latched; Reset e-stop clears it). Also closes this help" },
+        { keys: "Escape", does: "E-STOP (latched; Reset e-stop clears it). With this help or another dialog open, Escape only closes it" },
         { keys: digits, does: `driving frame: ${picks.map(([, f]) => f).join(" / ")}` },
         ...(frames.includes("view")
           ? [{ keys: "view frame", does: "moves as the left image shows it: W/S away from / toward the camera, A/D left / right, R/F up / down in the image, Q/E about the image's up" }]
@@ -60,7 +61,7 @@ export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<
   ];
 }
 
-/** What a key does to the overlay: `?` toggles it, Escape closes it (and still e-stops). */
+/** What a key does to the overlay: `?` toggles it, Escape closes it (and only that). */
 export function helpKeyAction(key: string, open: boolean): "toggle" | "close" | null {
   if (key === "?") return "toggle";
   if (key === "Escape" && open) return "close";
