@@ -49,7 +49,7 @@ FORMATS = {
     "freezes": r"^(none in 10 s|\d+ in 10 s \(longest [\d.]+ s\))( · decoder \d+( \([\d.]+ s\))?)?$",
     "force": r"^[\d.]+ ms( \(> \d+ ms\))?$",
     "command": r"^— \(no command yet\)$",
-    "clock": r"^[+−][\d.]+ m?s$",
+    "clock": r"^[+−][\d.]+ m?s ± [\d.]+ ms( \(> ± \d+ ms\))?$",
 }
 TITLES = {"ok": "connection ok", "amber": "connection degraded", "red": "connection bad"}
 

@@ -63,10 +63,20 @@ async function main(): Promise<void> {
   });
   for (const radio of document.querySelectorAll<HTMLInputElement>("input[name=method]")) radio.onchange = prompt;
 
-  // ---- video → frozen images
+  // ---- video → live images → frozen images
+  // Each new frame is drawn on the images until they are frozen.
+  let drawingLive = false;
+  const showLive = () => {
+    drawingLive = !images.ready;
+    if (!drawingLive) return;
+    images.live();
+    video.requestVideoFrameCallback(showLive);
+  };
   connectVideo(api, (stream) => {
     video.srcObject = stream;
     void video.play();
+    if (!drawingLive) video.requestVideoFrameCallback(showLive); // one chain, whatever the reconnects
+    drawingLive = true;
     $("prompt").textContent = "Freeze the images when the scene is still.";
   }, "full").catch((e: Error) => log.add(`video: ${e.message}`, true)); // clicks are in full-size pixels
   $("freeze").onclick = () => (images.freeze() ? prompt() : log.add("no video yet", true));

@@ -1,6 +1,8 @@
 import { afterEach, describe, expect, it, vi } from "vitest";
 import { Rolling } from "./stats";
 import {
+  CLOCK_ERROR_AMBER_MS,
+  CLOCK_ERROR_RED_MS,
   COMMAND_AGE_AMBER_MS,
   COMMAND_AGE_RED_MS,
   COMMAND_IDLE_MS,
@@ -69,8 +71,8 @@ describe("the connection HUD's rows", () => {
     expect(row({}, "video").text).toBe("30 fps · 2400 kbit/s · full 1280×360");
     expect(row({}, "force").text).toBe("8.0 ms");
     expect(row({}, "command").text).toBe("— (no command yet)");
-    expect(row({}, "clock").text).toBe("+12.5 ms");
-    expect(row({ offsetMs: -1_234_567 }, "clock").text).toBe("−1234.567 s");
+    expect(row({}, "clock").text).toBe("+12.5 ms ± 0.2 ms");
+    expect(row({ offsetMs: -1_234_567 }, "clock").text).toBe("−1234.567 s ± 0.2 ms");
     expect(row({}, "freezes").text).toBe("none in 10 s");
     for (const r of v.rows) expect(r.limits.length).toBeGreaterThan(10); // the tooltip says the thresholds
   });
@@ -149,8 +151,12 @@ describe("the connection HUD's rows", () => {
     expect(row({ commandAgeMs: 300, commandSeenAgoMs: COMMAND_IDLE_MS + 1 }, "command")).toMatchObject({ level: "ok", text: "idle (last 300 ms)" });
   });
 
-  it("the clock offset is shown, not judged, once synced", () => {
-    expect(row({ offsetMs: 1e9 }, "clock").level).toBe("ok");
+  it("the clock offset is judged by how exactly it is known (± half the best ping), not by its size", () => {
+    expect(row({ offsetMs: 1e9 }, "clock").level).toBe("ok"); // a server up for days: fine
+    expect(row({ pingRttMs: 2 * CLOCK_ERROR_AMBER_MS }, "clock").level).toBe("ok");
+    expect(row({ pingRttMs: 2 * CLOCK_ERROR_AMBER_MS + 2 }, "clock")).toMatchObject({ level: "amber", text: "+12.5 ms ± 26 ms (> ± 25 ms)" });
+    expect(row({ pingRttMs: 2 * CLOCK_ERROR_RED_MS + 2 }, "clock")).toMatchObject({ level: "red", text: "+12.5 ms ± 101 ms (> ± 100 ms)" });
+    expect(row({ pingRttMs: 2 * CLOCK_ERROR_RED_MS + 2 }, "clock").limits).toContain("its size is arbitrary");
     expect(row({ synced: false }, "clock")).toMatchObject({ level: "amber", text: "not synced yet" });
   });
 
@@ -273,7 +279,8 @@ describe("each row's amber and red, with the reason the HUD gives", () => {
   // level, and its reason is exactly that row's label and text.
   const cases: [string, Partial<HudFigures>, "amber" | "red", string][] = [
     ["RTT amber", { videoRttMs: 150 }, "amber", "RTT: video 150 ms · ping 0.4 ms (> 100 ms)"],
-    ["RTT red", { pingRttMs: 300 }, "red", "RTT: video 0.6 ms · ping 300 ms (> 250 ms)"],
+    ["RTT red", { videoRttMs: 300 }, "red", "RTT: video 300 ms · ping 0.4 ms (> 250 ms)"],
+    ["clock known roughly", { pingRttMs: 60 }, "amber", "clock offset: +12.5 ms ± 30 ms (> ± 25 ms)"],
     ["RTT unmeasured", { videoRttMs: null, pingRttMs: null }, "amber", "RTT: not measured yet"],
     ["loss amber", { lossPercent: 2.5 }, "amber", "loss: 2.5 % (> 1 %)"],
     ["loss red", { lossPercent: 7 }, "red", "loss: 7.0 % (> 5 %)"],

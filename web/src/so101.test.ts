@@ -111,10 +111,11 @@ describe("the SO-101 (a gripper joint off the tool's chain)", () => {
   it("labels the joints table with the arm's joint names", () => {
     const html = jointTable(SO101.joint_names, [0, Math.PI / 2, -Math.PI / 4, 0, 0, 0.5]);
     expect(html).toBe(
-      "<tr><th>shoulder_pan</th><th>shoulder_lift</th><th>elbow_flex</th><th>wrist_flex</th><th>wrist_roll</th><th>gripper</th></tr>" +
-        "<tr><td>0.0°</td><td>90.0°</td><td>-45.0°</td><td>0.0°</td><td>0.0°</td><td>28.6°</td></tr>",
+      "<tr><th>shoulder_pan</th><td>0.0°</td></tr><tr><th>shoulder_lift</th><td>90.0°</td></tr>" +
+        "<tr><th>elbow_flex</th><td>-45.0°</td></tr><tr><th>wrist_flex</th><td>0.0°</td></tr>" +
+        "<tr><th>wrist_roll</th><td>0.0°</td></tr><tr><th>gripper</th><td>28.6°</td></tr>",
     );
-    expect(jointTable(["a<b", "c"], [0])).toBe("<tr><th>a&lt;b</th><th>c</th></tr><tr><td>0.0°</td><td>—</td></tr>");
+    expect(jointTable(["a<b", "c"], [0])).toBe("<tr><th>a&lt;b</th><td>0.0°</td></tr><tr><th>c</th><td>—</td></tr>");
   });
 });
 

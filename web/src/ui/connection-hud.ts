@@ -48,6 +48,14 @@ export const FORCE_AGE_RED_MS = 200;
  * older commands are dropped, not applied. */
 export const COMMAND_AGE_AMBER_MS = 100;
 export const COMMAND_AGE_RED_MS = 250;
+/** How exactly the clock offset is known (ms): ± half the round trip of the ping it was
+ * taken from (NTP's bound). The offset's size says nothing (the server's clock counts
+ * from its boot, the page's from its load); its error goes straight into every
+ * command's age as the server judges it against TELEROBOT_MAX_COMMAND_AGE_MS (250 ms):
+ * over ±25 ms (a tenth of that) the judgement is off noticeably, amber; over ±100 ms
+ * fresh commands may be dropped as stale or stale ones taken, red. */
+export const CLOCK_ERROR_AMBER_MS = 25;
+export const CLOCK_ERROR_RED_MS = 100;
 /** No command acknowledged for this long (ms): not driving, the last figure is history. */
 export const COMMAND_IDLE_MS = 5000;
 /** Loss, bitrate and (without framesPerSecond) the frame rate are taken over this window (ms). */
@@ -192,11 +200,16 @@ function commandRow(f: HudFigures): HudRow {
 }
 
 function clockRow(f: HudFigures): HudRow {
-  const limits = "server − page clock, from the pings with the least round trip (shown, not judged)";
+  const limits =
+    "server − page clock, from the ping with the least round trip; judged by how exactly it is known " +
+    `(± half that round trip; its size is arbitrary): amber beyond ± ${CLOCK_ERROR_AMBER_MS} ms, red beyond ± ${CLOCK_ERROR_RED_MS} ms`;
   if (!f.synced) return { key: "clock", label: "clock offset", text: "not synced yet", level: "amber", limits };
   const v = f.offsetMs;
-  const text = Math.abs(v) >= 1000 ? `${v >= 0 ? "+" : "−"}${(Math.abs(v) / 1000).toFixed(3)} s` : `${v >= 0 ? "+" : "−"}${Math.abs(v).toFixed(1)} ms`;
-  return { key: "clock", label: "clock offset", text, level: "ok", limits };
+  const offset = Math.abs(v) >= 1000 ? `${v >= 0 ? "+" : "−"}${(Math.abs(v) / 1000).toFixed(3)} s` : `${v >= 0 ? "+" : "−"}${Math.abs(v).toFixed(1)} ms`;
+  if (f.pingRttMs === null) return { key: "clock", label: "clock offset", text: offset, level: "ok", limits };
+  const error = f.pingRttMs / 2;
+  const level = above(error, CLOCK_ERROR_AMBER_MS, CLOCK_ERROR_RED_MS);
+  return { key: "clock", label: "clock offset", text: `${offset} ± ${ms(error)}` + over(level, `± ${CLOCK_ERROR_AMBER_MS} ms`, `± ${CLOCK_ERROR_RED_MS} ms`), level, limits };
 }
 
 /** The HUD's rows for these figures; its level is the worst row's. */

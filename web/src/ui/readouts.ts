@@ -76,12 +76,13 @@ export function forceRows(values: readonly number[], limitN: number): ForceRow[]
 const escapeHtml = (text: string): string =>
   text.replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c] ?? c);
 
-/** The joints table's rows (HTML): the arm's joint names (GET /robot/model's
- * joint_names), then each joint's angle in degrees, one decimal ("—" for one the state
- * does not have). */
+/** The joints table's rows (HTML): one per joint, its name (GET /robot/model's
+ * joint_names) and its angle in degrees, one decimal ("—" for one the state does not
+ * have). A row each, not a column each: six columns of names such as "shoulder_lift"
+ * do not fit the panel's width (the SO-101's were cut after the third). */
 export function jointTable(names: readonly string[], joints: readonly number[]): string {
   const angle = (q: number | undefined) => (q === undefined || !Number.isFinite(q) ? "—" : `${degrees(q).toFixed(1)}°`);
-  return `<tr>${names.map((n) => `<th>${escapeHtml(n)}</th>`).join("")}</tr><tr>${names.map((_, i) => `<td>${angle(joints[i])}</td>`).join("")}</tr>`;
+  return names.map((n, i) => `<tr><th>${escapeHtml(n)}</th><td>${angle(joints[i])}</td></tr>`).join("");
 }
 
 /** The speed setting as shown beside its slider: "0.50". */

@@ -3,6 +3,7 @@
 import type { Api, MessageLog } from "../api";
 import { MODES, type Ball, type StereoView, type ViewMode } from "../view/stereo";
 import { $, numberIn } from "./dom";
+import { readXRSupport, vrFailureText, vrUnavailable } from "./vr-support";
 
 const MODE_KEY = "telerobot.mode";
 
@@ -37,8 +38,22 @@ export function setupFullscreen(stage: HTMLElement, log: MessageLog): () => void
   return toggle;
 }
 
+/** "Enter VR": where VR cannot start (no headset, no WebXR, not a secure page) its
+ * tooltip says what is needed, and a click says it in the log (vr-support.ts). */
 export function setupXRButton(view: StereoView, log: MessageLog): void {
-  $("xr").onclick = () => view.enterXR().catch((e: Error) => log.add(e.message, true));
+  const button = $("xr");
+  const support = readXRSupport(window);
+  void support.then((s) => {
+    const why = vrUnavailable(s);
+    button.title = why ?? "Show the stereo video in a WebXR headset";
+    button.classList.toggle("unavailable", why !== null);
+  });
+  button.onclick = async () => {
+    const s = await support;
+    const why = vrUnavailable(s);
+    if (why) return log.add(why, true);
+    view.enterXR().catch((e: Error) => log.add(vrFailureText(e, s), true));
+  };
 }
 
 /** The 3D view (viser) is served on its own port of this host, when it runs. */

@@ -19,6 +19,21 @@ export class FrozenImages {
     return this.frozen.left !== undefined;
   }
 
+  /** Draw the video's current frame on each image not frozen yet: the boxes show the
+   * scene live until it is frozen (blank boxes looked broken). False with no video yet. */
+  live(): boolean {
+    const w = this.video.videoWidth / 2;
+    const h = this.video.videoHeight;
+    if (!w || !h) return false;
+    CAMERAS.forEach((cam, i) => {
+      if (this.frozen[cam]) return;
+      const canvas = this.canvases[cam];
+      if (canvas.width !== w || canvas.height !== h) [canvas.width, canvas.height] = [w, h];
+      canvas.getContext("2d")!.drawImage(this.video, i * w, 0, w, h, 0, 0, w, h);
+    });
+    return true;
+  }
+
   /** Freeze the video's current frame (each image's clicks start again); false with no video yet. */
   freeze(): boolean {
     if (!this.video.videoWidth) return false;
