@@ -124,7 +124,8 @@ async def test_connect_reads_the_arm_and_initialise_configures_it(link: BusLink)
 
 async def test_a_missing_servo_at_connect_is_named(link: BusLink) -> None:
     link.servo(3).mute = True
-    arm = arm_on(link, reply_timeout=SILENT)
+    # One try: tried again it says the same (tests/test_so101_startup.py).
+    arm = arm_on(link, reply_timeout=SILENT, connect_attempts=1)
     with pytest.raises(DeviceError, match=r"servo 3 \(elbow_flex\) does not answer on"):
         await arm.connect()
     assert arm.status is RobotStatus.ERROR and "elbow_flex" in arm.status_message
@@ -145,7 +146,7 @@ async def test_a_servo_of_another_model_is_refused(link: BusLink) -> None:
 
 async def test_nothing_on_the_port_is_a_clear_error() -> None:
     with pytest.raises(DeviceError, match="cannot open the servo bus '/dev/does-not-exist'"):
-        await So101Arm("/dev/does-not-exist", calibration=TRUE_CAL).connect()
+        await So101Arm("/dev/does-not-exist", calibration=TRUE_CAL, connect_attempts=1).connect()
 
 
 # ---------------------------------------------------------------- reading

@@ -4,10 +4,10 @@ the DecisionServer (lease, limits, e-stop), like the real-time channel's command
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Body, Response
 from pydantic import BaseModel, Field
 
 from backend.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
@@ -162,14 +162,19 @@ async def model_urdf(settings: SettingsDep) -> Response:
 
 @router.post("/initialize")
 async def initialize(
-    body: InitializeRequest, robot: RobotDep, decision: DecisionDep, client: ClientDep
+    robot: RobotDep,
+    decision: DecisionDep,
+    client: ClientDep,
+    body: Annotated[InitializeRequest | None, Body()] = None,
 ) -> RobotState:
     """Connect if needed, prepare the arm and move it to ``joints`` (default: home).
-    Returns when the arm is READY."""
+    Returns when the arm is READY. The body is optional: none (``curl -X POST``) is
+    ``{}``, the home pose."""
+    joints = None if body is None else body.joints
     client.busy += 1
     try:
         await decision.initialize(
-            client.id, None if body.joints is None else np.array(body.joints, dtype=float)
+            client.id, None if joints is None else np.array(joints, dtype=float)
         )
     finally:
         client.busy -= 1

@@ -121,6 +121,11 @@ def run_leader(args: argparse.Namespace, token: str) -> int:
         link = open_link(args.server, token, datagrams=False)  # no forces to render
         settings = MirrorSettings(align_rad=math.radians(args.align_deg)).check()
         mirror = JointMirror(leader, link, model.joint_names, settings)
+        # Why the arm is as it is, should it be in ERROR already: STATE carries only
+        # its status, and the EVENT that said why came before this client joined.
+        with contextlib.suppress(httpx.HTTPError, ValueError, KeyError, TypeError):
+            arm = httpx.get(base + "api/v1/robot/state", timeout=5, verify=False).json()
+            mirror.arm_message = f"{arm['status']}: {arm['message']}"
         mirror.start(take_control=bool(token), take_over=args.take_over)
     except TelerobotError as exc:
         print(f"telerobot master: {exc}", file=sys.stderr)

@@ -39,7 +39,8 @@ from drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 
-READY = list(RobotStatus).index(RobotStatus.READY)  # STATE's status is an index
+STATUSES = list(RobotStatus)  # STATE's status is an index in this order
+READY = STATUSES.index(RobotStatus.READY)
 
 # Increments awaiting their reply at most (a second's worth at 1 kHz): past it the
 # replies are lost, the record is not the server's, and the mirror aligns again.
@@ -91,6 +92,10 @@ class JointMirror:
         self._lock = threading.Lock()
         self._follower: FloatArray | None = None  # the newest STATE joints
         self._at_rest = False  # the newest STATE said READY (not moving)
+        self.arm_status: RobotStatus | None = None  # the newest STATE's
+        # What the server last said of the arm's status (an EVENT STATUS: "ERROR: why"),
+        # or what the command line read at start (GET /api/v1/robot/state).
+        self.arm_message: str | None = None
         self.flags = 0
         self._commanded: FloatArray | None = None  # None: aligning
         # Our JOINT_INCs awaiting their reply (seq → increment), and what the replies
@@ -109,12 +114,17 @@ class JointMirror:
 
     # ------------------------------------------------------------ from the link's thread
     def _on_state(self, fields: dict[str, Any]) -> None:
+        status = int(fields["status"])
         with self._lock:
             self._follower = np.array(fields["joints"], dtype=float)
-            self._at_rest = int(fields["status"]) == READY
+            self._at_rest = status == READY
             self.flags = int(fields["flags"])
+        self.arm_status = STATUSES[status] if 0 <= status < len(STATUSES) else None
 
     def _on_reply(self, reply: Reply) -> None:
+        if reply.name == "EVENT" and int(reply.fields["kind"]) == m.EventKind.STATUS:
+            self.arm_message = reply.text
+            return
         seq = int(reply.fields.get("seq", -1))
         with self._lock:
             dq = self._sent.pop(seq, None)
@@ -163,7 +173,7 @@ class JointMirror:
                 # dead-man, an e-stop, a limit). Align again from where it is.
                 self._forget()
         if self._commanded is None and not at_rest:
-            self.status = "waiting for the arm to come to rest"
+            self.status = self._waiting_for()
             return None
         if self._commanded is None:
             off = np.abs(leader - follower)
@@ -184,6 +194,26 @@ class JointMirror:
             f"following (lag {math.degrees(float(lag[worst])):.1f}° at {self.names[worst]})"
         )
         return dq if np.any(np.abs(dq) > 1e-9) else None
+
+    def _waiting_for(self) -> str:
+        """Why the mirror waits for an arm that is not READY, in words: an arm in ERROR
+        or not initialised does not come to rest by itself."""
+        status = self.arm_status
+        if status is None or status is RobotStatus.MOVING:
+            return "waiting for the arm to come to rest"
+        said = self.arm_message or ""
+        why = said.split(": ", 1)[1] if said.startswith(f"{status.value}: ") else ""
+        if status is RobotStatus.WAITING:
+            return "waiting for the arm to finish initialising"
+        # Initialising needs the lease this mirror holds: it is given back first.
+        todo = (
+            "it needs initialising: stop the leader, press Home on the page (or POST "
+            "/api/v1/robot/initialize), then start the leader again"
+        )
+        if status is RobotStatus.ERROR:
+            return f"the arm is in ERROR{f' ({why})' if why else ''}: {todo}"
+        state = "connected, not initialised" if status is RobotStatus.CONNECTED else "not connected"
+        return f"the arm is {state}: {todo}"
 
     def tick(self) -> None:
         now = self._now()

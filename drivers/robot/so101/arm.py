@@ -21,6 +21,14 @@ through the calibration (``calibration.So101Calibration``), loaded from
 ``so101_calibration`` at connect. Without one the arm connects (and can be
 calibrated: ``release()``, ``raw_positions()``), but does not initialise.
 
+A bus or servos that do not answer at start-up (an adapter still enumerating, servos
+powering up, an emulator kept off the CPU on a busy machine) are tried again a few
+times with a growing wait (``connect_attempts``, ``retry_delay_s``), each try said in
+the log and the status message, before the arm goes to ERROR: at connect (the
+handshake), and when the whole bus falls silent at once while the arm initialises
+(connected again, then initialised again). One servo that stops answering is a fault
+of that servo: no retry.
+
 ``stop()`` is a controlled stop, category 2: each servo's goal becomes where it can
 stop from its present speed at its Acceleration setting, so it brakes without turning
 back, and the servos keep torque and hold the arm there. ``disconnect()`` leaves the
@@ -38,7 +46,7 @@ import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Self
@@ -93,6 +101,11 @@ ADVICE: Mapping[ErrorBit, str] = {
     ErrorBit.VOLTAGE: "check the power supply (the STS3215 takes 6-12.6 V)",
     ErrorBit.ANGLE_SENSOR: "the servo's position sensor failed: replace the servo",
 }
+
+
+class NoAnswer(DeviceError):
+    """The bus, or servos on it, did not answer (rather than answering wrong): worth
+    trying again at start-up."""
 
 
 def default_calibration_path(settings: Mapping[str, Any]) -> Path:
@@ -197,7 +210,7 @@ class FeetechPort:
                     return {}
                 return self._collect(ids)
             except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-                raise DeviceError(f"the servo bus on {self.name!r} failed: {exc}") from None
+                raise NoAnswer(f"the servo bus on {self.name!r} failed: {exc}") from None
 
     def _collect(self, ids: Sequence[int]) -> dict[int, ft.Packet]:
         wanted = set(ids)
@@ -235,7 +248,7 @@ def open_bus(port: str, baudrate: int, reply_timeout: float) -> tuple[serial.Ser
             port, baudrate=baudrate, timeout=min(0.005, reply_timeout), write_timeout=1.0
         )
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise DeviceError(f"cannot open the servo bus {port!r}: {exc}") from None
+        raise NoAnswer(f"cannot open the servo bus {port!r}: {exc}") from None
     # socket://: pyserial leaves Nagle on, and a goal written just before a read
     # would then wait for the peer's delayed ACK (40 ms), past the reply timeout.
     sock = getattr(link, "_socket", None)
@@ -248,17 +261,22 @@ def identify_servos(bus: FeetechPort, cal: So101Calibration, port: str) -> None:
     """PING each servo and read its model number: a silent one, or one that is not an
     STS3215, is named (``DeviceError``); blocking."""
     silent = [i for i in cal.ids if i not in bus.transact(ft.ping(i), [i])]
+    if len(silent) == len(cal.ids) > 1:  # the bus, not a servo: said once
+        raise NoAnswer(
+            f"none of the {len(silent)} servos answers on {port!r}: check the servos' "
+            "power and the bus's adapter and cable"
+        )
     if silent:
         names = ", ".join(cal.label(i) for i in silent)
         verb = "does" if len(silent) == 1 else "do"
-        raise DeviceError(
+        raise NoAnswer(
             f"{names} {verb} not answer on {port!r}: check its power and "
             "cable, and that its id is set"
         )
     for i in cal.ids:
         reply = bus.transact(ft.read(i, Register.MODEL_NUMBER, 2), [i])
         if i not in reply or len(reply[i].params) != 2:
-            raise DeviceError(f"{cal.label(i)} did not send its model number")
+            raise NoAnswer(f"{cal.label(i)} did not send its model number")
         model = ft.u16(reply[i].params)
         if model != ft.STS3215_MODEL:
             raise DeviceError(
@@ -284,10 +302,15 @@ class So101Arm(ModelArm):
         poll_period_s: float = 0.005,
         missed_reads_limit: int = 3,
         report_period: float = 0.02,
+        connect_attempts: int = 4,
+        retry_delay_s: float = 0.5,
     ) -> None:
         """``calibration``: use this one (tests, tools); else it is loaded from
         ``calibration_path`` at each connect. ``reply_timeout``: how long a servo has to
-        answer (it answers within a millisecond at 1 Mbaud)."""
+        answer (it answers within a millisecond at 1 Mbaud). ``connect_attempts``: tries
+        of a start-up the bus did not answer, the first wait ``retry_delay_s``, doubling."""
+        if connect_attempts < 1 or not retry_delay_s >= 0:
+            raise InvalidCommand("connect_attempts is at least 1 and retry_delay_s not negative")
         model = load_model(MODEL_NAME)
         super().__init__(
             model=model, kinematics=kinematics, clock=clock, home=home, joint_offsets=joint_offsets
@@ -300,6 +323,8 @@ class So101Arm(ModelArm):
         self.poll_period_s = poll_period_s
         self.missed_reads_limit = missed_reads_limit
         self.report_period = report_period
+        self.connect_attempts = connect_attempts
+        self.retry_delay_s = retry_delay_s
         # The servos brake at their Acceleration register: the model's acceleration.
         self.acceleration_register = int(
             min(254, max(1, round(float(np.min(model.amax)) * STEPS_PER_RADIAN / 100)))
@@ -440,6 +465,31 @@ class So101Arm(ModelArm):
         return self._bus
 
     async def _open(self) -> None:
+        await self._retrying("connecting", self._open_once)
+
+    async def _retrying(self, what: str, attempt: Callable[[], Awaitable[None]]) -> None:
+        """``attempt`` until it works, again after a growing wait while the bus does not
+        answer (``NoAnswer``), at most ``connect_attempts`` times; each failure said."""
+        delay = self.retry_delay_s
+        for n in range(1, self.connect_attempts + 1):
+            try:
+                await attempt()
+                return
+            except NoAnswer as exc:
+                if n == self.connect_attempts:
+                    tries = "" if n == 1 else f" (tried {n} times)"
+                    raise NoAnswer(f"{exc}{tries}") from None
+                said = (
+                    f"{what}: {exc}; trying again in {delay:g} s "
+                    f"(attempt {n} of {self.connect_attempts})"
+                )
+                log.warning("the SO-101 on %r, %s", self.port_name, said)
+                self._set_status(self.status, said)
+                await self._close()
+                await asyncio.sleep(delay)
+                delay *= 2
+
+    async def _open_once(self) -> None:
         if self.calibration_path is not None:
             self.calibration = So101Calibration.load(self.calibration_path, self.model.joint_names)
         self._serial, bus = await asyncio.to_thread(
@@ -458,7 +508,7 @@ class So101Arm(ModelArm):
         silent = [i for i, s in first.servos.items() if s.missed_reads]
         if silent:
             names = ", ".join(self._cal.label(i) for i in silent)
-            raise DeviceError(f"{names}: no answer to the first read of the arm")
+            raise NoAnswer(f"{names}: no answer to the first read of the arm")
         self._take(first)
         self._poller_stop.clear()
         self._poller = threading.Thread(
@@ -484,7 +534,7 @@ class So101Arm(ModelArm):
     def _read_u16(self, bus: FeetechPort, servo_id: int, address: int) -> int:
         reply = bus.transact(ft.read(servo_id, address, 2), [servo_id])
         if servo_id not in reply or len(reply[servo_id].params) != 2:
-            raise DeviceError(f"{self._cal.label(servo_id)} did not answer a read of {address}")
+            raise NoAnswer(f"{self._cal.label(servo_id)} did not answer a read of {address}")
         return ft.u16(reply[servo_id].params)
 
     async def _close(self) -> None:
@@ -537,7 +587,15 @@ class So101Arm(ModelArm):
                     f"({s.temperature_c:.0f} °C, {s.voltage_v:.1f} V, load {s.load_percent:.0f} %)"
                     f": {advice}"
                 )
-        if lost:
+        fault_type = DeviceError
+        if lost and len(lost) == len(ids):  # the bus fell silent, not one servo
+            fault_type = NoAnswer
+            faults.append(
+                f"all {len(ids)} servos stopped answering on {self.port_name!r} "
+                f"({misses.missed[lost[0]]} reads in a row): the bus fell silent (its "
+                "adapter, its cable, the servos' power, or an emulator kept off the CPU)"
+            )
+        elif lost:
             faults += [
                 f"{cal.label(i)} stopped answering on {self.port_name!r} "
                 f"({misses.missed[i]} reads in a row): check its cable and power"
@@ -545,9 +603,14 @@ class So101Arm(ModelArm):
             ]
         fault: TelerobotError | None = None
         if faults and not self._faulted.is_set():
-            fault = DeviceError(
-                "; ".join(faults) + ". The arm was stopped: the other servos hold it where "
-                "it is. Reconnect and initialise it when fixed."
+            held = (
+                "a stop was sent: the servos hold their last goal"
+                if fault_type is NoAnswer
+                else "the other servos hold it where it is"
+            )
+            fault = fault_type(
+                "; ".join(faults) + f". The arm was stopped: {held}. "
+                "Reconnect and initialise it when fixed."
             )
             self._fault = fault  # sticky: a later reading must not hide it
             self._faulted.set()
@@ -701,6 +764,31 @@ class So101Arm(ModelArm):
             self._motion_finished()
 
     # ------------------------------------------------------------ initialisation
+    async def initialize(self, joints: FloatArray | None = None) -> None:
+        """As every arm; and if the bus did not answer while the arm initialised (every
+        servo silent at once, or the bus failing: a stall, not one servo's fault), it is
+        connected again and initialised again, at most ``connect_attempts`` times."""
+        delay = self.retry_delay_s
+        for n in range(1, self.connect_attempts + 1):
+            if n > 1:
+                await self.connect()  # retried while the bus does not answer, then raises
+            try:
+                await super().initialize(joints)
+                return
+            except TelerobotError as exc:
+                cause = exc if isinstance(exc, NoAnswer) else self._fault
+                stalled = isinstance(cause, NoAnswer) and self.status_is(RobotStatus.ERROR)
+                if not stalled or n == self.connect_attempts:
+                    raise
+                said = (
+                    f"initialising: {cause}; connecting again in {delay:g} s "
+                    f"(attempt {n} of {self.connect_attempts})"
+                )
+                log.warning("the SO-101 on %r, %s", self.port_name, said)
+                self._set_status(self.status, said)
+                await asyncio.sleep(delay)
+                delay *= 2
+
     async def _prepare(self) -> None:
         if self.calibration is None:
             where = f" ({self.calibration_path})" if self.calibration_path else ""
@@ -720,7 +808,7 @@ class So101Arm(ModelArm):
         for i in ids:
             reply = bus.transact(ft.read(i, Register.RETURN_DELAY_TIME, 1), [i])
             if i not in reply:
-                raise DeviceError(f"{cal.label(i)} did not answer while being configured")
+                raise NoAnswer(f"{cal.label(i)} did not answer while being configured")
             if reply[i].params != b"\x00":
                 self._write_checked(bus, i, Register.LOCK, b"\x00")
                 self._write_checked(bus, i, Register.RETURN_DELAY_TIME, b"\x00")
@@ -738,7 +826,7 @@ class So101Arm(ModelArm):
     def _write_checked(self, bus: FeetechPort, servo_id: int, address: int, data: bytes) -> None:
         reply = bus.transact(ft.write(servo_id, address, data), [servo_id])
         if servo_id not in reply:
-            raise DeviceError(f"{self._cal.label(servo_id)} did not confirm a write to {address}")
+            raise NoAnswer(f"{self._cal.label(servo_id)} did not confirm a write to {address}")
 
     async def release(self) -> None:
         """Torque off on every servo, so a person can move the arm (to calibrate it)."""

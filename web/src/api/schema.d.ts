@@ -114,7 +114,8 @@ export interface paths {
         /**
          * Initialize
          * @description Connect if needed, prepare the arm and move it to ``joints`` (default: home).
-         *     Returns when the arm is READY.
+         *     Returns when the arm is READY. The body is optional: none (``curl -X POST``) is
+         *     ``{}``, the home pose.
          */
         post: operations["initialize_api_v1_robot_initialize_post"];
         delete?: never;
@@ -2383,9 +2384,9 @@ export interface operations {
             path?: never;
             cookie?: never;
         };
-        requestBody: {
+        requestBody?: {
             content: {
-                "application/json": components["schemas"]["InitializeRequest"];
+                "application/json": components["schemas"]["InitializeRequest"] | null;
             };
         };
         responses: {
