@@ -224,7 +224,13 @@ def _export_lerobot(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-        summary = export_lerobot(rec, args.dir, fps=args.fps)
+        summary = export_lerobot(
+            rec,
+            args.dir,
+            fps=args.fps,
+            allow_repeated_frames=args.allow_repeated_frames,
+            progress=_ExportProgress(),
+        )
     except (ExportError, OSError) as exc:
         print(f"{what}: {exc}", file=sys.stderr)
         return 1
@@ -240,11 +246,39 @@ def _export_lerobot(args: argparse.Namespace) -> int:
         f"{summary.out_dir}: {summary.episodes} episodes, {summary.frames} frames at "
         f"{summary.fps} fps, tasks {summary.tasks} ({summary.export_s:.1f} s)"
     )
+    if summary.video_fps is not None:
+        print(
+            f"the recorded video ran at {summary.video_fps:.2f} fps; "
+            f"{summary.repeated_frames} rows repeat the frame before them"
+        )
     if summary.whole_recording:
         print("the recording has no episodes: exported the whole of it as one")
     for note in summary.skipped:
         print(f"left out: {note}")
+    for warning in summary.warnings:
+        print(f"warning: {warning}")
     return 0
+
+
+EXPORT_PROGRESS_STEP = 10  # percent between the export's progress lines
+
+
+class _ExportProgress:
+    """A line every EXPORT_PROGRESS_STEP percent (an export takes minutes on a busy
+    machine: say that it moves)."""
+
+    def __init__(self) -> None:
+        import time
+
+        self.clock = time.monotonic
+        self.started = self.clock()
+        self.said = 0
+
+    def __call__(self, fraction: float) -> None:
+        percent = round(fraction * 100)
+        if self.said + EXPORT_PROGRESS_STEP <= percent < 100:
+            self.said = percent - percent % EXPORT_PROGRESS_STEP
+            print(f"exporting: {self.said} % ({self.clock() - self.started:.0f} s)", flush=True)
 
 
 def _media_server(args: argparse.Namespace) -> int:
@@ -508,6 +542,11 @@ def main(argv: list[str] | None = None) -> int:
     lerobot.add_argument("recording", type=Path, help="the .mcap file")
     lerobot.add_argument("dir", type=Path, help="the dataset's folder (new or empty)")
     lerobot.add_argument("--fps", type=int, help="rows per second (default: the video's rate)")
+    lerobot.add_argument(
+        "--allow-repeated-frames",
+        action="store_true",
+        help="export at an --fps above the recorded video's rate (rows repeat its frames)",
+    )
     lerobot.set_defaults(func=_export_lerobot)
 
     bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")

@@ -7,15 +7,25 @@ own ``LeRobotDataset`` writes one (huggingface/lerobot ``src/lerobot/datasets``:
     meta/info.json                       codebase_version "v3.0", fps, features, paths
     meta/tasks.parquet                   task (the index) → task_index
     meta/stats.json                      per feature: min max mean std count q01 q10 q50 q90 q99
+    meta/telerobot_export.json           ours: the recording, the video's rate, repeated rows
     meta/episodes/chunk-000/file-000.parquet   one row per episode (where its rows and
                                          video frames are, its stats)
     data/chunk-000/file-000.parquet      one row per frame, every episode
     videos/observation.images.{left,right}/chunk-000/file-000.mp4
 
 The rows sit on the dataset's grid: episode ``e``'s row ``k`` is at ``start_e + k/fps``
-on the recording's clock (``fps`` defaults to the recorded video's rate), and its
-``timestamp`` is ``k/fps``, as lerobot requires (it checks the spacing, and finds a
-row's video frame at ``from_timestamp + timestamp``). At each row time:
+on the recording's clock, and its ``timestamp`` is ``k/fps``, as lerobot requires (it
+checks the spacing, and finds a row's video frame at ``from_timestamp + timestamp``).
+
+``fps`` defaults to the recorded video's real rate: its frames over its span, measured
+from their capture times (a video slowed by a busy machine ran at 10 fps though it was
+asked for 30, and its frames' typical spacing can still say 30: bursts). More rows a
+second than the video had frames would show the same frame on several rows: an ``fps``
+above that rate (with ``REPEAT_TOLERANCE``) is refused unless repeated frames are
+allowed, and the summary says the video's rate, how many rows repeat the frame before
+them, and warns when that is more than a few (a video that stalled in an episode).
+
+At each row time:
 
 - image: the recorded video frame captured nearest to the row time (each half of the
   side-by-side frame is one camera; a frame is repeated or skipped when the camera ran
@@ -32,6 +42,15 @@ row's video frame at ``from_timestamp + timestamp``). At each row time:
 Episodes come from ``/episodes`` (``start``/``end``, the task from the last ``label``);
 a recording without any is exported as one episode, the whole recording, with the task
 ``"(whole recording)"`` (the summary says so).
+
+The state and action columns are named after the robot model's joints, with LeRobot's
+``.pos`` (joint position) after each: ``joint1.pos`` … for the PUMA, ``shoulder_pan.pos``
+… for the SO-101 (the names the API and the page use, one rule for every arm).
+
+The export's memory does not grow with the recording's video: the video is read twice
+(its capture times first, then its frames, decoded and encoded one at a time) and the
+image stats are counted into a histogram per channel. The encoder's log is kept to
+errors (``SVT_LOG``; FFmpeg's own is off in PyAV). ``progress`` is told the fraction done.
 """
 
 from __future__ import annotations
@@ -40,7 +59,8 @@ import json
 import math
 import os
 import time
-from collections.abc import Iterable
+from array import array
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -52,7 +72,7 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from backend.recording.reader import read
+from backend.recording.reader import decode, read, read_raw
 from drivers.base import DriverUnavailable, TelerobotError
 from drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
 
@@ -63,6 +83,7 @@ VIDEO_FILES_SIZE_IN_MB = 200  # DEFAULT_VIDEO_FILE_SIZE_IN_MB
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+EXPORT_INFO_PATH = "meta/telerobot_export.json"  # ours: the recorded video's rate, repeats
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)  # lerobot DEFAULT_QUANTILES
 # lerobot's default encoder (VideoEncoderConfig): SVT-AV1, yuv420p, a keyframe every 2
 # frames, crf 30, preset 12. libx264 when this PyAV has no SVT-AV1.
@@ -78,15 +99,23 @@ WHOLE_RECORDING_TASK = "(whole recording)"
 ROBOT_TYPES = {"so101": "so101_follower"}
 CAMERAS = ("left", "right")
 MAX_STAT_IMAGES = 100  # images sampled per episode for the image stats (lerobot samples too)
+# Rows may outpace the recorded video by this much (about one repeated frame in 20, the
+# jitter of a steady camera) before an fps asked for is refused, or the repeats warned of.
+REPEAT_TOLERANCE = 0.05
+ALLOW_REPEATS = "--allow-repeated-frames; allow_repeated_frames over the API"
+# The share of the work before the video (reading the recording) and after it (stats and
+# files): the progress reported between is the video's, row by row.
+LOAD_SHARE = 0.1
+FINISH_SHARE = 0.05
+VIDEO_TOPIC = "/video/stereo"
 
-PUMA_JOINT_NAMES = [f"joint_{i}" for i in range(1, 7)]  # as exported since issue 14
+Progress = Callable[[float], None]
 
 
 def joint_feature_names(model: RobotModel) -> list[str]:
-    """The state/action columns' names: LeRobot's ``<motor>.pos`` for a model whose
-    joints are named (the SO-101's shoulder_pan.pos … gripper.pos); the PUMA's as before."""
-    if model.name == "puma560":
-        return PUMA_JOINT_NAMES
+    """The state/action columns' names: each of the model's joints with LeRobot's
+    ``.pos`` (its position): joint1.pos … joint6.pos for the PUMA, shoulder_pan.pos …
+    gripper.pos for the SO-101 (LeRobot's own names for its motors)."""
     return [f"{name}.pos" for name in model.joint_names]
 
 
@@ -115,6 +144,10 @@ class ExportSummary:
     recorded_s: float  # how long the recording is
     export_s: float  # how long the export took
     skipped: list[str] = field(default_factory=list)  # episodes left out, and why
+    # The recorded video's real rate (its frames over its span); None: no video.
+    video_fps: float | None = None
+    repeated_frames: int = 0  # rows that show the same recorded frame as the row before
+    warnings: list[str] = field(default_factory=list)  # what the dataset should be read with
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -133,6 +166,7 @@ def _stamp_s(value: Any) -> float:
 
 @dataclass
 class _Recording:
+    path: Path
     state_t: Array
     joints: Array
     targets: Array
@@ -142,32 +176,32 @@ class _Recording:
     command_t: Array
     command_target: Array
     episodes: list[tuple[float, float, str]]  # (start, end, task) on the monotonic clock
-    video_t: Array  # capture times, monotonic clock
-    video_au: list[bytes]
+    video_t: Array  # capture times, monotonic clock (the frames are read again to export)
     skipped: list[str]
     model: RobotModel  # the arm recorded (its settings' robot_model)
 
 
 def _load(path: Path) -> _Recording:
-    topics = ["/settings", "/robot/state", "/force", "/commands", "/episodes", "/video/stereo"]
+    """Everything but the video's frames (of the video, its capture times), each series
+    kept as packed doubles (a Python list of lists costs five times as much: 1 kHz of
+    forces for an hour was a gigabyte)."""
+    topics = ["/settings", "/robot/state", "/force", "/commands", "/episodes", VIDEO_TOPIC]
     model_name = DEFAULT_MODEL  # recordings from before robot models were all of the PUMA
-    state_t: list[float] = []
-    joints: list[list[float]] = []
-    targets: list[list[float]] = []
-    pose: list[list[float]] = []
-    force_t: list[float] = []
-    force: list[list[float]] = []
-    command_t: list[float] = []
-    command_target: list[list[float]] = []
+    state_t, joints, targets, pose = array("d"), array("d"), array("d"), array("d")
+    force_t, force = array("d"), array("d")
+    command_t, command_target = array("d"), array("d")
     events: list[dict[str, Any]] = []
-    video_wall: list[float] = []
-    video_au: list[bytes] = []
+    video_wall = array("d")
     offsets: list[float] = []  # wall (log time) − monotonic (t), from the JSON channels
-    for topic, log_ns, m in read(path, topics):
-        if topic == "/video/stereo":
-            video_wall.append(_stamp_s(m["timestamp"]))
-            video_au.append(bytes(m["data"]))
+    for topic, log_ns, data, encoding in read_raw(path, topics):
+        if topic == VIDEO_TOPIC:
+            # Its capture time only: the frame itself (base64) is not decoded here.
+            stamp = json.loads(data)["timestamp"] if encoding == "json" else None
+            if stamp is None:
+                stamp = decode(topic, data, encoding)["timestamp"]
+            video_wall.append(_stamp_s(stamp))
             continue
+        m = decode(topic, data, encoding)
         if topic == "/settings":
             model_name = str(m.get("robot_model", DEFAULT_MODEL))
             continue
@@ -176,16 +210,16 @@ def _load(path: Path) -> _Recording:
             offsets.append(log_ns * 1e-9 - t)
         if topic == "/robot/state":
             state_t.append(t)
-            joints.append(m["joints"])
-            targets.append(m.get("target_joints") or m["joints"])
-            pose.append([*m["position"], *m["rotation"]])
+            joints.extend(m["joints"])
+            targets.extend(m.get("target_joints") or m["joints"])
+            pose.extend([*m["position"], *m["rotation"]])
         elif topic == "/force":
             force_t.append(t)
-            force.append(m["values"])
+            force.extend(m["values"])
         elif topic == "/commands":
             if m.get("accepted") and m.get("target_joints") is not None:
                 command_t.append(t)
-                command_target.append(m["target_joints"])
+                command_target.extend(m["target_joints"])
         elif topic == "/episodes":
             events.append(m)
     if not state_t:
@@ -199,25 +233,28 @@ def _load(path: Path) -> _Recording:
     if not np.all(order == np.arange(len(order))):
         video_t = np.maximum.accumulate(video_t)
     episodes, skipped = _episodes(events, state_t[-1])
-    f32 = np.float64
     try:
         model = load_model(model_name)
     except DriverUnavailable as exc:
         raise ExportError(f"{path.name} is of a robot this version does not know: {exc}") from None
     n = model.dof
+
+    def packed(values: array[float], width: int) -> Array:
+        return np.frombuffer(values, np.float64).reshape(-1, width)
+
     return _Recording(
+        path=path,
         model=model,
-        state_t=np.asarray(state_t, f32),
-        joints=np.asarray(joints, f32).reshape(-1, n),
-        targets=np.asarray(targets, f32).reshape(-1, n),
-        pose=np.asarray(pose, f32).reshape(-1, 12),
-        force_t=np.asarray(force_t, f32),
-        force=np.asarray(force, f32).reshape(-1, 6),
-        command_t=np.asarray(command_t, f32),
-        command_target=np.asarray(command_target, f32).reshape(-1, n),
+        state_t=packed(state_t, 1).ravel(),
+        joints=packed(joints, n),
+        targets=packed(targets, n),
+        pose=packed(pose, 12),
+        force_t=packed(force_t, 1).ravel(),
+        force=packed(force, 6),
+        command_t=packed(command_t, 1).ravel(),
+        command_target=packed(command_target, n),
         episodes=episodes,
         video_t=video_t,
-        video_au=video_au,
         skipped=skipped,
     )
 
@@ -289,11 +326,33 @@ def _nearest(t_src: Array, t: Array) -> npt.NDArray[np.int64]:
     return np.asarray(np.where(left_closer, i - 1, i), np.int64)
 
 
-def _video_fps(video_t: Array) -> int:
+def video_rate(video_t: Array) -> float | None:
+    """The recorded video's real rate: its frames over its span (None under two frames).
+    Not the typical spacing: a video that came in bursts on a busy machine had most
+    frames 33 ms apart and ran at 10 fps."""
     if len(video_t) < 2:
+        return None
+    span = float(video_t[-1] - video_t[0])
+    return (len(video_t) - 1) / span if span > 0 else None
+
+
+def default_fps(rate: float | None) -> int:
+    """The rows' rate for a video that ran at ``rate``: the nearest whole number unless
+    that outpaces the video by more than the tolerance (then the one below); 30 without
+    video."""
+    if rate is None:
         return 30
-    dt = float(np.median(np.diff(video_t)))
-    return max(1, round(1.0 / dt)) if dt > 0 else 30
+    fps = max(1, round(rate))
+    return fps if fps <= rate * (1 + REPEAT_TOLERANCE) else max(1, math.floor(rate))
+
+
+def _rate_text(rate: float | None) -> str:
+    return f"the recorded video ran at {rate:.2f} fps" if rate else "the video is one frame"
+
+
+def _repeats(source: list[npt.NDArray[np.int64]]) -> int:
+    """Rows that show the same recorded frame as the row before them (per episode)."""
+    return sum(int(np.count_nonzero(np.diff(s) == 0)) for s in source)
 
 
 # ---------------------------------------------------------------- stats
@@ -316,12 +375,54 @@ def _stats(x: npt.NDArray[Any], axis: int | tuple[int, ...], keepdims: bool) -> 
     return out
 
 
-def _image_stats(frames: list[npt.NDArray[np.uint8]]) -> dict[str, Any]:
-    """Per channel, shape (3, 1, 1), in [0, 1], like lerobot's ``compute_episode_stats``
-    (over a sample of the frames, each downsampled like lerobot's)."""
-    arr = np.stack([f.transpose(2, 0, 1) for f in frames]).astype(np.float64)  # N C H W
-    stats = _stats(arr, axis=(0, 2, 3), keepdims=True)
-    return {k: v if k == "count" else np.squeeze(v / 255.0, axis=0) for k, v in stats.items()}
+class _ImageHistogram:
+    """How many pixels of each channel had each value 0–255, over the sampled images:
+    the image stats exactly as ``_stats`` over the stacked images would give them (the
+    same quantiles, numpy's linear rule), from 6 kB however many images are counted.
+    Holding the sampled images instead took hundreds of MB and most of the export's time."""
+
+    def __init__(self) -> None:
+        self.counts = np.zeros((3, 256), np.int64)
+        self.images = 0
+
+    def add(self, image: npt.NDArray[np.uint8]) -> None:
+        for c in range(3):
+            self.counts[c] += np.bincount(image[..., c].ravel(), minlength=256)
+        self.images += 1
+
+    @staticmethod
+    def sum(histograms: Iterable[_ImageHistogram]) -> _ImageHistogram:
+        out = _ImageHistogram()
+        for h in histograms:
+            out.counts += h.counts
+            out.images += h.images
+        return out
+
+    def stats(self) -> dict[str, Any]:
+        """Per channel, shape (3, 1, 1), in [0, 1], like lerobot's
+        ``compute_episode_stats``; ``count`` is the number of images."""
+        values = np.arange(256, dtype=np.float64)
+        out: dict[str, list[float]] = {k: [] for k in ("min", "max", "mean", "std")}
+        quantiles: dict[str, list[float]] = {f"q{round(q * 100):02d}": [] for q in QUANTILES}
+        for counts in self.counts:
+            n = int(counts.sum())
+            present = np.flatnonzero(counts)
+            mean = float(counts @ values) / n
+            out["min"].append(float(present[0]))
+            out["max"].append(float(present[-1]))
+            out["mean"].append(mean)
+            out["std"].append(math.sqrt(float(counts @ (values - mean) ** 2) / n))
+            ends = np.cumsum(counts)  # the sorted pixels' value k is at ranks < ends[k]
+            for q, key in zip(QUANTILES, quantiles, strict=True):
+                rank = q * (n - 1)
+                lo = math.floor(rank)
+                below, above = np.searchsorted(ends, [lo, min(lo + 1, n - 1)], side="right")
+                quantiles[key].append(below + (above - below) * (rank - lo))
+        stats: dict[str, Any] = {
+            k: np.asarray(v).reshape(3, 1, 1) / 255.0 for k, v in {**out, **quantiles}.items()
+        }
+        stats["count"] = np.array([self.images])
+        return {k: stats[k] for k in ("min", "max", "mean", "std", "count", *quantiles)}
 
 
 def _downsample(img: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
@@ -418,22 +519,60 @@ def _tasks_table(tasks: list[str]) -> pa.Table:
     return table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
 
 
+class _Reporter:
+    """Tells ``progress`` the fraction done, each whole percent once (a caller may print
+    every call)."""
+
+    def __init__(self, progress: Progress | None) -> None:
+        self.progress = progress
+        self.said = -1
+
+    def __call__(self, fraction: float) -> None:
+        percent = math.floor(min(max(fraction, 0.0), 1.0) * 100)
+        if self.progress is not None and percent > self.said:
+            self.said = percent
+            self.progress(percent / 100)
+
+
 def export_lerobot(
-    recording_path: str | Path, out_dir: str | Path, fps: int | None = None
+    recording_path: str | Path,
+    out_dir: str | Path,
+    fps: int | None = None,
+    *,
+    allow_repeated_frames: bool = False,
+    progress: Progress | None = None,
 ) -> ExportSummary:
     """Write the recording's episodes into ``out_dir`` (which must not exist or be
-    empty) as a LeRobot v3.0 dataset; see the module's docstring for the rules."""
+    empty) as a LeRobot v3.0 dataset; see the module's docstring for the rules. An
+    ``fps`` above the recorded video's rate is refused unless ``allow_repeated_frames``;
+    ``progress`` is called with the fraction done (0 … 1), each percent once."""
     t_start = time.perf_counter()
+    report = _Reporter(progress)
+    report(0.0)
     recording_path = Path(recording_path)
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()):
         raise ExportError(f"{out} is not empty: export into a new folder")
-    rec = _load(recording_path)
-    has_video = len(rec.video_au) > 0
-    if fps is None:
-        fps = _video_fps(rec.video_t) if has_video else 30
-    if fps <= 0:
+    if fps is not None and fps <= 0:
         raise ExportError("fps must be positive")
+    rec = _load(recording_path)
+    report(LOAD_SHARE)
+    has_video = len(rec.video_t) > 0
+    rate = video_rate(rec.video_t)
+    warnings: list[str] = []
+    if fps is None:
+        fps = default_fps(rate)
+    elif rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
+        too_fast = (
+            f"the recorded video ran at {rate:.1f} fps: {fps} rows a second would show each "
+            f"of its frames on about {fps / rate:.1f} rows"
+        )
+        if not allow_repeated_frames:
+            raise ExportError(
+                f"{too_fast}; export at {default_fps(rate)} fps or fewer (the default), or "
+                f"allow repeated frames ({ALLOW_REPEATS})"
+            )
+        warnings.append(f"{too_fast} (allowed)")
     whole = not rec.episodes and not rec.skipped
     episodes = rec.episodes or [(rec.state_t[0], rec.state_t[-1], WHOLE_RECORDING_TASK)]
     skipped = list(rec.skipped)
@@ -519,11 +658,20 @@ def export_lerobot(
     # Videos: decode the side-by-side stream once, write each half's rows in order.
     codec_name: str | None = None
     video_info: dict[str, Any] = {}
-    image_samples: dict[str, list[list[npt.NDArray[np.uint8]]]] = {
-        c: [[] for _ in kept] for c in CAMERAS
-    }
+    histograms = {c: [_ImageHistogram() for _ in kept] for c in CAMERAS}
+    source = [
+        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
+        for t in rows
+    ]
+    repeated = _repeats(source) if has_video else 0
+    if repeated > REPEAT_TOLERANCE * total:
+        warnings.append(
+            f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
+            f"recorded frame as the row before: {_rate_text(rate)}, unevenly or slower "
+            "than the rows"
+        )
     if has_video:
-        codec_name, video_info = _write_videos(out, rec, rows, fps, image_samples)
+        codec_name, video_info = _write_videos(out, rec, source, fps, histograms, report)
         for cam in CAMERAS:
             features[f"observation.images.{cam}"] = {
                 "dtype": "video",
@@ -531,8 +679,10 @@ def export_lerobot(
                 "names": ["height", "width", "channels"],
                 "info": video_info,
                 "description": f"the {cam} camera: the recorded frame captured nearest to "
-                "the row time",
+                f"the row time ({_rate_text(rate)}; {repeated} rows repeat the frame "
+                "before them)",
             }
+    report(1.0 - FINISH_SHARE)
     for key in index_cols:
         dtype = "float32" if key == "timestamp" else "int64"
         features[key] = {"dtype": dtype, "shape": [1], "names": None}
@@ -558,7 +708,7 @@ def export_lerobot(
         for k in index_cols:
             s[k] = _stats(index_cols[k][e], axis=0, keepdims=True)
         for cam in CAMERAS if has_video else ():
-            s[f"observation.images.{cam}"] = _image_stats(image_samples[cam][e])
+            s[f"observation.images.{cam}"] = histograms[cam][e].stats()
         episode_stats.append(s)
     dataset_stats: dict[str, dict[str, Any]] = {}
     for k in columns:
@@ -566,9 +716,7 @@ def export_lerobot(
     for k in index_cols:
         dataset_stats[k] = _stats(np.concatenate(index_cols[k]), axis=0, keepdims=True)
     for cam in CAMERAS if has_video else ():
-        dataset_stats[f"observation.images.{cam}"] = _image_stats(
-            [f for ep in image_samples[cam] for f in ep]
-        )
+        dataset_stats[f"observation.images.{cam}"] = _ImageHistogram.sum(histograms[cam]).stats()
     (out / "meta").mkdir(exist_ok=True)
     (out / "meta" / "stats.json").write_text(
         json.dumps({k: _tolist(v) for k, v in dataset_stats.items()}, indent=4)
@@ -624,8 +772,18 @@ def export_lerobot(
         "features": features,
     }
     (out / "meta" / "info.json").write_text(json.dumps(info, indent=4, ensure_ascii=False))
+    # Ours, beside lerobot's files (which it reads by name): where the rows came from.
+    source_info = {
+        "recording": recording_path.name,
+        "fps": fps,
+        "recorded_video_fps": rate,
+        "repeated_frames": repeated,
+        "warnings": warnings,
+    }
+    (out / EXPORT_INFO_PATH).write_text(json.dumps(source_info, indent=4, ensure_ascii=False))
 
     recorded = float(rec.state_t[-1] - rec.state_t[0])
+    report(1.0)
     return ExportSummary(
         out_dir=str(out),
         episodes=len(kept),
@@ -637,27 +795,33 @@ def export_lerobot(
         recorded_s=recorded,
         export_s=time.perf_counter() - t_start,
         skipped=skipped,
+        video_fps=rate,
+        repeated_frames=repeated,
+        warnings=warnings,
     )
 
 
 def _write_videos(
     out: Path,
     rec: _Recording,
-    rows: list[Array],
+    source: list[npt.NDArray[np.int64]],
     fps: int,
-    samples: dict[str, list[list[npt.NDArray[np.uint8]]]],
+    histograms: dict[str, list[_ImageHistogram]],
+    report: _Reporter,
 ) -> tuple[str, dict[str, Any]]:
     """One mp4 per camera holding every episode's frames back to back (frame ``i`` of the
-    file is dataset row ``i``, at ``i/fps``); fills ``samples`` for the image stats."""
-    source = [
-        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
-        for t in rows
-    ]
+    file is dataset row ``i``, at ``i/fps``; ``source``: each episode's rows' recorded
+    frames); counts a sample of them into ``histograms`` for the image stats. The
+    recording's frames are read from its file as they are needed, one in memory at a
+    time."""
     wanted = np.concatenate(source)  # the source frame of each row, in row order
-    episode_of_row = np.concatenate([np.full(len(t), e) for e, t in enumerate(rows)])
-    sample_every = [max(1, len(t) // MAX_STAT_IMAGES) for t in rows]
-    row_in_episode = np.concatenate([np.arange(len(t)) for t in rows])
+    episode_of_row = np.concatenate([np.full(len(s), e) for e, s in enumerate(source)])
+    sample_every = [max(1, len(s) // MAX_STAT_IMAGES) for s in source]
+    row_in_episode = np.concatenate([np.arange(len(s)) for s in source])
     name, options, info_extra = _pick_encoder()
+    # SVT-AV1 logs its banner and settings (some 20 lines an encoder) unless told not to;
+    # it reads this once, when it first logs. A caller's own SVT_LOG is kept.
+    os.environ.setdefault("SVT_LOG", "1")
     decoder = av.CodecContext.create("h264", "r")
     containers: dict[str, Any] = {}
     streams: dict[str, Any] = {}
@@ -694,12 +858,18 @@ def _write_videos(
                     _no_realtime_threads()
                 e = int(episode_of_row[row])
                 if row_in_episode[row] % sample_every[e] == 0:
-                    samples[cam][e].append(_downsample(half))
+                    histograms[cam][e].add(_downsample(half))
             row += 1
+            report(LOAD_SHARE + (1 - LOAD_SHARE - FINISH_SHARE) * row / len(wanted))
+
+    def access_units() -> Iterable[bytes | None]:
+        for _, _, m in read(rec.path, [VIDEO_TOPIC]):
+            yield bytes(m["data"])
+        yield None  # the end: the decoder gives what it holds
 
     try:
         index = 0
-        for au in [*rec.video_au, None]:
+        for au in access_units():
             # Each message is one whole access unit: one packet, no parser needed.
             packet = av.Packet(au) if au is not None else None
             for frame in decoder.decode(packet):

@@ -932,7 +932,11 @@ export interface paths {
             path?: never;
             cookie?: never;
         };
-        get?: never;
+        /**
+         * Export Progress Lerobot
+         * @description How far the export of this recording has got (``running`` false when none is).
+         */
+        get: operations["export_progress_lerobot_api_v1_recordings__recording_id__export_lerobot_get"];
         put?: never;
         /**
          * Export Recording Lerobot
@@ -1542,6 +1546,33 @@ export interface components {
             export_s: number;
             /** Skipped */
             skipped: string[];
+            /**
+             * Video Fps
+             * @description the recorded video's real rate: its frames over its span (None: no video)
+             */
+            video_fps: number | null;
+            /**
+             * Repeated Frames
+             * @description rows showing the same frame as the row before
+             */
+            repeated_frames: number;
+            /** Warnings */
+            warnings: string[];
+        };
+        /** LeRobotExportProgress */
+        LeRobotExportProgress: {
+            /**
+             * Running
+             * @description this recording is being exported
+             */
+            running: boolean;
+            /**
+             * Progress
+             * @description the fraction done, 0 … 1
+             */
+            progress: number | null;
+            /** Elapsed S */
+            elapsed_s: number | null;
         };
         /** LeRobotExportRequest */
         LeRobotExportRequest: {
@@ -1550,6 +1581,12 @@ export interface components {
              * @description rows per second (default: the video's rate)
              */
             fps?: number | null;
+            /**
+             * Allow Repeated Frames
+             * @description export at an fps above the recorded video's rate (else 422: rows would repeat its frames)
+             * @default false
+             */
+            allow_repeated_frames: boolean;
         };
         /** LeaseGranted */
         LeaseGranted: {
@@ -3791,6 +3828,37 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["LeRobotExport"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    export_progress_lerobot_api_v1_recordings__recording_id__export_lerobot_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                recording_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["LeRobotExportProgress"];
                 };
             };
             /** @description Validation Error */
