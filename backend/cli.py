@@ -529,8 +529,13 @@ def main(argv: list[str] | None = None) -> int:
     move.add_argument("values", nargs="+", help="6 angles (rad) or x y z (m, robot base)")
     move.add_argument("--relative", action="store_true", help="by, not to")
     move.add_argument("--frame", choices=["base", "wrist", "tool"], help="of a relative move")
-    move.add_argument("--url", help="the server (default: TELEROBOT_URL or localhost:8000)")
-    move.add_argument("--token", help="operator token (default: the one the server keeps)")
+    # Named as for `telerobot master` and the Python client (telerobot/client.py).
+    move.add_argument("--url", help="the server (default: TELEROBOT_URL or http://localhost:8000)")
+    move.add_argument(
+        "--token",
+        help="operator token (default: TELEROBOT_OPERATOR_TOKEN, else the one the server"
+        " keeps on this machine)",
+    )
     move.add_argument("--take-over", action="store_true", help="take control from its holder")
     move.set_defaults(func=_move)
 

@@ -80,6 +80,9 @@ class Settings(BaseSettings):
     deadman_timeout_s: float = Field(0.15, gt=0, le=0.18)
     # after the dead-man stops the arm, the lease is kept this long for the link to return
     lease_grace_s: float = Field(2.0, gt=0, le=30.0)
+    # A script's client (REST: no connection of its own) is forgotten this long after its
+    # last request unless it holds the lease; a script supervising a task is gone then.
+    rest_client_idle_s: float = Field(60.0, ge=1.0, le=3600.0)
     # Commands sent longer ago than this (client clock synced to the server's) are dropped.
     max_command_age_ms: float = Field(250.0, ge=20.0, le=5000.0)
     max_speed_m_s: float = Field(0.25, gt=0, le=2.0)

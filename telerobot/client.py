@@ -9,7 +9,13 @@
 
 The lease is kept alive by a background heartbeat (every second: a scripted lease is
 kept 5 s between moves), so a script may pause between moves; every command still
-goes through the server's DecisionServer (lease, limits, dead-man, e-stop).
+goes through the server's DecisionServer (lease, limits, dead-man, e-stop). While a
+task this client started holds the lease (``start_task``), the same heartbeat keeps
+the client present as its supervisor, and the lease comes back at the task's end.
+
+The server and the token are named the same way here, in ``telerobot move`` and in
+``telerobot master``: ``TELEROBOT_URL`` (default ``http://localhost:8000``) and
+``TELEROBOT_OPERATOR_TOKEN``, else the token ``telerobot serve`` keeps on this machine.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
@@ -26,6 +33,7 @@ import httpx
 
 HEARTBEAT_S = 1.0
 DEFAULT_URL = "http://localhost:8000"
+TASK_ENDED = ("done", "stopped", "aborted")
 
 
 def stored_token() -> str | None:
@@ -196,6 +204,31 @@ class Telerobot:
     def estop(self) -> dict[str, Any]:
         result: dict[str, Any] = self._call("POST", "safety/estop")
         return result
+
+    # ------------------------------------------------------------ tasks
+    def start_task(self, recording: str, **options: Any) -> dict[str, Any]:
+        """Repeat a recording (or its ``episode=``, or ``segment=(t0, t1)``) as a task
+        on the server (``POST /api/v1/tasks``; the other options as there: ``speed``,
+        ``approach``, ``compliance``, ``force_margin_n``, ``allow_jumps``). The task
+        takes the lease for its run and hands it back at its end; this client supervises
+        it meanwhile (its heartbeat keeps it present: closing the client ends the task).
+        Returns the task's view (``id``, ``state``, ``progress``, …)."""
+        result: dict[str, Any] = self._call("POST", "tasks", {"recording": recording, **options})
+        return result
+
+    def task(self, task_id: str) -> dict[str, Any]:
+        result: dict[str, Any] = self._call("GET", f"tasks/{task_id}")
+        return result
+
+    def wait_task(self, task_id: str, *, timeout_s: float = 600.0) -> dict[str, Any]:
+        """The task's view once it has ended (``state`` done, stopped or aborted, and
+        ``reason``); TimeoutError if it runs longer than ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while (view := self.task(task_id))["state"] not in TASK_ENDED:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"task {task_id} still {view['state']} after {timeout_s:g} s")
+            time.sleep(0.2)
+        return view
 
     # ------------------------------------------------------------ reading
     def state(self) -> dict[str, Any]:

@@ -7,15 +7,16 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Request
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ClientDep, DecisionDep, OperatorDep
+from backend.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
 from backend.api.requests import StrictRequest
 from backend.control.decision import DecisionServer, NotAllowed
 from backend.control.limits import full_speed_stop_s, stopping
 from drivers.base import StopCategory, WorkingFrame
 
 # A script's client (no connection of its own) is forgotten this long after its last
-# request, unless it holds the lease.
-REST_CLIENT_IDLE_S = 60.0
+# request, unless it holds the lease (the setting rest_client_idle_s, 60 s by default):
+# a script supervising a task is gone once it is forgotten, so it keeps itself present
+# with its heartbeat.
 # A script's lease is kept this long between absolute moves (a bounded move runs to its
 # end under the server's supervision); increments get the 150 ms dead-man.
 REST_LEASE_IDLE_S = 5.0
@@ -24,7 +25,12 @@ router = APIRouter(tags=["control"])
 
 
 class LeaseRequest(StrictRequest):
-    name: str = Field("script", max_length=64)
+    name: str = Field(
+        "script",
+        max_length=64,
+        description="who is in control, as others see it; the same name from the same"
+        " address takes its own idle lease again (a script run twice)",
+    )
     force: bool = Field(False, description="take control even if another client holds it")
     idle_timeout_s: float = Field(
         REST_LEASE_IDLE_S,
@@ -176,34 +182,46 @@ def _safety(decision: DecisionDep) -> SafetyView:
 
 @router.post("/lease")
 async def take_lease(
+    request: Request,
     body: LeaseRequest,
     decision: DecisionDep,
+    settings: SettingsDep,
     token: OperatorDep,
     x_client_id: Annotated[str | None, Header()] = None,
 ) -> LeaseGranted:
     """Take control (the operator token is required). Between absolute moves the lease
     is kept ``idle_timeout_s`` without a request; while jogging (incremental moves) keep
     it with a heartbeat or a command at least every dead-man timeout (150 ms). A move
-    waiting with ``wait`` counts as alive."""
+    waiting with ``wait`` counts as alive. Release it with ``DELETE /lease`` when done.
+    A script run again (the same ``name`` from the same address) takes its earlier
+    run's lease while that is idle, without ``force``; anyone else needs ``force``."""
     client = (
         decision.client(x_client_id)
         if x_client_id
         else decision.join(
             body.name,
             token,
-            idle_expiry_s=max(REST_CLIENT_IDLE_S, body.idle_timeout_s),
+            idle_expiry_s=max(settings.rest_client_idle_s, body.idle_timeout_s),
             lease_idle_s=body.idle_timeout_s,
             source="rest",
+            address=request.client.host if request.client else "",
         )
     )
-    await decision.take_lease(client.id, force=body.force)
+    try:
+        await decision.take_lease(client.id, force=body.force)
+    except NotAllowed:
+        if not x_client_id:  # refused: this request's client is not kept
+            await decision.leave(client.id)
+        raise
     return LeaseGranted(client_id=client.id)
 
 
 @router.post("/lease/heartbeat")
 async def heartbeat(client: ClientDep, decision: DecisionDep) -> SafetyView:
-    if decision.lease_holder != client.id:
-        raise NotAllowed("you do not hold the lease (it may have lapsed: take it again)")
+    """Keep the lease you hold; or, while a task you started holds it, keep yourself
+    present as that task's supervisor (a script gone ``rest_client_idle_s`` stops its
+    task). Anyone else gets 403."""
+    decision.heartbeat(client.id)
     return _safety(decision)
 
 

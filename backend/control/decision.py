@@ -129,6 +129,10 @@ class Client:
     # RESUME flag); None: not resumable. Its generation counts the connections so far.
     resume_key: str | None = field(default=None, repr=False)
     generation: int = 0
+    address: str = ""  # the host it joined from (a script's: who may take its idle lease again)
+    # A task's client: the operator it runs for. That operator supervises it, and its
+    # heartbeats keep it present while the task holds the lease in its place.
+    on_behalf_of: str | None = None
 
 
 @dataclass(frozen=True)
@@ -330,6 +334,8 @@ class DecisionServer:
         source: str = "ws",
         synced_clock: bool = False,
         resumable: bool = False,
+        address: str = "",
+        on_behalf_of: str | None = None,
     ) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
         if len(self._clients) >= self.max_clients:
@@ -348,6 +354,8 @@ class DecisionServer:
             source=source,
             synced_clock=synced_clock,
             resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES) if resumable else None,
+            address=address,
+            on_behalf_of=on_behalf_of,
         )
         self._clients[client.id] = client
         return client
@@ -396,6 +404,23 @@ class DecisionServer:
         """A heartbeat: any message from a client counts as one."""
         self._heard(self.client(client_id))
 
+    def heartbeat(self, client_id: str) -> None:
+        """A script's sign of life (``POST /lease/heartbeat``). It keeps the lease its
+        client holds; and a client whose task holds the lease in its place (it
+        supervises that task) stays present by it, so a script's keep-alive goes on
+        while its task runs: its presence, not the lease, is what the task's guard
+        checks. Anyone else is told the lease is not theirs."""
+        client = self.client(client_id)
+        self._heard(client)
+        if self._lease == client_id or self.supervises_holder(client_id):
+            return
+        raise NotAllowed("you do not hold the lease (it may have lapsed: take it again)")
+
+    def supervises_holder(self, client_id: str) -> bool:
+        """Whether the lease is held by a task running for ``client_id``."""
+        holder = self._clients.get(self._lease) if self._lease else None
+        return holder is not None and holder.on_behalf_of == client_id
+
     def _heard(self, client: Client) -> None:
         client.last_seen = self.clock.now()
         if self._halted and client.id == self._lease:
@@ -420,19 +445,51 @@ class DecisionServer:
             return
         if self._lease is not None:
             holder = self._clients[self._lease]
-            if not force:
+            again = self._runs_again(client, holder)
+            if not force and not again:
                 raise NotAllowed(
-                    f"{holder.name!r} has control; take it over explicitly (force) if you must"
+                    f"{holder.name!r} has control{self._lapses_in(holder)}; take it over"
+                    " explicitly (force) if you must"
                 )
             log.warning("%s takes control from %s", client.name, holder.name)
             await self.robot.stop()
-            self._lease_note = f"taken over by {client.name!r}"
+            self._lease_note = (
+                f"taken again by {client.name!r} from {client.address} (the same script, "
+                "run again while its earlier run's lease was idle)"
+                if again and not force
+                else f"taken over by {client.name!r}"
+            )
         else:
             self._lease_note = f"taken by {client.name!r}"
         self._lease = client_id
         self._halted = False
         client.last_command_at = None
         self._changed_lease()
+
+    @staticmethod
+    def _runs_again(client: Client, holder: Client) -> bool:
+        """A script run again takes its earlier run's lease without ``force``: the holder
+        is a script's lease (no connection of its own) with the same name, taken from
+        the same address, with no request in flight. A script that ended without
+        releasing its lease (a crash, Ctrl-C, a shell block run twice) would otherwise
+        be refused by itself until the lease's idle timeout. Anyone else still needs
+        ``force``."""
+        return (
+            holder.id != client.id
+            and holder.source == client.source == "rest"
+            and holder.idle_expiry_s is not None
+            and holder.name == client.name
+            and holder.address != ""
+            and holder.address == client.address
+            and holder.busy == 0
+        )
+
+    def _lapses_in(self, holder: Client) -> str:
+        """When an idle script's lease lapses by itself, said in a refusal."""
+        if holder.lease_idle_s is None or holder.streaming or holder.busy:
+            return ""
+        left = holder.lease_idle_s - (self.clock.now() - holder.last_seen)
+        return f" (a script's lease: it lapses in {max(left, 0.0):.1f} s without a request)"
 
     @reported("lease", action="release")
     async def release_lease(self, client_id: str) -> None:

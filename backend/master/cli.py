@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import signal
 import sys
 import threading
@@ -18,6 +17,7 @@ from backend.master.bridge import BridgeSettings, MasterBridge
 from backend.master.link import PriorityLink
 from drivers.base import FloatArray, MasterArm, TelerobotError
 from drivers.registry import driver_names, load_driver
+from telerobot.client import local_url, stored_token
 
 
 def demo_hand(t: float) -> tuple[FloatArray, bool]:
@@ -29,8 +29,19 @@ def demo_hand(t: float) -> tuple[FloatArray, bool]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--server", default="http://localhost:8000/", help="the server's URL")
-    p.add_argument("--token", help="operator token (default: $TELEROBOT_OPERATOR_TOKEN)")
+    # The server and the token are named as for `telerobot move` and the Python client.
+    p.add_argument(
+        "--url",
+        "--server",
+        dest="server",
+        help="the server (default: TELEROBOT_URL or http://localhost:8000); the bridge asks"
+        " it where its priority channel listens",
+    )
+    p.add_argument(
+        "--token",
+        help="operator token (default: TELEROBOT_OPERATOR_TOKEN, else the one the server"
+        " keeps on this machine; none: watch only)",
+    )
     p.add_argument(
         "--device",
         default="sim",
@@ -154,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
     from backend.tuning import tune_for_realtime
 
     tune_for_realtime()  # a short GIL switch interval: the reader thread gets each sample at once
-    token = args.token or os.environ.get("TELEROBOT_OPERATOR_TOKEN", "")
+    args.server = args.server or local_url()
+    token = args.token or stored_token() or ""
     if args.device.endswith("-leader"):
         return run_leader(args, token)
     try:
