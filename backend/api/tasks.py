@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
+import numpy as np
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, Field
 
@@ -18,8 +19,9 @@ from backend.api.deps import ClientDep, DecisionDep, ServicesDep
 from backend.api.requests import StrictRequest
 from backend.recording.recorder import Recorder, RecordingError
 from backend.security import bearer
+from backend.tasks.approach import ApproachPlan
 from backend.tasks.compliance import ComplianceSettings
-from backend.tasks.runner import Task, TaskRunner, TaskSpec
+from backend.tasks.runner import START_TOLERANCE_M, START_TOLERANCE_RAD, Task, TaskRunner, TaskSpec
 from backend.tasks.source_reader import PathPreview
 from backend.tasks.trajectory import Trajectory
 from drivers.base import InvalidCommand
@@ -66,7 +68,9 @@ class StartTask(TaskSource):
         15.0, ge=0.5, le=200, description="stop on a force this much above the taught one"
     )
     approach: bool = Field(
-        False, description="the operator confirms a guarded move to the first pose first"
+        False,
+        description="the operator confirms the approach: a slow joint move to the first pose "
+        "first (its way: POST /tasks/preview, approach)",
     )
     allow_jumps: bool | None = Field(
         None,
@@ -95,13 +99,38 @@ class TaskPath(BaseModel):
     id: str
     positions: list[tuple[float, float, float]]  # base frame, metres, at most 400
     forces_n: list[float]  # the recorded force's magnitude at each
+    start_distance_m: float = Field(
+        description="how far the tool is from the first pose (a task's: when it started)"
+    )
+    start_angle_rad: float
+    approach: list[tuple[float, float, float]] = Field(
+        description="the tool's way from where it is to the first pose, base frame, metres, "
+        "at most 100: the approach, a joint move (empty: it starts there, or it cannot go)"
+    )
+    approach_refused: str = Field(
+        description="why the tool cannot approach the first pose from where it is ('' if it can)"
+    )
 
 
-def _path(task_id: str, preview: PathPreview) -> TaskPath:
+def _points(a: np.ndarray) -> list[tuple[float, float, float]]:
+    return [(float(x), float(y), float(z)) for x, y, z in a.tolist()]
+
+
+def _path(
+    task_id: str,
+    preview: PathPreview,
+    start: tuple[float, float],
+    approach: ApproachPlan | None,
+    refused: str = "",
+) -> TaskPath:
     return TaskPath(
         id=task_id,
-        positions=[(float(a), float(b), float(c)) for a, b, c in preview.positions.tolist()],
+        positions=_points(preview.positions),
         forces_n=preview.forces_n.tolist(),
+        start_distance_m=start[0],
+        start_angle_rad=start[1],
+        approach=[] if approach is None else _points(approach.positions),
+        approach_refused=refused,
     )
 
 
@@ -190,7 +219,16 @@ async def preview_task(
     preview = await runner.sources.preview(
         path, body.episode, body.segment, operator=operator, address=address
     )
-    return _path("preview", preview)
+    # The approach from where the arm is now, as POST /tasks would plan it.
+    p0, R0 = preview.positions[0], preview.start_rotation
+    distance, angle = runner.distance_to(p0, R0)
+    plan, refused = None, ""
+    if distance > START_TOLERANCE_M or angle > START_TOLERANCE_RAD:
+        try:
+            plan = runner.plan_approach(p0, R0)
+        except InvalidCommand as exc:
+            refused = str(exc)
+    return _path("preview", preview, (distance, angle), plan, refused)
 
 
 @router.get("/{task_id}")
@@ -202,7 +240,7 @@ async def get_task(task_id: str, runner: RunnerDep) -> TaskView:
 async def task_path(task_id: str, runner: RunnerDep) -> TaskPath:
     """The path the task follows, for the page's ghost of it."""
     task = runner.get(task_id)
-    return _path(task.id, PathPreview.of(task.spec.trajectory))
+    return _path(task.id, PathPreview.of(task.spec.trajectory), task.start_offset, task.approach)
 
 
 @router.post("/{task_id}/pause")

@@ -12,16 +12,15 @@ loop is stopped by the dead-man like a silent operator. The operator takes contr
 back at any time by taking the lease (the task stops: lease loss), and when the task
 ends the lease is handed back to the operator who started it. Running the task under
 the operator's own lease instead would mix two loops' heartbeats in one client, so a
-dead page could not be told from a live task. The operator stays present by its own
-connection (a page) or its heartbeats (a script: ``POST /lease/heartbeat`` is taken
-from the supervisor of the task holding the lease), whether or not it holds the lease.
+dead page could not be told from a live task.
 
 **Guards**, checked every period before moving: the e-stop, lease loss, the force
 limit (the DecisionServer's), the supervising operator gone (its connection closed),
 and a contact force stronger than the one recorded at that point by more than
 ``force_margin_n`` (an obstacle the recording did not have). A task starts only within
 ``start_tolerance_m`` of its first pose, or with ``approach`` (the operator's
-confirmation), after a slow guarded move there.
+confirmation), after a slow guarded move there: a move in joints along the line to the
+first pose's joints, checked before it starts (``approach.py``).
 
 **Compliance**: the admittance offset (``compliance.py``) is added to each commanded
 position along the chosen axes.
@@ -55,6 +54,7 @@ import numpy as np
 import pinocchio as pin
 
 from backend.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
+from backend.tasks.approach import ApproachPlan, approach_step, plan_approach
 from backend.tasks.compliance import Admittance, ComplianceSettings
 from backend.tasks.source_reader import SourceReader
 from backend.tasks.trajectory import Trajectory
@@ -78,6 +78,9 @@ TRACE_LIMIT = 60_000  # periods traced per task (20 min at 50 Hz)
 # millimetres; a jump is a pose far from the one before it.
 JUMP_LAG_M = 0.02
 JUMP_LAG_RAD = math.radians(10.0)
+# A task starts within this of its first pose (else it needs an approach).
+START_TOLERANCE_M = 0.005
+START_TOLERANCE_RAD = math.radians(3.0)
 
 
 class TaskBusy(TelerobotError):
@@ -91,6 +94,12 @@ class PathJumps(InvalidCommand):
     """The recorded path has a stretch the arm cannot follow at the taught pace."""
 
     code = "path_jumps"
+
+
+class AwayFromStart(InvalidCommand):
+    """The tool is away from the task's first pose and no approach was confirmed."""
+
+    code = "away_from_start"
 
 
 class UnknownTask(TelerobotError):
@@ -119,9 +128,11 @@ class TaskSpec:
     force_margin_n: float | None = 15.0  # None: no unexpected-contact guard
     approach: bool = False  # the operator confirms a guarded move to the first pose
     allow_jumps: bool = False  # the operator confirms the path's jumps, crossed at the limit
-    start_tolerance_m: float = 0.005
-    start_tolerance_rad: float = math.radians(3.0)
+    start_tolerance_m: float = START_TOLERANCE_M
+    start_tolerance_rad: float = START_TOLERANCE_RAD
+    # The approach's pace: the tool's speed, and the joints' (each within the arm's).
     approach_speed_m_s: float = 0.02
+    approach_joint_speed_rad_s: float = 0.2
     # At the end, the tool within this of the path's last pose: done (else stopped).
     end_tolerance_m: float = 0.005
     end_tolerance_rad: float = math.radians(3.0)
@@ -183,6 +194,8 @@ class Task:
     recorded_n: float = 0.0
     peak_force_n: float = 0.0
     admittance: Admittance | None = None
+    approach: ApproachPlan | None = None  # the joint move to the first pose, if it needs one
+    start_offset: tuple[float, float] = (0.0, 0.0)  # the tool from the first pose at start, m, rad
     gap_m: float = 0.0  # how far the commanded target was from the path's point
     gap_rad: float = 0.0
     held_gap: float = math.inf  # the smallest gap while the path's clock waits…
@@ -258,10 +271,37 @@ class TaskRunner:
 
     def distance_to_start(self, trajectory: Trajectory) -> tuple[float, float]:
         """How far the arm's tool is from the trajectory's first pose (m, rad)."""
-        pose = self.decision.robot.pose
         p0, R0, _ = trajectory.at(0.0)
-        angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ R0)))
-        return float(np.linalg.norm(pose.position - p0)), angle
+        return self.distance_to(p0, R0)
+
+    def distance_to(self, position: FloatArray, rotation: FloatArray) -> tuple[float, float]:
+        """How far the arm's tool is from the pose (m, rad)."""
+        pose = self.decision.robot.pose
+        angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ rotation)))
+        return float(np.linalg.norm(pose.position - position)), angle
+
+    def plan_approach(
+        self,
+        position: FloatArray,
+        rotation: FloatArray,
+        *,
+        tolerance_m: float = START_TOLERANCE_M,
+        tolerance_rad: float = START_TOLERANCE_RAD,
+    ) -> ApproachPlan:
+        """The joint move from the arm's commanded joints to the tool pose (a task's
+        first pose), checked (``approach.plan_approach``); InvalidCommand if none."""
+        decision = self.decision
+        return plan_approach(
+            decision.kinematics,
+            decision.limits,
+            decision.robot.target_joints,
+            position,
+            rotation,
+            # The approach hands over to the path at half the start's tolerance: its goal
+            # must be well within that (a 5-joint arm meets an orientation nearly).
+            tolerance_m=tolerance_m / 4,
+            tolerance_rad=tolerance_rad / 4,
+        )
 
     # ------------------------------------------------------------ control
     async def start(self, spec: TaskSpec, supervisor_id: str) -> Task:
@@ -286,18 +326,21 @@ class TaskRunner:
         distance, angle = self.distance_to_start(spec.trajectory)
         near = distance <= spec.start_tolerance_m and angle <= spec.start_tolerance_rad
         if not near and not spec.approach:
-            raise InvalidCommand(
+            raise AwayFromStart(
                 f"the tool is {distance * 1000:.1f} mm / {math.degrees(angle):.1f}° from the "
                 f"task's first pose (it starts within {spec.start_tolerance_m * 1000:.0f} mm / "
-                f"{math.degrees(spec.start_tolerance_rad):.0f}°): move there, or confirm a "
-                "guarded approach move (approach: true)"
+                f"{math.degrees(spec.start_tolerance_rad):.0f}°): move there, or confirm the "
+                "approach (approach: true), a slow joint move there (its way: POST "
+                "/tasks/preview, approach)"
+            )
+        plan = None
+        if not near:  # checked before the lease changes hands: a refusal moves nothing
+            p0, R0, _ = spec.trajectory.at(0.0)
+            plan = self.plan_approach(
+                p0, R0, tolerance_m=spec.start_tolerance_m, tolerance_rad=spec.start_tolerance_rad
             )
         task_id = str(next(self._ids))
-        # Run for its supervisor: its heartbeats keep it present while the task holds
-        # the lease (a script's keep-alive goes on; DecisionServer.heartbeat).
-        client = decision.join(
-            f"task {task_id}", self._token, source="task", on_behalf_of=supervisor_id
-        )
+        client = decision.join(f"task {task_id}", self._token, source="task")
         try:
             await decision.take_lease(client.id, force=True)
         except TelerobotError:
@@ -311,6 +354,8 @@ class TaskRunner:
             client_id=client.id,
             state=TaskState.RUNNING if near else TaskState.APPROACHING,
             admittance=Admittance(spec.compliance) if spec.compliance else None,
+            approach=plan,
+            start_offset=(distance, angle),
         )
         self._remember(task)
         log.info("task %s starts (%s) for %s", task_id, spec.trajectory.source, supervisor.name)
@@ -424,11 +469,7 @@ class TaskRunner:
         try:
             decision.client(task.supervisor_id)
         except NotAllowed:
-            return (
-                f"the supervising operator {task.supervisor_name!r} disconnected (a page:"
-                " its connection closed; a script: it released its lease, or sent no"
-                " request or heartbeat for the server's rest_client_idle_s)"
-            )
+            return f"the supervising operator {task.supervisor_name!r} disconnected"
         return None
 
     def _short_of_end(self, task: Task, arrived: bool) -> str:
@@ -491,13 +532,8 @@ class TaskRunner:
         task.force_n = float(np.linalg.norm(measured))
         task.peak_force_n = max(task.peak_force_n, task.force_n)
         if task.state is TaskState.APPROACHING:
-            p0, R0, _ = traj.at(0.0)
             self._check_margin(task, traj.peak_force_near(0.0, spec.margin_window_s))
-            await self._command_towards(task, p0, R0, spec.approach_speed_m_s * dt)
-            distance, angle = self.distance_to_start(traj)
-            if distance <= spec.start_tolerance_m / 2 and angle <= spec.start_tolerance_rad / 2:
-                task.state = TaskState.RUNNING
-                self._changed(task)
+            await self._approach(task, dt)
             return False
         if task.state is TaskState.RUNNING:
             self._advance(task, dt)
@@ -519,6 +555,42 @@ class TaskRunner:
         )
         await self._command_towards(task, p, R, None)
         return task.s >= traj.duration and not self._behind(task)
+
+    async def _approach(self, task: Task, dt: float) -> None:
+        """One period of the approach: a joint increment along the line to the first
+        pose's joints (the DecisionServer's checks, as every joint jog), then RUNNING
+        once the tool is within half the start's tolerance. An arm that gets no nearer
+        for ``stall_s`` stops the task, saying how far it still was."""
+        spec, plan, decision = task.spec, task.approach, self.decision
+        assert plan is not None  # APPROACHING only with a plan (start)
+        lim = decision.limits
+        dq = approach_step(
+            decision.kinematics,
+            decision.robot.target_joints,
+            plan.goal,
+            dt,
+            joint_speed_rad_s=min(spec.approach_joint_speed_rad_s, lim.max_joint_speed_rad_s),
+            tool_speed_m_s=min(spec.approach_speed_m_s, lim.max_speed_m_s),
+            max_step_rad=lim.max_joint_step_rad * 0.99,
+        )
+        await decision.joint_increment(task.client_id, dq)
+        distance, angle = self.distance_to_start(spec.trajectory)
+        if distance <= spec.start_tolerance_m / 2 and angle <= spec.start_tolerance_rad / 2:
+            task.state = TaskState.RUNNING
+            task.held_gap, task.held_since = math.inf, None
+            self._changed(task)
+            return
+        # The measured joints' way still to go: it shrinks while the arm follows.
+        gap = float(np.max(np.abs(plan.goal - decision.robot.joints)))
+        now = self.clock.now()
+        if task.held_since is None or gap < task.held_gap - math.radians(0.1):
+            task.held_gap, task.held_since = gap, now
+        elif now - task.held_since > spec.stall_s:
+            raise SafetyStop(
+                f"the arm did not follow the approach: still {distance * 1000:.0f} mm / "
+                f"{math.degrees(angle):.1f}° from the task's first pose (a joint "
+                f"{math.degrees(gap):.1f}° from it), and no nearer for {spec.stall_s:g} s"
+            )
 
     @staticmethod
     def _behind(task: Task) -> bool:

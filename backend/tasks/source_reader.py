@@ -72,6 +72,7 @@ class PathPreview:
 
     positions: FloatArray  # (k, 3) m, base frame
     forces_n: FloatArray  # (k,)
+    start_rotation: FloatArray  # (3, 3) the tool's at the first pose (for the approach)
 
     @classmethod
     def of(cls, traj: Trajectory, max_points: int = PREVIEW_POINTS) -> PathPreview:
@@ -79,7 +80,11 @@ class PathPreview:
         idx = list(range(0, len(traj), step))
         if idx[-1] != len(traj) - 1:
             idx.append(len(traj) - 1)
-        return cls(traj.positions[idx].copy(), np.linalg.norm(traj.forces[idx], axis=1))
+        return cls(
+            traj.positions[idx].copy(),
+            np.linalg.norm(traj.forces[idx], axis=1),
+            traj.rotations[0].copy(),
+        )
 
 
 Key = tuple[str, int, int, int | None, tuple[float, float] | None]

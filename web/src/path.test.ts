@@ -125,4 +125,38 @@ describe("the path overlay", () => {
     expect(calls.filter((c) => c === "closePath")).toHaveLength(1); // the arrowhead
     expect(calls.filter((c) => c === "fill")).toHaveLength(2);
   });
+
+  it("leads in with the approach, dashed, from the tool to the path's start (issue 27)", () => {
+    const calls: string[] = [];
+    const ctx = new Proxy(
+      {},
+      {
+        get: (_t, name: string) => (name === "save" || name === "restore" || typeof name !== "string" ? () => undefined : (..._args: unknown[]) => calls.push(name)),
+        set: () => true,
+      },
+    ) as unknown as CanvasRenderingContext2D;
+    const h = host();
+    const path = new PathOverlay(cams, h);
+    const lead: Vec3[] = [
+      [0.05, 0, 0.01],
+      [0.02, 0, 0.005],
+      [0, 0, 0],
+    ];
+    path.show(A, lead);
+    expect(path.approach).toEqual(lead);
+    expect(path.approachPixels[0]).toHaveLength(3);
+    expect(path.approachPixels[0][0]![0]).toBeCloseTo(325);
+    path.paint(ctx, 0, { width: 640, height: 480 });
+    expect(calls.filter((c) => c === "stroke")).toHaveLength(4); // the approach's two, the path's two
+    expect(calls.filter((c) => c === "setLineDash")).toHaveLength(2); // dashed, then solid again
+    path.show(A, lead); // the same: no redraw
+    expect(h.changed).toBe(1);
+    path.show(A); // the same path from its start: the approach goes
+    expect(h.changed).toBe(2);
+    expect(path.approachPixels).toEqual([[], []]);
+    path.show(A, lead);
+    path.clear();
+    expect(path.approach).toEqual([]);
+    expect(path.approachPixels).toEqual([[], []]);
+  });
 });

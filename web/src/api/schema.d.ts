@@ -196,9 +196,7 @@ export interface paths {
          * @description Take control (the operator token is required). Between absolute moves the lease
          *     is kept ``idle_timeout_s`` without a request; while jogging (incremental moves) keep
          *     it with a heartbeat or a command at least every dead-man timeout (150 ms). A move
-         *     waiting with ``wait`` counts as alive. Release it with ``DELETE /lease`` when done.
-         *     A script run again (the same ``name`` from the same address) takes its earlier
-         *     run's lease while that is idle, without ``force``; anyone else needs ``force``.
+         *     waiting with ``wait`` counts as alive.
          */
         post: operations["take_lease_api_v1_lease_post"];
         /** Release Lease */
@@ -217,12 +215,7 @@ export interface paths {
         };
         get?: never;
         put?: never;
-        /**
-         * Heartbeat
-         * @description Keep the lease you hold; or, while a task you started holds it, keep yourself
-         *     present as that task's supervisor (a script gone ``rest_client_idle_s`` stops its
-         *     task). Anyone else gets 403.
-         */
+        /** Heartbeat */
         post: operations["heartbeat_api_v1_lease_heartbeat_post"];
         delete?: never;
         options?: never;
@@ -1607,7 +1600,6 @@ export interface components {
         LeaseRequest: {
             /**
              * Name
-             * @description who is in control, as others see it; the same name from the same address takes its own idle lease again (a script run twice)
              * @default script
              */
             name: string;
@@ -2023,7 +2015,7 @@ export interface components {
             force_margin_n: number | null;
             /**
              * Approach
-             * @description the operator confirms a guarded move to the first pose first
+             * @description the operator confirms the approach: a slow joint move to the first pose first (its way: POST /tasks/preview, approach)
              * @default false
              */
             approach: boolean;
@@ -2096,6 +2088,27 @@ export interface components {
             ][];
             /** Forces N */
             forces_n: number[];
+            /**
+             * Start Distance M
+             * @description how far the tool is from the first pose (a task's: when it started)
+             */
+            start_distance_m: number;
+            /** Start Angle Rad */
+            start_angle_rad: number;
+            /**
+             * Approach
+             * @description the tool's way from where it is to the first pose, base frame, metres, at most 100: the approach, a joint move (empty: it starts there, or it cannot go)
+             */
+            approach: [
+                number,
+                number,
+                number
+            ][];
+            /**
+             * Approach Refused
+             * @description why the tool cannot approach the first pose from where it is ('' if it can)
+             */
+            approach_refused: string;
         };
         /** TaskSource */
         TaskSource: {

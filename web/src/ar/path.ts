@@ -2,6 +2,8 @@
 // eyes' video as a cyan polyline, a dot at its start and an arrowhead at its end, so the
 // operator sees where a repeated motion will take the arm before it runs. Projected with
 // each camera's P like the ghost arm; the overlay is redrawn only when the path changes.
+// When the tool is away from the path's start, the approach (issue 27: a slow joint move
+// there, from POST /tasks/preview) leads in dashed amber from the tool to the cyan start.
 import type { Vec3 } from "../robot/math";
 import { tracePolyline, type Eye, type EyeSize, type OverlayPainter } from "../view/overlay";
 import type { OverlayHost } from "./axes";
@@ -10,6 +12,8 @@ import { project, type Projection } from "./projection";
 
 export type Pixel = [number, number] | null; // null: behind the camera
 export const PATH_RGB = [0, 255, 255] as const;
+export const APPROACH_RGB = [255, 190, 0] as const;
+const APPROACH_DASH = [10, 8]; // camera pixels
 const LINE_WIDTH = 4; // camera pixels
 const START_RADIUS = 6;
 const END_RADIUS = 4;
@@ -66,6 +70,10 @@ export class PathOverlay implements OverlayPainter {
   readonly pixels: [Pixel[], Pixel[]] = [[], []];
   /** The path shown (base frame), or null. */
   points: Vec3[] | null = null;
+  /** The approach to its start shown (base frame; empty: none). */
+  approach: Vec3[] = [];
+  /** The approach as drawn, in the left and the right camera's pixels. */
+  readonly approachPixels: [Pixel[], Pixel[]] = [[], []];
   private P: [Projection, Projection] | null = null;
 
   /** `cameras`: the left camera's, then the right's; `host`: the stereo view. */
@@ -89,13 +97,18 @@ export class PathOverlay implements OverlayPainter {
     return this.points !== null && this.points.length > 0;
   }
 
-  /** Show `points` (base frame, m); the overlay is redrawn only if they differ from what is shown. */
-  show(points: readonly Vec3[]): void {
+  /** Show `points` (base frame, m), led into by `approach` (the tool's way to their
+   * start; none by default); the overlay is redrawn only if they differ from what is shown. */
+  show(points: readonly Vec3[], approach: readonly Vec3[] = []): void {
     const next = points.map((p) => [p[0], p[1], p[2]] as Vec3);
-    if (this.points && samePoints(this.points, next)) return;
+    const lead = approach.map((p) => [p[0], p[1], p[2]] as Vec3);
+    if (this.points && samePoints(this.points, next) && samePoints(this.approach, lead)) return;
     this.points = next;
-    this.pixels[0] = this.P ? projectPath(this.P[0], next) : [];
-    this.pixels[1] = this.P ? projectPath(this.P[1], next) : [];
+    this.approach = lead;
+    for (const eye of [0, 1] as const) {
+      this.pixels[eye] = this.P ? projectPath(this.P[eye], next) : [];
+      this.approachPixels[eye] = this.P ? projectPath(this.P[eye], lead) : [];
+    }
     this.host?.overlayChanged();
   }
 
@@ -103,8 +116,11 @@ export class PathOverlay implements OverlayPainter {
   clear(): void {
     if (this.points === null) return;
     this.points = null;
+    this.approach = [];
     this.pixels[0] = [];
     this.pixels[1] = [];
+    this.approachPixels[0] = [];
+    this.approachPixels[1] = [];
     this.host?.overlayChanged();
   }
 
@@ -117,6 +133,23 @@ export class PathOverlay implements OverlayPainter {
     ctx.save();
     ctx.lineCap = "round";
     ctx.lineJoin = "round";
+    const lead = this.approachPixels[eye];
+    if (lead.length > 1) {
+      // The approach first, dashed, so the path's cyan start dot stays on top of its end.
+      const [ar, ag, ab] = APPROACH_RGB;
+      ctx.setLineDash(APPROACH_DASH.map((d) => d * scale));
+      for (const [style, width] of [
+        ["rgba(0, 0, 0, 0.5)", (LINE_WIDTH + 1) * scale],
+        [`rgb(${ar}, ${ag}, ${ab})`, (LINE_WIDTH - 1) * scale],
+      ] as const) {
+        ctx.strokeStyle = style;
+        ctx.lineWidth = width;
+        ctx.beginPath();
+        tracePolyline(ctx, lead);
+        ctx.stroke();
+      }
+      ctx.setLineDash([]);
+    }
     // A dark outline under the cyan line, so it reads on a bright background.
     for (const [style, width] of [
       ["rgba(0, 0, 0, 0.5)", (LINE_WIDTH + 3) * scale],

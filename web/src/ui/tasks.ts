@@ -2,10 +2,12 @@
 // recording and one of its episodes, the speed and the compliance; "Preview path" shows
 // the episode's tool path over both eyes (the server's trajectory for it, before it
 // runs: POST /tasks/preview); "Run" starts it with this page's
-// lease (the task takes it over and hands it back at its end); a start far from the
-// first pose is refused and "Approach first" offers the guarded move, after a confirm.
+// lease (the task takes it over and hands it back at its end). A refused Run says the
+// server's reason in the panel; when the reason is the distance to the first pose,
+// "Approach first" offers the approach (a slow joint move there, drawn dashed amber
+// before the path), after a confirm; when it cannot be pressed, it says why.
 // While it runs: progress, state, Pause/Resume/Abort, polled at 4 Hz; the reason when it stops.
-import type { Api, MessageLog, Schema } from "../api";
+import { ApiError, type Api, type MessageLog, type Problem, type Schema } from "../api";
 import { pathLength, type PathOverlay } from "../ar/path";
 import type { Vec3 } from "../robot/math";
 import { StateFlags } from "../transport/messages";
@@ -14,7 +16,10 @@ export const TASK_POLL_MS = 250;
 /** After a task ends, how long the lease's return may lag behind its state here. */
 export const HAND_BACK_MS = 3000;
 type TaskView = Schema<"TaskView">;
+type TaskPath = Schema<"TaskPath">;
 type Recording = Schema<"RecordingEntry">;
+/** The server's problem type for a start refused by the distance to the first pose. */
+export const AWAY_FROM_START = "urn:telerobot:error:away_from_start";
 const FINISHED = new Set<TaskView["state"]>(["done", "stopped", "aborted"]);
 
 export interface TaskSources {
@@ -33,9 +38,47 @@ export function finishedText(view: Pick<TaskView, "state" | "reason">): string {
   return view.reason ? `${view.state}: ${view.reason}` : view.state;
 }
 
-/** A start refused because the tool is away from the task's first pose. */
-export function farFromStart(message: string): boolean {
-  return /first pose/.test(message);
+/** A start refused because the tool is away from the task's first pose (the server's
+ * problem type, not its words). */
+export function farFromStart(error: unknown): boolean {
+  const problem = error instanceof ApiError ? (error.problem as Problem | undefined) : undefined;
+  return typeof problem === "object" && problem !== null && problem.type === AWAY_FROM_START;
+}
+
+/** Why this page cannot start a task now ("" when it can). */
+export function whyNotRun(p: { chosen: boolean; operator: boolean; control: boolean; underWay: boolean; starting: boolean }): string {
+  if (!p.chosen) return "choose a recording and an episode";
+  if (!p.operator) return "this page has no operator token (open it with ?token=…)";
+  if (!p.control) return "take control first (a task starts on this page's lease)";
+  if (p.underWay) return "a task is under way";
+  if (p.starting) return "starting…";
+  return "";
+}
+
+/** What the panel shows after Run was refused: the server's reason in its words, and
+ * "Approach first" (null: not offered) when the reason is the distance to the first pose,
+ * enabled when a task could start now, else saying why not (`blocked`, from whyNotRun). */
+export function refusalView(reason: string, awayFromStart: boolean, blocked: string): { text: string; approach: { disabled: boolean; title: string } | null } {
+  const text = `Run refused: ${reason}`;
+  if (!awayFromStart) return { text, approach: null };
+  if (blocked) return { text: `${text} — to approach it: ${blocked}`, approach: { disabled: true, title: `Approach first: ${blocked}` } };
+  return { text, approach: { disabled: false, title: "Move the tool to the task's first pose (a slow joint move, dashed amber), then run the task" } };
+}
+
+/** What the operator confirms before the approach: how far, and how the arm gets there
+ * (from the preview's figures when there are some, else the server's reason). */
+export function approachQuestion(start: Pick<TaskPath, "start_distance_m" | "start_angle_rad"> | null, reason: string): string {
+  const far = start ? `The tool is ${(start.start_distance_m * 1000).toFixed(1)} mm / ${((start.start_angle_rad * 180) / Math.PI).toFixed(1)}° from the task's first pose.` : `${reason.charAt(0).toUpperCase()}${reason.slice(1)}.`;
+  return `${far} Move it there first — a slow joint move, shown dashed amber — then run the task?`;
+}
+
+/** The log's line for a preview: the path's length, and where the tool is from its start. */
+export function previewText(episode: number, points: readonly Vec3[], preview: Pick<TaskPath, "start_distance_m" | "start_angle_rad" | "approach" | "approach_refused">): string {
+  const line = `task path: episode ${episode}, ${(pathLength(points) * 100).toFixed(1)} cm (cyan)`;
+  if (preview.approach_refused) return `${line}; the tool cannot approach its start: ${preview.approach_refused}`;
+  if (preview.approach.length === 0) return line;
+  const far = `${(preview.start_distance_m * 1000).toFixed(0)} mm / ${((preview.start_angle_rad * 180) / Math.PI).toFixed(1)}°`;
+  return `${line}; the tool is ${far} from its start: the approach, a joint move, dashed amber`;
 }
 
 function el<K extends keyof HTMLElementTagNameMap>(tag: K, props: Partial<HTMLElementTagNameMap[K]> = {}, ...children: (Node | string)[]): HTMLElementTagNameMap[K] {
@@ -67,6 +110,10 @@ export class TasksPanel {
   private readonly reason = el("div", { id: "task-reason", className: "hint" });
   private polling = false;
   private starting = false;
+  /** The last refused Run (null: none since), and whether it was the distance to the start. */
+  refusal: { reason: string; away: boolean } | null = null;
+  /** The last preview's figures: how far the tool was from the path's start. */
+  private start: TaskPath | null = null;
   private finishedAt = -Infinity; // when this page saw its task end (performance.now())
 
   constructor(
@@ -84,14 +131,14 @@ export class TasksPanel {
     );
     this.speed.oninput = () => (this.speedValue.textContent = Number(this.speed.value).toFixed(2));
     this.recording.onchange = () => this.fillEpisodes();
-    this.episode.onchange = () => this.src.path.clear(); // the shown path was another episode's
+    this.episode.onchange = () => this.forget(); // the shown path was another episode's
     this.refreshButton.onclick = () => void this.load();
     this.previewButton.onclick = () => void this.preview();
     this.clearButton.onclick = () => this.src.path.clear();
     this.runButton.onclick = () => void this.run(false);
     this.approachButton.onclick = () => {
       const ask = this.src.confirm ?? ((text: string) => window.confirm(text));
-      if (ask("The tool is away from the task's first pose. Move it there first (a guarded move at low speed), then run the task?")) void this.run(true);
+      if (ask(approachQuestion(this.start, this.refusal?.reason ?? "the tool is away from the task's first pose"))) void this.run(true);
     };
     this.pauseButton.onclick = () => void this.command("pause");
     this.resumeButton.onclick = () => void this.command("resume");
@@ -147,7 +194,14 @@ export class TasksPanel {
       }),
     );
     if ([...this.episode.options].some((o) => o.value === chosen)) this.episode.value = chosen;
+    this.forget();
+  }
+
+  /** Another episode chosen: the path shown and a refusal were the last one's. */
+  private forget(): void {
     this.src.path.clear();
+    this.refusal = null;
+    this.start = null;
     this.show();
   }
 
@@ -175,8 +229,9 @@ export class TasksPanel {
         this.src.log.add(`tasks: episode ${ep.episode} of ${rec.file} has no robot states`, true);
         return null;
       }
-      this.src.path.show(points);
-      this.src.log.add(`task path: episode ${ep.episode}, ${(pathLength(points) * 100).toFixed(1)} cm (cyan)`);
+      this.start = preview;
+      this.src.path.show(points, preview.approach);
+      this.src.log.add(previewText(ep.episode, points, preview));
       return points;
     } catch (e) {
       this.src.log.add(`preview: ${(e as Error).message}`, true);
@@ -184,8 +239,15 @@ export class TasksPanel {
     }
   }
 
-  private canRun(): boolean {
-    return this.src.link.operator && (this.src.flags() & StateFlags.YOU_HAVE_CONTROL) !== 0 && !this.underWay && !this.starting;
+  /** Why Run (and Approach) cannot be pressed now ("" when they can). */
+  private blocked(): string {
+    return whyNotRun({
+      chosen: this.chosenEpisode() !== undefined,
+      operator: this.src.link.operator,
+      control: (this.src.flags() & StateFlags.YOU_HAVE_CONTROL) !== 0,
+      underWay: this.underWay,
+      starting: this.starting,
+    });
   }
 
   /** Start the chosen episode as a task (`approach`: the operator confirmed the guarded move). */
@@ -193,12 +255,15 @@ export class TasksPanel {
     const rec = this.chosenRecording();
     const ep = this.chosenEpisode();
     if (!rec || !ep) return this.src.log.add("tasks: choose a recording and an episode first", true);
-    if (!this.canRun()) return this.src.log.add("tasks: take control first (an operator page with the lease starts a task)", true);
+    const blocked = this.blocked();
+    if (blocked) return this.src.log.add(`tasks: ${blocked}`, true);
     this.starting = true;
-    this.approachButton.hidden = true;
+    this.refusal = null;
     this.show();
     try {
-      if (!this.src.path.shown) await this.preview();
+      // The path and the approach from where the tool is now (an approach is drawn
+      // before the operator is asked to confirm it).
+      await this.preview();
       const view = await this.src.api.request("post", "/api/v1/tasks", {
         headers: { "X-Client-Id": this.src.link.clientId },
         body: {
@@ -214,11 +279,12 @@ export class TasksPanel {
       this.follow(view);
       // The path the server follows (the same episode, resampled).
       const path = await this.src.api.request("get", "/api/v1/tasks/{task_id}/path", { params: { task_id: view.id } });
-      if (path.positions.length > 0) this.src.path.show(path.positions);
+      if (path.positions.length > 0) this.src.path.show(path.positions, path.approach);
     } catch (e) {
       const message = (e as Error).message;
       this.src.log.add(`task: ${message}`, true);
-      if (!approach && farFromStart(message)) this.approachButton.hidden = false;
+      // Said in the panel too, by the button it concerns (the log scrolls away).
+      this.refusal = { reason: message, away: !approach && farFromStart(e) };
     } finally {
       this.starting = false;
       this.show();
@@ -227,6 +293,7 @@ export class TasksPanel {
 
   private follow(view: TaskView): void {
     this.task = view;
+    this.refusal = null;
     this.reason.textContent = "";
     this.show();
   }
@@ -273,8 +340,13 @@ export class TasksPanel {
     const t = this.task;
     const active = this.underWay;
     const recordingChosen = this.chosenEpisode() !== undefined;
-    this.runButton.disabled = !recordingChosen || !this.canRun();
-    this.approachButton.disabled = this.runButton.disabled;
+    const blocked = this.blocked();
+    this.runButton.disabled = blocked !== "";
+    this.runButton.title = blocked ? `Run: ${blocked}` : "Repeat it";
+    const refused = this.refusal ? refusalView(this.refusal.reason, this.refusal.away, blocked) : null;
+    this.approachButton.hidden = !refused?.approach;
+    this.approachButton.disabled = refused?.approach?.disabled ?? true;
+    this.approachButton.title = refused?.approach?.title ?? "";
     this.previewButton.disabled = !recordingChosen;
     this.clearButton.disabled = !this.src.path.shown;
     this.recording.disabled = this.episode.disabled = active;
@@ -283,7 +355,7 @@ export class TasksPanel {
     this.abortButton.hidden = !active;
     this.progress.value = t ? t.progress : 0;
     this.stateText.textContent = t ? `task ${t.id}: ${t.state} ${Math.round(t.progress * 100)}%` : "";
-    this.reason.textContent = t && FINISHED.has(t.state) ? finishedText(t) : "";
+    this.reason.textContent = refused ? refused.text : t && FINISHED.has(t.state) ? finishedText(t) : "";
     this.box.classList.toggle("task-active", active);
   }
 }

@@ -1,0 +1,65 @@
+import { describe, expect, it } from "vitest";
+import { ApiError } from "../api";
+import { AWAY_FROM_START, approachQuestion, farFromStart, previewText, refusalView, whyNotRun } from "./tasks";
+
+// The server's 422 for a Run from where the README's script leaves the arm (issue 27).
+const AWAY = "the tool is 60.8 mm / 5.7° from the task's first pose (it starts within 5 mm / 3°): move there, or confirm the approach (approach: true), a slow joint move there (its way: POST /tasks/preview, approach)";
+const refused = (type: string, detail: string) => new ApiError(detail, 422, { type, title: "invalid command", status: 422, detail });
+const ready = { chosen: true, operator: true, control: true, underWay: false, starting: false };
+
+describe("a refused Run", () => {
+  it("offers the approach only when the server's reason is the distance to the first pose", () => {
+    expect(farFromStart(refused(AWAY_FROM_START, AWAY))).toBe(true);
+    // Another refusal that speaks of the first pose (an approach the server cannot make) does not.
+    expect(farFromStart(refused("urn:telerobot:error:limit_exceeded", "the approach to the task's first pose would take the tool outside the workspace"))).toBe(false);
+    expect(farFromStart(new Error(AWAY))).toBe(false);
+    expect(farFromStart(new ApiError("HTTP 502", 502, undefined))).toBe(false);
+  });
+
+  it("says the server's reason, and enables Approach first when a task could start now", () => {
+    const view = refusalView(AWAY, true, whyNotRun(ready));
+    expect(view.text).toBe(`Run refused: ${AWAY}`);
+    expect(view.approach).toEqual({ disabled: false, title: expect.stringContaining("slow joint move") });
+  });
+
+  it("says why Approach first cannot be pressed (before: disabled with no reason)", () => {
+    const blocked = whyNotRun({ ...ready, control: false });
+    expect(blocked).toMatch(/take control first/);
+    const view = refusalView(AWAY, true, blocked);
+    expect(view.approach).toEqual({ disabled: true, title: `Approach first: ${blocked}` });
+    expect(view.text).toBe(`Run refused: ${AWAY} — to approach it: ${blocked}`);
+  });
+
+  it("shows any other reason without offering the approach", () => {
+    const view = refusalView("the recorded path jumps near s = 0.48 s", false, "");
+    expect(view).toEqual({ text: "Run refused: the recorded path jumps near s = 0.48 s", approach: null });
+  });
+
+  it("names what stops a start, first things first", () => {
+    expect(whyNotRun(ready)).toBe("");
+    expect(whyNotRun({ ...ready, chosen: false, control: false })).toMatch(/choose a recording/);
+    expect(whyNotRun({ ...ready, operator: false, control: false })).toMatch(/operator token/);
+    expect(whyNotRun({ ...ready, underWay: true })).toMatch(/under way/);
+    expect(whyNotRun({ ...ready, starting: true })).toMatch(/starting/);
+  });
+});
+
+describe("the approach's confirm", () => {
+  it("asks with how far the tool is and how it gets there", () => {
+    const q = approachQuestion({ start_distance_m: 0.0608, start_angle_rad: (5.73 * Math.PI) / 180 }, AWAY);
+    expect(q).toBe("The tool is 60.8 mm / 5.7° from the task's first pose. Move it there first — a slow joint move, shown dashed amber — then run the task?");
+    // Without a preview's figures: the server's own words.
+    expect(approachQuestion(null, AWAY)).toMatch(/^The tool is 60\.8 mm \/ 5\.7° from the task's first pose .*slow joint move/);
+  });
+
+  it("logs the preview with the approach, or why there is none", () => {
+    const points: [number, number, number][] = [
+      [0.6, -0.1, 0.9],
+      [0.6, -0.1, 0.88],
+    ];
+    const base = { start_distance_m: 0.0608, start_angle_rad: 0.1, approach: [] as [number, number, number][], approach_refused: "" };
+    expect(previewText(0, points, { ...base, start_distance_m: 0.001 })).toBe("task path: episode 0, 2.0 cm (cyan)");
+    expect(previewText(0, points, { ...base, approach: [[0.607, -0.04, 0.9], points[0]!] })).toBe("task path: episode 0, 2.0 cm (cyan); the tool is 61 mm / 5.7° from its start: the approach, a joint move, dashed amber");
+    expect(previewText(0, points, { ...base, approach_refused: "out of reach" })).toMatch(/cannot approach its start: out of reach$/);
+  });
+});
