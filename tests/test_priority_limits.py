@@ -292,7 +292,8 @@ def test_what_waits_for_a_client_that_does_not_read_is_bounded(
     client.send(*(ping(seq) for seq in range(1, 2001)))
     until(lambda: len(side.replies) >= REPLY_PAUSE)
     time.sleep(0.2)  # the chance to go wrong
-    assert REPLY_PAUSE <= len(side.replies) <= REPLY_PAUSE + 8  # + what was in the inbox
+    # (+ what was in the inbox; a few may have gone meanwhile if the socket took them)
+    assert len(side.replies) <= REPLY_PAUSE + 8
     assert len(side.inbox) <= 8 and len(side.rx) <= MAX_RX_BYTES
     assert len(side.forces) <= MAX_QUEUED_FORCES and not side.closed
     # The client reads at last: every reply, in order.

@@ -316,7 +316,9 @@ async def test_overload_and_overheat_stop_the_arm_with_a_clear_message(
 ) -> None:
     arm = await ready_arm(link)
     await arm.move_joints(np.array([1.5, -0.6, 0.6, 1.2, 0.0, 0.5]), relative=False)
-    await until(lambda: arm.snapshot().velocities[0] > 1.0)
+    # Moving (not yet at speed: on a busy machine the reads that would show the peak
+    # may all come late, and the move may end first).
+    await until(lambda: abs(arm.snapshot().velocities[0]) > 0.3, what="the pan joint moving")
     link.servo(2).temperature_c = 72
     link.servo(2).error = bit
     await arm.wait_idle(timeout=2)
