@@ -12,7 +12,9 @@ loop is stopped by the dead-man like a silent operator. The operator takes contr
 back at any time by taking the lease (the task stops: lease loss), and when the task
 ends the lease is handed back to the operator who started it. Running the task under
 the operator's own lease instead would mix two loops' heartbeats in one client, so a
-dead page could not be told from a live task.
+dead page could not be told from a live task. The operator stays present by its own
+connection (a page) or its heartbeats (a script: ``POST /lease/heartbeat`` is taken
+from the supervisor of the task holding the lease), whether or not it holds the lease.
 
 **Guards**, checked every period before moving: the e-stop, lease loss, the force
 limit (the DecisionServer's), the supervising operator gone (its connection closed),
@@ -340,7 +342,11 @@ class TaskRunner:
                 p0, R0, tolerance_m=spec.start_tolerance_m, tolerance_rad=spec.start_tolerance_rad
             )
         task_id = str(next(self._ids))
-        client = decision.join(f"task {task_id}", self._token, source="task")
+        # Run for its supervisor: its heartbeats keep it present while the task holds
+        # the lease (a script's keep-alive goes on; DecisionServer.heartbeat).
+        client = decision.join(
+            f"task {task_id}", self._token, source="task", on_behalf_of=supervisor_id
+        )
         try:
             await decision.take_lease(client.id, force=True)
         except TelerobotError:
@@ -469,7 +475,11 @@ class TaskRunner:
         try:
             decision.client(task.supervisor_id)
         except NotAllowed:
-            return f"the supervising operator {task.supervisor_name!r} disconnected"
+            return (
+                f"the supervising operator {task.supervisor_name!r} disconnected (a page:"
+                " its connection closed; a script: it released its lease, or sent no"
+                " request or heartbeat for the server's rest_client_idle_s)"
+            )
         return None
 
     def _short_of_end(self, task: Task, arrived: bool) -> str:

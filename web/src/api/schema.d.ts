@@ -196,7 +196,9 @@ export interface paths {
          * @description Take control (the operator token is required). Between absolute moves the lease
          *     is kept ``idle_timeout_s`` without a request; while jogging (incremental moves) keep
          *     it with a heartbeat or a command at least every dead-man timeout (150 ms). A move
-         *     waiting with ``wait`` counts as alive.
+         *     waiting with ``wait`` counts as alive. Release it with ``DELETE /lease`` when done.
+         *     A script run again (the same ``name`` from the same address) takes its earlier
+         *     run's lease while that is idle, without ``force``; anyone else needs ``force``.
          */
         post: operations["take_lease_api_v1_lease_post"];
         /** Release Lease */
@@ -215,7 +217,12 @@ export interface paths {
         };
         get?: never;
         put?: never;
-        /** Heartbeat */
+        /**
+         * Heartbeat
+         * @description Keep the lease you hold; or, while a task you started holds it, keep yourself
+         *     present as that task's supervisor (a script gone ``rest_client_idle_s`` stops its
+         *     task). Anyone else gets 403.
+         */
         post: operations["heartbeat_api_v1_lease_heartbeat_post"];
         delete?: never;
         options?: never;
@@ -1600,6 +1607,7 @@ export interface components {
         LeaseRequest: {
             /**
              * Name
+             * @description who is in control, as others see it; the same name from the same address takes its own idle lease again (a script run twice)
              * @default script
              */
             name: string;
