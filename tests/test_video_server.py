@@ -97,6 +97,10 @@ def test_video_api_errors_and_alignment() -> None:
         r = httpx.put(base + "api/v1/video/alignment?viewer=bob", json={"dx": 1}, headers=own)
         assert r.status_code == 403 and "viewer 'alice' only" in r.json()["detail"]
         assert httpx.put(alice, json={"dx": 9999}, headers=own).status_code == 422
+        # A relay peer's keep-alive on a server with no media server: 503 saying so (the
+        # fuzzer found a 502 here, as if the worker had failed).
+        r = httpx.post(base + "api/v1/webrtc/relay-x/alive", headers=TOOL, timeout=30)
+        assert r.status_code == 503 and "no media server" in r.json()["detail"], r.text
         # The peer closes with its secret (a no-op once it is gone); then it saves nothing.
         peer = base + f"api/v1/webrtc/{offer['peer_id']}"
         closed = httpx.delete(peer, headers={**TOOL, "X-Peer-Secret": offer["peer_secret"]})

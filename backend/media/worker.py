@@ -25,6 +25,14 @@ from drivers.base import ArmSnapshot, TelerobotError
 log = logging.getLogger(__name__)
 
 
+class NoMediaServer(TelerobotError):
+    """A relay request (the observers' media server) to a server started without one:
+    a request for what is not there (503, as for video that is off), not a failure."""
+
+    code = "no_media_server"
+    http_status = 503
+
+
 def arm_fields(dof: int) -> int:
     """The shared arm state's length: time, the joints, their velocities."""
     return 1 + 2 * dof
@@ -174,7 +182,7 @@ async def _serve(
                     reply["stats"]["relay"] = relay.stats()
             elif op.startswith("relay_"):
                 if relay is None:
-                    raise TelerobotError("this server has no media server (--media-server)")
+                    raise NoMediaServer("this server has no media server (--media-server)")
                 if op == "relay_offer":
                     reply.update(await relay.offer(req.get("address", "")))
                 elif op == "relay_accept":
