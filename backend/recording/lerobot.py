@@ -184,7 +184,7 @@ class _Recording:
 def _load(path: Path) -> _Recording:
     """Everything but the video's frames (of the video, its capture times), each series
     kept as packed doubles (a Python list of lists costs five times as much: 1 kHz of
-    forces for an hour was a gigabyte)."""
+    forces for an hour would take about a gigabyte)."""
     topics = ["/settings", "/robot/state", "/force", "/commands", "/episodes", VIDEO_TOPIC]
     model_name = DEFAULT_MODEL  # recordings from before robot models were all of the PUMA
     state_t, joints, targets, pose = array("d"), array("d"), array("d"), array("d")
