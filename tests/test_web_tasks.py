@@ -158,9 +158,21 @@ def test_an_episode_previewed_in_both_eyes_runs_from_the_page_and_hands_control_
     page.click("#task-run")
     wait(page, "!document.getElementById('task-approach').hidden")
     assert "first pose" in page.locator("#messages").inner_text()
-    page.once("dialog", lambda d: d.accept())
+    # The panel says the server's reason by the button, which can be pressed, and the
+    # approach is drawn (dashed amber, from the tool to the path's start) before the
+    # operator is asked (issue 27: a disabled button and no reason before).
+    said = page.locator("#task-reason").inner_text()
+    assert said.startswith("Run refused: the tool is") and "first pose" in said, said
+    assert page.is_enabled("#task-approach")
+    lead = np.array(page.evaluate("window.telerobot.tasks.path.approach"))
+    assert len(lead) >= 2, lead
+    assert np.linalg.norm(lead[0] - end) < 0.005 and np.linalg.norm(lead[-1] - start) < 0.002
+    asked: list[str] = []
+    page.once("dialog", lambda d: (asked.append(d.message), d.accept()))
     page.click("#task-approach")
     wait(page, f"window.telerobot.tasks.task.id !== '{view['id']}'", timeout=20_000)
+    assert len(asked) == 1 and "from the task's first pose" in asked[0], asked
+    assert "slow joint move" in asked[0], asked
     wait(
         page,
         "['done', 'stopped', 'aborted'].includes(window.telerobot.tasks.task.state)",
