@@ -1,5 +1,5 @@
 import { describe, expect, it } from "vitest";
-import { ControlWatch, type ControlAlert } from "./ui/control-alert";
+import { ControlWatch, stopsHeldInputs, type ControlAlert } from "./ui/control-alert";
 import { ERROR_CODES, StateFlags } from "./transport/messages";
 
 const MINE = StateFlags.YOU_HAVE_CONTROL | StateFlags.SOMEONE_HAS_CONTROL | StateFlags.OPERATOR;
@@ -53,6 +53,16 @@ describe("losing control", () => {
     expect(seen[0]!.sound).toBe(true);
     w.state(MINE, 50);
     expect(seen[1]).toEqual({ alert: null, sound: false });
+  });
+
+  it("a lost lease stops the held inputs; a dead-man halt (lease kept) lets held keys drive on", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.state(MINE | StateFlags.HALTED, 10);
+    expect(stopsHeldInputs(seen[0]!.alert!)).toBe(false);
+    w.state(MINE, 20);
+    w.state(NOBODY, 30);
+    expect(stopsHeldInputs(seen[2]!.alert!)).toBe(true);
   });
 
   it("with the connection: an alarm, then after reconnecting as operator an offer to take it again", () => {

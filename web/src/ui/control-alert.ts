@@ -79,7 +79,7 @@ export class ControlWatch {
       this.releasing = false;
       if ((flags & StateFlags.HALTED) !== 0) {
         if (this.alert?.level !== "halted") {
-          this.set({ level: "halted", text: "ARM HALTED: the link stalled, the arm stopped. You keep control: release the keys, then drive again.", retake: false }, true);
+          this.set({ level: "halted", text: "ARM HALTED: the link stalled (this computer or the network, not you), the arm stopped. You keep control: keys still held drive again once the link is back.", retake: false }, true);
         }
       } else if (this.alert) this.set(null, false);
       return;
@@ -138,8 +138,16 @@ export class AlarmSound {
   }
 }
 
+/** Which alerts stop the inputs held at that moment: a lost lease (a key held through
+ * it must not drive when control comes back; it is pressed again). Not a dead-man halt:
+ * the lease is kept, and on a loaded machine the page misses the dead-man every few
+ * seconds; a key still held drives again once the heartbeats are back (issue 27). */
+export function stopsHeldInputs(alert: ControlAlert): boolean {
+  return alert.level === "lost";
+}
+
 /** Show the watch's alerts over the video (#control-alert), sound the alarm, stop the
- * held inputs, and wire the alert's buttons: take control again, dismiss. */
+ * held inputs on a lost lease, and wire the alert's buttons: take control again, dismiss. */
 export function showControlAlerts(
   watch: ControlWatch,
   inputs: { latch(): void }[],
@@ -155,7 +163,7 @@ export function showControlAlerts(
     text.textContent = alert?.text ?? "";
     retake.hidden = !alert?.retake;
     if (alert && alarm) {
-      for (const input of inputs) input.latch();
+      if (stopsHeldInputs(alert)) for (const input of inputs) input.latch();
       sound.play();
     }
   };

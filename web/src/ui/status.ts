@@ -78,7 +78,7 @@ export function headerView(i: HeaderInput): HeaderView {
     else badge = { text: i.state?.status ?? "…", cls: i.state?.status ?? "" };
     control = mine ? "you have control" : has(StateFlags.SOMEONE_HAS_CONTROL) ? "someone else has control" : "nobody has control";
     if (estop) banner = { text: mine || !has(StateFlags.SOMEONE_HAS_CONTROL) ? "E-STOP latched: reset it to move again" : "E-STOP latched: whoever has control must reset it", error: false };
-    else if (halted) banner = { text: "Arm halted: the link stalled (you keep control): release the keys, then drive again", error: false };
+    else if (halted) banner = { text: "Arm halted: the link stalled (you keep control): keys still held drive again once it is back", error: false };
     else if (forceLimited) banner = { text: "Force limit: back away from the contact", error: false };
   }
 
