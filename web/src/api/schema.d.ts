@@ -3835,6 +3835,37 @@ export interface operations {
             };
         };
     };
+    export_progress_lerobot_api_v1_recordings__recording_id__export_lerobot_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                recording_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["LeRobotExportProgress"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
     export_recording_lerobot_api_v1_recordings__recording_id__export_lerobot_post: {
         parameters: {
             query?: never;
@@ -3857,37 +3888,6 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["LeRobotExport"];
-                };
-            };
-            /** @description Validation Error */
-            422: {
-                headers: {
-                    [name: string]: unknown;
-                };
-                content: {
-                    "application/json": components["schemas"]["HTTPValidationError"];
-                };
-            };
-        };
-    };
-    export_progress_lerobot_api_v1_recordings__recording_id__export_lerobot_get: {
-        parameters: {
-            query?: never;
-            header?: never;
-            path: {
-                recording_id: string;
-            };
-            cookie?: never;
-        };
-        requestBody?: never;
-        responses: {
-            /** @description Successful Response */
-            200: {
-                headers: {
-                    [name: string]: unknown;
-                };
-                content: {
-                    "application/json": components["schemas"]["LeRobotExportProgress"];
                 };
             };
             /** @description Validation Error */
