@@ -49,7 +49,13 @@ class Recorder:
             self.replies.append(r)
 
     def reply_to(self, seq: int) -> Reply:
-        until(lambda: any(r.fields.get("seq") == seq for r in list(self.replies)))
+        until(
+            lambda: any(r.fields.get("seq") == seq for r in list(self.replies)),
+            what=lambda: (
+                f"no reply to #{seq}; the last replies: {list(self.replies)[-5:]}"
+                f" (forces received: {len(self.forces)})"
+            ),
+        )
         return next(r for r in list(self.replies) if r.fields.get("seq") == seq)
 
 
