@@ -1,5 +1,5 @@
 import { describe, expect, it } from "vitest";
-import { ControlWatch, stopsHeldInputs, type ControlAlert } from "./ui/control-alert";
+import { BUSY_LATE_MS, ControlWatch, haltedText, stopsHeldInputs, type ControlAlert } from "./ui/control-alert";
 import { ERROR_CODES, StateFlags } from "./transport/messages";
 
 const MINE = StateFlags.YOU_HAVE_CONTROL | StateFlags.SOMEONE_HAS_CONTROL | StateFlags.OPERATOR;
@@ -63,6 +63,19 @@ describe("losing control", () => {
     w.state(MINE, 20);
     w.state(NOBODY, 30);
     expect(stopsHeldInputs(seen[2]!.alert!)).toBe(true);
+  });
+
+  it("a halt says whose the stall was: this computer's when the worker's timer ran late", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.state(MINE | StateFlags.HALTED, 10, 180);
+    expect(seen[0]!.alert!.text).toContain("this computer is too busy");
+    expect(seen[0]!.alert!.text).toContain("180 ms late");
+    w.state(MINE, 20);
+    w.state(MINE | StateFlags.HALTED, 30, 12);
+    expect(seen[2]!.alert!.text).toContain("the network or the server");
+    expect(seen[2]!.alert!.text).not.toContain("busy");
+    expect(haltedText(BUSY_LATE_MS)).toContain("too busy");
   });
 
   it("with the connection: an alarm, then after reconnecting as operator an offer to take it again", () => {

@@ -19,3 +19,33 @@ export interface HeartbeatInputs {
 export function heartbeatDue(i: HeartbeatInputs): boolean {
   return i.wanted && i.now - i.pageSeen <= PAGE_SILENCE_MS && i.now - i.lastSent >= MIN_GAP_MS;
 }
+
+/** How long a late heartbeat timer is remembered (and said) after it was late. */
+export const LATE_MEMORY_MS = 3000;
+
+/** How late the worker's heartbeat timer fired, worst of the last LATE_MEMORY_MS: the
+ * page's own share of a dead-man halt. A timer 100+ ms late means this computer did
+ * not give the worker its turn (a software GPU or another program taking the cores);
+ * a halt with the timer on time means the network or the server held the heartbeats. */
+export class TimerLateness {
+  private last: number | null = null;
+  private worst = 0;
+  private worstAt = -Infinity;
+
+  /** The timer fired at `now` (ms); it was set for every `period` ms. */
+  fired(now: number, period: number): void {
+    if (this.last !== null) {
+      const late = Math.max(0, now - this.last - period);
+      if (late >= this.worst || now - this.worstAt > LATE_MEMORY_MS) {
+        this.worst = late;
+        this.worstAt = now;
+      }
+    }
+    this.last = now;
+  }
+
+  /** The worst lateness (ms) seen in the last LATE_MEMORY_MS, at `now`. */
+  recent(now: number): number {
+    return now - this.worstAt <= LATE_MEMORY_MS ? this.worst : 0;
+  }
+}

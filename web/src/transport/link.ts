@@ -22,6 +22,8 @@ export interface LinkMeta {
   open: boolean;
   bestRtt: number;
   offset: number;
+  /** How late the worker's heartbeat timer fired lately (ms; heartbeat.ts TimerLateness). */
+  timerLateMs: number;
 }
 
 export type FromWorker =
@@ -39,6 +41,7 @@ export class RealtimeLink implements LinkMeta {
   open = false;
   bestRtt = Infinity;
   offset = 0; // server − page clock (s)
+  timerLateMs = 0;
   readonly stateInterval = new Rolling();
   readonly forceInterval = new Rolling(2000);
   readonly commandLatency = new Rolling();

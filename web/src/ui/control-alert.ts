@@ -19,6 +19,20 @@ const REASON_MS = 3000;
  * on its way (the keys were held at 50 Hz): the alert says it once, the log not again. */
 const IN_FLIGHT_MS = 2000;
 
+/** The worker's heartbeat timer this late (ms) is this computer's doing: the server's
+ * dead-man allows 150 ms of silence and the timer beats every 50. */
+export const BUSY_LATE_MS = 100;
+
+/** What a dead-man halt says: whose the stall was (this computer's, when the worker's
+ * own timer fired late; else the network's or the server's), never the operator's. */
+export function haltedText(timerLateMs: number): string {
+  const kept = "You keep control: keys still held drive again once the heartbeats are back.";
+  if (timerLateMs >= BUSY_LATE_MS) {
+    return `ARM HALTED: this computer is too busy: the page's heartbeat ran ${Math.round(timerLateMs)} ms late, and the arm stopped. ${kept} Closing other programs or turning the video off helps.`;
+  }
+  return `ARM HALTED: the network or the server held the heartbeats (this page sent them on time), and the arm stopped. ${kept}`;
+}
+
 /** The page's control, from STATE flags, the link and the server's events: what to show. */
 export class ControlWatch {
   private had = false; // this page held control at the last STATE
@@ -70,8 +84,9 @@ export class ControlWatch {
     }
   }
 
-  /** Every STATE's flags, at `now` (ms). */
-  state(flags: number, now: number): void {
+  /** Every STATE's flags, at `now` (ms); `timerLateMs`: how late the worker's heartbeat
+   * timer fired lately (the link's figure), which says whose the halt was. */
+  state(flags: number, now: number, timerLateMs = 0): void {
     const mine = (flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
     if (mine) {
       this.had = true;
@@ -79,7 +94,7 @@ export class ControlWatch {
       this.releasing = false;
       if ((flags & StateFlags.HALTED) !== 0) {
         if (this.alert?.level !== "halted") {
-          this.set({ level: "halted", text: "ARM HALTED: the link stalled (this computer or the network, not you), the arm stopped. You keep control: keys still held drive again once the link is back.", retake: false }, true);
+          this.set({ level: "halted", text: haltedText(timerLateMs), retake: false }, true);
         }
       } else if (this.alert) this.set(null, false);
       return;
