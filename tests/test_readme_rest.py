@@ -4,7 +4,7 @@ it ends); a script that could not release it, run again under the same name from
 same address, takes its own idle lease back, while anyone else is refused and told
 when it lapses; a refused lease prints the server's reason, not a traceback; and
 `telerobot master` finds the server and the token as `telerobot move` and the Python
-client do."""
+client do; the README's e-stop line and its reset over REST (item 13) work as written."""
 
 from __future__ import annotations
 
@@ -130,6 +130,45 @@ def test_a_refused_lease_prints_the_servers_reason_and_moves_nothing(
         assert httpx.get(server + "api/v1/robot/state").json()["position"] == before
         assert safety(server)["controller"] == "the page"
     finally:
+        httpx.delete(server + "api/v1/lease", headers=h)
+
+
+def readme_curl(endpoint: str) -> str:
+    """The README's inline `curl ...` (in its prose, not a block) for ``endpoint``."""
+    text = (ROOT / "README.md").read_text()
+    m = re.search(rf"`(curl [^`]*{re.escape(endpoint)}[^`]*)`", text)
+    assert m, f"the README shows no curl for {endpoint}"
+    return m.group(1)
+
+
+def test_the_readmes_estop_and_its_reset_over_rest_work(server: str, home: dict[str, str]) -> None:
+    """Issue 27 item 13: the README says how to reset the e-stop over REST, beside the
+    e-stop's line, and both work as written: its e-stop line latches it (the server's
+    port put in), its reset line, with a lease's id as the REST block gets one, clears
+    it."""
+    address = server.removeprefix("http://").rstrip("/")
+    estop = readme_curl("/safety/estop").replace("localhost:8000", address)
+    reset = readme_curl("/safety/reset")
+    assert "X-Client-Id" in reset, reset
+    run = run_block(estop + " -o /dev/null -w '%{http_code}'", home)
+    assert run.stdout == "200", (run.stdout, run.stderr)
+    assert safety(server)["estop"] is True
+    client_id = take(server, "my script")
+    env = {
+        **home,
+        "API": server + "api/v1",
+        "AUTH": f"Authorization: Bearer {TOKEN}",
+        "JSON": "Content-Type: application/json",
+        "ID": client_id,
+    }
+    try:
+        run = run_block(reset + " -o /dev/null -w '%{http_code}'", env)
+        assert run.stdout == "200", (run.stdout, run.stderr)
+        assert safety(server)["estop"] is False
+    finally:  # the next test finds the e-stop clear and the lease free
+        h = {**AUTH, "X-Client-Id": client_id}
+        if safety(server)["estop"]:
+            httpx.post(server + "api/v1/safety/reset", headers=h)
         httpx.delete(server + "api/v1/lease", headers=h)
 
 
