@@ -1,0 +1,114 @@
+"""A page holding control with no key pressed, in Debian's headless Chromium, against
+``telerobot serve`` with video: how often the dead-man halts the arm, and whose the
+stalls were (issue 27 item 1: on a busy 2-core machine the page went HALTED every ~2 s).
+
+    python -m bench.held_control [--json] [--seconds 60] [--busy-core] [--no-video]
+                                 [--no-yield-gpu]
+
+``--busy-core`` keeps one core busy (Debian's stress-ng) for the run, as
+``make test-slow-machine`` does. Chromium's software GPU process is niced as the test
+suite does (``bench.browser.yield_software_gpu``) unless ``--no-yield-gpu`` (a user's
+browser is not). Figures: ``deadman_halts_per_min`` (the server's count with the lease
+kept), ``lease_lost`` (control lost and taken again by the bench), the worker's own
+heartbeat timer lateness sampled every 0.2 s (``timer_late_ms_max``, ``_p50``: the
+page's rolling worst of 3 s, so p50 is of those), and what the page's halt alerts said
+(``halts_said_busy``: this computer; ``halts_said_network``: the network or server).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import secrets
+import subprocess
+import time
+from collections.abc import Iterator
+
+import httpx
+import numpy as np
+from playwright.sync_api import sync_playwright
+
+from bench.browser import ARGS, yield_software_gpu
+from bench.common import emit, machine, parser, serve_for_bench
+
+
+@contextlib.contextmanager
+def busy_core(on: bool) -> Iterator[None]:
+    proc = subprocess.Popen(["stress-ng", "--cpu", "1", "--quiet"]) if on else None
+    try:
+        yield
+    finally:
+        if proc is not None:
+            proc.terminate()
+            proc.wait(10)
+
+
+def main() -> None:
+    p = parser(__doc__ or "")
+    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--busy-core", action="store_true", help="stress-ng --cpu 1 meanwhile")
+    p.add_argument("--no-video", action="store_true")
+    p.add_argument("--no-yield-gpu", action="store_true", help="leave Chromium's GPU at nice 0")
+    args = p.parse_args()
+    token = secrets.token_hex(16)
+    env = {"TELEROBOT_OPERATOR_TOKEN": token, "TELEROBOT_VIDEO": str(not args.no_video).lower()}
+    late: list[float] = []
+    said = {"busy": 0, "network": 0}
+    lease_lost = 0
+    with (
+        serve_for_bench(env=env) as (_, base),
+        sync_playwright() as pw,
+        busy_core(args.busy_core),
+    ):
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        page = browser.new_page(viewport={"width": 1600, "height": 900})
+        page.goto(base + f"?token={token}")
+        if not args.no_video:
+            page.wait_for_function("window.telerobot.view.frames > 10", timeout=90_000, polling=200)
+        if not args.no_yield_gpu:
+            yield_software_gpu()
+        page.click("#take")
+        page.wait_for_function("(window.telerobot.state.flags & 1) !== 0", timeout=30_000)
+        halts0 = httpx.get(base + "api/v1/safety").json()["deadman_halts"]
+        frames0 = page.evaluate("window.telerobot.view.frames")
+        t0 = time.monotonic()
+        last_alert, had = "", True
+        while time.monotonic() - t0 < args.seconds:
+            time.sleep(0.2)
+            flags, lateness, alert = page.evaluate(
+                "[window.telerobot.state?.flags ?? 0, window.telerobot.client.timerLateMs,"
+                " window.telerobot.control.alert?.text ?? '']"
+            )
+            late.append(float(lateness))
+            if alert != last_alert and alert.startswith("ARM HALTED"):
+                said["busy" if "too busy" in alert else "network"] += 1
+            last_alert = alert
+            if not flags & 1:  # control lost: counted once, taken again
+                lease_lost += had
+                had = False
+                with contextlib.suppress(Exception):
+                    page.click("#take", timeout=2_000)
+            else:
+                had = True
+        elapsed = time.monotonic() - t0
+        halts = httpx.get(base + "api/v1/safety").json()["deadman_halts"] - halts0
+        frames = page.evaluate("window.telerobot.view.frames") - frames0
+        browser.close()
+    figures = {
+        "seconds": round(elapsed, 1),
+        "deadman_halts_per_min": halts * 60.0 / elapsed,
+        "deadman_halts": halts,
+        "halts_said_busy": said["busy"],
+        "halts_said_network": said["network"],
+        "lease_lost": lease_lost,
+        "timer_late_ms_max": max(late) if late else None,
+        "timer_late_ms_p50": float(np.median(late)) if late else None,
+        "fps": None if args.no_video else frames / elapsed,
+        "busy_core": args.busy_core,
+        "video": not args.no_video,
+        "yield_gpu": not args.no_yield_gpu,
+    }
+    emit({**figures, "machine": machine()}, args.json)
+
+
+if __name__ == "__main__":
+    main()
