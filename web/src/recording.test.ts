@@ -65,11 +65,11 @@ describe("formatting", () => {
     expect(droppedText({ "/force": 0 })).toBe("");
     expect(droppedText({ "/force": 3, "/video/stereo": 0, "/commands": 1 })).toBe("dropped: /force 3, /commands 1");
   });
-  it("an episode: its number from 1, task, verdict, notes once ended", () => {
-    expect(episodeText(episode())).toBe("episode 1 “pick” (recording)");
-    expect(episodeText(episode({ ended: 12, success: true, notes: "clean" }))).toBe("episode 1 “pick” ✓ — clean");
-    expect(episodeText(episode({ episode: 2, task: "", ended: 12, success: false }))).toBe("episode 3 ✗");
-    expect(episodeText(episode({ ended: 12 }))).toBe("episode 1 “pick” (unlabelled)");
+  it("an episode: its number as the API's (from 0), task, verdict, notes once ended", () => {
+    expect(episodeText(episode())).toBe("episode 0 “pick” (recording)");
+    expect(episodeText(episode({ ended: 12, success: true, notes: "clean" }))).toBe("episode 0 “pick” ✓ — clean");
+    expect(episodeText(episode({ episode: 2, task: "", ended: 12, success: false }))).toBe("episode 2 ✗");
+    expect(episodeText(episode({ ended: 12 }))).toBe("episode 0 “pick” (unlabelled)");
   });
   it("the realtime events that announce a recording", () => {
     expect(isRecordingEvent("RECORDING started: x.mcap")).toBe(true);
@@ -115,15 +115,15 @@ describe("the panel's state", () => {
     const open = recordingView(active({ episodes: [episode()] }), true);
     expect(open.episodeStart.enabled).toBe(false);
     expect(open.episodeEnd.enabled).toBe(true);
-    expect(open.episode).toBe("episode 1 “pick” (recording)");
+    expect(open.episode).toBe("episode 0 “pick” (recording)");
     expect(open.summary).toContain("1 episode.");
     const ended = recordingView(active({ episodes: [episode({ ended: 20, success: true })] }), true);
     expect(ended.episodeStart.enabled).toBe(true);
     expect(ended.episodeEnd.enabled).toBe(false);
-    expect(ended.episode).toBe("episode 1 “pick” ✓");
+    expect(ended.episode).toBe("episode 0 “pick” ✓");
     const observer = recordingView(active({ episodes: [episode()] }), false);
     expect(observer.episodeStart.visible || observer.episodeEnd.visible).toBe(false);
-    expect(observer.episode).toBe("episode 1 “pick” (recording)"); // seen, not changed
+    expect(observer.episode).toBe("episode 0 “pick” (recording)"); // seen, not changed
   });
   it("dropped messages shown when there are any", () => {
     expect(recordingView(active(), true).dropped).toBe("");

@@ -3,11 +3,16 @@
 // <video>) with the AR ball and the ghost arm at the recorded *predicted* pose (the
 // commanded target joints, as the live page draws them) beside a thin ring at the
 // recorded actual tool position, both projected with the calibration in force at that
-// moment; the force plot with a cursor and the command log. Pause, seek, 0.25–4× speed.
+// moment; the force plot with a cursor, the episodes and the safety events on a strip
+// under it (and listed), and the command log. Pause, seek, 0.25–4× speed. The picture is
+// the live page's: without the cameras' timecode stripe (review/frame.ts). Whatever the
+// recording lacks (video, forces, commands, episodes) is left out, not shown empty.
 // Data: GET /api/v1/recordings/{id}/timeline, …/video.mp4, /api/v1/robot/model.
 import { Api, MessageLog, readToken, withoutToken } from "./api";
 import { GHOST_RGB, type Pixel, ghostChain } from "./ar/ghost";
 import { project, type Projection } from "./ar/projection";
+import { shownFrame } from "./review/frame";
+import { episodeLabel, episodesOf, markRows, safetyMarks, spanOf, verdictOf, whoSent, type EpisodeEvent, type SafetySnapshot } from "./review/marks";
 import { SPEEDS, forceRange, formatTime, latestAt, timelineOf, videoTimeOf } from "./review/timeline";
 import { $ } from "./ui/dom";
 import { tracePolyline } from "./view/overlay";
@@ -36,6 +41,7 @@ async function pickList(): Promise<void> {
       o.selected = r.file === recordingId || r.file.replace(/\.mcap$/, "") === recordingId;
       pick.append(o);
     }
+    pick.hidden = pick.options.length === 0; // no recordings: no empty list
   } catch {
     /* the list is a convenience: ?id= works without it */
   }
@@ -64,6 +70,8 @@ async function main(): Promise<void> {
   const commands = topic("/commands") as (Timed & { kind: string; accepted: boolean; reason: string; source: string; client: string })[];
   // As recorded: {cameras: {left: {P}, right: {P}}, ground_truth_P: {left, right}}.
   type RecordedCalibration = Timed & { cameras?: Record<string, { P?: Projection }>; ground_truth_P?: Record<string, Projection> };
+  const episodes = episodesOf(topic("/episodes") as (Timed & EpisodeEvent)[]);
+  const safety = safetyMarks(topic("/safety") as (Timed & SafetySnapshot)[]);
   const calibrations = (topic("/calibration") as RecordedCalibration[]).map((c) => ({
     time: c.time,
     cameras: ["left", "right"].map((eye) => ({ P: c.cameras?.[eye]?.P ?? c.ground_truth_P?.[eye] ?? [] })),
@@ -90,29 +98,78 @@ async function main(): Promise<void> {
   seek.oninput = () => {
     video.currentTime = videoTimeOf(Number(seek.value), tl.video_start, video.duration);
   };
-  if (tl.video_start !== null && tl.video_start !== undefined) {
+  const hasVideo = tl.video_start !== null && tl.video_start !== undefined;
+  if (hasVideo) {
     video.src = `${location.origin}/api/v1/recordings/${encodeURIComponent(recordingId)}/video.mp4`;
     video.onerror = () => log.add(`video: ${video.error?.message ?? "cannot play"}`, true);
   } else log.add("this recording has no video");
+  canvas.hidden = !hasVideo; // not a black box where there is no picture
+  // The part of each frame shown: the rows below the timecode stripe (as the live page).
+  const shown = { crop: 0, width: canvas.width, height: canvas.height };
   video.onloadedmetadata = () => {
-    canvas.width = video.videoWidth;
-    canvas.height = video.videoHeight;
+    Object.assign(shown, shownFrame(video.videoWidth, video.videoHeight));
+    canvas.width = shown.width;
+    canvas.height = shown.height;
   };
+  /** Go to timeline time t (the video follows; without one, the slider is the time). */
+  function seekTo(t: number): void {
+    seek.value = String(t);
+    if (hasVideo) video.currentTime = videoTimeOf(t, tl.video_start, video.duration);
+  }
 
   // The command log: every command, the ones after the cursor greyed.
   const list = $("review-commands");
   const rows = commands.map((c) => {
     const li = document.createElement("li");
-    li.textContent = `${formatTime(c.time)} ${c.source} ${c.client} ${c.kind}${c.accepted ? "" : ` refused: ${c.reason}`}`;
+    li.textContent = `${formatTime(c.time)} ${whoSent(c.source, c.client)} ${c.kind}${c.accepted ? "" : ` refused: ${c.reason}`}`;
     if (!c.accepted) li.classList.add("refused");
     list.append(li);
     return li;
   });
-  let shown = -2;
+  list.hidden = rows.length === 0;
+  let shownCommand = -2;
+
+  // The episodes and the safety events: spans and ticks on a strip as wide as the force
+  // plot (the same time axis), and a list; a click on either seeks there.
+  const strip = $("review-marks");
+  const cursor = document.createElement("div");
+  cursor.className = "cursor";
+  for (const e of episodes) {
+    const span = spanOf(e.start, e.end, tl.duration);
+    const div = document.createElement("div");
+    div.className = `episode ${verdictOf(e)}`;
+    div.style.left = `${span.left}%`;
+    div.style.width = `${span.width}%`;
+    div.textContent = div.title = episodeLabel(e);
+    div.onclick = () => seekTo(e.start);
+    strip.append(div);
+  }
+  for (const m of safety) {
+    const tick = document.createElement("div");
+    tick.className = `safety ${m.kind}`;
+    tick.style.left = `${spanOf(m.time, m.time, tl.duration).left}%`;
+    tick.title = `${formatTime(m.time)} ${m.text}`;
+    tick.onclick = () => seekTo(m.time);
+    strip.append(tick);
+  }
+  strip.append(cursor);
+  strip.hidden = episodes.length + safety.length === 0;
+  const eventList = $("review-events");
+  const eventRows = markRows(episodes, safety).map((r) => {
+    const li = document.createElement("li");
+    li.className = r.kind;
+    li.textContent = r.text;
+    li.onclick = () => seekTo(r.time);
+    eventList.append(li);
+    return { li, time: r.time };
+  });
+  eventList.hidden = eventRows.length === 0;
+  let shownEvent = -2;
 
   const forcePlot = $<HTMLCanvasElement>("review-force");
   const fctx = forcePlot.getContext("2d");
   const range = forceRange(forces);
+  forcePlot.hidden = forces.length === 0; // no force sensor recorded: no empty plot
   function drawForces(t: number): void {
     if (!fctx) return;
     const { width: w, height: h } = forcePlot;
@@ -139,7 +196,7 @@ async function main(): Promise<void> {
     if (document.activeElement !== seek) seek.value = String(t);
     $("review-time").textContent = `${formatTime(t)} / ${formatTime(tl.duration)}`;
     if (ctx && video.readyState >= 2) {
-      ctx.drawImage(video, 0, 0, canvas.width, canvas.height);
+      ctx.drawImage(video, 0, shown.crop, shown.width, shown.height, 0, 0, canvas.width, canvas.height);
       const state = states[latestAt(states, t)];
       const cameras = calibrations[Math.max(0, latestAt(calibrations, t))]?.cameras ?? [];
       const p = state?.position;
@@ -147,7 +204,7 @@ async function main(): Promise<void> {
       cameras.slice(0, 2).forEach((cam, eye) => {
         if (cam.P.length !== 3) return;
         ctx.save();
-        ctx.translate((eye * canvas.width) / 2, 0);
+        ctx.translate((eye * canvas.width) / 2, -shown.crop); // camera pixels, stripe cropped
         // The ghost arm and the ball where the gripper was commanded to be.
         const chain = q && q.length === model.joints.length ? ghostChain(model, q, cam.P) : [];
         const tool = chain[chain.length - 1] ?? null;
@@ -182,17 +239,25 @@ async function main(): Promise<void> {
       });
     }
     drawForces(t);
+    cursor.style.left = `${spanOf(t, t, tl.duration).left}%`;
     const last = latestAt(commands, t);
-    if (last !== shown) {
+    if (last !== shownCommand) {
       rows.forEach((r, i) => r.classList.toggle("future", i > last));
       rows[last]?.scrollIntoView({ block: "nearest" });
-      shown = last;
+      shownCommand = last;
+    }
+    const lastEvent = latestAt(eventRows, t);
+    if (lastEvent !== shownEvent) {
+      eventRows.forEach((r, i) => r.li.classList.toggle("future", i > lastEvent));
+      shownEvent = lastEvent;
     }
     requestAnimationFrame(frame);
   }
   requestAnimationFrame(frame);
   // For tests: what the timeline holds, and the video.
-  Object.assign(window, { review: { video, overlay, duration: tl.duration, videoStart: tl.video_start, forces: forces.length, states: states.length, commands: commands.length } });
+  Object.assign(window, {
+    review: { video, overlay, duration: tl.duration, videoStart: tl.video_start, forces: forces.length, states: states.length, commands: commands.length, episodes, safety, frame: shown },
+  });
   document.body.dataset.reviewReady = "1";
 }
 

@@ -56,12 +56,15 @@ export function droppedText(dropped: Record<string, number> | undefined): string
   return parts.length ? `dropped: ${parts.join(", ")}` : "";
 }
 
-/** One episode as the panel shows it: "episode 1 “pick” ✓ (notes)". */
+/** One episode as the panel shows it: "episode 0 “pick” ✓ — notes". Numbered as the
+ * API numbers it (from 0: PATCH …/episodes/{n}, a task's episode, the file's /episodes),
+ * as the Tasks panel and the review page show it too (issue 27 item 10: this panel
+ * said "episode 1" for what the others call episode 0). */
 export function episodeText(e: Pick<Episode, "episode" | "task" | "success" | "notes" | "ended">): string {
   const task = e.task ? ` “${e.task}”` : "";
   const verdict = e.ended === null ? " (recording)" : e.success === true ? " ✓" : e.success === false ? " ✗" : " (unlabelled)";
   const notes = e.ended !== null && e.notes ? ` — ${e.notes}` : "";
-  return `episode ${e.episode + 1}${task}${verdict}${notes}`;
+  return `episode ${e.episode}${task}${verdict}${notes}`;
 }
 
 export interface Shown {
