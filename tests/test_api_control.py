@@ -162,6 +162,46 @@ def test_moves_need_the_lease_and_respect_the_estop(client: TestClient) -> None:
     assert client.get("/api/v1/safety").json()["controller"] is None
 
 
+@pytest.mark.parametrize(
+    "bad",
+    [
+        "",  # nothing
+        "   ",  # nothing once trimmed
+        "x" * 65,  # too long
+        "alice (bench)",  # brackets: the page reads "control: NAME (why)"
+        "a;b",
+        "<script>",
+        'say "hi"',
+        "two\nlines",
+        "tab\there",
+        "nul\x00",
+    ],
+)
+def test_a_lease_names_its_holder_plainly_or_is_refused_saying_how(
+    client: TestClient, bad: str
+) -> None:
+    """Issue 27 item 13: a script's name (``POST /lease``) is who has control wherever
+    control is listed; one that could not be shown as it is gets 422 saying the rule
+    (not the name back), and nothing is taken."""
+    r = client.post("/api/v1/lease", json={"name": bad}, headers=AUTH)
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert detail.startswith("body.name: "), detail
+    assert bad.strip() == "" or len(bad) > 64 or "letters, digits, spaces" in detail, detail
+    assert client.get("/api/v1/safety").json()["controller"] is None
+
+
+def test_a_lease_holders_name_is_shown_as_given(client: TestClient) -> None:
+    name = "Ana's arm-bench #2: Zoë/Jürgen @ lab.4"
+    r = client.post("/api/v1/lease", json={"name": f"  {name} "}, headers=AUTH)
+    assert r.status_code == 200, r.text
+    h = {**AUTH, "X-Client-Id": r.json()["client_id"]}
+    view = client.get("/api/v1/safety").json()
+    assert view["controller"] == name  # trimmed, otherwise as given
+    assert view["lease_note"] == f"taken by {name!r}"
+    client.delete("/api/v1/lease", headers=h)
+
+
 def test_scale_and_frame_settings(client: TestClient) -> None:
     h = lease(client)
     r = client.put("/api/v1/control", json={"scale": 0.5, "frame": "tool"}, headers=h)

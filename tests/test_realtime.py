@@ -211,6 +211,52 @@ def test_estop_from_an_observer_latches_until_the_operator_resets(client: TestCl
         assert ack["seq"] == 4
 
 
+def test_a_client_names_itself_in_its_ws_url_and_is_shown_by_that_name(
+    client: TestClient,
+) -> None:
+    """Issue 27 item 13: ``/ws?name=`` names the client (the HELLO stays as it is):
+    who has control is that name in GET /safety and in every viewer's SAFETY event, not
+    "ws 127.0.0.1:51186"; without a name it is still its address."""
+    name = "Ana at the bench"
+    with (
+        client.websocket_connect(f"{WS}?name=Ana%20at%20the%20bench") as op,
+        client.websocket_connect(WS) as watcher,
+    ):
+        watcher.send_bytes(hello())
+        receive_until(watcher, m.WELCOME)
+        op.send_bytes(hello(TOKEN))
+        receive_until(op, m.WELCOME)
+        op.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(op, m.ACK)
+        assert client.get("/api/v1/safety").json()["controller"] == name
+        for _ in range(10):  # the lease's SAFETY event (a STATUS one may come first)
+            event, text, _ = receive_until(watcher, m.EVENT)
+            if event["kind"] == m.EventKind.SAFETY:
+                break
+        assert text.startswith(f"control: {name} (taken by {name!r})"), text
+        op.send_bytes(m.encode(m.LEASE, 2, m.LeaseAction.RELEASE))
+        receive_until(op, m.ACK)
+    with client.websocket_connect(WS) as unnamed:
+        unnamed.send_bytes(hello(TOKEN))
+        unnamed.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(unnamed, m.ACK)
+        assert client.get("/api/v1/safety").json()["controller"].startswith("ws ")
+
+
+@pytest.mark.parametrize("bad", ["", "a%3Bb", "x" * 65, "two%0Alines", "(me)"])
+def test_a_name_that_cannot_be_shown_as_it_is_is_refused_saying_how(
+    client: TestClient, bad: str
+) -> None:
+    with client.websocket_connect(f"{WS}?name={bad}") as ws:
+        err, text, _ = receive_until(ws, m.ERROR)
+        assert err["code"] == m.ERROR_CODES["invalid_command"], err
+        assert text.startswith("name: a name is 1–64 characters: letters, digits"), text
+        with pytest.raises(WebSocketDisconnect) as closed:
+            ws.receive_bytes()
+        assert closed.value.code == 1008
+    assert client.get("/api/v1/safety").json()["controller"] is None
+
+
 def test_force_samples_one_by_one_or_batched(client: TestClient) -> None:
     with client.websocket_connect(WS) as every, client.websocket_connect(WS) as batched:
         every.send_bytes(hello(flags=m.HelloFlags.EVERY_FORCE_SAMPLE))

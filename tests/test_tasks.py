@@ -5,6 +5,7 @@ and the TaskRunner on the simulation through a real DecisionServer, in virtual t
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -12,7 +13,13 @@ import pytest
 from backend.control.decision import NotAllowed, SafetyStop
 from backend.tasks.compliance import Admittance, ComplianceSettings
 from backend.tasks.runner import TaskSpec, TaskState
-from backend.tasks.trajectory import ForceReading, StateSample, Trajectory, interpolate_rotation
+from backend.tasks.trajectory import (
+    AnotherArm,
+    ForceReading,
+    StateSample,
+    Trajectory,
+    interpolate_rotation,
+)
 from bench.task_replay import (
     COMPLIANCE,
     DOWN,
@@ -77,6 +84,35 @@ def test_trajectory_from_recording_messages_keeps_one_episode() -> None:
     assert seg.positions[0][0] == pytest.approx(0.7) and seg.duration == pytest.approx(0.2)
     with pytest.raises(InvalidCommand, match="no episode 7"):
         Trajectory.from_messages(msgs, episode=7)
+
+
+def test_a_recording_of_another_arm_model_is_refused_at_its_settings() -> None:
+    """Issue 27 item 13: a PUMA 560's recording on an SO-101 server is refused, saying
+    which arm made it and which this server drives, at its first message (/settings),
+    before any state is read; the same model's, or one that does not say, is read."""
+    rot = np.eye(3).reshape(9).tolist()
+    Messages = list[tuple[str, dict[str, object]]]
+    states: Messages = [
+        ("/robot/state", {"t": k * 0.02, "position": [0.5, 0, 0.5], "rotation": rot})
+        for k in range(10)
+    ]
+    puma: Messages = [("/settings", {"robot_model": "puma560", "robot": "sim"}), *states]
+    with pytest.raises(
+        AnotherArm, match=r"another arm model \(puma560\) than this server's \(so101\)"
+    ) as e:
+        Trajectory.from_messages(puma, robot_model="so101", source="teach.mcap episode 0")
+    assert e.value.code == "another_arm" and str(e.value).startswith("teach.mcap episode 0 ")
+
+    def no_states() -> Iterator[tuple[str, dict[str, object]]]:
+        yield puma[0]
+        raise AssertionError("read past the recording's settings")
+
+    with pytest.raises(AnotherArm):
+        Trajectory.from_messages(no_states(), robot_model="so101")
+    n = len(Trajectory.from_messages(states))
+    assert n > 2 and len(Trajectory.from_messages(puma, robot_model="puma560")) == n
+    assert len(Trajectory.from_messages(puma)) == n  # no model asked: any
+    assert len(Trajectory.from_messages(states, robot_model="so101")) == n  # it does not say
 
 
 def test_rotation_interpolation_takes_the_short_arc() -> None:

@@ -5,7 +5,8 @@ restarted with another model is drawn as its own arm (labels, ghost, AR ball), a
 CONTROL LOST alert goes, and Run is disabled while the server is away; every joint fits
 the Robot panel; an empty message list is one muted line, not an empty box; the
 calibration page fits the window and shows the live images before freezing; Enter VR
-without a headset says what is needed."""
+without a headset says what is needed; the page names itself, and every page says who
+has control by name."""
 
 from __future__ import annotations
 
@@ -155,6 +156,57 @@ def test_an_empty_message_list_is_one_muted_line_not_an_empty_box(
     assert full["placeholder"] in ("none", "normal"), full
     assert full["top"] == empty["top"], (empty, full)  # where it was
     assert [e for e in errors if "Uncaught" in e] == [], errors
+    page.close()
+
+
+def controller(server: str) -> object:
+    return httpx.get(server + "api/v1/safety").json()["controller"]
+
+
+def test_the_page_names_itself_and_others_see_who_has_control_by_name(
+    browser: Browser, server: str
+) -> None:
+    """Issue 27 item 13: operators were "ws 127.0.0.1:51186" everywhere. The page names
+    itself ("browser on <platform>" until a name is typed in the Driving panel, kept in
+    the browser, used from the next connection); who has control is that name for the
+    server and on every other page's header; a name the server would refuse is not kept."""
+    page, errors = open_page(browser, server, video=False)
+    default = page.input_value("#operator-name")
+    assert default.startswith("browser on ") and len(default) <= 64, default
+    take_control(page)
+    assert controller(server) == default
+    page.click("#release")
+    wait(page, "(window.telerobot.state.flags & 1) === 0")
+
+    name = page.locator("#operator-name")
+    name.fill("  Ana at the bench ")
+    name.dispatch_event("change")
+    wait(page, "document.getElementById('name-status').textContent.includes('next connection')")
+    assert page.evaluate("localStorage.getItem('telerobot.name')") == "Ana at the bench"
+    page.reload()  # (the token was kept in the browser at the first welcome)
+    page.wait_for_function("window.telerobot && window.telerobot.state", timeout=60_000)
+    assert page.input_value("#operator-name") == "Ana at the bench"
+    take_control(page)
+    assert controller(server) == "Ana at the bench"
+
+    # Another page, an observer, names who has control.
+    other, other_errors = open_page(browser, server, token="", video=False)
+    wait(
+        other,
+        "document.getElementById('control-owner').textContent === 'Ana at the bench has control'",
+    )
+    other.close()
+
+    # A name the server would refuse is not kept, and says why.
+    name.fill("Ana (bench); 2")
+    name.dispatch_event("change")
+    wait(page, "document.getElementById('name-status').classList.contains('error')")
+    said = page.locator("#name-status").inner_text()
+    assert said.startswith("Not kept: a name is 1–64 characters"), said
+    assert page.evaluate("localStorage.getItem('telerobot.name')") == "Ana at the bench"
+    page.click("#release")
+    wait(page, "(window.telerobot.state.flags & 1) === 0")
+    assert not [e for e in errors + other_errors if "Uncaught" in e], (errors, other_errors)
     page.close()
 
 

@@ -55,7 +55,7 @@ def test_review_shows_episodes_and_safety_events_and_numbers_episodes_as_the_api
     wait(page, "window.telerobot.client.operator && window.telerobot.recording.polls > 0")
     r = http.post("recordings", json={"name": NAME})
     assert r.status_code == 200, r.text
-    take_control(page)  # a command from the page's WebSocket: "ws 127.0.0.1:…"
+    take_control(page)  # a command from the page's WebSocket: "browser on …" (ws)
     r = http.post("recordings/active/episodes", json={"task": TASK})
     assert r.status_code == 200, r.text
     number = r.json()["episode"]
@@ -137,7 +137,8 @@ def test_review_shows_episodes_and_safety_events_and_numbers_episodes_as_the_api
     commands = review.locator("#review-commands li").all_inner_texts()
     assert commands, "no command listed"
     assert not [c for c in commands if TWICE.search(c)], commands
-    assert any(" ws 127.0.0.1:" in c for c in commands), commands
+    # (The page names itself, "browser on <platform>" by default: issue 27 item 13.)
+    assert any(re.search(r" browser on [^()]* \(ws\) ", c) for c in commands), commands
 
     # The picture without the timecode stripe, as the live page shows it.
     review.wait_for_function("review.video.readyState >= 2", timeout=30_000)

@@ -4,11 +4,14 @@ the page: the episode's path previewed in cyan in both eyes where the cameras se
 before anything runs; the task run from the page follows it (the server's tool reaches
 the episode's end), pauses and resumes, shows its progress and its end, and control
 comes back to the page; from the path's end, Run is refused and "Approach first"
-(confirmed) runs it anyway."""
+(confirmed) runs it anyway. On an SO-101 server, a PUMA's recording is greyed out,
+saying so (issue 27 item 13: it was offered)."""
 
 from __future__ import annotations
 
+import json
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -17,12 +20,14 @@ from playwright.sync_api import Browser, Page
 
 from tests.support import TOKEN, until
 from tests.support.browser import (
+    NO_VIDEO,
     open_page,
     page_said,
     take_control,
     tool_position,
     wait,
 )
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -192,3 +197,41 @@ def test_an_episode_previewed_in_both_eyes_runs_from_the_page_and_hands_control_
     refused = [e for e in errors if "status of 422" in e]
     assert len(refused) == 1 and len(errors) == 1, errors
     page.close()
+
+
+def record_an_episode(server: str, name: str) -> str:
+    """A recording with one episode (the arm at rest), through REST; its file."""
+    rest = httpx.Client(base_url=server + "api/v1/", headers=AUTH, timeout=30)
+    assert rest.post("recordings", json={"name": name}).status_code == 200
+    assert rest.post("recordings/active/episodes", json={"task": "stay"}).status_code == 200
+    time.sleep(0.3)  # some states in it (not a condition)
+    assert rest.post("recordings/active/episodes/end", json={"success": True}).status_code == 200
+    file: str = rest.post("recordings/active/stop").json()["file"]
+    return file
+
+
+def test_a_recording_of_another_arm_model_is_greyed_out_saying_so(
+    browser: Browser, tmp_path: Path
+) -> None:
+    state = ("--state-dir", str(tmp_path))  # both servers' recordings in one folder
+    with serving(NO_VIDEO, *state) as puma:
+        theirs = record_an_episode(puma, "puma-teach")
+    so101_env = {**NO_VIDEO, "TELEROBOT_ROBOT_MODEL": "so101", "TELEROBOT_HOME_POSE": "ready"}
+    with serving(so101_env, *state) as base:
+        ours = record_an_episode(base, "so101-teach")  # the newest: listed first
+        listed = {r["file"]: r["robot_model"] for r in httpx.get(base + "api/v1/recordings").json()}
+        assert listed == {theirs: "puma560", ours: "so101"}, listed
+        page, errors = open_page(browser, base, video=False)
+        take_control(page)
+        option = f"#task-recording option[value={json.dumps(theirs)}]"
+        wait(page, f"document.querySelector({json.dumps(option)}) !== null")
+        assert page.locator(option).is_disabled()
+        text = page.locator(option).inner_text()
+        assert text.endswith("another arm (puma560)"), text
+        title = page.locator(option).get_attribute("title") or ""
+        assert "this server drives the SO-101 (so101)" in title, title
+        assert page.input_value("#task-recording") == ours  # its own is the one chosen
+        wait(page, "!document.getElementById('task-run').disabled")
+        page.click("#release")
+        assert errors == []
+        page.close()

@@ -5,12 +5,13 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Request
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from backend.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
 from backend.api.requests import StrictRequest
 from backend.control.decision import DecisionServer, NotAllowed
 from backend.control.limits import full_speed_stop_s, stopping
+from backend.control.names import MAX_NAME, RULE, name_problem
 from drivers.base import StopCategory, WorkingFrame
 
 # A script's client (no connection of its own) is forgotten this long after its last
@@ -27,9 +28,9 @@ router = APIRouter(tags=["control"])
 class LeaseRequest(StrictRequest):
     name: str = Field(
         "script",
-        max_length=64,
-        description="who is in control, as others see it; the same name from the same"
-        " address takes its own idle lease again (a script run twice)",
+        max_length=MAX_NAME,
+        description=f"who is in control, as others see it ({RULE}; trimmed); the same"
+        " name from the same address takes its own idle lease again (a script run twice)",
     )
     force: bool = Field(False, description="take control even if another client holds it")
     idle_timeout_s: float = Field(
@@ -39,6 +40,14 @@ class LeaseRequest(StrictRequest):
         description="how long the lease is kept with no request between absolute moves"
         " (a script pausing); while it jogs (incremental moves) the dead-man's limit applies",
     )
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, name: str) -> str:
+        problem = name_problem(name.strip())
+        if problem:
+            raise ValueError(problem)  # 422, saying the rule
+        return name.strip()
 
 
 class LeaseGranted(BaseModel):

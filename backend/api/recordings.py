@@ -128,6 +128,12 @@ class RecordingEntry(BaseModel):
     complete: bool = Field(description="has its summary (else: telerobot recording recover)")
     stop_reason: str
     active: bool
+    robot_model: str | None = Field(
+        None,
+        description="the arm model it was recorded with (the settings' robot_model: puma560,"
+        " so101); null: not known (recorded before the list said it, or a foreign file)."
+        " A task repeats only this server's model's recordings",
+    )
 
 
 class RecordingDetail(RecordingEntry):

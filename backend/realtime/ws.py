@@ -13,6 +13,7 @@ import logging
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from backend.api.deps import ServicesDep
+from backend.control.names import client_name
 from backend.realtime import messages as m
 from backend.realtime.ratelimit import MALFORMED_COST, MalformedRun, TokenBucket
 from backend.realtime.session import Session, error
@@ -62,6 +63,16 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
         await websocket.close(code=1013, reason="too many connections from your address")
         return
     await websocket.accept()
+    # The name the client gives itself (``/ws?name=``, backend/control/names.py), shown
+    # wherever control is listed; without one, its address.
+    asked = websocket.query_params.get("name")
+    try:
+        name = client_name(asked) if asked is not None else None
+    except TelerobotError as exc:
+        await websocket.send_bytes(error(0, exc.code, f"name: {exc}"))
+        reason = f"name: {exc}".encode()[:120].decode(errors="ignore")  # (123 bytes at most)
+        await websocket.close(code=1008, reason=reason)
+        return
     reader = Reader()
     try:
         hello = await asyncio.wait_for(websocket.receive_bytes(), HELLO_TIMEOUT_S)
@@ -69,7 +80,7 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
             hello,
             decision=decision,
             hub=hub,
-            peer=f"ws {peer.host}:{peer.port}" if peer else "ws",
+            peer=name or (f"ws {peer.host}:{peer.port}" if peer else "ws"),
             send=websocket.send_bytes,
             address=peer.host if peer else "",
             close_transport=reader.stop,

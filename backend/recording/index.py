@@ -97,6 +97,7 @@ def blank_entry(file: str) -> dict[str, Any]:
         "episode_count": 0,
         "complete": False,
         "stop_reason": "",
+        "robot_model": None,
         "counts": {},
         "metadata": {},
     }
@@ -124,6 +125,7 @@ def from_metadata(
         episode_count=count,
         complete=complete,
         stop_reason=_text(reason or meta.get("stop_reason", ""), REASON_CHARS),
+        robot_model=_text(meta.get("robot_model"), NAME_CHARS) or None,
         counts={_text(t, 200): int(n) for t, n in list(counts.items())[:MAX_TOPICS]},
         metadata=kept,
     )
@@ -152,8 +154,10 @@ def stamped(entry: dict[str, Any], stat: os.stat_result) -> dict[str, Any]:
 
 
 def public(entry: dict[str, Any]) -> dict[str, Any]:
-    """What the list shows of an entry (no counts, metadata or key)."""
-    return {k: v for k, v in entry.items() if k not in ("counts", "metadata", "key", "v")}
+    """What the list shows of an entry (no counts, metadata or key). An entry kept before
+    the list said the arm model has none: not known (null)."""
+    shown = {k: v for k, v in entry.items() if k not in ("counts", "metadata", "key", "v")}
+    return {"robot_model": None, **shown}
 
 
 class RecordingIndex:

@@ -118,6 +118,7 @@ class _Active:
     closed: bool = False  # the writer wrote the summary
     counts: dict[str, int] = field(default_factory=dict)  # per topic, from the writer
     metadata: dict[str, str] | None = None  # as written at close
+    robot_model: str = ""  # the arm model recorded (its /settings'), "" if not known
 
 
 def _free_bytes(folder: Path) -> int:
@@ -249,6 +250,8 @@ class Recorder:
         )
         self._active = active
         for topic, payload in self.snapshot():
+            if topic == "/settings" and isinstance(payload, dict):
+                active.robot_model = str(payload.get("robot_model") or "")
             self.log(topic, payload)
         active.thread = threading.Thread(
             target=self._forward, args=(active,), name=f"recorder {path.name}", daemon=True
@@ -510,6 +513,8 @@ class Recorder:
             "stop_reason": a.reason,
             "episodes": json.dumps([vars(e) for e in a.episodes]),
         }
+        if a.robot_model:  # the list says it (a task repeats only this arm model's)
+            meta["robot_model"] = a.robot_model
         with self._drop_lock:
             for topic, n in a.dropped.items():
                 meta[f"dropped.{topic}"] = str(n)

@@ -254,8 +254,8 @@ class TaskRunner:
         self._tasks: OrderedDict[str, Task] = OrderedDict()
         self._ids = itertools.count(1)
         # Reads the recordings tasks and their previews come from (off the loop, one
-        # at a time, budgeted per address).
-        self.sources = SourceReader(clock=clock.now)
+        # at a time, budgeted per address; this arm model's only).
+        self.sources = SourceReader(clock=clock.now, robot_model=decision.robot.model.name)
 
     # ------------------------------------------------------------ queries
     def get(self, task_id: str) -> Task:

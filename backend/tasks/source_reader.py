@@ -18,6 +18,9 @@ operator commands dropped as stale). So:
   ``MAX_QUEUED`` at most.
 - **Previews are cached** by (file, size, modification time, episode, segment): asking
   again costs a lookup. ``CACHE_SIZE`` previews of at most ``PREVIEW_POINTS`` points.
+- **Only this arm model's recordings** (``robot_model``): a recording made with another
+  arm model is refused as soon as its first message says so (``AnotherArm``, 422): its
+  tool path is another arm's.
 - **A budget per address** (a token bucket, as /ws has): an answer from the cache costs
   1, a read ``READ_COST``, refilled at ``RATE_PER_S`` up to ``BURST``; past it, 429 saying
   when to come back. The operator token skips the budget, not the one-at-a-time rule.
@@ -108,8 +111,10 @@ class SourceReader:
         burst: float = BURST,
         read_cost: float = READ_COST,
         cache_size: int = CACHE_SIZE,
+        robot_model: str | None = None,
     ) -> None:
         self.clock = clock
+        self.robot_model = robot_model  # the server's arm model (None: any recording)
         self.time_limit_s = time_limit_s
         self.rate_per_s, self.burst, self.read_cost = rate_per_s, burst, read_cost
         self.cache_size = cache_size
@@ -220,6 +225,7 @@ class SourceReader:
                 episode=episode,
                 segment=segment,
                 time_limit_s=self.time_limit_s,
+                robot_model=self.robot_model,
             )
         except RuntimeError:  # shut down
             self._finished(None)

@@ -15,6 +15,12 @@ running sum per interval, never the samples). Reading stops once the span is ove
 a span longer than ``MAX_SAMPLES`` intervals is refused as soon as it is seen, and
 ``deadline`` (a ``time.monotonic()`` instant) ends a read that takes too long.
 
+**The arm it was taught on.** A recording says which arm model made it (its first
+message, ``/settings``: ``robot_model``). A task repeats the recorded tool path, which
+only that arm model can follow: asked for another model's (``robot_model``), the read
+stops at that message with ``AnotherArm`` (422). A recording without ``/settings``
+(a foreign file) is read as it is.
+
 Forces are kept in the **base frame** (the recording has them in the sensor frame,
 whose axes are the tool's: each is turned with the tool rotation recorded nearest to
 it), averaged over each resampling interval so the sensor's noise does not become
@@ -46,7 +52,21 @@ MAX_EARLY_FORCES = 5_000
 LOOKBACK = 256  # messages looked back at when an episode's start event comes
 READ_LIMIT_S = 30.0  # reading a task's source takes at most this long
 CHECK_EVERY = 256  # messages between two looks at the deadline
-TOPICS = ("/robot/state", "/force", "/episodes")
+TOPICS = ("/settings", "/robot/state", "/force", "/episodes")
+
+
+class AnotherArm(InvalidCommand):
+    """The recording was made with another arm model than the one asked for."""
+
+    code = "another_arm"
+
+
+def another_arm_text(source: str, recorded: str, wanted: str) -> str:
+    return (
+        f"{source} was recorded with another arm model ({recorded}) than this server's "
+        f"({wanted}): a task repeats the recorded tool path, which only the arm model that "
+        "made it can follow"
+    )
 
 
 @dataclass(frozen=True)
@@ -126,13 +146,16 @@ class Trajectory:
         dt: float = DEFAULT_DT_S,
         source: str = "",
         deadline: float | None = None,
+        robot_model: str | None = None,
     ) -> Trajectory:
         """From a recording's messages in log order, as ``(topic, payload)``:
-        ``/robot/state``, ``/force`` and ``/episodes`` (docs/recording.md). ``episode``
-        keeps the span between that episode's start and end events; ``segment`` is
-        a span [t0, t1] of the recording's ``t``, relative to its first state (or to
-        the episode's start). Bounded in memory and time (the module's docstring)."""
-        span = _Span(episode, segment, dt)
+        ``/settings``, ``/robot/state``, ``/force`` and ``/episodes`` (docs/recording.md).
+        ``episode`` keeps the span between that episode's start and end events;
+        ``segment`` is a span [t0, t1] of the recording's ``t``, relative to its first
+        state (or to the episode's start). Bounded in memory and time (the module's
+        docstring). ``robot_model``: the arm model it must have been recorded with
+        (``AnotherArm`` if ``/settings`` names another; None: any)."""
+        span = _Span(episode, segment, dt, robot_model, source)
         for n, (topic, m) in enumerate(messages):
             if span.add(topic, m):
                 break
@@ -152,9 +175,11 @@ class Trajectory:
         segment: tuple[float, float] | None = None,
         dt: float = DEFAULT_DT_S,
         time_limit_s: float = READ_LIMIT_S,
+        robot_model: str | None = None,
     ) -> Trajectory:
         """Read ``path`` as far as it is valid (a torn file gives what it holds; one that
-        is not an MCAP is refused: ``NotARecording``)."""
+        is not an MCAP is refused: ``NotARecording``); ``robot_model`` as in
+        ``from_messages`` (the file's name is what the refusal names)."""
         from backend.recording.salvage import SalvageReader
 
         what = path.name + (f" episode {episode}" if episode is not None else "")
@@ -171,9 +196,10 @@ class Trajectory:
                 dt=dt,
                 source=what,
                 deadline=deadline,
+                robot_model=robot_model,
             )
         except InvalidCommand as exc:
-            if reader.stopped:  # say why so little was read
+            if reader.stopped and not isinstance(exc, AnotherArm):  # say why so little was read
                 raise InvalidCommand(f"{exc} (the file is cut short: {reader.stopped})") from exc
             raise
 
@@ -317,7 +343,14 @@ class _Span:
 
     SLACK_S = 0.5  # read this far past the span's end: threads log a little out of order
 
-    def __init__(self, episode: int | None, segment: tuple[float, float] | None, dt: float) -> None:
+    def __init__(
+        self,
+        episode: int | None,
+        segment: tuple[float, float] | None,
+        dt: float,
+        robot_model: str | None = None,
+        source: str = "",
+    ) -> None:
         if not (math.isfinite(dt) and 0.001 <= dt <= 1.0):
             raise InvalidCommand(f"dt must be 1 ms–1 s, got {dt!r}")
         if segment is not None and not (
@@ -325,6 +358,7 @@ class _Span:
         ):
             raise InvalidCommand(f"a segment is [t0, t1] with t0 < t1, got {segment!r}")
         self.episode, self.segment, self.dt = episode, segment, dt
+        self.robot_model, self.source = robot_model, source
         # The span [lo, hi] in the recording's t: lo is None until it is known (an
         # episode's start event not seen yet).
         self.lo: float | None = -math.inf if episode is None and segment is None else None
@@ -352,6 +386,8 @@ class _Span:
                 return self._force(m)
             if topic == "/episodes":
                 self._episode(m)
+            if topic == "/settings":
+                self._settings(m)
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, InvalidCommand):
                 raise
@@ -360,6 +396,15 @@ class _Span:
                 f"says ({type(exc).__name__}: {str(exc)[:80]})"
             ) from None
         return False
+
+    def _settings(self, m: Mapping[str, Any]) -> None:
+        recorded = m.get("robot_model") if isinstance(m, Mapping) else None
+        if self.robot_model is None or not isinstance(recorded, str) or not recorded:
+            return  # any arm asked for, or the recording does not say
+        if recorded != self.robot_model:
+            raise AnotherArm(
+                another_arm_text(self.source or "the recording", recorded[:64], self.robot_model)
+            )
 
     def _episode(self, m: Mapping[str, Any]) -> None:
         if self.episode is None or m.get("event") not in ("start", "end"):

@@ -188,12 +188,13 @@ class NetFtSensor(SampledForceSensor):
             except TimeoutError:
                 now = self._now()
                 if now - last_rx > self.silence_s and now - asked > self.silence_s:
-                    if self.error is None:
-                        self.silences += 1
+                    new = self.error is None
                     self._fail(
                         f"no data from the Net F/T at {self._where()} for "
                         f"{now - last_rx:.1f} s: is it powered and on the network?"
                     )
+                    if new:  # counted once the error says why (a reader sees both)
+                        self.silences += 1
                     self._send(rdt.CMD_STREAM)  # it may have rebooted: ask again
                     self._asked_again = True
                     asked = now

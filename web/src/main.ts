@@ -25,6 +25,7 @@ import { ControlWatch, showControlAlerts } from "./ui/control-alert";
 import { setupControls } from "./ui/controls";
 import { $, numberIn } from "./ui/dom";
 import { HelpOverlay } from "./ui/help";
+import { controllerIn, namedUrl, readName, setupNameField } from "./ui/operator-name";
 import { pageDialogs, routeKey } from "./ui/keys";
 import { RecordingPanel } from "./ui/recording";
 import { showConnection, startPanels } from "./ui/panels";
@@ -37,6 +38,8 @@ const token = readToken(location.search, localStorage, sessionStorage);
 history.replaceState(history.state, "", withoutToken(location.href)); // read: out of the address bar
 const viewer = viewerName(localStorage);
 const api = new Api(`${location.origin}/`, token);
+// Who this page is to everyone else (the header, the SAFETY events, the recording).
+const pageName = readName(localStorage, navigator.platform);
 const log = new MessageLog($("messages"));
 
 async function main(): Promise<void> {
@@ -60,6 +63,10 @@ async function main(): Promise<void> {
   setupXRButton(view, log);
   const toggleFullscreen = setupFullscreen($("stage"), log);
   link3dView(api);
+  setupNameField($<HTMLInputElement>("operator-name"), $("name-status"), localStorage, pageName, navigator.platform);
+  // Who has control, by name: the server's events say when it changes; read again at
+  // each new session (events may have been missed while the link was down).
+  let controller: string | null = safety.controller ?? null;
 
   // ---- real-time channel
   const control = new ControlWatch(); // control lost, said over the video
@@ -68,7 +75,7 @@ async function main(): Promise<void> {
   let tasks: TasksPanel | null = null; // a task this page started holds the lease: not lost
   // Recording (issue 14): the header's REC indicator for every viewer, the operator's panel.
   const recording = new RecordingPanel({ api, log, operator: () => link.operator });
-  const link = new RealtimeLink(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, token, {
+  const link = new RealtimeLink(namedUrl(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, pageName), token, {
     state: (s) => {
       state = s;
       arm.report(s.joints, s.status === "MOVING", performance.now());
@@ -79,6 +86,8 @@ async function main(): Promise<void> {
     },
     event: (text) => {
       log.add(text);
+      const who = controllerIn(text);
+      if (who !== undefined) controller = who;
       control.event(text, performance.now());
       recording.event(text);
     },
@@ -91,7 +100,10 @@ async function main(): Promise<void> {
     },
     welcome: (operator) => {
       // A new session after the first: the server may have restarted with another arm.
-      if (welcomed) void armReloader?.reload();
+      if (welcomed) {
+        void armReloader?.reload();
+        api.request("get", "/api/v1/safety").then((s) => (controller = s.controller ?? null)).catch(() => undefined);
+      }
       welcomed = true;
       control.welcome(operator);
       // Remembered only once accepted: a wrong token never replaces a good one.
@@ -211,6 +223,7 @@ async function main(): Promise<void> {
       if (ghost.setArm(next.model, next.cameras)) view.overlayChanged();
       path.setCameras(next.cameras);
       loop.view = next.cameras[0] ? viewFrame(next.cameras[0].P) : null;
+      void tasks?.load(); // which recordings this arm can repeat
     },
     log,
   );
@@ -222,6 +235,7 @@ async function main(): Promise<void> {
     glass,
     videoInterval,
     forceLimitN: safety.force_limit_n,
+    controller: () => controller,
     get jointNames() {
       return arms.current.model.joint_names;
     },

@@ -79,6 +79,15 @@ describe("the header's state model", () => {
     expect(v.badge.text).toBe("MOVING");
   });
 
+  it("someone else in control, by the name it gave itself (issue 27: not 'someone else')", () => {
+    const v = view({ controller: "Ana at the bench" }, OPERATOR | SOMEONE_HAS_CONTROL);
+    expect(v.control).toBe("Ana at the bench has control");
+    // Mine, the name is mine: still "you have control"; nobody, a stale name says nothing.
+    expect(view({ controller: "Ana at the bench" }).control).toBe("you have control");
+    expect(view({ controller: "Ana at the bench" }, OPERATOR).control).toBe("nobody has control");
+    expect(view({ controller: null }, OPERATOR | SOMEONE_HAS_CONTROL).control).toBe("someone else has control");
+  });
+
   it("nobody in control", () => {
     const v = view({}, OPERATOR);
     expect(v.control).toBe("nobody has control");

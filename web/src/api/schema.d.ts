@@ -1607,7 +1607,7 @@ export interface components {
         LeaseRequest: {
             /**
              * Name
-             * @description who is in control, as others see it; the same name from the same address takes its own idle lease again (a script run twice)
+             * @description who is in control, as others see it (1–64 characters: letters, digits, spaces and . , : _ - @ # + / ' (no brackets, quotes or control characters); trimmed); the same name from the same address takes its own idle lease again (a script run twice)
              * @default script
              */
             name: string;
@@ -1761,6 +1761,11 @@ export interface components {
             /** Active */
             active: boolean;
             /**
+             * Robot Model
+             * @description the arm model it was recorded with (the settings' robot_model: puma560, so101); null: not known (recorded before the list said it, or a foreign file). A task repeats only this server's model's recordings
+             */
+            robot_model?: string | null;
+            /**
              * Counts
              * @description messages per topic
              */
@@ -1804,6 +1809,11 @@ export interface components {
             stop_reason: string;
             /** Active */
             active: boolean;
+            /**
+             * Robot Model
+             * @description the arm model it was recorded with (the settings' robot_model: puma560, so101); null: not known (recorded before the list said it, or a foreign file). A task repeats only this server's model's recordings
+             */
+            robot_model?: string | null;
         };
         /** RobotModel */
         RobotModel: {

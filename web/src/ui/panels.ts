@@ -32,6 +32,8 @@ export interface PanelSources {
   forceLimitN: number;
   /** The arm's joints, as GET /api/v1/robot/model names them (the joints table's heads). */
   jointNames: readonly string[];
+  /** Who has control, by name (the SAFETY events, GET /api/v1/safety); null: not known. */
+  controller?: () => string | null;
   /** For the Home button (POST /api/v1/robot/initialize) and its errors. */
   api?: Api;
   log?: MessageLog;
@@ -132,6 +134,7 @@ export function updatePanels(src: PanelSources, fresh: Freshness, home: HomeStep
       state: s,
       stateAgeMs: now - Math.max(s ? fresh.stateAt : -Infinity, fresh.openedAt),
       home,
+      controller: src.controller?.() ?? null,
     }),
   );
   $("speed-value").textContent = speedText(numberIn("speed"));

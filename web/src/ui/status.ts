@@ -22,6 +22,8 @@ export interface HeaderInput {
   stateAgeMs: number;
   /** The Home button: waiting for its confirming click, or its move in flight. */
   home?: HomeStep;
+  /** Who has control, by the name it gave itself (null or absent: not known, or nobody). */
+  controller?: string | null;
 }
 
 export interface ButtonView {
@@ -76,7 +78,8 @@ export function headerView(i: HeaderInput): HeaderView {
     else if (halted) badge = { text: "HALTED: link stalled", cls: "HALTED" };
     else if (forceLimited) badge = { text: "FORCE LIMIT", cls: "FORCE_LIMIT" };
     else badge = { text: i.state?.status ?? "…", cls: i.state?.status ?? "" };
-    control = mine ? "you have control" : has(StateFlags.SOMEONE_HAS_CONTROL) ? "someone else has control" : "nobody has control";
+    const other = i.controller ? `${i.controller} has control` : "someone else has control";
+    control = mine ? "you have control" : has(StateFlags.SOMEONE_HAS_CONTROL) ? other : "nobody has control";
     if (estop) banner = { text: mine || !has(StateFlags.SOMEONE_HAS_CONTROL) ? "E-STOP latched: reset it to move again" : "E-STOP latched: whoever has control must reset it", error: false };
     else if (halted) banner = { text: "Arm halted: the link stalled (you keep control): keys still held drive again once it is back", error: false };
     else if (forceLimited) banner = { text: "Force limit: back away from the contact", error: false };

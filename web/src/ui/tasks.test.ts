@@ -1,6 +1,7 @@
 import { describe, expect, it } from "vitest";
 import { ApiError } from "../api";
-import { AWAY_FROM_START, approachQuestion, farFromStart, previewText, refusalView, whyNotRun } from "./tasks";
+import type { Schema } from "../api";
+import { AWAY_FROM_START, approachQuestion, farFromStart, otherArm, previewText, recordingChoices, refusalView, whyNotRun } from "./tasks";
 
 // The server's 422 for a Run from where the README's script leaves the arm (issue 27).
 const AWAY = "the tool is 60.8 mm / 5.7° from the task's first pose (it starts within 5 mm / 3°): move there, or confirm the approach (approach: true), a slow joint move there (its way: POST /tasks/preview, approach)";
@@ -61,5 +62,58 @@ describe("the approach's confirm", () => {
     expect(previewText(0, points, { ...base, start_distance_m: 0.001 })).toBe("task path: episode 0, 2.0 cm (cyan)");
     expect(previewText(0, points, { ...base, approach: [[0.607, -0.04, 0.9], points[0]!] })).toBe("task path: episode 0, 2.0 cm (cyan); the tool is 61 mm / 5.7° from its start: the approach, a joint move, dashed amber");
     expect(previewText(0, points, { ...base, approach_refused: "out of reach" })).toMatch(/cannot approach its start: out of reach$/);
+  });
+});
+
+// Issue 27 item 13: the Tasks panel offered a PUMA recording on an SO-101 server.
+describe("recordings of another arm model", () => {
+  const SO101 = { model: "so101", name: "SO-101" };
+  const rec = (file: string, robot_model: string | null | undefined): Schema<"RecordingEntry"> => ({
+    file,
+    name: file.slice(16, -5),
+    bytes: 1000,
+    duration_s: 2,
+    episodes: [{ episode: 0, task: "stay", started: 1, ended: 2, success: true, notes: "" }],
+    episode_count: 1,
+    complete: true,
+    stop_reason: "stopped by the operator",
+    active: false,
+    robot_model,
+  });
+  const puma = rec("20261126-070000-puma.mcap", "puma560");
+  const mine = rec("20261126-080000-mine.mcap", "so101");
+  const older = rec("20261126-060000-older.mcap", null); // before the list said the model
+
+  it("are greyed out saying so; this arm's and those not known are offered", () => {
+    expect(otherArm(puma, SO101)).toBe("recorded with another arm model (puma560): this server drives the SO-101 (so101), and a task repeats the recorded tool path");
+    expect(otherArm(mine, SO101)).toBe("");
+    expect(otherArm(older, SO101)).toBe(""); // the server refuses it if it is another's
+    expect(otherArm(rec("x", undefined), SO101)).toBe("");
+    expect(otherArm(puma, null)).toBe(""); // the arm not read yet
+    const { options, value } = recordingChoices([puma, mine, older], SO101, "");
+    expect(options.map((o) => [o.value, o.disabled])).toEqual([
+      [puma.file, true],
+      [mine.file, false],
+      [older.file, false],
+    ]);
+    expect(options[0]!.text).toBe("puma — 20261126-070000 (1 ep.) — another arm (puma560)");
+    expect(options[0]!.title).toBe(otherArm(puma, SO101));
+    expect(value).toBe(mine.file); // the first that can be repeated, never the PUMA's
+  });
+
+  it("is never the one chosen, even if it was before (a server restarted with another arm)", () => {
+    expect(recordingChoices([puma, mine], SO101, puma.file).value).toBe(mine.file);
+    expect(recordingChoices([puma, mine], { model: "puma560", name: "PUMA 560" }, puma.file).value).toBe(puma.file);
+    expect(recordingChoices([mine, older], SO101, older.file).value).toBe(older.file);
+  });
+
+  it("leaves nothing chosen, saying why, when every recording is another arm's", () => {
+    const { options, value } = recordingChoices([puma], SO101, puma.file);
+    expect(value).toBe("");
+    expect(options[0]).toEqual({ value: "", text: "no recording of the SO-101 with episodes (1 of another arm)", disabled: false, title: "" });
+    expect(options[1]).toMatchObject({ value: puma.file, disabled: true });
+    const why = "every recording here was made with another arm model than this server's SO-101";
+    expect(whyNotRun({ ...ready, chosen: false, arm: why })).toBe(why);
+    expect(recordingChoices([], SO101, "")).toEqual({ options: [{ value: "", text: "no recording with episodes", disabled: false, title: "" }], value: "" });
   });
 });

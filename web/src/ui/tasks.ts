@@ -7,6 +7,8 @@
 // "Approach first" offers the approach (a slow joint move there, drawn dashed amber
 // before the path), after a confirm; when it cannot be pressed, it says why.
 // While it runs: progress, state, Pause/Resume/Abort, polled at 4 Hz; the reason when it stops.
+// A recording made with another arm model than the server's (a PUMA's on an SO-101) is
+// listed greyed out, saying so: its tool path is another arm's (the server refuses it).
 import { ApiError, type Api, type MessageLog, type Problem, type Schema } from "../api";
 import { pathLength, type PathOverlay } from "../ar/path";
 import type { Vec3 } from "../robot/math";
@@ -45,8 +47,48 @@ export function farFromStart(error: unknown): boolean {
   return typeof problem === "object" && problem !== null && problem.type === AWAY_FROM_START;
 }
 
+/** The server's arm: its model's name in the settings ("so101") and for a person ("SO-101"). */
+export interface ServerArmName {
+  model: string;
+  name: string;
+}
+
+/** Why a recording cannot be repeated on the server's arm ("" when it can): it was made
+ * with another arm model. One whose model is not known (recorded before the list said
+ * it) is offered: the server refuses it when asked if it is another's. */
+export function otherArm(rec: Pick<Recording, "robot_model">, arm: ServerArmName | null): string {
+  const made = rec.robot_model;
+  if (!arm || !made || made === arm.model) return "";
+  return `recorded with another arm model (${made}): this server drives the ${arm.name} (${arm.model}), and a task repeats the recorded tool path`;
+}
+
+export interface RecordingChoice {
+  value: string;
+  text: string;
+  disabled: boolean;
+  title: string;
+}
+
+/** The Recording list: each recording with its name, file and episodes; another arm's
+ * greyed out saying so. The one chosen: `chosen` if it still can be, else the first that
+ * can; none ("", a line saying why) when none can. */
+export function recordingChoices(recordings: readonly Recording[], arm: ServerArmName | null, chosen: string): { options: RecordingChoice[]; value: string } {
+  const options = recordings.map((r) => {
+    const why = otherArm(r, arm);
+    const text = `${r.name} — ${r.file.slice(0, 15)} (${r.episodes.length} ep.)${why ? ` — another arm (${r.robot_model})` : ""}`;
+    return { value: r.file, text, disabled: why !== "", title: why };
+  });
+  const usable = options.filter((o) => !o.disabled);
+  if (usable.length === 0) {
+    const none = recordings.length === 0 ? "no recording with episodes" : `no recording of the ${arm?.name ?? "server's arm"} with episodes (${recordings.length} of another arm)`;
+    return { options: [{ value: "", text: none, disabled: false, title: "" }, ...options], value: "" };
+  }
+  return { options, value: usable.some((o) => o.value === chosen) ? chosen : usable[0]!.value };
+}
+
 /** Why this page cannot start a task now ("" when it can). */
-export function whyNotRun(p: { chosen: boolean; operator: boolean; control: boolean; underWay: boolean; starting: boolean }): string {
+export function whyNotRun(p: { chosen: boolean; operator: boolean; control: boolean; underWay: boolean; starting: boolean; arm?: string }): string {
+  if (p.arm) return p.arm;
   if (!p.chosen) return "choose a recording and an episode";
   if (!p.operator) return "this page has no operator token (open it with ?token=…)";
   if (!p.control) return "take control first (a task starts on this page's lease)";
@@ -91,6 +133,8 @@ export class TasksPanel {
   /** The task this page follows (the last it started), as last polled. */
   task: TaskView | null = null;
   recordings: Recording[] = [];
+  /** The server's arm, as last read (null: not yet). */
+  arm: ServerArmName | null = null;
   private readonly recording = el("select", { id: "task-recording", title: "a recording (GET /api/v1/recordings)" });
   private readonly episode = el("select", { id: "task-episode", title: "the episode to repeat" });
   private readonly refreshButton = el("button", { id: "task-refresh", type: "button", title: "Read the recordings again", textContent: "↻" });
@@ -167,14 +211,16 @@ export class TasksPanel {
   /** Read the recordings (and follow a task already under way). */
   async load(): Promise<void> {
     try {
-      const [recordings, tasks] = await Promise.all([this.src.api.request("get", "/api/v1/recordings"), this.src.api.request("get", "/api/v1/tasks")]);
+      const [recordings, tasks, model] = await Promise.all([
+        this.src.api.request("get", "/api/v1/recordings"),
+        this.src.api.request("get", "/api/v1/tasks"),
+        this.src.api.request("get", "/api/v1/robot/model"),
+      ]);
+      this.arm = { model: model.model, name: model.name };
       this.recordings = recordings.filter((r) => !r.active && r.episodes.length > 0);
-      const chosen = this.recording.value;
-      this.recording.replaceChildren(
-        ...this.recordings.map((r) => el("option", { value: r.file, textContent: `${r.name} — ${r.file.slice(0, 15)} (${r.episodes.length} ep.)` })),
-      );
-      if (this.recordings.some((r) => r.file === chosen)) this.recording.value = chosen;
-      if (this.recordings.length === 0) this.recording.append(el("option", { value: "", textContent: "no recording with episodes" }));
+      const choices = recordingChoices(this.recordings, this.arm, this.recording.value);
+      this.recording.replaceChildren(...choices.options.map((o) => el("option", { value: o.value, textContent: o.text, disabled: o.disabled, title: o.title })));
+      this.recording.value = choices.value;
       this.fillEpisodes();
       const running = tasks.find((t) => !FINISHED.has(t.state));
       if (running && !this.task) this.follow(running);
@@ -206,7 +252,7 @@ export class TasksPanel {
   }
 
   private chosenRecording(): Recording | undefined {
-    return this.recordings.find((r) => r.file === this.recording.value);
+    return this.recordings.find((r) => r.file === this.recording.value && !otherArm(r, this.arm));
   }
 
   private chosenEpisode(): Schema<"Episode"> | undefined {
@@ -241,7 +287,9 @@ export class TasksPanel {
 
   /** Why Run (and Approach) cannot be pressed now ("" when they can). */
   private blocked(): string {
+    const none = this.recordings.length > 0 && this.recordings.every((r) => otherArm(r, this.arm));
     return whyNotRun({
+      arm: none ? `every recording here was made with another arm model than this server's ${this.arm?.name ?? "arm"}` : "",
       chosen: this.chosenEpisode() !== undefined,
       operator: this.src.link.operator,
       control: (this.src.flags() & StateFlags.YOU_HAVE_CONTROL) !== 0,
