@@ -324,6 +324,34 @@ def test_a_client_too_far_behind_on_its_replies_is_closed() -> None:
         theirs.close()
 
 
+def test_a_client_slower_than_the_forces_still_gets_the_newest_state() -> None:
+    """A client that reads a little less than the 1 kHz forces bring (a loaded machine)
+    keeps the socket full of forces; the one STATE slot must still go out, or a client
+    waiting for the arm's state waits for ever (a joint mirror under load did)."""
+    ours, theirs = socket.socketpair()
+    try:
+        ours.setblocking(False)
+        theirs.setblocking(False)
+        ours.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)
+        client = PriorityClient(ours, "test")
+        force = m.frame(m.encode_force([(0, 0.0, (0.0,) * 6)]))
+        while not client.forces:  # until the socket is full
+            client.push(force, Kind.FORCE)
+        state = struct.pack("<H", 200) + bytes([m.STATE.type_id]) + b"\x00" * 199
+        client.push(state, Kind.STATE)
+        got = b""
+        for _ in range(400):  # read less than a force frame per force queued
+            with contextlib.suppress(BlockingIOError):
+                got += theirs.recv(len(force) - 1)
+            client.push(force, Kind.FORCE)  # (push sends what fits, as the thread does)
+            if state in got:
+                break
+        assert state in got
+    finally:
+        ours.close()
+        theirs.close()
+
+
 def test_forces_go_only_to_clients_that_said_hello(serve: Callable[..., ChannelServer]) -> None:
     server = serve(max_pending=10)
     idle = [RawClient(server.port) for _ in range(8)]

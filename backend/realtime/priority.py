@@ -188,15 +188,19 @@ class PriorityClient:
         return bool(self.head is not None or self.replies or self.forces or self.state)
 
     def flush(self) -> bool:
-        """Send what the socket takes now (caller holds ``lock``); True if all went."""
+        """Send what the socket takes now (caller holds ``lock``); True if all went.
+        Replies, then the one newest state, then the forces: a client that reads a
+        little slower than the forces come would otherwise never be sent a state (the
+        forces' queue never empties), and the state costs the forces one small frame
+        at most every state period."""
         while True:
             if self.head is None:
                 if self.replies:
                     data = self.replies.popleft()
-                elif self.forces:
-                    data = self.forces.popleft()
                 elif self.state is not None:
                     data, self.state = self.state, None
+                elif self.forces:
+                    data = self.forces.popleft()
                 else:
                     return True
                 self.head = memoryview(data)
