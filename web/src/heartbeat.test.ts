@@ -20,13 +20,18 @@ describe("the worker's own timer lateness (whose a dead-man halt was)", () => {
   it("keeps the worst lateness for LATE_MEMORY_MS, then forgets it", () => {
     const t = new TimerLateness();
     t.fired(0, 50);
-    expect(t.recent(0)).toBe(0); // one firing: nothing to compare with
+    expect(t.recent(0, 50)).toBe(0); // one firing: nothing to compare with
     t.fired(50, 50);
     t.fired(280, 50); // 180 ms late: the worker did not get its turn
     t.fired(330, 50);
-    expect(t.recent(330)).toBe(180);
-    expect(t.recent(280 + LATE_MEMORY_MS)).toBe(180);
-    expect(t.recent(281 + LATE_MEMORY_MS)).toBe(0);
+    expect(t.recent(330, 50)).toBe(180);
+    // Beating on time from then on: remembered for LATE_MEMORY_MS, then forgotten.
+    let now = 330;
+    while (now < 280 + LATE_MEMORY_MS) t.fired((now += 50), 50);
+    expect(t.recent(now, 50)).toBe(180);
+    t.fired((now += 50), 50);
+    t.fired((now += 50), 50);
+    expect(t.recent(now, 50)).toBe(0);
   });
 
   it("a later, smaller lateness does not hide a recent worse one", () => {
@@ -34,6 +39,13 @@ describe("the worker's own timer lateness (whose a dead-man halt was)", () => {
     t.fired(0, 50);
     t.fired(200, 50); // 150 late
     t.fired(280, 50); // 30 late
-    expect(t.recent(300)).toBe(150);
+    expect(t.recent(300, 50)).toBe(150);
+  });
+
+  it("an overdue timer counts now: news of a halt may come before the late timer fires", () => {
+    const t = new TimerLateness();
+    t.fired(0, 50);
+    t.fired(50, 50);
+    expect(t.recent(450, 50)).toBe(350); // nothing fired for 400 ms
   });
 });

@@ -44,8 +44,11 @@ export class TimerLateness {
     this.last = now;
   }
 
-  /** The worst lateness (ms) seen in the last LATE_MEMORY_MS, at `now`. */
-  recent(now: number): number {
-    return now - this.worstAt <= LATE_MEMORY_MS ? this.worst : 0;
+  /** The worst lateness (ms) seen in the last LATE_MEMORY_MS, at `now`, or the timer's
+   * lateness right now if it is overdue (a worker that has just got its turn may handle
+   * the server's news of a halt before its late timer fires). */
+  recent(now: number, period: number): number {
+    const overdue = this.last === null ? 0 : Math.max(0, now - this.last - period);
+    return Math.max(overdue, now - this.worstAt <= LATE_MEMORY_MS ? this.worst : 0);
   }
 }

@@ -28,7 +28,7 @@ function meta(c: RealtimeClient) {
     bestRtt: c.bestRtt,
     // server − page clock (s): the worker's offset moved onto the page's clock
     offset: c.offset + (mainOrigin - performance.timeOrigin) / 1000,
-    timerLateMs: lateness.recent(performance.now()),
+    timerLateMs: lateness.recent(performance.now(), HEARTBEAT_PERIOD_MS),
   };
 }
 
