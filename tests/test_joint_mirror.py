@@ -128,6 +128,20 @@ def test_an_arm_stopped_by_the_server_is_aligned_again() -> None:
     assert mir.status.startswith("align the leader")
 
 
+def test_increments_still_on_their_way_are_no_stop() -> None:
+    """A loaded server answers late: the arm rests where the applied increments took
+    it while more are on their way. That is not the server stopping it (a run with one
+    core busy saw the mirror give up following there)."""
+    mir = mirror(align_rad=0.15, rate_hz=100.0, max_speed_rad_s=0.9)
+    follower = SO101.pose("ready")
+    assert mir.step(follower + 0.1, follower) is not None  # aligned: following
+    leader = follower + 0.3
+    mir._commanded = follower + 0.25  # (as after many increments)
+    mir._sent = {k: np.full(6, 0.25 / 20) for k in range(20)}  # all unanswered yet
+    assert mir.step(leader, follower, at_rest=True) is not None
+    assert mir.following and mir.status.startswith("following")
+
+
 def test_a_leader_of_another_arm_is_refused() -> None:
     with pytest.raises(InvalidCommand, match="not the arm's"):
         JointMirror(SimLeader(SO101), FakeLink(), load_model("puma560").joint_names)  # type: ignore[arg-type]

@@ -162,13 +162,13 @@ def test_an_outage_drops_everything_for_its_length_then_the_link_recovers(
     m = result[0]
     sent, arrived = _lost_during(m, went_down, came_up)
     assert sent >= 150 and arrived == 0, (sent, arrived)
-    # The gap in answers is the outage's length (packets already delayed still arrive):
-    # at least the 1 s slept, and at most the outage as measured here plus what a loaded
-    # machine adds to a probe's round trip (a generous 0.5 s, not a figure: issue 25).
+    # The gap in answers is printed, not asserted: it is the outage's length only while
+    # the forwarder keeps up. With a core busy, a forwarder's backlog of probes sent
+    # before the outage was still answered all through it (longest gap 32 ms), though
+    # nothing sent inside it got through: that, above, is the behaviour (issue 25).
     received = sorted(r for _, _, r in m.answered.values())
     gap = max(b - a for a, b in itertools.pairwise(received))
     print(f"{profile} ({link.backend}): answers stopped for {gap * 1000:.0f} ms")
-    assert 0.95 <= gap <= back_up - going_down + 0.5, (gap, back_up - going_down)
     # Away from the outage's edges (probes a loaded forwarder still held then are lost
     # with it), nearly every probe was answered.
     before, share_before = _answered_share(m, 0, going_down - 0.25)

@@ -166,9 +166,13 @@ class JointMirror:
             return None
         with self._lock:
             taken_back, self._taken_back = self._taken_back, np.zeros_like(self._taken_back)
+            in_flight = sum(self._sent.values(), np.zeros_like(taken_back))
         if self._commanded is not None:
             self._commanded = self._commanded - taken_back  # what the server did not apply
-            if at_rest and np.abs(follower - self._commanded).max() > self.settings.align_rad:
+            # At rest, the arm is at the server's target: the record but the increments
+            # still on their way (a loaded server answers late; they are not a stop).
+            expected = self._commanded - in_flight
+            if at_rest and np.abs(follower - expected).max() > self.settings.align_rad:
                 # The arm came to rest away from the record: the server stopped it (a
                 # dead-man, an e-stop, a limit). Align again from where it is.
                 self._forget()
