@@ -211,8 +211,10 @@ async def watch_through_relay(base: str, frames: int) -> dict[str, Any]:
     }
 
 
-def wait_for_usage(server: Coturn, names: set[str], timeout: float = 15) -> list[dict[str, Any]]:
-    """The usage lines of allocations by these names, once each has its "peer" line."""
+def wait_for_usage(server: Coturn, names: set[str], timeout: float = 60) -> list[dict[str, Any]]:
+    """The usage lines of allocations by these names, once each has its "peer" line.
+    coturn writes them when an allocation closes: the server's closes once it has seen
+    its viewer go, which a machine with a core busy took longer than 15 s to do."""
     deadline = time.monotonic() + timeout
     while True:
         usage = [u for u in server.usage() if str(u["username"]).split(":")[1] in names]
