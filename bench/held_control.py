@@ -66,22 +66,25 @@ def main() -> None:
             page.wait_for_function("window.telerobot.view.frames > 10", timeout=90_000, polling=200)
         if not args.no_yield_gpu:
             yield_software_gpu()
+        # Every alert the page shows, as it shows it (a halt's is gone within ~100 ms
+        # once heartbeats come: polling would miss most).
+        page.evaluate(
+            """() => { window.__alerts = []; const w = window.telerobot.control;
+              const shown = w.onChange; w.onChange = (a, s) => {
+                window.__alerts.push(a ? a.text : null); if (shown) shown(a, s); }; }"""
+        )
         page.click("#take")
         page.wait_for_function("(window.telerobot.state.flags & 1) !== 0", timeout=30_000)
         halts0 = httpx.get(base + "api/v1/safety").json()["deadman_halts"]
         frames0 = page.evaluate("window.telerobot.view.frames")
         t0 = time.monotonic()
-        last_alert, had = "", True
+        had = True
         while time.monotonic() - t0 < args.seconds:
             time.sleep(0.2)
-            flags, lateness, alert = page.evaluate(
-                "[window.telerobot.state?.flags ?? 0, window.telerobot.client.timerLateMs,"
-                " window.telerobot.control.alert?.text ?? '']"
+            flags, lateness = page.evaluate(
+                "[window.telerobot.state?.flags ?? 0, window.telerobot.client.timerLateMs]"
             )
             late.append(float(lateness))
-            if alert != last_alert and alert.startswith("ARM HALTED"):
-                said["busy" if "too busy" in alert else "network"] += 1
-            last_alert = alert
             if not flags & 1:  # control lost: counted once, taken again
                 lease_lost += had
                 had = False
@@ -90,6 +93,9 @@ def main() -> None:
             else:
                 had = True
         elapsed = time.monotonic() - t0
+        for alert in page.evaluate("window.__alerts"):
+            if alert and alert.startswith("ARM HALTED"):
+                said["busy" if "too busy" in alert else "network"] += 1
         halts = httpx.get(base + "api/v1/safety").json()["deadman_halts"] - halts0
         frames = page.evaluate("window.telerobot.view.frames") - frames0
         browser.close()
