@@ -62,6 +62,9 @@ def main() -> None:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
         page = browser.new_page(viewport={"width": 1600, "height": 900})
         page.goto(base + f"?token={token}")
+        page.wait_for_function(
+            "window.telerobot && window.telerobot.state", timeout=90_000, polling=200
+        )
         if not args.no_video:
             page.wait_for_function("window.telerobot.view.frames > 10", timeout=90_000, polling=200)
         if not args.no_yield_gpu:

@@ -250,3 +250,22 @@ describe("a fresh connection after a server restart", () => {
     expect(client.offset).toBeCloseTo(7, 6);
   });
 });
+
+// The dead-man's heartbeat is put off by any message the server counts as one, never by
+// the clock sync's PING (the server does not count it: issue 27 item 1).
+describe("what counts as a heartbeat", () => {
+  it("a PING does not put off the next heartbeat; a command does", () => {
+    const client = new RealtimeClient("ws://x/ws", "secret", {});
+    client.connect();
+    const ws = FakeSocket.all[0]!;
+    ws.open();
+    ws.deliver(welcome(`abc ${KEY}`));
+    client.heartbeat();
+    const beat = client.lastSent;
+    vi.advanceTimersByTime(30);
+    client.ping();
+    expect(client.lastSent).toBe(beat);
+    client.lease(1);
+    expect(client.lastSent).toBeGreaterThan(beat);
+  });
+});
