@@ -3,7 +3,7 @@
 stalls were (issue 27 item 1: on a busy 2-core machine the page went HALTED every ~2 s).
 
     python -m bench.held_control [--json] [--seconds 60] [--busy-core] [--no-video]
-                                 [--no-yield-gpu]
+                                 [--no-yield-gpu] [--python-client]
 
 ``--busy-core`` keeps one core busy (Debian's stress-ng) for the run, as
 ``make test-slow-machine`` does. Chromium's software GPU process is niced as the test
@@ -13,10 +13,14 @@ kept), ``lease_lost`` (control lost and taken again by the bench), the worker's 
 heartbeat timer lateness sampled every 0.2 s (``timer_late_ms_max``, ``_p50``: the
 page's rolling worst of 3 s, so p50 is of those), and what the page's halt alerts said
 (``halts_said_busy``: this computer; ``halts_said_network``: the network or server).
+``--python-client``: no browser; a Python client (bench.wsclient) takes the lease and
+sends a HEARTBEAT every 50 ms, as the page's worker does: the server's share of the
+halts.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import secrets
 import subprocess
@@ -27,8 +31,10 @@ import httpx
 import numpy as np
 from playwright.sync_api import sync_playwright
 
+from backend.realtime import messages as m
 from bench.browser import ARGS, yield_software_gpu
 from bench.common import emit, machine, parser, serve_for_bench
+from bench.wsclient import RealtimeClient
 
 
 @contextlib.contextmanager
@@ -42,15 +48,57 @@ def busy_core(on: bool) -> Iterator[None]:
             proc.wait(10)
 
 
+def safety_halts(base: str) -> int:
+    return int(httpx.get(base + "api/v1/safety").json()["deadman_halts"])
+
+
+async def python_client(base: str, token: str, seconds: float) -> dict[str, float]:
+    """The lease held by heartbeats every 50 ms from a Python client: halts, and the
+    longest gap between two heartbeats as sent."""
+    client = await RealtimeClient.connect(base.replace("http", "ws", 1) + "ws", token)
+    await client.take_lease()
+
+    async def drain() -> None:
+        while True:
+            await client.ws.recv()
+
+    reader = asyncio.create_task(drain())
+    halts0 = await asyncio.to_thread(safety_halts, base)
+    t0 = last = time.monotonic()
+    gap = 0.0
+    while time.monotonic() - t0 < seconds:
+        await asyncio.sleep(0.05)
+        now = time.monotonic()
+        gap, last = max(gap, now - last), now
+        await client.ws.send(m.encode(m.HEARTBEAT, client.next_seq(), 0.0))
+    elapsed = time.monotonic() - t0
+    halts = await asyncio.to_thread(safety_halts, base) - halts0
+    reader.cancel()
+    await client.close()
+    return {
+        "seconds": round(elapsed, 1),
+        "deadman_halts_per_min": halts * 60.0 / elapsed,
+        "deadman_halts": halts,
+        "heartbeat_gap_ms_max": gap * 1000.0,
+    }
+
+
 def main() -> None:
     p = parser(__doc__ or "")
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--busy-core", action="store_true", help="stress-ng --cpu 1 meanwhile")
     p.add_argument("--no-video", action="store_true")
     p.add_argument("--no-yield-gpu", action="store_true", help="leave Chromium's GPU at nice 0")
+    p.add_argument("--python-client", action="store_true", help="no browser: a Python client")
     args = p.parse_args()
     token = secrets.token_hex(16)
     env = {"TELEROBOT_OPERATOR_TOKEN": token, "TELEROBOT_VIDEO": str(not args.no_video).lower()}
+    if args.python_client:
+        with serve_for_bench(env=env) as (_, base), busy_core(args.busy_core):
+            figures = asyncio.run(python_client(base, token, args.seconds))
+        figures |= {"busy_core": args.busy_core, "video": not args.no_video}
+        emit({**figures, "machine": machine()}, args.json)
+        return
     late: list[float] = []
     said = {"busy": 0, "network": 0}
     lease_lost = 0
