@@ -76,17 +76,18 @@ afterEach(() => {
   vi.unstubAllGlobals();
 });
 
-describe("a stalled link", () => {
-  function connected() {
-    const seen: string[] = [];
-    const client = new RealtimeClient("ws://x/ws", "secret", { connection: (up, why) => seen.push(`${up} ${why}`) });
-    client.connect();
-    const first = FakeSocket.all[0]!;
-    first.open();
-    first.deliver(welcome(`abc ${KEY}`));
-    return { client, first, seen };
-  }
+/** A client connected and welcomed on the first fake socket. */
+function connected() {
+  const seen: string[] = [];
+  const client = new RealtimeClient("ws://x/ws", "secret", { connection: (up, why) => seen.push(`${up} ${why}`) });
+  client.connect();
+  const first = FakeSocket.all[0]!;
+  first.open();
+  first.deliver(welcome(`abc ${KEY}`));
+  return { client, first, seen };
+}
 
+describe("a stalled link", () => {
   it("asks for a resume key and, silent past the stall limit, resumes on the first new connection to open", () => {
     const { client, first, seen } = connected();
     expect(first.hellos()[0]).toEqual({ flags: M.HelloFlags.SYNCED_CLOCK | M.HelloFlags.RESUMABLE, token: "secret" });
@@ -255,11 +256,7 @@ describe("a fresh connection after a server restart", () => {
 // the clock sync's PING (the server does not count it: issue 27 item 1).
 describe("what counts as a heartbeat", () => {
   it("a PING does not put off the next heartbeat; a command does", () => {
-    const client = new RealtimeClient("ws://x/ws", "secret", {});
-    client.connect();
-    const ws = FakeSocket.all[0]!;
-    ws.open();
-    ws.deliver(welcome(`abc ${KEY}`));
+    const { client } = connected();
     client.heartbeat();
     const beat = client.lastSent;
     vi.advanceTimersByTime(30);
