@@ -66,11 +66,12 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# Two runs: the tests that need no browser on two workers (their servers, emulators and
-# sockets mostly wait: 400 s → 233 s here), then the browser tests on one, which share
-# one Chromium and take the CPU the page's software rendering needs (docs/PERFORMANCE.md).
+# Two runs: the tests that need no browser on three workers (their servers, emulators
+# and sockets mostly wait: 286 s on two → 233 s on three here, 1.2 cores used), then the
+# browser tests on one, which share one Chromium and take the CPU the page's software
+# rendering needs (two workers are no faster: 389 s against 378; docs/PERFORMANCE.md).
 unit: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not browser" -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -m "not browser" -n 3 --dist loadfile
 	$(BIN)/python -m pytest -q -m browser
 
 # Debian's Chromium for the Playwright browser tests (never a downloaded browser).

@@ -48,6 +48,10 @@ class Settings(BaseSettings):
     # A named pose of the model the robot initialises to (PUMA: qz, qr, qs, qn; SO-101:
     # zero, ready, rest); None: the model's home (qn, ready)
     home_pose: str | None = None
+    # The simulated arm is switched on at the model's start pose and moves home, as a
+    # real one does (about 3.5 s on the PUMA). True: it is switched on at home and is
+    # READY at once, for tests and scripts that do not watch the initialisation.
+    sim_starts_at_home: bool = False
     # The tool's length along the flange's z axis, m; None: the model's (PUMA 0.1 m, the
     # SO-101 0: its tool frame is already between the jaws)
     tool_length: float | None = Field(None, ge=0.0, le=0.5)

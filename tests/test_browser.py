@@ -14,7 +14,7 @@ pytestmark = pytest.mark.browser
 
 
 def test_status_page_shows_the_robot_moving_then_ready(browser: Browser, tmp_path: Path) -> None:
-    with serving(ready=False) as base:
+    with serving({"TELEROBOT_SIM_STARTS_AT_HOME": "false"}, ready=False) as base:
         page = browser.new_page()
         errors: list[str] = []
         page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)

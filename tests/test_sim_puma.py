@@ -20,6 +20,7 @@ from drivers.clock import ManualClock
 from drivers.robot.motion import PUMA_STOP_DECEL, stop_distance, stop_time
 from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
 from drivers.robot.puma560.sim import SimPuma
+from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 
 
@@ -63,6 +64,25 @@ async def test_lifecycle_statuses_and_events(clock: ManualClock) -> None:
     assert clock.now() == pytest.approx(math.pi + 0.5, abs=0.15)
     await r.disconnect()
     assert r.status is RobotStatus.NOT_CONNECTED
+
+
+@pytest.mark.parametrize("at_home", [False, True])
+async def test_the_server_switches_the_simulation_on_at_its_start_pose_or_at_home(
+    clock: ManualClock, at_home: bool
+) -> None:
+    from backend.devices import build_robot
+    from backend.settings import Settings
+
+    r = build_robot(Settings(operator_token=TOKEN, sim_starts_at_home=at_home), clock=clock)
+    await r.connect()
+    np.testing.assert_allclose(r.joints, NAMED_POSES["qn" if at_home else "qz"], atol=1e-9)
+    await run_with_clock(clock, r.initialize())
+    assert r.status is RobotStatus.READY
+    np.testing.assert_allclose(r.joints, NAMED_POSES["qn"], atol=1e-9)
+    # From its start pose the move home takes its time; at home, none.
+    assert clock.now() == (
+        pytest.approx(0.0, abs=0.1) if at_home else pytest.approx(math.pi + 0.5, abs=0.15)
+    )
 
 
 async def test_a_move_takes_time_and_reports_moving(robot: SimPuma, clock: ManualClock) -> None:

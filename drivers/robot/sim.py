@@ -87,6 +87,7 @@ class SimArm(ModelArm):
             kinematics=context.kinematics(),
             clock=context.clock,
             home=config.home,
+            start_joints=config.home if settings.get("sim_starts_at_home") else None,
         )
 
     @classmethod

@@ -30,7 +30,11 @@ def serving(
     with ``ready`` (the default) once its robot is READY. Yields its base URL."""
     with serve_for_bench(
         *args,
-        env={"TELEROBOT_OPERATOR_TOKEN": TOKEN, **(env or {})},
+        env={
+            "TELEROBOT_OPERATOR_TOKEN": TOKEN,
+            "TELEROBOT_SIM_STARTS_AT_HOME": "true",
+            **(env or {}),
+        },
         prefix=prefix,
         port=port,
         ready=ready,
