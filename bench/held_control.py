@@ -11,8 +11,12 @@ suite does (``bench.browser.yield_software_gpu``) unless ``--no-yield-gpu`` (a u
 browser is not). Figures: ``deadman_halts_per_min`` (the server's count with the lease
 kept), ``lease_lost`` (control lost and taken again by the bench), the worker's own
 heartbeat timer lateness sampled every 0.2 s (``timer_late_ms_max``, ``_p50``: the
-page's rolling worst of 3 s, so p50 is of those), and what the page's halt alerts said
-(``halts_said_busy``: this computer; ``halts_said_network``: the network or server).
+page's rolling worst of 3 s, so p50 is of those), the worst gap between the worker's
+messages as sent, sampled the same way (``beat_gap_ms_max``, ``beat_gaps_over_150ms``:
+samples over the dead-man's limit), its timer's firings that sent nothing by reason
+(``beat_skips``), the sessions it resumed on a new connection (``resumes``), and what
+the page's halt alerts said (``halts_said_busy``: this computer;
+``halts_said_network``: the network or server).
 ``--python-client``: no browser; a Python client (bench.wsclient) takes the lease and
 sends a HEARTBEAT every 50 ms, as the page's worker does: the server's share of the
 halts.
@@ -100,6 +104,7 @@ def main() -> None:
         emit({**figures, "machine": machine()}, args.json)
         return
     late: list[float] = []
+    gaps: list[float] = []
     said = {"busy": 0, "network": 0}
     lease_lost = 0
     with (
@@ -132,10 +137,12 @@ def main() -> None:
         had = True
         while time.monotonic() - t0 < args.seconds:
             time.sleep(0.2)
-            flags, lateness = page.evaluate(
-                "[window.telerobot.state?.flags ?? 0, window.telerobot.client.timerLateMs]"
+            flags, lateness, gap = page.evaluate(
+                "[window.telerobot.state?.flags ?? 0, window.telerobot.client.timerLateMs,"
+                " window.telerobot.client.beatGapMs]"
             )
             late.append(float(lateness))
+            gaps.append(float(gap))
             if not flags & 1:  # control lost: counted once, taken again
                 lease_lost += had
                 had = False
@@ -148,6 +155,9 @@ def main() -> None:
             if alert and alert.startswith("ARM HALTED"):
                 said["busy" if "too busy" in alert else "network"] += 1
         halts = httpx.get(base + "api/v1/safety").json()["deadman_halts"] - halts0
+        skips, resumes = page.evaluate(
+            "[window.telerobot.client.beatSkips, window.telerobot.client.resumes]"
+        )
         frames = page.evaluate("window.telerobot.view.frames") - frames0
         browser.close()
     figures = {
@@ -159,6 +169,10 @@ def main() -> None:
         "lease_lost": lease_lost,
         "timer_late_ms_max": max(late) if late else None,
         "timer_late_ms_p50": float(np.median(late)) if late else None,
+        "beat_gap_ms_max": max(gaps) if gaps else None,
+        "beat_gaps_over_150ms": sum(g > 150 for g in gaps),
+        "beat_skips": skips,
+        "resumes": resumes,
         "fps": None if args.no_video else frames / elapsed,
         "busy_core": args.busy_core,
         "video": not args.no_video,

@@ -1,5 +1,5 @@
 import { describe, expect, it } from "vitest";
-import { LATE_MEMORY_MS, PAGE_SILENCE_MS, TimerLateness, heartbeatDue } from "./transport/heartbeat";
+import { BeatRecord, LATE_MEMORY_MS, PAGE_SILENCE_MS, TimerLateness, heartbeatDue, heartbeatSkip } from "./transport/heartbeat";
 
 describe("dead-man heartbeat in the realtime worker", () => {
   const base = { now: 10_000, wanted: true, lastSent: 9_950, pageSeen: 9_900 };
@@ -47,5 +47,39 @@ describe("the worker's own timer lateness (whose a dead-man halt was)", () => {
     t.fired(0, 50);
     t.fired(50, 50);
     expect(t.recent(450, 50)).toBe(350); // nothing fired for 400 ms
+  });
+});
+
+describe("what the worker's heartbeats did (whose a halt was, when the timer was on time)", () => {
+  const base = { now: 10_000, wanted: true, lastSent: 9_950, pageSeen: 9_900 };
+
+  it("says why a firing sent nothing", () => {
+    expect(heartbeatSkip(base)).toBe(null);
+    expect(heartbeatSkip({ ...base, wanted: false })).toBe("unwanted");
+    expect(heartbeatSkip({ ...base, pageSeen: base.now - PAGE_SILENCE_MS - 1 })).toBe("pageSilent");
+    expect(heartbeatSkip({ ...base, lastSent: 9_990 })).toBe("recent");
+  });
+
+  it("keeps the worst gap between messages sent and counts the skips by reason", () => {
+    const b = new BeatRecord();
+    b.fired(null, 0);
+    b.fired(null, 50);
+    expect(b.worstGap(60)).toBe(50);
+    b.fired("pageSilent", 50); // a hung main thread: nothing sent at 100 …
+    b.fired("pageSilent", 50); // … nor at 150
+    expect(b.worstGap(150)).toBe(100); // overdue: counted now
+    b.fired(null, 200);
+    expect(b.worstGap(210)).toBe(150);
+    expect(b.skips).toEqual({ unwanted: 0, pageSilent: 2, recent: 0 });
+  });
+
+  it("counts no gap while control is not wanted", () => {
+    const b = new BeatRecord();
+    b.fired(null, 0);
+    b.fired("unwanted", 0);
+    expect(b.worstGap(5_000)).toBe(0);
+    b.fired(null, 5_000); // wanted again: the pause was not a gap
+    b.fired(null, 5_050);
+    expect(b.worstGap(5_060)).toBe(50);
   });
 });

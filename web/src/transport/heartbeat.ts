@@ -16,8 +16,20 @@ export interface HeartbeatInputs {
   pageSeen: number; // the main thread's last check-in
 }
 
+/** Why the worker's timer sent no heartbeat this time: nobody wants control, the page's
+ * main thread has been silent too long (a hung page must let the dead-man stop the
+ * arm), or another message went out less than MIN_GAP_MS ago. */
+export type BeatSkip = "unwanted" | "pageSilent" | "recent";
+
+export function heartbeatSkip(i: HeartbeatInputs): BeatSkip | null {
+  if (!i.wanted) return "unwanted";
+  if (i.now - i.pageSeen > PAGE_SILENCE_MS) return "pageSilent";
+  if (i.now - i.lastSent < MIN_GAP_MS) return "recent";
+  return null;
+}
+
 export function heartbeatDue(i: HeartbeatInputs): boolean {
-  return i.wanted && i.now - i.pageSeen <= PAGE_SILENCE_MS && i.now - i.lastSent >= MIN_GAP_MS;
+  return heartbeatSkip(i) === null;
 }
 
 /** How long a late heartbeat timer is remembered (and said) after it was late. */
@@ -50,5 +62,36 @@ export class TimerLateness {
   recent(now: number, period: number): number {
     const overdue = this.last === null ? 0 : Math.max(0, now - this.last - period);
     return Math.max(overdue, now - this.worstAt <= LATE_MEMORY_MS ? this.worst : 0);
+  }
+}
+
+/** What the worker's heartbeats did: the worst gap between two messages that went out
+ * (the server's dead-man sees the same gaps, plus the network's), and the timer's
+ * firings that sent nothing, by reason. With the timer on time, a long gap here says
+ * the worker chose not to send (its reason counted); a halt with short gaps here was
+ * held on the way (Chromium's socket, the network or the server). */
+export class BeatRecord {
+  readonly skips: Record<BeatSkip, number> = { unwanted: 0, pageSilent: 0, recent: 0 };
+  private gaps = new TimerLateness();
+  private lastSeen: number | null = null;
+
+  /** The timer fired; it sent nothing for `skip` (null: it sent), and the last message
+   * that counts as a heartbeat went out at `lastSent` (ms). Gaps are counted only while
+   * control is wanted: a page that does not want it sends nothing, by design. */
+  fired(skip: BeatSkip | null, lastSent: number): void {
+    if (skip !== null) this.skips[skip] += 1;
+    if (skip === "unwanted") {
+      this.gaps = new TimerLateness();
+      this.lastSeen = null;
+    } else if (lastSent !== this.lastSeen) {
+      this.gaps.fired(lastSent, 0);
+      this.lastSeen = lastSent;
+    }
+  }
+
+  /** The worst gap between messages sent (ms) in the last LATE_MEMORY_MS, at `now`, or
+   * the current one if nothing has gone out for longer. */
+  worstGap(now: number): number {
+    return this.lastSeen === null ? 0 : this.gaps.recent(now, 0);
   }
 }

@@ -2,7 +2,7 @@
 // out by the realtime worker (realtime.worker.ts), with the figures the panels show
 // mirrored here on the page's clock.
 import type { ForceSample } from "./codec";
-import { PAGE_CHECK_IN_MS } from "./heartbeat";
+import { type BeatSkip, PAGE_CHECK_IN_MS } from "./heartbeat";
 import type { RealtimeHandlers, RobotState } from "./realtime";
 import { Rolling } from "../stats";
 
@@ -24,6 +24,12 @@ export interface LinkMeta {
   offset: number;
   /** How late the worker's heartbeat timer fired lately (ms; heartbeat.ts TimerLateness). */
   timerLateMs: number;
+  /** The worst gap between the worker's messages that count as heartbeats, lately (ms;
+   * heartbeat.ts BeatRecord), and its timer's firings that sent nothing, by reason. */
+  beatGapMs: number;
+  beatSkips: Record<BeatSkip, number>;
+  /** Sessions resumed on a new connection after a stall. */
+  resumes: number;
 }
 
 export type FromWorker =
@@ -42,6 +48,9 @@ export class RealtimeLink implements LinkMeta {
   bestRtt = Infinity;
   offset = 0; // server − page clock (s)
   timerLateMs = 0;
+  beatGapMs = 0;
+  beatSkips: Record<BeatSkip, number> = { unwanted: 0, pageSilent: 0, recent: 0 };
+  resumes = 0;
   readonly stateInterval = new Rolling();
   readonly forceInterval = new Rolling(2000);
   readonly commandLatency = new Rolling();

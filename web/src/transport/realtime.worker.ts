@@ -1,7 +1,7 @@
 // The realtime channel in its own thread: the WebSocket, the clock sync, the arrival
 // times of state and forces, and the dead-man heartbeat run here, where the page's
 // rendering cannot stall them. The page talks to it through RealtimeLink (link.ts).
-import { HEARTBEAT_PERIOD_MS, TimerLateness, heartbeatDue } from "./heartbeat";
+import { BeatRecord, HEARTBEAT_PERIOD_MS, TimerLateness, heartbeatSkip } from "./heartbeat";
 import type { FromWorker, ToWorker } from "./link";
 import { StateFlags } from "./messages";
 import { RealtimeClient } from "./realtime";
@@ -17,6 +17,7 @@ let hasControl = false;
 let visible = true;
 let pageSeen = performance.now();
 const lateness = new TimerLateness();
+const beats = new BeatRecord();
 
 const pageNow = () => performance.now() + performance.timeOrigin - mainOrigin;
 
@@ -29,14 +30,18 @@ function meta(c: RealtimeClient) {
     // server − page clock (s): the worker's offset moved onto the page's clock
     offset: c.offset + (mainOrigin - performance.timeOrigin) / 1000,
     timerLateMs: lateness.recent(performance.now(), HEARTBEAT_PERIOD_MS),
+    beatGapMs: beats.worstGap(performance.now()),
+    beatSkips: { ...beats.skips },
+    resumes: c.resumes,
   };
 }
 
 function beat(): void {
   lateness.fired(performance.now(), HEARTBEAT_PERIOD_MS);
-  if (client && heartbeatDue({ now: performance.now(), wanted: visible && (wantControl || hasControl), lastSent: client.lastSent, pageSeen })) {
-    client.heartbeat();
-  }
+  if (!client) return;
+  const skip = heartbeatSkip({ now: performance.now(), wanted: visible && (wantControl || hasControl), lastSent: client.lastSent, pageSeen });
+  if (skip === null) client.heartbeat();
+  beats.fired(skip, client.lastSent);
 }
 
 port.onmessage = (e) => {
