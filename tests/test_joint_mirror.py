@@ -306,6 +306,15 @@ def test_the_master_command_mirrors_a_leader_and_says_so() -> None:
         assert httpx.get(base + "api/v1/robot/state").json()["target_joints"][1] == (
             pytest.approx(home[1], abs=1e-6)
         )
+        # Who has control is the bridge's own name (NAME), not "priority 127.0.0.1:…".
+        assert httpx.get(base + "api/v1/safety").json()["controller"] == "master sim-leader"
+    bad = subprocess.run(
+        [str(BIN), "master", "--server", "http://127.0.0.1:9/", "--name", "me (again)"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2 and "--name: a name is 1–64 characters" in bad.stderr
     out = subprocess.run(
         [str(BIN), "master", "--server", "http://127.0.0.1:9/", "--device", "so101-leader"],
         capture_output=True,

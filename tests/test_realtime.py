@@ -243,6 +243,31 @@ def test_a_client_names_itself_in_its_ws_url_and_is_shown_by_that_name(
         assert client.get("/api/v1/safety").json()["controller"].startswith("ws ")
 
 
+def test_a_client_with_no_url_names_itself_with_name_and_a_bad_name_keeps_the_old(
+    client: TestClient,
+) -> None:
+    """NAME (the master bridge's way, on the priority channel, which has no URL): the
+    holder's new name is said at once; one against the rule gets ERROR saying why and
+    the old name stays."""
+    with client.websocket_connect(WS) as op:
+        op.send_bytes(hello(TOKEN))
+        receive_until(op, m.WELCOME)
+        op.send_bytes(m.encode(m.LEASE, 1, m.LeaseAction.TAKE))
+        receive_until(op, m.ACK)
+        assert client.get("/api/v1/safety").json()["controller"].startswith("ws ")
+        op.send_bytes(m.encode(m.NAME, 2, text="master sim-leader"))
+        ack, _, before = receive_until(op, m.ACK)
+        assert ack["seq"] == 2
+        said = [m.decode(d) for d in before if d[0] == m.EVENT.type_id]  # (said before ACK)
+        said = [text for _, f, text in said if f["kind"] == m.EventKind.SAFETY]
+        assert said and said[-1].startswith("control: master sim-leader"), said
+        op.send_bytes(m.encode(m.NAME, 3, text="(me); drop"))
+        err, text, _ = receive_until(op, m.ERROR)
+        assert err["seq"] == 3 and err["code"] == m.ERROR_CODES["invalid_command"], err
+        assert text.startswith("a name is 1–64 characters"), text
+        assert client.get("/api/v1/safety").json()["controller"] == "master sim-leader"
+
+
 @pytest.mark.parametrize("bad", ["", "a%3Bb", "x" * 65, "two%0Alines", "(me)"])
 def test_a_name_that_cannot_be_shown_as_it_is_is_refused_saying_how(
     client: TestClient, bad: str

@@ -13,6 +13,7 @@ from urllib.parse import urlsplit
 import httpx
 import numpy as np
 
+from backend.control.names import client_name
 from backend.master.bridge import BridgeSettings, MasterBridge
 from backend.master.link import PriorityLink
 from drivers.base import FloatArray, MasterArm, TelerobotError
@@ -41,6 +42,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--token",
         help="operator token (default: TELEROBOT_OPERATOR_TOKEN, else the one the server"
         " keeps on this machine; none: watch only)",
+    )
+    p.add_argument(
+        "--name",
+        help="the name others see for this bridge while it has control (default: master"
+        " DEVICE; 1–64 letters, digits, spaces and . , : _ - @ # + / ')",
     )
     p.add_argument(
         "--device",
@@ -97,16 +103,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def open_link(server: str, token: str, *, datagrams: bool = True) -> PriorityLink:
-    """Find the server's priority channel (GET /api/v1/force/channel) and connect;
-    forces as datagrams unless ``datagrams`` is False."""
+def open_link(
+    server: str, token: str, *, datagrams: bool = True, name: str = ""
+) -> PriorityLink:
+    """Find the server's priority channel (GET /api/v1/force/channel) and connect,
+    going by ``name``; forces as datagrams unless ``datagrams`` is False."""
     base = server if server.endswith("/") else server + "/"
     try:
         channel = httpx.get(base + "api/v1/force/channel", timeout=5, verify=False).json()
     except (httpx.HTTPError, ValueError) as exc:
         raise TelerobotError(f"cannot ask {base} for its priority channel: {exc}") from None
     host = urlsplit(base).hostname or "localhost"
-    return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams)
+    return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams, name=name)
 
 
 def run_leader(args: argparse.Namespace, token: str) -> int:
@@ -129,7 +137,7 @@ def run_leader(args: argparse.Namespace, token: str) -> int:
             baudrate=args.leader_baudrate,
             calibration=args.leader_calibration,
         )
-        link = open_link(args.server, token, datagrams=False)  # no forces to render
+        link = open_link(args.server, token, datagrams=False, name=args.name)  # no forces
         settings = MirrorSettings(align_rad=math.radians(args.align_deg)).check()
         mirror = JointMirror(leader, link, model.joint_names, settings)
         # Why the arm is as it is, should it be in ERROR already: STATE carries only
@@ -167,6 +175,11 @@ def run(args: argparse.Namespace) -> int:
     tune_for_realtime()  # a short GIL switch interval: the reader thread gets each sample at once
     args.server = args.server or local_url()
     token = args.token or stored_token() or ""
+    try:  # refused here, before anything connects, rather than by the server
+        args.name = client_name(args.name if args.name is not None else f"master {args.device}")
+    except TelerobotError as exc:
+        print(f"telerobot master: --name: {exc}", file=sys.stderr)
+        return 2
     if args.device.endswith("-leader"):
         return run_leader(args, token)
     try:
@@ -187,10 +200,13 @@ def run(args: argparse.Namespace) -> int:
         cls = load_driver("master", args.device)
         device: MasterArm = cls(demo_hand) if args.device == "sim" else cls()
         udp = args.forces == "udp"
-        link = open_link(args.server, token, datagrams=udp)
+        link = open_link(args.server, token, datagrams=udp, name=args.name)
         # A server restart or a cut: connect again (with backoff) rather than exit.
         bridge = MasterBridge(
-            device, link, settings, reconnect=lambda: open_link(args.server, token, datagrams=udp)
+            device,
+            link,
+            settings,
+            reconnect=lambda: open_link(args.server, token, datagrams=udp, name=args.name),
         )
         bridge.start(take_control=bool(token), take_over=args.take_over)
     except TelerobotError as exc:

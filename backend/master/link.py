@@ -108,6 +108,7 @@ class PriorityLink:
         on_reply: Callable[[Reply], None] | None = None,
         timeout_s: float = 5.0,
         datagrams: bool = False,
+        name: str = "",
     ) -> None:
         self.on_force = on_force
         self.on_state = on_state
@@ -155,6 +156,8 @@ class PriorityLink:
                 + (f": {self.closed_reason}" if self.closed_reason else "")
             )
         self.sock.settimeout(None)
+        if name:  # who has control, as everyone sees it (else "priority HOST:PORT")
+            self.rename(name)
         if datagrams:
             self._ask_for_datagrams()
 
@@ -166,6 +169,12 @@ class PriorityLink:
     def _send(self, message: bytes) -> None:
         with self._send_lock:
             self.sock.sendall(m.LENGTH.pack(len(message)) + message)
+
+    def rename(self, name: str) -> int:
+        """Go by ``name`` (NAME: answered by ACK, or by ERROR saying why)."""
+        seq = self._next()
+        self._send(m.encode(m.NAME, seq, text=name))
+        return seq
 
     def lease(self, action: m.LeaseAction) -> int:
         seq = self._next()

@@ -146,6 +146,16 @@ DATAGRAMS = Message(
     " connection's IP address), at least every second; every: send one sample in this"
     " many (1 = all; a slow link asks for fewer)",
 )
+NAME = Message(
+    "NAME",
+    0x0A,
+    ("seq",),
+    "I",
+    tail="text",
+    doc="the name this client goes by from now on, shown wherever control is listed (UTF-8,"
+    " 1–64 characters: letters, digits, spaces and . , : _ - @ # + / '); ACK, or ERROR"
+    " saying why (the name is kept)",
+)
 
 WELCOME = Message(
     "WELCOME",
@@ -221,7 +231,7 @@ PONG = Message(
 )
 
 MESSAGES: Final[tuple[Message, ...]] = (
-    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS,
+    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME,
     WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG,
 )  # fmt: skip
 BY_ID: Final = {m.type_id: m for m in MESSAGES}

@@ -189,7 +189,7 @@ async def handle(
     has been queued for the client either way something went wrong)."""
     seq = 0
     try:
-        msg, f, _ = m.decode(data)
+        msg, f, text = m.decode(data)
         seq = int(f.get("seq", 0))
         if msg is m.CART_INC:
             frame = FRAMES.get(int(f["frame"]))
@@ -228,6 +228,9 @@ async def handle(
                 await decision.take_lease(client_id, force=action == m.LeaseAction.TAKE_OVER)
             else:
                 raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
+            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
+        elif msg is m.NAME:
+            decision.rename(client_id, text)
             conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
         elif msg is m.DATAGRAMS:
             raise m.MalformedMessage(

@@ -29,6 +29,8 @@ export const LEASE: MessageSpec<"LEASE"> = {"name": "LEASE", "typeId": 7, "size"
 export const RESET: MessageSpec<"RESET"> = {"name": "RESET", "typeId": 8, "size": 5, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
 /** priority channel only, operators only: on TCP, send my forces as UDP datagrams (key: zeros), answered by a DATAGRAMS with the server's key, new each time; on UDP to the channel's port, that key, from the socket that receives them (on the TCP connection's IP address), at least every second; every: send one sample in this many (1 = all; a slow link asks for fewer) */
 export const DATAGRAMS: MessageSpec<"DATAGRAMS"> = {"name": "DATAGRAMS", "typeId": 9, "size": 23, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "key", "kind": "bytes", "offset": 5, "size": 16}, {"name": "every", "kind": "u16", "offset": 21, "size": 2}]};
+/** the name this client goes by from now on, shown wherever control is listed (UTF-8, 1–64 characters: letters, digits, spaces and . , : _ - @ # + / '); ACK, or ERROR saying why (the name is kept) */
+export const NAME: MessageSpec<"NAME"> = {"name": "NAME", "typeId": 10, "size": 5, "tail": "text", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
 /** role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id */
 export const WELCOME: MessageSpec<"WELCOME"> = {"name": "WELCOME", "typeId": 129, "size": 13, "tail": "text", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "role", "kind": "u8", "offset": 3, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 4, "size": 8}, {"name": "joints", "kind": "u8", "offset": 12, "size": 1}]};
 /** robot state; status: index in RobotStatus order; flags: StateFlags; then the joints (rad) */
@@ -44,7 +46,7 @@ export const ACK: MessageSpec<"ACK"> = {"name": "ACK", "typeId": 134, "size": 22
 /** t0 echoed, t1 server receive, t2 server send */
 export const PONG: MessageSpec<"PONG"> = {"name": "PONG", "typeId": 135, "size": 29, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}, {"name": "t1", "kind": "f64", "offset": 13, "size": 8}, {"name": "t2", "kind": "f64", "offset": 21, "size": 8}]};
 
-export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
+export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
 export const FORCE_SAMPLE_SIZE = 60; // u32 seq, f64 time, 6 × f64
 
 /** One sample of a FORCE message: Fx Fy Fz (N), Tx Ty Tz (N·m). */
@@ -117,6 +119,12 @@ export interface DatagramsMessage {
   seq: number; // u32
   key: Uint8Array; // 16 bytes, zero-padded
   every: number; // u16
+}
+/** NAME (0x0a, client → server): the name this client goes by from now on, shown wherever control is listed (UTF-8, 1–64 characters: letters, digits, spaces and . , : _ - @ # + / '); ACK, or ERROR saying why (the name is kept) */
+export interface NameMessage {
+  readonly type: "NAME";
+  seq: number; // u32
+  text: string; // UTF-8 to the end
 }
 /** WELCOME (0x81, server → client): role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id */
 export interface WelcomeMessage {
@@ -192,7 +200,8 @@ export type ClientMessage =
   | PingMessage
   | LeaseMessage
   | ResetMessage
-  | DatagramsMessage;
+  | DatagramsMessage
+  | NameMessage;
 export type ServerMessage =
   | WelcomeMessage
   | StateMessage
