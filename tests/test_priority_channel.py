@@ -93,6 +93,10 @@ def test_commands_go_through_the_lease_and_the_limits(server: tuple[str, int]) -
         assert rec.reply_to(link.lease(m.LeaseAction.TAKE)).name == "ACK"
         before = httpx.get(base + "api/v1/robot/state").json()["target_joints"]
         assert rec.reply_to(link.cartesian((0.005, 0, 0), (0, 0, 0))).name == "ACK"
+        # At rest before the refusals: this link sends no heartbeats, so a busy machine's
+        # slow REST calls can let the dead-man halt it, and a halt while moving leaves
+        # the target where the arm stopped (at rest, where it is).
+        until(lambda: httpx.get(base + "api/v1/robot/state").json()["status"] == "READY")
         after = httpx.get(base + "api/v1/robot/state").json()["target_joints"]
         assert after != before
         too_far = rec.reply_to(link.cartesian((0.05, 0, 0), (0, 0, 0)))
