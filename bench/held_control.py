@@ -129,6 +129,17 @@ def main() -> None:
               const shown = w.onChange; w.onChange = (a, s) => {
                 window.__alerts.push(a ? a.text : null); if (shown) shown(a, s); }; }"""
         )
+        # The page's main thread, as the worker sees it: its own 100 ms timer's gaps (the
+        # check-ins are sent from such a timer) and its long tasks.
+        page.evaluate(
+            """() => { const m = window.__main = {gaps: [], long: []};
+              let last = performance.now();
+              setInterval(() => {
+                const t = performance.now(); m.gaps.push(t - last); last = t; }, 100);
+              new PerformanceObserver((l) => {
+                for (const e of l.getEntries()) m.long.push(e.duration); })
+                .observe({entryTypes: ["longtask"]}); }"""
+        )
         page.click("#take")
         page.wait_for_function("(window.telerobot.state.flags & 1) !== 0", timeout=30_000)
         halts0 = httpx.get(base + "api/v1/safety").json()["deadman_halts"]
@@ -155,6 +166,7 @@ def main() -> None:
             if alert and alert.startswith("ARM HALTED"):
                 said["busy" if "too busy" in alert else "network"] += 1
         halts = httpx.get(base + "api/v1/safety").json()["deadman_halts"] - halts0
+        main = page.evaluate("window.__main")
         skips, resumes = page.evaluate(
             "[window.telerobot.client.beatSkips, window.telerobot.client.resumes]"
         )
@@ -173,6 +185,10 @@ def main() -> None:
         "beat_gaps_over_150ms": sum(g > 150 for g in gaps),
         "beat_skips": skips,
         "resumes": resumes,
+        "main_timer_gap_ms_max": max(main["gaps"], default=None),
+        "main_timer_gaps_over_1s": sum(g > 1000 for g in main["gaps"]),
+        "main_long_tasks": len(main["long"]),
+        "main_long_task_ms_max": max(main["long"], default=None),
         "fps": None if args.no_video else frames / elapsed,
         "busy_core": args.busy_core,
         "video": not args.no_video,

@@ -103,9 +103,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def open_link(
-    server: str, token: str, *, datagrams: bool = True, name: str = ""
-) -> PriorityLink:
+def open_link(server: str, token: str, *, datagrams: bool = True, name: str = "") -> PriorityLink:
     """Find the server's priority channel (GET /api/v1/force/channel) and connect,
     going by ``name``; forces as datagrams unless ``datagrams`` is False."""
     base = server if server.endswith("/") else server + "/"
