@@ -17,6 +17,10 @@ samples over the dead-man's limit), its timer's firings that sent nothing by rea
 (``beat_skips``), the sessions it resumed on a new connection (``resumes``), and what
 the page's halt alerts said (``halts_said_busy``: this computer;
 ``halts_said_network``: the network or server).
+The page's main thread, as the worker sees it: its own 100 ms timer's longest gap
+(``main_timer_gap_ms_max``; ``main_timer_gaps_over_1s``: the worker's PAGE_SILENCE_MS,
+past which it stops the heartbeats) and its long tasks (``main_long_tasks``,
+``main_long_task_ms_max``).
 ``--python-client``: no browser; a Python client (bench.wsclient) takes the lease and
 sends a HEARTBEAT every 50 ms, as the page's worker does: the server's share of the
 halts.

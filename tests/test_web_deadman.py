@@ -91,3 +91,50 @@ def test_a_halt_from_a_busy_computer_is_said_so_and_held_keys_drive_on(
     assert "this computer is too busy" in halted[0], halted[0]
     assert not any(a.startswith("CONTROL LOST") for a in alerts), alerts
     page.close()
+
+
+def test_a_page_on_a_server_with_no_video_makes_no_peers_and_draws_its_view_seldom(
+    browser: Browser, server: str
+) -> None:
+    """The cause of most of the halts on a quiet machine (bench.held_control: 12–16 a
+    minute before, 0 after, video on or off): on a server with no video the page made
+    and dropped a WebRTC peer every few seconds and drew its stale view 20 times a
+    second, and its 2D canvases were the software GPU's, whose backpressure held the
+    page's main thread 1–4 s at a time (a Chromium trace: "GPU backpressure via
+    GL_COMMANDS_COMPLETED_CHROMIUM"), past the 1 s after which the worker takes the page
+    for hung and stops the heartbeats. Now: no peer, the stale view drawn again only
+    when what it says changes (once a second past 2 s), the 2D canvases drawn on the
+    CPU. Each check counts, none times: a slower machine only draws less."""
+    page, _ = open_page(browser, server, video=False)
+    until(
+        lambda: page.evaluate("window.telerobot.video.noVideo"),
+        timeout=30,
+        what="the page to learn that the server has no video",
+    )
+    assert page.evaluate("window.telerobot.video.peer") is None
+    assert page.evaluate("window.telerobot.video.renegotiations") == 0
+    overlay_on_cpu = page.evaluate(
+        "window.telerobot.view.overlay.canvas.getContext('2d')"
+        ".getContextAttributes().willReadFrequently"
+    )
+    assert overlay_on_cpu is True
+    until(
+        lambda: page.evaluate("window.telerobot.panels !== undefined"),
+        what="the panels to be drawn",
+    )
+    page.wait_for_timeout(500)  # (the panels draw their plots a few times a second)
+    charts = page.evaluate(
+        """() => ['force-arrow', 'hist-force', 'hist-state', 'hist-video'].map((id) =>
+             document.getElementById(id).getContext('2d').getContextAttributes()
+             .willReadFrequently)"""
+    )
+    assert charts == [True] * 4, charts  # the panels' plots too
+    until(
+        lambda: page.evaluate("window.telerobot.view.staleMs") > 3000,
+        timeout=30,
+        what="the view to be stale for 3 s",
+    )
+    before = page.evaluate("window.telerobot.view.renders")
+    page.wait_for_timeout(3000)
+    drawn = page.evaluate("window.telerobot.view.renders") - before
+    assert drawn <= 8, f"the stale view was drawn {drawn} times in 3 s (20 a second before)"

@@ -52,6 +52,7 @@ export async function connectVideo(api: Api, onStream: (stream: MediaStream) => 
   // Fetched for each peer: TURN credentials are time-limited, and the media server
   // may have come or gone.
   const [ice, status] = await Promise.all([api.request("get", "/api/v1/video/ice"), api.request("get", "/api/v1/video")]);
+  if (!status.enabled) throw new NoVideo();
   const config = rtcConfiguration(ice);
   const pc = new RTCPeerConnection(config);
   pc.ontrack = (ev) => {
@@ -130,6 +131,16 @@ export function closeVideo(api: Api, peer: VideoPeer): void {
     .catch(() => undefined);
 }
 
+/** The server sends no video (it was started with video off): no peer is made for it.
+ * Making and dropping a peer every few seconds is not free: Chromium tears one down on
+ * the page's main thread, which then stalls for 1–3 s (bench.held_control measured it),
+ * long enough for the realtime worker to stop the dead-man heartbeats (issue 27). */
+export class NoVideo extends Error {
+  constructor() {
+    super("this server sends no video (it was started with video off)");
+  }
+}
+
 /** Delays between attempts: `firstMs`, doubling up to `maxMs`; back to the first on reset. */
 export class Backoff {
   private nextMs: number;
@@ -174,6 +185,8 @@ export class VideoConnection {
   /** Peers negotiated after the first. */
   renegotiations = 0;
   private attempting = false;
+  /** The server said it sends no video: its status is checked now and then, quietly. */
+  noVideo = false;
   private timer: ReturnType<typeof setTimeout> | null = null;
   private attemptAt = -Infinity;
   private readonly backoff: Backoff;
@@ -206,11 +219,12 @@ export class VideoConnection {
     this.retry(`no video for ${Math.round(ms)} ms`);
   }
 
-  /** Try again after the backoff's next delay (one attempt at a time). */
+  /** Try again after the backoff's next delay (one attempt at a time). On a server with
+   * no video, only its status is asked again, every `maxMs`, and said once. */
   retry(why: string): void {
     if (this.attempting || this.timer !== null) return;
-    const delay = this.backoff.next();
-    this.options.onError?.(`video: ${why}; reconnecting in ${(delay / 1000).toFixed(1)} s`);
+    const delay = this.noVideo ? this.backoff.maxMs : this.backoff.next();
+    if (!this.noVideo) this.options.onError?.(`video: ${why}; reconnecting in ${(delay / 1000).toFixed(1)} s`);
     this.timer = setTimeout(() => {
       this.timer = null;
       this.attempt().catch(() => undefined);
@@ -236,8 +250,11 @@ export class VideoConnection {
     });
     this.options.onPeer?.(next);
     next
+      .then(() => (this.noVideo = false))
       .catch((e: Error) => {
         this.attempting = false;
+        if (e instanceof NoVideo && !this.noVideo) this.options.onError?.(`video: ${e.message}`);
+        this.noVideo = e instanceof NoVideo;
         this.retry(e.message);
       })
       .then(() => (this.attempting = false))

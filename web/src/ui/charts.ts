@@ -1,9 +1,10 @@
 // The small canvases of the operator's panels: inter-arrival histograms and the force arrow.
 import type { Vec3 } from "../robot/math";
 import type { Rolling } from "../stats";
+import { canvas2d } from "../canvas2d";
 
 export function drawHistogram(canvas: HTMLCanvasElement, stats: Rolling, max: number, label: string): void {
-  const ctx = canvas.getContext("2d");
+  const ctx = canvas2d(canvas);
   if (!ctx) return;
   const bins = stats.histogram(40, max);
   const top = Math.max(1, ...bins);
@@ -20,7 +21,7 @@ export function drawHistogram(canvas: HTMLCanvasElement, stats: Rolling, max: nu
 }
 
 export function drawArrow(canvas: HTMLCanvasElement, f: Vec3, limit: number): void {
-  const ctx = canvas.getContext("2d");
+  const ctx = canvas2d(canvas);
   if (!ctx) return;
   ctx.fillStyle = "#111";
   ctx.fillRect(0, 0, canvas.width, canvas.height);

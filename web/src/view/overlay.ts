@@ -5,6 +5,8 @@
 // texture that the shader composites at the same pixel as the video (so the right
 // image's alignment shift moves it too, and it is shown in every mode and in WebXR).
 
+import { canvas2d } from "../canvas2d";
+
 export type Eye = 0 | 1; // 0: the left camera's image, 1: the right camera's
 export interface EyeSize {
   width: number;
@@ -48,7 +50,7 @@ export class OverlayCanvas {
 
   constructor(readonly scale = OVERLAY_SCALE) {
     this.canvas = document.createElement("canvas");
-    const ctx = this.canvas.getContext("2d");
+    const ctx = canvas2d(this.canvas);
     if (!ctx) throw new Error("no 2D canvas for the overlay");
     this.ctx = ctx;
   }

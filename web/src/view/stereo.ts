@@ -104,6 +104,12 @@ export const TIMECODE_ROWS = 28;
 /** No new frame for this long: the view dims and says so. */
 export const STALE_MS = 300;
 
+/** What the dimmed view says: the stall in ms for its first 2 s (it changes at every
+ * check, 20 times a second), then in whole seconds (once a second). */
+export function staleText(ms: number): string {
+  return ms < 2000 ? `VIDEO STALE ${Math.round(ms)} ms` : `VIDEO STALE ${Math.floor(ms / 1000)} s`;
+}
+
 export type { Eye, EyeSize, OverlayPainter };
 
 export class StereoView {
@@ -116,6 +122,8 @@ export class StereoView {
   private readonly xrGroup = new THREE.Group();
   mode: ViewMode = "side-by-side";
   frames = 0;
+  /** Times the view was drawn (each costs the main thread a WebGL frame). */
+  renders = 0;
   onFrame: ((metadata: VideoFrameCallbackMetadata) => void) | null = null;
   /** Each XR frame, before it is drawn: read the controllers here. */
   onXRFrame: ((frame: XRFrame, space: XRReferenceSpace) => void) | null = null;
@@ -227,7 +235,7 @@ export class StereoView {
 
   private paintStale(ctx: CanvasRenderingContext2D, _eye: Eye, size: EyeSize): void {
     if (this.staleMs === null) return;
-    const text = `VIDEO STALE ${Math.round(this.staleMs)} ms`;
+    const text = staleText(this.staleMs);
     const px = Math.max(12, Math.round(size.height / 10));
     ctx.font = `bold ${px}px system-ui, sans-serif`;
     ctx.textAlign = "center";
@@ -249,9 +257,14 @@ export class StereoView {
     if (ms === null && was === null) return this.onStale?.(null);
     if (ms !== null && was === null) this.lastStale = { lastFrameAt: this.watch.lastFrameAt, reportedAt: now };
     this.staleMs = ms;
-    this.overlayChanged();
-    for (const m of this.all()) m.uniforms.dim!.value = ms === null ? 0 : 0.6;
-    if (!this.renderer.xr.isPresenting) this.render();
+    // Drawn again only when what it says changes: a long stall (a server with no video)
+    // is redrawn once a second, not 20 times (each redraw of the view costs a software
+    // GPU's main thread dearly: issue 27 item 1).
+    if (ms === null || was === null || staleText(ms) !== staleText(was)) {
+      this.overlayChanged();
+      for (const m of this.all()) m.uniforms.dim!.value = ms === null ? 0 : 0.6;
+      if (!this.renderer.xr.isPresenting) this.render();
+    }
     this.onStale?.(ms);
   }
 
@@ -354,6 +367,7 @@ export class StereoView {
   }
 
   render(): void {
+    this.renders += 1;
     this.layout();
     this.renderer.render(this.scene, this.camera);
   }
