@@ -40,7 +40,7 @@ describe("connectVideo", () => {
     const api = {
       request: (method: string, path: string) => {
         asked.push(`${method} ${path}`);
-        return Promise.resolve(path === "/api/v1/video" ? { path: "direct" } : RELAY);
+        return Promise.resolve(path === "/api/v1/video" ? { path: "direct", enabled: true } : RELAY);
       },
     } as unknown as Api;
     vi.stubGlobal(
@@ -69,7 +69,7 @@ describe("connectVideo through a media server", () => {
       request: (method: string, path: string, options?: { body?: unknown }) => {
         asked.push({ call: `${method} ${path}`, body: options?.body });
         if (path === "/api/v1/video/ice") return Promise.resolve({ ice_servers: [], ice_transport_policy: "all" });
-        if (path === "/api/v1/video") return Promise.resolve({ path: "relay" });
+        if (path === "/api/v1/video") return Promise.resolve({ path: "relay", enabled: true });
         if (path === "/api/v1/webrtc/server-offer") return Promise.resolve({ peer_id: "relay-abc", peer_secret: "s3cret", sdp: "v=0 janus", type: "offer" });
         return Promise.resolve({ peer_id: "relay-abc" });
       },
@@ -117,7 +117,7 @@ describe("connectVideo through a media server", () => {
       request: (method: string, path: string) => {
         asked.push(`${method} ${path}`);
         if (path === "/api/v1/video/ice") return Promise.resolve({ ice_servers: [], ice_transport_policy: "all" });
-        if (path === "/api/v1/video") return Promise.resolve({ path: "relay" });
+        if (path === "/api/v1/video") return Promise.resolve({ path: "relay", enabled: true });
         if (path === "/api/v1/webrtc/server-offer") return Promise.resolve({ peer_id: "relay-abc", peer_secret: "s3cret", sdp: "v=0", type: "offer" });
         if (path === "/api/v1/webrtc/answer" && failAnswer) return Promise.reject(new Error("503 relay_full"));
         return Promise.resolve({});
