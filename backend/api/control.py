@@ -11,7 +11,7 @@ from backend.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
 from backend.api.requests import StrictRequest
 from backend.control.decision import DecisionServer, NotAllowed
 from backend.control.limits import full_speed_stop_s, stopping
-from backend.control.names import MAX_NAME, RULE, name_problem
+from backend.realtime.names import MAX_NAME, RULE, name_problem
 from drivers.base import StopCategory, WorkingFrame
 
 # A script's client (no connection of its own) is forgotten this long after its last

@@ -31,7 +31,7 @@ import numpy as np
 import pinocchio as pin
 
 from backend.control.limits import SafetyLimits
-from backend.control.names import client_name
+from backend.realtime.names import client_name
 from backend.security import token_matches
 from drivers.base import (
     FloatArray,
@@ -404,7 +404,7 @@ class DecisionServer:
     def rename(self, client_id: str, name: str) -> None:
         """The name ``client_id`` goes by from now on (a NAME message: a client with no
         URL to name itself in, such as the master bridge on the priority channel). A
-        name against the rule (backend/control/names.py) is refused and the old one
+        name against the rule (backend/realtime/names.py) is refused and the old one
         kept; a holder's new name is said at once (the SAFETY event, ``/safety``)."""
         client = self.client(client_id)
         client.name = client_name(name)

@@ -13,9 +13,9 @@ from urllib.parse import urlsplit
 import httpx
 import numpy as np
 
-from backend.control.names import client_name
 from backend.master.bridge import BridgeSettings, MasterBridge
 from backend.master.link import PriorityLink
+from backend.realtime.names import client_name
 from drivers.base import FloatArray, MasterArm, TelerobotError
 from drivers.registry import driver_names, load_driver
 from telerobot.client import local_url, stored_token
