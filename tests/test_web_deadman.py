@@ -68,6 +68,9 @@ def test_a_halt_from_a_busy_computer_is_said_so_and_held_keys_drive_on(
             what=page_said(page, "the arm moves with Space and W held"),
         )
         halts = httpx.get(server + "api/v1/safety").json()["deadman_halts"]
+        # (A machine with a core busy may have halted the arm already, for its own
+        # reasons, said as they were: what this test stalls is judged from here on.)
+        before = len(page.evaluate("window.__alerts"))
         stall_the_worker(page, STALL_MS)
         until(
             lambda: httpx.get(server + "api/v1/safety").json()["deadman_halts"] > halts,
@@ -86,9 +89,9 @@ def test_a_halt_from_a_busy_computer_is_said_so_and_held_keys_drive_on(
     # The lease was kept through the halt.
     assert page.evaluate("(window.telerobot.state.flags & 1) !== 0")
     alerts = [a for a in page.evaluate("window.__alerts") if a]
-    halted = [a for a in alerts if a.startswith("ARM HALTED")]
+    halted = [a for a in page.evaluate("window.__alerts")[before:] if a and "HALTED" in a]
     assert halted, alerts
-    assert "this computer is too busy" in halted[0], halted[0]
+    assert any("this computer is too busy" in a for a in halted), halted
     assert not any(a.startswith("CONTROL LOST") for a in alerts), alerts
     page.close()
 
