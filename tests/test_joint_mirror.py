@@ -308,17 +308,12 @@ def test_the_master_command_mirrors_a_leader_and_says_so() -> None:
         )
         # Who has control is the bridge's own name (NAME), not "priority 127.0.0.1:…".
         assert httpx.get(base + "api/v1/safety").json()["controller"] == "master sim-leader"
-    bad = subprocess.run(
-        [str(BIN), "master", "--server", "http://127.0.0.1:9/", "--name", "me (again)"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+
+    def master_to_nowhere(*args: str) -> subprocess.CompletedProcess[str]:
+        command = [str(BIN), "master", "--server", "http://127.0.0.1:9/", *args]
+        return subprocess.run(command, capture_output=True, text=True, timeout=60)
+
+    bad = master_to_nowhere("--name", "me (again)")
     assert bad.returncode == 2 and "--name: a name is 1–64 characters" in bad.stderr
-    out = subprocess.run(
-        [str(BIN), "master", "--server", "http://127.0.0.1:9/", "--device", "so101-leader"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    out = master_to_nowhere("--device", "so101-leader")
     assert out.returncode == 1 and "cannot ask http://127.0.0.1:9/ for its arm" in out.stderr
