@@ -6,6 +6,7 @@ confirmation, and a task is ``done`` only when the tool reached the path's end."
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import time
@@ -15,12 +16,15 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+import psutil
 import pytest
 from fastapi.testclient import TestClient
 from mcap.writer import CompressionType, Writer
 
+from backend.recording.readjobs import JOB_NICE
 from backend.recording.salvage import NotARecording
 from backend.tasks.runner import PathJumps, TaskSpec, TaskState
+from backend.tasks.source_reader import SourceReader
 from backend.tasks.trajectory import StateSample, Trajectory
 from bench.task_replay import DOWN, SimCell, push_start
 from drivers.base import InvalidCommand
@@ -194,6 +198,21 @@ def test_tokenless_previews_are_budgeted_per_address_and_read_one_at_a_time(
         for k in range(8, 11):
             r = preview(k, AUTH)
             assert r.status_code == 200, r.text
+
+
+def test_the_reader_process_waits_behind_control(tmp_path: Path) -> None:
+    # The read runs in a process of its own at the read jobs' niceness: at the
+    # server's, a tokenless preview loop took turns with the event loop on 2 cores and
+    # the e-stop waited out its slices.
+    rec = write_recording(tmp_path / "r.mcap", seconds=2.0, episode=(0.5, 1.5))
+    reader = SourceReader()
+    try:
+        traj = asyncio.run(reader.trajectory(rec, 0, None, operator=True, address="a"))
+        assert len(traj) > 0
+        niceness = {p.nice() for p in psutil.Process().children()}
+        assert JOB_NICE in niceness and psutil.Process().nice() < JOB_NICE, niceness
+    finally:
+        reader.close()
 
 
 # ------------------------------------------------------------ paths that jump

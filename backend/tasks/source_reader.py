@@ -29,7 +29,9 @@ operator commands dropped as stale). So:
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import multiprocessing
+import os
 import threading
 import time
 from collections import OrderedDict
@@ -42,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from backend.realtime.ratelimit import TokenBucket
+from backend.recording.readjobs import JOB_NICE
 from backend.tasks.trajectory import READ_LIMIT_S, Trajectory
 from drivers.base import FloatArray, TelerobotError
 
@@ -52,6 +55,14 @@ BURST = 20.0
 READ_COST = 10.0  # a read is ten looks at the cache: one every 5 s, after a burst of two
 MAX_ADDRESSES = 1024  # addresses with a budget; the one heard from longest ago goes first
 MAX_QUEUED = 4  # the operator's reads waiting for the reader, at most
+
+
+def _behind_control() -> None:
+    """The reader's process waits behind control, forces and live video, as the
+    recordings' read jobs do: at the same priority as the server, a read took turns
+    with the event loop on a 2-core machine and the e-stop waited out its slices."""
+    with contextlib.suppress(OSError):
+        os.nice(JOB_NICE)
 
 
 class ReadFailed(TelerobotError):
@@ -217,7 +228,9 @@ class SourceReader:
                 raise RuntimeError("closed")
             if self._executor is None:
                 self._executor = ProcessPoolExecutor(
-                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                    max_workers=1,
+                    mp_context=multiprocessing.get_context("spawn"),
+                    initializer=_behind_control,
                 )
             future = self._executor.submit(
                 Trajectory.from_recording,
