@@ -137,6 +137,19 @@ def serve_for_bench(
         yield proc, base
 
 
+@contextlib.contextmanager
+def busy_core(on: bool) -> Iterator[None]:
+    """With ``on``, one core kept busy meanwhile (Debian's stress-ng), as a machine that
+    is also doing something else: the benches' ``--busy-core``."""
+    proc = subprocess.Popen(["stress-ng", "--cpu", "1", "--quiet"]) if on else None
+    try:
+        yield
+    finally:
+        if proc is not None:
+            proc.terminate()
+            proc.wait(10)
+
+
 def wait_until_ready(base: str, timeout: float = 30.0) -> None:
     """Wait until the server at ``base`` says its robot is READY (the simulated arm
     initialises to its home pose first)."""

@@ -31,9 +31,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import secrets
-import subprocess
 import time
-from collections.abc import Iterator
 
 import httpx
 import numpy as np
@@ -41,19 +39,8 @@ from playwright.sync_api import sync_playwright
 
 from backend.realtime import messages as m
 from bench.browser import ARGS, yield_software_gpu
-from bench.common import emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, parser, serve_for_bench
 from bench.wsclient import RealtimeClient
-
-
-@contextlib.contextmanager
-def busy_core(on: bool) -> Iterator[None]:
-    proc = subprocess.Popen(["stress-ng", "--cpu", "1", "--quiet"]) if on else None
-    try:
-        yield
-    finally:
-        if proc is not None:
-            proc.terminate()
-            proc.wait(10)
 
 
 def safety_halts(base: str) -> int:

@@ -123,6 +123,7 @@ class FakeLink:
         self.offset = 0.0
         self.closed_reason = None
         self.sent: list[tuple[float, tuple[float, ...]]] = []
+        self.energies: list[tuple[float, float, float]] = []
         self.now = 0.0
         self.on_force = self.on_state = self.on_reply = None
 
@@ -131,6 +132,10 @@ class FakeLink:
     ) -> int:
         self.sent.append((self.now, dX))
         return len(self.sent)
+
+    def energy(self, e_in: float, e_out: float) -> int:
+        self.energies.append((self.now, e_in, e_out))
+        return len(self.energies)
 
     def heartbeat(self) -> None:
         pass
@@ -166,7 +171,11 @@ def test_the_injected_round_trip_delays_commands_and_forces_by_half_each() -> No
             moved_at = clock.t
         bridge.tick()
     assert moved_at is not None and link.sent
-    first = link.sent[0][0]
+    # (Gripped, the two-port bridge sends an increment every period, still or not,
+    # each after its ENERGY: the first went out half the round trip after the start.)
+    assert 0.1 - 0.002 <= link.sent[0][0] <= 0.1 + 0.012
+    assert len(link.energies) == len(link.sent)
+    first = next(t for t, dx in link.sent if any(dx))
     assert 0.1 + 0.1 - 0.002 <= first <= 0.1 + 0.1 + 0.012  # half the round trip (+ a period)
     # A force sample received at 0.6 s is rendered from 0.7 s, not before.
     bridge._on_force(ForceSample(1, 0.6, (0.0, 0.0, 10.0, 0.0, 0.0, 0.0)), 0.6)
@@ -185,49 +194,60 @@ def test_jitter_keeps_the_order() -> None:
     assert 0.04 < float(np.median(np.array(dues) - np.arange(2000) * DT)) < 0.15
 
 
-# The whole loop at a 200 ms round trip, in virtual time (bench.master_contact's
+# The whole loop at 200 and 700 ms round trips, in virtual time (bench.master_contact's
 # stepped_press: the server's simulated arm, 5·10⁴ N/m block, force sensor and
-# DecisionServer, the bridge with its injected delay and passivity controller, the
-# simulated master and hand, all on one stepped clock). Deterministic: the same figures
-# on any machine. The real-time figure (threads at 1 kHz, a served server, the link) is
-# `python -m bench.master_contact`'s.
-PRESS = {"rtt_s": 0.2, "seconds": 9.0, "press_m": 0.002, "hand_stiffness": 400.0,
-         "stiffness": 5.0e4}  # fmt: skip
+# DecisionServer with its slow approach after a contact, the bridge with its injected
+# delay and passivity controller, the simulated master and hand, all on one stepped
+# clock). Deterministic: the same figures on any machine. The real-time figure
+# (threads at 1 kHz, a served server, the link) is `python -m bench.master_contact`'s.
+PRESS = {"seconds": 7.0, "press_m": 0.002, "hand_stiffness": 400.0, "stiffness": 5.0e4}
 
 
 @pytest.fixture(scope="module")
-def presses() -> dict[str, dict[str, Any]]:
+def presses() -> dict[tuple[int, str], dict[str, Any]]:
     from bench.master_contact import stepped_run
 
     return {
-        "on": stepped_run(passivity=True, **PRESS),
-        "off": stepped_run(passivity=False, **PRESS),
+        (rtt, mode): stepped_run(rtt_s=rtt / 1000, passivity=mode, **PRESS)
+        for rtt, mode in ((200, "passivity"), (200, "none"), (700, "passivity"), (700, "one_port"))
     }
 
 
-def test_with_a_200_ms_round_trip_passivity_holds_the_press_on_the_block(
-    presses: dict[str, dict[str, Any]],
+@pytest.mark.parametrize("rtt", [200, 700])
+def test_with_the_two_port_the_press_holds_on_the_block(
+    presses: dict[tuple[int, str], dict[str, Any]], rtt: int
 ) -> None:
-    on = presses["on"]
-    assert on["contact_s"] > 5.0 and on["lift_offs"] == 0, on  # it pressed on the block, and stayed
-    # The impact (the 200 ms of 5 mm/s sent before the block's push comes back: ~1 mm,
-    # ~50 N) stays under the 60 N limit, and then no ringing: the force settles at the
-    # hand's press (400 N/m × 2 mm against the block's push at 1/20: ~14 N).
-    assert on["limit_trips"] == 0 and on["peak_n"] < 60.0, on
-    assert on["oscillation"] < 4.0, on
-    assert 10.0 < on["mean_force_n"] < 20.0, on
-    assert on["energy_j"] < 0.01 and on["damped_j"] > 0.0, on  # it did have to damp
+    on = presses[(rtt, "passivity")]
+    assert on["contact_s"] > 3.0 and on["lift_offs"] == 0, on  # it pressed, and stayed
+    # The arm puts into the block no more than the operator put in: no impact from
+    # the increments sent before the force came back, no ringing, no force limit;
+    # the force settles near the hand's press (400 N/m × 2 mm against the block's push
+    # at 1/20: ~14 N; less at 700 ms, where less of the press has come through yet).
+    assert on["limit_trips"] == 0 and on["peak_n"] < 30.0, on
+    assert on["oscillation"] < 2.0, on
+    assert 5.0 < on["mean_force_n"] < 20.0, on
     assert on["drift_mm"] < 5.0 and not on["estop_at_end"], on
 
 
-def test_with_a_200_ms_round_trip_and_no_passivity_the_press_rings(
-    presses: dict[str, dict[str, Any]],
+def test_without_passivity_the_press_is_lost(
+    presses: dict[tuple[int, str], dict[str, Any]],
 ) -> None:
-    on, off = presses["on"], presses["off"]
+    on, off = presses[(200, "passivity")], presses[(200, "none")]
     summary = f"with {on}\nwithout {off}"
     # The delayed spring pushes the handle back harder than the hand pressed it: the
-    # tool bounces off the block and strikes it again, tripping the force limit.
-    assert off["lift_offs"] >= 3, summary
-    assert off["limit_trips"] > 0 or off["oscillation"] > 8.0, summary
-    assert off["oscillation"] > 4 * on["oscillation"], summary
-    assert off["energy_j"] > 10 * on["energy_j"] and off["damped_j"] == 0.0, summary
+    # tool strikes the block (~56 N, by the 200 ms of increments sent blind), is thrown
+    # off, and the slow approach after a contact keeps it off (without the two-port the
+    # arm owes the master nothing: the ratchet) — or, with that rule off, it rings and
+    # trips the limit (bench.master_contact, issue 16). Either way no press.
+    assert off["peak_n"] > 3 * on["peak_n"] and off["lift_offs"] >= 1, summary
+    assert off["mean_force_n"] < 2.0 or off["limit_trips"] > 0, summary
+    assert off["energy_j"] > 10 * on["energy_j"] and off["drift_mm"] > 5.0, summary
+
+
+def test_at_700_ms_the_master_alone_cannot_keep_the_arm_off_the_limit(
+    presses: dict[tuple[int, str], dict[str, Any]],
+) -> None:
+    # The one-port (the master's side only) damps the handle but cannot stop what was
+    # already sent: the arm drives into the block on 350 ms of increments.
+    one = presses[(700, "one_port")]
+    assert one["limit_trips"] > 0 or one["peak_n"] > 55.0, one

@@ -115,6 +115,30 @@ def test_commands_go_through_the_lease_and_the_limits(server: tuple[str, int]) -
     until(lambda: httpx.get(base + "api/v1/safety").json()["controller"] is None)
 
 
+def test_a_master_says_its_energy_and_the_arm_answers_with_its_own(
+    server: tuple[str, int],
+) -> None:
+    # The two-port's messages (docs/protocol.md, Passivity): an operator's ENERGY is
+    # answered by the arm's PORT_ENERGY (nothing pressed yet: nothing given or spent);
+    # an observer's, or one with a bad value, gets an ERROR and changes nothing.
+    _, port = server
+    link, rec = connect(port)
+    watcher, seen = connect(port, token="")
+    try:
+        seq = link.energy(0.5, 0.1)
+        answer = rec.reply_to(seq)
+        assert answer.name == "PORT_ENERGY", answer
+        assert answer.fields["e_in"] == 0.0 and answer.fields["e_out"] == 0.0
+        for bad, says in ((math.nan, "e_in is nan"), (math.inf, "e_in is inf"), (-1.0, "≥ 0")):
+            refused = rec.reply_to(link.energy(bad, 0.0))
+            assert refused.name == "ERROR" and says in refused.text, refused
+        refused = seen.reply_to(watcher.energy(1.0, 0.0))
+        assert refused.name == "ERROR" and "operator" in refused.text, refused
+    finally:
+        link.close()
+        watcher.close()
+
+
 def test_the_first_message_must_be_hello(server: tuple[str, int]) -> None:
     _, port = server
     with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:

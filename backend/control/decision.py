@@ -31,6 +31,7 @@ import numpy as np
 import pinocchio as pin
 
 from backend.control.limits import SafetyLimits
+from backend.control.slave_port import SlavePort
 from backend.realtime.names import client_name
 from backend.security import token_matches
 from drivers.base import (
@@ -130,6 +131,8 @@ class Client:
     # RESUME flag); None: not resumable. Its generation counts the connections so far.
     resume_key: str | None = field(default=None, repr=False)
     generation: int = 0
+    # A master arm's side of the two-port passivity, made by its first ENERGY message.
+    port: SlavePort | None = field(default=None, repr=False)
     address: str = ""  # the host it joined from (a script's: who may take its idle lease again)
     # A task's client: the operator it runs for. That operator supervises it, and its
     # heartbeats keep it present while the task holds the lease in its place.
@@ -611,6 +614,22 @@ class DecisionServer:
         self._estop, self._estop_reason = False, ""
         self.events.safety_changed.emit(self.state())
 
+    def master_energy(self, client_id: str, e_in: float, e_out: float) -> tuple[float, float]:
+        """A master arm's books (``ENERGY``: what its operator put into the link and
+        got back, J, cumulative); answers the arm's (``PORT_ENERGY``: what the arm's
+        surroundings gave back into the link, and what the arm put into them). From
+        the first, this client's increments keep to the master's energy
+        (``backend.control.slave_port``)."""
+        client = self.client(client_id)
+        if client.role is not Role.OPERATOR:
+            raise NotAllowed("only an operator's master arm sends its energy")
+        if not (math.isfinite(e_in) and math.isfinite(e_out) and e_in >= 0 and e_out >= 0):
+            raise InvalidCommand("energies must be finite numbers ≥ 0 (J)")
+        if client.port is None:
+            client.port = SlavePort()
+        client.port.master_energy(e_in, e_out)
+        return client.port.given, client.port.out
+
     def on_force(self, sample: ForceSample) -> None:
         """Force limit: a contact force above the limit stops motion; only commands that
         back away from the contact are taken until it falls below the release level.
@@ -618,6 +637,9 @@ class DecisionServer:
         slowed to ``contact_speed_m_s`` for ``contact_memory_s``."""
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
+        holder = self._clients.get(self._lease) if self._lease is not None else None
+        if holder is not None and holder.port is not None:
+            holder.port.add_force(fx, fy, fz)
         if magnitude > self.limits.contact_force_n:
             # Kept in the sensor frame: rotated only when a command asks (100 Hz, not 1 kHz).
             self._contact_sensor = (fx, fy, fz)
@@ -772,6 +794,13 @@ class DecisionServer:
         now = self.clock.now()
         dt = self._interval(client, now)
         frame = frame or self.frame
+        # A master arm's port (it sends ENERGY): what the arm still owes its motion
+        # comes with this increment, and the part into a contact keeps to its energy.
+        port = client.port if frame is WorkingFrame.BASE else None
+        wanted = dX
+        if port is not None:
+            wanted = dX = dX + port.owed_for(now)
+            step = float(np.linalg.norm(dX))
         seed = self.robot.target_joints
         T0 = self.kinematics.fk(seed).copy()
         speed = lim.max_speed_m_s
@@ -780,12 +809,17 @@ class DecisionServer:
         factor = min(1.0, speed * dt / step if step else 1.0)
         factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
         dX, rv = dX * factor, rv * factor
+        if port is not None:
+            dX = port.allow(dX, self.robot.pose.rotation)
         T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
         if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
             raise SafetyStop("force limit: only moves that back away from the contact are allowed")
         self._check_workspace(T[:3, 3])
         q = self.kinematics.ik(T, seed)
-        return await self._apply(client, q, seed, seq, client_time, factor)
+        applied = await self._apply(client, q, seed, seq, client_time, factor)
+        if port is not None:
+            port.moved(dX, wanted, self.robot.pose.rotation)
+        return applied
 
     @reported("joint_increment")
     async def joint_increment(

@@ -15,7 +15,12 @@ over the priority channel. Every millisecond it reads the device and
   device feels lighter (switchable);
 - keeps the rendered force passive (``passivity``: the observer and controller of
   ``backend.master.passivity``): a delayed, stiff contact cannot push back more energy
-  than the operator put in, which is what makes such a loop ring.
+  than the operator put in, which is what makes such a loop ring;
+- with ``two_port`` (the default), sends its books to the arm (``ENERGY``, every
+  command period), which then puts no more energy into a contact than the operator put
+  in (``backend.control.slave_port``), and keeps the handle within what the contact
+  gave back (``PORT_ENERGY``). While the clutch is held it sends an increment every
+  command period, still or not: the arm catches up with the master on them.
 
 Heartbeats keep the lease while the bridge runs. An optional constant virtual delay
 holds each force sample until its sensor time plus T_v (Kosuge's virtual time delay),
@@ -68,6 +73,9 @@ class BridgeSettings:
     max_step_m: float = 0.01  # a larger jump between two readings is a tracking glitch
     heartbeat_s: float = 0.05
     passivity: bool = True  # damp the rendered force when the port makes energy
+    # …and the arm's side too (the two-port: ENERGY / PORT_ENERGY); only with passivity
+    # and rendered forces (without either there is no budget to keep to).
+    two_port: bool = True
     # The passivity controller's cap. High, because its damper is energy-bounded (it
     # takes exactly the port's deficit, in bursts, not a standing 1000 N·s/m the device
     # could not render stably at 1 kHz) and the device's own force limit comes first;
@@ -152,15 +160,22 @@ class MasterBridge:
                 enabled=self.settings.passivity, max_damping_n_s_m=self.settings.max_damping_n_s_m
             )
         )
+        if self.two_port:  # nothing may be given back before the arm says what it got
+            self.passivity.budget = 0.0
         # The injected delay: commands waiting to go out (due, dX, rotvec), bounded (at
         # 100 a second and at most 1 s each way, 100 wait at once).
-        self._outbox: deque[tuple[float, FloatArray, FloatArray]] = deque(maxlen=1000)
+        self._outbox: deque[tuple[float, FloatArray, FloatArray, tuple[float, float] | None]] = (
+            deque(maxlen=1000)
+        )
         self._rng = random.Random(0)
         self._last_due = {"out": -math.inf, "in": -math.inf}
         self._now = time_source
         self._lock = threading.Lock()
         self._force: ForceSample | None = None  # the newest sample to render
         self._delayed: deque[tuple[float, ForceSample]] = deque()
+        # The arm's PORT_ENERGY (its surroundings' energy back, J, the arm's units) on
+        # its way in through the injected delay: (due, e_in), at most one a command.
+        self._arm_energy: deque[tuple[float, float]] = deque(maxlen=1000)
         self._tool_rotation: FloatArray = np.eye(3)
         self.flags = 0
         self._anchor: tuple[FloatArray, FloatArray] | None = None  # last (p, R) while clutched
@@ -174,6 +189,9 @@ class MasterBridge:
         self.ticks = 0
         self.overruns = 0
         self.commands_sent = 0
+        self.energy_sent = 0  # ENERGY messages
+        self.arm_energy_in = 0.0  # the newest PORT_ENERGY e_in (J, the arm's units)
+        self.arm_energy_out = 0.0  # …and e_out: what the arm put into its surroundings
         self.jumps_dropped = 0
         self.forces_received = 0
         self.forces_stale = 0
@@ -225,9 +243,37 @@ class MasterBridge:
             self.states_received += 1
 
     def _on_reply(self, reply: Reply) -> None:
+        if reply.name == "PORT_ENERGY":
+            e_in, e_out = float(reply.fields["e_in"]), float(reply.fields["e_out"])
+            with self._lock:
+                self.arm_energy_out = max(self.arm_energy_out, e_out)
+                if self.settings.delay_rtt_s > 0:
+                    self._arm_energy.append((self._due("in", self._now()), e_in))
+                else:
+                    self._take_arm_energy(e_in)
+            return
         if reply.name == "ERROR":
             self.last_error = reply.text
             log.warning("server: %s", reply.text)
+
+    def _take_arm_energy(self, e_in: float) -> None:
+        """The arm's surroundings gave back ``e_in`` so far: what the handle may be
+        given (in the device's units). Called with the lock held."""
+        if math.isfinite(e_in) and e_in > self.arm_energy_in:
+            self.arm_energy_in = e_in
+        self.passivity.budget = self.arm_energy_in / self._arm_per_device
+
+    @property
+    def two_port(self) -> bool:
+        s = self.settings
+        return s.two_port and s.passivity and s.render_force and s.force_scale > 0
+
+    @property
+    def _arm_per_device(self) -> float:
+        """The arm's joules per joule at the handle: forces scale by ``force_scale`` on
+        the way in, motion by ``motion_scale`` on the way out."""
+        s = self.settings
+        return s.motion_scale / s.force_scale
 
     @property
     def has_control(self) -> bool:
@@ -239,6 +285,8 @@ class MasterBridge:
         with self._lock:
             while self._delayed and self._delayed[0][0] <= now:
                 self._force = self._delayed.popleft()[1]
+            while self._arm_energy and self._arm_energy[0][0] <= now:
+                self._take_arm_energy(self._arm_energy.popleft()[1])
             sample, R = self._force, self._tool_rotation
         if sample is None:
             return np.zeros(3)
@@ -278,18 +326,22 @@ class MasterBridge:
         if now >= self._next_command:
             self._next_command = now + 1.0 / s.command_rate_hz
             moved = bool(np.any(self._pending_dx) or np.any(self._pending_rv))
-            if moved and self.has_control:
+            two_port = self.two_port
+            # Two-port: every period while gripped (the arm catches up on still ones).
+            if (moved or (two_port and state.clutch)) and self.has_control:
+                energy = self._energy() if two_port else None
                 if s.delay_rtt_s > 0:
+                    due = self._due("out", now)
                     self._outbox.append(
-                        (self._due("out", now), self._pending_dx.copy(), self._pending_rv.copy())
+                        (due, self._pending_dx.copy(), self._pending_rv.copy(), energy)
                     )
                 else:
-                    self._send_command(self._pending_dx, self._pending_rv, now)
+                    self._send_command(self._pending_dx, self._pending_rv, now, energy)
             self._pending_dx[:] = 0.0
             self._pending_rv[:] = 0.0
         while self._outbox and self._outbox[0][0] <= now:
-            _, dx_, rv_ = self._outbox.popleft()
-            self._send_command(dx_, rv_, now)
+            _, dx_, rv_, energy_ = self._outbox.popleft()
+            self._send_command(dx_, rv_, now, energy_)
         if now - self._last_heartbeat >= s.heartbeat_s:
             self.link.heartbeat()
             self._last_heartbeat = now
@@ -300,7 +352,17 @@ class MasterBridge:
             return np.asarray(force * (self.device.max_force_n / norm), dtype=float)
         return force
 
-    def _send_command(self, dx: FloatArray, rv: FloatArray, now: float) -> None:
+    def _energy(self) -> tuple[float, float]:
+        """This side's books for ENERGY, in the arm's units."""
+        pc, k = self.passivity, self._arm_per_device
+        return pc.put_in * k, max(0.0, pc.given) * k
+
+    def _send_command(
+        self, dx: FloatArray, rv: FloatArray, now: float, energy: tuple[float, float] | None
+    ) -> None:
+        if energy is not None:  # first: the increment after it may spend it
+            self.link.energy(*energy)
+            self.energy_sent += 1
         d, r = dx.tolist(), rv.tolist()
         self.link.cartesian((d[0], d[1], d[2]), (r[0], r[1], r[2]))
         self.commands_sent += 1
@@ -332,6 +394,8 @@ class MasterBridge:
         with self._lock:
             self._force = None
             self._delayed.clear()
+            self._arm_energy.clear()
+            self.arm_energy_in = self.arm_energy_out = 0.0
             self.flags = 0  # no control known on a link that is gone
         self._outbox.clear()
         self.passivity.reset()

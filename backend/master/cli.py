@@ -77,13 +77,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--virtual-delay-ms", type=float, default=0.0, help="constant force delay")
     p.add_argument(
         "--passivity",
-        choices=("on", "off"),
+        choices=("on", "one-port", "off"),
         default="on",
-        help="keep the rendered force passive (damps it when a delayed contact would push"
-        " back more energy than was put in)",
+        help="keep the contact passive: on both sides of the link (on: the handle is damped"
+        " when a delayed contact would push back more energy than was put in, and the arm"
+        " puts into a contact no more than the operator put in), at the master only"
+        " (one-port), or not at all",
     )
     p.add_argument(
-        "--max-damping", type=float, default=40.0, help="the passivity damper's cap (N·s/m)"
+        "--max-damping",
+        type=float,
+        default=BridgeSettings.max_damping_n_s_m,
+        help="the passivity damper's cap (N·s/m)",
     )
     p.add_argument(
         "--delay-ms",
@@ -190,7 +195,8 @@ def run(args: argparse.Namespace) -> int:
             alpha=args.alpha,
             beta=args.beta,
             virtual_delay_s=args.virtual_delay_ms / 1000.0,
-            passivity=args.passivity == "on",
+            passivity=args.passivity != "off",
+            two_port=args.passivity == "on",
             max_damping_n_s_m=args.max_damping,
             delay_rtt_s=args.delay_ms / 1000.0,
             delay_jitter_s=args.delay_jitter_ms / 1000.0,
@@ -225,6 +231,12 @@ def run(args: argparse.Namespace) -> int:
                 f" · rendering {np.linalg.norm(f):.2f} N"
                 f" · passivity {'on' if pc.settings.enabled else 'off'}: port {pc.energy:+.3f} J,"
                 f" damped {pc.dissipated:.3f} J, α {pc.damping:.1f} N·s/m"
+                + (
+                    f" · arm: put in {bridge.arm_energy_out:.3f} J, got back"
+                    f" {bridge.arm_energy_in:.3f} J"
+                    if bridge.two_port
+                    else ""
+                )
                 + ("" if bridge.connected else " · reconnecting")
                 + (f" · last error: {bridge.last_error}" if bridge.last_error else ""),
                 flush=True,

@@ -187,6 +187,13 @@ class PriorityLink:
         self._send(m.encode(m.CART_INC, seq, time.monotonic(), int(frame), *dX, *rotvec))
         return seq
 
+    def energy(self, e_in: float, e_out: float) -> int:
+        """This master's side of the two-port (ENERGY: J, the arm's units, so far);
+        answered by PORT_ENERGY."""
+        seq = self._next()
+        self._send(m.encode(m.ENERGY, seq, e_in, e_out))
+        return seq
+
     def next_seq(self) -> int:
         """A seq for a command about to be sent (so its reply can be expected first)."""
         with self._send_lock:

@@ -26,6 +26,18 @@ observers, and no correction of the arm's motion (a two-port's slave-side contro
 modifies the commanded position and makes master and slave drift apart). The price: it
 is more conservative (the port includes the arm's own passive damping, so it damps
 sooner than a two-port would), which the benchmark measures as a softer contact.
+
+**The two-port** (issue 28: the one-port alone rang or tripped the force limit at
+200–700 ms on a slower CPU, and nothing at the master can stop the arm driving into
+the surface with the increments sent before the force comes back). The same observer
+keeps its books split (``put_in``: what the operator put into the link; ``given``:
+what the link gave back to them, net of the damper) and sends them to the arm
+(``ENERGY``), whose side keeps to them (``backend.control.slave_port``: the arm puts
+into its surroundings no more than the operator has put in). The arm answers with
+what its surroundings gave back (``PORT_ENERGY``), and with ``budget`` set the
+controller here also keeps ``given`` within that: the handle is pushed back by no
+more energy than the contact returned. Each side only needs the other's cumulative
+totals, late: no clock sync, and a lost message is made good by the next.
 """
 
 from __future__ import annotations
@@ -63,6 +75,11 @@ class PassivityController:
     def __init__(self, settings: PassivitySettings | None = None) -> None:
         self.settings = (settings or PassivitySettings()).check()
         self.energy = 0.0  # observed: into the port, J (≥ 0 while passive)
+        self.put_in = 0.0  # by the operator into the port, J (the arm's budget, scaled)
+        self.given = 0.0  # by the port to the operator, net of the damper, J
+        # Two-port: what the arm's surroundings gave back into the link, J (device
+        # units), as the arm last said; None: one-port (the observer's own books only).
+        self.budget: float | None = None
         self.dissipated = 0.0  # by the controller so far, J
         self.generated = 0.0  # most the port ever owed before the controller paid it, J
         self.damping = 0.0  # α of the last step, N·s/m
@@ -73,6 +90,8 @@ class PassivityController:
     def reset(self) -> None:
         """A new contact with the remote side (reconnected): start the books afresh."""
         self.energy = 0.0
+        self.put_in = self.given = 0.0
+        self.budget = None if self.budget is None else 0.0
         self.damping = 0.0
         self._last = None
         self.velocity = np.zeros(3)
@@ -101,18 +120,25 @@ class PassivityController:
         v = np.asarray(velocity, dtype=float)
         if dt <= 0:
             return f
-        self.energy -= float(f @ v) * dt
+        power = -float(f @ v) * dt  # > 0: the operator pushes energy into the port
+        self.energy += power
+        if power >= 0:
+            self.put_in += power
+        else:
+            self.given -= power
         self.generated = max(self.generated, -self.energy)
         self.damping = 0.0
         speed2 = float(v @ v)
-        if self.energy >= 0 or speed2 < MIN_SPEED_M_S**2 or not self.settings.enabled:
+        owed = self.energy if self.budget is None else min(self.energy, self.budget - self.given)
+        if owed >= 0 or speed2 < MIN_SPEED_M_S**2 or not self.settings.enabled:
             return f
-        alpha = -self.energy / (speed2 * dt)
+        alpha = -owed / (speed2 * dt)
         if alpha > self.settings.max_damping_n_s_m:
             alpha = self.settings.max_damping_n_s_m
             self.saturated += 1
         taken = alpha * speed2 * dt
         self.energy += taken
+        self.given -= taken
         self.dissipated += taken
         self.damping = alpha
         return f - alpha * v

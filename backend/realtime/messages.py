@@ -156,6 +156,16 @@ NAME = Message(
     " 1–64 characters: letters, digits, spaces and . , : _ - @ # + / '); ACK, or ERROR"
     " saying why (the name is kept)",
 )
+ENERGY = Message(
+    "ENERGY",
+    0x0B,
+    ("seq", "e_in", "e_out"),
+    "Idd",
+    doc="a master arm's side of the two-port passivity: the energy its operator has put"
+    " into the link so far (e_in) and got back from it (e_out), J in the arm's units,"
+    " since the connection opened; from the first, the arm keeps to it"
+    " (docs/protocol.md, Passivity); answered by PORT_ENERGY",
+)
 
 WELCOME = Message(
     "WELCOME",
@@ -229,10 +239,19 @@ PONG = Message(
     "Iddd",
     doc="t0 echoed, t1 server receive, t2 server send",
 )
+PORT_ENERGY = Message(
+    "PORT_ENERGY",
+    0x88,
+    ("seq", "e_in", "e_out"),
+    "Idd",
+    doc="the arm's side, answering ENERGY (its seq): the energy the arm's surroundings"
+    " have given back into the link (e_in) and the arm has put into them (e_out), J,"
+    " cumulative; the master renders no more than e_in",
+)
 
 MESSAGES: Final[tuple[Message, ...]] = (
-    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME,
-    WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG,
+    HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME, ENERGY,
+    WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG, PORT_ENERGY,
 )  # fmt: skip
 BY_ID: Final = {m.type_id: m for m in MESSAGES}
 

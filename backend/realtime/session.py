@@ -229,6 +229,9 @@ async def handle(
             else:
                 raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
             conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
+        elif msg is m.ENERGY:
+            given, out = decision.master_energy(client_id, float(f["e_in"]), float(f["e_out"]))
+            conn.reply(m.encode(m.PORT_ENERGY, seq, given, out))
         elif msg is m.NAME:
             decision.rename(client_id, text)
             conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))

@@ -31,6 +31,8 @@ export const RESET: MessageSpec<"RESET"> = {"name": "RESET", "typeId": 8, "size"
 export const DATAGRAMS: MessageSpec<"DATAGRAMS"> = {"name": "DATAGRAMS", "typeId": 9, "size": 23, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "key", "kind": "bytes", "offset": 5, "size": 16}, {"name": "every", "kind": "u16", "offset": 21, "size": 2}]};
 /** the name this client goes by from now on, shown wherever control is listed (UTF-8, 1–64 characters: letters, digits, spaces and . , : _ - @ # + / '); ACK, or ERROR saying why (the name is kept) */
 export const NAME: MessageSpec<"NAME"> = {"name": "NAME", "typeId": 10, "size": 5, "tail": "text", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}]};
+/** a master arm's side of the two-port passivity: the energy its operator has put into the link so far (e_in) and got back from it (e_out), J in the arm's units, since the connection opened; from the first, the arm keeps to it (docs/protocol.md, Passivity); answered by PORT_ENERGY */
+export const ENERGY: MessageSpec<"ENERGY"> = {"name": "ENERGY", "typeId": 11, "size": 21, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "e_in", "kind": "f64", "offset": 5, "size": 8}, {"name": "e_out", "kind": "f64", "offset": 13, "size": 8}]};
 /** role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id */
 export const WELCOME: MessageSpec<"WELCOME"> = {"name": "WELCOME", "typeId": 129, "size": 13, "tail": "text", "fields": [{"name": "version", "kind": "u16", "offset": 1, "size": 2}, {"name": "role", "kind": "u8", "offset": 3, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 4, "size": 8}, {"name": "joints", "kind": "u8", "offset": 12, "size": 1}]};
 /** robot state; status: index in RobotStatus order; flags: StateFlags; then the joints (rad) */
@@ -45,8 +47,10 @@ export const ERROR: MessageSpec<"ERROR"> = {"name": "ERROR", "typeId": 133, "siz
 export const ACK: MessageSpec<"ACK"> = {"name": "ACK", "typeId": 134, "size": 22, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "result", "kind": "u8", "offset": 5, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 6, "size": 8}, {"name": "scale", "kind": "f64", "offset": 14, "size": 8}]};
 /** t0 echoed, t1 server receive, t2 server send */
 export const PONG: MessageSpec<"PONG"> = {"name": "PONG", "typeId": 135, "size": 29, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}, {"name": "t1", "kind": "f64", "offset": 13, "size": 8}, {"name": "t2", "kind": "f64", "offset": 21, "size": 8}]};
+/** the arm's side, answering ENERGY (its seq): the energy the arm's surroundings have given back into the link (e_in) and the arm has put into them (e_out), J, cumulative; the master renders no more than e_in */
+export const PORT_ENERGY: MessageSpec<"PORT_ENERGY"> = {"name": "PORT_ENERGY", "typeId": 136, "size": 21, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "e_in", "kind": "f64", "offset": 5, "size": 8}, {"name": "e_out", "kind": "f64", "offset": 13, "size": 8}]};
 
-export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG];
+export const MESSAGES: readonly MessageSpec<MessageName>[] = [HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME, ENERGY, WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG, PORT_ENERGY];
 export const FORCE_SAMPLE_SIZE = 60; // u32 seq, f64 time, 6 × f64
 
 /** One sample of a FORCE message: Fx Fy Fz (N), Tx Ty Tz (N·m). */
@@ -126,6 +130,13 @@ export interface NameMessage {
   seq: number; // u32
   text: string; // UTF-8 to the end
 }
+/** ENERGY (0x0b, client → server): a master arm's side of the two-port passivity: the energy its operator has put into the link so far (e_in) and got back from it (e_out), J in the arm's units, since the connection opened; from the first, the arm keeps to it (docs/protocol.md, Passivity); answered by PORT_ENERGY */
+export interface EnergyMessage {
+  readonly type: "ENERGY";
+  seq: number; // u32
+  e_in: number; // f64
+  e_out: number; // f64
+}
 /** WELCOME (0x81, server → client): role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id */
 export interface WelcomeMessage {
   readonly type: "WELCOME";
@@ -191,6 +202,13 @@ export interface PongMessage {
   t1: number; // f64
   t2: number; // f64
 }
+/** PORT_ENERGY (0x88, server → client): the arm's side, answering ENERGY (its seq): the energy the arm's surroundings have given back into the link (e_in) and the arm has put into them (e_out), J, cumulative; the master renders no more than e_in */
+export interface PortEnergyMessage {
+  readonly type: "PORT_ENERGY";
+  seq: number; // u32
+  e_in: number; // f64
+  e_out: number; // f64
+}
 export type ClientMessage =
   | HelloMessage
   | CartIncMessage
@@ -201,7 +219,8 @@ export type ClientMessage =
   | LeaseMessage
   | ResetMessage
   | DatagramsMessage
-  | NameMessage;
+  | NameMessage
+  | EnergyMessage;
 export type ServerMessage =
   | WelcomeMessage
   | StateMessage
@@ -209,7 +228,8 @@ export type ServerMessage =
   | EventMessage
   | ErrorMessage
   | AckMessage
-  | PongMessage;
+  | PongMessage
+  | PortEnergyMessage;
 export type Message = ClientMessage | ServerMessage;
 export type MessageName = Message["type"];
 /** The decoded message called `N`. */

@@ -1,0 +1,94 @@
+"""The arm's side of a master arm's two-port passivity (``backend.control.slave_port``,
+docs/protocol.md, Passivity): the arm puts into a contact no more energy than the
+master's operator put in, holds the rest back as owed, and catches up."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from backend.control.slave_port import FORCE_FLOOR_N, MAX_OWED_M, OWED_FORGET_S, SlavePort
+from backend.master.passivity import PassivityController
+
+UP = np.array([0.0, 0.0, 1.0])
+DOWN_1MM = np.array([0.0, 0.0, -0.001])
+EYE = np.eye(3)
+
+
+def pressed(port: SlavePort, newtons: float, samples: int = 10) -> None:
+    """The block pushes the tool up with ``newtons`` (sensor frame = base here)."""
+    for _ in range(samples):
+        port.add_force(0.0, 0.0, newtons)
+
+
+def test_free_space_is_not_charged() -> None:
+    port = SlavePort()
+    pressed(port, 0.5 * FORCE_FLOOR_N)  # a sensor's offset, no contact
+    assert port.allow(DOWN_1MM, EYE) == pytest.approx(DOWN_1MM)
+    port.moved(DOWN_1MM, DOWN_1MM, EYE)
+    assert port.out == 0.0 and port.budget == 0.0
+
+
+def test_into_a_contact_only_as_far_as_the_masters_energy() -> None:
+    port = SlavePort()
+    pressed(port, 10.0)
+    # No energy from the master yet: the part into the contact is held back; along the
+    # surface the tool still moves.
+    sideways = np.array([0.001, 0.0, -0.001])
+    assert not np.any(port.owed_for(0.0))
+    allowed = port.allow(sideways, EYE)
+    assert allowed == pytest.approx([0.001, 0.0, 0.0])
+    port.moved(allowed, sideways, EYE)
+    assert port.owed == pytest.approx([0.0, 0.0, -0.001]) and port.out == 0.0
+    # The operator pressed on what they felt: 5 mJ in. The next 1 mm, with the 1 mm
+    # owed, against 10 N costs 20 mJ: a quarter of it now, the rest stays owed.
+    port.master_energy(0.005, 0.0)
+    want = DOWN_1MM + port.owed_for(0.01)
+    allowed = port.allow(want, EYE)
+    assert allowed[2] == pytest.approx(-0.0005)
+    port.moved(allowed, want, EYE)
+    assert port.out == pytest.approx(0.005) and port.budget == pytest.approx(0.0)
+    assert port.owed[2] == pytest.approx(-0.0015)
+
+
+def test_away_from_the_contact_is_free_and_gives_energy_back() -> None:
+    port = SlavePort()
+    pressed(port, 10.0)
+    up = np.array([0.0, 0.0, 0.002])
+    assert port.allow(up, EYE) == pytest.approx(up)
+    port.moved(up, up, EYE)
+    assert port.given == pytest.approx(0.02) and port.out == 0.0
+
+
+def test_what_is_owed_is_bounded_and_forgotten_after_a_pause() -> None:
+    port = SlavePort()
+    pressed(port, 10.0)
+    far = np.array([0.0, 0.0, -0.05])
+    port.owed_for(0.0)
+    port.moved(np.zeros(3), far, EYE)
+    assert np.linalg.norm(port.owed) == pytest.approx(MAX_OWED_M)
+    assert port.dropped_m == pytest.approx(0.04)
+    assert np.linalg.norm(port.owed_for(0.01)) == pytest.approx(MAX_OWED_M)
+    assert not np.any(port.owed_for(0.01 + OWED_FORGET_S + 0.01))  # let go, re-centred
+
+
+def test_the_masters_books_only_grow() -> None:
+    port = SlavePort()
+    port.master_energy(0.5, 0.1)
+    port.master_energy(0.2, 0.05)  # late, or repeated: nothing changes
+    port.master_energy(math.nan, math.inf)
+    assert (port.master_in, port.master_out) == (0.5, 0.1)
+
+
+def test_the_master_gives_back_no_more_than_the_arm_got_back() -> None:
+    # The handle moves with the rendered force (the force does work on the hand): with
+    # a budget of 1 mJ from the arm, the controller damps all output past it.
+    pc = PassivityController()
+    pc.budget = 0.001
+    pc.put_in = pc.energy = 1.0  # plenty put in: the one-port alone would not damp
+    v = np.array([0.0, 0.0, 0.1])
+    for _ in range(1000):
+        pc.step(np.array([0.0, 0.0, 1.0]), v, 0.001)
+    assert pc.given <= 0.001 + 1e-9 and pc.dissipated > 0.09
