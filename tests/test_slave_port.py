@@ -9,7 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from backend.control.slave_port import FORCE_FLOOR_N, MAX_OWED_M, OWED_FORGET_S, SlavePort
+from backend.control.slave_port import (
+    FORCE_FLOOR_N,
+    MAX_OWED_M,
+    OWED_FORGET_S,
+    START_STIFFNESS_N_M,
+    SlavePort,
+)
 from backend.master.passivity import PassivityController
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -18,47 +24,74 @@ EYE = np.eye(3)
 
 
 def pressed(port: SlavePort, newtons: float, samples: int = 10) -> None:
-    """The block pushes the tool up with ``newtons`` (sensor frame = base here)."""
+    """The block pushes the tool up with ``newtons`` (sensor frame = base here), then
+    an increment comes (``settle``)."""
     for _ in range(samples):
         port.add_force(0.0, 0.0, newtons)
+    port.settle(EYE)
 
 
 def test_free_space_is_not_charged() -> None:
     port = SlavePort()
     pressed(port, 0.5 * FORCE_FLOOR_N)  # a sensor's offset, no contact
-    assert port.allow(DOWN_1MM, EYE) == pytest.approx(DOWN_1MM)
-    port.moved(DOWN_1MM, DOWN_1MM, EYE)
+    assert port.allow(DOWN_1MM) == pytest.approx(DOWN_1MM)
+    port.moved(DOWN_1MM, DOWN_1MM)
+    pressed(port, 0.5 * FORCE_FLOOR_N)
     assert port.out == 0.0 and port.budget == 0.0
 
 
 def test_into_a_contact_only_as_far_as_the_masters_energy() -> None:
     port = SlavePort()
+    assert not np.any(port.owed_for(0.0))
     pressed(port, 10.0)
     # No energy from the master yet: the part into the contact is held back; along the
     # surface the tool still moves.
     sideways = np.array([0.001, 0.0, -0.001])
-    assert not np.any(port.owed_for(0.0))
-    allowed = port.allow(sideways, EYE)
+    allowed = port.allow(sideways)
     assert allowed == pytest.approx([0.001, 0.0, 0.0])
-    port.moved(allowed, sideways, EYE)
-    assert port.owed == pytest.approx([0.0, 0.0, -0.001]) and port.out == 0.0
-    # The operator pressed on what they felt: 5 mJ in. The next 1 mm, with the 1 mm
-    # owed, against 10 N costs 20 mJ: a quarter of it now, the rest stays owed.
+    port.moved(allowed, sideways)
+    assert port.owed == pytest.approx([0.0, 0.0, -0.001])
+    # The operator pressed on what they felt: 5 mJ in. Against 10 N on a contact as
+    # stiff as seen so far (none seen: START_STIFFNESS_N_M, slowly forgotten), it pays
+    # for d with 10·d + k·d²/2 = 0.005; the rest of the 2 mm asked (1 new, 1 owed)
+    # stays owed.
+    pressed(port, 10.0)
     port.master_energy(0.005, 0.0)
     want = DOWN_1MM + port.owed_for(0.01)
-    allowed = port.allow(want, EYE)
-    assert allowed[2] == pytest.approx(-0.0005)
-    port.moved(allowed, want, EYE)
-    assert port.out == pytest.approx(0.005) and port.budget == pytest.approx(0.0)
-    assert port.owed[2] == pytest.approx(-0.0015)
+    allowed = port.allow(want)
+    k = port.stiffness
+    assert 0.9 * START_STIFFNESS_N_M < k <= START_STIFFNESS_N_M
+    reach = (math.sqrt(100 + 2 * k * 0.005) - 10) / k
+    assert allowed[2] == pytest.approx(-reach) and 0.0001 < reach < 0.0005
+    port.moved(allowed, want)
+    assert port.owed[2] == pytest.approx(-0.002 + reach)
+    # The force rose on the way in, 10 → 10 + k·reach: counted with the mean of the
+    # force before and after, the move spent about the budget, and the contact's
+    # stiffness is known from it.
+    pressed(port, 10.0 + 2 * k * reach)
+    assert port.out == pytest.approx(reach * (10.0 + k * reach)) and port.budget < 0.002
+    assert port.stiffness == pytest.approx(2 * k)
+
+
+def test_a_long_step_into_a_stiff_contact_is_cut_to_what_the_budget_pays() -> None:
+    # A catch-up after a stall (2 mm at once) against a 5·10⁴ N/m block at 5 N, with
+    # 10 mJ in the budget: on the force alone it would cost 10 mJ and pass, and then
+    # push 100 N more; with the stiffness seen it stops at ~0.55 mm (≈ 33 N).
+    port = SlavePort()
+    port.stiffness = 5.0e4
+    port.master_energy(0.01, 0.0)
+    pressed(port, 5.0)
+    allowed = port.allow(np.array([0.0, 0.0, -0.002]))
+    assert -0.0006 < allowed[2] < -0.0005
 
 
 def test_away_from_the_contact_is_free_and_gives_energy_back() -> None:
     port = SlavePort()
     pressed(port, 10.0)
     up = np.array([0.0, 0.0, 0.002])
-    assert port.allow(up, EYE) == pytest.approx(up)
-    port.moved(up, up, EYE)
+    assert port.allow(up) == pytest.approx(up)
+    port.moved(up, up)
+    pressed(port, 10.0)
     assert port.given == pytest.approx(0.02) and port.out == 0.0
 
 
@@ -67,7 +100,7 @@ def test_what_is_owed_is_bounded_and_forgotten_after_a_pause() -> None:
     pressed(port, 10.0)
     far = np.array([0.0, 0.0, -0.05])
     port.owed_for(0.0)
-    port.moved(np.zeros(3), far, EYE)
+    port.moved(np.zeros(3), far)
     assert np.linalg.norm(port.owed) == pytest.approx(MAX_OWED_M)
     assert port.dropped_m == pytest.approx(0.04)
     assert np.linalg.norm(port.owed_for(0.01)) == pytest.approx(MAX_OWED_M)

@@ -628,6 +628,7 @@ class DecisionServer:
         if client.port is None:
             client.port = SlavePort()
         client.port.master_energy(e_in, e_out)
+        client.port.settle(self.robot.pose.rotation)
         return client.port.given, client.port.out
 
     def on_force(self, sample: ForceSample) -> None:
@@ -799,6 +800,7 @@ class DecisionServer:
         port = client.port if frame is WorkingFrame.BASE else None
         wanted = dX
         if port is not None:
+            port.settle(self.robot.pose.rotation)
             wanted = dX = dX + port.owed_for(now)
             step = float(np.linalg.norm(dX))
         seed = self.robot.target_joints
@@ -810,7 +812,7 @@ class DecisionServer:
         factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
         dX, rv = dX * factor, rv * factor
         if port is not None:
-            dX = port.allow(dX, self.robot.pose.rotation)
+            dX = port.allow(dX)
         T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
         if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
             raise SafetyStop("force limit: only moves that back away from the contact are allowed")
@@ -818,7 +820,7 @@ class DecisionServer:
         q = self.kinematics.ik(T, seed)
         applied = await self._apply(client, q, seed, seq, client_time, factor)
         if port is not None:
-            port.moved(dX, wanted, self.robot.pose.rotation)
+            port.moved(dX, wanted)
         return applied
 
     @reported("joint_increment")

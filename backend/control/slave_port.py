@@ -28,11 +28,15 @@ arm. So the arm keeps its own books:
   (``MAX_OWED_M``) and forgotten after a pause in the master's increments
   (``OWED_FORGET_S``: the operator let go of the clutch and re-centred).
 
-Energy is counted on the commanded targets, with the mean contact force since the
-last increment (the force sensor's samples, summed as they come): a stiff contact
-makes the force follow the target within a millisecond or two, and counting on the
-target lets the rule act before the arm has moved. Forces below ``FORCE_FLOOR_N``
-(a sensor's offset and noise) count as free space: no budget is needed there.
+Energy is counted on the commanded targets, when the next increment (or ``ENERGY``)
+comes: a move's work is its length against the mean of the force before it and the
+force since (the sensor's samples, summed as they come). Before a move, what it would
+cost is judged with the contact's stiffness as seen so far (the force's rise per
+millimetre into it, the largest of the recent moves, ``stiffness``): pressing ``d``
+further against a force ``F`` costs about ``F·d + k·d²/2``, so a long step (a stalled
+machine's, a catch-up) is cut to what the budget pays for, not let through on the
+force before it. Forces below ``FORCE_FLOOR_N`` (a sensor's offset and noise) count
+as free space: no budget is needed there.
 """
 
 from __future__ import annotations
@@ -46,6 +50,12 @@ from drivers.base import FloatArray
 FORCE_FLOOR_N = 1.0  # below this the tool is in free space: its motion is not charged
 MAX_OWED_M = 0.01  # the most master motion the arm lags behind by; past it, dropped
 OWED_FORGET_S = 0.5  # a pause in the master's increments this long: what is owed goes
+# The contact's stiffness before one is seen (N/m; a firm surface), and how fast a
+# stiffer one seen is forgotten (per increment: half in ~35 increments, 0.35 s).
+START_STIFFNESS_N_M = 2.0e4
+STIFFNESS_MEMORY = 0.98
+MIN_STIFFNESS_N_M = 1.0e3
+MIN_PRESS_M = 5e-6  # a move this short into the contact says nothing of its stiffness
 
 
 class SlavePort:
@@ -65,6 +75,9 @@ class SlavePort:
         self._n = 0
         self._last = (0.0, 0.0, 0.0)
         self._last_increment: float | None = None
+        self.stiffness = START_STIFFNESS_N_M  # of the contact, as seen lately, N/m
+        self._force_now: FloatArray = np.zeros(3)  # base frame, since the last move
+        self._pending: tuple[FloatArray, FloatArray] | None = None  # (move, force before)
 
     # ------------------------------------------------------------ what comes in
     def master_energy(self, e_in: float, e_out: float) -> None:
@@ -89,11 +102,35 @@ class SlavePort:
         """What the arm may still put into its surroundings, J."""
         return self.master_in - self.out
 
-    def contact_force(self, rotation: FloatArray) -> FloatArray:
-        """The mean force on the tool since the last increment (the newest sample if
-        none came), in the base frame (``rotation``: the tool's)."""
+    def _mean_force(self, rotation: FloatArray) -> FloatArray:
+        """The mean force on the tool since the last move (the newest sample if none
+        came), in the base frame (``rotation``: the tool's); starts a new mean."""
         mean = np.array(self._sum) / self._n if self._n else np.array(self._last)
+        self._sum = [0.0, 0.0, 0.0]
+        self._n = 0
         return np.asarray(rotation @ mean, dtype=float)
+
+    def settle(self, rotation: FloatArray) -> None:
+        """Count the last move's work, now that the force after it is known, and learn
+        the contact's stiffness from it. Called before each increment and ENERGY."""
+        self._force_now = after = self._mean_force(rotation)
+        if self._pending is None:
+            return
+        dx, before = self._pending
+        self._pending = None
+        if max(float(np.linalg.norm(before)), float(np.linalg.norm(after))) < FORCE_FLOOR_N:
+            return
+        work = -float((before + after) @ dx) / 2.0
+        if work > 0:
+            self.out += work
+        else:
+            self.given -= work
+        magnitude = float(np.linalg.norm(after))
+        if magnitude >= FORCE_FLOOR_N:
+            normal = after / magnitude
+            pressed, rise = -float(dx @ normal), float((after - before) @ normal)
+            seen = rise / pressed if pressed > MIN_PRESS_M and rise > 0 else 0.0
+            self.stiffness = max(MIN_STIFFNESS_N_M, seen, self.stiffness * STIFFNESS_MEMORY)
 
     # ------------------------------------------------------------ an increment
     def owed_for(self, now: float) -> FloatArray:
@@ -104,34 +141,28 @@ class SlavePort:
             self.owed = np.zeros(3)
         return self.owed.copy()
 
-    def allow(self, dx: FloatArray, rotation: FloatArray) -> FloatArray:
+    def allow(self, dx: FloatArray) -> FloatArray:
         """The part of the translation ``dx`` (base frame) the budget allows now."""
-        force = self.contact_force(rotation)
+        force = self._force_now
         magnitude = float(np.linalg.norm(force))
         if magnitude < FORCE_FLOOR_N:
             return dx
-        cost = -float(force @ dx)  # > 0: the tool pushes against the contact force
-        if cost <= 0.0 or cost <= self.budget:
-            return dx
         normal = force / magnitude  # the contact pushes the tool along this
-        into = float(dx @ normal)  # < 0: the part of dx into the contact
-        share = max(0.0, self.budget) / cost
-        held = (1.0 - share) * into * normal
-        self.held_j += (1.0 - share) * cost
-        return np.asarray(dx - held, dtype=float)
+        into = -float(dx @ normal)  # > 0: how far dx presses into the contact
+        if into <= 0.0:
+            return dx
+        # The farthest the budget pays for: F·d + k·d²/2 = budget.
+        k, budget = self.stiffness, max(0.0, self.budget)
+        reach = (math.sqrt(magnitude * magnitude + 2.0 * k * budget) - magnitude) / k
+        if into <= reach:
+            return dx
+        self.held_j += magnitude * (into - reach) + k * (into * into - reach * reach) / 2.0
+        return np.asarray(dx + (into - reach) * normal, dtype=float)
 
-    def moved(self, dx: FloatArray, wanted: FloatArray, rotation: FloatArray) -> None:
+    def moved(self, dx: FloatArray, wanted: FloatArray) -> None:
         """The target moved by ``dx`` where the master wanted ``wanted`` (both base
-        frame): count its energy against the contact force, and owe the rest."""
-        force = self.contact_force(rotation)
-        if float(np.linalg.norm(force)) >= FORCE_FLOOR_N:
-            work = -float(force @ dx)
-            if work > 0:
-                self.out += work
-            else:
-                self.given -= work
-        self._sum = [0.0, 0.0, 0.0]
-        self._n = 0
+        frame): its work is counted at the next ``settle``; the rest is owed."""
+        self._pending = (np.asarray(dx, dtype=float).copy(), self._force_now)
         owed = wanted - dx
         size = float(np.linalg.norm(owed))
         if size > MAX_OWED_M:
