@@ -14,7 +14,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from backend.tuning import tune_for_realtime
+from backend.tuning import raise_cpu_priority, tune_for_realtime
 from drivers.registry import driver_names
 from drivers.robot.models import model_names
 
@@ -117,6 +117,7 @@ def _serve(args: argparse.Namespace) -> int:
         await task
 
     tune_for_realtime()
+    logging.getLogger("backend.tuning").info("%s", raise_cpu_priority(settings.cpu_priority))
     asyncio.run(run())
     return 0
 

@@ -129,6 +129,11 @@ class Settings(BaseSettings):
     video_fps: float = Field(30.0, ge=1.0, le=120.0)
     video_bitrate: int = Field(8_000_000, ge=100_000, le=100_000_000)
     video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
+    # The server raises its own CPU priority by this many nice steps at start, where the
+    # system lets it (root, or CAP_SYS_NICE; else it says so and runs as started): the
+    # e-stop, the dead-man and the forces go before the machine's other programs. Its
+    # media worker and read jobs keep their niceness relative to it. 0: as started.
+    cpu_priority: int = Field(5, ge=0, le=20)
     video_cbr: bool = False  # constant bitrate (filler data) instead of "at most"
     # Each viewer's packets spread at 2.5× its layer's rate, not a frame at once (a key
     # frame's burst queues the forces behind it on a narrow link): media/pacer.py. Off by

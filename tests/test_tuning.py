@@ -1,0 +1,40 @@
+"""The server's process settings (``backend.tuning``): it raises its own CPU priority
+where the system lets it, and says how to let it where not."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+PROBE = (
+    "import os; from backend.tuning import raise_cpu_priority as r; "
+    "print(r({steps})); print(os.getpriority(os.PRIO_PROCESS, 0))"
+)
+
+
+def probe(steps: int, *prefix: str) -> tuple[str, int]:
+    out = subprocess.run(
+        [*prefix, sys.executable, "-c", PROBE.format(steps=steps)],
+        capture_output=True, text=True, check=True, timeout=60,
+    ).stdout.splitlines()  # fmt: skip
+    return out[0], int(out[1])
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="raising the priority needs root here")
+def test_the_server_raises_its_cpu_priority_where_allowed() -> None:
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    said, after = probe(5)
+    assert after == max(-20, before - 5) and "raised" in said, said
+    said, after = probe(0)
+    assert after == before and "as started" in said
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to drop the capability")
+def test_without_the_right_it_runs_as_started_and_says_how() -> None:
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    said, after = probe(5, "setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice")
+    assert after == before, said
+    assert "CAP_SYS_NICE" in said and "cpu_priority 0" in said
