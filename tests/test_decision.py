@@ -558,3 +558,44 @@ def test_the_property_test_exercised_accepted_commands_of_every_kind() -> None:
     if not ACCEPTED:
         pytest.skip("run together with the property test")
     assert set(ACCEPTED) == {"cart", "joint", "abs_joints", "abs_pose"}, ACCEPTED
+
+
+async def test_a_master_arm_is_owed_what_the_slow_approach_held_back(
+    clock: ManualClock,
+) -> None:
+    # The ratchet: moves toward a recent contact are slowed and moves away are not, so
+    # a master going down 5 mm and up 5 mm left the arm 4 mm higher than it started.
+    # A master that sends its energy (the two-port) is owed what was held back: the
+    # arm ends where the master did.
+    ds, robot, a = await in_control(clock)
+    f_sensor = robot.pose.rotation.T @ np.array([-30.0, 0, 0])  # pushes back along −x
+    ds.master_energy(a.id, 10.0, 0.0)  # plenty of the operator's energy
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    start = robot.kinematics.fk(robot.target_joints)[0, 3]
+    moves = [0.005, -0.005] + [0.0] * 10  # then still (the bridge sends zeros while gripped)
+    for dx in moves:
+        await clock.advance(0.05)
+        ds.on_force(ForceSample(2, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+        await ds.cartesian_increment(a.id, np.array([dx, 0, 0]), np.zeros(3))
+    end = robot.kinematics.fk(robot.target_joints)[0, 3]
+    assert end - start == pytest.approx(0.0, abs=1e-6)
+
+
+async def test_a_refused_increment_forgives_what_was_owed(clock: ManualClock) -> None:
+    # Owed motion into a contact past the force limit would be refused with every
+    # later increment, backing away included: a refusal drops it.
+    ds, robot, a = await in_control(clock)
+    ds.master_energy(a.id, 10.0, 0.0)
+    port = ds.client(a.id).port
+    assert port is not None
+    await ds.cartesian_increment(a.id, np.array([-0.001, 0, 0]), np.zeros(3))  # the stream
+    port.owed = np.array([0.008, 0.0, 0.0])  # 8 mm toward the contact, held back before
+    f_sensor = robot.pose.rotation.T @ np.array([-80.0, 0, 0])  # past the 60 N limit
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    await asyncio.sleep(0)
+    await clock.advance(0.05)
+    with pytest.raises(SafetyStop, match="back away"):  # 8 mm in, 2 mm out: still in
+        await ds.cartesian_increment(a.id, np.array([-0.002, 0, 0]), np.zeros(3))
+    assert not np.any(port.owed)
+    await clock.advance(0.05)
+    await ds.cartesian_increment(a.id, np.array([-0.002, 0, 0]), np.zeros(3))  # backing away

@@ -803,22 +803,29 @@ class DecisionServer:
             port.settle(self.robot.pose.rotation)
             wanted = dX = dX + port.owed_for(now)
             step = float(np.linalg.norm(dX))
-        seed = self.robot.target_joints
-        T0 = self.kinematics.fk(seed).copy()
-        speed = lim.max_speed_m_s
-        if self._approaches_last_contact(T0, dX, rv, frame, now):
-            speed = min(speed, lim.contact_speed_m_s)
-        factor = min(1.0, speed * dt / step if step else 1.0)
-        factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
-        dX, rv = dX * factor, rv * factor
-        if port is not None:
-            dX = port.allow(dX)
-        T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
-        if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
-            raise SafetyStop("force limit: only moves that back away from the contact are allowed")
-        self._check_workspace(T[:3, 3])
-        q = self.kinematics.ik(T, seed)
-        applied = await self._apply(client, q, seed, seq, client_time, factor)
+        try:
+            seed = self.robot.target_joints
+            T0 = self.kinematics.fk(seed).copy()
+            speed = lim.max_speed_m_s
+            if self._approaches_last_contact(T0, dX, rv, frame, now):
+                speed = min(speed, lim.contact_speed_m_s)
+            factor = min(1.0, speed * dt / step if step else 1.0)
+            factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
+            dX, rv = dX * factor, rv * factor
+            if port is not None:
+                dX = port.allow(dX)
+            T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
+            if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
+                raise SafetyStop(
+                    "force limit: only moves that back away from the contact are allowed"
+                )
+            self._check_workspace(T[:3, 3])
+            q = self.kinematics.ik(T, seed)
+            applied = await self._apply(client, q, seed, seq, client_time, factor)
+        except TelerobotError:
+            if port is not None:  # refused (force limit, workspace…): nothing more is owed
+                port.forgive()
+            raise
         if port is not None:
             port.moved(dX, wanted)
         return applied

@@ -141,6 +141,12 @@ class SlavePort:
             self.owed = np.zeros(3)
         return self.owed.copy()
 
+    def forgive(self) -> None:
+        """The increment was refused (the force limit, the workspace…): what was owed
+        would only be refused again with every later one, so it goes."""
+        self.dropped_m += float(np.linalg.norm(self.owed))
+        self.owed = np.zeros(3)
+
     def allow(self, dx: FloatArray) -> FloatArray:
         """The part of the translation ``dx`` (base frame) the budget allows now."""
         force = self._force_now
