@@ -16,20 +16,14 @@ controller adds a damper on the device, f ← f − α·v with α = −E / (|v|�
 dissipates exactly that deficit in this step (E back to 0), capped at
 ``max_damping_n_s_m`` (what the device can render without buzzing).
 
-Why this variant (a one-port at the master, in 3D), not a two-port with energy sent
-along with the force samples: our architecture sends motion one way and measured force
-the other, and the arm is stiffly position-controlled with its own limits (speed,
-force limit, contact speed). The energy that can destabilise it is the one the delayed
-force puts into the operator's hand, and that is observable at the master alone, with
-the master's own clock: no change to the wire protocol, no clock sync between the two
-observers, and no correction of the arm's motion (a two-port's slave-side controller
-modifies the commanded position and makes master and slave drift apart). The price: it
-is more conservative (the port includes the arm's own passive damping, so it damps
-sooner than a two-port would), which the benchmark measures as a softer contact.
+The one-port alone (the first version, still ``two_port=False`` in the bridge and
+``--passivity one-port``) needs nothing from the arm and no change to the wire
+protocol, and it keeps the handle from being pushed back harder than the hand pushed.
+What it cannot do is stop the arm: the increments sent before the force comes back
+drive the tool into the surface regardless, which at 400–700 ms (or at 200 ms on a
+slower CPU) tripped the force limit, and at 0–50 ms it let the contact ring.
 
-**The two-port** (issue 28: the one-port alone rang or tripped the force limit at
-200–700 ms on a slower CPU, and nothing at the master can stop the arm driving into
-the surface with the increments sent before the force comes back). The same observer
+**The two-port**, the default. The same observer
 keeps its books split (``put_in``: what the operator put into the link; ``given``:
 what the link gave back to them, net of the damper) and sends them to the arm
 (``ENERGY``), whose side keeps to them (``backend.control.slave_port``: the arm puts
