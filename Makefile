@@ -80,7 +80,7 @@ browser-deps:
 	  echo "installing Debian's chromium for the browser tests"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 
-# Debian's coturn for the TURN relay tests (tests/coturn.py starts its own turnserver;
+# Debian's coturn for the TURN relay tests (tests/support/coturn.py starts its own turnserver;
 # the package's system service stays off).
 turn-deps:
 	@command -v turnserver >/dev/null 2>&1 || { \

@@ -1,4 +1,5 @@
-"""``telerobot`` subcommands: serve, master, val-emulator, netft-emulator, bench."""
+"""``telerobot`` subcommands: serve, media-server, recording, val-emulator,
+so101-emulator, so101-calibrate, master, netft-emulator, move, export, bench."""
 
 from __future__ import annotations
 

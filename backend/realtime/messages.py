@@ -3,7 +3,8 @@
 Little-endian, no padding. Byte 0 is the message type; the rest is a fixed layout
 given as a ``struct`` format, except where a message ends in UTF-8 text or a counted
 array. docs/protocol.md describes the same table (a test keeps them in step), and
-the TypeScript client will be generated from ``MESSAGES``.
+the TypeScript client's types are generated from ``MESSAGES``
+(``backend/realtime/typescript.py``; a test keeps them in step too).
 
 Client → server types are 0x01–0x7F, server → client 0x81–0xFF.
 """
