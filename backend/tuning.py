@@ -11,6 +11,8 @@ import sys
 
 log = logging.getLogger(__name__)
 
+STARTED_NICENESS = "TELEROBOT_STARTED_NICENESS"  # the server's, before it raised it
+
 
 def tune_for_realtime() -> None:
     """Settings that keep the 1 kHz paths on time (measured in bench/command_latency):
@@ -36,9 +38,12 @@ def raise_cpu_priority(steps: int) -> str:
     processes, a test suite), the scheduler gave the server's event loop slices after
     theirs, and the REST e-stop waited up to 30–40 ms behind them (bench.abuse, issue
     26); the same stalls cost forces and dead-man heartbeats."""
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    # Its helper processes inherit this, and take their niceness from how the server
+    # was started, not from its raised priority (``yield_cpu``).
+    os.environ[STARTED_NICENESS] = str(before)
     if steps <= 0:
         return "CPU priority as started (cpu_priority 0)"
-    before = os.getpriority(os.PRIO_PROCESS, 0)
     try:
         os.setpriority(os.PRIO_PROCESS, 0, max(-20, before - steps))
     except OSError:
@@ -48,3 +53,16 @@ def raise_cpu_priority(steps: int) -> str:
             " Python binary); set cpu_priority 0 to silence this"
         )
     return f"CPU priority raised: niceness {before} → {os.getpriority(os.PRIO_PROCESS, 0)}"
+
+
+def yield_cpu(steps: int) -> None:
+    """Run this process (a helper of the server's: the media worker, a read job, an
+    export) ``steps`` nice steps behind the server *as it was started*: behind its
+    raised priority alone, video would sit only 5 steps below a client on the same
+    machine, not 10. Lowering one's priority needs no rights; failing is harmless."""
+    try:
+        now = os.getpriority(os.PRIO_PROCESS, 0)
+        started = int(os.environ.get(STARTED_NICENESS, now))
+        os.setpriority(os.PRIO_PROCESS, 0, min(19, max(now, started + steps)))
+    except (OSError, ValueError):
+        pass

@@ -38,3 +38,22 @@ def test_without_the_right_it_runs_as_started_and_says_how() -> None:
     said, after = probe(5, "setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice")
     assert after == before, said
     assert "CAP_SYS_NICE" in said and "cpu_priority 0" in said
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="raising the priority needs root here")
+def test_helpers_yield_from_where_the_server_started_not_from_its_raised_priority() -> None:
+    # The media worker at video_nice 10 sits 10 steps below a client started beside the
+    # server, not 5 (10 below the server's raised priority).
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    child = (
+        "import os; from backend.tuning import yield_cpu; yield_cpu(10);"
+        " print(os.getpriority(os.PRIO_PROCESS, 0))"
+    )
+    parent = (
+        "import os, subprocess, sys; from backend.tuning import raise_cpu_priority as r;"
+        f" r(5); subprocess.run([sys.executable, '-c', {child!r}], check=True)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", parent], capture_output=True, text=True, check=True, timeout=60
+    ).stdout
+    assert int(out) == min(19, before + 10), out

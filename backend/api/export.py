@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import multiprocessing
-import os
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -25,6 +24,7 @@ from backend.api.deps import OperatorDep, SettingsDep
 from backend.api.recordings import ReaderDep, RecorderDep
 from backend.recording.lerobot import ExportSummary, export_lerobot
 from backend.security import state_dir
+from backend.tuning import yield_cpu
 from drivers.base import TelerobotError
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
@@ -62,7 +62,7 @@ _progress_here: Any = None  # in the export's process: where it says how far it 
 
 def _lower_priority(progress: Any = None) -> None:
     global _progress_here
-    os.nice(EXPORT_NICE)
+    yield_cpu(EXPORT_NICE)
     _progress_here = progress
 
 

@@ -11,7 +11,6 @@ import contextlib
 import logging
 import multiprocessing
 import multiprocessing.connection
-import os
 import time
 from collections.abc import Callable
 from typing import Any
@@ -20,6 +19,7 @@ import numpy as np
 
 from backend.devices import build_camera
 from backend.settings import Settings
+from backend.tuning import yield_cpu
 from drivers.base import ArmSnapshot, TelerobotError
 
 log = logging.getLogger(__name__)
@@ -64,8 +64,7 @@ def worker_main(
     # the server's sensor and priority-channel threads first (a frame late by a
     # millisecond is not seen; a force sample late by one is felt).
     settings = Settings.model_validate_json(settings_json)
-    with contextlib.suppress(OSError, AttributeError):
-        os.nice(settings.video_nice)
+    yield_cpu(settings.video_nice)
     try:
         import uvloop
 

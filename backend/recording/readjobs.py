@@ -40,6 +40,7 @@ from typing import Any
 from backend.realtime.ratelimit import PeerLimits
 from backend.recording.reader import UnreadableRecording
 from backend.recording.salvage import NotARecording
+from backend.tuning import yield_cpu
 from drivers.base import TelerobotError
 
 log = logging.getLogger(__name__)
@@ -288,8 +289,7 @@ def main() -> None:
     import resource
     import traceback
 
-    with contextlib.suppress(OSError):
-        os.nice(JOB_NICE)
+    yield_cpu(JOB_NICE)
     with contextlib.suppress(ValueError, OSError):
         resource.setrlimit(resource.RLIMIT_AS, (JOB_MEMORY_BYTES, JOB_MEMORY_BYTES))
     request = json.loads(sys.stdin.buffer.readline())

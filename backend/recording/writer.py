@@ -25,6 +25,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from backend.recording.schemas import BYTES_FIELDS, CHANNELS
+from backend.tuning import yield_cpu
 
 CHUNK_BYTES = 256 * 1024  # a killed writer loses at most the chunk being filled
 
@@ -127,8 +128,7 @@ def serve_file(conn: Connection, path: str, chunk_bytes: int) -> None:
     ``("close", metadata)``; answers ``("progress", bytes, messages)`` after each flush,
     ``("closed", bytes, messages, {topic: count})`` or ``("failed", reason)``. A dead
     server (the pipe closed) leaves the file as it is, recoverable."""
-    with contextlib.suppress(OSError):
-        os.nice(WRITER_NICE)
+    yield_cpu(WRITER_NICE)
     messages = 0
     file: McapFile | None = None
     try:

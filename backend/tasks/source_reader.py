@@ -29,9 +29,7 @@ operator commands dropped as stale). So:
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import multiprocessing
-import os
 import threading
 import time
 from collections import OrderedDict
@@ -46,6 +44,7 @@ import numpy as np
 from backend.realtime.ratelimit import TokenBucket
 from backend.recording.readjobs import JOB_NICE
 from backend.tasks.trajectory import READ_LIMIT_S, Trajectory
+from backend.tuning import yield_cpu
 from drivers.base import FloatArray, TelerobotError
 
 PREVIEW_POINTS = 400
@@ -61,8 +60,7 @@ def _behind_control() -> None:
     """The reader's process waits behind control, forces and live video, as the
     recordings' read jobs do: at the same priority as the server, a read took turns
     with the event loop on a 2-core machine and the e-stop waited out its slices."""
-    with contextlib.suppress(OSError):
-        os.nice(JOB_NICE)
+    yield_cpu(JOB_NICE)
 
 
 class ReadFailed(TelerobotError):
