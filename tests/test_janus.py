@@ -180,3 +180,32 @@ def test_janus_killed_and_started_again_serves_the_next_viewer(settings: JanusSe
             assert len(ages) == 3
     finally:
         janus.stop()
+
+
+def test_rtp_timestamps_wrap_on_a_machine_up_more_than_13_hours() -> None:
+    # The feed's RTP timestamp is the capture time (monotonic, since boot) at 90 kHz:
+    # at 13.25 h of uptime it passed 2³², every send raised in the feed's thread and
+    # the relay's viewers got no frame. It wraps, as RTP's 32 bits do.
+    import socket
+
+    from aiortc.rtp import RtpPacket
+
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    sink.settimeout(5)
+    feed = RtpFeed(sink.getsockname()[1])
+    encoder = H264Encoder(64, 64, FPS, 200_000, keyframe_interval=1.0)
+    uptime = 50_000.0  # s: 4.5·10⁹ ticks of 90 kHz
+    try:
+        packets = []
+        for n in range(3):
+            image = np.full((64, 64, 3), 90, np.uint8)
+            packets += encoder.encode(StereoFrame(n, uptime + n / FPS, image))
+        assert packets
+        for encoded in packets:
+            feed.send(encoded.packet)
+        got = RtpPacket.parse(sink.recv(2048))
+        assert got.timestamp == round(uptime * 90_000) & 0xFFFFFFFF
+    finally:
+        feed.close()
+        sink.close()

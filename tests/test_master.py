@@ -153,9 +153,10 @@ def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) 
     try:
         until(lambda: bridge.has_control, timeout=5)
         time.sleep(0.3)  # clutch not held yet: nothing moves
-        assert (
-            httpx.get(server + "api/v1/robot/state").json()["target_joints"]
-            == start["target_joints"]
+        # (to within a micro-radian: a dead-man halt of a busy machine's, taking the
+        # bridge's lease, re-targets the arm where it stands, 6·10⁻⁷ rad from its target)
+        assert httpx.get(server + "api/v1/robot/state").json()["target_joints"] == pytest.approx(
+            start["target_joints"], abs=1e-5
         )
         heights, limited = [], []
         deadline = time.monotonic() + 6
@@ -227,3 +228,17 @@ def test_telerobot_master_says_what_the_passivity_controller_does(server: str) -
         "master", "--server", server, "--delay-ms", "-5", wait_for=r"delay_rtt_s must be"
     ) as (_, match):
         assert "between 0 and 2 s" in match.string
+
+
+def test_a_gentle_press_at_a_200_ms_round_trip_never_trips_the_force_limit() -> None:
+    # Real time, end to end (a served server, the priority channel, the bridge's 1 kHz
+    # thread with its injected 200 ms round trip): only what holds on any machine. How
+    # still the contact is, and the figures at other round trips, are
+    # bench.master_contact's (a late loop changes them; the two-port keeps the arm's
+    # energy to the operator's whatever the timing, so no trip).
+    from bench.master_contact import one_run
+
+    r = one_run(rtt_s=0.2, passivity="passivity", seconds=6.0, press_m=0.002,
+                hand_stiffness=400.0, stiffness=5.0e4)  # fmt: skip
+    assert r["contact_s"] > 1.0, r  # it reached the block
+    assert r["limit_trips"] == 0 and r["peak_n"] < 60.0 and not r["estop_at_end"], r

@@ -316,6 +316,10 @@ class RtpFeed:
         from aiortc.rtp import RtpPacket
 
         payloads, timestamp = self._packetiser.pack(packet)
+        # The pts is the capture time on the monotonic clock at 90 kHz: past 2³² (13.25 h
+        # of uptime) it no longer fits RTP's 32 bits, and every send failed (the relay's
+        # viewers got no frame on a machine up that long). RTP timestamps wrap.
+        timestamp &= 0xFFFFFFFF
         for i, payload in enumerate(payloads):
             rtp = RtpPacket(
                 payload_type=96,
