@@ -2,7 +2,7 @@
 
 The server never asks which driver it holds: each driver class reads its own keys
 from the settings in its ``from_settings`` and takes the rest from a ``DeviceContext``
-made here (ARCHITECTURE rule 14).
+made here (docs/architecture.md, rule 14).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The HTTP edge: what every request passes before any route does work for it
-(ARCHITECTURE rule 18, bounded everything at the edge).
+(docs/architecture.md, rule 18, bounded everything at the edge).
 
 In this order, each answered at once with problem+json and nothing read further:
 

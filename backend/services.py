@@ -1,4 +1,4 @@
-"""The composition root (ARCHITECTURE rule 13): every service the server runs, built
+"""The composition root (docs/architecture.md, rule 13): every service the server runs, built
 once from the settings and a clock into a frozen, typed ``Services``; routers get
 them only through the typed dependencies in ``backend/api/deps.py``.
 

@@ -1,4 +1,4 @@
-"""One Settings class for the whole server (ARCHITECTURE rule 8).
+"""One Settings class for the whole server (docs/architecture.md, rule 8).
 
 Values come, highest first, from: explicit arguments (the CLI's flags),
 environment variables ``TELEROBOT_*``, a TOML file (``--config`` or

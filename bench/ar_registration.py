@@ -1,4 +1,4 @@
-"""How far the AR ball lands from the gripper, per calibration method (SPEC §8).
+"""How far the AR ball lands from the gripper, per calibration method.
 
     python -m bench.ar_registration [--json]
 

@@ -1,4 +1,4 @@
-"""Force samples on time while stereo video fills the link (SPEC §4, §9). The thesis
+"""Force samples on time while stereo video fills the link. The thesis
 saw its force packets go from 0.68 ms mean inter-arrival to 5.4 ms mean and ~20 ms
 worst while a stereo frame was on the wire.
 

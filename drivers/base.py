@@ -1,8 +1,8 @@
-"""Device interfaces and typed errors shared by every driver (ARCHITECTURE rule 1).
+"""Device interfaces and typed errors shared by every driver (docs/architecture.md, rule 1).
 
 Simulated and real devices implement the same small interface; the server never
-asks which one it holds (rule 14: what it needs is on the interface). Units are SI:
-metres, radians, seconds.
+asks which one it holds (docs/architecture.md, rule 14: what it needs is on the
+interface). Units are SI: metres, radians, seconds.
 
 Every driver class is built the same way: ``from_settings(settings, context)`` reads
 its own keys from the server's settings (a plain mapping: drivers never import the

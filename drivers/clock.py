@@ -1,4 +1,4 @@
-"""Injected time (ARCHITECTURE rule 10).
+"""Injected time (docs/architecture.md, rule 10).
 
 Every driver, watchdog and motion profile takes a ``Clock`` so that tests can run
 them faster than real time, with no sleeps: ``ManualClock.advance`` moves virtual

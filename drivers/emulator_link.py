@@ -1,6 +1,6 @@
 """How a device emulator is reached, as the real device would be: on a pseudo-
 terminal (``url`` is its device path, for a serial driver) or a TCP port (``url`` is
-``socket://host:port``, pyserial's URL), served by a thread of its own (ARCHITECTURE
+``socket://host:port``, pyserial's URL), served by a thread of its own (docs/architecture.md,
 rule 4). An emulator's link says only what it does with the bytes that come
 (``_received``, returning its reply) and, if it acts on its own, what it says when
 (``_wait_s``, ``_tick``), and its ``on_pty``/``on_tcp`` constructors (which call

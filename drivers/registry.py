@@ -1,4 +1,4 @@
-"""Driver name → implementation, imported only when chosen (ARCHITECTURE rule 2).
+"""Driver name → implementation, imported only when chosen (docs/architecture.md, rule 2).
 
 A driver whose SDK is missing fails when, and only when, it is selected, with one
 message that says what to install. The names here are the names the settings accept

@@ -1,4 +1,4 @@
-"""Drivers describe themselves (ARCHITECTURE rule 14): every registered driver is built
+"""Drivers describe themselves (docs/architecture.md, rule 14): every registered driver is built
 from the settings by its own ``from_settings``, what the server uses is on its
 protocol, and a new device is one folder, one class and one registry line."""
 

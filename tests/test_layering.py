@@ -1,5 +1,5 @@
 """Who imports whom: the client side of the protocol (the master-arm bridge, run on the
-operator's machine) imports the protocol, never the server (ARCHITECTURE rule 16)."""
+operator's machine) imports the protocol, never the server (docs/architecture.md, rule 16)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The priority channel's limits (ARCHITECTURE rule 18), each hit by a real socket
+"""The priority channel's limits (docs/architecture.md, rule 18), each hit by a real socket
 against a real channel: HELLO in time, floods cut off, queues bounded, connection
 caps, accept errors survived, and the channel's thread supervised.
 

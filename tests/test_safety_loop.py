@@ -1,4 +1,4 @@
-"""Safety owns its loop (ARCHITECTURE rule 15): with no transport at all — no hub,
+"""Safety owns its loop (docs/architecture.md, rule 15): with no transport at all — no hub,
 no /ws, no priority channel — the DecisionServer still stops the arm on a force
 above the limit and on a silent lease holder."""
 

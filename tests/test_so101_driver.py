@@ -1,5 +1,5 @@
 """So101Arm against the emulated Feetech bus over a real pseudo-terminal and a real
-TCP socket, real threads (ARCHITECTURE rule 4), and its calibration."""
+TCP socket, real threads (docs/architecture.md, rule 4), and its calibration."""
 
 from __future__ import annotations
 

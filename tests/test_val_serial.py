@@ -1,5 +1,5 @@
 """ValSerialPuma against the emulated controller over a real pseudo-terminal and a
-real TCP socket (ARCHITECTURE rule 4: the byte protocol against an emulator)."""
+real TCP socket (docs/architecture.md, rule 4: the byte protocol against an emulator)."""
 
 from __future__ import annotations
 

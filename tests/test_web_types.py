@@ -1,4 +1,4 @@
-"""The web client's generated types agree with the server (ARCHITECTURE rule 5): the
+"""The web client's generated types agree with the server (docs/architecture.md, rule 5): the
 binary messages (web/src/transport/messages.ts, from backend/realtime/messages.py) and
 the REST types (web/src/api/schema.d.ts, from the OpenAPI schema). Each is generated
 afresh and compared with the committed file; a renamed message field fails ``tsc``."""

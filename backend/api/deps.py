@@ -1,5 +1,5 @@
 """Typed ``Annotated`` dependencies: the only way routers reach the services
-(ARCHITECTURE rule 13). The services are built once by ``backend/services.py`` and
+(docs/architecture.md, rule 13). The services are built once by ``backend/services.py`` and
 kept on the application; nothing here is a module global.
 
 Who may do what: reading is open to every client; changing anything needs the

@@ -1,4 +1,4 @@
-"""The REST API's TypeScript types for the web client (ARCHITECTURE rule 5): the
+"""The REST API's TypeScript types for the web client (docs/architecture.md, rule 5): the
 server's OpenAPI schema, taken from ``create_app`` without running a server, turned
 into web/src/api/schema.d.ts by the npm package ``openapi-typescript`` (a devDependency
 of web/). A test (tests/test_web_types.py) fails when the committed file differs.

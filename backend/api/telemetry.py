@@ -1,4 +1,4 @@
-"""Inter-arrival and latency statistics of every stream (SPEC §9)."""
+"""Inter-arrival and latency statistics of every stream."""
 
 from __future__ import annotations
 

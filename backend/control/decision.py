@@ -1,4 +1,4 @@
-"""The DecisionServer (thesis §4.3.3, SPEC §5): holds the robot and the force sensor
+"""The DecisionServer (thesis §4.3.3): holds the robot and the force sensor
 and applies every command, from any input or the REST API, through one path:
 
     authorise (client, role, lease, e-stop) → validate → scale → step limit →
@@ -8,7 +8,7 @@ Every command ends as one absolute joint target that has passed every check; onl
 then does it reach the driver. Pure logic: no sockets, no HTTP; time comes from the
 injected clock.
 
-Safety owns its loop (ARCHITECTURE rule 15): ``start()`` subscribes to the force
+Safety owns its loop (docs/architecture.md, rule 15): ``start()`` subscribes to the force
 sensor itself and runs the dead-man watchdog (``tick()`` every ``tick_s``) as its own
 task, so the force limit and the dead-man act whatever transports (``/ws``, the
 priority channel, REST) are running, or none.

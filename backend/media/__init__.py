@@ -1,1 +1,1 @@
-"""Stereo video: capture → encode once → fan out to every WebRTC peer (SPEC §7)."""
+"""Stereo video: capture → encode once → fan out to every WebRTC peer."""

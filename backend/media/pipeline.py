@@ -90,7 +90,7 @@ class NotYourPeer(TelerobotError):
     http_status = 403
 
 
-# Limits on the peers one media worker holds (ARCHITECTURE rule 18). Each peer costs
+# Limits on the peers one media worker holds (docs/architecture.md, rule 18). Each peer costs
 # ~0.6 MB of worker memory and, once connected, its share of the uplink (up to the
 # bitrate, 8 Mbit/s by default) and of packetising; the lab's use is an operator and a
 # few observers (the benchmark runs 6 viewers).

@@ -1,6 +1,6 @@
 """Fan-out of state, forces and events to every WebSocket connection.
 
-Each connection has its own outbox with newest-wins slots (ARCHITECTURE rule 6):
+Each connection has its own outbox with newest-wins slots (docs/architecture.md, rule 6):
 the robot state is one slot (a slow client never receives stale states), force
 samples a bounded buffer (every sample is delivered unless a client falls 2 s
 behind, which is counted as loss), control replies a small queue. One sender task

@@ -1,4 +1,4 @@
-"""Every binary WebSocket message, defined once (ARCHITECTURE rule 5).
+"""Every binary WebSocket message, defined once (docs/architecture.md, rule 5).
 
 Little-endian, no padding. Byte 0 is the message type; the rest is a fixed layout
 given as a ``struct`` format, except where a message ends in UTF-8 text or a counted

@@ -14,7 +14,7 @@ little-endian. The first message must be HELLO. Every force sample goes out as o
 FORCE message with one sample (seq, sensor time, six values). A client that cannot
 keep up loses the oldest queued samples, never the newest (counted per client).
 
-Bounded at the edge (ARCHITECTURE rule 18; the values are the constants below):
+Bounded at the edge (docs/architecture.md, rule 18; the values are the constants below):
 
 - Connections: at most ``MAX_CONNECTIONS`` open (and never more than a quarter of
   RLIMIT_NOFILE), of which ``MAX_PENDING`` may still be waiting for HELLO. A new

@@ -1,4 +1,4 @@
-"""One client of the real-time protocol, whatever carries its bytes (ARCHITECTURE
+"""One client of the real-time protocol, whatever carries its bytes (docs/architecture.md,
 rule 16): HELLO checked, the client joined to the DecisionServer, its WELCOME, its
 place in the hub's fan-out, every later message decoded, checked and carried out,
 and its leaving. ``/ws`` (``ws.py``) and the priority channel (``priority.py``) are

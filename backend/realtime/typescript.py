@@ -1,4 +1,4 @@
-"""Generates web/src/transport/messages.ts from ``messages.py`` (ARCHITECTURE rule 5):
+"""Generates web/src/transport/messages.ts from ``messages.py`` (docs/architecture.md, rule 5):
 ``python -m backend.realtime.typescript`` prints it; a test (tests/test_web_types.py)
 fails when the committed file differs.
 

@@ -1,2 +1,2 @@
 """Supervisory tasks: a taught motion repeated by the server under the DecisionServer's
-guards, with a compliance term from the force sensor (SPEC §5, issue 14)."""
+guards, with a compliance term from the force sensor."""

@@ -1,5 +1,5 @@
 """The TaskRunner: repeats a taught motion (a ``Trajectory``) with the server's own
-loop, through the DecisionServer, while the operator supervises (SPEC §5, issue 14).
+loop, through the DecisionServer, while the operator supervises.
 
 **The lease.** A task is a client of the DecisionServer like any other (its own
 client, named "task N"): only the operator *holding the control lease* can start

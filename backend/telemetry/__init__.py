@@ -1,1 +1,1 @@
-"""Inter-arrival and latency statistics for every stream (SPEC §9)."""
+"""Inter-arrival and latency statistics for every stream."""

@@ -1,4 +1,4 @@
-"""Local impedance compensation for a master arm (SPEC §6, thesis §4.4.2):
+"""Local impedance compensation for a master arm (thesis §4.4.2):
 f = α·v + β·a from the device's own velocity and acceleration history.
 
 A master arm has friction and inertia of its own, which the operator feels on top

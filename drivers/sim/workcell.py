@@ -1,4 +1,4 @@
-"""The simulated workcell that every simulated device reads (SPEC §2, §7, §8).
+"""The simulated workcell that every simulated device reads.
 
 One scene: the PUMA 560 on its pedestal at the world origin (the robot's base
 frame *is* the world frame), a table in front of it, a stiff block on the table to

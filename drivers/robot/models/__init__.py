@@ -1,4 +1,4 @@
-"""Robot descriptions: what an arm is, apart from how it is driven (SPEC §3).
+"""Robot descriptions: what an arm is, apart from how it is driven.
 
 A ``RobotModel`` is a URDF (written here from data, or generated from a DH table as
 for the PUMA 560), its joints' names and limits, the link the tool is mounted on, named
