@@ -36,8 +36,8 @@ def raise_cpu_priority(steps: int) -> str:
 
     Why: on a machine shared with other programs (a 2-core box, an attacker's local
     processes, a test suite), the scheduler gave the server's event loop slices after
-    theirs, and the REST e-stop waited up to 30–40 ms behind them (bench.abuse, issue
-    26); the same stalls cost forces and dead-man heartbeats."""
+    theirs, and the REST e-stop waited up to 30–40 ms behind them (bench.abuse);
+    the same stalls cost forces and dead-man heartbeats."""
     before = os.getpriority(os.PRIO_PROCESS, 0)
     # Its helper processes inherit this, and take their niceness from how the server
     # was started, not from its raised priority (``yield_cpu``).

@@ -11,7 +11,7 @@ of the same length in the same run; before each attack the bench waits (at most 
 until the server works no harder than in the quiet period, so a read the previous
 attacker left running in the server does not count against the next attack.
 
-Issue 11's attacks:
+The attacks on requests and connections:
 
 - ``big_body``: 50 MB JSON bodies to ``POST /api/v1/webrtc/offer``, back to back;
 - ``priority_flood``: 4 unauthenticated connections to the priority channel sending
@@ -20,9 +20,9 @@ Issue 11's attacks:
 - ``fd_exhaustion``: connections to the priority channel until the server has no file
   descriptor left, held, then dropped; then health, ``/ws`` and the channel must answer.
 
-Issue 26's, on what came after (the attackers connect from 127.0.0.3, or from
-127.0.1.x where said, so a per-address budget is the attacker's alone: the operator,
-observer and e-stop come from 127.0.0.1):
+The attacks on what came after: recordings, tasks, the relay and resumed sessions (the
+attackers connect from 127.0.0.3, or from 127.0.1.x where said, so a per-address budget
+is the attacker's alone: the operator, observer and e-stop come from 127.0.0.1):
 
 - ``recordings_listing``: 4 tokenless loops on ``GET /api/v1/recordings`` with 220
   recordings in the server's folder (made before it starts): the listing's 200 newest
@@ -54,7 +54,7 @@ observer and e-stop come from 127.0.0.1):
 The attackers run on the server's own 2 cores; ``--attacker-nice`` lowers their
 priority, as attackers on other machines would not take the server's CPU.
 
-Figures (issue 11's and issue 26's goals): ``stall_ms`` (the event loop's longest
+Figures, with their goals: ``stall_ms`` (the event loop's longest
 stall while a 50 MB body arrives: the longest state gap at the observer beyond its
 20 ms period; ≤ 50), ``estop_ms_under_attack_worst`` (worst e-stop round trip of any
 attack; ≤ 20), ``operator_stale_dropped_worst`` (the operator's commands the server
@@ -108,7 +108,7 @@ SERVER_FDS = 1024
 STATE_PERIOD_MS = 20.0  # the server's default state rate (50 Hz)
 OPERATOR_PERIOD_S = 0.01  # the operator's commands: 100 Hz, as the page's joystick
 OPERATOR_STEP_M = 1e-4  # 0.1 mm a command (10 mm/s), back and forth: the arm stays put
-ATTACKER_HOST = "127.0.0.3"  # issue 26's attackers: an address of their own
+ATTACKER_HOST = "127.0.0.3"  # the attackers' own address: a per-address budget is theirs alone
 VICTIM_HOST = "127.0.0.2"  # where the forged datagrams say they come from
 RECORDINGS = 220  # in the listing's folder (it shows the newest 200)
 LONG_RECORDING_S = 60.0  # the timeline's and the preview's recording

@@ -1,12 +1,11 @@
-"""``export_s_per_min``: how long the LeRobot export takes per recorded minute
-(issue 14 part 4), and ``export_peak_mb``: the most memory it held (issue 27). A
-recording is built the way the server writes one (tests/recordings: state 50 Hz, force
-1 kHz, commands, two episodes covering most of it, side-by-side H.264 at 30 fps, two
-640×480 cameras), then exported, each time in a process of its own (as the server runs
-an export) so that its peak resident size is the export's alone; the figure is the
-export's wall time divided by the recording's length in minutes (the median of
-``--repeats``). ``export_stderr_lines`` counts what the export printed (the encoder's
-log included): a quiet export prints nothing.
+"""``export_s_per_min``: how long the LeRobot export takes per recorded minute, and
+``export_peak_mb``: the most memory it held. A recording is built the way the server
+writes one (tests/recordings: state 50 Hz, force 1 kHz, commands, two episodes covering
+most of it, side-by-side H.264 at 30 fps, two 640×480 cameras), then exported, each time
+in a process of its own (as the server runs an export) so that its peak resident size is
+the export's alone; the figure is the export's wall time divided by the recording's
+length in minutes (the median of ``--repeats``). ``export_stderr_lines`` counts what
+the export printed (the encoder's log included): a quiet export prints nothing.
 
     python -m bench.export --json
     python -m bench.export --duration 60 --repeats 1 --json

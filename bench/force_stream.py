@@ -12,7 +12,7 @@ WebSocket, this process).
 
     python -m bench.force_stream [--json] [--samples 10000] [--no-video]
 
-``--no-video`` runs the server without its media worker, as when issue 3's figures
+``--no-video`` runs the server without its media worker, as when the first figures
 were taken (before the video existed).
 
 Thesis reference (§4.7, 100 Mbps LAN, 2003): 0.679 ms mean inter-arrival alone.

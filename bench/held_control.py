@@ -1,6 +1,6 @@
 """A page holding control with no key pressed, in Debian's headless Chromium, against
 ``telerobot serve`` with video: how often the dead-man halts the arm, and whose the
-stalls were (issue 27 item 1: on a busy 2-core machine the page went HALTED every ~2 s).
+stalls were (on a busy 2-core machine the page went HALTED every ~2 s).
 
     python -m bench.held_control [--json] [--seconds 60] [--busy-core] [--no-video]
                                  [--no-yield-gpu] [--python-client]

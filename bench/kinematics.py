@@ -13,7 +13,7 @@ model's home pose instead (an absolute move across the workspace).
 
 The PUMA 560's IK is its closed form (``ik_us`` is the nearest-configuration call);
 it also prints the all-eight-solutions figures (``ik_all_us``, ``roundtrip_max_err``,
-``nearest_recovers_start``) measured since issue 1. Other models use the numeric IK
+``nearest_recovers_start``) measured from the start. Other models use the numeric IK
 from their URDF (``drivers.robot.models.numeric``).
 """
 
@@ -95,7 +95,7 @@ def main() -> None:
     }
     figures.update(accuracy(model, kin, args.poses, args.warm_rad))
     all_solutions = getattr(kin, "ik_all", None)
-    if all_solutions is not None:  # the PUMA's closed form: the figures kept since issue 1
+    if all_solutions is not None:  # the PUMA's closed form: the figures kept from the start
         from drivers.robot.puma560.kinematics import Puma560Kinematics
 
         assert isinstance(kin, Puma560Kinematics)

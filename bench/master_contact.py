@@ -1,6 +1,6 @@
 """A master arm pressing the simulated gripper onto the stiff block, over a delayed
 link, with the bridge's passivity controller on both sides of the link (the two-port,
-the default), at the master only (the one-port), and without (issues 16 and 28).
+the default), at the master only (the one-port), and without.
 
 The server runs on the simulation (block 5·10⁴ N/m unless ``--stiffness``), with its
 slow approach after a contact on (the arm owes a master the motion that rule holds
@@ -47,7 +47,7 @@ without ("none"), in real time and again in virtual time (``virtual_time``):
   each tick's measured step (the device's own read times), so a late tick makes a
   longer step, not wrong books: ``tick_gap_ms_max`` is also their longest step.
 
-Goals (issue 28), each for real and virtual time (``goals``): with passivity, no limit
+Goals, each for real and virtual time (``goals``): with passivity, no limit
 trip and ``oscillation`` ≤ 2 N at every round trip up to 200 ms, no trip at 400 and
 700 ms, ``drift_mm`` ≤ 5 everywhere; without, at 200 ms, it oscillates (> 2 N) or
 trips.
@@ -593,7 +593,7 @@ def sweep(args: Any, run: Callable[..., dict[str, Any]], label: str) -> dict[str
 
 
 def goals(figures: dict[str, Any]) -> dict[str, bool | None]:
-    """Issue 28's goals over one sweep (None: not run)."""
+    """The goals (this module's docstring) over one sweep (None: not run)."""
 
     def runs(mode: str, upto: int | None = None, at: tuple[int, ...] = ()) -> list[Any]:
         out = []

@@ -1,4 +1,4 @@
-"""The one link emulator the benchmarks and the tests share (issue 15): a server and a
+"""The one link emulator the benchmarks and the tests share: a server and a
 client network namespace joined by a veth pair, shaped by a named link profile.
 
     python -m bench.netem [--json] [--profile wifi --profile mobile] [--probes 300]

@@ -1,4 +1,4 @@
-"""Recording's cost and losses (issue 14), in one run:
+"""Recording's cost and losses, in one run:
 
     python -m bench.recording [--json] [--seconds 10] [--record-seconds 60]
 
@@ -190,7 +190,7 @@ def recording(seconds: float) -> dict[str, Any]:
 
 
 def others() -> dict[str, Any]:
-    """MERGE POINT: figures measured by the other parts of issue 14, if present."""
+    """MERGE POINT: the other recording benches' figures (task replay, export), if present."""
     out: dict[str, Any] = {}
     for module, key in (
         ("bench.task_replay", "replay_force_n"),

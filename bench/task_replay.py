@@ -1,4 +1,4 @@
-"""Repeating a taught push with and without compliance (issue 14, part 3).
+"""Repeating a taught push with and without compliance.
 
 On the simulation, in virtual time (a ManualClock; the force sensor sampled every
 millisecond, the DecisionServer's dead-man and force limit running as in the server):

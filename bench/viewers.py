@@ -1,4 +1,4 @@
-"""Many viewers, directly and through the media server (issue 18): what they cost the
+"""Many viewers, directly and through the media server: what they cost the
 robot's computer, what they cost the media server, and what the relay adds.
 
     python -m bench.viewers [--json] [--viewers 1,10,25,50] [--seconds 8] [--width 640]

@@ -1,4 +1,4 @@
-"""Video, forces and commands over emulated links (issue 15, part 2): each of
+"""Video, forces and commands over emulated links: each of
 bench.netem's profiles (lan, wifi, wan, mobile, bad) with the server in the pair's
 server namespace and the clients in its client namespace.
 
@@ -768,7 +768,7 @@ def dense_figures(dense: Any) -> dict[str, Any]:
 
 
 def goals(name: str, row: dict[str, Any]) -> dict[str, Any]:
-    """The issue's goals beside the figures (reported, never enforced)."""
+    """The goals beside the figures (docs/PERFORMANCE.md; reported, never enforced)."""
     out: dict[str, Any] = {"no_stale_executed": row["stale_executed"] == 0}
     out["lease_kept_through_outage"] = row["lease_kept"]
     one_way = row["link"]["down_p50_ms"]

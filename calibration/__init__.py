@@ -1,1 +1,1 @@
-"""Camera identification and calibration (affine 4-point, DLT, ChArUco); issue 7."""
+"""Camera identification and calibration (affine 4-point, DLT, ChArUco): docs/calibration.md."""

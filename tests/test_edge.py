@@ -1,6 +1,6 @@
 """The HTTP edge against a real server process over real sockets: what an attacker or
 a careless client sends is refused before any work is done, with a clear error, and
-the e-stop keeps answering (issue 11, items 1, 8, 9, 10)."""
+the e-stop keeps answering."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The LeRobot export (issue 14 part 4), read back with pyarrow and PyAV: the files where
+"""The LeRobot export, read back with pyarrow and PyAV: the files where
 lerobot v3.0 puts them, the features against the parquet columns, the grid, the videos'
 frames against the rows (and against the recorded frames they came from), the episode
 boundaries and tasks, the resampling rules, the stats."""
@@ -339,7 +339,7 @@ def test_a_recording_from_the_real_server_exports(tmp_path: Path) -> None:
     eps = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert len(eps) == 2
     # ~1.5 s each: as long as the server took between the two requests, however long a
-    # busy machine took to answer them (issue 25), give or take a frame at either end.
+    # busy machine took to answer them, give or take a frame at either end.
     for ep, (least, most) in zip(eps, spans, strict=True):
         length_s = ep["length"] / info["fps"]
         assert least - 2 / info["fps"] <= length_s <= most + 2 / info["fps"], (ep, spans)
@@ -390,7 +390,7 @@ def test_lerobot_loads_the_export(exported: tuple[Any, Any, Path]) -> None:
     assert out.stdout.strip().splitlines()[-1] == "['pick the block', 'place the block']"
 
 
-# ---------------------------------------------------------------- issue 27, item 9
+# ---------------------------------------------------------------- a camera's uneven frame rate
 
 
 def _retime_video(src: Path, dst: Path, times: list[float]) -> None:
@@ -445,7 +445,7 @@ def _repeats_seen(root: Path) -> int:
 
 
 def test_the_rows_follow_the_videos_real_rate_not_its_typical_spacing(tmp_path: Path) -> None:
-    """The busy machine of issue 27: the camera delivered frames in bursts of three,
+    """On a busy machine the camera delivered frames in bursts of three,
     33 ms apart, one burst every 0.3 s: 10 frames a second whose typical spacing says 30.
     The rows were at 28 fps and repeated frames silently; now they follow the real rate,
     which the summary and info.json state, with the repeats the unevenness leaves

@@ -124,7 +124,7 @@ class ThreadTime:
 def test_sampling_thread_delivers_numbered_samples_at_the_rate(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    # The real sampling thread on virtual time (issue 25): the period is exact on any
+    # The real sampling thread on virtual time: the period is exact on any
     # machine. How punctually a busy machine runs the 1 kHz thread is bench.force_stream's.
     clock = ThreadTime()
     monkeypatch.setattr(sim_module, "time", SimpleNamespace(sleep=clock.sleep))

@@ -1,4 +1,4 @@
-"""Janus, a real process, as the media server (issue 18, groundwork): started with the
+"""Janus, a real process, as the media server: started with the
 configuration we generate, fed the encoder's own H.264 packets as RTP (no second
 encode), watched by an aiortc viewer through its HTTP API, which decodes the picture's
 timecode; killed and started again, the viewer comes back."""

@@ -152,8 +152,8 @@ def test_a_leader_of_another_arm_is_refused() -> None:
 def test_a_scripted_leader_drives_the_simulated_so101_through_the_server() -> None:
     home = SO101.pose("ready")
     target = home + np.array([0.3, 0.0, -0.2, 0.0, 0.4, 0.3])
-    # The hand's script goes step by step when the test says, not on the wall clock
-    # (issue 25): a busy machine must not find it a step further than the test thinks.
+    # The hand's script goes step by step when the test says, not on the wall clock:
+    # a busy machine must not find it a step further than the test thinks.
     step = ["off"]
 
     def hand(t: float) -> FloatArray:
@@ -190,7 +190,7 @@ def test_a_scripted_leader_drives_the_simulated_so101_through_the_server() -> No
                 what=lambda: f"{mir.status}, {mir.last_error}, {target_joints()}",
             )
             # (A command the server found stale, held up past the dead-man on a loaded
-            # machine, is dropped and said; the mirror carries on: issue 25.)
+            # machine, is dropped and said; the mirror carries on.)
             error = mir.last_error
             assert mir.commands_sent > 0 and (error is None or "stale command" in error), error
         finally:
@@ -255,7 +255,7 @@ def test_the_so101_leader_drives_the_so101_follower_through_the_server(tmp_path:
             assert np.abs(follower() - ready).max() < 0.01
             link = open_link(base, TOKEN, datagrams=False)
             # A servo has 0.25 s to answer, not the driver's 20 ms: the emulator is a thread
-            # here, kept off the CPU for longer on a loaded machine (issue 25).
+            # here, kept off the CPU for longer on a loaded machine.
             leader = So101Leader(leader_bus.url, LEADER_CAL, reply_timeout=0.25)
             mir = JointMirror(leader, link, SO101.joint_names)
             mir.start()

@@ -1,4 +1,4 @@
-"""Two video layers and the choice between them (issue 15 part 2): the choice with an
+"""Two video layers and the choice between them: the choice with an
 injected clock, a viewer's track moving between layers on a keyframe without a gap,
 and real aiortc viewers getting the low layer's smaller picture from a second, shared
 encoder. The same on emulated links: tests/test_layers_netem.py."""
@@ -256,7 +256,7 @@ async def test_viewers_on_two_layers_get_two_sizes_from_two_shared_encoders() ->
         assert {(w, h) for w, h, _ in full_frames} == {(cam.width, cam.height)}
         assert {(w, h) for w, h, _ in low_frames} == {low_size(cam.width, cam.height)}
         # Real capture times, this machine's clock (a sanity bound, not a latency: that
-        # is bench.video's, issue 25).
+        # is bench.video's).
         assert all(0 <= age < 30.0 for *_, age in full_frames + low_frames)
         stats = pipeline.stats(peer_ids=True)
         assert set(pipeline.encoders) == {("H264", "full"), ("H264", "low")}

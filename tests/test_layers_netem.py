@@ -1,4 +1,4 @@
-"""Two viewers on two links at once (issue 15 part 2): the server in one network
+"""Two viewers on two links at once: the server in one network
 namespace; one aiortc viewer beside it (a clean link), one in the client namespace
 behind the shared emulator's `bad` profile (150 ± 50 ms, 5 % loss, 2 Mbit/s). Each
 asks for "auto". The viewer on the bad link is moved to the low layer by what its own

@@ -1,4 +1,4 @@
-"""The lease across a real dropped link (issue 15 part 3): the server in one network
+"""The lease across a real dropped link: the server in one network
 namespace, an operator's client in another, the link between them cut by the shared
 emulator (bench/netem.py). The client holds control with heartbeats on the `wan`
 profile and, like the page (realtime.ts), resumes its session on a new connection when

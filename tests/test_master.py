@@ -181,7 +181,7 @@ def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) 
     # Forces arrived and the block's push was rendered upward on the device, against
     # the operator's hand. How many forces and commands a second, and how often the
     # bridge's loop was late (overruns), depend on this machine: they are
-    # bench.master_contact's forces_per_s, commands_per_s and overruns (issue 25).
+    # bench.master_contact's forces_per_s, commands_per_s and overruns.
     assert bridge.forces_received > 0 and bridge.commands_sent > 0
     assert max(felt) > 0.5 * device.max_force_n
     assert min(hand_push) < -0.5 * device.max_force_n

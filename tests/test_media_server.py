@@ -1,4 +1,4 @@
-"""Observers through a media server (issue 18): `telerobot serve --media-server janus`
+"""Observers through a media server: `telerobot serve --media-server janus`
 with a real Janus it starts and supervises. Observers get Janus's offer and decode the
 picture's timecode through it while the operator keeps the direct path; Janus killed is
 restarted and a viewer watches again; a flood of 200 connects is bounded by the relay's
@@ -104,7 +104,7 @@ def test_observers_watch_through_janus_and_the_operator_directly(server: str, to
             relayed, direct = await ages(track), await ages(op_track)
             # Live, not a backlog: real capture times, this machine's clock (a sanity
             # bound; how long capture → decoded takes on each path is bench.viewers'
-            # relay_added_p50_ms/_p99_ms, not a line here: issue 25).
+            # relay_added_p50_ms/_p99_ms, not a line here).
             assert all(0 <= age < 30.0 for age in relayed + direct), (relayed, direct)
             stats = await asyncio.to_thread(status, server, token)
             stats = stats["stats"]

@@ -1,4 +1,4 @@
-"""The shared link emulator (bench/netem.py, issue 15), measured with real processes and
+"""The shared link emulator (bench/netem.py), measured with real processes and
 sockets between its two network namespaces: a profile's delay is one-way (a round trip
 takes twice it), its loss is what the probes lose, its rate caps a UDP flood, an outage
 drops everything for its length and the link comes back, and nothing is left behind.
@@ -87,7 +87,7 @@ def test_netem_keeps_jittered_packets_in_order_by_always_setting_a_rate() -> Non
 def test_wifi_round_trip_is_twice_the_one_way_delay(link: NetemPair) -> None:
     # What the link adds on this machine now (the processes' wake-ups, the forwarder):
     # the baseline the profile's delay is added to, so that a loaded or slower machine
-    # moves both (issue 25; the emulator's figures are bench.netem's).
+    # moves both (the emulator's figures are bench.netem's).
     base = measure_link(link, probes=200, interval_s=0.005)
     link.apply("wifi")
     m = measure_link(link, probes=400, interval_s=0.005)
@@ -165,7 +165,7 @@ def test_an_outage_drops_everything_for_its_length_then_the_link_recovers(
     # The gap in answers is printed, not asserted: it is the outage's length only while
     # the forwarder keeps up. With a core busy, a forwarder's backlog of probes sent
     # before the outage was still answered all through it (longest gap 32 ms), though
-    # nothing sent inside it got through: that, above, is the behaviour (issue 25).
+    # nothing sent inside it got through: that, above, is the behaviour.
     received = sorted(r for _, _, r in m.answered.values())
     gap = max(b - a for a, b in itertools.pairwise(received))
     print(f"{profile} ({link.backend}): answers stopped for {gap * 1000:.0f} ms")

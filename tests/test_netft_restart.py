@@ -1,6 +1,6 @@
 """A Net F/T that restarts counts its RDT sequence from the start again: the driver
 follows the new sequence at once and says so, over real UDP sockets on loopback
-(issue 27: it used to drop as "stale" as many packets as it had received before)."""
+(it used to drop as "stale" as many packets as it had received before)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Time-domain passivity in the master bridge (issue 16): the observer and controller
+"""Time-domain passivity in the master bridge: the observer and controller
 on known signals, the bridge's injected delay, its settings, and the whole loop (the
 simulated server, the bridge, the master) with a 200 ms round trip in virtual time:
 stable with passivity, ringing without."""
@@ -238,7 +238,7 @@ def test_without_passivity_the_press_is_lost(
     # tool strikes the block (~56 N, by the 200 ms of increments sent blind), is thrown
     # off, and the slow approach after a contact keeps it off (without the two-port the
     # arm owes the master nothing: the ratchet) — or, with that rule off, it rings and
-    # trips the limit (bench.master_contact, issue 16). Either way no press.
+    # trips the limit (bench.master_contact). Either way no press.
     assert off["peak_n"] > 3 * on["peak_n"] and off["lift_offs"] >= 1, summary
     assert off["mean_force_n"] < 2.0 or off["limit_trips"] > 0, summary
     assert off["energy_j"] > 10 * on["energy_j"] and off["drift_mm"] > 5.0, summary

@@ -74,7 +74,7 @@ def test_every_force_sample_arrives_alone_and_in_order(server: tuple[str, int]) 
         assert seqs == list(range(seqs[0], seqs[0] + 500))  # nothing lost, nothing batched late
         # Sensor time and receive time are the same machine's monotonic clock: never
         # negative, and not from another time base (a sanity bound, not a latency: the
-        # latency on this channel is bench.force_under_video's, issue 25).
+        # latency on this channel is bench.force_under_video's).
         assert all(0 <= at - s.time < 30.0 for s, at in rec.forces[:500])
         state = httpx.get(base + "api/v1/force/channel").json()
         assert state["clients"] >= 1 and state["samples_sent"] >= 500

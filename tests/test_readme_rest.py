@@ -1,10 +1,10 @@
-"""The README's plain-REST block and the names of the server and the token (issue 27,
-items 8 and 12): the block runs as written twice in a row (it releases its lease when
-it ends); a script that could not release it, run again under the same name from the
-same address, takes its own idle lease back, while anyone else is refused and told
-when it lapses; a refused lease prints the server's reason, not a traceback; and
-`telerobot master` finds the server and the token as `telerobot move` and the Python
-client do; the README's e-stop line and its reset over REST (item 13) work as written."""
+"""The README's plain-REST block and the names of the server and the token: the block
+runs as written twice in a row (it releases its lease when it ends); a script that
+could not release it, run again under the same name from the same address, takes its
+own idle lease back, while anyone else is refused and told when it lapses; a refused
+lease prints the server's reason, not a traceback; and `telerobot master` finds the
+server and the token as `telerobot move` and the Python client do; the README's e-stop
+line and its reset over REST work as written."""
 
 from __future__ import annotations
 
@@ -142,7 +142,7 @@ def readme_curl(endpoint: str) -> str:
 
 
 def test_the_readmes_estop_and_its_reset_over_rest_work(server: str, home: dict[str, str]) -> None:
-    """Issue 27 item 13: the README says how to reset the e-stop over REST, beside the
+    """The README says how to reset the e-stop over REST, beside the
     e-stop's line, and both work as written: its e-stop line latches it (the server's
     port put in), its reset line, with a lease's id as the REST block gets one, clears
     it."""

@@ -214,7 +214,7 @@ def test_estop_from_an_observer_latches_until_the_operator_resets(client: TestCl
 def test_a_client_names_itself_in_its_ws_url_and_is_shown_by_that_name(
     client: TestClient,
 ) -> None:
-    """Issue 27 item 13: ``/ws?name=`` names the client (the HELLO stays as it is):
+    """``/ws?name=`` names the client (the HELLO stays as it is):
     who has control is that name in GET /safety and in every viewer's SAFETY event, not
     "ws 127.0.0.1:51186"; without a name it is still its address."""
     name = "Ana at the bench"

@@ -1,4 +1,4 @@
-"""Recordings (issue 14 part 1): real MCAP files, read back with the reader."""
+"""Recordings: real MCAP files, read back with the reader."""
 
 from __future__ import annotations
 

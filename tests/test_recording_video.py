@@ -1,4 +1,4 @@
-"""The stereo video in the recording (issue 14): the packets the fan-out gets, as they
+"""The stereo video in the recording: the packets the fan-out gets, as they
 are (no second encode), starting on a keyframe with SPS/PPS, through a bounded hand-over
 that drops and counts rather than stall the encoder; the pipeline runs while recording
 with nobody watching; what was logged decodes frame by frame from the first."""
@@ -211,7 +211,7 @@ async def test_the_media_worker_sends_the_recording_its_packets(tmp_path: Any) -
         assert len(decoded) == n
         duration = float(decoded[-1].time or 0)
     # Timed by the capture times: the last frame where the last packet was captured
-    # (how many frames a busy machine captured in that time does not matter: issue 25).
+    # (how many frames a busy machine captured in that time does not matter).
     captured = [p["timestamp"]["sec"] + p["timestamp"]["nsec"] / 1e9 for _, p in logged]
     assert duration == pytest.approx(captured[-1] - captured[0], abs=1 / 30), captured
 

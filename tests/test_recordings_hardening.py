@@ -1,4 +1,4 @@
-"""Recordings read by anyone (issue 26, items 1, 2, 4 and 8): the list is a page of an
+"""Recordings read by anyone: the list is a page of an
 index, never a parse per request, and does not hold the event loop; heavy reads are
 made once, in a process of their own, within a budget per address; a file cut short is
 read as far as it is valid, one that is not a recording and the one being written are
@@ -108,7 +108,7 @@ def _no_tracebacks(caplog: pytest.LogCaptureFixture) -> None:
     assert not bad, [r.getMessage() for r in bad]
 
 
-# ---------------------------------------------------------------- item 4: torn, foreign, active
+# ---------------------------------------------------------------- torn, foreign, active
 CUTS = {
     "one byte short": lambda data: data[:-1],
     "the summary cut": lambda data: data[: len(data) - 300],
@@ -207,7 +207,7 @@ def test_the_recording_being_written_is_refused_with_409(
     _no_tracebacks(caplog)
 
 
-# ---------------------------------------------------------------- item 8: ids
+# ---------------------------------------------------------------- ids
 @pytest.mark.parametrize("length", [201, 5000, 15000])
 def test_an_id_longer_than_a_file_name_is_422(
     app: tuple[TestClient, Services, Path], length: int
@@ -228,7 +228,7 @@ def test_an_id_longer_than_a_file_name_is_422(
         assert "at most 200 characters" in r.json()["detail"]
 
 
-# ---------------------------------------------------------------- item 1: the list
+# ---------------------------------------------------------------- the list
 def test_the_list_is_a_page_summarised_from_the_index(
     app: tuple[TestClient, Services, Path],
 ) -> None:
@@ -291,7 +291,7 @@ def test_the_list_does_not_hold_the_event_loop(tmp_path: Path) -> None:
     assert answered_first >= 10, answered_first  # (before: 2; now: ~200)
 
 
-# ---------------------------------------------------------------- items 1-2: budgets, kept reads
+# ---------------------------------------------------------------- budgets, kept reads
 def test_a_loop_of_timeline_reads_is_one_job_kept_beside_the_recording(
     app: tuple[TestClient, Services, Path],
 ) -> None:
@@ -358,7 +358,7 @@ def test_what_a_read_sends_is_charged_to_its_address(
     assert all(c.get(url, headers=OP).status_code == 200 for _ in range(int(reads) + 2))
 
 
-# ---------------------------------------------------------------- item 8: size cap, full disk
+# ---------------------------------------------------------------- size cap, full disk
 def _events(rec: Recorder) -> list[RecordingEvent]:
     seen: list[RecordingEvent] = []
     rec.events.subscribe(seen.append)

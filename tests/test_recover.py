@@ -1,4 +1,4 @@
-"""Issue 26, the CLI on torn and foreign files: ``telerobot recording recover`` refuses
+"""The CLI on torn and foreign files: ``telerobot recording recover`` refuses
 what is not an MCAP and writes what it recovers beside the original, never over it
 (a file cut mid-summary included, without a traceback); ``telerobot export lerobot``
 of a torn recording says so in one line and exits non-zero."""

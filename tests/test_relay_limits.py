@@ -1,4 +1,4 @@
-"""Observers' offers through the media server, shared fairly (issue 26, item 6): one
+"""Observers' offers through the media server, shared fairly: one
 address re-offering in loops cannot take every slot and lock out an observer at
 another; each address gets a rate of offers, a few unanswered ones and a few viewers,
 refused beyond with 429 ``relay_busy`` saying which limit (before any work on Janus).
@@ -24,7 +24,7 @@ from tests.support.servers import serving
 
 CLIENT = {"X-Telerobot-Client": "test"}  # a request that changes something says who it is
 OFFER = "api/v1/webrtc/server-offer"
-ATTACKERS = 6  # the issue's: six tokenless workers re-offering from one address
+ATTACKERS = 6  # bench.abuse's relay_offers: six tokenless workers at one address
 ATTACK_S = 4.0
 PER_ADDRESS_PENDING = 4  # the default
 VIEWERS_PER_ADDRESS = 2
@@ -94,10 +94,10 @@ def detail(r: httpx.Response) -> str:
 async def test_one_address_re_offering_cannot_lock_out_an_observer_at_another(
     server: str,
 ) -> None:
-    """The issue's attack: six tokenless workers at one address re-offer in loops and
-    never answer. Before, they held every connecting slot (the legitimate observer got
-    3 of 16); now that address holds its 4, is told why it gets no more, and an
-    observer at another address gets every offer it asks for."""
+    """bench.abuse's relay_offers attack: six tokenless workers at one address re-offer
+    in loops and never answer. Before, they held every connecting slot (the legitimate
+    observer got 3 of 16); now that address holds its 4, is told why it gets no more,
+    and an observer at another address gets every offer it asks for."""
     statuses: Counter[int] = Counter()
     details: set[str] = set()
     end = time.monotonic() + ATTACK_S

@@ -1,4 +1,4 @@
-"""Session resume on /ws, hardened (issue 26, item 7): a connection superseded by a
+"""Session resume on /ws, hardened: a connection superseded by a
 resume is closed at once (the server lets its socket go, whether its peer answers or
 not), a resume key works once (the next comes in the resume's WELCOME), resumes are
 limited per address, and connections still closing count against the client cap.
@@ -83,10 +83,10 @@ async def refusal(ws: Any) -> str:
 async def test_superseded_connections_are_closed_at_once_and_resumes_do_not_pile_up(
     base: str,
 ) -> None:
-    """The issue's attack: one observer's key resumed again and again, every connection
-    kept open by the client. Before, each stayed open on the server (700 resumes held
-    476 sockets); now the server holds the newest only, and each one left behind was
-    closed by the server with 4001 and the reason."""
+    """bench.abuse's resume_pileup attack: one observer's key resumed again and again,
+    every connection kept open by the client. Before, each stayed open on the server
+    (700 resumes held 476 sockets); now the server holds the newest only, and each one
+    left behind was closed by the server with 4001 and the reason."""
     proc = server_process(base)
     address = "127.0.0.2"
     client = await RealtimeClient.hello(await open_from(base, address), "", RESUMABLE)

@@ -52,7 +52,7 @@ async def test_the_force_limit_stops_the_arm_with_no_transport_running() -> None
         await ds.cartesian_increment(op.id, np.array([0.005, 0, 0]), np.zeros(3))
         sensor.press((0.0, 0.0, 100.0, 0.0, 0.0, 0.0))
         # The sample crosses from the sensor's thread to the loop (a deadline, not a
-        # figure: the reaction time is the sensor's period plus a tick, issue 25).
+        # figure: the reaction time is the sensor's period plus a tick).
         await until_async(lambda: ds.state().force_limited)
         refused = None
         try:

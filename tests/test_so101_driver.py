@@ -78,7 +78,7 @@ def link(request: pytest.FixtureRequest) -> Iterator[BusLink]:
 # How long a servo has to answer in these tests. The driver's 30 ms is for a real bus
 # (a servo answers within a millisecond); here the emulator is a thread of this process,
 # and on a loaded machine it can be kept off the CPU longer than that, which reads as a
-# silent servo (issue 25). The tests of a silent servo set their own, shorter one.
+# silent servo. The tests of a silent servo set their own, shorter one.
 REPLY_TIMEOUT = 1.0
 SILENT = 0.25  # a muted servo: long enough for the others on a loaded machine
 
@@ -173,7 +173,7 @@ def reads_in(arm: So101Arm, seconds: float) -> tuple[int, float]:
 
 
 async def test_sync_reads_are_paced_at_the_period_and_flat_out_without_it(link: BusLink) -> None:
-    # Issue 25: no rate line here (200 Hz paced and 1000-3400 Hz flat out are
+    # No rate line here (200 Hz paced and 1000-3400 Hz flat out are
     # bench.command_latency --robot so101-emulator's `so101_sync_read_hz`). What holds on
     # any machine: the reads happen, and the paced poller never starts reads closer than
     # its period on average: after a read the next is due a period after the one before
@@ -245,7 +245,7 @@ async def test_moves_reach_the_target(link: BusLink) -> None:
     assert arm.snapshot().velocities.shape == (6,)
     # The goals went out between reads, and the wait is reported (how long it is, about
     # one read transaction, is bench.command_latency --robot so101-emulator's
-    # goal_to_bus_p50_ms/_p99_ms: no line here, issue 25).
+    # goal_to_bus_p50_ms/_p99_ms: no line here).
     health = arm.diagnostics()
     waits = health["goal_to_bus_ms"]
     assert waits["n"] >= 2 and 0 <= waits["p50"] <= waits["p99"] <= waits["max"], waits

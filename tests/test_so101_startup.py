@@ -1,4 +1,4 @@
-"""The SO-101 path on a busy machine (issue 27): a start-up the bus does not answer is
+"""The SO-101 path on a busy machine: a start-up the bus does not answer is
 tried again (with the bus emulator on a real pty and TCP port), ``POST
 /robot/initialize`` takes an empty body, and a leader waiting for an arm that cannot
 come to rest says why."""

@@ -1,4 +1,4 @@
-"""Stopping time and distance (issue 12): a stop decelerates at the drives' limit,
+"""Stopping time and distance: a stop decelerates at the drives' limit,
 all joints together, and ends within the time and distance the server states
 (GET /api/v1/safety), on the simulated arm in virtual time."""
 

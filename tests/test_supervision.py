@@ -1,4 +1,4 @@
-"""A task supervised by a script (issue 27, item 4): the task holds the lease for its
+"""A task supervised by a script: the task holds the lease for its
 run, and the script that started it stays present by its heartbeats whether or not it
 holds the lease, so a task longer than the window in which a silent script is
 forgotten runs to its end; a script that does go silent is gone after that window and
@@ -73,7 +73,7 @@ async def test_a_heartbeating_script_supervises_a_task_longer_than_its_idle_wind
     cell = SimCell(base, push_start(base))
     await cell.setup()
     try:
-        path = slow_path(cell, 75.0, 0.03)  # the issue's task stopped at 74 % of 81 s
+        path = slow_path(cell, 75.0, 0.03)  # as long as the 81 s task that used to stop at 74 %
         script_id, _, took = await supervised_run(cell, path, heartbeats_until=1e9, limit_s=120.0)
         task = cell.runner.list()[-1]
         assert task.state is TaskState.DONE, task.reason

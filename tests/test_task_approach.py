@@ -1,4 +1,4 @@
-"""Issue 27 item 3: repeating a taught motion from an arm the README's own script moved
+"""Repeating a taught motion from an arm the README's own script moved
 (joint 1 turned 0.1 rad: the tool 61 mm / 5.7° from the task's first pose). The
 approach is a move in joints, along the line to the first pose's joints, through the
 DecisionServer's joint jog (lease, e-stop, dead-man, limits) at the approach's pace;

@@ -1,4 +1,4 @@
-"""Repeating a taught motion (issue 14 part 3): the trajectory, the admittance law,
+"""Repeating a taught motion: the trajectory, the admittance law,
 and the TaskRunner on the simulation through a real DecisionServer, in virtual time
 (the force sensor sampled every millisecond; bench/task_replay.SimCell)."""
 
@@ -87,7 +87,7 @@ def test_trajectory_from_recording_messages_keeps_one_episode() -> None:
 
 
 def test_a_recording_of_another_arm_model_is_refused_at_its_settings() -> None:
-    """Issue 27 item 13: a PUMA 560's recording on an SO-101 server is refused, saying
+    """A PUMA 560's recording on an SO-101 server is refused, saying
     which arm made it and which this server drives, at its first message (/settings),
     before any state is read; the same model's, or one that does not say, is read."""
     rot = np.eye(3).reshape(9).tolist()

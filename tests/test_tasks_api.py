@@ -1,7 +1,7 @@
 """The tasks REST API on the app (sim, real time): record a short scripted move,
 repeat it as a task from that recording, read its path and state; the token and
 the lease are needed to start one. A recording made with another arm model is listed
-as such and refused (issue 27 item 13: a PUMA's recording offered on an SO-101)."""
+as such and refused (a PUMA's recording was offered on an SO-101)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 26, tasks: a task's source is read off the event loop, bounded in memory and
+"""Tasks, hardened: a task's source is read off the event loop, bounded in memory and
 time, one read at a time, and without the operator token within a budget per address
 (429 past it); torn, foreign and active files give 200 as far as valid, 422 or 409,
 never 500; a long file name is 422; a recorded path that jumps needs the operator's
@@ -262,7 +262,7 @@ async def test_a_task_whose_tool_did_not_reach_the_end_is_not_done() -> None:
     try:
         start = cell.robot.pose.position.copy()
         path = jumping_path(start, np.array([-0.15, 0.0, 0.0]))
-        # The path's clock not waiting (as before issue 26): the path is over while the
+        # The path's clock not waiting (as it once did): the path is over while the
         # arm is still crossing the jump, and the settle time is too short for the rest.
         spec = TaskSpec(path, allow_jumps=True, hold_gap_m=1.0)
         cell.runner.settle_s = 0.2

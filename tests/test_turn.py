@@ -374,7 +374,7 @@ def test_the_compose_file_runs_coturn_beside_the_server_with_one_secret() -> Non
 
 def test_the_compose_files_media_server_is_the_one_the_server_is_pointed_at() -> None:
     """The janus service runs `telerobot media-server` on the ports and with the secret
-    the telerobot service's settings name (issue 18)."""
+    the telerobot service's settings name."""
     from pathlib import Path
 
     import yaml

@@ -220,7 +220,7 @@ async def test_stop_aborts_the_move_on_the_wire_and_the_arm_brakes_to_rest(
     # The increment on the wire did not run to its end (0.45 s more): the arm braked
     # (0.1 s at 10 rad/s², 25 ms on this clock) and the driver read where it stopped,
     # well short of the end below. How long stop() → at rest takes is
-    # bench.stopping's `val_serial_stop_s`, not a line here (issue 25).
+    # bench.stopping's `val_serial_stop_s`, not a line here.
     assert robot.status is RobotStatus.READY and slow_link.emulator.aborted == 1
     np.testing.assert_allclose(robot.joints, np.radians(slow_link.emulator.joints_deg), atol=2e-6)
     assert start[0] + 0.3 < robot.joints[0] < start[0] + 2.0  # well short of +2.5

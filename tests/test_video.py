@@ -137,7 +137,7 @@ async def test_a_webrtc_peer_receives_frames_and_decodes_the_timecode() -> None:
         await pipeline.close()
     # Real capture times, decoded from the picture: this machine's monotonic clock, so
     # never ahead of it and not from another time base (a sanity bound, not a latency:
-    # capture → decoded is bench.video's latency_p50_ms/_p99_ms, issue 25).
+    # capture → decoded is bench.video's latency_p50_ms/_p99_ms).
     assert all(0 <= x < SANE_AGE_S for x in latencies)
     assert pipeline.frames_encoded >= 20 and pipeline.stats()["encode_ms_p50"] > 0
 

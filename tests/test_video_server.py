@@ -243,7 +243,7 @@ def test_each_viewers_link_is_reported_from_its_rtcp() -> None:
     assert link["layer"] == "full", link
     assert link["reports"] >= 1 and link["loss"] == 0, link  # loopback: nothing lost
     # A round trip was measured from the receiver's reports (how long it is on a loaded
-    # loopback is no line here, issue 25; a sanity bound only).
+    # loopback is no line here; a sanity bound only).
     assert link["rtt_ms"] is not None and 0 <= link["rtt_ms"] < 30_000, link  # type: ignore[operator]
     assert link["estimated_kbps"] and link["estimated_kbps"] > 100, link  # type: ignore[operator]
     # Its packets are paced, abs-send-time stamped again as they leave (the estimate

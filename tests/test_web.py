@@ -124,7 +124,7 @@ def test_anaglyph_takes_red_from_the_left_image_and_green_blue_from_the_right(
     page.evaluate("window.telerobot.setMode('anaglyph')")
     # Paused, drawn and read in one task: a video paused for 300 ms is stale (dimmed).
     # A loaded machine can find the view stale already (its last frame late): the read
-    # says so, and is taken again once frames come (issue 25).
+    # says so, and is taken again once frames come.
     for _ in range(10):
         got = page.evaluate(ANAGLYPH_PIXELS)
         if got["stale"] is None:
@@ -199,7 +199,7 @@ def test_keyboard_space_is_the_dead_man_w_drives_escape_stops_alt_arrows_align(
     take_control(page)
     page.keyboard.press("Digit1")  # the base frame (the view frame is the default)
     start = target(server)
-    page.click("#ar")  # a control touched (issue 13): the keys still drive,
+    page.click("#ar")  # a control touched: the keys still drive,
     page.click("#ar")  # and Space does not toggle it
     ar_before = page.is_checked("#ar")
     page.keyboard.down("KeyW")

@@ -110,7 +110,7 @@ def test_a_stalled_page_halts_the_arm_but_keeps_control_and_a_long_stall_loses_i
     assert not errors, errors
 
 
-# The lease is taken back once the new server's video is up (issue 25): while the new
+# The lease is taken back once the new server's video is up: while the new
 # media worker starts, the peer negotiates and the browser's decoder starts, a page on a
 # loaded 2-core machine was measured frozen 2.5–8 s at a time (browser work outside its
 # JavaScript, its software GPU at nice 10); a page silent > 1 s stops its heartbeats by

@@ -1,4 +1,4 @@
-"""A dead-man halt caused by the operator's own computer (issue 27 item 1), in Debian's
+"""A dead-man halt caused by the operator's own computer, in Debian's
 Chromium: the page's realtime worker is held busy for 400 ms, as a worker starved of
 CPU on a loaded machine is (a software GPU, another program). The server stops the arm
 and keeps the lease; the page says this computer was the reason, not the operator;

@@ -1,5 +1,5 @@
 """The connection HUD (web/src/ui/connection-hud.ts) in a real browser (Debian's Chromium)
-against a real ``telerobot serve``, checking only what holds on any machine (issue 25).
+against a real ``telerobot serve``, checking only what holds on any machine.
 
 Every row shows its figure in its format, and the box is drawn as the HUD judged it, over
 the video's corner. The decoded frame rate, the freezes and the video's ICE round trip

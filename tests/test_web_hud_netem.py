@@ -1,4 +1,4 @@
-"""The connection HUD behind an emulated link (issue 15 part 3): Debian's Chromium runs
+"""The connection HUD behind an emulated link: Debian's Chromium runs
 in the client namespace of bench.netem's pair, the server in the other, and the link's
 profile changes under the open page. On `lan` its link rows (round trip, loss) are
 green; on `mobile` (80 ± 30 ms each way) the round trip turns amber and says so; on

@@ -1,4 +1,4 @@
-"""A page watching through the media server (issue 18), in Debian's Chromium against a
+"""A page watching through the media server, in Debian's Chromium against a
 real `telerobot serve --media-server janus`: an observer's page takes Janus's offer and
 shows the stereo video; the operator's page on the same server stays on the direct path."""
 

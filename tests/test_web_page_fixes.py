@@ -1,12 +1,11 @@
-"""What a new user tripped over on the operator page (issue 27, items 2, 6, 11 and the
-page's part of 13), in Debian's Chromium against real servers: Escape with the help open
-closes it and does not latch the e-stop (the E-STOP button works over it); a server
-restarted with another model is drawn as its own arm (labels, ghost, AR ball), a stale
-CONTROL LOST alert goes, and Run is disabled while the server is away; every joint fits
-the Robot panel; an empty message list is one muted line, not an empty box; the
-calibration page fits the window and shows the live images before freezing; Enter VR
-without a headset says what is needed; the page names itself, and every page says who
-has control by name."""
+"""What a new user tripped over on the operator page, in Debian's Chromium against real
+servers: Escape with the help open closes it and does not latch the e-stop (the E-STOP
+button works over it); a server restarted with another model is drawn as its own arm
+(labels, ghost, AR ball), a stale CONTROL LOST alert goes, and Run is disabled while
+the server is away; every joint fits the Robot panel; an empty message list is one
+muted line, not an empty box; the calibration page fits the window and shows the live
+images before freezing; Enter VR without a headset says what is needed; the page names
+itself, and every page says who has control by name."""
 
 from __future__ import annotations
 
@@ -137,7 +136,7 @@ TRANSPARENT = "rgba(0, 0, 0, 0)"
 def test_an_empty_message_list_is_one_muted_line_not_an_empty_box(
     browser: Browser, server: str
 ) -> None:
-    """Issue 27 item 11: before its first line the list draws no empty bordered box
+    """Before its first line the list draws no empty bordered box
     (7.5 lines high) but one muted line saying so; it stays laid out, in view at the
     aside's top (test_web_panels' message log needs it there before its first line,
     which hiding it broke), and takes its box when a line comes."""
@@ -168,7 +167,7 @@ def controller(server: str) -> object:
 def test_the_page_names_itself_and_others_see_who_has_control_by_name(
     browser: Browser, server: str
 ) -> None:
-    """Issue 27 item 13: operators were "ws 127.0.0.1:51186" everywhere. The page names
+    """Operators were "ws 127.0.0.1:51186" everywhere. The page names
     itself ("browser on <platform>" until a name is typed in the Driving panel, kept in
     the browser, used from the next connection); who has control is that name for the
     server and on every other page's header; a name the server would refuse is not kept."""

@@ -1,4 +1,4 @@
-"""The operator page's header and panels in a real browser (issue 13, items 5 and 10):
+"""The operator page's header and panels in a real browser:
 one state model drives the header (E-STOP latched, DISCONNECTED), the help overlay,
 the labels (the model's joint names, the speed's value, force numbers, orientation), the Home button
 and the message log in view."""
@@ -97,7 +97,7 @@ def test_question_mark_opens_the_help_escape_closes_it_then_estops(
     for needed in ("Space", "W / S", "Q / E", "Escape", "E-STOP", "Alt + arrows", "R1", "pinch"):
         assert needed in help_text, needed
     assert (page.locator("#help").bounding_box() or {}).get("width", 0) > 0
-    page.keyboard.press("Escape")  # closes the help, and only that (issue 27)
+    page.keyboard.press("Escape")  # closes the help, and only that (not the e-stop too)
     wait(page, "document.getElementById('help').hidden")
     page.wait_for_timeout(300)
     assert httpx.get(server + "api/v1/safety").json()["estop"] is False

@@ -1,4 +1,4 @@
-"""Recording from the operator page (issue 14) in a real browser against the real
+"""Recording from the operator page in a real browser against the real
 server on the simulation, video included: the operator records and marks an episode,
 an observer sees the REC indicator advance, the file reads back with its labelled
 episode, and the review page plays it."""

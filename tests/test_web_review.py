@@ -1,4 +1,4 @@
-"""The review page as a new user meets it (issue 27 item 10), in Debian's Chromium
+"""The review page as a new user meets it, in Debian's Chromium
 against the real server on the simulation, video included. A short recording made over
 REST while the operator page holds control (its lease taken over the page's WebSocket),
 with an episode and an e-stop in it, reviews with: the episode (task, ✗, notes) as a
@@ -137,7 +137,7 @@ def test_review_shows_episodes_and_safety_events_and_numbers_episodes_as_the_api
     commands = review.locator("#review-commands li").all_inner_texts()
     assert commands, "no command listed"
     assert not [c for c in commands if TWICE.search(c)], commands
-    # (The page names itself, "browser on <platform>" by default: issue 27 item 13.)
+    # (The page names itself, "browser on <platform>" by default: web/src/ui/operator-name.ts.)
     assert any(re.search(r" browser on [^()]* \(ws\) ", c) for c in commands), commands
 
     # The picture without the timecode stripe, as the live page shows it.

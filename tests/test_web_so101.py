@@ -1,4 +1,4 @@
-"""The operator page driving the simulated SO-101 (issue 17): the same page, the arm
+"""The operator page driving the simulated SO-101: the same page, the arm
 it is given. Debian's Chromium against `telerobot serve` with the SO-101's model."""
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
-"""Tasks on the operator page (issue 14), in a real browser against the real server: a
+"""Tasks on the operator page, in a real browser against the real server: a
 move taught through REST with the real recorder (an episode of a recording), then on
 the page: the episode's path previewed in cyan in both eyes where the cameras see it,
 before anything runs; the task run from the page follows it (the server's tool reaches
 the episode's end), pauses and resumes, shows its progress and its end, and control
 comes back to the page; from the path's end, Run is refused and "Approach first"
 (confirmed) runs it anyway. On an SO-101 server, a PUMA's recording is greyed out,
-saying so (issue 27 item 13: it was offered)."""
+saying so (it used to be offered)."""
 
 from __future__ import annotations
 
@@ -165,7 +165,7 @@ def test_an_episode_previewed_in_both_eyes_runs_from_the_page_and_hands_control_
     assert "first pose" in page.locator("#messages").inner_text()
     # The panel says the server's reason by the button, which can be pressed, and the
     # approach is drawn (dashed amber, from the tool to the path's start) before the
-    # operator is asked (issue 27: a disabled button and no reason before).
+    # operator is asked (before, a disabled button and no reason).
     said = page.locator("#task-reason").inner_text()
     assert said.startswith("Run refused: the tool is") and "first pose" in said, said
     assert page.is_enabled("#task-approach")

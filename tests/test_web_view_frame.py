@@ -1,4 +1,4 @@
-"""The view frame (issue 13, item 4) in a real browser against the simulation: the keys
+"""The view frame in a real browser against the simulation: the keys
 move the gripper as the left camera's image shows it, and the active frame's axis marker
 is drawn at the gripper in both eyes."""
 

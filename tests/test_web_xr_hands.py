@@ -1,4 +1,4 @@
-"""Browser tests of the hand as a master and the ghost arm (issue 13, item 11): in the
+"""Browser tests of the hand as a master and the ghost arm: in the
 emulated WebXR runtime (iwer) in hand mode, a pinch is the clutch and the hand's motion
 moves the arm; the whole predicted arm is drawn over both eyes, and can be switched off."""
 

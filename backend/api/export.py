@@ -1,4 +1,4 @@
-"""A recording exported for robot learning (issue 14 part 4): its episodes as a LeRobot
+"""A recording exported for robot learning: its episodes as a LeRobot
 v3.0 dataset (``backend.recording.lerobot``), written beside the recordings in
 ``<state folder>/exports/``. One export at a time, in its own process; how far it has
 got is ``GET …/export/lerobot`` (and said in the 409 a second export gets). A recording

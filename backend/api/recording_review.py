@@ -1,4 +1,4 @@
-"""A recording played back (issue 14's review page, web/review.html): its video as an
+"""A recording played back (the review page, web/review.html): its video as an
 MP4 (the recorded H.264 remuxed, no re-encode) that a ``<video>`` element plays and
 seeks natively, and its other channels as JSON on one timeline, decimated to a bounded
 size (``backend.recording.timeline``).

@@ -1,4 +1,4 @@
-"""Recordings (issue 14, docs/recording.md): start, stop, list, metadata, download,
+"""Recordings (docs/recording.md): start, stop, list, metadata, download,
 delete, and episodes while recording. Changing anything needs the operator token.
 
 Reading is open to every client, within a budget per address (``ReaderDep``; the

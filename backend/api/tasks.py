@@ -1,4 +1,4 @@
-"""Supervisory tasks (issue 14): repeat a recorded episode, or a time segment of a
+"""Supervisory tasks (docs/tasks.md): repeat a recorded episode, or a time segment of a
 recording, as a server-side task under the DecisionServer's guards. Starting one
 needs the operator token and the control lease (``X-Client-Id``): the lease goes to
 the task for its run and comes back at its end. Reading is open to every client;

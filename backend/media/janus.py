@@ -1,8 +1,7 @@
-"""Janus as the media server that fans the one encoded stream out to many viewers
-(issue 18, the groundwork): the process started and supervised with a generated
-configuration, the streaming plugin's RTP mountpoint fed with the same H.264 packets
-the encoder already makes (no second encode). Its HTTP API's client is the media
-worker's (backend/media/relay.py).
+"""Janus as the media server that fans the one encoded stream out to many viewers:
+the process started and supervised with a generated configuration, the streaming
+plugin's RTP mountpoint fed with the same H.264 packets the encoder already makes (no
+second encode). Its HTTP API's client is the media worker's (backend/media/relay.py).
 
 Janus 1.1.2 (Debian's) facts this relies on (docs of the streaming plugin and the REST
 API; checked here): it is configured by a folder of ``.jcfg`` files (``-F``); plugins

@@ -1,4 +1,5 @@
-"""The server's side of the media server (issue 18): where it is, and keeping it up.
+"""The server's side of the media server (docs/media-server.md): where it is, and
+keeping it up.
 
 ``telerobot serve --media-server janus`` starts Janus itself (``JanusProcess``: a
 generated configuration, its HTTP API on 127.0.0.1, the admin API off, one mountpoint

@@ -1,4 +1,4 @@
-"""State and forces for observers who watch through the media server (issue 18), at a
+"""State and forces for observers who watch through the media server, at a
 reduced rate, without a connection to the control server per observer.
 
 Janus relays UDP datagrams that reach its mountpoint's data port to every viewer's data

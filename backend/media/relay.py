@@ -1,4 +1,4 @@
-"""The media worker's side of the media server (issue 18): observers watch through Janus,
+"""The media worker's side of the media server: observers watch through Janus,
 so the robot's computer sends the one encoded stream once, whoever watches.
 
 - **The feed**: while anyone watches through it, the full layer's H.264 packets (a tap

@@ -1,4 +1,4 @@
-"""The names clients give themselves (issue 27 item 13): who has control, as the page's
+"""The names clients give themselves: who has control, as the page's
 header, the SAFETY event ("control: NAME (why)"), ``GET /safety``'s ``controller``,
 the recording's commands and the log say it. Without one, a connection is named by
 its address ("ws 127.0.0.1:51186"), which tells a person nothing.

@@ -1,1 +1,1 @@
-"""Recordings (issue 14): one MCAP file per recording; see docs/recording.md."""
+"""Recordings: one MCAP file per recording; see docs/recording.md."""

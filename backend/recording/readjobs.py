@@ -56,7 +56,7 @@ READS_PER_S = 10.0  # recording reads a second from one address…
 READ_BURST = 40  # …after a burst (the review page's first requests, a seek or two)
 # A read's answer costs one more read per this many bytes: a loop of reads of a kept
 # 2 MB timeline is ~5 MB/s from one address at most, not the 22 MB/s the server sent
-# (and spent its event loop on) before (issue 26's bench).
+# (and spent its event loop on) before (bench.abuse's timeline_reads).
 BYTES_PER_READ = 512 * 1024
 JOBS_PER_S = 0.5  # reads that start a job, from one address…
 JOB_BURST = 8  # …after a burst (a review page: its list, timeline and MP4; a few of them)

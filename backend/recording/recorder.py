@@ -1,4 +1,4 @@
-"""The Recorder service (issue 14): one MCAP file per recording, written off the
+"""The Recorder service: one MCAP file per recording, written off the
 realtime paths.
 
 ``log(topic, payload, t=None)`` is non-blocking and thread-safe (the event loop, the

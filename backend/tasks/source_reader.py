@@ -5,17 +5,17 @@ a budget per address for clients without the operator token.
 Anyone may preview a task (the page's ghost of the path before it runs), and a preview
 reads the recording: about a second of CPU per minute recorded. Reads in threads, many
 at once, held the interpreter the event loop needs for the e-stop and the operator's
-commands (issue 26: tokenless preview loops grew the server from 322 to 502 MB and had
+commands (tokenless preview loops grew the server from 322 to 502 MB and had
 operator commands dropped as stale). So:
 
 - **One read at a time**, in one worker process of its own (started on the first
   read, ``spawn``: the server's threads are not copied): the read never holds the
   interpreter the event loop runs in. In a thread it did, in slices of up to tens of
   milliseconds (decompressing, decoding), and the e-stop waited behind them (30 ms
-  under tokenless preview loops, issue 26's bench). Its memory is the worker's, not
-  the server's. A client without the token that finds it
-  busy gets 429 at once (nothing queues for it); the operator's reads wait their turn,
-  ``MAX_QUEUED`` at most.
+  under tokenless preview loops, bench.abuse's task_preview). Its memory is the
+  worker's, not the server's. A client without the token that finds it busy gets 429 at
+  once (nothing queues for it); the operator's reads wait their turn, ``MAX_QUEUED`` at
+  most.
 - **Previews are cached** by (file, size, modification time, episode, segment): asking
   again costs a lookup. ``CACHE_SIZE`` previews of at most ``PREVIEW_POINTS`` points.
 - **Only this arm model's recordings** (``robot_model``): a recording made with another

@@ -1,1 +1,1 @@
-"""Force/torque sensors: the simulated one and (issue 6) ATI Net F/T."""
+"""Force/torque sensors: the simulated one and ATI Net F/T."""

@@ -73,7 +73,7 @@ async function main(): Promise<void> {
   let armReloader: ServerArmReloader | null = null; // the arm drawn, read again at each new session
   let welcomed = false;
   let tasks: TasksPanel | null = null; // a task this page started holds the lease: not lost
-  // Recording (issue 14): the header's REC indicator for every viewer, the operator's panel.
+  // Recording: the header's REC indicator for every viewer, the operator's panel.
   const recording = new RecordingPanel({ api, log, operator: () => link.operator });
   const link = new RealtimeLink(namedUrl(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, pageName), token, {
     state: (s) => {

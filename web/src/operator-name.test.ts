@@ -1,7 +1,7 @@
 import { describe, expect, it } from "vitest";
 import { NAME_KEY, controllerIn, defaultName, nameEdit, nameProblem, namedUrl, readName } from "./ui/operator-name";
 
-// A page names itself (issue 27 item 13): it was "ws 127.0.0.1:51186" everywhere.
+// A page names itself: it was "ws 127.0.0.1:51186" everywhere.
 const store = (kept: string | null) => ({ getItem: (k: string) => (k === NAME_KEY ? kept : null) });
 
 describe("the page's name", () => {

@@ -126,7 +126,7 @@ describe("the path overlay", () => {
     expect(calls.filter((c) => c === "fill")).toHaveLength(2);
   });
 
-  it("leads in with the approach, dashed, from the tool to the path's start (issue 27)", () => {
+  it("leads in with the approach, dashed, from the tool to the path's start", () => {
     const calls: string[] = [];
     const ctx = new Proxy(
       {},

@@ -253,7 +253,7 @@ describe("a fresh connection after a server restart", () => {
 });
 
 // The dead-man's heartbeat is put off by any message the server counts as one, never by
-// the clock sync's PING (the server does not count it: issue 27 item 1).
+// the clock sync's PING (the server does not count it).
 describe("what counts as a heartbeat", () => {
   it("a PING does not put off the next heartbeat; a command does", () => {
     const { client } = connected();

@@ -1,5 +1,5 @@
-// The review page's episodes, safety events, command senders and picture (issue 27
-// item 10): the pure parts review.ts draws from.
+// The review page's episodes, safety events, command senders and picture: the pure
+// parts review.ts draws from.
 import { describe, expect, it } from "vitest";
 import { TIMECODE_ROWS, shownFrame } from "./review/frame";
 import { episodeLabel, episodesOf, markRows, safetyMarks, spanOf, whoSent, type SafetySnapshot } from "./review/marks";

@@ -79,7 +79,7 @@ describe("the header's state model", () => {
     expect(v.badge.text).toBe("MOVING");
   });
 
-  it("someone else in control, by the name it gave itself (issue 27: not 'someone else')", () => {
+  it("someone else in control, by the name it gave itself (not 'someone else')", () => {
     const v = view({ controller: "Ana at the bench" }, OPERATOR | SOMEONE_HAS_CONTROL);
     expect(v.control).toBe("Ana at the bench has control");
     // Mine, the name is mine: still "you have control"; nobody, a stale name says nothing.

@@ -1,9 +1,9 @@
-// A task's path (issue 14): the tool's recorded positions (base frame) drawn over both
+// A task's path (docs/tasks.md): the tool's recorded positions (base frame) drawn over both
 // eyes' video as a cyan polyline, a dot at its start and an arrowhead at its end, so the
 // operator sees where a repeated motion will take the arm before it runs. Projected with
 // each camera's P like the ghost arm; the overlay is redrawn only when the path changes.
-// When the tool is away from the path's start, the approach (issue 27: a slow joint move
-// there, from POST /tasks/preview) leads in dashed amber from the tool to the cyan start.
+// When the tool is away from the path's start, the approach (a slow joint move there, from
+// POST /tasks/preview) leads in dashed amber from the tool to the cyan start.
 import type { Vec3 } from "../robot/math";
 import { tracePolyline, type Eye, type EyeSize, type OverlayPainter } from "../view/overlay";
 import type { OverlayHost } from "./axes";

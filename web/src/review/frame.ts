@@ -1,5 +1,5 @@
-// What of the recorded video the review page shows: the live page's picture (issue 27
-// item 10), i.e. without the timecode stripe the simulated cameras draw at the top of
+// What of the recorded video the review page shows: the live page's picture, i.e. without
+// the timecode stripe the simulated cameras draw at the top of
 // each eye (drivers/camera/timecode.py) — a barcode the live page reads and crops
 // (view/stereo.ts), and the recording keeps, since it records the frames as sent.
 

@@ -1,4 +1,4 @@
-// What the review page marks on its timeline besides the plots (issue 27 item 10): the
+// What the review page marks on its timeline besides the plots: the
 // recording's episodes (task, ✓/✗, notes) as spans and its safety events (e-stop, its
 // reset, force-limit trips, dead-man halts, the lease changing hands) as ticks, and who
 // sent each command, named once. Pure: the page (review.ts) draws what these return.
@@ -106,7 +106,7 @@ export function safetyMarks(snapshots: readonly SafetySnapshot[]): SafetyMark[] 
       else at("force-clear", "force limit released");
     }
     if (!!s.halted !== halted) {
-      // The live page's words for a halt (issue 27 item 1): the link stalled, not the operator.
+      // The live page's words for a halt: the link stalled, not the operator.
       if (s.halted) at("halt", "dead-man halt: the link stalled (lease kept)");
       else at("resume", "dead-man: heartbeats back");
     }

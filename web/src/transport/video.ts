@@ -134,7 +134,7 @@ export function closeVideo(api: Api, peer: VideoPeer): void {
 /** The server sends no video (it was started with video off): no peer is made for it.
  * Making and dropping a peer every few seconds is not free: Chromium tears one down on
  * the page's main thread, which then stalls for 1–3 s (bench.held_control measured it),
- * long enough for the realtime worker to stop the dead-man heartbeats (issue 27). */
+ * long enough for the realtime worker to stop the dead-man heartbeats. */
 export class NoVideo extends Error {
   constructor() {
     super("this server sends no video (it was started with video off)");

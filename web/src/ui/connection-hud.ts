@@ -1,4 +1,4 @@
-// The connection HUD (issue 15): over the video, a compact box of the link's figures —
+// The connection HUD: over the video, a compact box of the link's figures —
 // round trip, loss, the video's rate, bitrate, layer and freezes, how old the newest
 // force sample and the last command are, the clock offset — each row ok, amber or red
 // against a named threshold, the box as bad as its worst row. Three parts: hudView

@@ -156,7 +156,7 @@ export class AlarmSound {
 /** Which alerts stop the inputs held at that moment: a lost lease (a key held through
  * it must not drive when control comes back; it is pressed again). Not a dead-man halt:
  * the lease is kept, and on a loaded machine the page misses the dead-man every few
- * seconds; a key still held drives again once the heartbeats are back (issue 27). */
+ * seconds; a key still held drives again once the heartbeats are back. */
 export function stopsHeldInputs(alert: ControlAlert): boolean {
   return alert.level === "lost";
 }

@@ -1,4 +1,4 @@
-// The name this page gives itself (issue 27 item 13): who has control is said by name
+// The name this page gives itself: who has control is said by name
 // wherever control is listed — the header here and on every other page, the SAFETY
 // event, GET /api/v1/safety, the recording — not "ws 127.0.0.1:51186". Typed once in
 // the Driving panel and kept in localStorage; by default "browser on <platform>". It

@@ -1,4 +1,4 @@
-// Recording from the operator page (issue 14): the header's indicator (● REC mm:ss ·
+// Recording from the operator page: the header's indicator (● REC mm:ss ·
 // size, red, on every viewer's page) and the Recording panel — Record/Stop and the
 // episodes (start with a task name, end as a success or a failure with notes) for the
 // operator; every viewer sees what is being recorded and a link to review the last
@@ -58,8 +58,8 @@ export function droppedText(dropped: Record<string, number> | undefined): string
 
 /** One episode as the panel shows it: "episode 0 “pick” ✓ — notes". Numbered as the
  * API numbers it (from 0: PATCH …/episodes/{n}, a task's episode, the file's /episodes),
- * as the Tasks panel and the review page show it too (issue 27 item 10: this panel
- * said "episode 1" for what the others call episode 0). */
+ * as the Tasks panel and the review page show it too (this panel once said
+ * "episode 1" for what the others call episode 0). */
 export function episodeText(e: Pick<Episode, "episode" | "task" | "success" | "notes" | "ended">): string {
   const task = e.task ? ` “${e.task}”` : "";
   const verdict = e.ended === null ? " (recording)" : e.success === true ? " ✓" : e.success === false ? " ✗" : " (unlabelled)";

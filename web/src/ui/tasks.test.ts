@@ -3,7 +3,7 @@ import { ApiError } from "../api";
 import type { Schema } from "../api";
 import { AWAY_FROM_START, approachQuestion, farFromStart, otherArm, previewText, recordingChoices, refusalView, whyNotRun } from "./tasks";
 
-// The server's 422 for a Run from where the README's script leaves the arm (issue 27).
+// The server's 422 for a Run from where the README's script leaves the arm.
 const AWAY = "the tool is 60.8 mm / 5.7° from the task's first pose (it starts within 5 mm / 3°): move there, or confirm the approach (approach: true), a slow joint move there (its way: POST /tasks/preview, approach)";
 const refused = (type: string, detail: string) => new ApiError(detail, 422, { type, title: "invalid command", status: 422, detail });
 const ready = { chosen: true, operator: true, control: true, underWay: false, starting: false };
@@ -65,7 +65,7 @@ describe("the approach's confirm", () => {
   });
 });
 
-// Issue 27 item 13: the Tasks panel offered a PUMA recording on an SO-101 server.
+// The Tasks panel once offered a PUMA recording on an SO-101 server.
 describe("recordings of another arm model", () => {
   const SO101 = { model: "so101", name: "SO-101" };
   const rec = (file: string, robot_model: string | null | undefined): Schema<"RecordingEntry"> => ({

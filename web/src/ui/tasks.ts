@@ -1,4 +1,4 @@
-// The Tasks panel (issue 14): repeat a recorded episode as a server-side task. Pick a
+// The Tasks panel (docs/tasks.md): repeat a recorded episode as a server-side task. Pick a
 // recording and one of its episodes, the speed and the compliance; "Preview path" shows
 // the episode's tool path over both eyes (the server's trajectory for it, before it
 // runs: POST /tasks/preview); "Run" starts it with this page's

@@ -259,7 +259,7 @@ export class StereoView {
     this.staleMs = ms;
     // Drawn again only when what it says changes: a long stall (a server with no video)
     // is redrawn once a second, not 20 times (each redraw of the view costs a software
-    // GPU's main thread dearly: issue 27 item 1).
+    // GPU's main thread dearly, and a stalled page misses its dead-man heartbeats).
     if (ms === null || was === null || staleText(ms) !== staleText(was)) {
       this.overlayChanged();
       for (const m of this.all()) m.uniforms.dim!.value = ms === null ? 0 : 0.6;
