@@ -222,10 +222,10 @@ def test_with_the_two_port_the_press_holds_on_the_block(
     # The arm puts into the block no more than the operator put in: no impact from
     # the increments sent before the force came back, no ringing, no force limit;
     # the force settles near the hand's press (400 N/m × 2 mm against the block's push
-    # at 1/20: ~14 N; less at 700 ms, where less of the press has come through yet).
+    # at 1/20: ~14 N; less at 700 ms, where less of the press has come through yet: ~4 N).
     assert on["limit_trips"] == 0 and on["peak_n"] < 30.0, on
     assert on["oscillation"] < 2.0, on
-    assert 5.0 < on["mean_force_n"] < 20.0, on
+    assert 2.0 < on["mean_force_n"] < 20.0, on
     assert on["drift_mm"] < 5.0 and not on["estop_at_end"], on
 
 
@@ -251,3 +251,16 @@ def test_at_700_ms_the_master_alone_cannot_keep_the_arm_off_the_limit(
     # already sent: the arm drives into the block on 350 ms of increments.
     one = presses[(700, "one_port")]
     assert one["limit_trips"] > 0 or one["peak_n"] > 55.0, one
+
+
+def test_the_damper_never_reverses_the_handle_on_a_long_step() -> None:
+    # A busy machine's 20 ms step: α held that long takes α·h/m of the handle's speed.
+    # With the handle's mass known, α ≤ m/h (here 0.2 kg / 20 ms = 10 N·s/m), not the
+    # 1000 N·s/m cap that suits a 1 ms step and reversed the handle at 20.
+    pc = PassivityController(PassivitySettings(handle_mass_kg=0.2))
+    pc.energy = -1.0  # owed
+    pc.step(np.zeros(3), np.array([0.0, 0.0, 0.1]), 0.02)
+    assert pc.damping == pytest.approx(10.0) and pc.saturated == 1
+    # A 1 ms step again: the long one is remembered for a while (slowly forgotten).
+    pc.step(np.zeros(3), np.array([0.0, 0.0, 0.1]), 0.001)
+    assert pc.damping == pytest.approx(0.2 / (0.02 * 0.99))

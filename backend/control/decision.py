@@ -628,7 +628,6 @@ class DecisionServer:
         if client.port is None:
             client.port = SlavePort()
         client.port.master_energy(e_in, e_out)
-        client.port.settle(self.robot.pose.rotation)
         return client.port.given, client.port.out
 
     def on_force(self, sample: ForceSample) -> None:
@@ -640,7 +639,9 @@ class DecisionServer:
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
         holder = self._clients.get(self._lease) if self._lease is not None else None
         if holder is not None and holder.port is not None:
-            holder.port.add_force(fx, fy, fz)
+            # Its books are kept on the measured tool (one FK a sample, for a master only).
+            pose = self.robot.pose
+            holder.port.add_sample(pose.rotation @ np.array([fx, fy, fz]), pose.position)
         if magnitude > self.limits.contact_force_n:
             # Kept in the sensor frame: rotated only when a command asks (100 Hz, not 1 kHz).
             self._contact_sensor = (fx, fy, fz)
@@ -800,7 +801,7 @@ class DecisionServer:
         port = client.port if frame is WorkingFrame.BASE else None
         wanted = dX
         if port is not None:
-            port.settle(self.robot.pose.rotation)
+            port.settle()
             wanted = dX = dX + port.owed_for(now)
             step = float(np.linalg.norm(dX))
         try:
@@ -813,7 +814,7 @@ class DecisionServer:
             factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
             dX, rv = dX * factor, rv * factor
             if port is not None:
-                dX = port.allow(dX)
+                dX = port.allow(dX, T0[:3, 3])
             T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
             if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
                 raise SafetyStop(

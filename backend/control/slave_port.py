@@ -28,15 +28,19 @@ arm. So the arm keeps its own books:
   (``MAX_OWED_M``) and forgotten after a pause in the master's increments
   (``OWED_FORGET_S``: the operator let go of the clutch and re-centred).
 
-Energy is counted on the commanded targets, when the next increment (or ``ENERGY``)
-comes: a move's work is its length against the mean of the force before it and the
-force since (the sensor's samples, summed as they come). Before a move, what it would
-cost is judged with the contact's stiffness as seen so far (the force's rise per
-millimetre into it, the largest of the recent moves, ``stiffness``): pressing ``d``
-further against a force ``F`` costs about ``F·d + k·d²/2``, so a long step (a stalled
-machine's, a catch-up) is cut to what the budget pays for, not let through on the
-force before it. Forces below ``FORCE_FLOOR_N`` (a sensor's offset and noise) count
-as free space: no budget is needed there.
+Energy is counted where it flows: at every force sample, the force on the tool times
+how far the tool *measured* moved since the last sample (the arm's reported pose, not
+its target). Counted on the targets it was not: on a busy machine the arm lags its
+target, so a target moving in was charged against the force before the arm got there
+(too little) and one moving out against the force still pressing (too much given
+back), and the books made energy out of the lag. Before a move, what it would cost is
+judged from the target: the part of it already ahead of the measured tool into the
+contact (``lead``) is spent as it arrives, and pressing ``d`` further against a force
+``F`` costs about ``F·d + k·d²/2``, with ``k`` the contact's stiffness as seen lately
+(the force's rise per metre the tool moved into it, the largest recent one,
+``stiffness``). So a long step (a stalled machine's, a catch-up) is cut to what the
+budget pays for. Forces below ``FORCE_FLOOR_N`` (a sensor's offset and noise) count as
+free space: no budget is needed there.
 """
 
 from __future__ import annotations
@@ -69,15 +73,14 @@ class SlavePort:
         self.held_j = 0.0  # energy the held-back motion would have cost, J (shown)
         self.owed: FloatArray = np.zeros(3)  # master motion not yet made, m
         self.dropped_m = 0.0  # owed motion forgotten or past MAX_OWED_M, m
-        # The contact force since the last increment, summed in the sensor's frame as
-        # the samples come (1 kHz: plain floats), rotated to the base when asked.
-        self._sum = [0.0, 0.0, 0.0]
-        self._n = 0
-        self._last = (0.0, 0.0, 0.0)
-        self._last_increment: float | None = None
         self.stiffness = START_STIFFNESS_N_M  # of the contact, as seen lately, N/m
-        self._force_now: FloatArray = np.zeros(3)  # base frame, since the last move
-        self._pending: tuple[FloatArray, FloatArray] | None = None  # (move, force before)
+        self._last_increment: float | None = None
+        # The newest sample: (force, tool position), base frame; plain floats (1 kHz).
+        self._sample: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+        # The force and position since the last increment, summed, for its mean.
+        self._sum = [0.0] * 6
+        self._n = 0
+        self._mark: tuple[FloatArray, FloatArray] | None = None  # (force, position) then
 
     # ------------------------------------------------------------ what comes in
     def master_energy(self, e_in: float, e_out: float) -> None:
@@ -88,49 +91,59 @@ class SlavePort:
         if math.isfinite(e_out) and e_out > self.master_out:
             self.master_out = e_out
 
-    def add_force(self, fx: float, fy: float, fz: float) -> None:
-        """One force sample (the force on the tool, the sensor's frame)."""
+    def add_sample(self, force: FloatArray, position: FloatArray) -> None:
+        """One force sample: the force on the tool and where the tool measured was, base
+        frame. Counts the work done since the previous sample (trapezoid)."""
+        fx, fy, fz = float(force[0]), float(force[1]), float(force[2])
+        px, py, pz = float(position[0]), float(position[1]), float(position[2])
+        last = self._sample
+        self._sample = ((fx, fy, fz), (px, py, pz))
         s = self._sum
         s[0] += fx
         s[1] += fy
         s[2] += fz
+        s[3] += px
+        s[4] += py
+        s[5] += pz
         self._n += 1
-        self._last = (fx, fy, fz)
+        if last is None:
+            return
+        (gx, gy, gz), (qx, qy, qz) = last
+        if max(fx * fx + fy * fy + fz * fz, gx * gx + gy * gy + gz * gz) < FORCE_FLOOR_N**2:
+            return  # free space
+        work = -0.5 * ((fx + gx) * (px - qx) + (fy + gy) * (py - qy) + (fz + gz) * (pz - qz))
+        if work > 0:
+            self.out += work
+        else:
+            self.given -= work
 
     @property
     def budget(self) -> float:
         """What the arm may still put into its surroundings, J."""
         return self.master_in - self.out
 
-    def _mean_force(self, rotation: FloatArray) -> FloatArray:
-        """The mean force on the tool since the last move (the newest sample if none
-        came), in the base frame (``rotation``: the tool's); starts a new mean."""
-        mean = np.array(self._sum) / self._n if self._n else np.array(self._last)
-        self._sum = [0.0, 0.0, 0.0]
-        self._n = 0
-        return np.asarray(rotation @ mean, dtype=float)
-
-    def settle(self, rotation: FloatArray) -> None:
-        """Count the last move's work, now that the force after it is known, and learn
-        the contact's stiffness from it. Called before each increment and ENERGY."""
-        self._force_now = after = self._mean_force(rotation)
-        if self._pending is None:
-            return
-        dx, before = self._pending
-        self._pending = None
-        if max(float(np.linalg.norm(before)), float(np.linalg.norm(after))) < FORCE_FLOOR_N:
-            return
-        work = -float((before + after) @ dx) / 2.0
-        if work > 0:
-            self.out += work
+    def settle(self) -> None:
+        """Before an increment: the mean force and position since the last one, and the
+        contact's stiffness from how the force rose as the tool moved in."""
+        if self._n:
+            s, n = self._sum, self._n
+            mark = (np.array(s[:3]) / n, np.array(s[3:]) / n)
+        elif self._sample is not None:
+            mark = (np.array(self._sample[0]), np.array(self._sample[1]))
         else:
-            self.given -= work
-        magnitude = float(np.linalg.norm(after))
-        if magnitude >= FORCE_FLOOR_N:
-            normal = after / magnitude
-            pressed, rise = -float(dx @ normal), float((after - before) @ normal)
-            seen = rise / pressed if pressed > MIN_PRESS_M and rise > 0 else 0.0
-            self.stiffness = max(MIN_STIFFNESS_N_M, seen, self.stiffness * STIFFNESS_MEMORY)
+            return
+        self._sum = [0.0] * 6
+        self._n = 0
+        before, self._mark = self._mark, mark
+        force, position = mark
+        magnitude = float(np.linalg.norm(force))
+        if before is None or magnitude < FORCE_FLOOR_N:
+            return
+        normal = force / magnitude
+        pressed = -float((position - before[1]) @ normal)
+        rise = float((force - before[0]) @ normal)
+        seen = rise / pressed if pressed > MIN_PRESS_M and rise > 0 else 0.0
+        self.stiffness = max(MIN_STIFFNESS_N_M, seen, self.stiffness * STIFFNESS_MEMORY)
 
     # ------------------------------------------------------------ an increment
     def owed_for(self, now: float) -> FloatArray:
@@ -147,9 +160,12 @@ class SlavePort:
         self.dropped_m += float(np.linalg.norm(self.owed))
         self.owed = np.zeros(3)
 
-    def allow(self, dx: FloatArray) -> FloatArray:
-        """The part of the translation ``dx`` (base frame) the budget allows now."""
-        force = self._force_now
+    def allow(self, dx: FloatArray, target: FloatArray) -> FloatArray:
+        """The part of the translation ``dx`` (base frame) from the target position
+        ``target`` that the budget allows now."""
+        if self._mark is None:
+            return dx
+        force, position = self._mark
         magnitude = float(np.linalg.norm(force))
         if magnitude < FORCE_FLOOR_N:
             return dx
@@ -157,18 +173,23 @@ class SlavePort:
         into = -float(dx @ normal)  # > 0: how far dx presses into the contact
         if into <= 0.0:
             return dx
-        # The farthest the budget pays for: F·d + k·d²/2 = budget.
-        k, budget = self.stiffness, max(0.0, self.budget)
-        reach = (math.sqrt(magnitude * magnitude + 2.0 * k * budget) - magnitude) / k
+        k = self.stiffness
+        # The target already ahead of the tool into the contact: spent as the arm gets
+        # there, at a force rising by k per metre.
+        lead = max(0.0, -float((target - position) @ normal))
+        left = self.budget - (magnitude * lead + k * lead * lead / 2.0)
+        ahead = magnitude + k * lead  # the force at the target
+        reach = 0.0
+        if left > 0:
+            reach = (math.sqrt(ahead * ahead + 2.0 * k * left) - ahead) / k
         if into <= reach:
             return dx
-        self.held_j += magnitude * (into - reach) + k * (into * into - reach * reach) / 2.0
+        self.held_j += ahead * (into - reach) + k * (into * into - reach * reach) / 2.0
         return np.asarray(dx + (into - reach) * normal, dtype=float)
 
     def moved(self, dx: FloatArray, wanted: FloatArray) -> None:
         """The target moved by ``dx`` where the master wanted ``wanted`` (both base
-        frame): its work is counted at the next ``settle``; the rest is owed."""
-        self._pending = (np.asarray(dx, dtype=float).copy(), self._force_now)
+        frame): the rest is owed (bounded)."""
         owed = wanted - dx
         size = float(np.linalg.norm(owed))
         if size > MAX_OWED_M:

@@ -157,7 +157,9 @@ class MasterBridge:
         )
         self.passivity = PassivityController(
             PassivitySettings(
-                enabled=self.settings.passivity, max_damping_n_s_m=self.settings.max_damping_n_s_m
+                enabled=self.settings.passivity,
+                max_damping_n_s_m=self.settings.max_damping_n_s_m,
+                handle_mass_kg=getattr(device, "mass_kg", None),
             )
         )
         if self.two_port:  # nothing may be given back before the arm says what it got

@@ -43,6 +43,7 @@ import numpy as np
 
 from drivers.base import FloatArray, InvalidCommand
 
+HOLD_MEMORY = 0.99  # per step: a long step is forgotten over a few hundred
 MIN_SPEED_M_S = 1e-4  # slower than this: no damper (α would explode, and nothing moves)
 
 
@@ -53,6 +54,12 @@ class PassivitySettings:
     # Velocity from successive device positions, low-passed (a real device's encoder
     # steps would otherwise make α jump): first-order filter's cut-off.
     velocity_cutoff_hz: float = 100.0
+    # The handle's moving mass (kg; the device says), or None. A damper α held for the
+    # loop's step h takes α·h/m of the handle's speed: past 1 it reverses the handle and
+    # the damper itself makes energy. At a 1 ms step 1000 N·s/m is safe on a 0.2 kg
+    # handle (0.005 of its speed); a busy machine's 20 ms step made it 100 times too
+    # strong, and the contact rang. So α ≤ m / h, h the longest recent step.
+    handle_mass_kg: float | None = None
 
     def check(self) -> PassivitySettings:
         for name in ("max_damping_n_s_m", "velocity_cutoff_hz"):
@@ -80,6 +87,7 @@ class PassivityController:
         self.saturated = 0  # steps where α hit the cap (energy left owed)
         self.velocity: FloatArray = np.zeros(3)
         self._last: tuple[float, FloatArray] | None = None
+        self._hold = 0.0  # the longest recent step, s (slowly forgotten)
 
     def reset(self) -> None:
         """A new contact with the remote side (reconnected): start the books afresh."""
@@ -114,6 +122,7 @@ class PassivityController:
         v = np.asarray(velocity, dtype=float)
         if dt <= 0:
             return f
+        self._hold = max(dt, self._hold * HOLD_MEMORY)
         power = -float(f @ v) * dt  # > 0: the operator pushes energy into the port
         self.energy += power
         if power >= 0:
@@ -126,9 +135,12 @@ class PassivityController:
         owed = self.energy if self.budget is None else min(self.energy, self.budget - self.given)
         if owed >= 0 or speed2 < MIN_SPEED_M_S**2 or not self.settings.enabled:
             return f
+        cap = self.settings.max_damping_n_s_m
+        if self.settings.handle_mass_kg is not None:
+            cap = min(cap, self.settings.handle_mass_kg / self._hold)
         alpha = -owed / (speed2 * dt)
-        if alpha > self.settings.max_damping_n_s_m:
-            alpha = self.settings.max_damping_n_s_m
+        if alpha > cap:
+            alpha = cap
             self.saturated += 1
         taken = alpha * speed2 * dt
         self.energy += taken

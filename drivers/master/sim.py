@@ -38,7 +38,7 @@ class SimMaster:
         time_source: Callable[[], float] = time.monotonic,
     ) -> None:
         self.hand = hand
-        self.mass = mass_kg
+        self.mass = self.mass_kg = mass_kg
         self.damping = damping_n_s_m
         self.k_hand = hand_stiffness_n_m
         self.c_hand = hand_damping_n_s_m

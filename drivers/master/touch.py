@@ -23,6 +23,7 @@ TOUCH_TO_BASE: FloatArray = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 
 class TouchMaster:
     name = "touch"
     max_force_n = 3.3  # the Touch's peak force
+    mass_kg = 0.045  # its apparent mass at the stylus tip (the vendor's figure)
     to_base = TOUCH_TO_BASE
 
     def __init__(self, device_name: str = "Default Device") -> None:
