@@ -130,6 +130,10 @@ async function main(): Promise<void> {
     onError: (text) => log.add(text),
     layer: layerParam(location.search),
   });
+  // Leaving the page: the latency meter's queued frames are closed, not left to the
+  // garbage collector (which Chromium reports on the console, "A VideoFrame was garbage
+  // collected without being closed": seen as a page closed on a busy machine).
+  addEventListener("pagehide", () => glassMeter?.stop());
   videoConnection.start().catch((e: Error) => log.add(`video: ${e.message}`, true));
   // The connection HUD over the video (RTT, loss, video, freezes, force and command age).
   const videoStatus = api.request("get", "/api/v1/video");
