@@ -215,6 +215,30 @@ def test_the_reader_process_waits_behind_control(tmp_path: Path) -> None:
         reader.close()
 
 
+def test_the_reader_process_ends_with_the_server(tmp_path: Path) -> None:
+    # A server that stops (close() does not wait for its reader) or is killed left its
+    # reader's process behind for good, ~100 MB each time; it now ends by itself.
+    import subprocess
+    import sys
+
+    rec = write_recording(tmp_path / "r.mcap", seconds=2.0, episode=(0.5, 1.5))
+    server = (
+        "import asyncio, os, sys; from pathlib import Path;"
+        " from backend.tasks.source_reader import SourceReader;"
+        " r = SourceReader();"
+        f" asyncio.run(r.trajectory(Path({str(rec)!r}), 0, None, operator=True, address='a'));"
+        " print(*[c for c in os.listdir('/proc') if c.isdigit()"
+        " and open(f'/proc/{c}/stat').read().split()[3] == str(os.getpid())], flush=True);"
+        " os._exit(0)"  # killed: no close()
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", server], capture_output=True, text=True, timeout=60, check=True
+    ).stdout.split()
+    readers = [psutil.Process(int(pid)) for pid in out if psutil.pid_exists(int(pid))]
+    _, alive = psutil.wait_procs(readers, timeout=10)
+    assert not alive, [p.cmdline() for p in alive]
+
+
 # ------------------------------------------------------------ paths that jump
 def jumping_path(start: np.ndarray, jump: np.ndarray, *, seconds: float = 1.0) -> Trajectory:
     states = []
