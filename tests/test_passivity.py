@@ -264,3 +264,18 @@ def test_the_damper_never_reverses_the_handle_on_a_long_step() -> None:
     # A 1 ms step again: the long one is remembered for a while (slowly forgotten).
     pc.step(np.zeros(3), np.array([0.0, 0.0, 0.1]), 0.001)
     assert pc.damping == pytest.approx(0.2 / (0.02 * 0.99))
+
+
+def test_the_arms_energy_waiting_in_the_injected_delay_is_bounded() -> None:
+    # PORT_ENERGY answers held for the injected round trip: a flood of them keeps the
+    # newest 1000, not all.
+    from backend.master.link import Reply
+
+    clock = Clock()
+    bridge = MasterBridge(
+        SimMaster(time_source=clock), FakeLink(),  # type: ignore[arg-type]
+        BridgeSettings(delay_rtt_s=1.0), time_source=clock,
+    )  # fmt: skip
+    for n in range(1500):
+        bridge._on_reply(Reply("PORT_ENERGY", {"seq": n, "e_in": n * 1e-3, "e_out": 0.0}, ""))
+    assert len(bridge._arm_energy) == 1000 and bridge._arm_energy[-1][1] == pytest.approx(1.499)
