@@ -1071,7 +1071,8 @@ def main() -> None:
             recording = make_recordings(Path(state) / "recordings")
         with bench_server({"TELEROBOT_VIDEO": "false"}, Path(state)) as (target, server):
             target = dataclasses.replace(
-                target, recording=recording,
+                target,
+                recording=recording,
                 attacker_nice=args.attacker_nice,
                 client_priority=args.client_priority,
             )
