@@ -4,10 +4,12 @@ bridge (a leaf module: importing it pulls in neither)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import logging
 import os
 import sys
+from collections.abc import Iterator
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +55,29 @@ def raise_cpu_priority(steps: int) -> str:
             " Python binary); set cpu_priority 0 to silence this"
         )
     return f"CPU priority raised: niceness {before} → {os.getpriority(os.PRIO_PROCESS, 0)}"
+
+
+def raise_thread_priority(steps: int) -> int:
+    """Lower the calling thread's niceness by ``steps`` if the system lets it (on Linux
+    niceness is per thread: the threads it starts from now inherit it, the ones already
+    running and the processes already started keep theirs). Returns the niceness now."""
+    now = os.getpriority(os.PRIO_PROCESS, 0)
+    if steps > 0:
+        with contextlib.suppress(OSError):  # not root nor CAP_SYS_NICE: as started
+            os.setpriority(os.PRIO_PROCESS, 0, max(-20, now - steps))
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
+@contextlib.contextmanager
+def thread_priority_raised(steps: int) -> Iterator[int]:
+    """``raise_thread_priority`` for a block, the calling thread's niceness restored
+    after it (the threads started inside keep the raised one)."""
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        yield raise_thread_priority(steps)
+    finally:
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, before)
 
 
 def yield_cpu(steps: int) -> None:

@@ -107,6 +107,7 @@ import numpy as np
 import psutil
 
 from backend.realtime import messages as m
+from backend.tuning import raise_thread_priority, thread_priority_raised
 from bench.common import emit, machine, parser, serve_for_bench
 
 SERVER_FDS = 1024
@@ -145,20 +146,14 @@ class Target:
 
 
 def as_remote_client(steps: int) -> int:
-    """Raise the calling thread's CPU priority by ``steps`` (its niceness, which on
-    Linux is per thread: the processes it started before keep theirs), if allowed.
+    """Raise the calling thread's CPU priority by ``steps``, if allowed; its niceness now.
 
     Why: the operator, the observer and whoever presses the e-stop stand for people on
     other machines. Here they share the server's 2 cores with the attackers, and at the
     attackers' priority the scheduler made them wait tens of ms for a slice: an e-stop's
     worst case said more about the bench's own client than about the server. At the
-    server's raised priority (its ``cpu_priority``) they wait no longer than it does.
-    Returns the niceness now."""
-    now = os.getpriority(os.PRIO_PROCESS, 0)
-    if steps > 0:
-        with contextlib.suppress(OSError):  # not root: the clients run as started
-            os.setpriority(os.PRIO_PROCESS, 0, max(-20, now - steps))
-    return os.getpriority(os.PRIO_PROCESS, 0)
+    server's raised priority (its ``cpu_priority``) they wait no longer than it does."""
+    return raise_thread_priority(steps)
 
 
 # ---------------------------------------------------------------- attackers (own process)
@@ -758,10 +753,7 @@ def period(
     sockets_peak = sockets_before
     # Only this thread, and only now: the attackers' processes, started above, keep
     # the bench's own priority.
-    started_niceness = os.getpriority(os.PRIO_PROCESS, 0)
-    clients_niceness = as_remote_client(steps)
-    with contextlib.ExitStack() as restore, httpx.Client() as http:
-        restore.callback(os.setpriority, os.PRIO_PROCESS, 0, started_niceness)
+    with thread_priority_raised(steps) as clients_niceness, httpx.Client() as http:
         t_end = time.monotonic() + seconds - 2.0
         while time.monotonic() < t_end:
             time.sleep(0.3)

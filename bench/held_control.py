@@ -3,7 +3,7 @@
 stalls were (on a busy 2-core machine the page went HALTED every ~2 s).
 
     python -m bench.held_control [--json] [--seconds 60] [--busy-core] [--no-video]
-                                 [--no-yield-gpu] [--python-client]
+                                 [--no-yield-gpu] [--python-client] [--drive]
 
 ``--busy-core`` keeps one core busy (Debian's stress-ng) for the run, as
 ``make test-slow-machine`` does. Chromium's software GPU process is niced as the test
@@ -21,6 +21,10 @@ The page's main thread, as the worker sees it: its own 100 ms timer's longest ga
 (``main_timer_gap_ms_max``; ``main_timer_gaps_over_1s``: the worker's PAGE_SILENCE_MS,
 past which it stops the heartbeats) and its long tasks (``main_long_tasks``,
 ``main_long_task_ms_max``).
+``--drive``: the operator drives instead of holding still: Space (the dead-man) and A
+held throughout, then D, turned every ``DRIVE_FLIP_S`` (back and forth, within reach);
+``drive_mm_per_s`` is the tool's path (``/robot/state`` every 0.2 s) over the run, the
+figure to compare quiet and busy: what the operator still gets done.
 ``--python-client``: no browser; a Python client (bench.wsclient) takes the lease and
 sends a HEARTBEAT every 50 ms, as the page's worker does: the server's share of the
 halts.
@@ -41,6 +45,8 @@ from backend.realtime import messages as m
 from bench.browser import ARGS, yield_software_gpu
 from bench.common import busy_core, emit, machine, parser, serve_for_bench
 from bench.wsclient import RealtimeClient
+
+DRIVE_FLIP_S = 2.0
 
 
 def safety_halts(base: str) -> int:
@@ -85,6 +91,7 @@ def main() -> None:
     p.add_argument("--no-video", action="store_true")
     p.add_argument("--no-yield-gpu", action="store_true", help="leave Chromium's GPU at nice 0")
     p.add_argument("--python-client", action="store_true", help="no browser: a Python client")
+    p.add_argument("--drive", action="store_true", help="hold Space+A/D: the path driven")
     args = p.parse_args()
     token = secrets.token_hex(16)
     env = {"TELEROBOT_OPERATOR_TOKEN": token, "TELEROBOT_VIDEO": str(not args.no_video).lower()}
@@ -137,8 +144,22 @@ def main() -> None:
         frames0 = page.evaluate("window.telerobot.view.frames")
         t0 = time.monotonic()
         had = True
+        path_m, last_pos, key = 0.0, None, ""
+        if args.drive:
+            page.keyboard.down("Space")
         while time.monotonic() - t0 < args.seconds:
             time.sleep(0.2)
+            if args.drive:
+                want = "a" if int((time.monotonic() - t0) / DRIVE_FLIP_S) % 2 == 0 else "d"
+                if want != key:
+                    if key:
+                        page.keyboard.up(key)
+                    page.keyboard.down(want)
+                    key = want
+                pos = np.array(httpx.get(base + "api/v1/robot/state").json()["position"])
+                if last_pos is not None:
+                    path_m += float(np.linalg.norm(pos - last_pos))
+                last_pos = pos
             flags, lateness, gap = page.evaluate(
                 "[window.telerobot.state?.flags ?? 0, window.telerobot.client.timerLateMs,"
                 " window.telerobot.client.beatGapMs]"
@@ -153,6 +174,9 @@ def main() -> None:
             else:
                 had = True
         elapsed = time.monotonic() - t0
+        if args.drive:
+            page.keyboard.up(key)
+            page.keyboard.up("Space")
         for alert in page.evaluate("window.__alerts"):
             if alert and alert.startswith("ARM HALTED"):
                 said["busy" if "too busy" in alert else "network"] += 1
@@ -181,6 +205,7 @@ def main() -> None:
         "main_long_tasks": len(main["long"]),
         "main_long_task_ms_max": max(main["long"], default=None),
         "fps": None if args.no_video else frames / elapsed,
+        "drive_mm_per_s": path_m * 1000.0 / elapsed if args.drive else None,
         "busy_core": args.busy_core,
         "video": not args.no_video,
         "yield_gpu": not args.no_yield_gpu,

@@ -83,7 +83,7 @@ import numpy as np
 from backend.control.decision import DecisionServer
 from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
 from backend.master.bridge import BridgeSettings, MasterBridge
-from backend.master.cli import open_link
+from backend.master.cli import CPU_PRIORITY, open_link
 from backend.master.link import Reply
 from backend.realtime import messages as m
 from backend.realtime.hub import RealtimeHub
@@ -91,6 +91,7 @@ from backend.realtime.session import FRAMES
 from backend.services import safety_limits
 from backend.settings import Settings
 from backend.telemetry.stats import Telemetry
+from backend.tuning import thread_priority_raised
 from bench.common import busy_core, emit, machine, parser, serve_for_bench
 from drivers.base import FloatArray, ForceSample, TelerobotError, WorkingFrame
 from drivers.clock import ManualClock
@@ -225,7 +226,15 @@ def one_run(
         )  # fmt: skip
 
 
-def press(
+def press(base: str, token: str, **kwargs: Any) -> dict[str, Any]:
+    """``_press`` with the bridge's threads at the CPU priority ``telerobot master``
+    gives them (``--cpu-priority``, 5 nice steps where allowed): on the operator's
+    machine the 1 kHz loop runs ahead of its other programs."""
+    with thread_priority_raised(CPU_PRIORITY):
+        return _press(base, token, **kwargs)
+
+
+def _press(
     base: str,
     token: str,
     *,

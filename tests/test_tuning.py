@@ -1,5 +1,5 @@
-"""The server's process settings (``backend.tuning``): it raises its own CPU priority
-where the system lets it, and says how to let it where not."""
+"""The process settings (``backend.tuning``): the server and the master bridge raise their
+own CPU priority where the system lets them, and say how to let them where not."""
 
 from __future__ import annotations
 
@@ -57,3 +57,35 @@ def test_helpers_yield_from_where_the_server_started_not_from_its_raised_priorit
         [sys.executable, "-c", parent], capture_output=True, text=True, check=True, timeout=60
     ).stdout
     assert int(out) == min(19, before + 10), out
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="raising the priority needs root here")
+def test_a_block_at_a_raised_thread_priority_hands_it_to_its_threads_and_restores_it() -> None:
+    # bench.abuse's legitimate clients and bench.master_contact's bridge threads run so.
+    code = (
+        "import os, threading; from backend.tuning import thread_priority_raised\n"
+        "get = lambda: os.getpriority(os.PRIO_PROCESS, 0)\n"
+        "seen = []\n"
+        "with thread_priority_raised(5) as inside:\n"
+        "    t = threading.Thread(target=lambda: seen.append(get())); t.start(); t.join()\n"
+        "    print(inside, get(), seen[0])\n"
+        "print(get())"
+    )
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    ).stdout.split()
+    raised = max(-20, before - 5)
+    assert [int(x) for x in out] == [raised, raised, raised, before], out
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to drop the capability")
+def test_the_master_bridge_runs_as_started_without_the_right_and_says_so() -> None:
+    # `telerobot master` raises its 1 kHz loop (--cpu-priority) before anything starts;
+    # refused, it says how to allow it and goes on (here it then fails to find a server).
+    out = subprocess.run(
+        ["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice",
+         sys.executable, "-m", "backend.cli", "master", "--server", "http://127.0.0.1:9/"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert "CAP_SYS_NICE" in out.stderr and "--cpu-priority 0" in out.stderr, out.stderr

@@ -1,4 +1,5 @@
 import { describe, expect, it } from "vitest";
+import { PAGE_SILENCE_MS } from "./transport/heartbeat";
 import { BUSY_LATE_MS, ControlWatch, haltedText, stopsHeldInputs, type ControlAlert } from "./ui/control-alert";
 import { ERROR_CODES, StateFlags } from "./transport/messages";
 
@@ -76,6 +77,18 @@ describe("losing control", () => {
     expect(seen[2]!.alert!.text).toContain("the network or the server");
     expect(seen[2]!.alert!.text).not.toContain("busy");
     expect(haltedText(BUSY_LATE_MS)).toContain("too busy");
+  });
+
+  it("a halt after the page's main thread stood still (the worker stops beating) is this computer's", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.state(MINE | StateFlags.HALTED, 10, 5, PAGE_SILENCE_MS + 400); // the worker's timer on time
+    expect(seen[0]!.alert!.text).toContain("this computer is too busy");
+    expect(seen[0]!.alert!.text).toContain("stood still for 1.4 s");
+    expect(seen[0]!.alert!.text).not.toContain("network");
+    w.state(MINE, 20);
+    w.state(MINE | StateFlags.HALTED, 30, 5, PAGE_SILENCE_MS - 100); // still beating
+    expect(seen[2]!.alert!.text).toContain("the network or the server");
   });
 
   it("with the connection: an alarm, then after reconnecting as operator an offer to take it again", () => {

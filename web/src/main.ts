@@ -79,7 +79,7 @@ async function main(): Promise<void> {
     state: (s) => {
       state = s;
       arm.report(s.joints, s.status === "MOVING", performance.now());
-      if (!tasks?.handedOver) control.state(s.flags, performance.now(), link.timerLateMs);
+      if (!tasks?.handedOver) control.state(s.flags, performance.now(), link.timerLateMs, link.pageStallMs);
     },
     forces: (samples) => {
       lastForce = samples[samples.length - 1] ?? lastForce;

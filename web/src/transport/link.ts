@@ -24,6 +24,9 @@ export interface LinkMeta {
   offset: number;
   /** How late the worker's heartbeat timer fired lately (ms; heartbeat.ts TimerLateness). */
   timerLateMs: number;
+  /** The page's main thread's longest silence to the worker lately (ms): past
+   * PAGE_SILENCE_MS the worker stopped beating (heartbeat.ts). */
+  pageStallMs: number;
   /** The worst gap between the worker's messages that count as heartbeats, lately (ms;
    * heartbeat.ts BeatRecord), and its timer's firings that sent nothing, by reason. */
   beatGapMs: number;
@@ -48,6 +51,7 @@ export class RealtimeLink implements LinkMeta {
   bestRtt = Infinity;
   offset = 0; // server − page clock (s)
   timerLateMs = 0;
+  pageStallMs = 0;
   beatGapMs = 0;
   beatSkips: Record<BeatSkip, number> = { unwanted: 0, pageSilent: 0, recent: 0 };
   resumes = 0;

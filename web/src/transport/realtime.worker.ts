@@ -18,6 +18,7 @@ let visible = true;
 let pageSeen = performance.now();
 const lateness = new TimerLateness();
 const beats = new BeatRecord();
+const pageGaps = new TimerLateness(); // between the main thread's messages
 
 const pageNow = () => performance.now() + performance.timeOrigin - mainOrigin;
 
@@ -30,6 +31,7 @@ function meta(c: RealtimeClient) {
     // server − page clock (s): the worker's offset moved onto the page's clock
     offset: c.offset + (mainOrigin - performance.timeOrigin) / 1000,
     timerLateMs: lateness.recent(performance.now(), HEARTBEAT_PERIOD_MS),
+    pageStallMs: pageGaps.recent(performance.now(), 0),
     beatGapMs: beats.worstGap(performance.now()),
     beatSkips: { ...beats.skips },
     resumes: c.resumes,
@@ -47,6 +49,7 @@ function beat(): void {
 port.onmessage = (e) => {
   const m = e.data;
   pageSeen = performance.now();
+  pageGaps.fired(pageSeen, 0);
   if (m.op === "connect") {
     if (client) return;
     mainOrigin = m.timeOrigin;

@@ -4,6 +4,7 @@
 // kept a moment), and, after the link came back, the offer to take control again when
 // this page held it (only on the operator's say-so: someone may have walked up to the
 // arm meanwhile).
+import { PAGE_SILENCE_MS } from "../transport/heartbeat";
 import { ERROR_CODES, StateFlags } from "../transport/messages";
 
 export interface ControlAlert {
@@ -24,9 +25,15 @@ const IN_FLIGHT_MS = 2000;
 export const BUSY_LATE_MS = 100;
 
 /** What a dead-man halt says: whose the stall was (this computer's, when the worker's
- * own timer fired late; else the network's or the server's), never the operator's. */
-export function haltedText(timerLateMs: number): string {
+ * own timer fired late or the page's main thread stood still long enough for the
+ * worker to stop beating; else the network's or the server's), never the operator's. */
+export function haltedText(timerLateMs: number, pageStallMs = 0): string {
   const kept = "You keep control: keys still held drive again once the heartbeats are back.";
+  if (pageStallMs >= PAGE_SILENCE_MS) {
+    // The worker stops beating for a page silent this long (it may have hung): on a
+    // busy machine that is the page's drawing waiting for the CPU, not a network fault.
+    return `ARM HALTED: this computer is too busy: the page stood still for ${(pageStallMs / 1000).toFixed(1)} s, so its heartbeats stopped, and the arm stopped. ${kept} Closing other programs or turning the video off helps.`;
+  }
   if (timerLateMs >= BUSY_LATE_MS) {
     return `ARM HALTED: this computer is too busy: the page's heartbeat ran ${Math.round(timerLateMs)} ms late, and the arm stopped. ${kept} Closing other programs or turning the video off helps.`;
   }
@@ -85,8 +92,9 @@ export class ControlWatch {
   }
 
   /** Every STATE's flags, at `now` (ms); `timerLateMs`: how late the worker's heartbeat
-   * timer fired lately (the link's figure), which says whose the halt was. */
-  state(flags: number, now: number, timerLateMs = 0): void {
+   * timer fired lately, `pageStallMs`: the page's longest silence to the worker lately
+   * (the link's figures), which say whose the halt was. */
+  state(flags: number, now: number, timerLateMs = 0, pageStallMs = 0): void {
     const mine = (flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
     if (mine) {
       this.had = true;
@@ -94,7 +102,7 @@ export class ControlWatch {
       this.releasing = false;
       if ((flags & StateFlags.HALTED) !== 0) {
         if (this.alert?.level !== "halted") {
-          this.set({ level: "halted", text: haltedText(timerLateMs), retake: false }, true);
+          this.set({ level: "halted", text: haltedText(timerLateMs, pageStallMs), retake: false }, true);
         }
       } else if (this.alert) this.set(null, false);
       return;
