@@ -19,10 +19,13 @@ export function measureGlass(track: MediaStreamTrack, clock: ServerClock, glass:
   void readFrames(reader, clock, glass);
   return {
     stop() {
-      // Cancelling closes the frames still queued (a dropped reader would leave them
-      // to the garbage collector, which Chromium reports as an error).
-      void reader.cancel().catch(() => undefined);
+      // Stopping the track ends the stream after the frames already queued, which the
+      // reader still takes and closes. Cancelling the stream instead would drop them
+      // unclosed, to the garbage collector, which Chromium reports on the console as an
+      // error ("A VideoFrame was garbage collected without being closed": seen when a
+      // peer was re-negotiated). A reader still not done a second later is cancelled.
       track.stop();
+      setTimeout(() => void reader.cancel().catch(() => undefined), 1000);
     },
   };
 }
