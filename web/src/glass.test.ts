@@ -32,20 +32,18 @@ function fakeProcessor(queued: number) {
       log.push(`cancelled with ${frames.length} unread`);
     },
   };
-  (globalThis as Record<string, unknown>).window = {
-    MediaStreamTrackProcessor: class {
-      readable = { getReader: () => reader };
-    },
+  (globalThis as Record<string, unknown>).MediaStreamTrackProcessor = class {
+    readable = { getReader: () => reader };
   };
   return { track, log };
 }
 
 afterEach(() => {
-  delete (globalThis as Record<string, unknown>).window;
+  delete (globalThis as Record<string, unknown>).MediaStreamTrackProcessor;
   vi.useRealTimers();
 });
 
-describe("the glass-to-glass meter", () => {
+describe("the glass-to-glass meter (on the page's thread: no Worker here)", () => {
   it("closes every frame it was given, those still queued when it stops too, and cancels nothing it had", async () => {
     vi.useFakeTimers();
     const { track, log } = fakeProcessor(3);

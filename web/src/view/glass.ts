@@ -7,35 +7,96 @@ export interface ServerClock {
   offset: number;
 }
 
+/** Page → glass worker. */
+export type ToGlassWorker =
+  | { op: "track"; track: MediaStreamTrack; pageOrigin: number }
+  | { op: "clock"; offset: number; bestRtt: number }
+  | { op: "stop" };
+/** Glass worker → page: latencies (ms) since the last message; whether it can read;
+ * that it has stopped (every frame it was given closed). */
+export type FromGlassWorker = { op: "ms"; ms: number[] } | { op: "unsupported" } | { op: "stopped" };
+
+type Processor = new (i: { track: MediaStreamTrack }) => { readable: ReadableStream<VideoFrame> };
+
+export function trackProcessor(scope: unknown): Processor | undefined {
+  return (scope as { MediaStreamTrackProcessor?: Processor }).MediaStreamTrackProcessor;
+}
+
 /** Capture → decoded frame in this page, for every frame: each decoded frame carries its
  * capture time as a timecode (32 blocks of 16 px at (8, 8) in the left image), read from
  * the decoder's own frame (a 512×2 luma copy; no GPU read-back), on the server's clock
- * through the ping offset. Reads `track` (a copy: it is stopped) until `stop()`. */
+ * through the ping offset. Reads `track` (a copy: it is stopped) until `stop()`.
+ *
+ * In a worker of its own where the browser lets a track move there (Chromium): a frame
+ * read on the main thread waited behind rendering, and on a busy machine frames were
+ * held there long enough to be reported as leaked. Else on the main thread. */
 export function measureGlass(track: MediaStreamTrack, clock: ServerClock, glass: Rolling): { stop(): void } {
-  const Processor = (window as unknown as { MediaStreamTrackProcessor?: new (i: { track: MediaStreamTrack }) => { readable: ReadableStream<VideoFrame> } })
-    .MediaStreamTrackProcessor;
-  if (!Processor) return { stop: () => track.stop() }; // not Chromium: the panel shows no glass-to-glass figure
-  const reader = new Processor({ track }).readable.getReader();
-  void readFrames(reader, clock, glass);
+  if (typeof Worker !== "undefined") {
+    const worker = new Worker(new URL("./glass.worker.ts", import.meta.url), { type: "module" });
+    try {
+      const msg: ToGlassWorker = { op: "track", track, pageOrigin: performance.timeOrigin };
+      worker.postMessage(msg, [track as unknown as Transferable]);
+    } catch {
+      worker.terminate(); // tracks cannot move to workers here: read on this thread
+      return measureHere(track, clock, glass);
+    }
+    return measureInWorker(worker, clock, glass);
+  }
+  return measureHere(track, clock, glass);
+}
+
+function measureInWorker(worker: Worker, clock: ServerClock, glass: Rolling): { stop(): void } {
+  const tell = (msg: ToGlassWorker) => worker.postMessage(msg);
+  const sendClock = () => tell({ op: "clock", offset: clock.offset, bestRtt: clock.bestRtt });
+  sendClock();
+  const timer = setInterval(sendClock, 500);
+  worker.onmessage = (e: MessageEvent<FromGlassWorker>) => {
+    if (e.data.op === "ms") for (const v of e.data.ms) glass.add(v);
+    if (e.data.op === "stopped" || e.data.op === "unsupported") {
+      clearInterval(timer);
+      worker.terminate();
+    }
+  };
   return {
     stop() {
-      // Stopping the track ends the stream after the frames already queued, which the
-      // reader still takes and closes. Cancelling the stream instead would drop them
-      // unclosed, to the garbage collector, which Chromium reports on the console as an
-      // error ("A VideoFrame was garbage collected without being closed": seen when a
-      // peer was re-negotiated). A reader still not done a second later is cancelled.
-      track.stop();
-      setTimeout(() => void reader.cancel().catch(() => undefined), 1000);
+      clearInterval(timer);
+      tell({ op: "stop" }); // it stops the track, closes what is queued, then says so
+      setTimeout(() => worker.terminate(), 2000);
     },
   };
 }
 
-async function readFrames(reader: ReadableStreamDefaultReader<VideoFrame>, clock: ServerClock, glass: Rolling): Promise<void> {
+function measureHere(track: MediaStreamTrack, clock: ServerClock, glass: Rolling): { stop(): void } {
+  const Processor = trackProcessor(globalThis);
+  if (!Processor) return { stop: () => track.stop() }; // not Chromium: the panel shows no glass-to-glass figure
+  const reader = new Processor({ track }).readable.getReader();
+  void readFrames(reader, () => performance.now() / 1000, clock, (ms) => glass.add(ms));
+  return { stop: () => stopReading(track, reader) };
+}
+
+/** Stopping the track ends the stream after the frames already queued, which the reader
+ * still takes and closes. Cancelling the stream instead would drop them unclosed, to the
+ * garbage collector, which Chromium reports on the console as an error ("A VideoFrame
+ * was garbage collected without being closed": seen when a peer was re-negotiated). A
+ * reader still not done a second later is cancelled. */
+export function stopReading(track: MediaStreamTrack, reader: ReadableStreamDefaultReader<VideoFrame>): void {
+  track.stop();
+  setTimeout(() => void reader.cancel().catch(() => undefined), 1000);
+}
+
+/** Read every frame until the stream ends, each closed once read; `now`: the page's
+ * clock (s), `add`: one frame's capture → decoded age (ms). */
+export async function readFrames(
+  reader: ReadableStreamDefaultReader<VideoFrame>,
+  now: () => number,
+  clock: ServerClock,
+  add: (ms: number) => void,
+): Promise<void> {
   const rect = { x: 8, y: 16, width: 512, height: 2 };
   for (;;) {
     const { value: frame, done } = await reader.read().catch(() => ({ value: undefined, done: true }));
     if (done || !frame) return;
-    const now = performance.now() / 1000;
+    const at = now();
     try {
       const buffer = new Uint8Array(frame.allocationSize({ rect }));
       const layout = await frame.copyTo(buffer, { rect });
@@ -47,9 +108,9 @@ async function readFrames(reader: ReadableStreamDefaultReader<VideoFrame>, clock
       }
       if (clock.bestRtt < Infinity) {
         const wrap = 2 ** 32;
-        const server = now + clock.offset;
+        const server = at + clock.offset;
         const behind = ((((Math.round(server / 1e-4) - code) % wrap) + wrap) % wrap) / 10; // ms
-        if (behind < 5000) glass.add(behind);
+        if (behind < 5000) add(behind);
       }
     } finally {
       frame.close();
