@@ -18,11 +18,11 @@ web/node_modules/.installed: web/package.json web/package-lock.json
 	cd web && npm install --no-audit --no-fund --loglevel=error  # (npm ci trips over optional native bindings)
 	@touch $@
 
-web/dist/index.html: web/node_modules/.installed $(WEB_SOURCES)
+backend/web/index.html: web/node_modules/.installed $(WEB_SOURCES)
 	cd web && npm run --silent build
 
-## make web: build the operator client (TypeScript + three.js) into web/dist
-web: web/dist/index.html
+## make web: build the operator client (TypeScript + three.js) into backend/web
+web: backend/web/index.html
 
 ## make run: start the server on the simulation and print its URL
 run: $(STAMP) web
@@ -53,8 +53,8 @@ screenshots: $(STAMP) browser-deps web
 
 ## make types: regenerate the web client's types from the server (binary messages, REST schema)
 types: $(STAMP) web/node_modules/.installed
-	$(BIN)/python -m backend.realtime.typescript > web/src/transport/messages.ts
-	$(BIN)/python -m backend.api.openapi_ts
+	$(BIN)/python -m telerobot.server.realtime.typescript > web/src/transport/messages.ts
+	$(BIN)/python -m telerobot.server.api.openapi_ts
 
 web-check: web/node_modules/.installed
 	cd web && npm run --silent lint && npm run --silent typecheck && npm run --silent test

@@ -15,7 +15,8 @@ from fastapi.staticfiles import StaticFiles
 from starlette.routing import Match, Mount
 from starlette.types import Scope
 
-from backend.api import (
+from telerobot.drivers.clock import Clock, MonotonicClock
+from telerobot.server.api import (
     calibration,
     control,
     export,
@@ -30,24 +31,24 @@ from backend.api import (
     viewer,
     workcell,
 )
-from backend.edge import install_edge
-from backend.errors import install_error_handlers
-from backend.realtime import ws
-from backend.security import allowed_host_names, operator_token, state_dir
-from backend.services import (
+from telerobot.server.edge import install_edge
+from telerobot.server.errors import install_error_handlers
+from telerobot.server.realtime import ws
+from telerobot.server.security import allowed_host_names, operator_token, state_dir
+from telerobot.server.services import (
     OperatorToken,
     Services,
     build_services,
     start_services,
     stop_services,
 )
-from backend.settings import Settings
-from drivers.clock import Clock, MonotonicClock
+from telerobot.server.settings import Settings
 
 log = logging.getLogger("telerobot")
 API_PREFIXES = ("/api/", "/ws/")
 STATIC = Path(__file__).parent / "static"
-WEB_DIST = Path(__file__).resolve().parents[1] / "web" / "dist"  # built by `make web`
+# The operator client, built from web/ by `make web` into the package (the wheel ships it).
+WEB_DIST = Path(__file__).parent / "web"
 
 
 def install_api_docs(app: FastAPI) -> None:
@@ -143,7 +144,7 @@ def create_app(
 
         @app.get("/", include_in_schema=False)
         async def no_client() -> FileResponse:
-            log.warning("web/dist is missing (run `make web`): serving the status page")
+            log.warning("the operator page is not built (run `make web`): serving the status page")
             return FileResponse(STATIC / "index.html")
 
     return app

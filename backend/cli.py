@@ -15,9 +15,9 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from backend.tuning import raise_cpu_priority, tune_for_realtime
-from drivers.registry import driver_names
-from drivers.robot.models import model_names
+from telerobot.drivers.registry import driver_names
+from telerobot.drivers.robot.models import model_names
+from telerobot.tuning import raise_cpu_priority, tune_for_realtime
 
 # The largest /ws message the server reads: a FORCE batch from a client is the largest
 # legitimate one (< 16 kB); uvicorn's default (16 MiB) let one message hold 16 MiB.
@@ -35,9 +35,9 @@ def _serve(args: argparse.Namespace) -> int:
 
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
 
-    from backend.app import create_app, services_of
-    from backend.devices import describe_robot
-    from backend.settings import load_settings
+    from telerobot.server.app import create_app, services_of
+    from telerobot.server.devices import describe_robot
+    from telerobot.server.settings import load_settings
 
     try:
         settings = load_settings(
@@ -60,7 +60,7 @@ def _serve(args: argparse.Namespace) -> int:
     except (ValidationError, FileNotFoundError, ValueError) as exc:
         print(f"telerobot: bad settings: {exc}", file=sys.stderr)
         return 2
-    from backend.security import ensure_certificate, redact_server_logs, state_dir
+    from telerobot.server.security import ensure_certificate, redact_server_logs, state_dir
 
     app = create_app(settings, record=args.record)
     ssl: dict[str, str] = {}
@@ -118,7 +118,7 @@ def _serve(args: argparse.Namespace) -> int:
         await task
 
     tune_for_realtime()
-    logging.getLogger("backend.tuning").info("%s", raise_cpu_priority(settings.cpu_priority))
+    logging.getLogger("telerobot.tuning").info("%s", raise_cpu_priority(settings.cpu_priority))
     asyncio.run(run())
     return 0
 
@@ -132,7 +132,7 @@ def wait_until_stopped() -> None:
 
 
 def _val_emulator(args: argparse.Namespace) -> int:
-    from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+    from telerobot.drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
 
     emulator = ValControllerEmulator(time_scale=args.time_scale)
     if args.tcp:
@@ -149,9 +149,9 @@ def _val_emulator(args: argparse.Namespace) -> int:
 
 
 def _so101_emulator(args: argparse.Namespace) -> int:
-    from drivers.robot.models import load_model
-    from drivers.robot.so101.calibration import So101Calibration
-    from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+    from telerobot.drivers.robot.models import load_model
+    from telerobot.drivers.robot.so101.calibration import So101Calibration
+    from telerobot.drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
 
     model = load_model("so101")
     # The emulated arm is assembled as the nominal calibration says (zero at mid-scale).
@@ -179,9 +179,9 @@ def _so101_emulator(args: argparse.Namespace) -> int:
 
 
 def _so101_calibrate(args: argparse.Namespace) -> int:
-    from drivers.robot.so101.arm import default_calibration_path
-    from drivers.robot.so101.calibrate import main
-    from drivers.robot.so101.leader import default_leader_calibration
+    from telerobot.drivers.robot.so101.arm import default_calibration_path
+    from telerobot.drivers.robot.so101.calibrate import main
+    from telerobot.drivers.robot.so101.leader import default_leader_calibration
 
     if args.out is not None:
         out = Path(args.out)
@@ -193,7 +193,7 @@ def _so101_calibrate(args: argparse.Namespace) -> int:
 
 
 def _netft_emulator(args: argparse.Namespace) -> int:
-    from drivers.force.netft_emulator import NetFtEmulator
+    from telerobot.drivers.force.netft_emulator import NetFtEmulator
 
     emulator = NetFtEmulator(args.host, args.port, rate_hz=args.rate).start()
     print(f"Net F/T emulator listening on udp://{emulator.url}", flush=True)
@@ -208,9 +208,9 @@ def _netft_emulator(args: argparse.Namespace) -> int:
 
 
 def _export_lerobot(args: argparse.Namespace) -> int:
-    from backend.recording.lerobot import ExportError, export_lerobot
-    from backend.recording.recover import recovered_path
-    from backend.recording.salvage import has_summary, is_mcap
+    from telerobot.server.recording.lerobot import ExportError, export_lerobot
+    from telerobot.server.recording.recover import recovered_path
+    from telerobot.server.recording.salvage import has_summary, is_mcap
 
     what = "telerobot export lerobot"
     rec: Path = args.recording
@@ -288,7 +288,7 @@ def _media_server(args: argparse.Namespace) -> int:
     import os
     import tempfile
 
-    from backend.media.janus import JanusSettings, run_foreground
+    from telerobot.server.media.janus import JanusSettings, run_foreground
 
     secret = os.environ.get(args.secret_env, "")
     if len(secret) < 16:
@@ -366,9 +366,9 @@ def _move(args: argparse.Namespace) -> int:
 def _recording_recover(args: argparse.Namespace) -> int:
     """Copy a torn recording, as far as it is valid, into NAME.recovered.mcap beside
     it (the original is left as it is); a file that is not an MCAP is refused."""
-    from backend.recording.recover import recover_copy
-    from backend.recording.salvage import has_summary
-    from drivers.base import TelerobotError
+    from telerobot.drivers.base import TelerobotError
+    from telerobot.server.recording.recover import recover_copy
+    from telerobot.server.recording.salvage import has_summary
 
     what = "telerobot recording recover"
     if not args.file.is_file():
@@ -513,7 +513,7 @@ def main(argv: list[str] | None = None) -> int:
     master = sub.add_parser(
         "master", help="bridge a haptic master arm to a server (sim or a 3D Systems Touch)"
     )
-    from backend.master.cli import add_arguments, run
+    from telerobot.client.master.cli import add_arguments, run
 
     add_arguments(master)
     master.set_defaults(func=run)
@@ -531,7 +531,7 @@ def main(argv: list[str] | None = None) -> int:
     move.add_argument("values", nargs="+", help="6 angles (rad) or x y z (m, robot base)")
     move.add_argument("--relative", action="store_true", help="by, not to")
     move.add_argument("--frame", choices=["base", "wrist", "tool"], help="of a relative move")
-    # Named as for `telerobot master` and the Python client (telerobot/client.py).
+    # Named as for `telerobot master` and the Python client (telerobot/client/rest.py).
     move.add_argument("--url", help="the server (default: TELEROBOT_URL or http://localhost:8000)")
     move.add_argument(
         "--token",

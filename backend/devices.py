@@ -12,12 +12,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from backend.settings import Settings
-from drivers.base import ArmSnapshot, DeviceContext, ForceSensor, Robot, StereoCamera
-from drivers.clock import Clock
-from drivers.registry import load_driver
-from drivers.robot.kinematics import ArmKinematics, tool_transform
-from drivers.sim.workcell import Workcell, default_workcell
+from telerobot.drivers.base import ArmSnapshot, DeviceContext, ForceSensor, Robot, StereoCamera
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.registry import load_driver
+from telerobot.drivers.robot.kinematics import ArmKinematics, tool_transform
+from telerobot.drivers.sim.workcell import Workcell, default_workcell
+from telerobot.server.settings import Settings
 
 
 def make_kinematics(settings: Settings) -> ArmKinematics:

@@ -29,9 +29,9 @@ from typing import Any
 from fastapi import FastAPI
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from backend.api.deps import OPERATOR_SCHEME
-from backend.errors import problem
-from backend.security import bearer, origin_allowed, token_matches
+from telerobot.server.api.deps import OPERATOR_SCHEME
+from telerobot.server.errors import problem
+from telerobot.server.security import bearer, origin_allowed, token_matches
 
 log = logging.getLogger(__name__)
 

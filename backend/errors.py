@@ -6,7 +6,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from drivers.base import (
+from telerobot.drivers.base import (
     TelerobotError,
 )
 

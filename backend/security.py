@@ -18,7 +18,7 @@ import socket
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from backend.settings import Settings
+from telerobot.server.settings import Settings
 
 
 def state_dir(settings: Settings) -> Path:

@@ -19,29 +19,34 @@ from typing import Any, Literal
 
 import numpy as np
 
-from backend.control.decision import DecisionServer
-from backend.control.limits import SafetyLimits
-from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
-from backend.media.media_server import MediaServerSupervisor
-from backend.media.media_server import resolve as resolve_media_server
-from backend.media.observer_feed import ObserverFeed
-from backend.media.supervisor import MediaSupervisor
-from backend.realtime.hub import RealtimeHub
-from backend.realtime.priority import PriorityChannel
-from backend.realtime.ratelimit import PeerLimits
-from backend.recording.recorder import Recorder, RecordingEvent, RecordingTaps, transform
-from backend.recording.video import VideoTap, follow_recorder
-from backend.security import state_dir
-from backend.settings import Settings
-from backend.tasks.runner import TaskRunner
-from backend.telemetry.stats import Telemetry
-from backend.viewer3d import Workcell3DView
-from calibration.model import CalibrationError
-from calibration.store import CalibrationStore
-from drivers.base import DeviceError, ForceSensor, Robot, TelerobotError
-from drivers.clock import Clock
-from drivers.events import Event
-from drivers.sim.workcell import Workcell
+from telerobot.calibration.model import CalibrationError
+from telerobot.calibration.store import CalibrationStore
+from telerobot.drivers.base import DeviceError, ForceSensor, Robot, TelerobotError
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.events import Event
+from telerobot.drivers.sim.workcell import Workcell
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.limits import SafetyLimits
+from telerobot.server.devices import (
+    build_force_sensor,
+    build_robot,
+    build_workcell,
+    make_kinematics,
+)
+from telerobot.server.media.media_server import MediaServerSupervisor
+from telerobot.server.media.media_server import resolve as resolve_media_server
+from telerobot.server.media.observer_feed import ObserverFeed
+from telerobot.server.media.supervisor import MediaSupervisor
+from telerobot.server.realtime.hub import RealtimeHub
+from telerobot.server.realtime.priority import PriorityChannel
+from telerobot.server.realtime.ratelimit import PeerLimits
+from telerobot.server.recording.recorder import Recorder, RecordingEvent, RecordingTaps, transform
+from telerobot.server.recording.video import VideoTap, follow_recorder
+from telerobot.server.security import state_dir
+from telerobot.server.settings import Settings
+from telerobot.server.tasks.runner import TaskRunner
+from telerobot.server.telemetry.stats import Telemetry
+from telerobot.server.viewer3d import Workcell3DView
 
 log = logging.getLogger("telerobot")
 
@@ -320,7 +325,7 @@ def calibration_payload(workcell: Workcell, calibration: CalibrationRecord) -> d
 
 def _announce_recording(hub: RealtimeHub, e: RecordingEvent) -> None:
     """Every viewer sees a recording start and stop (and why it stopped)."""
-    from backend.realtime.messages import EventKind
+    from telerobot.protocol.messages import EventKind
 
     if e.kind == "started":
         text = f"RECORDING started: {e.file}"

@@ -22,9 +22,15 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from backend.media.ice import IceConfig
-from drivers.registry import driver_names, load_driver
-from drivers.robot.models import DEFAULT_MODEL, MODELS, RobotModel, load_model, model_names
+from telerobot.drivers.registry import driver_names, load_driver
+from telerobot.drivers.robot.models import (
+    DEFAULT_MODEL,
+    MODELS,
+    RobotModel,
+    load_model,
+    model_names,
+)
+from telerobot.server.media.ice import IceConfig
 
 _config_file: ContextVar[Path | None] = ContextVar("telerobot_config_file", default=None)
 
@@ -61,7 +67,7 @@ class Settings(BaseSettings):
     serial_baudrate: int = 9600
     serial_reply_timeout: float = Field(1.0, gt=0)
     # So101Arm (robot = "so101", robot_model = "so101"): the Feetech servo bus, a device
-    # path, a pty or socket://host:port (python -m drivers.robot.so101.emulator), and the
+    # path, a pty or socket://host:port (python -m telerobot.drivers.robot.so101.emulator), and the
     # joint calibration file; None: so101-calibration.json in state_dir, beside the
     # cameras' calibration-<rig>.json
     so101_port: str = "/dev/ttyACM0"

@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from calibration.model import CameraModel
-from calibration.store import CalibrationStore
-from drivers.base import FloatArray, ForceSensor, Robot
-from drivers.robot.kinematics import ArmKinematics
-from drivers.sim.workcell import Workcell
+from telerobot.calibration.model import CameraModel
+from telerobot.calibration.store import CalibrationStore
+from telerobot.drivers.base import FloatArray, ForceSensor, Robot
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)
 

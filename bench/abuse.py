@@ -106,9 +106,9 @@ import httpx
 import numpy as np
 import psutil
 
-from backend.realtime import messages as m
-from backend.tuning import raise_thread_priority, thread_priority_raised
 from bench.common import emit, machine, parser, serve_for_bench
+from telerobot.protocol import messages as m
+from telerobot.tuning import raise_thread_priority, thread_priority_raised
 
 SERVER_FDS = 1024
 STATE_PERIOD_MS = 20.0  # the server's default state rate (50 Hz)

@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 
 from bench.common import emit, machine, parser
-from calibration.affine import fit_affine
-from calibration.charuco import calibrate_intrinsics, fit_charuco
-from calibration.dlt import fit_dlt
-from calibration.model import CameraModel
-from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
-from drivers.sim.workcell import PinholeCamera, default_workcell
+from telerobot.calibration.affine import fit_affine
+from telerobot.calibration.charuco import calibrate_intrinsics, fit_charuco
+from telerobot.calibration.dlt import fit_dlt
+from telerobot.calibration.model import CameraModel
+from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, render_view
+from telerobot.drivers.sim.workcell import PinholeCamera, default_workcell
 
 DISTANCES = (1.5, 2.5, 4.0)
 

@@ -34,7 +34,6 @@ import time
 import httpx
 import numpy as np
 
-from backend.realtime import messages as m
 from bench.common import (
     emit,
     machine,
@@ -44,6 +43,7 @@ from bench.common import (
     telerobot_process,
 )
 from bench.wsclient import RealtimeClient
+from telerobot.protocol import messages as m
 
 
 async def drain_forces(client: RealtimeClient, counter: list[int]) -> None:
@@ -121,10 +121,10 @@ READ_WINDOW_S = 2.0
 
 async def sync_read_rate_hz(make_link: str, poll_period_s: float) -> float:
     """Sync reads per second of the SO-101 driver on the bus emulator (in this process)."""
-    from drivers.robot.models import load_model
-    from drivers.robot.so101.arm import So101Arm
-    from drivers.robot.so101.calibration import JointCalibration, So101Calibration
-    from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+    from telerobot.drivers.robot.models import load_model
+    from telerobot.drivers.robot.so101.arm import So101Arm
+    from telerobot.drivers.robot.so101.calibration import JointCalibration, So101Calibration
+    from telerobot.drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
 
     names = load_model("so101").joint_names
     cal = So101Calibration(

@@ -28,7 +28,7 @@ from bench.recordings import Episode, build
 # Run in the child: one export, then its figures as one JSON line on stdout.
 _CHILD = """
 import json, resource, sys
-from backend.recording.lerobot import export_lerobot
+from telerobot.server.recording.lerobot import export_lerobot
 s = export_lerobot(sys.argv[1], sys.argv[2])
 peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 print(json.dumps({"export_s": s.export_s, "frames": s.frames, "codec": s.video_codec,

@@ -25,9 +25,9 @@ import time
 
 import numpy as np
 
-from backend.realtime import messages as m
 from bench.common import emit, machine, parser, serve_for_bench
 from bench.wsclient import RealtimeClient
+from telerobot.protocol import messages as m
 
 
 async def measure(port: int, samples: int) -> dict[str, float | int]:

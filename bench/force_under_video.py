@@ -35,9 +35,9 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
-from backend.realtime import messages as m
 from bench.common import emit, machine, open_viewer, parser, serve_for_bench
 from bench.netem import NetemPair, netns_available
+from telerobot.protocol import messages as m
 
 RATE_MBIT = 100
 VIDEO_BITRATE = 9_000_000
@@ -112,10 +112,10 @@ def viewer(base: str, seconds: float, out: Any) -> None:
 
 
 def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any]:
-    from backend.master.bridge import BridgeSettings, MasterBridge
-    from backend.master.cli import open_link
-    from backend.tuning import tune_for_realtime
-    from drivers.master.sim import SimMaster
+    from telerobot.client.master.bridge import BridgeSettings, MasterBridge
+    from telerobot.client.master.cli import open_link
+    from telerobot.drivers.master.sim import SimMaster
+    from telerobot.tuning import tune_for_realtime
 
     tune_for_realtime()  # as `telerobot master` does
     # The token: forces as datagrams are for operators only (it does not take control).

@@ -41,10 +41,10 @@ import httpx
 import numpy as np
 from playwright.sync_api import sync_playwright
 
-from backend.realtime import messages as m
 from bench.browser import ARGS, yield_software_gpu
 from bench.common import busy_core, emit, machine, parser, serve_for_bench
 from bench.wsclient import RealtimeClient
+from telerobot.protocol import messages as m
 
 DRIVE_FLIP_S = 2.0
 

@@ -14,7 +14,7 @@ model's home pose instead (an absolute move across the workspace).
 The PUMA 560's IK is its closed form (``ik_us`` is the nearest-configuration call);
 it also prints the all-eight-solutions figures (``ik_all_us``, ``roundtrip_max_err``,
 ``nearest_recovers_start``) measured from the start. Other models use the numeric IK
-from their URDF (``drivers.robot.models.numeric``).
+from their URDF (``telerobot.drivers.robot.models.numeric``).
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ import numpy as np
 import pinocchio as pin
 
 from bench.common import emit, machine, parser, time_per_call_us
-from drivers.base import TelerobotError
-from drivers.robot.kinematics import ArmKinematics, tool_transform
-from drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model, model_names
+from telerobot.drivers.base import TelerobotError
+from telerobot.drivers.robot.kinematics import ArmKinematics, tool_transform
+from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model, model_names
 
 
 def residual(kin: ArmKinematics, q: np.ndarray, T: np.ndarray) -> tuple[float, float]:
@@ -96,7 +96,7 @@ def main() -> None:
     figures.update(accuracy(model, kin, args.poses, args.warm_rad))
     all_solutions = getattr(kin, "ik_all", None)
     if all_solutions is not None:  # the PUMA's closed form: the figures kept from the start
-        from drivers.robot.puma560.kinematics import Puma560Kinematics
+        from telerobot.drivers.robot.puma560.kinematics import Puma560Kinematics
 
         assert isinstance(kin, Puma560Kinematics)
         figures["ik_all_us"] = time_per_call_us(lambda: kin.ik_all(T), calls=5_000)

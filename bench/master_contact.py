@@ -80,23 +80,28 @@ from typing import Any
 import httpx
 import numpy as np
 
-from backend.control.decision import DecisionServer
-from backend.devices import build_force_sensor, build_robot, build_workcell, make_kinematics
-from backend.master.bridge import BridgeSettings, MasterBridge
-from backend.master.cli import CPU_PRIORITY, open_link
-from backend.master.link import Reply
-from backend.realtime import messages as m
-from backend.realtime.hub import RealtimeHub
-from backend.realtime.session import FRAMES
-from backend.services import safety_limits
-from backend.settings import Settings
-from backend.telemetry.stats import Telemetry
-from backend.tuning import thread_priority_raised
 from bench.common import busy_core, emit, machine, parser, serve_for_bench
-from drivers.base import FloatArray, ForceSample, TelerobotError, WorkingFrame
-from drivers.clock import ManualClock
-from drivers.force.sim import SimForceSensor
-from drivers.master.sim import SimMaster
+from telerobot.client.master.bridge import BridgeSettings, MasterBridge
+from telerobot.client.master.cli import CPU_PRIORITY, open_link
+from telerobot.client.master.link import Reply
+from telerobot.drivers.base import FloatArray, ForceSample, TelerobotError, WorkingFrame
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.force.sim import SimForceSensor
+from telerobot.drivers.master.sim import SimMaster
+from telerobot.protocol import messages as m
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.devices import (
+    build_force_sensor,
+    build_robot,
+    build_workcell,
+    make_kinematics,
+)
+from telerobot.server.realtime.hub import RealtimeHub
+from telerobot.server.realtime.session import FRAMES
+from telerobot.server.services import safety_limits
+from telerobot.server.settings import Settings
+from telerobot.server.telemetry.stats import Telemetry
+from telerobot.tuning import thread_priority_raised
 
 FORCE_LIMIT_N = 60.0
 START_ABOVE_M = 0.02

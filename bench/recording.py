@@ -113,8 +113,8 @@ async def commands_at_100_hz(port: int, token: str, seconds: float) -> dict[str,
     """100 Hz small jogs from one operator, every answer read (a refusal under load,
     e.g. a stale command, is counted, not fatal: this phase counts the recorder's
     losses, bench.command_latency measures latency above)."""
-    from backend.realtime import messages as m
     from bench.wsclient import RealtimeClient
+    from telerobot.protocol import messages as m
 
     op = await RealtimeClient.connect(f"ws://127.0.0.1:{port}/ws", token=token)
     await op.take_lease()
@@ -146,7 +146,7 @@ async def commands_at_100_hz(port: int, token: str, seconds: float) -> dict[str,
 
 def recording(seconds: float) -> dict[str, Any]:
     """A ``seconds`` recording of 1 kHz force + video (one viewer) + 100 Hz commands."""
-    from backend.recording.reader import read, summary
+    from telerobot.server.recording.reader import read, summary
 
     token = secrets.token_hex(16)
     with (

@@ -51,9 +51,9 @@ from typing import Any
 import httpx
 import numpy as np
 
-from backend.realtime import messages as m
 from bench.common import emit, machine, parser, serve_for_bench
 from bench.wsclient import RealtimeClient
+from telerobot.protocol import messages as m
 
 PERIOD_S = 0.01  # one command every 10 ms
 DRIVE_S = 0.5  # driven this long before the link is lost
@@ -325,10 +325,10 @@ class Bench:
 
 async def val_serial_stop_s(make_link: str) -> float:
     """stop() → idle of the VAL serial driver on its emulator, joint 1 cruising."""
-    from drivers.base import SerialSettings
-    from drivers.robot.puma560.kinematics import NAMED_POSES
-    from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
-    from drivers.robot.puma560.val_serial import ValSerialPuma
+    from telerobot.drivers.base import SerialSettings
+    from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
+    from telerobot.drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+    from telerobot.drivers.robot.puma560.val_serial import ValSerialPuma
 
     emulator = ValControllerEmulator(list(np.degrees(NAMED_POSES["qn"])), time_scale=0.25)
     with getattr(EmulatorLink, make_link)(emulator) as link:

@@ -29,17 +29,21 @@ from typing import Any
 
 import numpy as np
 
-from backend.control.decision import DecisionServer
-from backend.tasks.compliance import ComplianceSettings
-from backend.tasks.runner import Task, TaskRunner, TaskSpec
-from backend.tasks.trajectory import ForceReading, StateSample, Trajectory
 from bench.common import emit, parser
-from drivers.base import ForceSample
-from drivers.clock import ManualClock
-from drivers.force.sim import SimForceSensor
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
-from drivers.sim.workcell import Box, Workcell, default_workcell
+from telerobot.drivers.base import ForceSample
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.force.sim import SimForceSensor
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.drivers.sim.workcell import Box, Workcell, default_workcell
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.tasks.compliance import ComplianceSettings
+from telerobot.server.tasks.runner import Task, TaskRunner, TaskSpec
+from telerobot.server.tasks.trajectory import ForceReading, StateSample, Trajectory
 
 TOKEN = "task-replay-operator-token-0123"
 DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # tool z pointing down

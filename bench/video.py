@@ -65,7 +65,7 @@ def _note_last_packets(arrivals: dict[int, float]) -> None:
 
 
 async def _viewer(base: str, decode: bool, seconds: float, out: dict[str, Any]) -> None:
-    from drivers.camera import timecode
+    from telerobot.drivers.camera import timecode
 
     pc, track = await open_viewer(base)
     if not decode:
@@ -202,10 +202,14 @@ def measure_ours(seconds: float) -> dict[str, Any]:
 
 # ---------------------------------------------------------------- baselines (own process)
 def _camera() -> Any:
-    from drivers.base import ArmSnapshot
-    from drivers.camera.sim import SimStereoCamera
-    from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-    from drivers.sim.workcell import default_workcell
+    from telerobot.drivers.base import ArmSnapshot
+    from telerobot.drivers.camera.sim import SimStereoCamera
+    from telerobot.drivers.robot.puma560.kinematics import (
+        NAMED_POSES,
+        Puma560Kinematics,
+        tool_transform,
+    )
+    from telerobot.drivers.sim.workcell import default_workcell
 
     start = time.monotonic()
 
@@ -311,7 +315,7 @@ def _record(encoded: bytes | bytearray, latencies: list[float], arrivals: list[f
     """Decode a baseline's frame and note its age from the timecode, if readable."""
     import cv2
 
-    from drivers.camera import timecode
+    from telerobot.drivers.camera import timecode
 
     img = cv2.imdecode(np.frombuffer(encoded, np.uint8), cv2.IMREAD_COLOR)
     now = time.monotonic()

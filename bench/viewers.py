@@ -245,7 +245,7 @@ async def _connect(http: httpx.AsyncClient, v: Viewer, layer: str, data: bool) -
 async def _read_frames(v: Viewer, full_width: int) -> None:
     """A decoding peer: each frame's capture time (timecode) against the arrival of its
     last RTP packet (its RTP timestamp = the receiver's pts + the mapper's origin)."""
-    from drivers.camera import timecode
+    from telerobot.drivers.camera import timecode
 
     mapper = v.pc.getTransceivers()[0].receiver._RTCRtpReceiver__timestamp_mapper
     while True:

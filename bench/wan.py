@@ -68,7 +68,6 @@ from typing import Any
 
 import numpy as np
 
-from backend.realtime import messages as m
 from bench.common import machine, parser, serve_for_bench
 from bench.netem import (
     PROFILES,
@@ -78,6 +77,7 @@ from bench.netem import (
     measure_link,
     probe_interval_s,
 )
+from telerobot.protocol import messages as m
 
 FREEZE_S = 0.2  # no new frame for longer than this: frozen
 STALE_S = 0.25  # the server's default max_command_age_ms
@@ -177,7 +177,7 @@ def role_viewer(base: str) -> dict[str, Any]:
     import aiortc.rtcrtpreceiver as receiver
 
     from bench.common import open_viewer
-    from drivers.camera import timecode
+    from telerobot.drivers.camera import timecode
 
     received = [0]
     packets: list[float] = []  # arrival of every RTP packet (is video still coming?)
@@ -343,10 +343,10 @@ def role_browser(base: str) -> dict[str, Any]:
 
 
 def role_force(base: str, token: str) -> dict[str, Any]:
-    from backend.master.bridge import BridgeSettings, MasterBridge
-    from backend.master.cli import open_link
-    from backend.tuning import tune_for_realtime
-    from drivers.master.sim import SimMaster
+    from telerobot.client.master.bridge import BridgeSettings, MasterBridge
+    from telerobot.client.master.cli import open_link
+    from telerobot.drivers.master.sim import SimMaster
+    from telerobot.tuning import tune_for_realtime
 
     tune_for_realtime()
     before = _get_json(base, "api/v1/force/channel")

@@ -11,7 +11,7 @@ from typing import Any
 
 import websockets
 
-from backend.realtime import messages as m
+from telerobot.protocol import messages as m
 
 
 async def open_socket(url: str) -> Any:

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.model import CameraModel, check_correspondences, require_volume
-from drivers.base import FloatArray
+from telerobot.calibration.model import CameraModel, check_correspondences, require_volume
+from telerobot.drivers.base import FloatArray
 
 
 def fit_affine(

@@ -13,9 +13,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calibration.model import CalibrationError, CameraModel, check_correspondences
-from drivers.base import FloatArray
-from drivers.camera.charuco_board import BoardSpec
+from telerobot.calibration.model import CalibrationError, CameraModel, check_correspondences
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.camera.charuco_board import BoardSpec
 
 
 def detect(image: np.ndarray, spec: BoardSpec) -> tuple[FloatArray, FloatArray] | None:

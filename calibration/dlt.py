@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.model import (
+from telerobot.calibration.model import (
     CalibrationError,
     CameraModel,
     check_correspondences,
     project,
     require_volume,
 )
-from drivers.base import FloatArray
+from telerobot.drivers.base import FloatArray
 
 
 def _normaliser(points: FloatArray) -> FloatArray:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import FloatArray, InvalidCommand
+from telerobot.drivers.base import FloatArray, InvalidCommand
 
 
 class CalibrationError(InvalidCommand):

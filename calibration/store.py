@@ -9,7 +9,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from calibration.model import CalibrationError, CameraModel
+from telerobot.calibration.model import CalibrationError, CameraModel
 
 FORMAT = "telerobot-calibration"
 VERSION = 1

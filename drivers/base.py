@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self, runtime_checkab
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.clock import Clock
-from drivers.events import Event
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.events import Event
 
 if TYPE_CHECKING:  # both import this module
-    from drivers.robot.kinematics import ArmKinematics
-    from drivers.robot.models import RobotModel
-    from drivers.sim.workcell import Workcell
+    from telerobot.drivers.robot.kinematics import ArmKinematics
+    from telerobot.drivers.robot.models import RobotModel
+    from telerobot.drivers.sim.workcell import Workcell
 
 FloatArray = NDArray[np.float64]
 

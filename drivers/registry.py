@@ -11,32 +11,32 @@ from __future__ import annotations
 import importlib
 from typing import Final, Literal, overload
 
-from drivers.base import DriverUnavailable, ForceSensor, JointLeader, Robot, StereoCamera
+from telerobot.drivers.base import DriverUnavailable, ForceSensor, JointLeader, Robot, StereoCamera
 
 # kind → name → (module, class)
 DRIVERS: Final[dict[str, dict[str, tuple[str, str]]]] = {
     "robot": {
-        "sim": ("drivers.robot.sim", "SimArm"),
-        "val": ("drivers.robot.puma560.val_serial", "ValSerialPuma"),
-        "so101": ("drivers.robot.so101.arm", "So101Arm"),
+        "sim": ("telerobot.drivers.robot.sim", "SimArm"),
+        "val": ("telerobot.drivers.robot.puma560.val_serial", "ValSerialPuma"),
+        "so101": ("telerobot.drivers.robot.so101.arm", "So101Arm"),
     },
     "force": {
-        "sim": ("drivers.force.sim", "SimForceSensor"),
-        "netft": ("drivers.force.netft", "NetFtSensor"),
+        "sim": ("telerobot.drivers.force.sim", "SimForceSensor"),
+        "netft": ("telerobot.drivers.force.netft", "NetFtSensor"),
     },
     "camera": {
-        "sim": ("drivers.camera.sim", "SimStereoCamera"),
-        "opencv": ("drivers.camera.opencv", "OpenCVStereoCamera"),
-        "opencv-sbs": ("drivers.camera.opencv", "OpenCVSideBySideCamera"),
+        "sim": ("telerobot.drivers.camera.sim", "SimStereoCamera"),
+        "opencv": ("telerobot.drivers.camera.opencv", "OpenCVStereoCamera"),
+        "opencv-sbs": ("telerobot.drivers.camera.opencv", "OpenCVSideBySideCamera"),
     },
     "master": {
-        "sim": ("drivers.master.sim", "SimMaster"),
-        "touch": ("drivers.master.touch", "TouchMaster"),
+        "sim": ("telerobot.drivers.master.sim", "SimMaster"),
+        "touch": ("telerobot.drivers.master.touch", "TouchMaster"),
     },
     # Leader arms, joint for joint (``telerobot master --device <name>-leader``)
     "leader": {
-        "sim": ("drivers.master.sim_leader", "SimLeader"),
-        "so101": ("drivers.robot.so101.leader", "So101Leader"),
+        "sim": ("telerobot.drivers.master.sim_leader", "SimLeader"),
+        "so101": ("telerobot.drivers.robot.so101.leader", "So101Leader"),
     },
 }
 

@@ -56,8 +56,8 @@ def _no_realtime_test_process() -> Iterator[None]:
 @pytest.fixture
 def client() -> Iterator[TestClient]:
     """The app on the simulation (at qz), in process, once the arm is READY."""
-    from backend.app import create_app
-    from backend.settings import Settings
+    from telerobot.server.app import create_app
+    from telerobot.server.settings import Settings
 
     with TestClient(
         create_app(Settings(home_pose="qz", operator_token=TOKEN)), base_url="http://localhost"

@@ -8,9 +8,9 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
-from backend.settings import Settings
-from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+from telerobot.drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+from telerobot.server.app import create_app
+from telerobot.server.settings import Settings
 
 
 def wait_for_status(client: TestClient, wanted: str, timeout: float = 10.0) -> dict[str, object]:

@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
-from backend.settings import Settings
 from bench.ar_registration import work_area
-from calibration.affine import fit_affine
-from calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
-from calibration.dlt import fit_dlt
-from calibration.model import CalibrationError, CameraModel
-from calibration.store import CalibrationStore
-from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
-from drivers.sim.workcell import default_workcell
+from telerobot.calibration.affine import fit_affine
+from telerobot.calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
+from telerobot.calibration.dlt import fit_dlt
+from telerobot.calibration.model import CalibrationError, CameraModel
+from telerobot.calibration.store import CalibrationStore
+from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, render_view
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.app import create_app
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 
 CELL = default_workcell()

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from backend.control.decision import DecisionServer, SafetyStop
-from drivers.clock import ManualClock
-from drivers.force.sim import SimForceSensor
-from drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
-from drivers.sim.workcell import default_workcell
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.force.sim import SimForceSensor
+from telerobot.drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
+from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.control.decision import DecisionServer, SafetyStop
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 from tests.support.puma import joints_with_tip_at

@@ -11,15 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend.control.decision import (
-    Client,
-    DecisionServer,
-    LimitExceeded,
-    NotAllowed,
-    SafetyStop,
-)
-from backend.control.limits import SafetyLimits
-from drivers.base import (
+from telerobot.drivers.base import (
     ForceSample,
     InvalidCommand,
     JointLimitError,
@@ -27,8 +19,20 @@ from drivers.base import (
     UnreachablePose,
     WorkingFrame,
 )
-from drivers.clock import ManualClock
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.server.control.decision import (
+    Client,
+    DecisionServer,
+    LimitExceeded,
+    NotAllowed,
+    SafetyStop,
+)
+from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 from tests.support.decision import RecordingPuma, make

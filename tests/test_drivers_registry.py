@@ -15,16 +15,7 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
-from backend.app import create_app
-from backend.devices import (
-    build_camera,
-    build_force_sensor,
-    build_robot,
-    build_workcell,
-    describe_robot,
-)
-from backend.settings import Settings
-from drivers.base import (
+from telerobot.drivers.base import (
     ArmSnapshot,
     ForceSensor,
     Robot,
@@ -32,14 +23,23 @@ from drivers.base import (
     StereoCamera,
     TelerobotError,
 )
-from drivers.camera.opencv import OpenCVSideBySideCamera, OpenCVStereoCamera
-from drivers.camera.sim import SimStereoCamera
-from drivers.force.netft import NetFtSensor
-from drivers.force.sim import SimForceSensor
-from drivers.registry import DRIVERS
-from drivers.robot.puma560.kinematics import NAMED_POSES
-from drivers.robot.puma560.val_serial import ValSerialPuma
-from drivers.robot.sim import SimArm
+from telerobot.drivers.camera.opencv import OpenCVSideBySideCamera, OpenCVStereoCamera
+from telerobot.drivers.camera.sim import SimStereoCamera
+from telerobot.drivers.force.netft import NetFtSensor
+from telerobot.drivers.force.sim import SimForceSensor
+from telerobot.drivers.registry import DRIVERS
+from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
+from telerobot.drivers.robot.puma560.val_serial import ValSerialPuma
+from telerobot.drivers.robot.sim import SimArm
+from telerobot.server.app import create_app
+from telerobot.server.devices import (
+    build_camera,
+    build_force_sensor,
+    build_robot,
+    build_workcell,
+    describe_robot,
+)
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 
 # A whole simulated force sensor, as a developer would add it: its folder (a package),
@@ -54,8 +54,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Self
 
-from drivers.base import ArmSnapshot, DeviceContext, ForceSample
-from drivers.force.sampled import SampledForceSensor
+from telerobot.drivers.base import ArmSnapshot, DeviceContext, ForceSample
+from telerobot.drivers.force.sampled import SampledForceSensor
 
 
 @dataclass(frozen=True)
@@ -240,7 +240,7 @@ def test_drivers_never_import_the_server() -> None:
         str(path.relative_to(root))
         for path in root.rglob("*.py")
         if any(
-            line.startswith(("from backend", "import backend"))
+            line.lstrip().startswith(("from telerobot.server", "import telerobot.server"))
             for line in path.read_text().splitlines()
         )
     ]

@@ -16,18 +16,18 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
-from backend.app import create_app
-from backend.edge import BODY_LIMITS, DEFAULT_BODY_LIMIT
-from backend.realtime import messages as m
-from backend.realtime.ratelimit import (
+from bench.common import telerobot_process
+from telerobot.protocol import messages as m
+from telerobot.server.app import create_app
+from telerobot.server.edge import BODY_LIMITS, DEFAULT_BODY_LIMIT
+from telerobot.server.realtime.ratelimit import (
     MALFORMED_COST,
     MALFORMED_IN_A_ROW,
     PeerLimits,
     TokenBucket,
 )
-from backend.security import redact_query_tokens
-from backend.settings import Settings
-from bench.common import telerobot_process
+from telerobot.server.security import redact_query_tokens
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -295,7 +295,7 @@ def test_the_token_bucket_makes_a_flood_wait_and_lets_a_burst_through() -> None:
 
 
 def test_numbers_enums_and_tuples_are_read_as_json_gives_them() -> None:
-    from backend.api.robot import MoveRequest
+    from telerobot.server.api.robot import MoveRequest
 
     move = MoveRequest.model_validate(
         {"space": "cartesian", "mode": "incremental", "position": [1, 0, 0.5], "frame": "tool"}
@@ -309,10 +309,10 @@ def test_numbers_enums_and_tuples_are_read_as_json_gives_them() -> None:
 
 
 def test_every_error_class_says_its_http_status_and_code_once() -> None:
-    from backend.control.decision import NotAllowed, StillMoving
-    from backend.media.pipeline import NotYourPeer, ViewerLimitReached
-    from backend.media.supervisor import MediaRequestFailed
-    from drivers.base import InvalidCommand, TelerobotError
+    from telerobot.drivers.base import InvalidCommand, TelerobotError
+    from telerobot.server.control.decision import NotAllowed, StillMoving
+    from telerobot.server.media.pipeline import NotYourPeer, ViewerLimitReached
+    from telerobot.server.media.supervisor import MediaRequestFailed
 
     assert (NotAllowed.http_status, StillMoving.http_status) == (403, 504)
     assert ViewerLimitReached.http_status == 503  # a MediaUnavailable
@@ -375,7 +375,7 @@ def test_a_ws_message_over_64_kib_closes_the_connection(server: Server) -> None:
     import websockets.sync.client as ws_client
     from websockets.exceptions import ConnectionClosed
 
-    from backend.cli import WS_MAX_MESSAGE
+    from telerobot.server.cli import WS_MAX_MESSAGE
 
     url = f"ws://{server.host}:{server.port}/ws"
     with ws_client.connect(url, open_timeout=5) as ws:
@@ -389,7 +389,7 @@ def test_a_ws_message_over_64_kib_closes_the_connection(server: Server) -> None:
 
 
 def test_a_fit_takes_at_most_100_fiducials(client: TestClient) -> None:
-    from backend.api.calibration import MAX_FIDUCIALS
+    from telerobot.server.api.calibration import MAX_FIDUCIALS
 
     n = MAX_FIDUCIALS + 1
     fit = {"camera": "left", "points": [[0, 0, 0]] * n, "pixels": [[0, 0]] * n}

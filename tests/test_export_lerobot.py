@@ -17,11 +17,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from backend.api import export as export_api
-from backend.recording.lerobot import ExportError, export_lerobot
 from bench import recordings
 from bench.recordings import Episode, force_at, joints_at, read_code, target_at
-from drivers.robot.models import load_model
+from telerobot.drivers.robot.models import load_model
+from telerobot.server.api import export as export_api
+from telerobot.server.recording.lerobot import ExportError, export_lerobot
 
 CAMS = ("observation.images.left", "observation.images.right")
 
@@ -251,7 +251,7 @@ def test_refuses_a_folder_in_use(tmp_path: Path) -> None:
 
 
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from backend.cli import main
+    from telerobot.server.cli import main
 
     built = recordings.build(tmp_path / "rec.mcap", duration=4.0)
     assert main(["export", "lerobot", str(built.path), str(tmp_path / "ds"), "--fps", "10"]) == 0
@@ -263,8 +263,8 @@ def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 def test_rest_endpoint(tmp_path: Path) -> None:
     from fastapi.testclient import TestClient
 
-    from backend.app import create_app
-    from backend.settings import Settings
+    from telerobot.server.app import create_app
+    from telerobot.server.settings import Settings
 
     token = "t" * 32
     built = recordings.build(tmp_path / "recordings" / "20260101-000000-demo.mcap")
@@ -514,7 +514,7 @@ def test_the_encoder_keeps_quiet(tmp_path: Path) -> None:
         [
             sys.executable,
             "-c",
-            "import sys; from backend.recording.lerobot import export_lerobot as e; "
+            "import sys; from telerobot.server.recording.lerobot import export_lerobot as e; "
             "print(e(sys.argv[1], sys.argv[2]).video_codec)",
             str(built.path),
             str(tmp_path / "ds"),
@@ -549,7 +549,7 @@ def test_memory_does_not_hold_the_frames(tmp_path: Path) -> None:
 
 
 def test_image_stats_from_histograms_are_numpys() -> None:
-    from backend.recording.lerobot import _ImageHistogram, _stats
+    from telerobot.server.recording.lerobot import _ImageHistogram, _stats
 
     rng = np.random.default_rng(3)
     images = [rng.integers(0, 256, (7, 9, 3), dtype=np.uint8) for _ in range(5)]
@@ -585,7 +585,7 @@ def test_joint_columns_are_named_as_the_model_names_its_joints(
 def test_cli_shows_progress_the_video_rate_and_refuses_repeats(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from backend.cli import main
+    from telerobot.server.cli import main
 
     built = recordings.build(tmp_path / "rec.mcap", duration=4.0)  # video at 20 fps
     assert main(["export", "lerobot", str(built.path), str(tmp_path / "ds")]) == 0
@@ -608,8 +608,8 @@ def test_rest_export_says_how_far_it_has_got_and_refuses_repeats(tmp_path: Path)
 
     from fastapi.testclient import TestClient
 
-    from backend.app import create_app
-    from backend.settings import Settings
+    from telerobot.server.app import create_app
+    from telerobot.server.settings import Settings
 
     token = "t" * 32
     built = recordings.build(tmp_path / "recordings" / "20260101-000000-demo.mcap", duration=6.0)

@@ -7,12 +7,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from drivers.base import ArmSnapshot, ForceSample, InvalidCommand
-from drivers.force import sim as sim_module
-from drivers.force.pipeline import ForcePipeline
-from drivers.force.sim import SimForceSensor
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics
-from drivers.sim.workcell import default_workcell
+from telerobot.drivers.base import ArmSnapshot, ForceSample, InvalidCommand
+from telerobot.drivers.force import sim as sim_module
+from telerobot.drivers.force.pipeline import ForcePipeline
+from telerobot.drivers.force.sim import SimForceSensor
+from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics
+from telerobot.drivers.sim.workcell import default_workcell
 from tests.support.puma import TOOL, joints_with_tip_at
 
 

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.media.encoder import H264Encoder
-from backend.media.janus import MOUNTPOINT, JanusProcess, JanusSettings, RtpFeed, free_port
-from drivers.base import DeviceError, StereoFrame
-from drivers.camera import timecode
+from telerobot.drivers.base import DeviceError, StereoFrame
+from telerobot.drivers.camera import timecode
+from telerobot.server.media.encoder import H264Encoder
+from telerobot.server.media.janus import MOUNTPOINT, JanusProcess, JanusSettings, RtpFeed, free_port
 
 WIDTH, HEIGHT, FPS = 1280, 360, 30.0  # side by side: two 640×360 eyes (the timecode needs 520 px)
 

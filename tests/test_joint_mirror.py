@@ -14,16 +14,16 @@ import httpx
 import numpy as np
 import pytest
 
-from backend.master.cli import open_link
-from backend.master.joints import MAX_IN_FLIGHT, JointMirror, MirrorSettings
-from backend.master.link import Reply
-from backend.realtime import messages as m
-from drivers.base import FloatArray, InvalidCommand
-from drivers.master.sim_leader import SimLeader
-from drivers.robot.models import load_model
-from drivers.robot.so101.calibration import JointCalibration, So101Calibration
-from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
-from drivers.robot.so101.leader import So101Leader
+from telerobot.client.master.cli import open_link
+from telerobot.client.master.joints import MAX_IN_FLIGHT, JointMirror, MirrorSettings
+from telerobot.client.master.link import Reply
+from telerobot.drivers.base import FloatArray, InvalidCommand
+from telerobot.drivers.master.sim_leader import SimLeader
+from telerobot.drivers.robot.models import load_model
+from telerobot.drivers.robot.so101.calibration import JointCalibration, So101Calibration
+from telerobot.drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+from telerobot.drivers.robot.so101.leader import So101Leader
+from telerobot.protocol import messages as m
 from tests.support import TOKEN, until
 from tests.support.servers import BIN, serving, telerobot
 

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.base import InvalidCommand, JointLimitError, UnreachablePose
-from drivers.robot.puma560.kinematics import (
+from telerobot.drivers.base import InvalidCommand, JointLimitError, UnreachablePose
+from telerobot.drivers.robot.puma560.kinematics import (
     DH,
     NAMED_POSES,
     QLIM,

@@ -12,8 +12,10 @@ from dataclasses import dataclass
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.media.fanout import Broadcaster
-from backend.media.layers import (
+from telerobot.drivers.camera import timecode
+from telerobot.drivers.clock import ManualClock
+from telerobot.server.media.fanout import Broadcaster
+from telerobot.server.media.layers import (
     ESTIMATE_GRACE_S,
     FAILED_PROBE_S,
     MAX_UP_HOLD_S,
@@ -22,9 +24,7 @@ from backend.media.layers import (
     RateMeter,
     low_size,
 )
-from backend.media.pipeline import VideoPipeline, VideoSettings
-from drivers.camera import timecode
-from drivers.clock import ManualClock
+from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
 from tests.support.video import SMALL, Counter, camera, frame
 
 
@@ -298,7 +298,7 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
 
     from aiortc.rtp import RTCP_RTPFB_NACK, RTP_HISTORY_SIZE, RtcpRtpfbPacket
 
-    from backend.media.pipeline import ViewerLink, follow_link
+    from telerobot.server.media.pipeline import ViewerLink, follow_link
 
     asked: list[int] = []
     handled: list[object] = []

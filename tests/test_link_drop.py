@@ -32,7 +32,7 @@ CLIENT = textwrap.dedent(
     """
     import asyncio, contextlib, json, sys
     import httpx
-    from backend.realtime import messages as m
+    from telerobot.protocol import messages as m
     from bench.wsclient import RealtimeClient, StallResumer
 
     base, token = sys.argv[1], sys.argv[2]

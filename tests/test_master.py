@@ -11,12 +11,12 @@ import httpx
 import numpy as np
 import pytest
 
-from backend.master.bridge import BridgeSettings, MasterBridge, rotvec
-from backend.master.cli import open_link
-from drivers.base import DriverUnavailable, FloatArray, InvalidCommand
-from drivers.master.impedance import ImpedanceCompensator
-from drivers.master.sim import SimMaster
-from drivers.registry import load_driver
+from telerobot.client.master.bridge import BridgeSettings, MasterBridge, rotvec
+from telerobot.client.master.cli import open_link
+from telerobot.drivers.base import DriverUnavailable, FloatArray, InvalidCommand
+from telerobot.drivers.master.impedance import ImpedanceCompensator
+from telerobot.drivers.master.sim import SimMaster
+from telerobot.drivers.registry import load_driver
 from tests.support import TOKEN, until
 from tests.support.servers import serving, telerobot
 
@@ -189,7 +189,7 @@ def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) 
 
 
 def test_forces_are_rendered_newest_first_after_a_constant_virtual_delay(server: str) -> None:
-    from drivers.base import ForceSample
+    from telerobot.drivers.base import ForceSample
 
     link = open_link(server, "")
     device = SimMaster()

@@ -9,10 +9,10 @@ import time
 
 import numpy as np
 
-from backend.master.bridge import Backoff, BridgeSettings, MasterBridge
-from backend.master.cli import open_link
-from drivers.base import FloatArray
-from drivers.master.sim import SimMaster
+from telerobot.client.master.bridge import Backoff, BridgeSettings, MasterBridge
+from telerobot.client.master.cli import open_link
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.master.sim import SimMaster
 from tests.support import TOKEN, until
 from tests.support.servers import free_port, serving
 

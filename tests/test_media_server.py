@@ -20,7 +20,7 @@ import httpx
 import pytest
 
 from bench.common import answer_server_offer, open_server_offer_viewer
-from drivers.camera import timecode
+from telerobot.drivers.camera import timecode
 from tests.support.servers import serving
 
 WIDTH, HEIGHT = 640, 360  # per eye: the smallest the timecode reads at
@@ -165,7 +165,7 @@ def test_observers_get_state_and_forces_through_its_data_channel_and_nothing_bac
     nowhere (no client joins the control plane, the lease is untouched)."""
     from aiortc import RTCPeerConnection
 
-    from backend.realtime import messages as m
+    from telerobot.protocol import messages as m
 
     auth = {"Authorization": f"Bearer {token}"}
     before = httpx.get(server + "api/v1/safety", headers=auth).json()
@@ -309,7 +309,7 @@ def test_a_media_server_on_another_machine_given_by_url() -> None:
     server does not start or restart that one, it only watches that it answers."""
     import socket
 
-    from backend.media.janus import free_port
+    from telerobot.server.media.janus import free_port
     from tests.support.servers import telerobot
 
     http_port = free_port()
@@ -413,7 +413,7 @@ def test_media_server_refuses_bad_input_with_the_reason(
     import sys
 
     done = subprocess.run(
-        [sys.executable, "-m", "backend.cli", "media-server", *args],
+        [sys.executable, "-m", "telerobot.server.cli", "media-server", *args],
         env={**os.environ, "TELEROBOT_MEDIA_SERVER_SECRET": secret},
         capture_output=True,
         text=True,
@@ -426,9 +426,9 @@ def test_the_observer_feed_thins_the_forces_and_keeps_the_newest_within_its_boun
     """Every tenth sample, at most MAX_BATCH in a datagram: a late tick sends the newest."""
     import socket
 
-    from backend.media.observer_feed import MAX_BATCH, ObserverFeed
-    from backend.realtime import messages as m
-    from drivers.base import ForceSample
+    from telerobot.drivers.base import ForceSample
+    from telerobot.protocol import messages as m
+    from telerobot.server.media.observer_feed import MAX_BATCH, ObserverFeed
 
     class Hub:
         def encode_state_for(self, client_id: str | None, operator: bool) -> bytes:

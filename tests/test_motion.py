@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.robot.motion import (
+from telerobot.drivers.robot.motion import (
     PUMA_AMAX,
     PUMA_STOP_DECEL,
     PUMA_VMAX,

@@ -8,10 +8,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.base import ForceSample, InvalidCommand
-from drivers.force import netft_protocol as rdt
-from drivers.force.netft import NetFtSensor, parse_address
-from drivers.force.netft_emulator import NetFtEmulator
+from telerobot.drivers.base import ForceSample, InvalidCommand
+from telerobot.drivers.force import netft_protocol as rdt
+from telerobot.drivers.force.netft import NetFtSensor, parse_address
+from telerobot.drivers.force.netft_emulator import NetFtEmulator
 from tests.support import until
 
 PUSH = (1.5, -2.0, 10.0, 0.1, -0.2, 0.05)

@@ -9,10 +9,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivers.base import ForceSample
-from drivers.force import netft_protocol as rdt
-from drivers.force.netft import REORDER_WINDOW, NetFtSensor
-from drivers.force.netft_emulator import NetFtEmulator
+from telerobot.drivers.base import ForceSample
+from telerobot.drivers.force import netft_protocol as rdt
+from telerobot.drivers.force.netft import REORDER_WINDOW, NetFtSensor
+from telerobot.drivers.force.netft_emulator import NetFtEmulator
 from tests.support import until
 
 PUSH = (1.5, -2.0, 10.0, 0.1, -0.2, 0.05)
@@ -46,7 +46,7 @@ def test_a_sequence_that_jumps_far_back_is_a_restart_followed_at_once(
     # Far enough in that a restart goes back past any re-ordering.
     until(lambda: bool(samples) and samples[-1].seq > 2 * REORDER_WINDOW)
     n = len(samples)
-    with caplog.at_level(logging.WARNING, logger="drivers.force.netft"):
+    with caplog.at_level(logging.WARNING, logger="telerobot.drivers.force.netft"):
         emulator.restart_sequence()  # streams on, counting from 1 again
         until(lambda: sum(s.seq < REORDER_WINDOW for s in samples[n:]) > 10)
     # The first packets of the new sequence are delivered, not dropped as stale: the
@@ -102,7 +102,7 @@ def test_a_restart_after_a_bias_says_to_tare_again(
     until(lambda: bool(samples) and samples[-1].seq > 2 * REORDER_WINDOW)
     sensor.tare()
     until(lambda: rdt.CMD_BIAS in emulator.requests)
-    with caplog.at_level(logging.WARNING, logger="drivers.force.netft"):
+    with caplog.at_level(logging.WARNING, logger="telerobot.drivers.force.netft"):
         emulator.restart_sequence()  # a power dip: the sensor's bias is gone too
         until(lambda: sensor.restarts == 1)
     said = [r.getMessage() for r in caplog.records if "restarted" in r.getMessage()]

@@ -11,7 +11,7 @@ import pytest
 from aiortc.rtcrtpparameters import RTCRtpHeaderExtensionParameters, RTCRtpParameters
 from aiortc.rtp import HeaderExtensionsMap, RtpPacket
 
-from backend.media.pacer import (
+from telerobot.server.media.pacer import (
     MIN_RATE_BPS,
     PACING_FACTOR,
     Pacer,
@@ -150,8 +150,8 @@ def test_a_small_stream_is_paced_no_slower_than_the_floor_and_unknown_not_at_all
 def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
     from types import SimpleNamespace
 
-    from backend.media.layers import RateMeter
-    from backend.media.pipeline import PACE_MAX_LOSS, VideoPipeline, ViewerLink
+    from telerobot.server.media.layers import RateMeter
+    from telerobot.server.media.pipeline import PACE_MAX_LOSS, VideoPipeline, ViewerLink
 
     meter = RateMeter()
     for i in range(21):
@@ -171,7 +171,7 @@ def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
 
 
 def test_a_queue_the_transport_does_not_drain_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
-    import backend.media.pacer as pacer_module
+    import telerobot.server.media.pacer as pacer_module
 
     monkeypatch.setattr(pacer_module, "MAX_QUEUE_PACKETS", 8)
     sent: list[bytes] = []

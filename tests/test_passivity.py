@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from backend.master.bridge import BridgeSettings, MasterBridge
-from backend.master.passivity import PassivityController, PassivitySettings
-from drivers.base import ForceSample, InvalidCommand
-from drivers.master.sim import SimMaster
+from telerobot.client.master.bridge import BridgeSettings, MasterBridge
+from telerobot.client.master.passivity import PassivityController, PassivitySettings
+from telerobot.drivers.base import ForceSample, InvalidCommand
+from telerobot.drivers.master.sim import SimMaster
 
 DT = 0.001
 
@@ -269,7 +269,7 @@ def test_the_damper_never_reverses_the_handle_on_a_long_step() -> None:
 def test_the_arms_energy_waiting_in_the_injected_delay_is_bounded() -> None:
     # PORT_ENERGY answers held for the injected round trip: a flood of them keeps the
     # newest 1000, not all.
-    from backend.master.link import Reply
+    from telerobot.client.master.link import Reply
 
     clock = Clock()
     bridge = MasterBridge(

@@ -16,15 +16,15 @@ from collections.abc import Iterator
 import httpx
 import pytest
 
-from backend.master.link import PriorityLink, Reply
-from backend.netprio import (
+from telerobot.client.master.link import PriorityLink, Reply
+from telerobot.drivers.base import DeviceError, ForceSample
+from telerobot.protocol import messages as m
+from telerobot.protocol.netprio import (
     DSCP_CS1,
     DSCP_EF,
     mark_high_priority,
     mark_low_priority,
 )
-from backend.realtime import messages as m
-from drivers.base import DeviceError, ForceSample
 from tests.support import TOKEN, until
 from tests.support.servers import serving
 
@@ -314,7 +314,7 @@ def test_a_link_falls_back_to_tcp_when_no_datagram_comes(
 ) -> None:
     """A firewall that drops the server's datagrams: the link stops asking and the forces
     keep coming on TCP (here the datagrams go to a port nobody serves)."""
-    import backend.master.link as link_module
+    import telerobot.client.master.link as link_module
 
     _, port = server
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as hole:
@@ -340,7 +340,7 @@ def test_a_link_falls_back_to_tcp_when_no_datagram_comes(
 
 
 def test_datagrams_is_refused_on_the_websocket() -> None:
-    from backend.realtime.session import handle
+    from telerobot.server.realtime.session import handle
 
     replies: list[bytes] = []
 
@@ -358,7 +358,7 @@ def test_datagrams_is_refused_on_the_websocket() -> None:
 
 
 def test_newer_sample_numbers_wrap() -> None:
-    from backend.master.link import newer
+    from telerobot.client.master.link import newer
 
     assert newer(5, 4) and not newer(4, 5) and not newer(4, 4)
     assert newer(0, 0xFFFFFFFF) and not newer(0xFFFFFFFF, 0)
@@ -389,7 +389,7 @@ def test_every_thins_the_datagrams_and_a_bad_every_is_refused(server: tuple[str,
 
 
 def test_thinning_doubles_on_loss_and_halves_after_a_clean_while() -> None:
-    from backend.master.link import Thinning
+    from telerobot.client.master.link import Thinning
 
     t = Thinning(now=0.0)
     for seq in range(1000, 1500):
@@ -419,7 +419,7 @@ def test_thinning_doubles_on_loss_and_halves_after_a_clean_while() -> None:
 
 
 def test_thinning_ignores_samples_sent_before_the_change_and_wraps() -> None:
-    from backend.master.link import Thinning
+    from telerobot.client.master.link import Thinning
 
     t = Thinning(now=0.0)
     t.every = 4

@@ -17,11 +17,15 @@ from typing import Any
 import httpx
 import pytest
 
-import backend.master.link as link_module
-import backend.realtime.priority as priority_module
-from backend.master.link import PriorityLink, Reply
-from backend.realtime import messages as m
-from backend.realtime.priority import DATAGRAM_BURST_S, DATAGRAM_RATE_SLACK, DEFAULT_FORCE_RATE_HZ
+import telerobot.client.master.link as link_module
+import telerobot.server.realtime.priority as priority_module
+from telerobot.client.master.link import PriorityLink, Reply
+from telerobot.protocol import messages as m
+from telerobot.server.realtime.priority import (
+    DATAGRAM_BURST_S,
+    DATAGRAM_RATE_SLACK,
+    DEFAULT_FORCE_RATE_HZ,
+)
 from tests.support import TOKEN, until
 from tests.support.servers import serving
 from tests.test_priority_channel import Recorder

@@ -25,8 +25,8 @@ from typing import Any, TypeVar
 
 import pytest
 
-from backend.realtime import messages as m
-from backend.realtime.priority import (
+from telerobot.protocol import messages as m
+from telerobot.server.realtime.priority import (
     MAX_QUEUED_FORCES,
     MAX_QUEUED_REPLIES,
     MAX_RX_BYTES,

@@ -10,10 +10,10 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
-from backend.app import create_app
-from backend.realtime import messages as m
-from backend.settings import Settings
-from drivers.clock import ManualClock
+from telerobot.drivers.clock import ManualClock
+from telerobot.protocol import messages as m
+from telerobot.server.app import create_app
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 
 WS = "ws://localhost/ws"  # TestClient says "testserver" unless told: not a name we answer to

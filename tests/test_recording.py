@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
-from backend.recording import reader
-from backend.recording.recorder import Recorder, RecordingEvent
-from backend.settings import Settings
-from drivers.clock import MonotonicClock
+from telerobot.drivers.clock import MonotonicClock
+from telerobot.server.app import create_app
+from telerobot.server.recording import reader
+from telerobot.server.recording.recorder import Recorder, RecordingEvent
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 
 
@@ -90,8 +90,8 @@ FULL_DISK = textwrap.dedent(
     """
     import asyncio, resource, signal, sys
     from pathlib import Path
-    from backend.recording.recorder import Recorder
-    from drivers.clock import MonotonicClock
+    from telerobot.server.recording.recorder import Recorder
+    from telerobot.drivers.clock import MonotonicClock
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
     async def main():

@@ -15,24 +15,28 @@ import numpy as np
 import pytest
 from av.video.codeccontext import VideoCodecContext
 
-from backend.media.encoder import EncodedFrame
-from backend.media.pipeline import VideoPipeline, VideoSettings
-from backend.media.supervisor import MediaSupervisor
-from backend.media.tap import PacketPipe, pack, unpack
-from backend.recording.reader import read, summary
-from backend.recording.video import (
+from telerobot.drivers.base import ArmSnapshot
+from telerobot.drivers.camera.sim import SimStereoCamera
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.media.encoder import EncodedFrame
+from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
+from telerobot.server.media.supervisor import MediaSupervisor
+from telerobot.server.media.tap import PacketPipe, pack, unpack
+from telerobot.server.recording.reader import read, summary
+from telerobot.server.recording.video import (
     VIDEO_TOPIC,
     VideoTap,
     nal_types,
     remux_mp4,
     starts_decodable,
 )
-from backend.recording.writer import McapFile
-from backend.settings import Settings
-from drivers.base import ArmSnapshot
-from drivers.camera.sim import SimStereoCamera
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.sim.workcell import default_workcell
+from telerobot.server.recording.writer import McapFile
+from telerobot.server.settings import Settings
 
 W, H = 320, 180
 

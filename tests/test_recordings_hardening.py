@@ -23,16 +23,16 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
-from backend.realtime.ratelimit import PeerLimits
-from backend.recording import readjobs
-from backend.recording.index import LABEL_CHARS, LISTED_EPISODES
-from backend.recording.recorder import Recorder, RecordingEvent, RecordingNoSpace
-from backend.recording.writer import McapFile
-from backend.services import Services
-from backend.settings import Settings
 from bench.recordings import build
-from drivers.clock import MonotonicClock
+from telerobot.drivers.clock import MonotonicClock
+from telerobot.server.app import create_app
+from telerobot.server.realtime.ratelimit import PeerLimits
+from telerobot.server.recording import readjobs
+from telerobot.server.recording.index import LABEL_CHARS, LISTED_EPISODES
+from telerobot.server.recording.recorder import Recorder, RecordingEvent, RecordingNoSpace
+from telerobot.server.recording.writer import McapFile
+from telerobot.server.services import Services
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 from tests.support.servers import serving
 

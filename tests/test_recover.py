@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from mcap.writer import CompressionType, Writer
 
-from backend.cli import main
-from backend.recording.reader import read, summary
+from telerobot.server.cli import main
+from telerobot.server.recording.reader import read, summary
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +117,15 @@ def test_recover_of_a_file_cut_anywhere_in_its_summary_keeps_every_message(
 def test_export_of_a_torn_recording_says_so_in_one_line(whole: Path, tmp_path: Path) -> None:
     torn = copy_cut(whole, tmp_path / whole.name, 1000)
     done = subprocess.run(
-        [sys.executable, "-m", "backend.cli", "export", "lerobot", str(torn), str(tmp_path / "ds")],
+        [
+            sys.executable,
+            "-m",
+            "telerobot.server.cli",
+            "export",
+            "lerobot",
+            str(torn),
+            str(tmp_path / "ds"),
+        ],
         capture_output=True,
         text=True,
         timeout=120,

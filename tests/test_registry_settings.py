@@ -5,10 +5,10 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from backend.settings import Settings, load_settings
-from drivers.base import DriverUnavailable
-from drivers.registry import DRIVERS, load_driver
-from drivers.robot.sim import SimArm
+from telerobot.drivers.base import DriverUnavailable
+from telerobot.drivers.registry import DRIVERS, load_driver
+from telerobot.drivers.robot.sim import SimArm
+from telerobot.server.settings import Settings, load_settings
 
 
 def test_registry_loads_drivers_lazily() -> None:

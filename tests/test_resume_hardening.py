@@ -23,9 +23,9 @@ import psutil
 import pytest
 import websockets
 
-from backend.realtime import messages as m
-from backend.realtime.hub import RESUME_BURST
 from bench.wsclient import RealtimeClient
+from telerobot.protocol import messages as m
+from telerobot.server.realtime.hub import RESUME_BURST
 from tests.support import until_async
 from tests.support.servers import serving
 
@@ -285,11 +285,11 @@ async def test_resumes_are_limited_per_address_with_the_reason(base: str) -> Non
 async def test_connections_still_closing_count_against_the_client_cap() -> None:
     """A superseded connection whose socket has not been let go yet is still a
     connection: with a cap of 3, two of them closing and the live one fill it."""
-    from backend.realtime.hub import RealtimeHub
-    from backend.realtime.session import Session
-    from backend.telemetry.stats import Telemetry
-    from drivers.base import TelerobotError
-    from drivers.clock import ManualClock
+    from telerobot.drivers.base import TelerobotError
+    from telerobot.drivers.clock import ManualClock
+    from telerobot.server.realtime.hub import RealtimeHub
+    from telerobot.server.realtime.session import Session
+    from telerobot.server.telemetry.stats import Telemetry
     from tests.support.decision import make
 
     clock = ManualClock()

@@ -7,11 +7,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from drivers.base import DriverUnavailable, InvalidCommand, JointLimitError, UnreachablePose
-from drivers.robot.kinematics import tool_transform
-from drivers.robot.models import load_model, model_names
-from drivers.robot.models.numeric import UrdfKinematics
-from drivers.robot.puma560.kinematics import Puma560Kinematics
+from telerobot.drivers.base import (
+    DriverUnavailable,
+    InvalidCommand,
+    JointLimitError,
+    UnreachablePose,
+)
+from telerobot.drivers.robot.kinematics import tool_transform
+from telerobot.drivers.robot.models import load_model, model_names
+from telerobot.drivers.robot.models.numeric import UrdfKinematics
+from telerobot.drivers.robot.puma560.kinematics import Puma560Kinematics
 
 
 def rotation_error(A: np.ndarray, B: np.ndarray) -> float:

@@ -10,10 +10,10 @@ import threading
 import numpy as np
 import pytest
 
-from backend.control.decision import DecisionServer, NotAllowed, SafetyStop
-from drivers.base import ForceSample
-from drivers.clock import ManualClock
-from drivers.force.sampled import SampledForceSensor
+from telerobot.drivers.base import ForceSample
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.force.sampled import SampledForceSensor
+from telerobot.server.control.decision import DecisionServer, NotAllowed, SafetyStop
 from tests.support import TOKEN, until_async
 from tests.support.decision import make
 

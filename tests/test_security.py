@@ -8,8 +8,8 @@ import httpx
 import pytest
 from cryptography import x509
 
-from backend.security import ensure_certificate, operator_token, origin_allowed
-from backend.settings import Settings
+from telerobot.server.security import ensure_certificate, operator_token, origin_allowed
+from telerobot.server.settings import Settings
 from tests.support.servers import telerobot
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.base import (
+from telerobot.drivers.base import (
     InvalidCommand,
     JointLimitError,
     NotReady,
@@ -16,10 +16,14 @@ from drivers.base import (
     UnreachablePose,
     WorkingFrame,
 )
-from drivers.clock import ManualClock
-from drivers.robot.motion import PUMA_STOP_DECEL, stop_distance, stop_time
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.robot.motion import PUMA_STOP_DECEL, stop_distance, stop_time
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.robot.puma560.sim import SimPuma
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 
@@ -70,8 +74,8 @@ async def test_lifecycle_statuses_and_events(clock: ManualClock) -> None:
 async def test_the_server_switches_the_simulation_on_at_its_start_pose_or_at_home(
     clock: ManualClock, at_home: bool
 ) -> None:
-    from backend.devices import build_robot
-    from backend.settings import Settings
+    from telerobot.server.devices import build_robot
+    from telerobot.server.settings import Settings
 
     r = build_robot(Settings(operator_token=TOKEN, sim_starts_at_home=at_home), clock=clock)
     await r.connect()

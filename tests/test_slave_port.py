@@ -1,4 +1,4 @@
-"""The arm's side of a master arm's two-port passivity (``backend.control.slave_port``,
+"""The arm's side of a master arm's two-port passivity (``telerobot.server.control.slave_port``,
 docs/protocol.md, Passivity): the arm puts into a contact no more energy than the
 master's operator put in, holds the rest back as owed, and catches up."""
 
@@ -9,14 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from backend.control.slave_port import (
+from telerobot.client.master.passivity import PassivityController
+from telerobot.server.control.slave_port import (
     FORCE_FLOOR_N,
     MAX_OWED_M,
     OWED_FORGET_S,
     START_STIFFNESS_N_M,
     SlavePort,
 )
-from backend.master.passivity import PassivityController
 
 UP = np.array([0.0, 0.0, 1.0])
 DOWN_1MM = np.array([0.0, 0.0, -0.001])

@@ -15,27 +15,34 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from backend.devices import build_robot, describe_robot
-from backend.settings import Settings
-from drivers.base import DeviceError, InvalidCommand, NotReady, Robot, RobotStatus, StopCategory
-from drivers.registry import load_driver
-from drivers.robot.models import load_model
-from drivers.robot.so101 import feetech as ft
-from drivers.robot.so101.arm import (
+from telerobot.drivers.base import (
+    DeviceError,
+    InvalidCommand,
+    NotReady,
+    Robot,
+    RobotStatus,
+    StopCategory,
+)
+from telerobot.drivers.motors.feetech import protocol as ft
+from telerobot.drivers.motors.feetech.bus import MissCounter
+from telerobot.drivers.motors.feetech.protocol import ErrorBit, Register
+from telerobot.drivers.registry import load_driver
+from telerobot.drivers.robot.models import load_model
+from telerobot.drivers.robot.so101.arm import (
     CALIBRATION_FILE,
     SETTLE_READS,
-    MissCounter,
     So101Arm,
 )
-from drivers.robot.so101.calibration import (
+from telerobot.drivers.robot.so101.calibration import (
     STEPS_PER_RADIAN,
     CalibrationRecorder,
     JointCalibration,
     So101Calibration,
     from_lerobot,
 )
-from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
-from drivers.robot.so101.feetech import ErrorBit, Register
+from telerobot.drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+from telerobot.server.devices import build_robot, describe_robot
+from telerobot.server.settings import Settings
 from tests.support import until_async as until
 
 MODEL = load_model("so101")
@@ -639,8 +646,8 @@ def test_calibration_refuses_a_pose_off_the_others() -> None:
 async def test_the_calibrate_command_records_by_hand_and_writes_the_file(
     link: BusLink, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from drivers.robot.so101 import calibrate
-    from drivers.robot.so101.calibrate import record
+    from telerobot.drivers.robot.so101 import calibrate
+    from telerobot.drivers.robot.so101.calibrate import record
 
     monkeypatch.setattr(
         calibrate, "So101Arm", functools.partial(So101Arm, reply_timeout=REPLY_TIMEOUT)

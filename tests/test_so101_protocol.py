@@ -1,13 +1,13 @@
-"""The Feetech byte protocol (drivers.robot.so101.feetech) and the bus emulator's
+"""The Feetech byte protocol (telerobot.drivers.motors.feetech.protocol) and the bus emulator's
 answers to it, without any I/O."""
 
 from __future__ import annotations
 
 import pytest
 
-from drivers.robot.so101 import feetech as ft
-from drivers.robot.so101.emulator import FeetechBusEmulator
-from drivers.robot.so101.feetech import ErrorBit, Instruction, Register
+from telerobot.drivers.motors.feetech import protocol as ft
+from telerobot.drivers.motors.feetech.protocol import ErrorBit, Instruction, Register
+from telerobot.drivers.robot.so101.emulator import FeetechBusEmulator
 
 
 def test_packets_are_the_documented_bytes() -> None:

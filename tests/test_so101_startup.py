@@ -13,17 +13,18 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.master.joints import JointMirror
-from backend.master.link import Reply
-from backend.realtime import messages as m
-from drivers.base import DeviceError, NotReady, RobotStatus
-from drivers.master.sim_leader import SimLeader
-from drivers.robot.models import load_model
-from drivers.robot.so101 import feetech as ft
-from drivers.robot.so101.arm import NoAnswer, So101Arm
-from drivers.robot.so101.calibration import So101Calibration
-from drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
-from drivers.robot.so101.feetech import Register
+from telerobot.client.master.joints import JointMirror
+from telerobot.client.master.link import Reply
+from telerobot.drivers.base import DeviceError, NotReady, RobotStatus
+from telerobot.drivers.master.sim_leader import SimLeader
+from telerobot.drivers.motors.feetech import protocol as ft
+from telerobot.drivers.motors.feetech.bus import NoAnswer
+from telerobot.drivers.motors.feetech.protocol import Register
+from telerobot.drivers.robot.models import load_model
+from telerobot.drivers.robot.so101.arm import So101Arm
+from telerobot.drivers.robot.so101.calibration import So101Calibration
+from telerobot.drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+from telerobot.protocol import messages as m
 from tests.support import TOKEN, until_async
 
 MODEL = load_model("so101")
@@ -32,7 +33,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 # A servo has this long to answer: the emulator is a thread of this process, which a
 # loaded machine can keep off the CPU for longer than a real servo's 30 ms.
 REPLY_TIMEOUT = 0.25
-LOG = "drivers.robot.so101.arm"
+LOG = "telerobot.drivers.robot.so101.arm"
 
 
 @pytest.fixture(params=["pty", "tcp"])

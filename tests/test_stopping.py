@@ -10,13 +10,17 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.control.decision import DecisionServer
-from backend.control.limits import SafetyLimits, full_speed_stop_s, stopping
-from drivers.base import StopCategory
-from drivers.clock import ManualClock
-from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX, cartesian_stop, stop_time
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
+from telerobot.drivers.base import StopCategory
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX, cartesian_stop, stop_time
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.limits import SafetyLimits, full_speed_stop_s, stopping
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 

@@ -14,13 +14,13 @@ from collections.abc import Iterator
 import httpx
 import pytest
 
-from backend.control.decision import NotAllowed
-from backend.tasks.runner import TaskSpec, TaskState
-from backend.tasks.trajectory import StateSample, Trajectory
 from bench.task_replay import TOKEN as CELL_TOKEN
 from bench.task_replay import SimCell, push_start
-from drivers.sim.workcell import default_workcell
 from telerobot.client import Telerobot
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.control.decision import NotAllowed
+from telerobot.server.tasks.runner import TaskSpec, TaskState
+from telerobot.server.tasks.trajectory import StateSample, Trajectory
 from tests.support import TOKEN
 from tests.support.servers import serving
 

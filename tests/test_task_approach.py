@@ -17,17 +17,17 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.control.decision import DecisionServer, LimitExceeded
-from backend.control.limits import SafetyLimits
-from backend.devices import make_kinematics
-from backend.settings import Settings
-from backend.tasks.approach import APPROACH_POINTS, plan_approach
-from backend.tasks.runner import AwayFromStart, Task, TaskRunner, TaskSpec, TaskState
-from backend.tasks.trajectory import StateSample, Trajectory
-from drivers.base import InvalidCommand
-from drivers.clock import ManualClock
-from drivers.robot.puma560.kinematics import NAMED_POSES
-from drivers.robot.sim import SimPuma
+from telerobot.drivers.base import InvalidCommand
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
+from telerobot.drivers.robot.sim import SimPuma
+from telerobot.server.control.decision import DecisionServer, LimitExceeded
+from telerobot.server.control.limits import SafetyLimits
+from telerobot.server.devices import make_kinematics
+from telerobot.server.settings import Settings
+from telerobot.server.tasks.approach import APPROACH_POINTS, plan_approach
+from telerobot.server.tasks.runner import AwayFromStart, Task, TaskRunner, TaskSpec, TaskState
+from telerobot.server.tasks.trajectory import StateSample, Trajectory
 from tests.support import TOKEN
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -224,7 +224,7 @@ def test_the_approach_ghost_has_at_most_its_cap_of_points() -> None:
 @pytest.fixture
 def readme_server() -> Iterator[TestClient]:
     """The app as `make run` starts it (the PUMA at qn), in process, once READY."""
-    from backend.app import create_app
+    from telerobot.server.app import create_app
 
     with TestClient(create_app(Settings(operator_token=TOKEN)), base_url="http://localhost") as tc:
         deadline = time.monotonic() + 10

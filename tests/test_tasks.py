@@ -10,16 +10,6 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from backend.control.decision import NotAllowed, SafetyStop
-from backend.tasks.compliance import Admittance, ComplianceSettings
-from backend.tasks.runner import TaskSpec, TaskState
-from backend.tasks.trajectory import (
-    AnotherArm,
-    ForceReading,
-    StateSample,
-    Trajectory,
-    interpolate_rotation,
-)
 from bench.task_replay import (
     COMPLIANCE,
     DOWN,
@@ -30,8 +20,18 @@ from bench.task_replay import (
     replay_moved_block,
     with_obstacle,
 )
-from drivers.base import InvalidCommand
-from drivers.sim.workcell import Box, default_workcell
+from telerobot.drivers.base import InvalidCommand
+from telerobot.drivers.sim.workcell import Box, default_workcell
+from telerobot.server.control.decision import NotAllowed, SafetyStop
+from telerobot.server.tasks.compliance import Admittance, ComplianceSettings
+from telerobot.server.tasks.runner import TaskSpec, TaskState
+from telerobot.server.tasks.trajectory import (
+    AnotherArm,
+    ForceReading,
+    StateSample,
+    Trajectory,
+    interpolate_rotation,
+)
 
 
 def Rz(a: float) -> np.ndarray:

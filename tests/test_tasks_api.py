@@ -11,9 +11,9 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from backend.app import create_app
-from backend.recording.reader import read
-from backend.settings import Settings
+from telerobot.server.app import create_app
+from telerobot.server.recording.reader import read
+from telerobot.server.settings import Settings
 from tests.support import TOKEN
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

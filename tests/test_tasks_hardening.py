@@ -21,14 +21,14 @@ import pytest
 from fastapi.testclient import TestClient
 from mcap.writer import CompressionType, Writer
 
-from backend.recording.readjobs import JOB_NICE
-from backend.recording.salvage import NotARecording
-from backend.tasks.runner import PathJumps, TaskSpec, TaskState
-from backend.tasks.source_reader import SourceReader
-from backend.tasks.trajectory import StateSample, Trajectory
 from bench.task_replay import DOWN, SimCell, push_start
-from drivers.base import InvalidCommand
-from drivers.sim.workcell import default_workcell
+from telerobot.drivers.base import InvalidCommand
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.recording.readjobs import JOB_NICE
+from telerobot.server.recording.salvage import NotARecording
+from telerobot.server.tasks.runner import PathJumps, TaskSpec, TaskState
+from telerobot.server.tasks.source_reader import SourceReader
+from telerobot.server.tasks.trajectory import StateSample, Trajectory
 from tests.support import TOKEN
 from tests.support.servers import serving
 
@@ -108,7 +108,7 @@ def test_a_read_stops_at_its_time_limit_and_a_span_past_the_longest_task(
     with pytest.raises(InvalidCommand, match="took too long"):
         Trajectory.from_recording(path, time_limit_s=0.0)
     # The longest task, seen as the states come: refused before the rest is read.
-    monkeypatch.setattr("backend.tasks.trajectory.MAX_SAMPLES", 50)
+    monkeypatch.setattr("telerobot.server.tasks.trajectory.MAX_SAMPLES", 50)
     with pytest.raises(InvalidCommand, match="lasts more than 1 s"):
         Trajectory.from_recording(path)
     assert len(Trajectory.from_recording(path, segment=(0.0, 0.5))) == 26
@@ -224,7 +224,7 @@ def test_the_reader_process_ends_with_the_server(tmp_path: Path) -> None:
     rec = write_recording(tmp_path / "r.mcap", seconds=2.0, episode=(0.5, 1.5))
     server = (
         "import asyncio, os, sys; from pathlib import Path;"
-        " from backend.tasks.source_reader import SourceReader;"
+        " from telerobot.server.tasks.source_reader import SourceReader;"
         " r = SourceReader();"
         f" asyncio.run(r.trajectory(Path({str(rec)!r}), 0, None, operator=True, address='a'));"
         " print(*[c for c in os.listdir('/proc') if c.isdigit()"

@@ -1,4 +1,4 @@
-"""The process settings (``backend.tuning``): the server and the master bridge raise their
+"""The process settings (``telerobot.tuning``): the server and the master bridge raise their
 own CPU priority where the system lets them, and say how to let them where not."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 import pytest
 
 PROBE = (
-    "import os; from backend.tuning import raise_cpu_priority as r; "
+    "import os; from telerobot.tuning import raise_cpu_priority as r; "
     "print(r({steps})); print(os.getpriority(os.PRIO_PROCESS, 0))"
 )
 
@@ -46,11 +46,11 @@ def test_helpers_yield_from_where_the_server_started_not_from_its_raised_priorit
     # server, not 5 (10 below the server's raised priority).
     before = os.getpriority(os.PRIO_PROCESS, 0)
     child = (
-        "import os; from backend.tuning import yield_cpu; yield_cpu(10);"
+        "import os; from telerobot.tuning import yield_cpu; yield_cpu(10);"
         " print(os.getpriority(os.PRIO_PROCESS, 0))"
     )
     parent = (
-        "import os, subprocess, sys; from backend.tuning import raise_cpu_priority as r;"
+        "import os, subprocess, sys; from telerobot.tuning import raise_cpu_priority as r;"
         f" r(5); subprocess.run([sys.executable, '-c', {child!r}], check=True)"
     )
     out = subprocess.run(
@@ -63,7 +63,7 @@ def test_helpers_yield_from_where_the_server_started_not_from_its_raised_priorit
 def test_a_block_at_a_raised_thread_priority_hands_it_to_its_threads_and_restores_it() -> None:
     # bench.abuse's legitimate clients and bench.master_contact's bridge threads run so.
     code = (
-        "import os, threading; from backend.tuning import thread_priority_raised\n"
+        "import os, threading; from telerobot.tuning import thread_priority_raised\n"
         "get = lambda: os.getpriority(os.PRIO_PROCESS, 0)\n"
         "seen = []\n"
         "with thread_priority_raised(5) as inside:\n"
@@ -85,7 +85,7 @@ def test_the_master_bridge_runs_as_started_without_the_right_and_says_so() -> No
     # refused, it says how to allow it and goes on (here it then fails to find a server).
     out = subprocess.run(
         ["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice",
-         sys.executable, "-m", "backend.cli", "master", "--server", "http://127.0.0.1:9/"],
+         sys.executable, "-m", "telerobot.server.cli", "master", "--server", "http://127.0.0.1:9/"],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert "CAP_SYS_NICE" in out.stderr and "--cpu-priority 0" in out.stderr, out.stderr

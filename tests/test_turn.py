@@ -26,8 +26,8 @@ from aiortc import (
 from playwright.sync_api import Browser
 from pydantic import ValidationError
 
-from backend.media.ice import IceConfig, IceConfigError, IceServer, turn_rest_credentials
-from drivers.camera import timecode
+from telerobot.drivers.camera import timecode
+from telerobot.server.media.ice import IceConfig, IceConfigError, IceServer, turn_rest_credentials
 from tests.support.coturn import Coturn, coturn
 from tests.support.servers import serving
 
@@ -81,7 +81,7 @@ def test_the_ice_list_mints_turn_credentials_and_keeps_fixed_ones() -> None:
 
 
 def test_unusable_ice_settings_say_what_to_set() -> None:
-    from backend.settings import Settings
+    from telerobot.server.settings import Settings
 
     with pytest.raises(IceConfigError, match="TELEROBOT_TURN_SECRET"):
         IceConfig(("turn:turn.example.org",))
@@ -357,7 +357,7 @@ def test_the_compose_file_runs_coturn_beside_the_server_with_one_secret() -> Non
 
     import yaml  # PyYAML: a dependency of schemathesis (dev)
 
-    from backend.settings import Settings
+    from telerobot.server.settings import Settings
 
     path = Path(__file__).resolve().parents[1] / "docker" / "compose.yaml"
     env = {"TURN_HOST": "robot.example.org", "TURN_SECRET": SECRET, "MEDIA_SERVER_SECRET": SECRET}
@@ -385,8 +385,8 @@ def test_the_compose_files_media_server_is_the_one_the_server_is_pointed_at() ->
 
     import yaml
 
-    from backend.cli import main as _  # noqa: F401  (the command exists)
-    from backend.settings import Settings
+    from telerobot.server.cli import main as _  # noqa: F401  (the command exists)
+    from telerobot.server.settings import Settings
 
     path = Path(__file__).resolve().parents[1] / "docker" / "compose.yaml"
     env = {"TURN_HOST": "robot.example.org", "TURN_SECRET": SECRET, "MEDIA_SERVER_SECRET": SECRET}

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.robot.puma560 import val_protocol as vp
+from telerobot.drivers.robot.puma560 import val_protocol as vp
 
 
 def test_lines_round_trip() -> None:

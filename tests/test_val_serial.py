@@ -10,12 +10,12 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers.base import DeviceError, NotReady, RobotStatus, SerialSettings, StopCategory
-from drivers.robot.motion import PUMA_STOP_DECEL, stop_time
-from drivers.robot.puma560 import val_protocol as vp
-from drivers.robot.puma560.kinematics import NAMED_POSES
-from drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
-from drivers.robot.puma560.val_serial import ValSerialPuma
+from telerobot.drivers.base import DeviceError, NotReady, RobotStatus, SerialSettings, StopCategory
+from telerobot.drivers.robot.motion import PUMA_STOP_DECEL, stop_time
+from telerobot.drivers.robot.puma560 import val_protocol as vp
+from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
+from telerobot.drivers.robot.puma560.val_emulator import EmulatorLink, ValControllerEmulator
+from telerobot.drivers.robot.puma560.val_serial import ValSerialPuma
 
 FAST = 0.02  # emulated moves take 2 % of their real time
 

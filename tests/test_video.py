@@ -10,18 +10,22 @@ import numpy as np
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.media.pipeline import (
+from telerobot.drivers.base import ArmSnapshot, StereoFrame
+from telerobot.drivers.camera import timecode
+from telerobot.drivers.camera.sim import FIDUCIAL_COLOURS, IDLE_AFTER_S, SimStereoCamera
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.media.pipeline import (
     IDLE_POLL_S,
     BadOffer,
     VideoPipeline,
     VideoSettings,
     no_signal_frame,
 )
-from drivers.base import ArmSnapshot, StereoFrame
-from drivers.camera import timecode
-from drivers.camera.sim import FIDUCIAL_COLOURS, IDLE_AFTER_S, SimStereoCamera
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.sim.workcell import default_workcell
 from tests.support.video import SMALL, camera
 
 SANE_AGE_S = 30.0  # a decoded capture time this old is from another clock, not late
@@ -204,7 +208,7 @@ def _numbered_video(
 
 
 def test_two_device_camera_never_mixes_partners(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from drivers.camera.opencv import OpenCVStereoCamera
+    from telerobot.drivers.camera.opencv import OpenCVStereoCamera
 
     left, right = str(tmp_path / "left.avi"), str(tmp_path / "right.avi")
     _numbered_video(left, 60)
@@ -228,8 +232,8 @@ def test_two_device_camera_never_mixes_partners(tmp_path) -> None:  # type: igno
 
 
 def test_a_missing_camera_is_reported_and_retried(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from drivers.base import CameraStatus
-    from drivers.camera.opencv import OpenCVSideBySideCamera
+    from telerobot.drivers.base import CameraStatus
+    from telerobot.drivers.camera.opencv import OpenCVSideBySideCamera
 
     path = str(tmp_path / "later.avi")
     cam = OpenCVSideBySideCamera(path, width=320, height=360, fps=100, retry_s=0.05)
@@ -250,8 +254,8 @@ def test_a_missing_camera_is_reported_and_retried(tmp_path) -> None:  # type: ig
 
 
 def test_constant_bitrate_fills_the_budget_even_for_a_still_scene() -> None:
-    from backend.media.encoder import H264Encoder
-    from drivers.base import StereoFrame
+    from telerobot.drivers.base import StereoFrame
+    from telerobot.server.media.encoder import H264Encoder
 
     still = np.full((360, 1280, 3), 120, np.uint8)
     sizes = {}
@@ -268,8 +272,8 @@ def test_constant_bitrate_fills_the_budget_even_for_a_still_scene() -> None:
 def test_the_simulated_cameras_can_hold_up_a_charuco_board_for_calibration() -> None:
     import cv2
 
-    from calibration.charuco import detect
-    from drivers.camera.charuco_board import BoardSpec
+    from telerobot.calibration.charuco import detect
+    from telerobot.drivers.camera.charuco_board import BoardSpec
 
     cam = camera()
     w = cam.width
@@ -286,8 +290,8 @@ def test_the_simulated_cameras_can_hold_up_a_charuco_board_for_calibration() -> 
 def test_keyframes_come_only_when_asked_unless_an_interval_is_set() -> None:
     """A periodic keyframe is a burst of tens of frames' bytes that queues everything
     behind it on a narrow link: by default there are none."""
-    from backend.media.encoder import H264Encoder, Vp8Encoder
-    from drivers.base import StereoFrame
+    from telerobot.drivers.base import StereoFrame
+    from telerobot.server.media.encoder import H264Encoder, Vp8Encoder
 
     rng = np.random.default_rng(1)
     for codec in (H264Encoder, Vp8Encoder):

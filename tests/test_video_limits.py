@@ -9,16 +9,16 @@ import asyncio
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from backend.media.fanout import KEYFRAME_MIN_INTERVAL_S, TRACK_QUEUE, Broadcaster
-from backend.media.pipeline import (
+from telerobot.drivers.clock import ManualClock
+from telerobot.server.media.fanout import KEYFRAME_MIN_INTERVAL_S, TRACK_QUEUE, Broadcaster
+from telerobot.server.media.pipeline import (
     PENDING_EXPIRY_S,
     NotYourPeer,
     VideoPipeline,
     VideoSettings,
     ViewerLimitReached,
 )
-from backend.services import Alignments
-from drivers.clock import ManualClock
+from telerobot.server.services import Alignments
 from tests.support.video import SMALL, Counter, camera, frame
 
 

@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from bench.common import open_viewer, serve_for_bench
-from drivers.camera import timecode
+from telerobot.drivers.camera import timecode
 from tests.support import TOKEN
 from tests.support.servers import serving
 
@@ -145,7 +145,7 @@ def test_only_a_peers_owner_or_the_operator_closes_it_and_only_the_operator_sees
 
 
 def test_connecting_viewers_are_capped_with_a_message_a_person_can_act_on() -> None:
-    from backend.media.pipeline import MAX_PENDING
+    from telerobot.server.media.pipeline import MAX_PENDING
 
     with serving(SMALL, ready=False) as base:
         for _ in range(MAX_PENDING):

@@ -10,11 +10,11 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from backend.app import create_app, services_of
-from backend.settings import Settings
-from backend.viewer3d import decompose
-from calibration.affine import fit_affine
-from drivers.sim.workcell import default_workcell
+from telerobot.calibration.affine import fit_affine
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.app import create_app, services_of
+from telerobot.server.settings import Settings
+from telerobot.server.viewer3d import decompose
 from tests.support import TOKEN
 
 

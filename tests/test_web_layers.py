@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page
 
-from drivers.camera.sim import FIDUCIAL_COLOURS
+from telerobot.drivers.camera.sim import FIDUCIAL_COLOURS
 from tests.support.browser import (
     open_page,
     wait,

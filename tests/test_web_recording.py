@@ -13,7 +13,7 @@ import httpx
 import pytest
 from playwright.sync_api import Browser, Page
 
-from backend.recording.reader import read
+from telerobot.server.recording.reader import read
 from tests.support import TOKEN, until
 from tests.support.browser import (
     DRIVE_S,

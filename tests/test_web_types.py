@@ -1,5 +1,5 @@
 """The web client's generated types agree with the server (docs/architecture.md, rule 5): the
-binary messages (web/src/transport/messages.ts, from backend/realtime/messages.py) and
+binary messages (web/src/transport/messages.ts, from telerobot/protocol/messages.py) and
 the REST types (web/src/api/schema.d.ts, from the OpenAPI schema). Each is generated
 afresh and compared with the committed file; a renamed message field fails ``tsc``."""
 
@@ -14,22 +14,22 @@ from pathlib import Path
 
 import pytest
 
-from backend.api import openapi_ts
-from backend.realtime import messages as m
-from backend.realtime import typescript
-from drivers.base import RobotStatus
+from telerobot.drivers.base import RobotStatus
+from telerobot.protocol import messages as m
+from telerobot.server.api import openapi_ts
+from telerobot.server.realtime import typescript
 
 WEB = Path(__file__).resolve().parents[1] / "web"
 NODE_MODULES = WEB / "node_modules"
 REGENERATE = (
-    "run `make types` (or: python -m backend.realtime.typescript > "
-    "web/src/transport/messages.ts; python -m backend.api.openapi_ts) and commit the result"
+    "run `make types` (or: python -m telerobot.server.realtime.typescript > "
+    "web/src/transport/messages.ts; python -m telerobot.server.api.openapi_ts) and commit the result"
 )
 
 
 def test_typescript_messages_are_generated_from_the_python_definitions() -> None:
     assert typescript.TARGET.read_text() == typescript.render(), (
-        f"web/src/transport/messages.ts differs from backend/realtime/messages.py: {REGENERATE}"
+        f"web/src/transport/messages.ts differs from telerobot/protocol/messages.py: {REGENERATE}"
     )
 
 

@@ -3,9 +3,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.base import InvalidCommand
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.sim.workcell import PinholeCamera, default_workcell, stereo_rig
+from telerobot.drivers.base import InvalidCommand
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.sim.workcell import PinholeCamera, default_workcell, stereo_rig
 
 
 def test_cameras_see_the_work_area_fiducials_and_block() -> None:

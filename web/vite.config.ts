@@ -1,10 +1,11 @@
 import { defineConfig } from "vitest/config";
 
-// Built into web/dist, which the backend serves at "/". During development
+// Built into backend/web (telerobot.server's package data: the wheel ships it), which
+// the server serves at "/". During development
 // `npx vite` proxies the API and the WebSocket to a running `telerobot serve`.
 export default defineConfig({
   build: {
-    outDir: "dist",
+    outDir: "../backend/web",
     emptyOutDir: true,
     sourcemap: true,
     chunkSizeWarningLimit: 1200,

@@ -15,21 +15,21 @@ import numpy as np
 from fastapi import APIRouter, Query
 from pydantic import BaseModel, Field, field_validator
 
-from backend.api.deps import (
+from telerobot.calibration.affine import fit_affine
+from telerobot.calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
+from telerobot.calibration.dlt import fit_dlt
+from telerobot.calibration.model import CalibrationError, CameraModel
+from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, render_view
+from telerobot.drivers.sim.workcell import Workcell
+from telerobot.server.api.deps import (
     CalibrationDep,
     IntrinsicsDep,
     MediaDep,
     OperatorDep,
     WorkcellDep,
 )
-from backend.api.requests import StrictRequest
-from backend.services import CalibrationRecord, CameraName, Intrinsics
-from calibration.affine import fit_affine
-from calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
-from calibration.dlt import fit_dlt
-from calibration.model import CalibrationError, CameraModel
-from drivers.camera.charuco_board import BoardSpec, board_poses, render_view
-from drivers.sim.workcell import Workcell
+from telerobot.server.api.requests import StrictRequest
+from telerobot.server.services import CalibrationRecord, CameraName, Intrinsics
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/calibration", tags=["calibration"])

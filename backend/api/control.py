@@ -7,12 +7,12 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Request
 from pydantic import BaseModel, Field, field_validator
 
-from backend.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
-from backend.api.requests import StrictRequest
-from backend.control.decision import DecisionServer, NotAllowed
-from backend.control.limits import full_speed_stop_s, stopping
-from backend.realtime.names import MAX_NAME, RULE, name_problem
-from drivers.base import StopCategory, WorkingFrame
+from telerobot.drivers.base import StopCategory, WorkingFrame
+from telerobot.protocol.names import MAX_NAME, RULE, name_problem
+from telerobot.server.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
+from telerobot.server.api.requests import StrictRequest
+from telerobot.server.control.decision import DecisionServer, NotAllowed
+from telerobot.server.control.limits import full_speed_stop_s, stopping
 
 # A script's client (no connection of its own) is forgotten this long after its last
 # request, unless it holds the lease (the setting rest_client_idle_s, 60 s by default):

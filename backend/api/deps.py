@@ -15,17 +15,17 @@ from fastapi import Depends, Header, Security
 from fastapi.requests import HTTPConnection
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from backend.control.decision import Client, DecisionServer, NotAllowed
-from backend.media.media_server import MediaServerSupervisor
-from backend.media.supervisor import MediaSupervisor, MediaUnavailable
-from backend.realtime.hub import RealtimeHub
-from backend.realtime.priority import PriorityChannel
-from backend.security import bearer
-from backend.services import Alignments, CalibrationRecord, Intrinsics, Services, Viewer3D
-from backend.settings import Settings
-from backend.telemetry.stats import Telemetry
-from drivers.base import ForceSensor, Robot
-from drivers.sim.workcell import Workcell
+from telerobot.drivers.base import ForceSensor, Robot
+from telerobot.drivers.sim.workcell import Workcell
+from telerobot.server.control.decision import Client, DecisionServer, NotAllowed
+from telerobot.server.media.media_server import MediaServerSupervisor
+from telerobot.server.media.supervisor import MediaSupervisor, MediaUnavailable
+from telerobot.server.realtime.hub import RealtimeHub
+from telerobot.server.realtime.priority import PriorityChannel
+from telerobot.server.security import bearer
+from telerobot.server.services import Alignments, CalibrationRecord, Intrinsics, Services, Viewer3D
+from telerobot.server.settings import Settings
+from telerobot.server.telemetry.stats import Telemetry
 
 
 def get_services(connection: HTTPConnection) -> Services:

@@ -1,5 +1,5 @@
 """A recording exported for robot learning: its episodes as a LeRobot
-v3.0 dataset (``backend.recording.lerobot``), written beside the recordings in
+v3.0 dataset (``telerobot.server.recording.lerobot``), written beside the recordings in
 ``<state folder>/exports/``. One export at a time, in its own process; how far it has
 got is ``GET …/export/lerobot`` (and said in the 409 a second export gets). A recording
 cut short (a killed writer) is exported as far as it is valid; the one being written is
@@ -20,12 +20,12 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body
 from pydantic import BaseModel, Field
 
-from backend.api.deps import OperatorDep, SettingsDep
-from backend.api.recordings import ReaderDep, RecorderDep
-from backend.recording.lerobot import ExportSummary, export_lerobot
-from backend.security import state_dir
-from backend.tuning import yield_cpu
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.api.deps import OperatorDep, SettingsDep
+from telerobot.server.api.recordings import ReaderDep, RecorderDep
+from telerobot.server.recording.lerobot import ExportSummary, export_lerobot
+from telerobot.server.security import state_dir
+from telerobot.tuning import yield_cpu
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
 

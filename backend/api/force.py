@@ -6,9 +6,9 @@ from __future__ import annotations
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ForceDep, OperatorDep, PriorityDep
-from backend.api.requests import StrictRequest
-from drivers.base import FORCE_CHANNELS, ForceSensor
+from telerobot.drivers.base import FORCE_CHANNELS, ForceSensor
+from telerobot.server.api.deps import ForceDep, OperatorDep, PriorityDep
+from telerobot.server.api.requests import StrictRequest
 
 router = APIRouter(prefix="/force", tags=["force"])
 

@@ -3,9 +3,9 @@ server's OpenAPI schema, taken from ``create_app`` without running a server, tur
 into web/src/api/schema.d.ts by the npm package ``openapi-typescript`` (a devDependency
 of web/). A test (tests/test_web_types.py) fails when the committed file differs.
 
-    python -m backend.api.openapi_ts             # regenerate web/src/api/schema.d.ts
-    python -m backend.api.openapi_ts --schema    # print the OpenAPI schema (JSON)
-    python -m backend.api.openapi_ts --out FILE  # write the TypeScript elsewhere
+    python -m telerobot.server.api.openapi_ts             # regenerate web/src/api/schema.d.ts
+    python -m telerobot.server.api.openapi_ts --schema    # print the OpenAPI schema (JSON)
+    python -m telerobot.server.api.openapi_ts --out FILE  # write the TypeScript elsewhere
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ GENERATOR = WEB / "node_modules" / ".bin" / "openapi-typescript"
 def openapi_schema() -> dict[str, Any]:
     """The schema the server publishes at /openapi.json. Nothing is opened: the
     devices start in the app's lifespan, which this never enters."""
-    from backend.app import create_app
-    from backend.settings import Settings
+    from telerobot.server.app import create_app
+    from telerobot.server.settings import Settings
 
     # Any valid token (so none is read or made on disk); a loopback host (so no name
     # lookups). Neither changes the routes or their models.
@@ -54,7 +54,9 @@ def generate(out: Path, generator: Path = GENERATOR) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m backend.api.openapi_ts", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="python -m telerobot.server.api.openapi_ts", description=__doc__
+    )
     parser.add_argument("--schema", action="store_true", help="print the OpenAPI schema")
     parser.add_argument("--out", type=Path, default=TARGET, help=f"default: {TARGET}")
     args = parser.parse_args(argv)

@@ -1,11 +1,11 @@
 """A recording played back (the review page, web/review.html): its video as an
 MP4 (the recorded H.264 remuxed, no re-encode) that a ``<video>`` element plays and
 seeks natively, and its other channels as JSON on one timeline, decimated to a bounded
-size (``backend.recording.timeline``).
+size (``telerobot.server.recording.timeline``).
 
 Both are heavy to make (every message of the file read) and are **made once and
 kept** beside the recordings (``.review/``), by a job in a process of its own
-(``backend.recording.readjobs``): a client without the token may read them (the
+(``telerobot.server.recording.readjobs``): a client without the token may read them (the
 review's ``<video>`` cannot send a token, and observers review too), but a loop of
 reads costs the server one job, not one per request, and within its address's budget.
 A file cut short (a killed writer) is read as far as it is valid; the recording being
@@ -19,8 +19,8 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
-from backend.api.recordings import ReaderDep, RecorderDep, charge_sent
-from backend.recording.timeline import MAX_POINTS, REVIEW_TOPICS
+from telerobot.server.api.recordings import ReaderDep, RecorderDep, charge_sent
+from telerobot.server.recording.timeline import MAX_POINTS, REVIEW_TOPICS
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
 

@@ -3,8 +3,8 @@ delete, and episodes while recording. Changing anything needs the operator token
 
 Reading is open to every client, within a budget per address (``ReaderDep``; the
 operator's token lifts it), and never parses a file on the event loop (the e-stop's):
-the list is a page of the recordings' index (``backend.recording.index``), and what
-must be parsed is parsed once, in a process of its own (``backend.recording.readjobs``).
+the list is a page of the recordings' index (``telerobot.server.recording.index``), and what
+must be parsed is parsed once, in a process of its own (``telerobot.server.recording.readjobs``).
 The recording being written is refused (409) by every read that would parse it."""
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, Field
 
-from backend.api.deps import DecisionDep, OperatorDep, ServicesDep
-from backend.api.requests import StrictRequest
-from backend.recording.library import DEFAULT_PAGE, MAX_PAGE
-from backend.recording.recorder import MAX_NAME, MAX_TEXT, Recorder
-from backend.security import bearer
+from telerobot.server.api.deps import DecisionDep, OperatorDep, ServicesDep
+from telerobot.server.api.requests import StrictRequest
+from telerobot.server.recording.library import DEFAULT_PAGE, MAX_PAGE
+from telerobot.server.recording.recorder import MAX_NAME, MAX_TEXT, Recorder
+from telerobot.server.security import bearer
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
 

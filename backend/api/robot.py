@@ -10,10 +10,10 @@ import numpy as np
 from fastapi import APIRouter, Body, Response
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
-from backend.api.requests import StrictRequest
-from backend.control.decision import StillMoving
-from drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
+from telerobot.drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
+from telerobot.server.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
+from telerobot.server.api.requests import StrictRequest
+from telerobot.server.control.decision import StillMoving
 
 router = APIRouter(prefix="/robot", tags=["robot"])
 

@@ -15,16 +15,22 @@ import numpy as np
 from fastapi import APIRouter, Depends, Request
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ClientDep, DecisionDep, ServicesDep
-from backend.api.requests import StrictRequest
-from backend.recording.recorder import Recorder, RecordingError
-from backend.security import bearer
-from backend.tasks.approach import ApproachPlan
-from backend.tasks.compliance import ComplianceSettings
-from backend.tasks.runner import START_TOLERANCE_M, START_TOLERANCE_RAD, Task, TaskRunner, TaskSpec
-from backend.tasks.source_reader import PathPreview
-from backend.tasks.trajectory import Trajectory
-from drivers.base import InvalidCommand
+from telerobot.drivers.base import InvalidCommand
+from telerobot.server.api.deps import ClientDep, DecisionDep, ServicesDep
+from telerobot.server.api.requests import StrictRequest
+from telerobot.server.recording.recorder import Recorder, RecordingError
+from telerobot.server.security import bearer
+from telerobot.server.tasks.approach import ApproachPlan
+from telerobot.server.tasks.compliance import ComplianceSettings
+from telerobot.server.tasks.runner import (
+    START_TOLERANCE_M,
+    START_TOLERANCE_RAD,
+    Task,
+    TaskRunner,
+    TaskSpec,
+)
+from telerobot.server.tasks.source_reader import PathPreview
+from telerobot.server.tasks.trajectory import Trajectory
 
 MAX_FILE_NAME = 255  # a file name's bytes on every common file system (ASCII names here)
 

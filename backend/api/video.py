@@ -22,7 +22,8 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from pydantic import BaseModel, Field
 
-from backend.api.deps import (
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.api.deps import (
     AlignmentsDep,
     DecisionDep,
     MediaDep,
@@ -31,12 +32,11 @@ from backend.api.deps import (
     SettingsDep,
     bearer_token,
 )
-from backend.api.requests import StrictRequest
-from backend.media.media_server import MediaServerSupervisor
-from backend.media.pipeline import NotYourPeer
-from backend.media.relay import RELAY_PREFIX
-from backend.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaUnavailable
-from drivers.base import TelerobotError
+from telerobot.server.api.requests import StrictRequest
+from telerobot.server.media.media_server import MediaServerSupervisor
+from telerobot.server.media.pipeline import NotYourPeer
+from telerobot.server.media.relay import RELAY_PREFIX
+from telerobot.server.media.supervisor import MediaRequestFailed, MediaSupervisor, MediaUnavailable
 
 router = APIRouter(tags=["video"])
 

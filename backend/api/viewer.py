@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from backend.api.deps import ViewerDep
+from telerobot.server.api.deps import ViewerDep
 
 router = APIRouter(prefix="/viewer", tags=["viewer"])
 

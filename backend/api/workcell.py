@@ -6,8 +6,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from pydantic import BaseModel
 
-from backend.api.deps import WorkcellDep
-from drivers.sim.workcell import Box, PinholeCamera
+from telerobot.drivers.sim.workcell import Box, PinholeCamera
+from telerobot.server.api.deps import WorkcellDep
 
 router = APIRouter(prefix="/workcell", tags=["workcell"])
 

@@ -30,11 +30,7 @@ from typing import Any, Concatenate, ParamSpec, TypeVar
 import numpy as np
 import pinocchio as pin
 
-from backend.control.limits import SafetyLimits
-from backend.control.slave_port import SlavePort
-from backend.realtime.names import client_name
-from backend.security import token_matches
-from drivers.base import (
+from telerobot.drivers.base import (
     FloatArray,
     ForceSample,
     ForceSensor,
@@ -45,9 +41,13 @@ from drivers.base import (
     TelerobotError,
     WorkingFrame,
 )
-from drivers.clock import Clock
-from drivers.events import Event
-from drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.events import Event
+from telerobot.drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
+from telerobot.protocol.names import client_name
+from telerobot.server.control.limits import SafetyLimits
+from telerobot.server.control.slave_port import SlavePort
+from telerobot.server.security import token_matches
 
 log = logging.getLogger(__name__)
 
@@ -407,7 +407,7 @@ class DecisionServer:
     def rename(self, client_id: str, name: str) -> None:
         """The name ``client_id`` goes by from now on (a NAME message: a client with no
         URL to name itself in, such as the master bridge on the priority channel). A
-        name against the rule (backend/realtime/names.py) is refused and the old one
+        name against the rule (telerobot/protocol/names.py) is refused and the old one
         kept; a holder's new name is said at once (the SAFETY event, ``/safety``)."""
         client = self.client(client_id)
         client.name = client_name(name)
@@ -619,7 +619,7 @@ class DecisionServer:
         got back, J, cumulative); answers the arm's (``PORT_ENERGY``: what the arm's
         surroundings gave back into the link, and what the arm put into them). From
         the first, this client's increments keep to the master's energy
-        (``backend.control.slave_port``)."""
+        (``telerobot.server.control.slave_port``)."""
         client = self.client(client_id)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("only an operator's master arm sends its energy")

@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.base import FloatArray, InvalidCommand, StopSpec
-from drivers.robot.motion import cartesian_stop, stop_time
+from telerobot.drivers.base import FloatArray, InvalidCommand, StopSpec
+from telerobot.drivers.robot.motion import cartesian_stop, stop_time
 
 # Tool speeds (m/s) GET /api/v1/safety states stopping figures for, besides the limit.
 STOPPING_SPEEDS_M_S = (0.05, 0.1)

@@ -7,7 +7,7 @@ A master arm (``telerobot master``) sends its motion as increments and gets the
 sensor's force back; with a delay, the increments sent before the force returns drive
 the tool into the surface blind (at 400 ms a 5 mm/s press is 2 mm into a 5·10⁴ N/m
 block: 100 N, past the force limit), and the master's own passivity controller (its
-side of the port, ``backend.master.passivity``) can only damp the handle, not the
+side of the port, ``telerobot.client.master.passivity``) can only damp the handle, not the
 arm. So the arm keeps its own books:
 
 - The master says, with every ``ENERGY`` message, how much energy its operator has put
@@ -49,7 +49,7 @@ import math
 
 import numpy as np
 
-from drivers.base import FloatArray
+from telerobot.drivers.base import FloatArray
 
 FORCE_FLOOR_N = 1.0  # below this the tool is in free space: its motion is not charged
 MAX_OWED_M = 0.01  # the most master motion the arm lags behind by; past it, dropped

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from av.video.codeccontext import VideoCodecContext
 
-from drivers.base import StereoFrame
+from telerobot.drivers.base import StereoFrame
 
 VIDEO_CLOCK = 90_000
 

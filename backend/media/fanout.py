@@ -22,7 +22,7 @@ from collections.abc import Callable
 import av
 from aiortc import MediaStreamTrack
 
-from backend.media.encoder import EncodedFrame
+from telerobot.server.media.encoder import EncodedFrame
 
 log = logging.getLogger(__name__)
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import httpx
 
-from drivers.base import DeviceError, DriverUnavailable
+from telerobot.drivers.base import DeviceError, DriverUnavailable
 
 JANUS = "janus"
 # Debian's multiarch folder for this machine's architecture (x86_64-linux-gnu,

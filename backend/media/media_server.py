@@ -25,9 +25,9 @@ from urllib.parse import urlsplit
 
 import httpx
 
-from backend.media.janus import JANUS, JanusProcess, JanusSettings, free_port
-from backend.settings import Settings
-from drivers.base import DriverUnavailable
+from telerobot.drivers.base import DriverUnavailable
+from telerobot.server.media.janus import JANUS, JanusProcess, JanusSettings, free_port
+from telerobot.server.settings import Settings
 
 log = logging.getLogger(__name__)
 

@@ -20,9 +20,9 @@ import logging
 import socket
 from collections import deque
 
-from backend.realtime import messages as m
-from backend.realtime.hub import RealtimeHub
-from drivers.base import ForceSample, ForceSensor
+from telerobot.drivers.base import ForceSample, ForceSensor
+from telerobot.protocol import messages as m
+from telerobot.server.realtime.hub import RealtimeHub
 
 log = logging.getLogger(__name__)
 

@@ -39,10 +39,13 @@ from aiortc.rtp import (
     unpack_remb_fci,
 )
 
-from backend.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
-from backend.media.fanout import Broadcaster, SharedVideoTrack
-from backend.media.ice import IceConfig, parse_url
-from backend.media.layers import (
+from telerobot.drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
+from telerobot.drivers.clock import Clock, MonotonicClock
+from telerobot.protocol.netprio import mark_peer_low_priority
+from telerobot.server.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
+from telerobot.server.media.fanout import Broadcaster, SharedVideoTrack
+from telerobot.server.media.ice import IceConfig, parse_url
+from telerobot.server.media.layers import (
     LAYERS,
     LOW_BITRATE,
     LOW_SCALE,
@@ -52,13 +55,10 @@ from backend.media.layers import (
     RateMeter,
     low_size,
 )
-from backend.media.pacer import Pacer, pace_peer
-from backend.media.supervisor import MediaUnavailable
-from backend.netprio import mark_peer_low_priority
-from backend.security import token_matches
-from backend.telemetry.stats import InterArrival, StreamStats
-from drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
-from drivers.clock import Clock, MonotonicClock
+from telerobot.server.media.pacer import Pacer, pace_peer
+from telerobot.server.media.supervisor import MediaUnavailable
+from telerobot.server.security import token_matches
+from telerobot.server.telemetry.stats import InterArrival, StreamStats
 
 log = logging.getLogger(__name__)
 

@@ -34,11 +34,11 @@ from typing import Any
 
 import httpx
 
-from backend.media.encoder import EncodedFrame
-from backend.media.janus import MOUNTPOINT, RtpFeed
-from backend.realtime.ratelimit import PeerLimits
-from backend.security import token_matches
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.media.encoder import EncodedFrame
+from telerobot.server.media.janus import MOUNTPOINT, RtpFeed
+from telerobot.server.realtime.ratelimit import PeerLimits
+from telerobot.server.security import token_matches
 
 log = logging.getLogger(__name__)
 

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from backend.media.worker import arm_fields, worker_main
-from backend.settings import Settings
-from drivers.base import Robot, TelerobotError
+from telerobot.drivers.base import Robot, TelerobotError
+from telerobot.server.media.worker import arm_fields, worker_main
+from telerobot.server.settings import Settings
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """The recording's tap on the encoded video, the media worker's end: every H.264 packet
 the fan-out gets (the one encode) goes, as the same bytes, over a pipe of its own to the
-server, where ``backend.recording.video.VideoTap`` logs it.
+server, where ``telerobot.server.recording.video.VideoTap`` logs it.
 
 The encoder never waits for the server: packets go into a bounded queue that a thread
 of its own drains into the pipe. When the queue is full its packets are dropped and
@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from backend.media.encoder import EncodedFrame
+from telerobot.server.media.encoder import EncodedFrame
 
 log = logging.getLogger(__name__)
 

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from backend.devices import build_camera
-from backend.settings import Settings
-from backend.tuning import yield_cpu
-from drivers.base import ArmSnapshot, TelerobotError
+from telerobot.drivers.base import ArmSnapshot, TelerobotError
+from telerobot.server.devices import build_camera
+from telerobot.server.settings import Settings
+from telerobot.tuning import yield_cpu
 
 log = logging.getLogger(__name__)
 
@@ -80,9 +80,9 @@ async def _serve(
     arm: Any,
     video: multiprocessing.connection.Connection | None = None,
 ) -> None:
-    from backend.media.pipeline import VideoPipeline, VideoSettings
-    from backend.media.relay import RELAY_PREFIX
-    from backend.media.tap import PacketPipe
+    from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
+    from telerobot.server.media.relay import RELAY_PREFIX
+    from telerobot.server.media.tap import PacketPipe
 
     camera = build_camera(settings, shared_arm_probe(arm))
     pipeline = VideoPipeline(
@@ -100,7 +100,7 @@ async def _serve(
     pipeline.start()
     relay = None
     if settings.media_server == "janus":  # observers through the media server
-        from backend.media.relay import JanusRelay
+        from telerobot.server.media.relay import JanusRelay
 
         assert settings.media_server_url is not None  # resolved by the server
 

@@ -24,12 +24,12 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
-from backend.control.decision import DecisionServer, SafetyState
-from backend.realtime import messages as m
-from backend.realtime.ratelimit import PeerLimits
-from backend.telemetry.stats import Telemetry
-from drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
-from drivers.clock import Clock
+from telerobot.drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
+from telerobot.drivers.clock import Clock
+from telerobot.protocol import messages as m
+from telerobot.server.control.decision import DecisionServer, SafetyState
+from telerobot.server.realtime.ratelimit import PeerLimits
+from telerobot.server.telemetry.stats import Telemetry
 
 log = logging.getLogger(__name__)
 

@@ -69,13 +69,13 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
-from backend.control.decision import DecisionServer
-from backend.netprio import mark_high_priority
-from backend.realtime import messages as m
-from backend.realtime.hub import RealtimeHub
-from backend.realtime.ratelimit import BURST, MESSAGES_PER_S, TokenBucket
-from backend.realtime.session import Session, error
-from drivers.base import ForceSample, ForceSensor, TelerobotError
+from telerobot.drivers.base import ForceSample, ForceSensor, TelerobotError
+from telerobot.protocol import messages as m
+from telerobot.protocol.netprio import mark_high_priority
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.realtime.hub import RealtimeHub
+from telerobot.server.realtime.ratelimit import BURST, MESSAGES_PER_S, TokenBucket
+from telerobot.server.realtime.session import Session, error
 
 log = logging.getLogger(__name__)
 

@@ -16,10 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from backend.control.decision import RESUME_KEY_BYTES, Applied, Client, DecisionServer, NotAllowed
-from backend.realtime import messages as m
-from backend.realtime.hub import Connection, RealtimeHub
-from drivers.base import TelerobotError, WorkingFrame
+from telerobot.drivers.base import TelerobotError, WorkingFrame
+from telerobot.protocol import messages as m
+from telerobot.server.control.decision import (
+    RESUME_KEY_BYTES,
+    Applied,
+    Client,
+    DecisionServer,
+    NotAllowed,
+)
+from telerobot.server.realtime.hub import Connection, RealtimeHub
 
 FRAMES: dict[int, WorkingFrame] = {
     m.Frame.BASE: WorkingFrame.BASE,

@@ -12,13 +12,13 @@ import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from backend.api.deps import ServicesDep
-from backend.realtime import messages as m
-from backend.realtime.names import client_name
-from backend.realtime.ratelimit import MALFORMED_COST, MalformedRun, TokenBucket
-from backend.realtime.session import Session, error
-from backend.security import origin_allowed
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.protocol import messages as m
+from telerobot.protocol.names import client_name
+from telerobot.server.api.deps import ServicesDep
+from telerobot.server.realtime.ratelimit import MALFORMED_COST, MalformedRun, TokenBucket
+from telerobot.server.realtime.session import Session, error
+from telerobot.server.security import origin_allowed
 
 log = logging.getLogger(__name__)
 router = APIRouter()
@@ -63,7 +63,7 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
         await websocket.close(code=1013, reason="too many connections from your address")
         return
     await websocket.accept()
-    # The name the client gives itself (``/ws?name=``, backend/realtime/names.py), shown
+    # The name the client gives itself (``/ws?name=``, telerobot/protocol/names.py), shown
     # wherever control is listed; without one, its address.
     asked = websocket.query_params.get("name")
     try:

@@ -25,7 +25,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-from backend.recording.reader import BROKEN, summary
+from telerobot.server.recording.reader import BROKEN, summary
 
 INDEX_VERSION = 1
 INDEX_DIR = ".index"

@@ -72,9 +72,9 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from backend.recording.reader import decode, read, read_raw
-from drivers.base import DriverUnavailable, TelerobotError
-from drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
+from telerobot.drivers.base import DriverUnavailable, TelerobotError
+from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
+from telerobot.server.recording.reader import decode, read, read_raw
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000  # lerobot DEFAULT_CHUNK_SIZE

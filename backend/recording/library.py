@@ -19,7 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from backend.recording.index import (
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.recording.index import (
     RecordingIndex,
     blank_entry,
     episodes_listed,
@@ -28,9 +29,8 @@ from backend.recording.index import (
     stamped,
     summarise,
 )
-from backend.recording.readjobs import ReadBudgets, ReadJobs
-from backend.recording.timeline import REVIEW_TOPICS
-from drivers.base import TelerobotError
+from telerobot.server.recording.readjobs import ReadBudgets, ReadJobs
+from telerobot.server.recording.timeline import REVIEW_TOPICS
 
 MAX_ID_CHARS = 200  # a recording's id (its file name; the recorder's are < 100)
 ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]*$")

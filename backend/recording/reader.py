@@ -5,7 +5,7 @@ kept). ``telerobot recording recover FILE`` runs it.
 
 A file without a valid summary (a writer killed, the recording being written, a copy
 cut short: one byte missing is enough) is still read, as far as it is valid, by
-``backend.recording.salvage``: in file order (the order it was written, which is
+``telerobot.server.recording.salvage``: in file order (the order it was written, which is
 log-time order but for threads racing by a few µs), stopping quietly at the first
 record that is cut or broken. A file that is not an MCAP at all raises
 ``NotARecording``, one damaged where its index points ``UnreadableRecording`` (both
@@ -27,8 +27,8 @@ from mcap.records import Channel, Message, Schema
 from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
-from backend.recording.schemas import BYTES_FIELDS
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.recording.schemas import BYTES_FIELDS
 
 # What the mcap reader raises on a file cut short or damaged (struct: a record's length
 # field itself cut; ValueError: zstd or a JSON schema that does not parse).
@@ -71,7 +71,7 @@ def read_raw(
 ) -> Iterator[tuple[str, int, bytes, str]]:
     """``(topic, log_time_ns, data, message_encoding)``, nothing decoded: a reader that
     keeps few of the messages (a decimated timeline) decodes only those."""
-    from backend.recording.salvage import SalvageReader, is_mcap
+    from telerobot.server.recording.salvage import SalvageReader, is_mcap
 
     wanted = set(topics) if topics is not None else None
     name = Path(path).name

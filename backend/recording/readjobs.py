@@ -17,7 +17,7 @@ at most ``MAX_WAITING`` jobs wait behind the running one for clients without the
 operator token (the operator's wait however long the line is). A job already running
 or waiting for the same result is shared, not repeated.
 
-``python -m backend.recording.readjobs`` is the job's process: one JSON request on
+``python -m telerobot.server.recording.readjobs`` is the job's process: one JSON request on
 stdin, one JSON answer on stdout; it ends when its stdin closes (the server gone).
 """
 
@@ -37,11 +37,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from backend.realtime.ratelimit import PeerLimits
-from backend.recording.reader import UnreadableRecording
-from backend.recording.salvage import NotARecording
-from backend.tuning import yield_cpu
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.realtime.ratelimit import PeerLimits
+from telerobot.server.recording.reader import UnreadableRecording
+from telerobot.server.recording.salvage import NotARecording
+from telerobot.tuning import yield_cpu
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +254,7 @@ def do(request: dict[str, Any]) -> dict[str, Any]:
     """One job (in the job's process; tests call it directly)."""
     kind = request["kind"]
     if kind == "summaries":  # kept as they are made: a job cut short is not lost
-        from backend.recording.index import RecordingIndex, summarise
+        from telerobot.server.recording.index import RecordingIndex, summarise
 
         entries = []
         for p in map(Path, request["paths"]):
@@ -263,13 +263,13 @@ def do(request: dict[str, Any]) -> dict[str, Any]:
             entries.append(entry)
         return {"entries": entries}
     if kind == "timeline":
-        from backend.recording.timeline import timeline
+        from telerobot.server.recording.timeline import timeline
 
         result = timeline(request["path"], request["topics"], request["max_points"])
         _write_atomically(Path(request["out"]), _json(result))
         return {"written": request["out"]}
     if kind == "mp4":
-        from backend.recording.video import NoVideo, remux_mp4
+        from telerobot.server.recording.video import NoVideo, remux_mp4
 
         try:
             remux_mp4(request["path"], request["out"])

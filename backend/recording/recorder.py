@@ -20,7 +20,7 @@ A recording stops by itself, with the reason kept in the list, when its file rea
 ``max_bytes`` (the setting ``recording_max_bytes``) or the disk's free space falls
 below ``min_free_bytes`` (``recording_min_free_bytes``), and does not start below it:
 the file is closed whole rather than cut by ENOSPC. What the list shows of a recording
-is kept in its index (``backend.recording.index``) when it closes, reasons included.
+is kept in its index (``telerobot.server.recording.index``) when it closes, reasons included.
 """
 
 from __future__ import annotations
@@ -46,14 +46,14 @@ from typing import Any
 
 import numpy as np
 
-from backend.control.decision import CommandReport, DecisionServer, SafetyState
-from backend.recording import schemas as ch
-from backend.recording.library import RecordingLibrary
-from backend.recording.library import RecordingNotFound as RecordingNotFound
-from backend.recording.writer import CHUNK_BYTES, describe, serve_file
-from drivers.base import ForceSample, ForceSensor, InvalidCommand, Robot, TelerobotError
-from drivers.clock import Clock
-from drivers.events import Event
+from telerobot.drivers.base import ForceSample, ForceSensor, InvalidCommand, Robot, TelerobotError
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.events import Event
+from telerobot.server.control.decision import CommandReport, DecisionServer, SafetyState
+from telerobot.server.recording import schemas as ch
+from telerobot.server.recording.library import RecordingLibrary
+from telerobot.server.recording.library import RecordingNotFound as RecordingNotFound
+from telerobot.server.recording.writer import CHUNK_BYTES, describe, serve_file
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ from pathlib import Path
 from mcap.records import Channel, Message, Schema
 from mcap.writer import CompressionType, Writer
 
-from backend.recording.salvage import NotARecording, SalvageReader, is_mcap
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.recording.salvage import NotARecording, SalvageReader, is_mcap
 
 SUFFIX = ".recovered.mcap"
 

@@ -7,7 +7,7 @@ at all (``NotARecording``, 422).
 file order and stops, without raising, at the first byte that is not a whole valid
 record (a failed CRC, a torn record, a chunk that will not inflate); afterwards the
 reader says whether it reached the footer (``complete``) and, if not, why it stopped
-(``stopped``). ``messages(topics)`` decodes them as ``backend.recording.reader.read``
+(``stopped``). ``messages(topics)`` decodes them as ``telerobot.server.recording.reader.read``
 does (docs/recording.md). Nothing is loaded past the limits: a record longer than
 ``MAX_RECORD_BYTES`` or a chunk that says it inflates past ``MAX_CHUNK_BYTES`` ends the
 read there (the writer's chunks are 256 kB), so a crafted length cannot make a reader
@@ -32,8 +32,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Footer, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from backend.recording.schemas import BYTES_FIELDS
-from drivers.base import TelerobotError
+from telerobot.drivers.base import TelerobotError
+from telerobot.server.recording.schemas import BYTES_FIELDS
 
 MAGIC = b"\x89MCAP0\r\n"
 MAX_RECORD_BYTES = 64 * 1024 * 1024

@@ -17,8 +17,8 @@ import math
 import os
 from typing import Any
 
-from backend.recording.reader import read_raw, valid_summary
-from backend.recording.schemas import VIDEO as VIDEO_TOPIC
+from telerobot.server.recording.reader import read_raw, valid_summary
+from telerobot.server.recording.schemas import VIDEO as VIDEO_TOPIC
 
 MAX_POINTS = 20_000  # per decimated series (force, state): a page plots this many at most
 MAX_EVENTS = 5_000  # commands, safety changes, episodes: the first this many

@@ -27,8 +27,8 @@ from typing import Any, Protocol
 
 import av
 
-from backend.media.encoder import VIDEO_CLOCK
-from backend.media.tap import unpack
+from telerobot.server.media.encoder import VIDEO_CLOCK
+from telerobot.server.media.tap import unpack
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +152,7 @@ def remux_mp4(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> dict[
     plays and seeks natively. Returns ``start`` (the first frame's capture time, wall
     clock s: the MP4's time 0), ``frames``, ``width``, ``height``. Written beside
     ``dst`` and moved into place, so a reader never sees half a file."""
-    from backend.recording.reader import read
+    from telerobot.server.recording.reader import read
 
     times: list[float] = []
     dst = Path(dst)

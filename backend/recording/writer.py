@@ -24,8 +24,8 @@ from typing import IO, Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from backend.recording.schemas import BYTES_FIELDS, CHANNELS
-from backend.tuning import yield_cpu
+from telerobot.server.recording.schemas import BYTES_FIELDS, CHANNELS
+from telerobot.tuning import yield_cpu
 
 CHUNK_BYTES = 256 * 1024  # a killed writer loses at most the chunk being filled
 

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from backend.control.decision import LimitExceeded
-from backend.control.limits import SafetyLimits
-from drivers.base import FloatArray, InvalidCommand, TelerobotError
-from drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.base import FloatArray, InvalidCommand, TelerobotError
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.server.control.decision import LimitExceeded
+from telerobot.server.control.limits import SafetyLimits
 
 # The tool's positions along the approach given for its ghost: one per degree of the
 # joint that turns most, at most this many.

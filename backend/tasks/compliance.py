@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.base import FloatArray, InvalidCommand
+from telerobot.drivers.base import FloatArray, InvalidCommand
 
 AXES = "xyz"
 

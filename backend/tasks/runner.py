@@ -55,12 +55,7 @@ from enum import StrEnum
 import numpy as np
 import pinocchio as pin
 
-from backend.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
-from backend.tasks.approach import ApproachPlan, approach_step, plan_approach
-from backend.tasks.compliance import Admittance, ComplianceSettings
-from backend.tasks.source_reader import SourceReader
-from backend.tasks.trajectory import Trajectory
-from drivers.base import (
+from telerobot.drivers.base import (
     FloatArray,
     ForceSensor,
     InvalidCommand,
@@ -68,8 +63,13 @@ from drivers.base import (
     TelerobotError,
     WorkingFrame,
 )
-from drivers.clock import Clock
-from drivers.events import Event
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.events import Event
+from telerobot.server.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
+from telerobot.server.tasks.approach import ApproachPlan, approach_step, plan_approach
+from telerobot.server.tasks.compliance import Admittance, ComplianceSettings
+from telerobot.server.tasks.source_reader import SourceReader
+from telerobot.server.tasks.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 

@@ -42,11 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.realtime.ratelimit import TokenBucket
-from backend.recording.readjobs import JOB_NICE
-from backend.tasks.trajectory import READ_LIMIT_S, Trajectory
-from backend.tuning import yield_cpu
-from drivers.base import FloatArray, TelerobotError
+from telerobot.drivers.base import FloatArray, TelerobotError
+from telerobot.server.realtime.ratelimit import TokenBucket
+from telerobot.server.recording.readjobs import JOB_NICE
+from telerobot.server.tasks.trajectory import READ_LIMIT_S, Trajectory
+from telerobot.tuning import yield_cpu
 
 PREVIEW_POINTS = 400
 CACHE_SIZE = 64

@@ -3,7 +3,7 @@ position and rotation, ``t``) and ``/force`` samples of an episode or a time seg
 to a time-parameterised tool path with the force that was felt along it.
 
 Pure: no I/O but ``from_recording``, which reads a recording as far as it is valid
-(``backend.recording.salvage``: a torn file or one cut short gives what it holds;
+(``telerobot.server.recording.salvage``: a torn file or one cut short gives what it holds;
 docs/recording.md). Times are the server's monotonic ``t`` of the recording, shifted
 so the trajectory starts at 0.
 
@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, InvalidCommand
+from telerobot.drivers.base import FloatArray, InvalidCommand
 
 DEFAULT_DT_S = 0.02  # resampled every 20 ms (the state rate)
 MAX_SAMPLES = 30_000  # 10 minutes at 50 Hz: a task is a taught motion, not a shift's work
@@ -180,7 +180,7 @@ class Trajectory:
         """Read ``path`` as far as it is valid (a torn file gives what it holds; one that
         is not an MCAP is refused: ``NotARecording``); ``robot_model`` as in
         ``from_messages`` (the file's name is what the refusal names)."""
-        from backend.recording.salvage import SalvageReader
+        from telerobot.server.recording.salvage import SalvageReader
 
         what = path.name + (f" episode {episode}" if episode is not None else "")
         if segment is not None:

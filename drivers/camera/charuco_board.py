@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.base import FloatArray
+from telerobot.drivers.base import FloatArray
 
 
 @dataclass(frozen=True)

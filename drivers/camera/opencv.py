@@ -17,9 +17,9 @@ from typing import Any, Self
 import cv2
 import numpy as np
 
-from drivers.base import CameraStatus, DeviceContext, StereoFrame, TelerobotError
-from drivers.camera.slot import FrameSlot
-from drivers.threads import WorkerThread
+from telerobot.drivers.base import CameraStatus, DeviceContext, StereoFrame, TelerobotError
+from telerobot.drivers.camera.slot import FrameSlot
+from telerobot.drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 

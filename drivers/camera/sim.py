@@ -21,15 +21,15 @@ from typing import Any, Self
 import cv2
 import numpy as np
 
-from drivers.base import ArmSnapshot, CameraStatus, DeviceContext, StereoFrame
-from drivers.camera import timecode
-from drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
-from drivers.camera.slot import FrameSlot
-from drivers.robot.kinematics import ArmKinematics
-from drivers.robot.models import DEFAULT_MODEL, load_model
-from drivers.robot.models.drawing import ArmDrawing
-from drivers.sim.workcell import Box, PinholeCamera, Workcell
-from drivers.threads import WorkerThread
+from telerobot.drivers.base import ArmSnapshot, CameraStatus, DeviceContext, StereoFrame
+from telerobot.drivers.camera import timecode
+from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
+from telerobot.drivers.camera.slot import FrameSlot
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.robot.models import DEFAULT_MODEL, load_model
+from telerobot.drivers.robot.models.drawing import ArmDrawing
+from telerobot.drivers.sim.workcell import Box, PinholeCamera, Workcell
+from telerobot.drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 

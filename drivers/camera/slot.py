@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import threading
 
-from drivers.base import StereoFrame
+from telerobot.drivers.base import StereoFrame
 
 
 class FrameSlot:

@@ -24,10 +24,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Self
 
-from drivers.base import DeviceContext, InvalidCommand
-from drivers.force import netft_protocol as rdt
-from drivers.force.pipeline import Six
-from drivers.force.sampled import SampledForceSensor
+from telerobot.drivers.base import DeviceContext, InvalidCommand
+from telerobot.drivers.force import netft_protocol as rdt
+from telerobot.drivers.force.pipeline import Six
+from telerobot.drivers.force.sampled import SampledForceSensor
 
 log = logging.getLogger(__name__)
 

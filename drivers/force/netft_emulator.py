@@ -11,8 +11,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from drivers.force import netft_protocol as rdt
-from drivers.force.pipeline import Six
+from telerobot.drivers.force import netft_protocol as rdt
+from telerobot.drivers.force.pipeline import Six
 
 
 def default_signal(t: float) -> Six:

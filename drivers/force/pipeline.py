@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from drivers.base import InvalidCommand
+from telerobot.drivers.base import InvalidCommand
 
 Six = tuple[float, float, float, float, float, float]
 ZERO: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

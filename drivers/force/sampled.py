@@ -10,9 +10,9 @@ import logging
 import threading
 from collections.abc import Callable, Mapping
 
-from drivers.base import ForceSample
-from drivers.force.pipeline import ForcePipeline, Six
-from drivers.threads import WorkerThread
+from telerobot.drivers.base import ForceSample
+from telerobot.drivers.force.pipeline import ForcePipeline, Six
+from telerobot.drivers.threads import WorkerThread
 
 log = logging.getLogger(__name__)
 

@@ -20,12 +20,12 @@ from typing import Any, Self
 
 import numpy as np
 
-from drivers.base import ArmSnapshot, DeviceContext, ForceSample
-from drivers.force.config_sim import SimForceConfig
-from drivers.force.pipeline import Six
-from drivers.force.sampled import SampledForceSensor
-from drivers.robot.kinematics import ArmKinematics
-from drivers.sim.workcell import Workcell
+from telerobot.drivers.base import ArmSnapshot, DeviceContext, ForceSample
+from telerobot.drivers.force.config_sim import SimForceConfig
+from telerobot.drivers.force.pipeline import Six
+from telerobot.drivers.force.sampled import SampledForceSensor
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.sim.workcell import Workcell
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from drivers.base import FloatArray, InvalidCommand
+from telerobot.drivers.base import FloatArray, InvalidCommand
 
 
 class ImpedanceCompensator:

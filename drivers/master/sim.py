@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.base import FloatArray, MasterState
+from telerobot.drivers.base import FloatArray, MasterState
 
 Hand = Callable[[float], tuple[FloatArray, bool]]  # time since open → (hand position, clutch)
 

@@ -10,8 +10,8 @@ from typing import Self
 
 import numpy as np
 
-from drivers.base import FloatArray
-from drivers.robot.models import RobotModel, load_model
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.robot.models import RobotModel, load_model
 
 Hand = Callable[[float], FloatArray]  # time since open → the leader's joints (rad)
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import DriverUnavailable, FloatArray, MasterState
+from telerobot.drivers.base import DriverUnavailable, FloatArray, MasterState
 
 # Touch axes: x right, y up, z toward the operator → robot base: x forward, y left, z up.
 TOUCH_TO_BASE: FloatArray = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

@@ -1,5 +1,5 @@
 """What every arm driver shares, whichever arm: the thesis's PUMA component (§4.3.1)
-made general over robot models (``drivers.robot.models``).
+made general over robot models (``telerobot.drivers.robot.models``).
 
 ``ModelArm`` validates every command, turns Cartesian moves (in the base, wrist or
 tool frame) into joint targets through the kinematic model, applies joint-angle
@@ -26,7 +26,7 @@ from typing import Any, Self
 
 import numpy as np
 
-from drivers.base import (
+from telerobot.drivers.base import (
     ArmSnapshot,
     DeviceError,
     FloatArray,
@@ -41,9 +41,9 @@ from drivers.base import (
     TelerobotError,
     WorkingFrame,
 )
-from drivers.clock import Clock, MonotonicClock
-from drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
-from drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
+from telerobot.drivers.clock import Clock, MonotonicClock
+from telerobot.drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
+from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
 
 log = logging.getLogger(__name__)
 

@@ -2,8 +2,8 @@
 command passes, the tool transform, increments in a working frame, and the interface
 the server and the drivers read (``ArmKinematics``).
 
-The PUMA 560 keeps its closed-form model (``drivers.robot.puma560.kinematics``); any
-other arm gets a numeric one from its URDF (``drivers.robot.models.numeric``). Both
+The PUMA 560 keeps its closed-form model (``telerobot.drivers.robot.puma560.kinematics``); any
+other arm gets a numeric one from its URDF (``telerobot.drivers.robot.models.numeric``). Both
 satisfy ``ArmKinematics``, so nothing above the drivers asks which arm it holds.
 """
 
@@ -16,7 +16,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, InvalidCommand, WorkingFrame
+from telerobot.drivers.base import FloatArray, InvalidCommand, WorkingFrame
 
 
 class ArmKinematics(Protocol):

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from drivers.base import FloatArray
+from telerobot.drivers.base import FloatArray
 
 # A PUMA 560 moves its big joints at roughly 1 rad/s and its wrist twice as fast
 # (planning limits: what every commanded motion keeps to).

@@ -20,7 +20,7 @@ from typing import Any, Self
 
 import numpy as np
 
-from drivers.base import (
+from telerobot.drivers.base import (
     ArmSnapshot,
     DeviceContext,
     FloatArray,
@@ -28,11 +28,11 @@ from drivers.base import (
     StopCategory,
     StopSpec,
 )
-from drivers.clock import Clock
-from drivers.robot.arm import ArmConfig, ModelArm
-from drivers.robot.kinematics import ArmKinematics, check_vector
-from drivers.robot.models import RobotModel, load_model
-from drivers.robot.motion import JointMotion
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.robot.arm import ArmConfig, ModelArm
+from telerobot.drivers.robot.kinematics import ArmKinematics, check_vector
+from telerobot.drivers.robot.models import RobotModel, load_model
+from telerobot.drivers.robot.motion import JointMotion
 
 
 class SimArm(ModelArm):

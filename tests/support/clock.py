@@ -6,7 +6,7 @@ import asyncio
 from collections.abc import Awaitable
 from typing import TypeVar
 
-from drivers.clock import ManualClock
+from telerobot.drivers.clock import ManualClock
 
 T = TypeVar("T")
 

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
-from backend.control.decision import DecisionServer
-from backend.control.limits import SafetyLimits
-from drivers.base import FloatArray
-from drivers.clock import ManualClock
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.clock import ManualClock
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 

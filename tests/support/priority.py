@@ -7,14 +7,18 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from backend.control.decision import DecisionServer
-from backend.realtime.hub import RealtimeHub
-from backend.realtime.priority import PriorityChannel
-from backend.telemetry.stats import Telemetry
-from drivers.base import ForceSample
-from drivers.clock import MonotonicClock
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.robot.puma560.sim import SimPuma
+from telerobot.drivers.base import ForceSample
+from telerobot.drivers.clock import MonotonicClock
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.realtime.hub import RealtimeHub
+from telerobot.server.realtime.priority import PriorityChannel
+from telerobot.server.telemetry.stats import Telemetry
 from tests.support import TOKEN
 
 

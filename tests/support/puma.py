@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
 
 TOOL = tool_transform(0.1)
 DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # tool z pointing down

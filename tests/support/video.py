@@ -6,11 +6,15 @@ import time
 
 import numpy as np
 
-from backend.media.encoder import EncodedFrame
-from drivers.base import ArmSnapshot
-from drivers.camera.sim import SimStereoCamera
-from drivers.robot.puma560.kinematics import NAMED_POSES, Puma560Kinematics, tool_transform
-from drivers.sim.workcell import default_workcell
+from telerobot.drivers.base import ArmSnapshot
+from telerobot.drivers.camera.sim import SimStereoCamera
+from telerobot.drivers.robot.puma560.kinematics import (
+    NAMED_POSES,
+    Puma560Kinematics,
+    tool_transform,
+)
+from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.media.encoder import EncodedFrame
 
 SMALL = dict(width=640, height=360)  # fast enough for tests; the benchmark runs 1280×720
 

@@ -2,7 +2,7 @@ import { describe, expect, it } from "vitest";
 import { decode, decodeForce, encode } from "./transport/codec";
 import { CART_INC, HELLO, JOINT_INC, PROTOCOL_VERSION } from "./transport/messages";
 
-// Byte vectors made by the Python definitions (backend/realtime/messages.py).
+// Byte vectors made by the Python definitions (telerobot/protocol/messages.py).
 const hex = (s: string) => new Uint8Array(s.match(/../g)!.map((b) => parseInt(b, 16))).buffer;
 const CART =
   "0207000000000000000000f83f02fca9f1d24d62503ffca9f1d24d6260bffa7e6abc7493683f00000000000000009a9999999999b93f9a9999999999b9bf";

@@ -21,7 +21,7 @@ describe("the page's name", () => {
     expect(readName(store(""), "Linux x86_64")).toBe("browser on Linux x86_64");
   });
 
-  it("follows the server's rule (backend/realtime/names.py): letters and digits of any script, a little punctuation", () => {
+  it("follows the server's rule (telerobot/protocol/names.py): letters and digits of any script, a little punctuation", () => {
     for (const ok of ["Ana", "Ana's arm-bench #2: Zoë/Jürgen @ lab.4", "操作员 1", "x".repeat(64), "a_b,c+d"]) expect(nameProblem(ok)).toBe("");
     expect(nameProblem("")).toMatch(/this one is empty$/);
     expect(nameProblem("x".repeat(65))).toMatch(/this one has 65 characters$/);

@@ -18,17 +18,17 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
-from drivers.base import DriverUnavailable, FloatArray
-from drivers.robot.models.urdf import Segment
+from telerobot.drivers.base import DriverUnavailable, FloatArray
+from telerobot.drivers.robot.models.urdf import Segment
 
 if TYPE_CHECKING:
-    from drivers.robot.kinematics import ArmKinematics
-    from drivers.robot.models.numeric import Chain
+    from telerobot.drivers.robot.kinematics import ArmKinematics
+    from telerobot.drivers.robot.models.numeric import Chain
 
 # name → the module holding its MODEL
 MODELS: Final[dict[str, str]] = {
-    "puma560": "drivers.robot.models.puma560",
-    "so101": "drivers.robot.models.so101",
+    "puma560": "telerobot.drivers.robot.models.puma560",
+    "so101": "telerobot.drivers.robot.models.so101",
 }
 DEFAULT_MODEL: Final = "puma560"
 
@@ -79,7 +79,7 @@ class RobotModel:
     def chain(self) -> Chain:
         """The joint tree as plain numbers, for a client that computes forward
         kinematics itself (the page)."""
-        from drivers.robot.models.numeric import describe_chain
+        from telerobot.drivers.robot.models.numeric import describe_chain
 
         return describe_chain(self.urdf, self.flange)
 

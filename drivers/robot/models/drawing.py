@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray
-from drivers.robot.models import RobotModel
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.robot.models import RobotModel
 
 
 class ArmDrawing:

@@ -24,8 +24,8 @@ from typing import Final, TypedDict
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose
-from drivers.robot.kinematics import PinocchioKinematics, joint_limit_faults
+from telerobot.drivers.base import FloatArray, InvalidCommand, JointLimitError, UnreachablePose
+from telerobot.drivers.robot.kinematics import PinocchioKinematics, joint_limit_faults
 
 MAX_ITERATIONS: Final = 60
 # Converged when a step moves the joints less than this (radians, largest joint).

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.base import FloatArray
-from drivers.robot.kinematics import ArmKinematics
-from drivers.robot.models import RobotModel
-from drivers.robot.models.urdf import dh_chain, write_urdf
-from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX
-from drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM, Puma560Kinematics
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.robot.models import RobotModel
+from telerobot.drivers.robot.models.urdf import dh_chain, write_urdf
+from telerobot.drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX
+from telerobot.drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM, Puma560Kinematics
 
 
 def _kinematics(tool: FloatArray | None) -> ArmKinematics:

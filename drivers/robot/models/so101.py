@@ -16,10 +16,16 @@ import math
 
 import numpy as np
 
-from drivers.base import FloatArray
-from drivers.robot.kinematics import ArmKinematics
-from drivers.robot.models import RobotModel
-from drivers.robot.models.urdf import Joint, Segment, chain_segments, origin_matrix, write_urdf
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.robot.models import RobotModel
+from telerobot.drivers.robot.models.urdf import (
+    Joint,
+    Segment,
+    chain_segments,
+    origin_matrix,
+    write_urdf,
+)
 
 PI = math.pi
 JOINT_NAMES = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
@@ -100,7 +106,7 @@ QLIM = np.array([j.limits for j in JOINTS[:6] if j.limits is not None], dtype=fl
 
 
 def _kinematics(tool: FloatArray | None) -> ArmKinematics:
-    from drivers.robot.models.numeric import UrdfKinematics
+    from telerobot.drivers.robot.models.numeric import UrdfKinematics
 
     return UrdfKinematics(MODEL.urdf, TOOL_LINK, JOINT_NAMES, tool)
 

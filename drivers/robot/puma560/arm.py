@@ -10,11 +10,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Self
 
-from drivers.base import DriverUnavailable, FloatArray
-from drivers.clock import Clock
-from drivers.robot.arm import ArmConfig, ModelArm
-from drivers.robot.kinematics import ArmKinematics
-from drivers.robot.models import load_model
+from telerobot.drivers.base import DriverUnavailable, FloatArray
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.robot.arm import ArmConfig, ModelArm
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.robot.models import load_model
 
 PUMA_MODEL = "puma560"
 

@@ -30,8 +30,8 @@ from typing import Final, Literal
 import numpy as np
 import pinocchio as pin
 
-from drivers.base import FloatArray, JointLimitError, UnreachablePose
-from drivers.robot.kinematics import (  # re-exported: the PUMA's users import them here
+from telerobot.drivers.base import FloatArray, JointLimitError, UnreachablePose
+from telerobot.drivers.robot.kinematics import (  # re-exported: the PUMA's users import them here
     PinocchioKinematics,
     check_rotation,
     check_vector,

@@ -1,5 +1,5 @@
 """The simulated PUMA 560 is the generic simulated arm with the PUMA's model."""
 
-from drivers.robot.sim import SimPuma
+from telerobot.drivers.robot.sim import SimPuma
 
 __all__ = ["SimPuma"]

@@ -24,11 +24,11 @@ from typing import Literal
 
 import numpy as np
 
-from drivers.base import FloatArray
-from drivers.emulator_link import EmulatorLink as BaseLink
-from drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX, StopRamp, SyncMove
-from drivers.robot.puma560 import val_protocol as vp
-from drivers.robot.puma560.kinematics import NAMED_POSES, QLIM_DEG
+from telerobot.drivers.base import FloatArray
+from telerobot.drivers.emulator_link import EmulatorLink as BaseLink
+from telerobot.drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX, StopRamp, SyncMove
+from telerobot.drivers.robot.puma560 import val_protocol as vp
+from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES, QLIM_DEG
 
 log = logging.getLogger(__name__)
 
@@ -199,7 +199,7 @@ class ValControllerEmulator:
 
 class EmulatorLink(BaseLink):
     """Runs a VAL controller emulator on a pseudo-terminal or a TCP port
-    (``drivers.emulator_link``): lines in, the controller's lines out, and what it
+    (``telerobot.drivers.emulator_link``): lines in, the controller's lines out, and what it
     says by itself when a move ends."""
 
     thread_name = "val-emulator"

@@ -37,7 +37,7 @@ from typing import Any, Self
 import numpy as np
 import serial
 
-from drivers.base import (
+from telerobot.drivers.base import (
     DeviceContext,
     DeviceError,
     FloatArray,
@@ -46,11 +46,11 @@ from drivers.base import (
     StopSpec,
     TelerobotError,
 )
-from drivers.clock import Clock
-from drivers.robot.kinematics import ArmKinematics
-from drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX
-from drivers.robot.puma560 import val_protocol as vp
-from drivers.robot.puma560.arm import PumaArm, PumaConfig
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.robot.kinematics import ArmKinematics
+from telerobot.drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX
+from telerobot.drivers.robot.puma560 import val_protocol as vp
+from telerobot.drivers.robot.puma560.arm import PumaArm, PumaConfig
 
 log = logging.getLogger(__name__)
 

@@ -9,10 +9,10 @@ import asyncio
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.base import TelerobotError
-from drivers.robot.models import load_model
-from drivers.robot.so101.arm import So101Arm
-from drivers.robot.so101.calibration import CalibrationRecorder
+from telerobot.drivers.base import TelerobotError
+from telerobot.drivers.robot.models import load_model
+from telerobot.drivers.robot.so101.arm import So101Arm
+from telerobot.drivers.robot.so101.calibration import CalibrationRecorder
 
 POSES = ("zero", "quarter")
 SAYS = {

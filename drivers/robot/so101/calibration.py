@@ -14,7 +14,7 @@ servo's 0..4095 (a range that crosses the wrap would make the servo turn the lon
 way round). ``zero`` + ``quarter`` differ in every joint; ``zero``/``ready``/``rest``
 alone do not move shoulder_pan or wrist_roll, and ``solve`` says so.
 
-Stored like the cameras' calibration (``calibration.store``): one JSON file with a
+Stored like the cameras' calibration (``telerobot.calibration.store``): one JSON file with a
 format name and a version, written atomically (a crash leaves the previous file), and
 a clear error for a file that is corrupt, of another format or another version.
 
@@ -45,9 +45,9 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import DeviceError, FloatArray, InvalidCommand
-from drivers.robot.models import RobotModel
-from drivers.robot.so101 import feetech as ft
+from telerobot.drivers.base import DeviceError, FloatArray, InvalidCommand
+from telerobot.drivers.motors.feetech import protocol as ft
+from telerobot.drivers.robot.models import RobotModel
 
 FORMAT = "telerobot-so101-calibration"
 VERSION = 1

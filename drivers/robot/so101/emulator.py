@@ -14,7 +14,7 @@ Faults for the tests: a servo that stops answering (``mute``), error bits in its
 replies (``error``: overload also unloads the servo's torque, as the STS3215 does),
 garbage bytes before the next reply (``garbage``), the temperature it reports.
 
-``python -m drivers.robot.so101.emulator [--tcp PORT]`` runs it standalone and prints
+``python -m telerobot.drivers.robot.so101.emulator [--tcp PORT]`` runs it standalone and prints
 the address to give the driver (``so101_port``).
 """
 
@@ -29,9 +29,9 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
-from drivers.emulator_link import EmulatorLink
-from drivers.robot.so101 import feetech as ft
-from drivers.robot.so101.feetech import ErrorBit, Instruction, Register
+from telerobot.drivers.emulator_link import EmulatorLink
+from telerobot.drivers.motors.feetech import protocol as ft
+from telerobot.drivers.motors.feetech.protocol import ErrorBit, Instruction, Register
 
 log = logging.getLogger(__name__)
 
@@ -234,7 +234,7 @@ class FeetechBusEmulator:
 
 class BusLink(EmulatorLink):
     """Runs a bus emulator on a pseudo-terminal or a TCP port
-    (``drivers.emulator_link``): packets in, the servos' replies out."""
+    (``telerobot.drivers.emulator_link``): packets in, the servos' replies out."""
 
     thread_name = "feetech-emulator"
 

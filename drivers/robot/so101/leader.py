@@ -2,7 +2,7 @@
 off, moved by the operator's hand), read joint for joint for the joint mirror
 (``telerobot master --device so101-leader``).
 
-It speaks the follower's bus protocol (``feetech``, ``FeetechPort``) and converts with
+It shares the follower's Feetech bus (``telerobot.drivers.motors.feetech``) and converts with
 its own calibration (``So101Calibration``: a leader is assembled on its own, so its
 zeros and directions are its own). Reading never writes a goal: after the handshake
 it switches every servo's torque off, so the arm can be moved by hand, and keeps it
@@ -19,18 +19,18 @@ from typing import Self
 import numpy as np
 import serial
 
-from drivers.base import DeviceError, FloatArray
-from drivers.robot.models import RobotModel
-from drivers.robot.so101 import feetech as ft
-from drivers.robot.so101.arm import (
+from telerobot.drivers.base import DeviceError, FloatArray
+from telerobot.drivers.motors.feetech import protocol as ft
+from telerobot.drivers.motors.feetech.bus import (
     FeetechPort,
     MissCounter,
-    default_calibration_path,
     identify_servos,
     open_bus,
 )
-from drivers.robot.so101.calibration import So101Calibration
-from drivers.robot.so101.feetech import Register
+from telerobot.drivers.motors.feetech.protocol import Register
+from telerobot.drivers.robot.models import RobotModel
+from telerobot.drivers.robot.so101.arm import default_calibration_path
+from telerobot.drivers.robot.so101.calibration import So101Calibration
 
 LEADER_CALIBRATION_FILE = "so101-leader-calibration.json"
 MAX_MISSED = 3  # reads in a row a servo may miss before the leader is lost

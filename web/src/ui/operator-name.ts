@@ -3,7 +3,7 @@
 // event, GET /api/v1/safety, the recording — not "ws 127.0.0.1:51186". Typed once in
 // the Driving panel and kept in localStorage; by default "browser on <platform>". It
 // goes in the /ws URL (?name=…): the HELLO stays as it is. The server's rule
-// (backend/realtime/names.py) is checked here first, so the page never connects with a
+// (telerobot/protocol/names.py) is checked here first, so the page never connects with a
 // name the server would refuse (it would close the connection, again and again).
 
 export const NAME_KEY = "telerobot.name";

@@ -1,4 +1,4 @@
-"""A client of the priority channel (``backend.realtime.priority``): one TCP socket,
+"""A client of the priority channel (``telerobot.server.realtime.priority``): one TCP socket,
 length-prefixed messages, a reader thread that hands every force sample over the
 moment it arrives. Thread-safe sends; used by the master-arm bridge and the
 force-under-video benchmark.
@@ -24,9 +24,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from backend.netprio import mark_high_priority
-from backend.realtime import messages as m
-from drivers.base import DeviceError, ForceSample
+from telerobot.drivers.base import DeviceError, ForceSample
+from telerobot.protocol import messages as m
+from telerobot.protocol.netprio import mark_high_priority
 
 log = logging.getLogger(__name__)
 

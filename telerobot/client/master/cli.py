@@ -14,12 +14,12 @@ from urllib.parse import urlsplit
 import httpx
 import numpy as np
 
-from backend.master.bridge import BridgeSettings, MasterBridge
-from backend.master.link import PriorityLink
-from backend.realtime.names import client_name
-from drivers.base import FloatArray, MasterArm, TelerobotError
-from drivers.registry import driver_names, load_driver
 from telerobot.client import local_url, stored_token
+from telerobot.client.master.bridge import BridgeSettings, MasterBridge
+from telerobot.client.master.link import PriorityLink
+from telerobot.drivers.base import FloatArray, MasterArm, TelerobotError
+from telerobot.drivers.registry import driver_names, load_driver
+from telerobot.protocol.names import client_name
 
 
 def demo_hand(t: float) -> tuple[FloatArray, bool]:
@@ -133,8 +133,8 @@ def open_link(server: str, token: str, *, datagrams: bool = True, name: str = ""
 
 def run_leader(args: argparse.Namespace, token: str) -> int:
     """A leader arm mirrored joint for joint (``--device <name>-leader``)."""
-    from backend.master.joints import JointMirror, MirrorSettings
-    from drivers.robot.models import load_model
+    from telerobot.client.master.joints import JointMirror, MirrorSettings
+    from telerobot.drivers.robot.models import load_model
 
     base = args.server if args.server.endswith("/") else args.server + "/"
     kind = args.device.removesuffix("-leader")
@@ -184,7 +184,7 @@ def run_leader(args: argparse.Namespace, token: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from backend.tuning import raise_thread_priority, tune_for_realtime
+    from telerobot.tuning import raise_thread_priority, tune_for_realtime
 
     tune_for_realtime()  # a short GIL switch interval: the reader thread gets each sample at once
     # Before any thread starts (they inherit it): the 1 kHz loop and the force reader

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Final
 
-from drivers.base import InvalidCommand
+from telerobot.drivers.base import InvalidCommand
 
 MAX_NAME: Final = 64
 PUNCTUATION: Final = " .,:_-@#+/'"

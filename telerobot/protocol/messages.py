@@ -362,7 +362,7 @@ def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
 
 
 def markdown_table() -> str:
-    """The message table of docs/protocol.md: ``python -m backend.realtime.messages``."""
+    """The message table of docs/protocol.md: ``python -m telerobot.protocol.messages``."""
     rows = [
         "| message | type | layout (struct) | bytes | fields | meaning |",
         "| --- | --- | --- | --- | --- | --- |",

@@ -32,10 +32,16 @@ from typing import Any
 
 import numpy as np
 
-from backend.master.link import PriorityLink, Reply
-from backend.realtime import messages as m
-from drivers.base import FloatArray, InvalidCommand, JointLeader, RobotStatus, TelerobotError
-from drivers.threads import WorkerThread
+from telerobot.client.master.link import PriorityLink, Reply
+from telerobot.drivers.base import (
+    FloatArray,
+    InvalidCommand,
+    JointLeader,
+    RobotStatus,
+    TelerobotError,
+)
+from telerobot.drivers.threads import WorkerThread
+from telerobot.protocol import messages as m
 
 log = logging.getLogger(__name__)
 

@@ -14,11 +14,11 @@ over the priority channel. Every millisecond it reads the device and
 - adds local impedance compensation f = αv + βa from the device's own motion, so the
   device feels lighter (switchable);
 - keeps the rendered force passive (``passivity``: the observer and controller of
-  ``backend.master.passivity``): a delayed, stiff contact cannot push back more energy
+  ``telerobot.client.master.passivity``): a delayed, stiff contact cannot push back more energy
   than the operator put in, which is what makes such a loop ring;
 - with ``two_port`` (the default), sends its books to the arm (``ENERGY``, every
   command period), which then puts no more energy into a contact than the operator put
-  in (``backend.control.slave_port``), and keeps the handle within what the contact
+  in (``telerobot.server.control.slave_port``), and keeps the handle within what the contact
   gave back (``PORT_ENERGY``). While the clutch is held it sends an increment every
   command period, still or not: the arm catches up with the master on them.
 
@@ -49,12 +49,18 @@ from typing import Any
 
 import numpy as np
 
-from backend.master.link import PriorityLink, Reply
-from backend.master.passivity import PassivityController, PassivitySettings
-from backend.realtime import messages as m
-from drivers.base import FloatArray, ForceSample, InvalidCommand, MasterArm, TelerobotError
-from drivers.master.impedance import ImpedanceCompensator
-from drivers.threads import WorkerThread
+from telerobot.client.master.link import PriorityLink, Reply
+from telerobot.client.master.passivity import PassivityController, PassivitySettings
+from telerobot.drivers.base import (
+    FloatArray,
+    ForceSample,
+    InvalidCommand,
+    MasterArm,
+    TelerobotError,
+)
+from telerobot.drivers.master.impedance import ImpedanceCompensator
+from telerobot.drivers.threads import WorkerThread
+from telerobot.protocol import messages as m
 
 log = logging.getLogger(__name__)
 

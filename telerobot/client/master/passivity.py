@@ -26,7 +26,7 @@ slower CPU) tripped the force limit, and at 0–50 ms it let the contact ring.
 **The two-port**, the default. The same observer
 keeps its books split (``put_in``: what the operator put into the link; ``given``:
 what the link gave back to them, net of the damper) and sends them to the arm
-(``ENERGY``), whose side keeps to them (``backend.control.slave_port``: the arm puts
+(``ENERGY``), whose side keeps to them (``telerobot.server.control.slave_port``: the arm puts
 into its surroundings no more than the operator has put in). The arm answers with
 what its surroundings gave back (``PORT_ENERGY``), and with ``budget`` set the
 controller here also keeps ``given`` within that: the handle is pushed back by no
@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.base import FloatArray, InvalidCommand
+from telerobot.drivers.base import FloatArray, InvalidCommand
 
 HOLD_MEMORY = 0.99  # per step: a long step is forgotten over a few hundred
 MIN_SPEED_M_S = 1e-4  # slower than this: no damper (α would explode, and nothing moves)

@@ -1,0 +1,1 @@
+"""Feetech SCS/STS servos: the bus protocol (``protocol``) and one bus (``bus``)."""

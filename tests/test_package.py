@@ -1,0 +1,53 @@
+"""One package, split by where the code runs (docs/architecture.md, "The package"): the
+client side (the REST client, the master-arm bridge: on the operator's machine) and the
+protocol it shares with the server import nothing of the server's, and nothing in the
+repository imports the folders by their own names (``backend``, ``drivers``,
+``calibration``): each module has one name, under ``telerobot``."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SERVER_ONLY = ("fastapi", "starlette", "uvicorn", "aiortc", "av", "pinocchio", "telerobot.server")
+
+
+def test_the_client_side_imports_nothing_of_the_server() -> None:
+    probe = (
+        "import sys, telerobot.client, telerobot.client.master.cli, telerobot.client.master.link,"
+        " telerobot.client.master.bridge, telerobot.client.master.joints,"
+        " telerobot.protocol.messages\n"
+        f"print(sorted(n for n in sys.modules if n.split('.')[0] in {SERVER_ONLY!r}"
+        f" or n.startswith({SERVER_ONLY!r})))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=True, cwd="/"
+    ).stdout
+    assert out.strip() == "[]"
+
+
+def test_the_server_and_the_bridge_share_one_framing() -> None:
+    from telerobot.client.master import link
+    from telerobot.protocol import messages as m
+    from telerobot.server.realtime import priority
+
+    assert priority.LENGTH is m.LENGTH and priority.frame is m.frame
+    assert "LENGTH" not in vars(link)  # it uses the protocol's, not a copy
+
+
+def test_nothing_imports_the_folders_by_their_own_names() -> None:
+    # Imported as `backend.x` and as `telerobot.server.x`, a module would be loaded twice
+    # (two registries, two sets of settings): only the package's names are used.
+    old = re.compile(r"^\s*(from|import)\s+(backend|drivers|calibration)\b", re.M)
+    named = re.compile(r"[\"'](-m\s+)?(backend|drivers|calibration)\.(?!json|html)[a-z_]")
+    found = []
+    for folder in ("backend", "drivers", "calibration", "telerobot/client", "telerobot/protocol",
+                   "bench", "tests"):  # fmt: skip
+        for path in (ROOT / folder).rglob("*.py"):
+            text = path.read_text()
+            if path.name != "test_package.py" and (old.search(text) or named.search(text)):
+                found.append(str(path.relative_to(ROOT)))
+    assert found == []
