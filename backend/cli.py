@@ -319,6 +319,15 @@ def _media_server(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    import importlib.util
+
+    if importlib.util.find_spec("bench") is None:  # the wheel has no benches
+        print(
+            "telerobot bench: the benchmarks run from a checkout of the repository"
+            " (cd telerobot && make run once, then .venv/bin/telerobot bench …)",
+            file=sys.stderr,
+        )
+        return 2
     sys.argv = [f"bench.{args.name}", *args.rest]
     runpy.run_module(f"bench.{args.name}", run_name="__main__", alter_sys=True)
     return 0

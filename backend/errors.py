@@ -7,10 +7,33 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from telerobot.drivers.base import (
+    DeviceError,
+    DriverUnavailable,
+    InvalidCommand,
+    NotReady,
     TelerobotError,
 )
 
 MAX_LISTED_ERRORS = 10  # a validation answer lists this many problems at most
+
+# What the REST API answers for the drivers' errors (and their heirs): drivers know no
+# HTTP. The server's own errors say theirs where they are defined (``http_status``).
+DRIVER_STATUSES: dict[type[TelerobotError], int] = {
+    InvalidCommand: 422,  # nothing moved: the request was wrong
+    NotReady: 409,  # nothing moved: not in a state to accept it
+    DeviceError: 503,  # the device or its link failed
+    DriverUnavailable: 503,
+}
+
+
+def http_status(exc: TelerobotError) -> int:
+    """The status for ``exc``: its class's (or an ancestor's) ``http_status``, else the
+    nearest driver error's in ``DRIVER_STATUSES``, else 500."""
+    for cls in type(exc).__mro__:
+        status = vars(cls).get("http_status", DRIVER_STATUSES.get(cls))
+        if isinstance(status, int):
+            return status
+    return 500
 
 
 def problem(status: int, code: str, detail: str, **extra: object) -> JSONResponse:
@@ -52,7 +75,7 @@ def validation_problem(exc: RequestValidationError) -> JSONResponse:
 def install_error_handlers(app: FastAPI) -> None:
     async def on_telerobot_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, TelerobotError)
-        return problem(exc.http_status, exc.code, str(exc))
+        return problem(http_status(exc), exc.code, str(exc))
 
     async def on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)

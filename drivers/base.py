@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol, Self, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,12 +33,12 @@ FloatArray = NDArray[np.float64]
 
 # ---------------------------------------------------------------- errors
 class TelerobotError(Exception):
-    """Base of every error a person may see. Each class says once what it is on every
-    channel: ``code`` (stable, in problem+json and, mapped by ``messages.ERROR_CODES``,
-    on the wire) and ``http_status`` (what the REST API answers)."""
+    """Base of every error a person may see. Each class says once what it is:
+    ``code`` (stable, in problem+json and, mapped by ``messages.ERROR_CODES``, on the
+    wire). Drivers know no HTTP: the server maps their errors to statuses
+    (``telerobot.server.errors``)."""
 
     code = "telerobot_error"
-    http_status: ClassVar[int] = 500
 
     @classmethod
     def with_code(cls, code: str) -> type[TelerobotError] | None:
@@ -57,7 +57,6 @@ class InvalidCommand(TelerobotError, ValueError):
     """The command itself is wrong (NaN, wrong size, not a rotation …); nothing moved."""
 
     code = "invalid_command"
-    http_status = 422
 
 
 class UnreachablePose(InvalidCommand):
@@ -76,21 +75,18 @@ class NotReady(TelerobotError):
     """The device is not in a state that accepts this command; nothing moved."""
 
     code = "not_ready"
-    http_status = 409
 
 
 class DeviceError(TelerobotError):
     """The device or its link failed (timeout, garbled reply, port gone)."""
 
     code = "device_error"
-    http_status = 503
 
 
 class DriverUnavailable(TelerobotError):
     """The chosen driver is unknown or its SDK is not installed."""
 
     code = "driver_unavailable"
-    http_status = 503
 
 
 # ---------------------------------------------------------------- robot

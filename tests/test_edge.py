@@ -309,19 +309,33 @@ def test_numbers_enums_and_tuples_are_read_as_json_gives_them() -> None:
 
 
 def test_every_error_class_says_its_http_status_and_code_once() -> None:
-    from telerobot.drivers.base import InvalidCommand, TelerobotError
+    from telerobot.drivers.base import (
+        DeviceError,
+        InvalidCommand,
+        JointLimitError,
+        NotReady,
+        TelerobotError,
+    )
     from telerobot.server.control.decision import NotAllowed, StillMoving
+    from telerobot.server.errors import http_status
     from telerobot.server.media.pipeline import NotYourPeer, ViewerLimitReached
     from telerobot.server.media.supervisor import MediaRequestFailed
 
-    assert (NotAllowed.http_status, StillMoving.http_status) == (403, 504)
-    assert ViewerLimitReached.http_status == 503  # a MediaUnavailable
+    assert (http_status(NotAllowed("x")), http_status(StillMoving("x"))) == (403, 504)
+    assert http_status(ViewerLimitReached("x")) == 503  # a MediaUnavailable
+    # The drivers' errors get theirs from the server (drivers know no HTTP), heirs too.
+    assert [http_status(e("x")) for e in (InvalidCommand, JointLimitError, NotReady)] == [
+        422,
+        422,
+        409,
+    ]
+    assert (http_status(DeviceError("x")), http_status(TelerobotError("x"))) == (503, 500)
     assert TelerobotError.with_code("not_your_peer") is NotYourPeer
     assert TelerobotError.with_code("viewer_limit") is ViewerLimitReached
     assert TelerobotError.with_code("invalid_command") is InvalidCommand
     assert TelerobotError.with_code("no such code") is None
     assert TelerobotError.with_code("telerobot_error") is TelerobotError  # not its heirs
-    assert MediaRequestFailed("media_error", "x").http_status == 502
+    assert http_status(MediaRequestFailed("media_error", "x")) == 502
     for code in ("malformed", "not_allowed", "safety_stop", "limit_exceeded"):
         assert code in m.ERROR_CODES  # the wire's numbers for the classes' codes
 

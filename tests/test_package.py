@@ -51,3 +51,13 @@ def test_nothing_imports_the_folders_by_their_own_names() -> None:
             if path.name != "test_package.py" and (old.search(text) or named.search(text)):
                 found.append(str(path.relative_to(ROOT)))
     assert found == []
+
+
+def test_drivers_know_no_http() -> None:
+    # Their errors carry a code; the server maps them to statuses (server/errors.py).
+    found = [
+        str(path.relative_to(ROOT))
+        for path in (ROOT / "drivers").rglob("*.py")
+        if re.search(r"http_status|fastapi|starlette", path.read_text())
+    ]
+    assert found == []

@@ -29,6 +29,7 @@ from telerobot.server.api.deps import (
     WorkcellDep,
 )
 from telerobot.server.api.requests import StrictRequest
+from telerobot.server.media import rpc
 from telerobot.server.services import CalibrationRecord, CameraName, Intrinsics
 
 log = logging.getLogger(__name__)
@@ -218,7 +219,7 @@ async def board(body: BoardRequest, media: MediaDep, _op: OperatorDep) -> BoardR
     """On the simulation: hold the ChArUco board up in front of both cameras (in the
     live video) at calibration pose ``view``, for the page to capture. Real cameras:
     hold a printed board instead (this answers with an error saying so)."""
-    await media.request("board", view=body.view)
+    await media.request(rpc.Board(body.view))
     return body
 
 

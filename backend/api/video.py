@@ -33,6 +33,7 @@ from telerobot.server.api.deps import (
     bearer_token,
 )
 from telerobot.server.api.requests import StrictRequest
+from telerobot.server.media import rpc
 from telerobot.server.media.media_server import MediaServerSupervisor
 from telerobot.server.media.pipeline import NotYourPeer
 from telerobot.server.media.relay import RELAY_PREFIX
@@ -147,7 +148,7 @@ PeerSecret = Annotated[str | None, Header(max_length=SECRET_MAX)]
 
 async def video_stats(media: MediaSupervisor, peer_ids: bool) -> dict[str, Any]:
     """The worker's figures; peer ids only for the operator (``peer_ids``)."""
-    stats: dict[str, Any] = (await media.request("stats", timeout=5, peer_ids=peer_ids))["stats"]
+    stats: dict[str, Any] = (await media.request(rpc.Stats(peer_ids), timeout=5))["stats"]
     return stats
 
 
@@ -181,7 +182,7 @@ async def offer(
             "observers watch through this server's media server, which makes the offer:"
             " POST /api/v1/webrtc/server-offer, then /api/v1/webrtc/answer"
         )
-    reply = await media.request("answer", sdp=body.sdp, type=body.type, layer=body.layer)
+    reply = await media.request(rpc.Answer(body.sdp, body.type, body.layer))
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
@@ -202,26 +203,18 @@ async def server_offer(
         # Each address gets a share of the media server's offers and viewers, 429
         # relay_busy beyond it (backend/media/relay.py): one address cannot take them all.
         address = request.client.host if request.client else ""
-        reply = await media.request("relay_offer", address=address)
+        reply = await media.request(rpc.RelayOffer(address))
     else:
-        reply = await media.request("offer", layer=layer)
+        reply = await media.request(rpc.Offer(layer))
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
 @router.post("/webrtc/answer")
 async def answer(body: Answer, media: MediaDep) -> dict[str, str]:
     if body.peer_id.startswith(RELAY_PREFIX):
-        await media.request(
-            "relay_accept", peer_id=body.peer_id, sdp=body.sdp, peer_secret=body.peer_secret
-        )
+        await media.request(rpc.RelayAccept(body.peer_id, body.peer_secret, body.sdp))
         return {"peer_id": body.peer_id}
-    await media.request(
-        "accept",
-        peer_id=body.peer_id,
-        sdp=body.sdp,
-        type=body.type,
-        peer_secret=body.peer_secret,
-    )
+    await media.request(rpc.Accept(body.peer_id, body.sdp, body.type, body.peer_secret))
     return {"peer_id": body.peer_id}
 
 
@@ -235,7 +228,7 @@ async def peer_alive(
     server is dropped after ``media_server_viewer_timeout_s`` (45 s) without it (the
     page says so every 15 s). A direct peer needs none: its loss is noticed by ICE."""
     if peer_id.startswith(RELAY_PREFIX):
-        await media.request("relay_alive", peer_id=peer_id, peer_secret=x_peer_secret)
+        await media.request(rpc.RelayAlive(peer_id, x_peer_secret))
     return {"peer_id": peer_id}
 
 
@@ -247,12 +240,8 @@ async def close_peer(
     x_peer_secret: PeerSecret = None,
 ) -> dict[str, str]:
     """Close your own peer (header ``X-Peer-Secret``), or any (the operator token)."""
-    await media.request(
-        "relay_close" if peer_id.startswith(RELAY_PREFIX) else "close_peer",
-        peer_id=peer_id,
-        peer_secret=x_peer_secret,
-        operator=operator,
-    )
+    close = rpc.RelayClose if peer_id.startswith(RELAY_PREFIX) else rpc.ClosePeer
+    await media.request(close(peer_id, x_peer_secret, operator))
     return {"peer_id": peer_id}
 
 
@@ -315,11 +304,6 @@ async def put_alignment(
             "saving an alignment needs this page's video connection: send the headers"
             " X-Peer-Id and X-Peer-Secret with the peer_id and peer_secret of its offer"
         )
-    await media.request(
-        "claim_viewer",
-        peer_id=x_peer_id,
-        peer_secret=x_peer_secret,
-        viewer=viewer,
-    )
+    await media.request(rpc.ClaimViewer(x_peer_id, x_peer_secret, viewer))
     saved.remember(viewer, (body.dx, body.dy))
     return body

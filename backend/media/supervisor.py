@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from telerobot.drivers.base import Robot, TelerobotError
+from telerobot.server.media import rpc
 from telerobot.server.media.worker import arm_fields, worker_main
 from telerobot.server.settings import Settings
 
@@ -45,7 +46,7 @@ class MediaSupervisor:
         self._proc: Any = None
         self._conn: Any = None
         self._ids = itertools.count(1)
-        self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
+        self._pending: dict[int, asyncio.Future[rpc.Reply]] = {}
         self._ready = asyncio.Event()
         self._tasks: list[asyncio.Task[None]] = []
         self.restarts = 0
@@ -108,9 +109,9 @@ class MediaSupervisor:
         Answers the worker's counts (``sent``, ``dropped``) so far."""
         if sink is not None:
             self._video_sink = sink
-            return await self.request("record", on=True)
+            return await self.request(rpc.Record(on=True))
         try:
-            return await self.request("record", on=False)
+            return await self.request(rpc.Record(on=False))
         finally:  # packets already on their way still reach the recording
             self._video_sink = None
 
@@ -120,12 +121,13 @@ class MediaSupervisor:
         except (EOFError, OSError):
             asyncio.get_running_loop().remove_reader(self._conn.fileno())
             return
-        if msg.get("event") == "ready":
+        if isinstance(msg, rpc.Ready):
             self._ready.set()
             if self._video_sink is not None:  # a worker restarted while recording
-                self._conn.send({"id": None, "op": "record", "on": True})
+                self._conn.send(rpc.Envelope(None, rpc.Record(on=True)))
             return
-        future = self._pending.pop(msg.get("id"), None)
+        assert isinstance(msg, rpc.Reply), msg
+        future = self._pending.pop(msg.id, None) if msg.id is not None else None
         if future is not None and not future.done():
             future.set_result(msg)
 
@@ -158,15 +160,18 @@ class MediaSupervisor:
             self.restarts += 1
             self._spawn()
 
-    async def request(self, op: str, timeout: float = 15.0, **fields: Any) -> dict[str, Any]:
+    async def request(self, body: rpc.MediaRequest, timeout: float = 15.0) -> dict[str, Any]:
+        """``body`` answered by the worker (its reply's fields), or its error raised as
+        the error's own class."""
+        op = type(body).__name__
         try:
             await asyncio.wait_for(self._ready.wait(), timeout)
         except TimeoutError:
             raise MediaUnavailable("the media worker is not running (see the server log)") from None
         req_id = next(self._ids)
-        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        future: asyncio.Future[rpc.Reply] = asyncio.get_running_loop().create_future()
         self._pending[req_id] = future
-        self._conn.send({"id": req_id, "op": op, **fields})
+        self._conn.send(rpc.Envelope(req_id, body))
         try:
             reply = await asyncio.wait_for(future, timeout)
         except TimeoutError:
@@ -174,13 +179,13 @@ class MediaSupervisor:
             raise MediaUnavailable(
                 f"the media worker did not answer {op!r} within {timeout:g} s"
             ) from None
-        if not reply.get("ok"):
-            code, text = reply.get("code", "media_error"), reply.get("error", "unknown error")
+        if not reply.ok:
+            code, text = reply.code or "media_error", reply.error or "unknown error"
             known = TelerobotError.with_code(code)  # the worker's error, as its own class
             if known is not None and known is not TelerobotError:
                 raise known(text)
             raise MediaRequestFailed(code, text)
-        return reply
+        return reply.result
 
     async def stop(self) -> None:
         self._stopping = True
@@ -192,7 +197,7 @@ class MediaSupervisor:
             with contextlib.suppress(Exception):
                 asyncio.get_running_loop().remove_reader(self._conn.fileno())
             with contextlib.suppress(Exception):
-                self._conn.send({"op": "shutdown"})
+                self._conn.send(rpc.Envelope(None, rpc.Shutdown()))
         if self._proc is not None:
             await asyncio.get_running_loop().run_in_executor(None, self._proc.join, 5)
             if self._proc.is_alive():

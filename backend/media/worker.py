@@ -13,14 +13,18 @@ import multiprocessing
 import multiprocessing.connection
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any, assert_never
 
 import numpy as np
 
 from telerobot.drivers.base import ArmSnapshot, TelerobotError
 from telerobot.server.devices import build_camera
+from telerobot.server.media import rpc
 from telerobot.server.settings import Settings
 from telerobot.tuning import yield_cpu
+
+if TYPE_CHECKING:
+    from telerobot.server.media.relay import JanusRelay
 
 log = logging.getLogger(__name__)
 
@@ -133,99 +137,106 @@ async def _serve(
         else None
     )
     loop = asyncio.get_running_loop()
-    requests: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+    requests: asyncio.Queue[rpc.Envelope] = asyncio.Queue()
 
     def readable() -> None:
         try:
             requests.put_nowait(conn.recv())
         except EOFError:  # the server is gone
             loop.remove_reader(conn.fileno())
-            requests.put_nowait({"op": "shutdown"})
+            requests.put_nowait(rpc.Envelope(None, rpc.Shutdown()))
 
     loop.add_reader(conn.fileno(), readable)
-    conn.send({"event": "ready", "time": time.monotonic()})
+    conn.send(rpc.Ready(time.monotonic()))
 
-    async def handle(req: dict[str, Any]) -> None:
-        reply: dict[str, Any] = {"id": req.get("id")}
-        try:
-            op = req["op"]
-            if op == "answer":
-                reply.update(
-                    await pipeline.answer(req["sdp"], req["type"], req.get("layer", "auto"))
-                )
-            elif op == "offer":
-                reply.update(await pipeline.offer(req.get("layer", "auto")))
-            elif op == "accept":
-                reply.update(
-                    await pipeline.accept(
-                        req["peer_id"], req["sdp"], req["type"], req.get("peer_secret")
-                    )
-                )
-            elif op == "close_peer":
+    async def serve(req: rpc.MediaRequest) -> dict[str, Any]:
+        """One request's answer (its reply's fields); a ``TelerobotError`` refuses it."""
+        match req:
+            case rpc.Answer(sdp, kind, layer):
+                return await pipeline.answer(sdp, kind, layer)
+            case rpc.Offer(layer):
+                return await pipeline.offer(layer)
+            case rpc.Accept(peer_id, sdp, kind, secret):
+                return await pipeline.accept(peer_id, sdp, kind, secret)
+            case rpc.ClosePeer(peer_id, secret, operator):
                 # The server checked the operator token; anyone else shows the secret.
-                if req.get("operator"):
-                    await pipeline.close_peer(req["peer_id"])
+                if operator:
+                    await pipeline.close_peer(peer_id)
                 else:
-                    await pipeline.close_own_peer(req["peer_id"], req.get("peer_secret"))
-            elif (
-                op == "claim_viewer"
-                and relay is not None
-                and req["peer_id"].startswith(RELAY_PREFIX)
-            ):
-                relay.claim_viewer(req["peer_id"], req.get("peer_secret"), req["viewer"])
-            elif op == "claim_viewer":
-                pipeline.claim_viewer(req["peer_id"], req.get("peer_secret"), req["viewer"])
-            elif op == "stats":
-                reply["stats"] = pipeline.stats(peer_ids=bool(req.get("peer_ids")))
+                    await pipeline.close_own_peer(peer_id, secret)
+            case rpc.ClaimViewer(peer_id, secret, viewer):
+                if relay is not None and peer_id.startswith(RELAY_PREFIX):
+                    relay.claim_viewer(peer_id, secret, viewer)
+                else:
+                    pipeline.claim_viewer(peer_id, secret, viewer)
+            case rpc.Stats(peer_ids):
+                stats = pipeline.stats(peer_ids=peer_ids)
                 if relay is not None:
-                    reply["stats"]["relay"] = relay.stats()
-            elif op.startswith("relay_"):
+                    stats["relay"] = relay.stats()
+                return {"stats": stats}
+            case rpc.RelayOffer() | rpc.RelayAccept() | rpc.RelayAlive() | rpc.RelayClose():
                 if relay is None:
                     raise NoMediaServer("this server has no media server (--media-server)")
-                if op == "relay_offer":
-                    reply.update(await relay.offer(req.get("address", "")))
-                elif op == "relay_accept":
-                    await relay.accept(req["peer_id"], req.get("peer_secret"), req["sdp"])
-                elif op == "relay_alive":
-                    relay.alive(req["peer_id"], req.get("peer_secret"))
-                elif op == "relay_close":
-                    await relay.close_viewer(
-                        req["peer_id"], req.get("peer_secret"), bool(req.get("operator"))
-                    )
-                else:
-                    raise TelerobotError(f"unknown media request {op!r}")
-            elif op == "keyframe":
+                return await serve_relay(relay, req)
+            case rpc.Keyframe():
                 pipeline.broadcaster.request_keyframe()  # shared and rate-limited like any
-            elif op == "record":
+            case rpc.Record(on):
                 if tap is None:
                     raise TelerobotError("this media worker has no pipe for the recording")
-                if req.get("on"):
+                if on:
                     tap.restart()
                     pipeline.start_tap(tap.push)
                 else:
                     pipeline.stop_tap()
-                reply.update(sent=tap.sent, dropped=tap.dropped)
-            elif op == "board":
-                camera.show_board(req.get("view"))
-            else:
-                raise TelerobotError(f"unknown media request {op!r}")
-            reply["ok"] = True
+                return {"sent": tap.sent, "dropped": tap.dropped}
+            case rpc.Board(view):
+                camera.show_board(view)
+            case rpc.Shutdown():
+                pass  # handled by the loop below
+            case _:
+                assert_never(req)
+        return {}
+
+    async def handle(envelope: rpc.Envelope) -> None:
+        try:
+            reply = rpc.Reply(envelope.id, True, await serve(envelope.request))
         except TelerobotError as exc:
-            reply.update(ok=False, code=exc.code, error=str(exc))
+            reply = rpc.Reply(envelope.id, False, code=exc.code, error=str(exc))
         except Exception as exc:  # a bug must not take the worker down with it
             log.exception("media request failed")
-            reply.update(ok=False, code="media_error", error=f"{type(exc).__name__}: {exc}")
+            reply = rpc.Reply(
+                envelope.id, False, code="media_error", error=f"{type(exc).__name__}: {exc}"
+            )
         with contextlib.suppress(OSError):
             conn.send(reply)
 
     tasks: set[asyncio.Task[None]] = set()
     while True:
-        req = await requests.get()
-        if req.get("op") == "shutdown":
+        envelope = await requests.get()
+        if isinstance(envelope.request, rpc.Shutdown):
             break
-        task = asyncio.create_task(handle(req))
+        task = asyncio.create_task(handle(envelope))
         tasks.add(task)
         task.add_done_callback(tasks.discard)
     if relay is not None:
         await relay.shutdown()
     await pipeline.close()
+
+
+async def serve_relay(
+    relay: JanusRelay,
+    req: rpc.RelayOffer | rpc.RelayAccept | rpc.RelayAlive | rpc.RelayClose,
+) -> dict[str, Any]:
+    """A request about an observer watching through the media server."""
+    match req:
+        case rpc.RelayOffer(address):
+            return await relay.offer(address)
+        case rpc.RelayAccept(peer_id, secret, sdp):
+            await relay.accept(peer_id, secret, sdp)
+        case rpc.RelayAlive(peer_id, secret):
+            relay.alive(peer_id, secret)
+        case rpc.RelayClose(peer_id, secret, operator):
+            await relay.close_viewer(peer_id, secret, operator)
+        case _:
+            assert_never(req)
+    return {}
