@@ -1,9 +1,10 @@
-"""One Settings class for the whole server (docs/architecture.md, rule 8).
+"""One Settings class for the whole server (docs/architecture.md, rules 8 and 20):
+the server's own fields (``ServerSettings``) and every registered driver's
+(``telerobot.drivers.settings``: each declared once, beside its driver).
 
 Values come, highest first, from: explicit arguments (the CLI's flags),
 environment variables ``TELEROBOT_*``, a TOML file (``--config`` or
-``TELEROBOT_CONFIG``), then the defaults below, which run everything on the
-simulation.
+``TELEROBOT_CONFIG``), then the defaults, which run everything on the simulation.
 """
 
 from __future__ import annotations
@@ -12,9 +13,9 @@ import math
 import os
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationInfo, create_model, field_validator, model_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -22,7 +23,7 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from telerobot.drivers.registry import driver_names, load_driver
+from telerobot.drivers.registry import driver_names, driver_settings, load_driver
 from telerobot.drivers.robot.models import (
     DEFAULT_MODEL,
     MODELS,
@@ -35,7 +36,9 @@ from telerobot.server.media.ice import IceConfig
 _config_file: ContextVar[Path | None] = ContextVar("telerobot_config_file", default=None)
 
 
-class Settings(BaseSettings):
+class ServerSettings(BaseSettings):
+    """The server's own settings; ``Settings`` adds the drivers'."""
+
     model_config = SettingsConfigDict(env_prefix="TELEROBOT_", extra="forbid")
 
     host: str = "127.0.0.1"
@@ -46,7 +49,7 @@ class Settings(BaseSettings):
     viewer: bool = True
     viewer_port: int = Field(8002, ge=0, le=65535)
 
-    # Drivers by their name in drivers/registry.py (each reads its own settings below)
+    # Drivers by their name in drivers/registry.py (each declares its own settings there)
     robot: str = "sim"
     auto_initialize: bool = True  # connect and initialise the robot at start-up
     # The arm's description (drivers/robot/models): puma560, so101
@@ -62,27 +65,8 @@ class Settings(BaseSettings):
     # SO-101 0: its tool frame is already between the jaws)
     tool_length: float | None = Field(None, ge=0.0, le=0.5)
 
-    # ValSerialPuma: port is a device path, a pty, socket://host:port or loop://
-    serial_port: str = "/dev/ttyS0"
-    serial_baudrate: int = 9600
-    serial_reply_timeout: float = Field(1.0, gt=0)
-    # So101Arm (robot = "so101", robot_model = "so101"): the Feetech servo bus, a device
-    # path, a pty or socket://host:port (python -m telerobot.drivers.robot.so101.emulator), and the
-    # joint calibration file; None: so101-calibration.json in state_dir, beside the
-    # cameras' calibration-<rig>.json
-    so101_port: str = "/dev/ttyACM0"
-    so101_baudrate: int = Field(1_000_000, gt=0)
-    so101_calibration: Path | None = None
-    # How long a servo has to answer (a real bus answers in < 1 ms; an emulated bus on a
-    # loaded machine, a process of its own behind a pty, may need longer).
-    so101_reply_timeout: float = Field(0.03, gt=0, le=2.0)
-
     force: str = "sim"
     force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)
-    # NetFtSensor: the sensor's address and its calibration (from its web page)
-    netft_address: str = "192.168.1.1:49152"
-    netft_counts_per_force: float = Field(1_000_000.0, gt=0)
-    netft_counts_per_torque: float = Field(1_000_000.0, gt=0)
     state_rate_hz: float = Field(50.0, ge=1.0, le=1000.0)
 
     # Safety (the rest of SafetyLimits keeps its defaults)
@@ -118,7 +102,6 @@ class Settings(BaseSettings):
     # Stereo video (a media worker process: capture → one encoder → every WebRTC viewer)
     video: bool = True
     camera: str = "sim"
-    camera_devices: list[str] = ["0", "1"]  # opencv: left, right; opencv-sbs: the first
     # The rig's name: each rig keeps its own calibration (calibration-<rig>.json).
     # Default: the camera driver's (the simulation's is "sim"; real cameras': the
     # driver and its devices).
@@ -221,7 +204,7 @@ class Settings(BaseSettings):
         return v
 
     @model_validator(mode="after")
-    def _media_server_usable(self) -> Settings:
+    def _media_server_usable(self) -> ServerSettings:
         """A Janus given by URL needs where its mountpoint takes RTP and sends its key
         frame requests from; a URL alone (no media_server) would be silently unused."""
         if self.media_server_url is None:
@@ -237,7 +220,7 @@ class Settings(BaseSettings):
         return self
 
     @model_validator(mode="after")
-    def _ice_usable(self) -> Settings:
+    def _ice_usable(self) -> ServerSettings:
         _ = self.ice_config  # raises (a ValueError) with what to set
         return self
 
@@ -267,7 +250,7 @@ class Settings(BaseSettings):
         return v
 
     @model_validator(mode="after")
-    def _known_pose(self) -> Settings:
+    def _known_pose(self) -> ServerSettings:
         poses = self.model.named_poses
         if self.home_pose is not None and self.home_pose not in poses:
             raise ValueError(
@@ -302,6 +285,27 @@ class Settings(BaseSettings):
         if config:
             sources.append(TomlConfigSettingsSource(settings_cls, toml_file=Path(config)))
         return tuple(sources)
+
+
+def _with_driver_settings() -> type[ServerSettings]:
+    """``ServerSettings`` with every registered driver's settings as fields of its own
+    (a name declared twice is refused: two drivers would read one setting)."""
+    fields: dict[str, Any] = {}
+    for driver in driver_settings():
+        for name, info in driver.model_fields.items():
+            if name in ServerSettings.model_fields or name in fields:
+                raise TypeError(f"the setting {name!r} of {driver.__name__} is declared twice")
+            fields[name] = (info.annotation, info)
+    composed: type[ServerSettings] = create_model(
+        "Settings", __base__=ServerSettings, __module__=__name__, **fields
+    )
+    return composed
+
+
+if TYPE_CHECKING:  # the drivers' fields are read by the drivers, through a mapping
+    Settings = ServerSettings
+else:
+    Settings = _with_driver_settings()
 
 
 def load_settings(config: Path | None = None, **overrides: Any) -> Settings:

@@ -4,6 +4,8 @@ protocol, and a new device is one folder, one class and one registry line."""
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import textwrap
 import time
@@ -27,7 +29,7 @@ from telerobot.drivers.camera.opencv import OpenCVSideBySideCamera, OpenCVStereo
 from telerobot.drivers.camera.sim import SimStereoCamera
 from telerobot.drivers.force.netft import NetFtSensor
 from telerobot.drivers.force.sim import SimForceSensor
-from telerobot.drivers.registry import DRIVERS
+from telerobot.drivers.registry import DRIVERS, Entry
 from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
 from telerobot.drivers.robot.puma560.val_serial import ValSerialPuma
 from telerobot.drivers.robot.sim import SimArm
@@ -102,7 +104,7 @@ def constant_force(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[
     monkeypatch.syspath_prepend(str(tmp_path))
     # The one registry line:
     monkeypatch.setitem(
-        DRIVERS["force"], "constant", ("constant_force.sensor", "ConstantForceSensor")
+        DRIVERS["force"], "constant", Entry("constant_force.sensor", "ConstantForceSensor")
     )
     yield
     for name in ("constant_force.sensor", "constant_force"):
@@ -136,6 +138,88 @@ def test_the_server_runs_a_new_sensor_it_has_never_heard_of(constant_force: None
     assert state["driver"] == "constant-force" and state["running"]
     assert state["counters"] == {} and state["error"] is None
     assert state["latest"]["values"][:3] == [0.0, 0.0, -5.0]
+
+
+PUSHING_FORCE_SETTINGS = '''
+"""The pushing sensor's own setting."""
+
+from pydantic import Field
+
+from telerobot.drivers.settings import DriverSettings
+
+
+class PushingSettings(DriverSettings):
+    pushing_push_n: float = Field(5.0, gt=0, le=100, description="how hard it pushes, N")
+'''
+
+PUSHING_FORCE = '''
+"""A simulated force sensor that pushes down as hard as its setting says."""
+
+from telerobot.drivers.force.sim import SimForceSensor
+from pushing_force.settings import PushingSettings
+
+
+class PushingForceSensor(SimForceSensor):
+    @classmethod
+    def from_settings(cls, settings, context):
+        sensor = super().from_settings(settings, context)
+        sensor.push_n = PushingSettings.of(settings).pushing_push_n
+        return sensor
+'''
+
+# In a process of its own: the server's Settings is composed of the registered
+# drivers' settings when it is first imported, after the registry line has run.
+PUSHING_PROBE = """
+from telerobot.drivers.registry import DRIVERS, Entry
+DRIVERS["force"]["pushing"] = Entry(  # the one registry line
+    "pushing_force.sensor", "PushingForceSensor", "pushing_force.settings:PushingSettings"
+)
+from telerobot.server.devices import build_force_sensor, build_robot, build_workcell
+from telerobot.server.settings import load_settings
+try:
+    settings = load_settings()
+except ValueError as exc:
+    print("refused:", str(exc).splitlines()[1:3])
+else:
+    sensor = build_force_sensor(settings, build_robot(settings), build_workcell(settings))
+    print(type(sensor).__name__, settings.pushing_push_n, sensor.push_n)
+"""
+
+
+def test_a_new_device_declares_its_own_setting_and_the_server_takes_it(tmp_path: Path) -> None:
+    # One folder and one registry line: no edit to the server's Settings, and the new
+    # setting is set by its environment variable (and checked) like any other.
+    package = tmp_path / "pushing_force"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "settings.py").write_text(PUSHING_FORCE_SETTINGS)
+    (package / "sensor.py").write_text(PUSHING_FORCE)
+
+    def probe(**env: str) -> str:
+        done = subprocess.run(
+            [sys.executable, "-c", PUSHING_PROBE],
+            capture_output=True, text=True, timeout=60, check=True,
+            env={**os.environ, "PYTHONPATH": str(tmp_path), "TELEROBOT_FORCE": "pushing", **env},
+        )  # fmt: skip
+        return done.stdout.strip()
+
+    assert probe(TELEROBOT_PUSHING_PUSH_N="7.5") == "PushingForceSensor 7.5 7.5"
+    assert probe() == "PushingForceSensor 5.0 5.0"  # its default
+    refused = probe(TELEROBOT_PUSHING_PUSH_N="-1")
+    assert refused.startswith("refused:") and "pushing_push_n" in refused, refused
+
+
+def test_a_setting_two_drivers_declare_is_refused() -> None:
+    from telerobot.drivers.settings import DriverSettings
+    from telerobot.server import settings as server_settings
+
+    class Clash(DriverSettings):
+        http_port: int = 1  # the server's own
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(server_settings, "driver_settings", lambda: [Clash])
+        with pytest.raises(TypeError, match="'http_port' of Clash is declared twice"):
+            server_settings._with_driver_settings()
 
 
 def test_driver_names_come_from_the_registry(constant_force: None) -> None:

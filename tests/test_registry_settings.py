@@ -6,7 +6,7 @@ import pytest
 from pydantic import ValidationError
 
 from telerobot.drivers.base import DriverUnavailable
-from telerobot.drivers.registry import DRIVERS, load_driver
+from telerobot.drivers.registry import DRIVERS, Entry, load_driver
 from telerobot.drivers.robot.sim import SimArm
 from telerobot.server.settings import Settings, load_settings
 
@@ -23,7 +23,9 @@ def test_unknown_driver_names_the_known_ones() -> None:
 
 
 def test_missing_sdk_fails_only_when_chosen(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(DRIVERS["robot"], "vendor", ("vendor_sdk_that_is_not_installed.arm", "Arm"))
+    monkeypatch.setitem(
+        DRIVERS["robot"], "vendor", Entry("vendor_sdk_that_is_not_installed.arm", "Arm")
+    )
     with pytest.raises(DriverUnavailable, match="needs vendor_sdk_that_is_not_installed"):
         load_driver("robot", "vendor")
 

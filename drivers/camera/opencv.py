@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from telerobot.drivers.base import CameraStatus, DeviceContext, StereoFrame, TelerobotError
+from telerobot.drivers.camera.opencv_settings import OpenCVSettings
 from telerobot.drivers.camera.slot import FrameSlot
 from telerobot.drivers.threads import WorkerThread
 
@@ -38,7 +39,9 @@ class OpenCVConfig:
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> Self:
         return cls(
-            devices=tuple(int(d) if d.isdigit() else d for d in settings["camera_devices"]),
+            devices=tuple(
+                int(d) if d.isdigit() else d for d in OpenCVSettings.of(settings).camera_devices
+            ),
             width=int(settings["video_width"]),
             height=int(settings["video_height"]),
             fps=float(settings["video_fps"]),
@@ -72,7 +75,9 @@ class _OpenCVCapture:
     @classmethod
     def default_rig(cls, settings: Mapping[str, Any]) -> str:
         """The driver and its devices: each rig of real cameras keeps its calibration."""
-        devices = "-".join(str(d).strip("/").replace("/", "_") for d in settings["camera_devices"])
+        devices = "-".join(
+            str(d).strip("/").replace("/", "_") for d in OpenCVSettings.of(settings).camera_devices
+        )
         return f"{settings['camera']}-{devices}"[:64]
 
     @property

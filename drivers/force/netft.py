@@ -26,6 +26,7 @@ from typing import Any, Self
 
 from telerobot.drivers.base import DeviceContext, InvalidCommand
 from telerobot.drivers.force import netft_protocol as rdt
+from telerobot.drivers.force.netft_settings import NetFtSettings
 from telerobot.drivers.force.pipeline import Six
 from telerobot.drivers.force.sampled import SampledForceSensor
 
@@ -61,10 +62,11 @@ class NetFtConfig:
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        own = NetFtSettings.of(settings)
         return cls(
-            address=str(settings["netft_address"]),
-            counts_per_force=float(settings["netft_counts_per_force"]),
-            counts_per_torque=float(settings["netft_counts_per_torque"]),
+            address=own.netft_address,
+            counts_per_force=own.netft_counts_per_force,
+            counts_per_torque=own.netft_counts_per_torque,
             rate_hz=float(settings["force_rate_hz"]),
         )
 

@@ -51,6 +51,7 @@ from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.drivers.robot.motion import PUMA_STOP_DECEL, PUMA_VMAX
 from telerobot.drivers.robot.puma560 import val_protocol as vp
 from telerobot.drivers.robot.puma560.arm import PumaArm, PumaConfig
+from telerobot.drivers.robot.puma560.settings import ValSerialSettings
 
 log = logging.getLogger(__name__)
 
@@ -67,12 +68,13 @@ class ValSerialConfig(PumaConfig):
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> Self:
+        own = ValSerialSettings.of(settings)
         return cls(
             home_pose=PumaConfig.from_settings(settings).home_pose,
             serial=SerialSettings(
-                port=str(settings["serial_port"]),
-                baudrate=int(settings["serial_baudrate"]),
-                reply_timeout=float(settings["serial_reply_timeout"]),
+                port=own.serial_port,
+                baudrate=own.serial_baudrate,
+                reply_timeout=own.serial_reply_timeout,
             ),
         )
 
@@ -121,7 +123,7 @@ class ValSerialPuma(PumaArm):
 
     @classmethod
     def describe(cls, settings: Mapping[str, Any]) -> str:
-        return f"the {settings['robot']} robot on {settings['serial_port']}"
+        return f"the {settings['robot']} robot on {ValSerialSettings.of(settings).serial_port}"
 
     @property
     def stop_spec(self) -> StopSpec:

@@ -79,6 +79,7 @@ from telerobot.drivers.robot.arm import ArmConfig, ModelArm
 from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.drivers.robot.models import load_model
 from telerobot.drivers.robot.so101.calibration import SERVO_IDS, STEPS_PER_RADIAN, So101Calibration
+from telerobot.drivers.robot.so101.settings import So101Settings
 
 log = logging.getLogger(__name__)
 
@@ -135,14 +136,15 @@ class So101Config(ArmConfig):
                 f"the so101 robot driver drives the SO-101: set robot_model = 'so101' "
                 f"(it is {arm.robot_model!r})"
             )
-        path = settings.get("so101_calibration")
+        own = So101Settings.of(settings)
+        path = own.so101_calibration
         return cls(
             robot_model=arm.robot_model,
             home_pose=arm.home_pose,
-            port=str(settings["so101_port"]),
-            baudrate=int(settings["so101_baudrate"]),
-            calibration_path=default_calibration_path(settings) if path is None else Path(path),
-            reply_timeout=float(settings.get("so101_reply_timeout", 0.03)),
+            port=own.so101_port,
+            baudrate=own.so101_baudrate,
+            calibration_path=default_calibration_path(settings) if path is None else path,
+            reply_timeout=own.so101_reply_timeout,
         )
 
 
@@ -255,7 +257,7 @@ class So101Arm(ModelArm):
 
     @classmethod
     def describe(cls, settings: Mapping[str, Any]) -> str:
-        return f"the SO-101 on {settings['so101_port']}"
+        return f"the SO-101 on {So101Settings.of(settings).so101_port}"
 
     @property
     def stop_spec(self) -> StopSpec:
