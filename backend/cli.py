@@ -577,7 +577,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     # httpx logs every request at INFO (the media server's API, polled): not news.
     logging.getLogger("httpx").setLevel(logging.WARNING)
-    code: int = args.func(args)
+    try:
+        code: int = args.func(args)
+    except ModuleNotFoundError as exc:
+        if exc.name is None or exc.name.split(".")[0] == "telerobot":
+            raise  # ours: a bug, not an install
+        # A light install (the client and the bridge: docs/running.md) has not got
+        # the server's dependencies.
+        print(
+            f"telerobot {args.command}: needs {exc.name}, which is not installed here: a"
+            " client-only install runs `telerobot move` and `telerobot master`;"
+            " `pip install telerobot` installs everything",
+            file=sys.stderr,
+        )
+        return 2
     return code
 
 

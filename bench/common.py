@@ -67,13 +67,17 @@ def telerobot_process(
     timeout: float = 60.0,
     drain: bool = True,
     prefix: tuple[str, ...] = (),
+    exe: Path | None = None,
+    cwd: Path | None = None,
 ) -> Iterator[tuple[subprocess.Popen[str], re.Match[str]]]:
     """Run ``telerobot ARGS`` as its own process; yield once a line of its output
     matches ``wait_for`` (the benchmarks and the end-to-end tests use it). ``prefix``
-    runs it through another command (``ip netns exec NAME``)."""
-    exe = Path(sys.executable).parent / "telerobot"
+    runs it through another command (``ip netns exec NAME``); ``exe``: another
+    installation's ``telerobot`` (default: this environment's), run in ``cwd``."""
+    exe = exe or Path(sys.executable).parent / "telerobot"
     proc = subprocess.Popen(
         [*prefix, str(exe), *args],
+        cwd=cwd,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -115,6 +119,8 @@ def serve_for_bench(
     prefix: tuple[str, ...] = (),
     port: int = 0,
     ready: bool = False,
+    exe: Path | None = None,
+    cwd: Path | None = None,
 ) -> Iterator[tuple[subprocess.Popen[str], str]]:
     """`telerobot serve ARGS` for a benchmark or a test (the one way both start a
     server): this HTTP port (0: any free one, so a running `make run` is never in the
@@ -127,7 +133,7 @@ def serve_for_bench(
         telerobot_process(
             "serve", "--http-port", str(port), "--priority-port", "0", "--state-dir", state,
             *args, wait_for=SERVED, env={"TELEROBOT_VIEWER": "false", **(env or {})},
-            prefix=prefix,
+            prefix=prefix, exe=exe, cwd=cwd,
         ) as (proc, m),
     ):  # fmt: skip
         host = "127.0.0.1" if m.group(1) == "localhost" else m.group(1)

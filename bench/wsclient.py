@@ -12,6 +12,7 @@ from typing import Any
 import websockets
 
 from telerobot.protocol import messages as m
+from telerobot.protocol.clock import ClockSync
 
 
 async def open_socket(url: str) -> Any:
@@ -79,17 +80,14 @@ class RealtimeClient:
 
     async def sync_clock(self, rounds: int = 50) -> float:
         """NTP-style offset from the ping with the shortest round trip; returns that RTT."""
-        best_rtt, best_offset = float("inf"), 0.0
+        clock = ClockSync()
         for _ in range(rounds):
             t0 = time.monotonic()
             await self.ws.send(m.encode(m.PING, self.next_seq(), t0))
             pong = await self.expect(m.PONG)
-            t3 = time.monotonic()
-            rtt = (t3 - t0) - (pong["t2"] - pong["t1"])
-            if rtt < best_rtt:
-                best_rtt, best_offset = rtt, ((pong["t1"] - t0) + (pong["t2"] - t3)) / 2
-        self.offset = best_offset
-        return best_rtt
+            clock.pong(t0, pong["t1"], pong["t2"], time.monotonic())
+        self.offset = clock.offset
+        return clock.best_rtt
 
     async def close(self) -> None:
         await self.ws.close()

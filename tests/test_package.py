@@ -61,3 +61,35 @@ def test_drivers_know_no_http() -> None:
         if re.search(r"http_status|fastapi|starlette", path.read_text())
     ]
     assert found == []
+
+
+# What a client-only install (docs/running.md) lacks: the server's dependencies.
+SERVER_DEPENDENCIES = (
+    "fastapi", "starlette", "uvicorn", "aiortc", "av", "pinocchio", "cv2", "viser",
+    "pydantic_settings", "mcap", "pyarrow", "cryptography", "psutil", "swagger_ui_bundle",
+)  # fmt: skip
+
+LIGHT_PROBE = """
+import contextlib, io, sys
+class Missing:  # as if not installed
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {missing!r}:
+            raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+sys.meta_path.insert(0, Missing())
+from telerobot.server.cli import main
+for argv in (["move", "--help"], ["master", "--help"]):
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
+        main(argv)
+    print(argv[0], "ok")
+print("serve", main(["serve"]))
+"""
+
+
+def test_a_client_only_install_runs_move_and_master_and_serve_says_what_is_missing() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", LIGHT_PROBE.format(missing=SERVER_DEPENDENCIES)],
+        capture_output=True, text=True, timeout=60, cwd="/",
+    )  # fmt: skip
+    assert done.stdout.split("\n")[:3] == ["move ok", "master ok", "serve 2"], done.stderr
+    assert "needs uvicorn, which is not installed" in done.stderr
+    assert "pip install telerobot" in done.stderr and "Traceback" not in done.stderr

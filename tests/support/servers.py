@@ -24,10 +24,13 @@ def serving(
     port: int = 0,
     ready: bool = True,
     prefix: tuple[str, ...] = (),
+    exe: Path | None = None,
+    cwd: Path | None = None,
 ) -> Iterator[str]:
     """`telerobot serve ARGS` with ``env`` (the operator token is ``TOKEN`` unless
     ``env`` says otherwise), on this HTTP port (0: any) with a throw-away state folder;
-    with ``ready`` (the default) once its robot is READY. Yields its base URL."""
+    with ``ready`` (the default) once its robot is READY. Yields its base URL. ``exe``:
+    another installation's ``telerobot`` (the wheel's), run in ``cwd``."""
     with serve_for_bench(
         *args,
         env={
@@ -41,6 +44,8 @@ def serving(
         prefix=prefix,
         port=port,
         ready=ready,
+        exe=exe,
+        cwd=cwd,
     ) as (_, base):
         yield base
 

@@ -26,6 +26,7 @@ from typing import Any
 
 from telerobot.drivers.base import DeviceError, ForceSample
 from telerobot.protocol import messages as m
+from telerobot.protocol.clock import ClockSync
 from telerobot.protocol.netprio import mark_high_priority
 
 log = logging.getLogger(__name__)
@@ -97,6 +98,15 @@ class Reply:
 
 
 class PriorityLink:
+    @property
+    def offset(self) -> float:
+        """Server clock − this machine's monotonic clock (s)."""
+        return self.clock.offset
+
+    @property
+    def best_rtt(self) -> float:
+        return self.clock.best_rtt
+
     def __init__(
         self,
         host: str,
@@ -118,8 +128,7 @@ class PriorityLink:
         self.operator = False
         self.client_id = ""
         self.joint_count = 0  # the arm's, from WELCOME
-        self.offset = 0.0  # server clock − this machine's monotonic clock (s), from PING
-        self.best_rtt = float("inf")
+        self.clock = ClockSync()  # the server's clock, from PING
         self.closed_reason: str | None = None
         self.received = 0
         self.stale_samples = 0  # older than one already handed over (datagrams reorder)
@@ -373,10 +382,7 @@ class PriorityLink:
         elif msg is m.PONG:
             t0 = self._pings.pop(int(fields["seq"]), None)
             if t0 is not None:
-                rtt = now - t0 - (float(fields["t2"]) - float(fields["t1"]))
-                if rtt < self.best_rtt:
-                    self.best_rtt = rtt
-                    self.offset = (float(fields["t1"]) - t0 + float(fields["t2"]) - now) / 2
+                self.clock.pong(t0, float(fields["t1"]), float(fields["t2"]), now)
         elif msg is m.ERROR and not self._welcome.is_set():
             self.closed_reason = text
         if self.on_reply is not None:
