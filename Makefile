@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow-machine test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
+.PHONY: wheel run test test-slow-machine test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
@@ -20,6 +20,11 @@ web/node_modules/.installed: web/package.json web/package-lock.json
 
 backend/web/index.html: web/node_modules/.installed $(WEB_SOURCES)
 	cd web && npm run --silent build
+
+## make wheel: the package, with its page, as dist/telerobot-*.whl (docs/running.md)
+wheel: $(STAMP) web
+	rm -rf build dist
+	$(BIN)/python -m pip wheel --no-deps --no-build-isolation --wheel-dir dist .
 
 ## make web: build the operator client (TypeScript + three.js) into backend/web
 web: backend/web/index.html
@@ -98,4 +103,4 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.kinematics
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache backend/web build dist

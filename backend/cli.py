@@ -179,9 +179,9 @@ def _so101_emulator(args: argparse.Namespace) -> int:
 
 
 def _so101_calibrate(args: argparse.Namespace) -> int:
-    from telerobot.drivers.robot.so101.arm import default_calibration_path
     from telerobot.drivers.robot.so101.calibrate import main
     from telerobot.drivers.robot.so101.leader import default_leader_calibration
+    from telerobot.drivers.robot.so101.settings import default_calibration_path
 
     if args.out is not None:
         out = Path(args.out)
@@ -321,7 +321,12 @@ def _media_server(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     import importlib.util
 
-    if importlib.util.find_spec("bench") is None:  # the wheel has no benches
+    # In a checkout the benches are beside the package's folders (the console script's
+    # path holds only its own bin/); an installed wheel has none.
+    checkout = Path(__file__).resolve().parents[1]
+    if (checkout / "bench" / "__init__.py").is_file() and str(checkout) not in sys.path:
+        sys.path.insert(0, str(checkout))
+    if importlib.util.find_spec("bench") is None:
         print(
             "telerobot bench: the benchmarks run from a checkout of the repository"
             " (cd telerobot && make run once, then .venv/bin/telerobot bench …)",

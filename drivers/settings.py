@@ -7,7 +7,10 @@ every other as ``TELEROBOT_SO101_PORT``, in the TOML file or by a flag. The serv
 ``Settings`` is composed of its own fields and every registered driver's, so adding a
 device with settings edits nothing in the server. The class lives in a module that
 imports nothing but pydantic (the server imports every one at start; the driver's SDK
-only when chosen), and the driver reads it back with ``of(settings)``.
+only when chosen), and the driver reads it back with ``of(settings)``. The composition
+happens when the server's settings module is first imported, in every process that
+imports it (the media worker's too): a driver's entry belongs in ``DRIVERS`` itself,
+not added at run time afterwards.
 """
 
 from __future__ import annotations

@@ -77,6 +77,10 @@ class Missing:  # as if not installed
             raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
 sys.meta_path.insert(0, Missing())
 from telerobot.server.cli import main
+# The leader arms' joint mirror: the models' limits, the SO-101 leader's bus.
+import telerobot.drivers.robot.so101.leader, telerobot.drivers.master.sim_leader
+from telerobot.drivers.robot.models import load_model
+print("models", [load_model(n).dof for n in ("so101", "puma560")])
 for argv in (["move", "--help"], ["master", "--help"]):
     with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
         main(argv)
@@ -90,6 +94,20 @@ def test_a_client_only_install_runs_move_and_master_and_serve_says_what_is_missi
         [sys.executable, "-c", LIGHT_PROBE.format(missing=SERVER_DEPENDENCIES)],
         capture_output=True, text=True, timeout=60, cwd="/",
     )  # fmt: skip
-    assert done.stdout.split("\n")[:3] == ["move ok", "master ok", "serve 2"], done.stderr
+    assert done.stdout.split("\n")[:4] == ["models [6, 6]", "move ok", "master ok", "serve 2"], (
+        done.stderr
+    )
     assert "needs uvicorn, which is not installed" in done.stderr
     assert "pip install telerobot" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_the_benches_run_from_a_checkout_through_the_cli() -> None:
+    # The console script's path has only its bin/: the checkout's bench/ is found
+    # beside the package's folders (an installed wheel has none: tests/test_wheel.py).
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "telerobot"), "bench", "kinematics", "--poses", "20",
+         "--json"],
+        capture_output=True, text=True, timeout=120, cwd="/",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1].startswith("{")

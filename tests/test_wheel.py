@@ -29,14 +29,22 @@ from tests.support.servers import serving
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# What the wheel is built from (as the Dockerfile's wheel stage copies it).
+SOURCES = ("pyproject.toml", "README.md", "telerobot", "backend", "drivers", "calibration")
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert (ROOT / "backend" / "web" / "index.html").is_file(), "build the page first: make web"
+    # From a copy: a build in the checkout would reuse (and pack) its build/ folder's
+    # leftovers, e.g. an earlier page's assets.
+    context = tmp_path_factory.mktemp("src")
+    subprocess.run(["cp", "-a", *(str(ROOT / s) for s in SOURCES), str(context)], check=True)
     out = tmp_path_factory.mktemp("dist")
     subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation",
-         "--wheel-dir", str(out), str(ROOT)],
-        check=True, timeout=300, cwd=out, capture_output=True,
+         "--wheel-dir", str(out), "."],
+        check=True, timeout=300, cwd=context, capture_output=True,
     )  # fmt: skip
     [built] = out.glob("telerobot-*.whl")
     return built

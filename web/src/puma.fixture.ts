@@ -1,6 +1,6 @@
 // The PUMA 560 as GET /api/v1/robot/model describes it (its joint tree, a 0.1 m tool),
 // for the unit tests of the page's local model. Generated from the server's model
-// (drivers.robot.models.load_model("puma560").chain()): the tree is its DH table.
+// (telerobot.drivers.robot.models.load_model("puma560").chain()): the tree is its DH table.
 import type { Schema } from "./api";
 
 export const PUMA: Schema<"RobotModel"> = {

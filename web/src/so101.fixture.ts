@@ -1,6 +1,6 @@
 // The SO-101 as GET /api/v1/robot/model describes it (its joint tree, no tool), for the
 // unit tests of the page's local model. Generated from the server's model
-// (drivers.robot.models.load_model("so101").chain()). Joint 6, the gripper, is a
+// (telerobot.drivers.robot.models.load_model("so101").chain()). Joint 6, the gripper, is a
 // branch: its parent is the wrist roll, the flange's too, so it does not move the tool.
 import type { Schema } from "./api";
 

@@ -19,7 +19,7 @@ const translation = (x: number, y: number, z: number) => [
   [0, 0, 0, 1],
 ];
 
-// The server's figures (drivers.robot.models.load_model("so101").kinematics(): fk(q)
+// The server's figures (telerobot.drivers.robot.models.load_model("so101").kinematics(): fk(q)
 // and link_origins(q), Pinocchio on the URDF), pasted.
 const ZERO = [0, 0, 0, 0, 0, 0];
 const TOOL_AT_ZERO: Mat4 = [

@@ -3,17 +3,25 @@ kinematics uses, so the page and any URDF tool draw the same arm the IK solves."
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from telerobot.drivers.base import FloatArray
-from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.drivers.robot.models import RobotModel
 from telerobot.drivers.robot.models.urdf import dh_chain, write_urdf
 from telerobot.drivers.robot.motion import PUMA_AMAX, PUMA_STOP_DECEL, PUMA_VMAX
-from telerobot.drivers.robot.puma560.kinematics import DH, NAMED_POSES, QLIM, Puma560Kinematics
+from telerobot.drivers.robot.puma560.geometry import DH, NAMED_POSES, QLIM
+
+if TYPE_CHECKING:
+    from telerobot.drivers.robot.kinematics import ArmKinematics
 
 
 def _kinematics(tool: FloatArray | None) -> ArmKinematics:
+    # Pinocchio only when the kinematics are asked for: a client-only install reads
+    # the model (the joint mirror's limits) without it.
+    from telerobot.drivers.robot.puma560.kinematics import Puma560Kinematics
+
     return Puma560Kinematics(tool)
 
 

@@ -13,11 +13,11 @@ chain: the IK keeps it where it is, and it moves by joint commands.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from telerobot.drivers.base import FloatArray
-from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.drivers.robot.models import RobotModel
 from telerobot.drivers.robot.models.urdf import (
     Joint,
@@ -26,6 +26,9 @@ from telerobot.drivers.robot.models.urdf import (
     origin_matrix,
     write_urdf,
 )
+
+if TYPE_CHECKING:
+    from telerobot.drivers.robot.kinematics import ArmKinematics
 
 PI = math.pi
 JOINT_NAMES = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")

@@ -37,37 +37,30 @@ from telerobot.drivers.robot.kinematics import (  # re-exported: the PUMA's user
     check_vector,
     tool_transform,
 )
-
-__all__ = ["Puma560Kinematics", "check_rotation", "check_vector", "tool_transform"]
-
-PI: Final = math.pi
-TWO_PI: Final = 2.0 * math.pi
-
-# d, a, alpha for joints 1..6 (metres, radians)
-D1: Final = 0.67183
-A2: Final = 0.4318
-D3: Final = 0.15005
-A3: Final = 0.0203
-D4: Final = 0.4318
-DH: Final = (
-    (D1, 0.0, PI / 2),
-    (0.0, A2, 0.0),
-    (D3, A3, -PI / 2),
-    (D4, 0.0, PI / 2),
-    (0.0, 0.0, -PI / 2),
-    (0.0, 0.0, 0.0),
+from telerobot.drivers.robot.puma560.geometry import (  # DH … QLIM re-exported as well
+    A2,
+    A3,
+    D1,
+    D3,
+    D4,
+    DH,
+    NAMED_POSES,
+    PI,
+    QLIM,
+    QLIM_DEG,
+    TWO_PI,
 )
-QLIM_DEG: Final = ((-160, 160), (-45, 225), (-225, 45), (-110, 170), (-100, 100), (-266, 266))
-QLIM: Final = np.radians(np.array(QLIM_DEG, dtype=float))  # (6, 2) lower, upper
 
-# Robotics Toolbox's named poses. qn's q3 is written -pi rather than +pi: the same
-# arm pose, but +pi lies past q3's upper limit of 45 degrees.
-NAMED_POSES: Final[dict[str, FloatArray]] = {
-    "qz": np.zeros(6),  # zero angles, upper arm horizontal, forearm up
-    "qr": np.array([0.0, PI / 2, -PI / 2, 0.0, 0.0, 0.0]),  # ready: arm straight up
-    "qs": np.array([0.0, 0.0, -PI / 2, 0.0, 0.0, 0.0]),  # stretched: arm horizontal
-    "qn": np.array([0.0, PI / 4, -PI, 0.0, PI / 4, 0.0]),  # nominal: dextrous, not singular
-}
+__all__ = [
+    "DH",
+    "NAMED_POSES",
+    "QLIM",
+    "QLIM_DEG",
+    "Puma560Kinematics",
+    "check_rotation",
+    "check_vector",
+    "tool_transform",
+]
 
 # Below this |sin q5| the wrist is treated as singular (q4 and q6 share one rotation).
 WRIST_SINGULAR_SIN: Final = 1e-9

@@ -41,7 +41,6 @@ import asyncio
 import contextlib
 import logging
 import math
-import os
 import threading
 import time
 from collections import deque
@@ -79,12 +78,15 @@ from telerobot.drivers.robot.arm import ArmConfig, ModelArm
 from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.drivers.robot.models import load_model
 from telerobot.drivers.robot.so101.calibration import SERVO_IDS, STEPS_PER_RADIAN, So101Calibration
-from telerobot.drivers.robot.so101.settings import So101Settings
+from telerobot.drivers.robot.so101.settings import (  # re-exported
+    CALIBRATION_FILE,
+    So101Settings,
+    default_calibration_path,
+)
 
 log = logging.getLogger(__name__)
 
 MODEL_NAME = "so101"
-CALIBRATION_FILE = "so101-calibration.json"
 # One read of all six: Present_Position, Present_Velocity, Present_Load (2 bytes
 # each), Present_Voltage, Present_Temperature (1 byte each), from address 56.
 BLOCK_ADDRESS = Register.PRESENT_POSITION
@@ -105,17 +107,6 @@ ADVICE: Mapping[ErrorBit, str] = {
     ErrorBit.VOLTAGE: "check the power supply (the STS3215 takes 6-12.6 V)",
     ErrorBit.ANGLE_SENSOR: "the servo's position sensor failed: replace the servo",
 }
-
-
-def default_calibration_path(settings: Mapping[str, Any]) -> Path:
-    """``so101-calibration.json`` in the state folder, beside the cameras'
-    ``calibration-<rig>.json`` (the folder as ``telerobot.server.security.state_dir`` finds it:
-    drivers do not import the server)."""
-    state = settings.get("state_dir")
-    if state is None:
-        base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-        state = Path(base) / "telerobot"
-    return Path(state) / CALIBRATION_FILE
 
 
 @dataclass(frozen=True)

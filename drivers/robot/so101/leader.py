@@ -29,8 +29,8 @@ from telerobot.drivers.motors.feetech.bus import (
 )
 from telerobot.drivers.motors.feetech.protocol import Register
 from telerobot.drivers.robot.models import RobotModel
-from telerobot.drivers.robot.so101.arm import default_calibration_path
 from telerobot.drivers.robot.so101.calibration import So101Calibration
+from telerobot.drivers.robot.so101.settings import default_calibration_path
 
 LEADER_CALIBRATION_FILE = "so101-leader-calibration.json"
 MAX_MISSED = 3  # reads in a row a servo may miss before the leader is lost

@@ -1,8 +1,12 @@
-"""``So101Arm``'s settings (``telerobot.drivers.settings``)."""
+"""``So101Arm``'s settings (``telerobot.drivers.settings``), and where its joint
+calibration is kept by default (the leader's is beside it)."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from pydantic import Field
 
@@ -28,3 +32,17 @@ class So101Settings(DriverSettings):
         description="how long a servo has to answer, s (a real bus answers in < 1 ms; an"
         " emulated bus on a loaded machine, a process behind a pty, may need longer)",
     )
+
+
+CALIBRATION_FILE = "so101-calibration.json"
+
+
+def default_calibration_path(settings: Mapping[str, Any]) -> Path:
+    """``so101-calibration.json`` in the state folder, beside the cameras'
+    ``calibration-<rig>.json`` (the folder as the server's ``security.state_dir`` finds
+    it: drivers do not import the server)."""
+    state = settings.get("state_dir")
+    if state is None:
+        base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+        state = Path(base) / "telerobot"
+    return Path(state) / CALIBRATION_FILE
