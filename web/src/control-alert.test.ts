@@ -79,6 +79,18 @@ describe("losing control", () => {
     expect(haltedText(BUSY_LATE_MS)).toContain("too busy");
   });
 
+  it("a halt still shown when its cause changes is said again, with no second alarm", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.state(MINE | StateFlags.HALTED, 10, 5); // the link's
+    w.state(MINE | StateFlags.HALTED, 20, 5); // the same: nothing new
+    expect(seen).toHaveLength(1);
+    w.state(MINE | StateFlags.HALTED, 30, 5, PAGE_SILENCE_MS + 200); // the page stood still
+    expect(seen).toHaveLength(2);
+    expect(seen[1]!.alert!.text).toContain("this computer is too busy");
+    expect(seen[1]!.sound).toBe(false);
+  });
+
   it("a halt after the page's main thread stood still (the worker stops beating) is this computer's", () => {
     const { w, seen } = watched();
     w.state(MINE, 0);

@@ -27,6 +27,15 @@ export const BUSY_LATE_MS = 100;
 /** What a dead-man halt says: whose the stall was (this computer's, when the worker's
  * own timer fired late or the page's main thread stood still long enough for the
  * worker to stop beating; else the network's or the server's), never the operator's. */
+/** Whose a dead-man halt was: the page stood still, its worker's timer ran late, or
+ * (neither) the network or the server. */
+export type HaltCause = "page" | "timer" | "link";
+
+export function haltCause(timerLateMs: number, pageStallMs = 0): HaltCause {
+  if (pageStallMs >= PAGE_SILENCE_MS) return "page";
+  return timerLateMs >= BUSY_LATE_MS ? "timer" : "link";
+}
+
 export function haltedText(timerLateMs: number, pageStallMs = 0): string {
   const kept = "You keep control: keys still held drive again once the heartbeats are back.";
   if (pageStallMs >= PAGE_SILENCE_MS) {
@@ -49,6 +58,7 @@ export class ControlWatch {
   private reason = "";
   private reasonAt = -Infinity;
   private lostAt = -Infinity; // when this page last saw control go (ms)
+  private haltedBy: HaltCause | null = null; // what the halt shown was said to be
   alert: ControlAlert | null = null;
   /** Called when the alert appears or changes (null: it went); `sound`: a new alarm. */
   onChange: ((alert: ControlAlert | null, sound: boolean) => void) | null = null;
@@ -101,9 +111,15 @@ export class ControlWatch {
       this.heldWhenDropped = false;
       this.releasing = false;
       if ((flags & StateFlags.HALTED) !== 0) {
+        const cause = haltCause(timerLateMs, pageStallMs);
         if (this.alert?.level !== "halted") {
           this.set({ level: "halted", text: haltedText(timerLateMs, pageStallMs), retake: false }, true);
+        } else if (cause !== this.haltedBy) {
+          // Still halted, for another reason now (a busy page that missed the moment
+          // the arm moved again sees one long halt): said again, without a second alarm.
+          this.set({ level: "halted", text: haltedText(timerLateMs, pageStallMs), retake: false }, false);
         }
+        this.haltedBy = cause;
       } else if (this.alert) this.set(null, false);
       return;
     }
