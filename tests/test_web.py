@@ -18,6 +18,7 @@ from tests.support.browser import (
     assert_ball_on_the_tool,
     open_page,
     page_said,
+    read_fresh_view,
     take_control,
     target,
     tool_position,
@@ -152,7 +153,10 @@ def test_the_ar_ball_sits_where_the_ground_truth_camera_sees_the_gripper(
     page.uncheck("#ghost")  # nothing else drawn over the ring
     frames = page.evaluate("window.telerobot.view.frames")
     wait(page, f"window.telerobot.view.frames > {frames + 3}")  # drawn without it
-    rings = page.evaluate(
+    # Read from a view showing fresh video: a stale one has "VIDEO STALE" over its
+    # middle, where the ring is (a stressed run read 4 of 8 ring points under it).
+    rings = read_fresh_view(
+        page,
         """([l, r]) => {
         const v = document.getElementById('view'); const c = document.createElement('canvas');
         c.width = v.width; c.height = v.height; const g = c.getContext('2d'); g.drawImage(v, 0, 0);

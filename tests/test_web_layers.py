@@ -14,6 +14,7 @@ from playwright.sync_api import Browser, Page
 from telerobot.drivers.camera.sim import FIDUCIAL_COLOURS
 from tests.support.browser import (
     open_page,
+    read_fresh_view,
     wait,
 )
 from tests.support.waiting import until
@@ -40,7 +41,7 @@ def fiducials_seen(page: Page, server: str) -> tuple[dict[str, object], list[boo
             u, v, w = np.array(cam["P"]) @ np.append(xyz, 1.0)
             points.append([u / w + eye * cam["width"], v / w])
             colours.append(colour)
-    got = page.evaluate(PIXELS, points)
+    got = read_fresh_view(page, PIXELS, points)
     return got, [
         max(abs(a - b) for a, b in zip(rgb, colour, strict=True)) <= 60
         for rgb, colour in zip(got["rgb"], colours, strict=True)

@@ -23,6 +23,7 @@ from tests.support.browser import (
     NO_VIDEO,
     open_page,
     page_said,
+    read_fresh_view,
     take_control,
     tool_position,
     wait,
@@ -90,7 +91,7 @@ def project(P: list[list[float]], points: np.ndarray) -> np.ndarray:
 def cyan_near(page: Page, eyes: list[np.ndarray], r: int = 4) -> list[list[int]]:
     frames = page.evaluate("window.telerobot.view.frames")
     wait(page, f"window.telerobot.view.frames > {frames + 3}")  # the overlay as it is now
-    return page.evaluate(CYAN_NEAR, [[e.tolist() for e in eyes], r])
+    return read_fresh_view(page, CYAN_NEAR, [[e.tolist() for e in eyes], r])
 
 
 def test_an_episode_previewed_in_both_eyes_runs_from_the_page_and_hands_control_back(

@@ -15,6 +15,7 @@ from tests.support import until
 from tests.support.browser import (
     open_page,
     page_said,
+    read_fresh_view,
     take_control,
     tool_position,
     wait,
@@ -159,7 +160,7 @@ def test_the_view_frame_axis_marker_is_drawn_at_the_gripper_in_both_eyes(
     def counts() -> list[list[int]]:
         frames = page.evaluate("window.telerobot.view.frames")
         wait(page, f"window.telerobot.view.frames > {frames + 2}")  # drawn since
-        return page.evaluate(MARKER_PIXELS, [origins, 45])
+        return read_fresh_view(page, MARKER_PIXELS, [origins, 45])
 
     shown = counts()
     page.uncheck("#ar")  # the marker goes with the AR ball

@@ -157,6 +157,29 @@ def wait(page: Page, expression: str, timeout: float = 10_000) -> None:
         ) from None
 
 
+# The view as drawn is not the video's own picture while it is stale (dimmed, "VIDEO
+# STALE" over its middle: a loaded machine's late frame) or while a draw waits for the
+# GPU (view/draw-pacer.ts): pixels are read from a view that is neither.
+VIEW_FRESH = (
+    "window.telerobot.view.staleMs === null && !(window.telerobot.view.pacer?.waiting ?? false)"
+)
+
+
+def read_fresh_view(page: Page, script: str, arg: Any = None, tries: int = 10) -> Any:
+    """``script`` (a JS function of ``arg``) run in the page at a moment the view shows
+    fresh video, taken again (after new frames) if the view was stale as it ran."""
+    for _ in range(tries):
+        wait(page, VIEW_FRESH, timeout=20_000)
+        frames = page.evaluate("window.telerobot.view.frames")
+        wait(page, f"window.telerobot.view.frames > {frames + 1}", timeout=20_000)
+        fresh, got = page.evaluate(
+            f"(arg) => {{ const got = ({script})(arg); return [{VIEW_FRESH}, got]; }}", arg
+        )
+        if fresh:
+            return got
+    raise AssertionError(f"the view was stale at each of {tries} reads")
+
+
 def target(server: str) -> list[float]:
     return httpx.get(server + "api/v1/robot/state").json()["target_joints"]
 
