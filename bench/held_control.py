@@ -47,6 +47,12 @@ from bench.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 DRIVE_FLIP_S = 2.0
+# The view's draws, those put off until the GPU had finished the one before, and the
+# frames never drawn (a newer one came meanwhile; null: a page without the pacer).
+DRAWN = (
+    "[window.telerobot.view.renders, window.telerobot.view.pacer?.waited ?? null,"
+    " window.telerobot.view.pacer?.skipped ?? null]"
+)
 
 
 def safety_halts(base: str) -> int:
@@ -142,6 +148,7 @@ def main() -> None:
         page.wait_for_function("(window.telerobot.state.flags & 1) !== 0", timeout=30_000)
         halts0 = httpx.get(base + "api/v1/safety").json()["deadman_halts"]
         frames0 = page.evaluate("window.telerobot.view.frames")
+        drawn0 = page.evaluate(DRAWN)
         t0 = time.monotonic()
         had = True
         path_m, last_pos, key = 0.0, None, ""
@@ -186,6 +193,10 @@ def main() -> None:
             "[window.telerobot.client.beatSkips, window.telerobot.client.resumes]"
         )
         frames = page.evaluate("window.telerobot.view.frames") - frames0
+        drawn = [
+            b - a if a is not None else None
+            for a, b in zip(drawn0, page.evaluate(DRAWN), strict=True)
+        ]
         browser.close()
     figures = {
         "seconds": round(elapsed, 1),
@@ -205,6 +216,9 @@ def main() -> None:
         "main_long_tasks": len(main["long"]),
         "main_long_task_ms_max": max(main["long"], default=None),
         "fps": None if args.no_video else frames / elapsed,
+        "drawn_fps": None if args.no_video else drawn[0] / elapsed,
+        "draws_waited_for_gpu": drawn[1],
+        "frames_not_drawn": drawn[2],
         "drive_mm_per_s": path_m * 1000.0 / elapsed if args.drive else None,
         "busy_core": args.busy_core,
         "video": not args.no_video,

@@ -5,13 +5,15 @@
 // a software GPU (SwiftShader, no GPU here) runs every branch of a per-pixel `if`,
 // uniform or not: with one program for all modes it drew 5.7–7.4 side-by-side frames/s
 // of 2×640×360 video, with one per mode 10.8–11.4, on the same 1.2 cores.
-// Frames are rendered as they arrive (requestVideoFrameCallback).
+// Frames are rendered as they arrive (requestVideoFrameCallback), but never faster than
+// the GPU finishes them (draw-pacer.ts).
 // Over the video: the overlay layer (overlay.ts; other modules paint into it, in each
 // camera's pixels), the AR ball as a ring (the gripper tip it marks shows through), and,
 // when no frame has come for a while, the view dims and says "VIDEO STALE n ms".
 // The timecode stripe the simulated cameras draw at the top (drivers/camera/timecode.py)
 // is cropped from what is shown; every coordinate stays in full-camera-image pixels.
 import * as THREE from "three";
+import { DrawPacer, GpuFence } from "./draw-pacer";
 import { OverlayCanvas, type Eye, type EyeSize, type OverlayPainter } from "./overlay";
 import { FrameWatch } from "./staleness";
 
@@ -124,6 +126,10 @@ export class StereoView {
   frames = 0;
   /** Times the view was drawn (each costs the main thread a WebGL frame). */
   renders = 0;
+  /** Video frames drawn once the GPU had done the draw before (`pacer.waited`), and
+   * not drawn at all, a newer one having come meanwhile (`pacer.skipped`). */
+  readonly pacer: DrawPacer;
+  private readonly fence = new GpuFence(() => this.gl2());
   onFrame: ((metadata: VideoFrameCallbackMetadata) => void) | null = null;
   /** Each XR frame, before it is drawn: read the controllers here. */
   onXRFrame: ((frame: XRFrame, space: XRReferenceSpace) => void) | null = null;
@@ -186,6 +192,12 @@ export class StereoView {
       this.xrFrames += 1;
       this.render();
     });
+    this.pacer = new DrawPacer(
+      () => this.fence.busy(),
+      () => {
+        if (!this.renderer.xr.isPresenting) this.render();
+      },
+    );
     this.scheduleFrame();
     // Checked about once per frame interval; frames arriving do not need it.
     setInterval(() => this.checkStale(), 50);
@@ -263,7 +275,7 @@ export class StereoView {
     if (ms === null || was === null || staleText(ms) !== staleText(was)) {
       this.overlayChanged();
       for (const m of this.all()) m.uniforms.dim!.value = ms === null ? 0 : 0.6;
-      if (!this.renderer.xr.isPresenting) this.render();
+      if (!this.renderer.xr.isPresenting) this.pacer.request();
     }
     this.onStale?.(ms);
   }
@@ -370,6 +382,12 @@ export class StereoView {
     this.renders += 1;
     this.layout();
     this.renderer.render(this.scene, this.camera);
+    if (!this.renderer.xr.isPresenting) this.fence.drew();
+  }
+
+  private gl2(): WebGL2RenderingContext | null {
+    const gl = this.renderer.getContext();
+    return typeof WebGL2RenderingContext !== "undefined" && gl instanceof WebGL2RenderingContext ? gl : null;
   }
 
   private scheduleFrame(): void {
@@ -378,7 +396,7 @@ export class StereoView {
       this.watch.frame(performance.now());
       if (this.staleMs !== null) this.checkStale(); // fresh again: undim before drawing
       this.texture.needsUpdate = true;
-      if (!this.renderer.xr.isPresenting) this.render();
+      if (!this.renderer.xr.isPresenting) this.pacer.request();
       this.onFrame?.(metadata);
       this.scheduleFrame();
     });
