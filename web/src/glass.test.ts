@@ -1,5 +1,5 @@
 import { afterEach, describe, expect, it, vi } from "vitest";
-import { measureGlass } from "./view/glass";
+import { measureGlass, readFrames, timecodeStrip } from "./view/glass";
 import { Rolling } from "./stats";
 
 /** A MediaStreamTrackProcessor whose stream holds `queued` frames and ends when its
@@ -53,5 +53,40 @@ describe("the glass-to-glass meter (on the page's thread: no Worker here)", () =
     expect(log).toEqual(["track stopped", "closed 0", "closed 1", "closed 2"]);
     await vi.advanceTimersByTimeAsync(1000); // the late cancel finds nothing left
     expect(log.at(-1)).toBe("cancelled with 0 unread");
+  });
+});
+
+describe("the timecode on a smaller layer", () => {
+  it("is read where the blocks are at the picture's own scale", () => {
+    expect(timecodeStrip(1)).toEqual({
+      rect: { x: 8, y: 16, width: 512, height: 2 },
+      xs: Array.from({ length: 32 }, (_, i) => 8 + 16 * i),
+    });
+    const half = timecodeStrip(0.5); // the server's low layer
+    expect(half.rect).toEqual({ x: 4, y: 8, width: 256, height: 2 });
+    expect(half.xs.slice(0, 3)).toEqual([4, 12, 20]);
+  });
+
+  it("gives the low layer's frames their latency (they were dropped as unreadable)", async () => {
+    const code = 100_000 - 250; // drawn 25 ms before the server's now (10 s)
+    const frame = {
+      format: "I420",
+      displayWidth: 1280, // both eyes at half of 2560
+      allocationSize: ({ rect }: { rect: { width: number; height: number } }) => rect.width * rect.height,
+      copyTo: async (buffer: Uint8Array, { rect }: { rect: { width: number } }) => {
+        const { xs } = timecodeStrip(rect.width / 512);
+        xs.forEach((x, i) => (buffer[x] = (code >>> (31 - i)) & 1 ? 255 : 0));
+        return [{ offset: 0, stride: rect.width }];
+      },
+      close: () => undefined,
+    };
+    const frames = [frame];
+    const reader = {
+      read: async () => (frames.length ? { value: frames.pop(), done: false } : { value: undefined, done: true }),
+    } as unknown as ReadableStreamDefaultReader<VideoFrame>;
+    const got: number[] = [];
+    await readFrames(reader, () => 10, { bestRtt: 0.001, offset: 0 }, (ms) => got.push(ms), () => 2560);
+    expect(got).toHaveLength(1);
+    expect(got[0]).toBeCloseTo(25, 6);
   });
 });

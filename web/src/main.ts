@@ -124,7 +124,7 @@ async function main(): Promise<void> {
       void video.play();
       const track = stream.getVideoTracks()[0];
       glassMeter?.stop(); // the previous peer's copy: its frames are read no more
-      glassMeter = track ? measureGlass(track.clone(), link, glass) : null;
+      glassMeter = track ? measureGlass(track.clone(), link, glass, () => (view.nativeSize ? 2 * view.nativeSize.width : null)) : null;
     },
     onPeer: (peer) => alignment.useVideoPeer(peer),
     onError: (text) => log.add(text),

@@ -10,7 +10,7 @@ export interface ServerClock {
 /** Page → glass worker. */
 export type ToGlassWorker =
   | { op: "track"; track: MediaStreamTrack; pageOrigin: number }
-  | { op: "clock"; offset: number; bestRtt: number }
+  | { op: "clock"; offset: number; bestRtt: number; fullWidth: number | null }
   | { op: "stop" };
 /** Glass worker → page: latencies (ms) since the last message; whether it can read;
  * that it has stopped (every frame it was given closed). */
@@ -30,7 +30,12 @@ export function trackProcessor(scope: unknown): Processor | undefined {
  * In a worker of its own where the browser lets a track move there (Chromium): a frame
  * read on the main thread waited behind rendering, and on a busy machine frames were
  * held there long enough to be reported as leaked. Else on the main thread. */
-export function measureGlass(track: MediaStreamTrack, clock: ServerClock, glass: Rolling): { stop(): void } {
+export function measureGlass(
+  track: MediaStreamTrack,
+  clock: ServerClock,
+  glass: Rolling,
+  fullWidth: () => number | null = () => null,
+): { stop(): void } {
   if (typeof Worker !== "undefined") {
     const worker = new Worker(new URL("./glass.worker.ts", import.meta.url), { type: "module" });
     try {
@@ -38,16 +43,16 @@ export function measureGlass(track: MediaStreamTrack, clock: ServerClock, glass:
       worker.postMessage(msg, [track as unknown as Transferable]);
     } catch {
       worker.terminate(); // tracks cannot move to workers here: read on this thread
-      return measureHere(track, clock, glass);
+      return measureHere(track, clock, glass, fullWidth);
     }
-    return measureInWorker(worker, clock, glass);
+    return measureInWorker(worker, clock, glass, fullWidth);
   }
-  return measureHere(track, clock, glass);
+  return measureHere(track, clock, glass, fullWidth);
 }
 
-function measureInWorker(worker: Worker, clock: ServerClock, glass: Rolling): { stop(): void } {
+function measureInWorker(worker: Worker, clock: ServerClock, glass: Rolling, fullWidth: () => number | null): { stop(): void } {
   const tell = (msg: ToGlassWorker) => worker.postMessage(msg);
-  const sendClock = () => tell({ op: "clock", offset: clock.offset, bestRtt: clock.bestRtt });
+  const sendClock = () => tell({ op: "clock", offset: clock.offset, bestRtt: clock.bestRtt, fullWidth: fullWidth() });
   sendClock();
   const timer = setInterval(sendClock, 500);
   worker.onmessage = (e: MessageEvent<FromGlassWorker>) => {
@@ -66,11 +71,11 @@ function measureInWorker(worker: Worker, clock: ServerClock, glass: Rolling): { 
   };
 }
 
-function measureHere(track: MediaStreamTrack, clock: ServerClock, glass: Rolling): { stop(): void } {
+function measureHere(track: MediaStreamTrack, clock: ServerClock, glass: Rolling, fullWidth: () => number | null): { stop(): void } {
   const Processor = trackProcessor(globalThis);
   if (!Processor) return { stop: () => track.stop() }; // not Chromium: the panel shows no glass-to-glass figure
   const reader = new Processor({ track }).readable.getReader();
-  void readFrames(reader, () => performance.now() / 1000, clock, (ms) => glass.add(ms));
+  void readFrames(reader, () => performance.now() / 1000, clock, (ms) => glass.add(ms), fullWidth);
   return { stop: () => stopReading(track, reader) };
 }
 
@@ -84,26 +89,40 @@ export function stopReading(track: MediaStreamTrack, reader: ReadableStreamDefau
   setTimeout(() => void reader.cancel().catch(() => undefined), 1000);
 }
 
+/** Where the timecode's blocks are read in a picture `scale` times the size it was drawn
+ * at (drivers/camera/timecode.py: 32 blocks of 16 px at (8, 8); the server's low video
+ * layer is half size): a strip through the blocks' middle row, its corner and size
+ * even (a 4:2:0 frame copies whole chroma samples), and each block's centre in it. */
+export function timecodeStrip(scale: number): { rect: { x: number; y: number; width: number; height: number }; xs: number[] } {
+  const even = (v: number) => 2 * Math.max(0, Math.round(v / 2));
+  const x = even(8 * scale);
+  const rect = { x, y: even(16 * scale), width: Math.max(2, even(512 * scale)), height: 2 };
+  const xs = Array.from({ length: 32 }, (_, i) => Math.min(rect.width - 1, Math.max(0, Math.round((8 + i * 16 + 8) * scale) - x)));
+  return { rect, xs };
+}
+
 /** Read every frame until the stream ends, each closed once read; `now`: the page's
- * clock (s), `add`: one frame's capture → decoded age (ms). */
+ * clock (s), `add`: one frame's capture → decoded age (ms); `fullWidth`: the full
+ * picture's width (both eyes), when known, so a smaller layer is read at its scale. */
 export async function readFrames(
   reader: ReadableStreamDefaultReader<VideoFrame>,
   now: () => number,
   clock: ServerClock,
   add: (ms: number) => void,
+  fullWidth: () => number | null = () => null,
 ): Promise<void> {
-  const rect = { x: 8, y: 16, width: 512, height: 2 };
   for (;;) {
     const { value: frame, done } = await reader.read().catch(() => ({ value: undefined, done: true }));
     if (done || !frame) return;
     const at = now();
     try {
+      const full = fullWidth();
+      const { rect, xs } = timecodeStrip(full ? frame.displayWidth / full : 1);
       const buffer = new Uint8Array(frame.allocationSize({ rect }));
       const layout = await frame.copyTo(buffer, { rect });
       const rgb = (frame.format ?? "").startsWith("RGB") || (frame.format ?? "").startsWith("BGR");
       let code = 0;
-      for (let i = 0; i < 32; i++) {
-        const x = i * 16 + 8;
+      for (const x of xs) {
         code = code * 2 + ((buffer[(layout[0]?.offset ?? 0) + (rgb ? x * 4 + 1 : x)] ?? 0) > 128 ? 1 : 0);
       }
       if (clock.bestRtt < Infinity) {

@@ -8,12 +8,14 @@ const port = self as unknown as {
 const clock: ServerClock = { bestRtt: Infinity, offset: 0 };
 let stop: (() => void) | null = null;
 let pending: number[] = [];
+let fullWidth: number | null = null;
 
 port.onmessage = (e) => {
   const m = e.data;
   if (m.op === "clock") {
     clock.offset = m.offset;
     clock.bestRtt = m.bestRtt;
+    fullWidth = m.fullWidth;
   } else if (m.op === "track") {
     const Processor = trackProcessor(self);
     if (!Processor) {
@@ -29,7 +31,7 @@ port.onmessage = (e) => {
       if (pending.length) port.postMessage({ op: "ms", ms: pending });
       pending = [];
     }, 250);
-    void readFrames(reader, now, clock, (ms) => pending.push(ms)).then(() => {
+    void readFrames(reader, now, clock, (ms) => pending.push(ms), () => fullWidth).then(() => {
       clearInterval(flush);
       port.postMessage({ op: "ms", ms: pending });
       port.postMessage({ op: "stopped" });
