@@ -52,7 +52,16 @@ def server() -> Iterator[str]:
 
 
 def pixels(page: Page, x: int, y: int, w: int, h: int) -> list[list[int]]:
-    result: list[list[int]] = page.evaluate(READ_PIXELS, [x, y, w, h])
+    """Read once no draw waits for the GPU (view/draw-pacer.ts): what is shown is then
+    what the page last asked for (dimmed as stale, or not). A stressed run read the view
+    undimmed right after it turned stale: the dimmed draw was still waiting."""
+    handle = page.wait_for_function(
+        f"(box) => !(window.telerobot.view.pacer?.waiting ?? false) && ({READ_PIXELS})(box)",
+        arg=[x, y, w, h],
+        polling=50,
+        timeout=10_000,
+    )
+    result: list[list[int]] = handle.json_value()
     return result
 
 

@@ -13,6 +13,7 @@ from tests.support.browser import (
     DRIVE_S,
     open_page,
     page_said,
+    read_fresh_view,
     take_control,
     target,
     tool_position,
@@ -79,7 +80,7 @@ def test_the_ghost_arm_is_drawn_along_the_predicted_chain_in_both_eyes_and_switc
     _frames_pass(page)
     points = page.evaluate(GHOST_POINTS)
     assert sum(1 for p in points if p[2] == 0) >= 4 and sum(1 for p in points if p[2] == 1) >= 4
-    on = page.evaluate(MAGENTA, [p[:2] for p in points])
+    on = read_fresh_view(page, MAGENTA, [p[:2] for p in points])
     for (x, y, eye), found in zip(points, on["near"], strict=True):
         assert found, f"no ghost joint at ({x:.0f}, {y:.0f}) in eye {eye}: {on}"
     assert on["halves"][0] > 20 and on["halves"][1] > 20, on
@@ -87,13 +88,13 @@ def test_the_ghost_arm_is_drawn_along_the_predicted_chain_in_both_eyes_and_switc
     page.uncheck("#ghost")
     assert page.evaluate("localStorage.getItem('telerobot.ghost')") == "off"
     _frames_pass(page)
-    off = page.evaluate(MAGENTA, [p[:2] for p in points])
+    off = read_fresh_view(page, MAGENTA, [p[:2] for p in points])
     assert not any(off["near"]), off
     assert sum(off["halves"]) < 0.05 * sum(on["halves"]), (on, off)
 
     page.check("#ghost")
     _frames_pass(page)
-    again = page.evaluate(MAGENTA, [p[:2] for p in points])
+    again = read_fresh_view(page, MAGENTA, [p[:2] for p in points])
     assert all(again["near"]), again
     assert errors == []
     page.close()
