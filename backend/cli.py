@@ -60,6 +60,7 @@ def _serve(args: argparse.Namespace) -> int:
     except (ValidationError, FileNotFoundError, ValueError) as exc:
         print(f"telerobot: bad settings: {exc}", file=sys.stderr)
         return 2
+    from telerobot.server.accesslog import limit_refusals_logged
     from telerobot.server.security import ensure_certificate, redact_server_logs, state_dir
 
     app = create_app(settings, record=args.record)
@@ -88,6 +89,7 @@ def _serve(args: argparse.Namespace) -> int:
         **ssl,  # type: ignore[arg-type]
     )
     redact_server_logs()  # after uvicorn has configured its loggers
+    limit_refusals_logged()
     server = uvicorn.Server(config)
 
     async def run() -> None:

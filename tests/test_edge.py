@@ -5,6 +5,7 @@ the e-stop keeps answering."""
 from __future__ import annotations
 
 import base64
+import logging
 import socket
 import subprocess
 import threading
@@ -18,6 +19,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from bench.common import telerobot_process
 from telerobot.protocol import messages as m
+from telerobot.server.accesslog import REFUSALS_PER_WINDOW, RefusalLogLimit
 from telerobot.server.app import create_app
 from telerobot.server.edge import BODY_LIMITS, DEFAULT_BODY_LIMIT
 from telerobot.server.realtime.ratelimit import (
@@ -197,6 +199,57 @@ def test_the_token_never_reaches_the_log(server: Server) -> None:
     log = "".join(server.output)
     assert "view=anaglyph" in log  # the request was logged…
     assert TOKEN not in log  # …without the token
+
+
+def access_lines(server: Server, needle: str, wait_for: str) -> list[str]:
+    """The server's access-log lines with ``needle``, once a line with ``wait_for``
+    (logged after them) has come."""
+    for _ in range(100):
+        if any(wait_for in line for line in server.output):
+            break
+        threading.Event().wait(0.1)
+    return [line for line in server.output if needle in line]
+
+
+def test_a_flood_of_refused_requests_logs_a_bounded_number_of_lines(server: Server) -> None:
+    # One address repeats a request refused (404) 60 times: 20 lines, the last saying
+    # that more are counted, not logged; answered requests and other addresses are
+    # logged as before (on the old server: 60 lines).
+    flood = httpx.Client(transport=httpx.HTTPTransport(local_address="127.0.0.3"))
+    with flood:
+        for _ in range(60):
+            assert flood.get(server.base + "api/v1/no-such-thing").status_code == 404
+        assert flood.get(server.base + "api/v1/health").status_code == 200
+    httpx.get(server.base + "api/v1/no-such-thing-either")  # another address: logged
+    lines = access_lines(server, "/api/v1/no-such-thing ", "/api/v1/no-such-thing-either")
+    assert len(lines) == REFUSALS_PER_WINDOW, lines
+    assert any(
+        "refusals from 127.0.0.3" in line and "counted, not logged" in line
+        for line in server.output
+    )
+    assert any("127.0.0.3" in line and "/api/v1/health" in line for line in server.output)
+
+
+def test_the_refusals_not_logged_are_said_with_the_next_window(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    now = [0.0]
+    limit = RefusalLogLimit(per_window=2, window_s=10.0, clock=lambda: now[0])
+
+    def refused(address: str = "10.0.0.5:4242", status: int = 429) -> logging.LogRecord:
+        args = (address, "GET", "/api/v1/recordings", "1.1", status)
+        return logging.LogRecord(
+            "uvicorn.access", logging.INFO, "", 0, '%s - "%s %s HTTP/%s" %d', args, None
+        )
+
+    kept = [limit.filter(refused()) for _ in range(5)]
+    assert kept == [True, True, False, False, False] and limit.held_total == 3
+    assert limit.filter(refused(status=200)) and limit.filter(refused(status=500))
+    assert limit.filter(refused("10.0.0.6:1"))  # another machine: its own budget
+    now[0] = 10.0  # the next window: logged again, saying what was not
+    with caplog.at_level(logging.WARNING, logger="telerobot.server.accesslog"):
+        assert limit.filter(refused())
+    assert "3 more refused requests from 10.0.0.5 were not logged" in caplog.text
 
 
 def test_redaction_keeps_the_rest_of_the_query() -> None:
