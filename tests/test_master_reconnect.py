@@ -5,9 +5,12 @@ new server on the same address (real processes, real sockets)."""
 from __future__ import annotations
 
 import contextlib
+import socket
+import threading
 import time
 
 import numpy as np
+import pytest
 
 from telerobot.client.master.bridge import Backoff, BridgeSettings, MasterBridge
 from telerobot.client.master.cli import open_link
@@ -66,3 +69,30 @@ def test_the_bridge_reconnects_after_the_server_restarts() -> None:
         finally:
             bridge.stop()
             bridge.link.close()
+
+
+def test_the_links_socket_is_made_blocking_before_its_reader_starts(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A socket's mode switched while its reader thread was in recv() could make that
+    # recv() fail with EAGAIN (Python sets the socket's mode, then, without the GIL, the
+    # descriptor's): a busy machine's run took that for a lost channel and reconnected a
+    # live link. The link's socket is never switched while its reader runs.
+    switched: list[tuple[socket.socket, bool]] = []
+    settimeout = socket.socket.settimeout
+
+    def watched(sock: socket.socket, value: float | None) -> None:
+        reading = any(t.name == "priority-link" and t.is_alive() for t in threading.enumerate())
+        switched.append((sock, reading))
+        settimeout(sock, value)
+
+    monkeypatch.setattr(socket.socket, "settimeout", watched)
+    with serving(ENV) as base:
+        link = open_link(base, TOKEN)
+        try:
+            until(lambda: link.received > 10, timeout=10)
+            assert link.sock.gettimeout() is None  # blocking
+        finally:
+            link.close()
+    ours = [reading for sock, reading in switched if sock is link.sock]
+    assert ours and not any(ours), ours

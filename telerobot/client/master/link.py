@@ -153,6 +153,12 @@ class PriorityLink:
             ) from None
         mark_high_priority(self.sock)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        # Blocking from here on, before the reader starts (the WELCOME's time limit is the
+        # wait below). Switched while the reader was in recv(), Python set the socket's
+        # mode before the descriptor's, and a recv() in between found a non-blocking
+        # descriptor in blocking mode: "[Errno 11] Resource temporarily unavailable",
+        # taken for a lost channel (a busy machine's test run reconnected a live link).
+        self.sock.settimeout(None)
         self._welcome = threading.Event()
         self._pings: dict[int, float] = {}
         self._send(m.encode(m.HELLO, m.PROTOCOL_VERSION, 0, token.encode("ascii")))
@@ -164,7 +170,6 @@ class PriorityLink:
                 f"no WELCOME from tcp://{host}:{port} within {timeout_s:g} s"
                 + (f": {self.closed_reason}" if self.closed_reason else "")
             )
-        self.sock.settimeout(None)
         if name:  # who has control, as everyone sees it (else "priority HOST:PORT")
             self.rename(name)
         if datagrams:
