@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import json
 import os
 import secrets
@@ -190,6 +191,8 @@ def bridge_settings(rtt_s: float, mode: str, jitter_s: float = 0.0) -> BridgeSet
     return BridgeSettings(
         force_scale=0.05, passivity=passivity, two_port=two_port, delay_rtt_s=rtt_s,
         delay_jitter_s=jitter_s,
+        # "none": the bare loop (no passivity, and no contact damper either)
+        contact_damping_n_s_m=BridgeSettings.contact_damping_n_s_m if passivity else 0.0,
     )  # fmt: skip
 
 
@@ -410,8 +413,10 @@ async def stepped_press(
     jitter_s: float = 0.0,
     contact_speed: float | None = None,
     hand: Callable[[float], tuple[FloatArray, bool]] | None = None,
+    contact_damping: float | None = None,
 ) -> dict[str, Any]:
-    """``one_run``'s press in virtual time, for tests (``--virtual`` here).
+    """``one_run``'s press in virtual time, for tests (``--virtual`` here);
+    ``contact_damping``: the bridge's contact damper instead of the mode's.
 
     The same parts: the server's, built from the same settings by the server's own
     builders (the simulated PUMA, the block, the force sensor, the DecisionServer with
@@ -471,6 +476,8 @@ async def stepped_press(
             time_source=clock.now,
         )  # fmt: skip
         settings_ = bridge_settings(rtt_s, passivity, jitter_s)
+        if contact_damping is not None:
+            settings_ = dataclasses.replace(settings_, contact_damping_n_s_m=contact_damping)
         # (a VirtualLink has all of a PriorityLink that the bridge uses)
         bridge = MasterBridge(device, link, settings_, time_source=clock.now)  # type: ignore[arg-type]
         forces: list[tuple[float, float]] = []

@@ -64,6 +64,8 @@ from telerobot.protocol import messages as m
 
 log = logging.getLogger(__name__)
 
+CONTACT_RAMP_N = 2.0  # remote force over which the contact damper fades in
+
 
 @dataclass
 class BridgeSettings:
@@ -88,12 +90,22 @@ class BridgeSettings:
     # bench.master_contact: at 200 ms, a cap of 40 left the contact ringing at 0–60 N,
     # 200 at 0–30 N, 1000 settled it.
     max_damping_n_s_m: float = 1000.0
+    # A damper on the handle while in contact (N·s/m at the device, faded in over the
+    # first CONTACT_RAMP_N of remote force; none in free space): what the delayed loop
+    # hand–handle–arm–contact needs beyond passivity, which bounds the energy a contact
+    # gives back but not how long a passive exchange of it rings. bench.master_contact
+    # in virtual time, the 5 mm/s press: at 200 ms the contact rang at 1.44 N without
+    # it, 0.017 N at 5, 0.012 N at 10; at 50 ms 0.14 → 0.016 N; 0, 100, 400 and 700 ms
+    # unchanged. 10 N·s/m resists a 2 cm/s motion in contact with 0.2 N.
+    contact_damping_n_s_m: float = 10.0
     delay_rtt_s: float = 0.0  # an injected round trip (tests, benchmarks), split in two
     delay_jitter_s: float = 0.0  # σ of the normal jitter on each half, order kept
 
     def check(self) -> BridgeSettings:
         positive = ("rate_hz", "command_rate_hz")
-        for name in (*positive, "motion_scale", "force_scale", "alpha", "beta"):
+        for name in (
+            *positive, "motion_scale", "force_scale", "alpha", "beta", "contact_damping_n_s_m",
+        ):  # fmt: skip
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0) or (name in positive and value <= 0):
                 raise InvalidCommand(f"{name} must be a finite number > 0, got {value!r}")
@@ -313,6 +325,7 @@ class MasterBridge:
         if s.render_force:
             remote = self._clamp(self.remote_force_device_frame(now))
             force = force + self._clamp(self.passivity.step(remote, velocity, dt))
+            force = force - self._contact_damping(remote) * velocity
         self.last_rendered = force
         self.device.set_force(force)
         # Motion: increments while the clutch is held.
@@ -353,6 +366,21 @@ class MasterBridge:
         if now - self._last_heartbeat >= s.heartbeat_s:
             self.link.heartbeat()
             self._last_heartbeat = now
+
+    def _contact_damping(self, remote: FloatArray) -> float:
+        """The contact damper's coefficient now (N·s/m): ``contact_damping_n_s_m`` once
+        the remote force reaches ``CONTACT_RAMP_N``, less below it, none in free space;
+        at most the handle's mass over the loop's longest recent step (held longer, a
+        damper reverses the handle: see PassivitySettings.handle_mass_kg)."""
+        s = self.settings
+        if s.contact_damping_n_s_m <= 0 or s.force_scale <= 0:
+            return 0.0
+        share = min(1.0, float(np.linalg.norm(remote)) / (CONTACT_RAMP_N * s.force_scale))
+        b = s.contact_damping_n_s_m * share
+        mass = self.passivity.settings.handle_mass_kg
+        if mass is not None and self.passivity.hold_s > 0:
+            b = min(b, mass / self.passivity.hold_s)
+        return b
 
     def _clamp(self, force: FloatArray) -> FloatArray:
         norm = float(np.linalg.norm(force))

@@ -95,6 +95,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the passivity damper's cap (N·s/m)",
     )
     p.add_argument(
+        "--contact-damping",
+        type=float,
+        default=BridgeSettings.contact_damping_n_s_m,
+        help="a damper on the handle while in contact (N·s/m at the device; 0: none): it"
+        " stills a contact that a delayed link would keep ringing",
+    )
+    p.add_argument(
         "--delay-ms",
         type=float,
         default=0.0,
@@ -219,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
             passivity=args.passivity != "off",
             two_port=args.passivity == "on",
             max_damping_n_s_m=args.max_damping,
+            contact_damping_n_s_m=args.contact_damping,
             delay_rtt_s=args.delay_ms / 1000.0,
             delay_jitter_s=args.delay_jitter_ms / 1000.0,
         ).check()

@@ -89,6 +89,11 @@ class PassivityController:
         self._last: tuple[float, FloatArray] | None = None
         self._hold = 0.0  # the longest recent step, s (slowly forgotten)
 
+    @property
+    def hold_s(self) -> float:
+        """The loop's longest recent step (s), slowly forgotten."""
+        return self._hold
+
     def reset(self) -> None:
         """A new contact with the remote side (reconnected): start the books afresh."""
         self.energy = 0.0
