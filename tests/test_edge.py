@@ -19,7 +19,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from bench.common import telerobot_process
 from telerobot.protocol import messages as m
-from telerobot.server.accesslog import REFUSALS_PER_WINDOW, RefusalLogLimit
+from telerobot.server.accesslog import MAX_ADDRESSES, REFUSALS_PER_WINDOW, RefusalLogLimit
 from telerobot.server.app import create_app
 from telerobot.server.edge import BODY_LIMITS, DEFAULT_BODY_LIMIT
 from telerobot.server.realtime.ratelimit import (
@@ -250,6 +250,17 @@ def test_the_refusals_not_logged_are_said_with_the_next_window(
     with caplog.at_level(logging.WARNING, logger="telerobot.server.accesslog"):
         assert limit.filter(refused())
     assert "3 more refused requests from 10.0.0.5 were not logged" in caplog.text
+
+
+def test_the_refusal_windows_are_bounded_in_addresses() -> None:
+    # Every address heard from gets a window: at most MAX_ADDRESSES are kept, the one
+    # heard from longest ago going first.
+    limit = RefusalLogLimit()
+    for i in range(MAX_ADDRESSES + 50):
+        args = (f"10.{i // 65536}.{i // 256 % 256}.{i % 256}:1", "GET", "/x", "1.1", 404)
+        limit.filter(logging.LogRecord("uvicorn.access", logging.INFO, "", 0, "%s", args, None))
+    assert len(limit._windows) == MAX_ADDRESSES
+    assert "10.0.0.0" not in limit._windows and "10.0.4.49" in limit._windows
 
 
 def test_redaction_keeps_the_rest_of_the_query() -> None:
