@@ -376,11 +376,7 @@ class MasterBridge:
         if s.contact_damping_n_s_m <= 0 or s.force_scale <= 0:
             return 0.0
         share = min(1.0, float(np.linalg.norm(remote)) / (CONTACT_RAMP_N * s.force_scale))
-        b = s.contact_damping_n_s_m * share
-        mass = self.passivity.settings.handle_mass_kg
-        if mass is not None and self.passivity.hold_s > 0:
-            b = min(b, mass / self.passivity.hold_s)
-        return b
+        return self.passivity.held_stable(s.contact_damping_n_s_m * share)
 
     def _clamp(self, force: FloatArray) -> FloatArray:
         norm = float(np.linalg.norm(force))

@@ -89,10 +89,13 @@ class PassivityController:
         self._last: tuple[float, FloatArray] | None = None
         self._hold = 0.0  # the longest recent step, s (slowly forgotten)
 
-    @property
-    def hold_s(self) -> float:
-        """The loop's longest recent step (s), slowly forgotten."""
-        return self._hold
+    def held_stable(self, damping: float) -> float:
+        """``damping`` (N·s/m), at most the handle's mass over the loop's longest recent
+        step: held longer, a damper reverses the handle (``handle_mass_kg``)."""
+        mass = self.settings.handle_mass_kg
+        if mass is None or self._hold <= 0:
+            return damping
+        return min(damping, mass / self._hold)
 
     def reset(self) -> None:
         """A new contact with the remote side (reconnected): start the books afresh."""
@@ -140,9 +143,7 @@ class PassivityController:
         owed = self.energy if self.budget is None else min(self.energy, self.budget - self.given)
         if owed >= 0 or speed2 < MIN_SPEED_M_S**2 or not self.settings.enabled:
             return f
-        cap = self.settings.max_damping_n_s_m
-        if self.settings.handle_mass_kg is not None:
-            cap = min(cap, self.settings.handle_mass_kg / self._hold)
+        cap = self.held_stable(self.settings.max_damping_n_s_m)
         alpha = -owed / (speed2 * dt)
         if alpha > cap:
             alpha = cap
