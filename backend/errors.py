@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -15,6 +17,13 @@ from telerobot.drivers.base import (
 )
 
 MAX_LISTED_ERRORS = 10  # a validation answer lists this many problems at most
+# A client refused for going over a budget (429) gets its answer this late. A loop that
+# repeats a refused request as fast as the server answers (one tokenless loop in
+# bench.abuse: ~200 refusals a second) then asks at most 10 times a second on each
+# connection, and the event loop that serves the e-stop no longer spends half a core
+# answering it. Waiting costs the server nothing but the open connection, and those are
+# capped per address and in all.
+REFUSAL_DELAY_S = 0.1
 
 # What the REST API answers for the drivers' errors (and their heirs): drivers know no
 # HTTP. The server's own errors say theirs where they are defined (``http_status``).
@@ -75,7 +84,10 @@ def validation_problem(exc: RequestValidationError) -> JSONResponse:
 def install_error_handlers(app: FastAPI) -> None:
     async def on_telerobot_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, TelerobotError)
-        return problem(http_status(exc), exc.code, str(exc))
+        status = http_status(exc)
+        if status == 429:
+            await asyncio.sleep(REFUSAL_DELAY_S)
+        return problem(status, exc.code, str(exc))
 
     async def on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
