@@ -85,9 +85,11 @@ def install_error_handlers(app: FastAPI) -> None:
     async def on_telerobot_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, TelerobotError)
         status = http_status(exc)
+        answer = problem(status, exc.code, str(exc))
         if status == 429:
             await asyncio.sleep(REFUSAL_DELAY_S)
-        return problem(status, exc.code, str(exc))
+            answer.headers["Retry-After"] = "1"  # budgets refill within a second
+        return answer
 
     async def on_validation_error(_request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
