@@ -30,6 +30,7 @@ from telerobot.server.errors import REFUSAL_DELAY_S
 from telerobot.server.realtime.ratelimit import PeerLimits
 from telerobot.server.recording import readjobs
 from telerobot.server.recording.index import LABEL_CHARS, LISTED_EPISODES
+from telerobot.server.recording.library import SHARED_PAGE_S, SHARED_PAGES
 from telerobot.server.recording.recorder import Recorder, RecordingEvent, RecordingNoSpace
 from telerobot.server.recording.writer import McapFile
 from telerobot.server.services import Services
@@ -252,6 +253,31 @@ def test_the_list_is_a_page_summarised_from_the_index(
     assert s.recorder.library.jobs.started == jobs  # read from the index: nothing parsed
     too_many = c.get("/api/v1/recordings", params={"limit": 201})
     assert too_many.status_code == 422 and "limit" in too_many.json()["detail"]
+
+
+def test_a_tokenless_list_is_a_page_up_to_a_second_old(
+    app: tuple[TestClient, Services, Path],
+) -> None:
+    """A loop of tokenless listings costs one encoding of a page a second; the token's
+    listing is always fresh, and a kept page is replaced once a second old."""
+    c, s, folder = app
+    library = s.recorder.library
+    now = [1000.0]
+    library.clock = lambda: now[0]
+    write_recording(folder / "20260101-000100-a.mcap", seconds=0.2)
+    assert [e["name"] for e in c.get("/api/v1/recordings").json()] == ["a"]
+    write_recording(folder / "20260101-000200-b.mcap", seconds=0.2)
+    now[0] += SHARED_PAGE_S / 2
+    kept = c.get("/api/v1/recordings")
+    assert [e["name"] for e in kept.json()] == ["a"] and kept.headers["x-total-count"] == "1"
+    fresh = c.get("/api/v1/recordings", headers=OP).json()
+    assert [e["name"] for e in fresh] == ["b", "a"]
+    write_recording(folder / "20260101-000300-c.mcap", seconds=0.2)
+    now[0] += SHARED_PAGE_S
+    assert [e["name"] for e in c.get("/api/v1/recordings").json()] == ["c", "b", "a"]
+    for offset in range(SHARED_PAGES + 4):  # pages kept: a few, the oldest let go
+        c.get("/api/v1/recordings", params={"offset": offset}, headers=OP)
+    assert len(library._shared) == SHARED_PAGES
 
 
 def test_the_list_does_not_hold_the_event_loop(tmp_path: Path) -> None:

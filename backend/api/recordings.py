@@ -10,7 +10,6 @@ The recording being written is refused (409) by every read that would parse it."
 from __future__ import annotations
 
 import asyncio
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -163,11 +162,10 @@ async def list_recordings(
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> Response:
     """The newest recordings first, a page at a time (``X-Total-Count``: how many
-    there are), from the recordings' index."""
-    entries, total = await recorder.library.listing(
+    there are), from the recordings' index. Without the token, a page up to a second old."""
+    body, total = await recorder.library.listing_json(
         limit, offset, peer=reader.peer, privileged=reader.privileged
     )
-    body = await asyncio.to_thread(lambda: json.dumps(entries, allow_nan=False).encode())
     return Response(body, media_type="application/json", headers={"X-Total-Count": str(total)})
 
 

@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
 import re
+import time
+from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -38,6 +41,12 @@ REVIEW_DIR = ".review"  # the timelines and MP4s made for the review page
 TIMELINE_VARIANTS = 8  # timelines kept per recording (topics × points asked for)
 MAX_PAGE = 200  # recordings per page of the list
 DEFAULT_PAGE = 50
+# A tokenless reader's page of the list is the one encoded at most this long ago (s), a
+# few pages kept: a loop of tokenless listings costs the server one encoding a second
+# per page, not one per request (bench.abuse's recordings_listing). The token's reads
+# are always fresh.
+SHARED_PAGE_S = 1.0
+SHARED_PAGES = 8
 
 
 class RecordingNotFound(TelerobotError):
@@ -78,6 +87,9 @@ class RecordingLibrary:
         self.index = RecordingIndex(folder)
         self.budgets = budgets or ReadBudgets()
         self.jobs = jobs or ReadJobs()
+        self.clock: Callable[[], float] = time.monotonic
+        # (limit, offset) → (encoded at, the page as JSON, recordings in all)
+        self._shared: OrderedDict[tuple[int, int], tuple[float, bytes, int]] = OrderedDict()
 
     # ------------------------------------------------------------ ids
     def file_name(self, recording_id: str) -> str:
@@ -176,6 +188,24 @@ class RecordingLibrary:
             made = {e["file"]: e for e in answer["entries"] if e.get("file") in missing}
             await asyncio.to_thread(self._keep, list(made.values()))
         return [self._shown(file, made.get(file, got)) for file, got in rows], total
+
+    async def listing_json(
+        self, limit: int, offset: int, *, peer: str, privileged: bool
+    ) -> tuple[bytes, int]:
+        """The page as JSON and the recordings in all; a tokenless reader may get one
+        encoded up to ``SHARED_PAGE_S`` ago."""
+        key = (limit, offset)
+        now = self.clock()
+        kept = self._shared.get(key)
+        if not privileged and kept is not None and now - kept[0] < SHARED_PAGE_S:
+            return kept[1], kept[2]
+        entries, total = await self.listing(limit, offset, peer=peer, privileged=privileged)
+        body = await asyncio.to_thread(lambda: json.dumps(entries, allow_nan=False).encode())
+        self._shared[key] = (now, body, total)
+        self._shared.move_to_end(key)
+        while len(self._shared) > SHARED_PAGES:
+            self._shared.popitem(last=False)
+        return body, total
 
     def _keep(self, entries: list[dict[str, Any]]) -> None:
         for entry in entries:  # the job wrote their .index/ files
