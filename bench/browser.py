@@ -1,13 +1,19 @@
 """The stereo video in a real browser: Debian's headless Chromium receives it from
 ``telerobot serve`` (simulation, 2×1280×720 at 30 fps by default) for 60 s.
 
-    python -m bench.browser [--json] [--seconds 60] [--width 1280 --height 720]
+    python -m bench.browser [--json] [--seconds 60] [--width 1280 --height 720] [--busy-core]
 
 fps: video frames the page rendered per second (requestVideoFrameCallback).
 Latency: capture → the decoded frame in the page, for every frame, from the timecode
 in the picture (read from the decoder's own frame) on the server's clock through the
 page's ping clock sync. Headless Chromium presents frames without a display, so
 "presented" is not measurable here; a real display adds up to one refresh.
+
+Beside them, over the same window: the frames the server encoded
+(``server_frames_encoded``), the page's decoder's own counts from getStats
+(``frames_received``, ``frames_decoded``, ``frames_dropped``), the peers re-negotiated
+(``renegotiations``) and the video layer the page ended on, which say where frames
+that were not measured went. ``--busy-core`` keeps one core busy (stress-ng) meanwhile.
 """
 
 from __future__ import annotations
@@ -17,11 +23,12 @@ import os
 import secrets
 import time
 
+import httpx
 import numpy as np
 import psutil
 from playwright.sync_api import sync_playwright
 
-from bench.common import emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, parser, serve_for_bench
 
 # Frame pacing stays on: without vsync and with the frame-rate limit off, headless
 # Chromium composites as fast as it can and its software GPU takes both cores.
@@ -37,6 +44,23 @@ ARGS = [
 ]
 
 GPU_NICE = 10
+
+# The page's decoder's counts for its video, from getStats (inbound-rtp, video).
+DECODER = """async () => {
+  const pc = window.telerobot.video.peer && window.telerobot.video.peer.pc;
+  const out = { received: 0, decoded: 0, dropped: 0, width: 0 };
+  out.renegotiations = window.telerobot.video.renegotiations;
+  if (!pc) return out;
+  (await pc.getStats()).forEach((r) => {
+    if (r.type === "inbound-rtp" && r.kind === "video") {
+      out.received = r.framesReceived || 0;
+      out.decoded = r.framesDecoded || 0;
+      out.dropped = r.framesDropped || 0;
+      out.width = r.frameWidth || 0;
+    }
+  });
+  return out;
+}"""
 
 
 def yield_software_gpu(nice: int = GPU_NICE) -> int:
@@ -60,11 +84,17 @@ def yield_software_gpu(nice: int = GPU_NICE) -> int:
     return done
 
 
+def server_frames(base: str) -> int:
+    """Frames the server's media worker has encoded so far (GET /api/v1/video)."""
+    return int(httpx.get(base + "api/v1/video", timeout=10).json()["stats"]["frames_encoded"])
+
+
 def main() -> None:
     p = parser(__doc__ or "")
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--width", type=int, default=1280)
     p.add_argument("--height", type=int, default=720)
+    p.add_argument("--busy-core", action="store_true", help="stress-ng --cpu 1 meanwhile")
     args = p.parse_args()
     token = secrets.token_hex(16)
     env = {
@@ -76,7 +106,11 @@ def main() -> None:
         # (the robot side's default) would wait behind the browser's software GPU.
         "TELEROBOT_VIDEO_NICE": "0",
     }
-    with serve_for_bench(env=env) as (_, base), sync_playwright() as pw:
+    with (
+        serve_for_bench(env=env) as (_, base),
+        busy_core(args.busy_core),
+        sync_playwright() as pw,
+    ):
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
         page = browser.new_page(viewport={"width": 1600, "height": 900})
         page.goto(base + f"?token={token}")
@@ -85,9 +119,11 @@ def main() -> None:
             "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
         )
         time.sleep(3)  # past the first keyframe and the clock sync
-        f0, n0, t0 = (
+        f0, n0, d0, e0, t0 = (
             page.evaluate("window.telerobot.view.frames"),
             page.evaluate("window.telerobot.glass.total"),
+            page.evaluate(DECODER),
+            server_frames(base),
             time.monotonic(),
         )
         latencies: list[float] = []
@@ -101,6 +137,7 @@ def main() -> None:
             new = total - n0 - len(latencies)
             latencies += snap[len(snap) - min(len(snap), new) :] if new > 0 else []
         frames = page.evaluate("window.telerobot.view.frames") - f0
+        d1, e1 = page.evaluate(DECODER), server_frames(base)
         elapsed = time.monotonic() - t0
         browser.close()
     lat = np.array(latencies)
@@ -109,8 +146,17 @@ def main() -> None:
         "latency_p50_ms": float(np.percentile(lat, 50)),
         "latency_p99_ms": float(np.percentile(lat, 99)),
         "latency_samples": len(lat),
+        "seconds": elapsed,
+        "server_frames_encoded": e1 - e0,
+        # across a re-negotiation the new peer's counts start again: then these are low
+        "frames_received": d1["received"] - d0["received"],
+        "frames_decoded": d1["decoded"] - d0["decoded"],
+        "frames_dropped": d1["dropped"] - d0["dropped"],
+        "renegotiations": d1["renegotiations"] - d0["renegotiations"],
+        "decoded_width": d1["width"],
         "width": args.width,
         "height": args.height,
+        "busy_core": args.busy_core,
     }
     emit(figures, False)
     if args.json:

@@ -2,7 +2,7 @@
 saw its force packets go from 0.68 ms mean inter-arrival to 5.4 ms mean and ~20 ms
 worst while a stereo frame was on the wire.
 
-    python -m bench.force_under_video [--json] [--seconds 20]
+    python -m bench.force_under_video [--json] [--seconds 20] [--busy-core]
 
 The server runs on the simulation with the stereo camera at 2×1280×720, 30 fps,
 H.264 at a constant 9 Mbit/s (filler data tops a still scene up to the budget, so
@@ -35,7 +35,7 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
-from bench.common import emit, machine, open_viewer, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, open_viewer, parser, serve_for_bench
 from bench.netem import NetemPair, netns_available
 from telerobot.protocol import messages as m
 
@@ -244,20 +244,23 @@ def main() -> None:
         action="store_true",
         help="also receive the samples over /ws in another process (for comparison)",
     )
+    p.add_argument("--busy-core", action="store_true", help="stress-ng --cpu 1 meanwhile")
     p.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.client:
         print(json.dumps(client(args.client, args.seconds, args.compare_ws)))
         return
-    figures: dict[str, Any] = {"loopback": measure(args.seconds, False, args.compare_ws)}
-    why_not = netns_available()
-    if why_not is None:
-        with NetemPair("lan") as pair:
-            prioritise_ef(pair)
-            figures["netns"] = measure(args.seconds, pair, args.compare_ws)
-    else:
-        figures["netns"] = None
-        figures["netns_skipped"] = why_not
+    with busy_core(args.busy_core):
+        figures: dict[str, Any] = {"loopback": measure(args.seconds, False, args.compare_ws)}
+        why_not = netns_available()
+        if why_not is None:
+            with NetemPair("lan") as pair:
+                prioritise_ef(pair)
+                figures["netns"] = measure(args.seconds, pair, args.compare_ws)
+        else:
+            figures["netns"] = None
+            figures["netns_skipped"] = why_not
+    figures["busy_core"] = args.busy_core
     for link in ("loopback", "netns"):
         if figures.get(link):
             print(f"-- {link}")

@@ -60,6 +60,26 @@ def test_helpers_yield_from_where_the_server_started_not_from_its_raised_priorit
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="raising the priority needs root here")
+def test_a_helper_started_yielding_runs_behind_the_server_from_its_first_instruction() -> None:
+    # A read job's interpreter start-up and imports ran at the server's raised priority
+    # until its main() lowered it; started through ``started_yielding`` it never does.
+    # The child's own first instruction reads its niceness.
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    child = "import os; print(os.getpriority(os.PRIO_PROCESS, 0))"
+    parent = (
+        "import os, subprocess, sys; from telerobot import tuning;"
+        " tuning.raise_cpu_priority(5);"
+        f" argv = tuning.started_yielding([sys.executable, '-S', '-c', {child!r}], 10);"
+        " print(argv[0].endswith('nice'));"
+        " subprocess.run(argv, check=True)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", parent], capture_output=True, text=True, check=True, timeout=60
+    ).stdout.split()
+    assert out == ["True", str(min(19, before + 10))], out
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="raising the priority needs root here")
 def test_a_block_at_a_raised_thread_priority_hands_it_to_its_threads_and_restores_it() -> None:
     # bench.abuse's legitimate clients and bench.master_contact's bridge threads run so.
     code = (

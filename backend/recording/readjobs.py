@@ -41,13 +41,16 @@ from telerobot.drivers.base import TelerobotError
 from telerobot.server.realtime.ratelimit import PeerLimits
 from telerobot.server.recording.reader import UnreadableRecording
 from telerobot.server.recording.salvage import NotARecording
-from telerobot.tuning import yield_cpu
+from telerobot.tuning import started_yielding, yield_cpu
 
 log = logging.getLogger(__name__)
 
 JOB_TIMEOUT_S = 300.0  # a long recording's MP4 (the remux reads every frame)
 JOB_MEMORY_BYTES = 2 * 1024**3  # address space of the job's process
 JOB_NICE = 10  # it waits behind control, forces and live video
+# A job reads one file in one thread: numpy's BLAS need not start a thread per core (at
+# import, before the job could lower its priority: now it starts lowered anyway).
+ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 MAX_WAITING = 4  # jobs of tokenless clients waiting behind the running one
 MAX_ANSWER_BYTES = 16 * 1024 * 1024  # a job's answer on stdout (summaries: ≤ 256 kB each)
 STDERR_KEPT = 4096  # of a failed job's stderr: its last line goes to the log
@@ -168,10 +171,11 @@ class ReadJobs:
     async def _in_process(self, request: dict[str, Any]) -> dict[str, Any]:
         self.started += 1
         proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", __name__,
+            *started_yielding([sys.executable, "-m", __name__], JOB_NICE),
             stdin=asyncio.subprocess.PIPE,
             stdout=asyncio.subprocess.PIPE,
             stderr=asyncio.subprocess.PIPE,
+            env={**os.environ, **ONE_THREAD},
         )  # fmt: skip
         assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
         try:
