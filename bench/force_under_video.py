@@ -113,11 +113,12 @@ def viewer(base: str, seconds: float, out: Any) -> None:
 
 def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any]:
     from telerobot.client.master.bridge import BridgeSettings, MasterBridge
-    from telerobot.client.master.cli import open_link
+    from telerobot.client.master.cli import CPU_PRIORITY, open_link
     from telerobot.drivers.master.sim import SimMaster
-    from telerobot.tuning import tune_for_realtime
+    from telerobot.tuning import raise_thread_priority, tune_for_realtime
 
-    tune_for_realtime()  # as `telerobot master` does
+    tune_for_realtime()  # as `telerobot master` does, and its CPU priority (where allowed)
+    raise_thread_priority(int(os.environ.get("BENCH_CLIENT_PRIORITY", CPU_PRIORITY)))
     # The token: forces as datagrams are for operators only (it does not take control).
     link = open_link(base, os.environ.get("BENCH_FORCE_TOKEN", ""))
     bridge = MasterBridge(SimMaster(), link, BridgeSettings())

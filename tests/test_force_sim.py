@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import math
 import threading
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -150,3 +151,30 @@ def test_sampling_thread_delivers_numbered_samples_at_the_rate(
     span = got[199].time - got[0].time
     assert span == pytest.approx(0.199)  # 199 periods of 1 ms
     assert s.overruns == 0
+
+
+def test_the_priority_channel_gets_each_sample_before_the_subscribers_that_wake_the_loop(
+    tmp_path: Path,
+) -> None:
+    """The datagram leaves before the hub and the decision server are handed the sample
+    (each by call_soon_threadsafe, which wakes the event loop's thread to take the GIL
+    from the sensor's); subscribed later, it still comes first."""
+    from fastapi.testclient import TestClient
+
+    from telerobot.server.app import create_app
+    from telerobot.server.services import Services
+    from telerobot.server.settings import Settings
+
+    settings = Settings(state_dir=tmp_path, http_port=0, priority_port=0, video=False)
+    with TestClient(create_app(settings)) as c:
+        services: Services = c.app.state.services  # type: ignore[attr-defined]
+        force = services.force
+        assert isinstance(force, SimForceSensor)
+        order = [getattr(cb, "__self__", None) for cb in force._subscribers]
+        assert order[0] is services.priority and len(order) >= 3
+        s = sensor_for(Arm(NAMED_POSES["qn"]))
+        got: list[str] = []
+        s.subscribe(lambda _: got.append("later"))
+        s.subscribe(lambda _: got.append("first"), first=True)
+        s._deliver(1, 0.0, np.zeros(6))
+        assert got == ["first", "later"]

@@ -79,9 +79,12 @@ class SampledForceSensor:
     def latest(self) -> ForceSample | None:
         return self._latest
 
-    def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]:
+    def subscribe(
+        self, callback: Callable[[ForceSample], None], *, first: bool = False
+    ) -> Callable[[], None]:
         # Copy-on-write: the sampling thread iterates the old list safely.
-        self._subscribers = [*self._subscribers, callback]
+        others = self._subscribers
+        self._subscribers = [callback, *others] if first else [*others, callback]
 
         def unsubscribe() -> None:
             self._subscribers = [c for c in self._subscribers if c is not callback]

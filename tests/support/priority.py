@@ -30,8 +30,10 @@ class FakeSensor:
         self.callbacks: list[Callable[[ForceSample], None]] = []
         self.seq = 0
 
-    def subscribe(self, callback: Callable[[ForceSample], None]) -> Callable[[], None]:
-        self.callbacks.append(callback)
+    def subscribe(
+        self, callback: Callable[[ForceSample], None], *, first: bool = False
+    ) -> Callable[[], None]:
+        self.callbacks.insert(0 if first else len(self.callbacks), callback)
         return lambda: self.callbacks.remove(callback)
 
     def emit(self) -> None:
