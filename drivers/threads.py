@@ -10,9 +10,10 @@ class WorkerThread:
     """A daemon thread running ``target`` until ``stop()``; ``target`` watches
     ``stopping`` (an Event, so it can also ``stopping.wait(t)`` instead of sleeping)."""
 
-    def __init__(self, target: Callable[[], None], name: str) -> None:
+    def __init__(self, target: Callable[[], None], name: str, *, prompt: bool = False) -> None:
         self.target = target
         self.name = name
+        self.prompt = prompt  # a 1 kHz loop: short scheduler slices (tuning.short_slice)
         self.stopping = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -24,8 +25,15 @@ class WorkerThread:
         if self.running:
             return
         self.stopping.clear()
-        self._thread = threading.Thread(target=self.target, name=self.name, daemon=True)
+        self._thread = threading.Thread(target=self._main, name=self.name, daemon=True)
         self._thread.start()
+
+    def _main(self) -> None:
+        if self.prompt:
+            from telerobot.tuning import short_slice
+
+            short_slice()
+        self.target()
 
     def stop(self, timeout: float = 2.0) -> None:
         self.stopping.set()

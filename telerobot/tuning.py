@@ -81,6 +81,46 @@ def thread_priority_raised(steps: int) -> Iterator[int]:
             os.setpriority(os.PRIO_PROCESS, 0, before)
 
 
+SLICE_US = 100  # the scheduler's shortest slice a thread may ask for (Linux ≥ 6.12: 0.1 ms)
+_SCHED_SETATTR = {"x86_64": 314, "aarch64": 274}
+
+
+def short_slice(us: int | None = None) -> bool:
+    """Ask the kernel to run the calling thread in short slices (EEVDF's custom slice,
+    Linux ≥ 6.12; ``sched_setattr`` with ``sched_runtime``, its niceness kept): a thread
+    that wakes for a force sample then preempts a longer-sliced one at once, where
+    otherwise the running thread (the video encoder's) may finish its slice first. No
+    rights are needed; elsewhere it does nothing. Threads and processes started from
+    this thread inherit it (``yield_cpu`` gives helpers the default back).
+    ``TELEROBOT_SLICE_US`` overrides the length (0: leave the default). Returns whether
+    the kernel took it."""
+    us = int(os.environ.get("TELEROBOT_SLICE_US", SLICE_US)) if us is None else us
+    return us > 0 and _set_slice(us * 1000)
+
+
+def _set_slice(ns: int) -> bool:
+    """``sched_setattr`` of the calling thread: SCHED_OTHER at its niceness, with a
+    custom slice of ``ns`` (0: the kernel's default)."""
+    import ctypes
+    import platform
+    import struct
+
+    number = _SCHED_SETATTR.get(platform.machine())
+    if number is None or sys.platform != "linux":
+        return False
+    try:
+        nice = os.getpriority(os.PRIO_PROCESS, 0)
+        # struct sched_attr (VER0, 48 bytes): size, policy, flags, nice, priority,
+        # runtime, deadline, period. Policy 0: SCHED_OTHER, as before.
+        attr = ctypes.create_string_buffer(
+            struct.pack("=IIQiIQQQ", 48, 0, 0, nice, 0, ns, 0, 0), 48
+        )
+        libc = ctypes.CDLL(None, use_errno=True)
+        return bool(libc.syscall(number, 0, attr, 0) == 0)
+    except (OSError, AttributeError):
+        return False
+
+
 def started_yielding(argv: list[str], steps: int) -> list[str]:
     """``argv`` run ``steps`` nice steps behind the server as it was started from its
     first instruction (through coreutils' ``nice``), where ``yield_cpu`` in the child
@@ -108,3 +148,4 @@ def yield_cpu(steps: int) -> None:
         os.setpriority(os.PRIO_PROCESS, 0, min(19, max(now, started + steps)))
     except (OSError, ValueError):
         pass
+    _set_slice(0)  # a helper works in the kernel's default slices, whoever started it

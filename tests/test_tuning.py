@@ -109,3 +109,38 @@ def test_the_master_bridge_runs_as_started_without_the_right_and_says_so() -> No
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert "CAP_SYS_NICE" in out.stderr and "--cpu-priority 0" in out.stderr, out.stderr
+
+
+def _slice_ns() -> int | None:
+    try:
+        with open("/proc/thread-self/sched") as f:
+            lines = [line for line in f if line.startswith("se.slice")]
+    except OSError:
+        return None
+    return int(lines[0].split(":")[1]) if lines else None
+
+
+@pytest.mark.skipif(_slice_ns() is None, reason="no per-thread scheduler figures here")
+def test_a_prompt_thread_runs_in_short_slices_and_its_helpers_in_the_default() -> None:
+    # The force sensor's, the priority channel's and the master link's threads ask for
+    # 0.1 ms slices (so they preempt the video encoder when they wake); a helper
+    # process started from such a thread goes back to the kernel's default.
+    code = (
+        "import threading; from telerobot.drivers.threads import WorkerThread\n"
+        "from telerobot.tuning import yield_cpu\n"
+        "from tests.test_tuning import _slice_ns\n"
+        "seen = []\n"
+        "w = WorkerThread(lambda: seen.append(_slice_ns()), 'probe', prompt=True)\n"
+        "w.start(); w.stop()\n"
+        "default = _slice_ns()\n"
+        "w = WorkerThread(lambda: (yield_cpu(0), seen.append(_slice_ns())), 'h', prompt=True)\n"
+        "w.start(); w.stop()\n"
+        "print(seen[0], seen[1], default)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    ).stdout.split()
+    prompt, helper, default = (int(v) for v in out)
+    if prompt == default:
+        pytest.skip("this kernel keeps one slice for all (custom slices: Linux ≥ 6.12)")
+    assert prompt == 100_000 and helper == default

@@ -32,7 +32,7 @@ class SampledForceSensor:
         self._lock = threading.Lock()  # pipeline settings vs the sampling thread
         self._subscribers: list[Callable[[ForceSample], None]] = []
         self._latest: ForceSample | None = None
-        self._worker = WorkerThread(self._run, self.thread_name)
+        self._worker = WorkerThread(self._run, self.thread_name, prompt=True)
         self._stop = self._worker.stopping
 
     # ------------------------------------------------------------ settings

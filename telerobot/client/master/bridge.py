@@ -203,7 +203,7 @@ class MasterBridge:
         self._pending_rv = np.zeros(3)
         self._next_command = 0.0
         self._last_heartbeat = 0.0
-        self._worker = WorkerThread(self._run, "master-bridge")
+        self._worker = WorkerThread(self._run, "master-bridge", prompt=True)
         self._stop = self._worker.stopping
         # What happened, for the status line, tests and the benchmark.
         self.ticks = 0
