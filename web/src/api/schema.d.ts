@@ -730,7 +730,7 @@ export interface paths {
         /**
          * List Recordings
          * @description The newest recordings first, a page at a time (``X-Total-Count``: how many
-         *     there are), from the recordings' index.
+         *     there are), from the recordings' index. Without the token, a page up to a second old.
          */
         get: operations["list_recordings_api_v1_recordings_get"];
         put?: never;
