@@ -165,7 +165,7 @@ def test_the_ar_ball_sits_where_the_ground_truth_camera_sees_the_gripper(
         const at = (x, y) => Array.from(g.getImageData(Math.round(x), Math.round(y - crop), 1, 1).data).slice(0, 3);
         return [[l, 0], [r, W]].map(([b, dx]) => ({
           centre: at(b[0] + dx, b[1]),
-          ring: Array.from({ length: 8 }, (_, k) => at(b[0] + dx + radius * Math.cos(k * Math.PI / 4), b[1] + radius * Math.sin(k * Math.PI / 4))),
+          ring: Array.from({ length: 8 }, (_, k) => [radius - 1, radius, radius + 1].map((r) => at(b[0] + dx + r * Math.cos(k * Math.PI / 4), b[1] + r * Math.sin(k * Math.PI / 4)))),
         }));
       }""",
         [ball["left"], ball["right"]],
@@ -174,8 +174,11 @@ def test_the_ar_ball_sits_where_the_ground_truth_camera_sees_the_gripper(
     def ball_colour(rgb: list[int]) -> bool:  # #00ff66, under the overlay's faint edges
         return max(abs(a - b) for a, b in zip(rgb, (0, 255, 102), strict=True)) <= 50
 
-    for eye in rings:  # (the axis marker may cross the ring in a few places)
-        on_ring = sum(ball_colour(rgb) for rgb in eye["ring"])
+    # (the axis marker may cross the ring in a few places; each of the 8 places is read
+    # at the ring's radius and a pixel either side: the overlay is drawn at half the
+    # view's resolution, and a stressed run found 4 of 8 a pixel off)
+    for eye in rings:
+        on_ring = sum(any(ball_colour(rgb) for rgb in place) for place in eye["ring"])
         assert on_ring >= 5 and not ball_colour(eye["centre"]), (rings, ball)
     page.close()
 
