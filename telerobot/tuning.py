@@ -129,12 +129,18 @@ def started_yielding(argv: list[str], steps: int) -> list[str]:
     (bench.abuse: single e-stops of 30–50 ms during tokenless timeline reads)."""
     nice = shutil.which("nice")
     try:
-        now = os.getpriority(os.PRIO_PROCESS, 0)
-        started = int(os.environ.get(STARTED_NICENESS, now))
+        now, target = _behind_start(steps)
     except (OSError, ValueError):
         return argv
-    target = min(19, max(now, started + steps))
     return [nice, "-n", str(target - now), *argv] if nice and target > now else argv
+
+
+def _behind_start(steps: int) -> tuple[int, int]:
+    """This process's niceness now, and the one ``steps`` behind the server as it was
+    started (never above where it is: lowering one's priority needs no rights)."""
+    now = os.getpriority(os.PRIO_PROCESS, 0)
+    started = int(os.environ.get(STARTED_NICENESS, now))
+    return now, min(19, max(now, started + steps))
 
 
 def yield_cpu(steps: int) -> None:
@@ -142,10 +148,6 @@ def yield_cpu(steps: int) -> None:
     export) ``steps`` nice steps behind the server *as it was started*: behind its
     raised priority alone, video would sit only 5 steps below a client on the same
     machine, not 10. Lowering one's priority needs no rights; failing is harmless."""
-    try:
-        now = os.getpriority(os.PRIO_PROCESS, 0)
-        started = int(os.environ.get(STARTED_NICENESS, now))
-        os.setpriority(os.PRIO_PROCESS, 0, min(19, max(now, started + steps)))
-    except (OSError, ValueError):
-        pass
+    with contextlib.suppress(OSError, ValueError):
+        os.setpriority(os.PRIO_PROCESS, 0, _behind_start(steps)[1])
     _set_slice(0)  # a helper works in the kernel's default slices, whoever started it
