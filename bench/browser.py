@@ -12,7 +12,7 @@ page's ping clock sync. Headless Chromium presents frames without a display, so
 Beside them, over the same window: the frames the server encoded
 (``server_frames_encoded``), the page's decoder's own counts from getStats
 (``frames_received``, ``frames_decoded``, ``frames_dropped``), the peers re-negotiated
-(``renegotiations``) and the video layer the page ended on, which say where frames
+(``renegotiations``) and the width it ended on decoding (its video layer), which say where frames
 that were not measured went. ``--busy-core`` keeps one core busy (stress-ng) meanwhile.
 """
 
