@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: wheel run test test-slow-machine test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
+.PHONY: lerobot-deps lerobot-test wheel run test test-slow-machine test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
@@ -33,8 +33,36 @@ web: backend/web/index.html
 run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
-## make test: install what is missing, then lint, type-check and run every test (browser included)
-test: $(STAMP) browser-deps turn-deps media-server-deps lint typecheck web-check web unit
+## make test: install what is missing, then lint, type-check and run every test (browser
+## and LeRobot's tools included)
+test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps lint typecheck web-check web unit lerobot-test
+
+# LeRobot needs Python 3.12 and brings torch (~5.4 GB): a venv of its own, installed once
+# and kept between runs and clones (the plugins' tests and LeRobot's reading of our
+# exports run in it; docs/lerobot.md).
+LEROBOT_VERSION := 0.6.1
+LEROBOT_VENV ?= $(HOME)/.cache/telerobot/lerobot-$(LEROBOT_VERSION)
+LEROBOT_PY := $(LEROBOT_VENV)/bin/python
+PYTHON312 ?= $(shell command -v python3.12 2>/dev/null || ls -d $(HOME)/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | tail -1)
+
+lerobot-deps: $(LEROBOT_VENV)/.installed
+
+$(LEROBOT_VENV)/.installed:
+	@test -n "$(PYTHON312)" || { echo "LeRobot needs Python 3.12: install python3.12 (or pyenv install 3.12)"; exit 1; }
+	@echo "installing LeRobot $(LEROBOT_VERSION) into $(LEROBOT_VENV) (once: torch and all, ~5 GB)"
+	@test -x $(LEROBOT_PY) || $(PYTHON312) -m venv $(LEROBOT_VENV)
+	$(LEROBOT_PY) -m pip install --quiet --upgrade pip
+	$(LEROBOT_PY) -m pip install --quiet 'lerobot[dataset]==$(LEROBOT_VERSION)' pytest pytest-timeout httpx aiortc setuptools
+	@touch $@
+
+## make lerobot-test: the LeRobot plugins in LeRobot's own command lines, against a real server
+# The plugins are installed anew from this checkout each time (LeRobot finds plugins by
+# their installed distributions); Telerobot's client comes from this checkout's path.
+lerobot-test: $(STAMP) lerobot-deps
+	$(LEROBOT_PY) -m pip install --quiet --no-deps --no-build-isolation --force-reinstall \
+	  ./integrations/lerobot/robot ./integrations/lerobot/teleoperator
+	cd integrations/lerobot && PYTHONPATH=$(CURDIR) TELEROBOT_SERVE=$(CURDIR)/$(BIN)/telerobot \
+	  $(LEROBOT_PY) -m pytest -q
 
 ## make test-slow-machine: the whole of `make test` with one of the cores kept busy
 ## (Debian's stress-ng): the suite is meant to pass under it, every time
@@ -76,7 +104,8 @@ typecheck: $(STAMP)
 # browser tests on one, which share one Chromium and take the CPU the page's software
 # rendering needs (two workers are no faster: 389 s against 378; docs/PERFORMANCE.md).
 unit: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not browser" -n 3 --dist loadfile
+	TELEROBOT_LEROBOT_PYTHON=$$(test -x $(LEROBOT_PY) && echo $(LEROBOT_PY)) \
+	  $(BIN)/python -m pytest -q -m "not browser" -n 3 --dist loadfile
 	$(BIN)/python -m pytest -q -m browser
 
 # Debian's Chromium for the Playwright browser tests (never a downloaded browser).

@@ -121,7 +121,12 @@ def _serve(args: argparse.Namespace) -> int:
 
     tune_for_realtime()
     logging.getLogger("telerobot.tuning").info("%s", raise_cpu_priority(settings.cpu_priority))
-    asyncio.run(run())
+    try:
+        asyncio.run(run())
+    except KeyboardInterrupt:
+        # Ctrl+C: uvicorn has shut the server down cleanly, then raised the signal again
+        # for whoever called it; for a user at a terminal that is the normal way to stop.
+        print("Telerobot stopped.", flush=True)
     return 0
 
 

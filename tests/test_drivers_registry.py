@@ -277,7 +277,7 @@ def test_every_registered_driver_builds_itself_from_the_settings() -> None:
     assert so101.kinematics.joint_names[-1] == "gripper"
     force = build_force_sensor(sim, puma, build_workcell(sim))
     assert isinstance(force, SimForceSensor) and isinstance(force, ForceSensor)
-    assert force.probe == puma.snapshot and force.counters == {} and force.error is None
+    assert force.probe == puma.snapshot and force.counters == {"lost": 0} and force.error is None
 
     probe = puma.snapshot
     camera = build_camera(Settings(video_fps=24.0, video_width=320, video_height=240), probe)

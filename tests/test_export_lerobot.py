@@ -170,7 +170,10 @@ def test_resampling_rules(exported: tuple[Any, Any, Path]) -> None:
         t = built.episodes[e].start + data["frame_index"][row] / fps  # (float32 timestamps)
         # the state: the last one at or before t (50 Hz)
         t_state = np.floor(t * 50 + 1e-6) / 50
-        np.testing.assert_allclose(data["observation.state"][row], joints_at(t_state), atol=1e-5)
+        # (the PUMA's joints in degrees: LeRobot's units)
+        np.testing.assert_allclose(
+            data["observation.state"][row], np.degrees(joints_at(t_state)), atol=1e-3
+        )
         np.testing.assert_allclose(
             data["observation.tool_pose"][row][:3], [t_state, 2 * t_state, 3 * t_state], atol=1e-5
         )
@@ -183,7 +186,7 @@ def test_resampling_rules(exported: tuple[Any, Any, Path]) -> None:
         # the action: the last accepted command's target (refused ones never count)
         before = [c for c in built.command_times if c <= t + 1e-9]
         want = target_at(before[-1]) if before else joints_at(t_state)
-        np.testing.assert_allclose(data["action"][row], want, atol=1e-4)
+        np.testing.assert_allclose(data["action"][row], np.degrees(want), atol=1e-3)
 
 
 def test_stats(exported: tuple[Any, Any, Path]) -> None:
@@ -227,7 +230,7 @@ def test_an_so101_recording_exports_as_an_so101_dataset(tmp_path: Path) -> None:
     )
     export_lerobot(built.path, tmp_path / "ds", fps=10)
     info = json.loads((tmp_path / "ds/meta/info.json").read_text())
-    assert info["robot_type"] == "so101_follower"
+    assert info["robot_type"] == "so_follower"  # as lerobot-record 0.6.1 names the arm
     names = [f"{j}.pos" for j in load_model("so101").joint_names]
     assert info["features"]["observation.state"]["names"] == names
     assert info["features"]["action"]["names"] == names
@@ -374,7 +377,7 @@ def test_lerobot_loads_the_export(exported: tuple[Any, Any, Path]) -> None:
     import subprocess
     import sys
 
-    python = os.environ.get("TELEROBOT_LEROBOT_PYTHON")
+    python = os.environ.get("TELEROBOT_LEROBOT_PYTHON") or None  # (make test: its venv)
     if python is None:
         if importlib.util.find_spec("lerobot") is None:
             pytest.skip("lerobot is not installed (set TELEROBOT_LEROBOT_PYTHON)")
@@ -660,3 +663,65 @@ def test_rest_export_says_how_far_it_has_got_and_refuses_repeats(tmp_path: Path)
     told = [s["progress"] for s in seen if s["running"]]
     assert told == sorted(told), told
     assert any(0 < p < 1 for p in told), seen
+
+
+# ---------------------------------------------------------------- LeRobot's units, time told true
+
+
+def test_an_so101_export_is_in_the_units_lerobots_so_follower_reports(tmp_path: Path) -> None:
+    """Degrees as LeRobot reads the servos (360/4095 a step where the model has 2π/4096),
+    the gripper 0–100 % of its range; the units said in info.json."""
+    so101 = load_model("so101")
+    built = recordings.build(
+        tmp_path / "rec.mcap", duration=1.0, episodes=[], settings={"robot_model": "so101"}
+    )
+    export_lerobot(built.path, tmp_path / "ds", fps=10)
+    info = json.loads((tmp_path / "ds/meta/info.json").read_text())
+    assert (
+        "degrees, gripper 0–100 % of its range"
+        in info["features"]["observation.state"]["description"]
+    )
+    data = pq.read_table(tmp_path / "ds/data/chunk-000/file-000.parquet").to_pydict()
+    lo, hi = so101.qlim[5]
+    assert built.frame_times[0] < 0.05  # (so the rows start with the recording)
+    for row in range(len(data["index"])):
+        t_state = np.floor(data["frame_index"][row] / 10 * 50 + 1e-6) / 50
+        q = np.array(joints_at(t_state))
+        want = np.degrees(q) * 4096 / 4095
+        want[5] = (q[5] - lo) / (hi - lo) * 100
+        np.testing.assert_allclose(data["observation.state"][row], want, atol=1e-3)
+    ours = json.loads((tmp_path / "ds/meta/telerobot_export.json").read_text())
+    assert ours["units"]["observation.state"] == "degrees, gripper 0–100 % of its range"
+
+
+def test_the_fps_is_the_configured_rate_and_late_frames_are_flagged(tmp_path: Path) -> None:
+    """The server was asked for 30 fps; a busy machine's camera gave 20. The dataset
+    says 30 (LeRobot merges only datasets of one fps), and the rows whose frame is more
+    than a row period old are flagged and counted, not silently held."""
+    built = recordings.build(
+        tmp_path / "rec.mcap", duration=3.0, video_fps=20, settings={"video_fps": 30.0}
+    )
+    summary = export_lerobot(built.path, tmp_path / "ds")
+    info = json.loads((tmp_path / "ds/meta/info.json").read_text())
+    assert info["fps"] == summary.fps == 30
+    data = pq.read_table(tmp_path / "ds/data/chunk-000/file-000.parquet").to_pydict()
+    ages = np.array(data["telerobot.age_ms"])
+    assert summary.stale_rows["frame"] == int(np.count_nonzero(ages[:, 2] > 1000 / 30 + 1e-3))
+    assert summary.stale_rows["state"] == 0 and summary.stale_rows["force"] == 0
+    assert any("below the 30 fps configured" in w for w in summary.warnings)
+    assert np.all(ages[:, 0] <= 20.0 + 1e-3) and np.all(ages[:, 1] <= 1.0 + 1e-3)
+    ours = json.loads((tmp_path / "ds/meta/telerobot_export.json").read_text())
+    assert ours["stale_rows"] == summary.stale_rows
+
+
+def test_a_gap_in_the_states_is_flagged_not_held(tmp_path: Path) -> None:
+    """States configured at 50 Hz that came at 5 Hz (a stalled state stream): the rows
+    that held a state more than two periods old say so."""
+    built = recordings.build(
+        tmp_path / "rec.mcap", duration=3.0, state_hz=5.0, settings={"state_rate_hz": 50.0}
+    )
+    summary = export_lerobot(built.path, tmp_path / "ds", fps=10)
+    data = pq.read_table(tmp_path / "ds/data/chunk-000/file-000.parquet").to_pydict()
+    ages = np.array(data["telerobot.age_ms"])[:, 0]
+    assert summary.stale_rows["state"] == int(np.count_nonzero(ages > 40.0 + 1e-3)) > 0
+    assert any("have a state older than 40 ms" in w for w in summary.warnings)

@@ -178,3 +178,68 @@ def test_the_priority_channel_gets_each_sample_before_the_subscribers_that_wake_
         s.subscribe(lambda _: got.append("first"), first=True)
         s._deliver(1, 0.0, np.zeros(6))
         assert got == ["first", "later"]
+
+
+class StallingTime(ThreadTime):
+    """Virtual time whose sampling thread is held up once, for ``stall_s``, at ``at``."""
+
+    def __init__(self, at: float, stall_s: float) -> None:
+        super().__init__()
+        self.at, self.stall_s = at, stall_s
+
+    def sleep(self, seconds: float) -> None:
+        super().sleep(seconds)
+        if self.t >= self.at and self.stall_s:
+            self.t += self.stall_s  # the thread ran this much later than it asked
+            self.stall_s = 0.0
+
+
+def _samples_through_a_stall(monkeypatch: pytest.MonkeyPatch, stall_s: float) -> tuple[
+    SimForceSensor, list[ForceSample]
+]:  # fmt: skip
+    clock = StallingTime(at=100.05, stall_s=stall_s)
+    monkeypatch.setattr(sim_module, "time", SimpleNamespace(sleep=clock.sleep))
+    s = SimForceSensor(
+        default_workcell(), Arm(NAMED_POSES["qn"]), Puma560Kinematics(TOOL), noise_n=0.01,
+        time_source=clock.now,
+    )  # fmt: skip
+    got: list[ForceSample] = []
+    enough = threading.Event()
+
+    def on_sample(sample: ForceSample) -> None:
+        got.append(sample)
+        if len(got) >= 300:
+            enough.set()
+
+    s.subscribe(on_sample)
+    s.start()
+    assert enough.wait(10.0), "fewer than 300 samples in 10 s"
+    s.stop()
+    return s, got[:300]
+
+
+def test_samples_keep_their_1khz_times_through_a_short_stall(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Held up for 20.5 ms, the simulation stamped the samples it then took at once
+    with the time it took them: a 20 ms gap, then 20 samples µs apart (66 ms gaps and
+    bursts in a quiet machine's recordings). Each sample now has its own slot's time."""
+    s, got = _samples_through_a_stall(monkeypatch, 0.0205)
+    assert [g.seq for g in got] == list(range(1, 301))
+    np.testing.assert_allclose(np.diff([g.time for g in got]), 0.001, atol=1e-9)
+    assert s.overruns == 0
+
+
+def test_samples_lost_in_a_long_stall_are_counted_and_skipped_in_the_sequence(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Held up for 150 ms (more than it catches up), the slots are lost: the sequence
+    numbers skip them, as a real sensor's lost packets do, and ``overruns`` counts them
+    (the simulation had lost them without a trace in the numbers)."""
+    s, got = _samples_through_a_stall(monkeypatch, 0.1505)
+    gaps = np.diff([g.seq for g in got])
+    assert sorted(set(gaps.tolist())) == [1, 151]
+    assert s.overruns == 150
+    np.testing.assert_allclose(
+        np.diff([g.time for g in got]), np.diff([g.seq for g in got]) * 0.001, atol=1e-9
+    )

@@ -483,3 +483,22 @@ def test_a_start_on_a_full_disk_is_refused(tmp_path: Path) -> None:
         assert "recording_min_free_bytes" in r.json()["detail"]
         assert http.get("api/v1/recordings/active").json()["recording"] is False
     assert not list((tmp_path / "recordings").glob("*.mcap"))
+
+
+def test_log_times_never_go_back_within_a_file(tmp_path: Path) -> None:
+    """Messages taken on several threads reach the writer in queue order, one a few ms
+    after a later one: ``mcap doctor`` warned of messages logged before one already in
+    the file. Log times now never go back; each message's own time is its publish time."""
+    from mcap.reader import make_reader
+
+    path = tmp_path / "order.mcap"
+    f = McapFile(path)
+    taken = [1_000, 3_000, 2_000, 4_000, 3_500, 5_000]  # ns: two came late
+    for i, t in enumerate(taken):
+        f.write("/force" if i % 2 else "/robot/state", t, {"t": t})
+    f.close({})
+    with path.open("rb") as stream:
+        messages = [m for _, _, m in make_reader(stream).iter_messages(log_time_order=False)]
+    logged = [m.log_time for m in messages]
+    assert logged == sorted(logged) == [1_000, 3_000, 3_000, 4_000, 4_000, 5_000]
+    assert [m.publish_time for m in messages] == taken

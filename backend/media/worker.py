@@ -11,6 +11,7 @@ import contextlib
 import logging
 import multiprocessing
 import multiprocessing.connection
+import signal
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, assert_never
@@ -67,6 +68,9 @@ def worker_main(
     # Video yields the CPU to forces and control: on a busy machine the scheduler runs
     # the server's sensor and priority-channel threads first (a frame late by a
     # millisecond is not seen; a force sample late by one is felt).
+    # Ctrl+C at the terminal reaches every process of the group: the server stops this
+    # worker itself, in order; interrupted here, it printed a traceback of its own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     settings = Settings.model_validate_json(settings_json)
     yield_cpu(settings.video_nice)
     try:

@@ -17,9 +17,12 @@ The rows sit on the dataset's grid: episode ``e``'s row ``k`` is at ``start_e + 
 on the recording's clock, and its ``timestamp`` is ``k/fps``, as lerobot requires (it
 checks the spacing, and finds a row's video frame at ``from_timestamp + timestamp``).
 
-``fps`` defaults to the recorded video's real rate: its frames over its span, measured
-from their capture times (a video slowed by a busy machine ran at 10 fps though it was
-asked for 30, and its frames' typical spacing can still say 30: bursts). More rows a
+``fps`` defaults to the rate the server was configured for (the recording's
+``/settings`` ``video_fps``), whatever the load did to the video: LeRobot cannot merge
+datasets of different fps. A recording without settings defaults to the recorded video's
+real rate: its frames over its span, measured from their capture times (a video slowed
+by a busy machine ran at 10 fps though it was asked for 30, and its frames' typical
+spacing can still say 30: bursts). More rows a
 second than the video had frames would show the same frame on several rows: an ``fps``
 above that rate (with ``REPEAT_TOLERANCE``) is refused unless repeated frames are
 allowed, and the summary says the video's rate, how many rows repeat the frame before
@@ -30,14 +33,22 @@ At each row time:
 - image: the recorded video frame captured nearest to the row time (each half of the
   side-by-side frame is one camera; a frame is repeated or skipped when the camera ran
   slower or faster than the grid);
-- ``observation.state`` (joints, rad) and ``observation.tool_pose`` (position m, then the
+- ``observation.state`` (joints in LeRobot's units, ``telerobot.client.lerobot.units``:
+  degrees, an SO-101's exactly as LeRobot's ``so_follower`` reads them, a gripper
+  0–100 % of its range) and ``observation.tool_pose`` (position m, then the
   row-major rotation): the last ``/robot/state`` at or before the row time (held, not
-  interpolated: 50 Hz states are at most 20 ms old);
+  interpolated);
 - ``observation.force`` (N, N·m, sensor frame): the mean of the ``/force`` samples in the
   row's interval ``(t - 1/fps, t]`` (the last sample before it if there is none);
 - ``action``: the target joints of the last accepted command at or before the row time
   (``/commands`` with ``accepted`` and a ``target_joints``); before any, the state's
-  ``target_joints``.
+  ``target_joints``; in the state's units.
+- ``telerobot.age_ms``: how old the row's state, newest force sample and frame are. A
+  row whose state is more than two state periods old, whose force interval had no
+  sample, or whose frame is more than a row period away is flagged stale there and
+  counted (``stale_rows`` in the summary and ``meta/telerobot_export.json``, with a
+  warning): never silently held. (Not ``observation.*``: LeRobot's policies take every
+  ``observation.`` feature as an input.)
 
 Episodes come from ``/episodes`` (``start``/``end``, the task from the last ``label``);
 a recording without any is exported as one episode, the whole recording, with the task
@@ -72,6 +83,7 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from telerobot.client.lerobot.units import JointUnits
 from telerobot.drivers.base import DriverUnavailable, TelerobotError
 from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
 from telerobot.server.recording.reader import decode, read, read_raw
@@ -94,9 +106,6 @@ ENCODERS: tuple[tuple[str, dict[str, str], dict[str, Any]], ...] = (
 GOP = 2
 TIE_S = 1e-6  # times this close are the same time
 WHOLE_RECORDING_TASK = "(whole recording)"
-# The dataset's robot_type per model, as LeRobot names the arms it knows (an SO-101
-# recording is an SO-101 dataset); other models are named as the settings name them.
-ROBOT_TYPES = {"so101": "so101_follower"}
 CAMERAS = ("left", "right")
 MAX_STAT_IMAGES = 100  # images sampled per episode for the image stats (lerobot samples too)
 # Rows may outpace the recorded video by this much (about one repeated frame in 20, the
@@ -108,6 +117,11 @@ ALLOW_REPEATS = "--allow-repeated-frames; allow_repeated_frames over the API"
 LOAD_SHARE = 0.1
 FINISH_SHARE = 0.05
 VIDEO_TOPIC = "/video/stereo"
+# A row's state, force or frame older than these is flagged (``telerobot.age_ms``,
+# counted in the summary), never silently held: a state more than two of its periods
+# old, a force interval with no sample, a frame more than one row period from the row.
+STALE_STATE_PERIODS = 2.0
+AGE_NAMES = ["state", "force", "frame"]
 
 Progress = Callable[[float], None]
 
@@ -148,6 +162,8 @@ class ExportSummary:
     video_fps: float | None = None
     repeated_frames: int = 0  # rows that show the same recorded frame as the row before
     warnings: list[str] = field(default_factory=list)  # what the dataset should be read with
+    # Rows whose state, force or frame was older than its bound (telerobot.age_ms).
+    stale_rows: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -179,6 +195,9 @@ class _Recording:
     video_t: Array  # capture times, monotonic clock (the frames are read again to export)
     skipped: list[str]
     model: RobotModel  # the arm recorded (its settings' robot_model)
+    # What the recording's /settings said (None: a recording from before they were kept).
+    configured_fps: float | None = None
+    state_rate_hz: float | None = None
 
 
 def _load(path: Path) -> _Recording:
@@ -187,6 +206,7 @@ def _load(path: Path) -> _Recording:
     forces for an hour would take about a gigabyte)."""
     topics = ["/settings", "/robot/state", "/force", "/commands", "/episodes", VIDEO_TOPIC]
     model_name = DEFAULT_MODEL  # recordings from before robot models were all of the PUMA
+    recorded_settings: dict[str, Any] = {}
     state_t, joints, targets, pose = array("d"), array("d"), array("d"), array("d")
     force_t, force = array("d"), array("d")
     command_t, command_target = array("d"), array("d")
@@ -204,6 +224,7 @@ def _load(path: Path) -> _Recording:
         m = decode(topic, data, encoding)
         if topic == "/settings":
             model_name = str(m.get("robot_model", DEFAULT_MODEL))
+            recorded_settings = m
             continue
         t = float(m["t"])
         if len(offsets) < 1000:
@@ -256,7 +277,17 @@ def _load(path: Path) -> _Recording:
         episodes=episodes,
         video_t=video_t,
         skipped=skipped,
+        configured_fps=_positive(recorded_settings.get("video_fps")),
+        state_rate_hz=_positive(recorded_settings.get("state_rate_hz")),
     )
+
+
+def _positive(value: Any) -> float | None:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
 
 
 def _episodes(
@@ -318,6 +349,34 @@ def _interval_mean(t_src: Array, values: Array, t: Array, period: float) -> Arra
     if empty.any():
         out[empty] = values[np.clip(hi[empty] - 1, 0, len(values) - 1)]
     return np.asarray(out, np.float64)
+
+
+def _state_period(rec: _Recording) -> float:
+    """The state's period: as configured, else as recorded (its median spacing)."""
+    if rec.state_rate_hz:
+        return 1.0 / rec.state_rate_hz
+    if len(rec.state_t) > 1:
+        return float(np.median(np.diff(rec.state_t)))
+    return 0.02
+
+
+def _age_of_held(t_src: Array, t: Array) -> Array:
+    """How old the value ``_held`` takes for each ``t`` is (s): its distance from the
+    row for a row before the first."""
+    if len(t_src) == 0:
+        return np.full(len(t), -1.0)
+    i = np.searchsorted(t_src, t + TIE_S, side="right") - 1
+    return np.asarray(np.abs(t - t_src[np.clip(i, 0, len(t_src) - 1)]), np.float64)
+
+
+def _ages(rec: _Recording, t: Array, source: npt.NDArray[np.int64] | None) -> Array:
+    """Per row: the age of its state, of its newest force sample, of its frame (ms)."""
+    state = _age_of_held(rec.state_t, t)
+    force = _age_of_held(rec.force_t, t)
+    frame = np.abs(t - rec.video_t[source]) if source is not None else np.zeros(len(t))
+    ms = np.stack([state, force, frame], axis=1) * 1000.0
+    ms[:, 1] = np.where(force < 0, -1.0, ms[:, 1])
+    return np.asarray(ms, np.float64)
 
 
 def _nearest(t_src: Array, t: Array) -> npt.NDArray[np.int64]:
@@ -560,7 +619,17 @@ def export_lerobot(
     has_video = len(rec.video_t) > 0
     rate = video_rate(rec.video_t)
     warnings: list[str] = []
-    if fps is None:
+    if fps is None and rec.configured_fps is not None:
+        # The rate the server was asked for, whatever the load did to the video (LeRobot
+        # cannot merge datasets of different fps): rows whose frame is then older than a
+        # row period are flagged (telerobot.age_ms) and counted, not hidden.
+        fps = max(1, round(rec.configured_fps))
+        if rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
+            warnings.append(
+                f"the recorded video ran at {rate:.1f} fps, below the {fps} fps configured: "
+                "rows whose frame is more than a row period old are flagged"
+            )
+    elif fps is None:
         fps = default_fps(rate)
     elif rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
         too_fast = (
@@ -604,11 +673,14 @@ def export_lerobot(
 
     out.mkdir(parents=True, exist_ok=True)
     joint_names = joint_feature_names(rec.model)
+    units = JointUnits.of(rec.model.name, rec.model.joint_names, rec.model.qlim)
+    state_period = _state_period(rec)
     features: dict[str, dict[str, Any]] = {
         "observation.state": _feature(
             [rec.model.dof],
             joint_names,
-            "joints (rad): the last /robot/state at or before the row time",
+            f"joints ({units.describe()}, LeRobot's units): the last /robot/state at or "
+            "before the row time",
         ),
         "observation.tool_pose": _feature(
             [12],
@@ -625,8 +697,15 @@ def export_lerobot(
         "action": _feature(
             [rec.model.dof],
             joint_names,
-            "commanded target joints (rad): the last accepted /commands target at or before "
-            "the row time (before any: the state's target)",
+            f"commanded target joints ({units.describe()}): the last accepted /commands "
+            "target at or before the row time (before any: the state's target)",
+        ),
+        "telerobot.age_ms": _feature(
+            [3],
+            AGE_NAMES,
+            "how old the row's state, force and frame are (ms; force −1: none recorded); "
+            f"flagged stale above {1000 * STALE_STATE_PERIODS * state_period:.0f} ms "
+            "(state) and one row period (force, frame)",
         ),
     }
 
@@ -643,11 +722,12 @@ def export_lerobot(
     for e, (t, (_, _, task)) in enumerate(zip(rows, kept, strict=True)):
         n = len(t)
         state = _held(rec.state_t, rec.joints, t)
-        columns["observation.state"].append(state)
+        columns["observation.state"].append(units.to_lerobot(state))
         columns["observation.tool_pose"].append(_held(rec.state_t, rec.pose, t))
         columns["observation.force"].append(_interval_mean(rec.force_t, rec.force, t, 1.0 / fps))
         fallback = _held(rec.state_t, rec.targets, t)
-        columns["action"].append(_held(rec.command_t, rec.command_target, t, before=fallback))
+        action = _held(rec.command_t, rec.command_target, t, before=fallback)
+        columns["action"].append(units.to_lerobot(action))
         index_cols["timestamp"].append((np.arange(n) / fps).astype(np.float32))
         index_cols["frame_index"].append(np.arange(n, dtype=np.int64))
         index_cols["episode_index"].append(np.full(n, e, np.int64))
@@ -664,6 +744,19 @@ def export_lerobot(
         for t in rows
     ]
     repeated = _repeats(source) if has_video else 0
+    columns["telerobot.age_ms"] = [
+        _ages(rec, t, src if has_video else None) for t, src in zip(rows, source, strict=True)
+    ]
+    ages = np.concatenate(columns["telerobot.age_ms"])
+    bounds = np.array([STALE_STATE_PERIODS * state_period, 1.0 / fps, 1.0 / fps]) * 1000 + 1e-3
+    stale: dict[str, int] = {}
+    for i, name in enumerate(AGE_NAMES):
+        stale[name] = int(np.count_nonzero(ages[:, i] > bounds[i]))
+        if stale[name]:
+            warnings.append(
+                f"{stale[name]} of {total} rows have a {name} older than {bounds[i]:.0f} ms "
+                "(flagged in telerobot.age_ms)"
+            )
     if repeated > REPEAT_TOLERANCE * total:
         warnings.append(
             f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
@@ -758,7 +851,7 @@ def export_lerobot(
 
     info = {
         "codebase_version": CODEBASE_VERSION,
-        "robot_type": ROBOT_TYPES.get(rec.model.name, rec.model.name),
+        "robot_type": units.robot_type,
         "total_episodes": len(kept),
         "total_frames": total,
         "total_tasks": len(tasks),
@@ -778,6 +871,13 @@ def export_lerobot(
         "fps": fps,
         "recorded_video_fps": rate,
         "repeated_frames": repeated,
+        "stale_rows": stale,
+        "units": {
+            "observation.state": units.describe(),
+            "action": units.describe(),
+            "observation.tool_pose": "m, rotation matrix",
+            "observation.force": "N, N·m",
+        },
         "warnings": warnings,
     }
     (out / EXPORT_INFO_PATH).write_text(json.dumps(source_info, indent=4, ensure_ascii=False))
@@ -798,7 +898,34 @@ def export_lerobot(
         video_fps=rate,
         repeated_frames=repeated,
         warnings=warnings,
+        stale_rows=stale,
     )
+
+
+def _eyes(frame: av.VideoFrame) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8], str]:
+    """The side-by-side frame's two halves, each as ``from_ndarray`` takes it, and the
+    format: split in the decoder's own YUV 4:2:0 where the halves' sizes allow (no
+    conversion to RGB and back: two colour conversions a frame and eye, a large share of
+    the export's time), else in RGB."""
+    w, h = frame.width // 2, frame.height
+    if frame.format.name == "yuv420p" and w % 2 == 0 and h % 2 == 0:
+        flat = frame.to_ndarray().reshape(-1)
+        size = frame.width * h
+        y = flat[:size].reshape(h, frame.width)
+        u = flat[size : size + size // 4].reshape(h // 2, frame.width // 2)
+        v = flat[size + size // 4 : size + size // 2].reshape(h // 2, frame.width // 2)
+        halves = []
+        for side in (0, 1):
+            planes = (
+                y[:, side * w : (side + 1) * w],
+                u[:, side * w // 2 : (side + 1) * w // 2],
+                v[:, side * w // 2 : (side + 1) * w // 2],
+            )
+            halves.append(np.concatenate([p.reshape(-1) for p in planes]).reshape(-1, w))
+        return halves[0], halves[1], "yuv420p"
+    rgb = cast(npt.NDArray[np.uint8], frame.to_ndarray(format="rgb24"))
+    left = np.ascontiguousarray(rgb[:, :w])
+    return left, np.ascontiguousarray(rgb[:, w : 2 * w]), "rgb24"
 
 
 def _write_videos(
@@ -828,11 +955,12 @@ def _write_videos(
     row = 0
     width = height = 0
 
-    def rows_for(index: int, image: npt.NDArray[np.uint8]) -> None:
+    def rows_for(index: int, frame: av.VideoFrame) -> None:
         nonlocal row, width, height
+        eyes = _eyes(frame)
         while row < len(wanted) and wanted[row] == index:
             if not containers:
-                height, width = image.shape[0], image.shape[1] // 2
+                height, width = frame.height, frame.width // 2
                 for cam in CAMERAS:
                     path = out / VIDEO_PATH.format(
                         video_key=f"observation.images.{cam}", chunk_index=0, file_index=0
@@ -848,17 +976,17 @@ def _write_videos(
                     stream.codec_context.time_base = Fraction(1, fps)
                     containers[cam], streams[cam] = container, stream
             for side, cam in enumerate(CAMERAS):
-                half = np.ascontiguousarray(image[:, side * width : (side + 1) * width])
-                frame = av.VideoFrame.from_ndarray(half, format="rgb24")
-                frame.pts = row
-                frame.time_base = Fraction(1, fps)
-                for packet in streams[cam].encode(frame):
+                eye = av.VideoFrame.from_ndarray(eyes[side], format=eyes[2])
+                eye.pts = row
+                eye.time_base = Fraction(1, fps)
+                for packet in streams[cam].encode(eye):
                     containers[cam].mux(packet)
                 if row == 0:  # the first frame opened the encoder (and its threads)
                     _no_realtime_threads()
                 e = int(episode_of_row[row])
                 if row_in_episode[row] % sample_every[e] == 0:
-                    histograms[cam][e].add(_downsample(half))
+                    rgb = cast(npt.NDArray[np.uint8], eye.to_ndarray(format="rgb24"))
+                    histograms[cam][e].add(_downsample(rgb))
             row += 1
             report(LOAD_SHARE + (1 - LOAD_SHARE - FINISH_SHARE) * row / len(wanted))
 
@@ -874,8 +1002,7 @@ def _write_videos(
             packet = av.Packet(au) if au is not None else None
             for frame in decoder.decode(packet):
                 if row < len(wanted) and wanted[row] == index:
-                    rgb = cast(npt.NDArray[np.uint8], frame.to_ndarray(format="rgb24"))
-                    rows_for(index, rgb)
+                    rows_for(index, frame)
                 index += 1
             if row >= len(wanted):
                 break

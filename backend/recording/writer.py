@@ -61,6 +61,7 @@ class McapFile:
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self.count: dict[str, int] = {}
+        self._last_log_ns = 0
 
     def _channel(self, topic: str) -> int:
         channel = self._channels.get(topic)
@@ -76,11 +77,15 @@ class McapFile:
         return channel
 
     def write(self, topic: str, log_time_ns: int, payload: dict[str, Any] | bytes) -> int:
-        """Write one message; returns its size in bytes."""
+        """Write one message; returns its size in bytes. Its ``publish_time`` is when it
+        was taken (``log_time_ns``); its ``log_time`` never goes back within the file
+        (``mcap doctor`` requires it): messages taken on several threads reach the
+        writer in the order they were queued, one up to a few ms after a later one."""
         channel = self._channel(topic)
         data = payload if isinstance(payload, bytes) else encode(topic, payload)
         seq = self._sequence[topic] = self._sequence[topic] + 1
-        self._writer.add_message(channel, log_time_ns, data, log_time_ns, seq)
+        logged = self._last_log_ns = max(log_time_ns, self._last_log_ns)
+        self._writer.add_message(channel, logged, data, log_time_ns, seq)
         self.count[topic] += 1
         return len(data)
 

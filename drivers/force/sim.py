@@ -32,6 +32,11 @@ log = logging.getLogger(__name__)
 MAX_EXTRAPOLATION = 0.05  # s: the arm publishes its state at least every 20 ms while moving
 
 
+# Behind by more than this, the slots missed are skipped (and their numbers with them)
+# rather than taken at once.
+MAX_CATCH_UP_S = 0.1
+
+
 class SimForceSensor(SampledForceSensor):
     name = "sim-force"
     thread_name = "sim-force-sensor"
@@ -61,6 +66,11 @@ class SimForceSensor(SampledForceSensor):
         # the offset is expressed in tool axes: R_toolᵀ p_tool.
         tool = kinematics.tool
         self._tool_offset = (tool[:3, :3].T @ tool[:3, 3]).tolist()
+
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """Samples lost to a stalled thread (skipped in the sequence): GET /force."""
+        return {"lost": self.overruns}
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
@@ -112,11 +122,22 @@ class SimForceSensor(SampledForceSensor):
     def _run(self) -> None:
         next_t = self._now()
         while not self._stop.is_set():
-            next_t += 1.0 / self._pipeline.rate_hz
+            period = 1.0 / self._pipeline.rate_hz
+            next_t += period
             delay = next_t - self._now()
             if delay > 0:
                 time.sleep(delay)
-            elif delay < -0.1:  # far behind (the machine stalled): skip, do not burst
-                self.overruns += math.floor(-delay * self._pipeline.rate_hz)
-                next_t = self._now()
-            self.sample_at(self._now())
+            late = self._now() - next_t
+            if late > MAX_CATCH_UP_S:
+                # Far behind (the machine stalled): those slots' samples are lost; their
+                # numbers are skipped, so the sequence shows it, as a real sensor's lost
+                # packets do.
+                missed = math.floor(late / period)
+                self.overruns += missed
+                self._seq += missed
+                next_t += missed * period
+            # Each sample at its own slot, the sensor's clock, as a real sensor times its
+            # samples: woken late, the thread takes the slots it missed at once, but
+            # their times keep the 1 kHz grid (stamped when taken, a stall left 66 ms
+            # gaps and then bursts of samples µs apart in the stream and recordings).
+            self.sample_at(next_t)

@@ -139,6 +139,21 @@ class UrdfKinematics(PinocchioKinematics):
             it += more
             if self.last_residual[0] > best[0]:
                 q, self.last_residual = best_q, best
+        if self.last_residual[0] > self.position_tol_m:
+            # Still short: the orientation task, kept in what the position leaves free,
+            # can hold the position off against a joint limit (an SO-101 sent back to
+            # its start position with an orientation it cannot have there stopped
+            # 0.01–78 mm away). The position alone, limits as constraints, from the
+            # best so far and then from the restarts; the orientation is what it gets.
+            for start in [q, *self._restarts]:
+                best_q, best = q, self.last_residual
+                start = np.where(self._carries_tool, start, q)
+                q, more = self._position_only(target, start)
+                it += more
+                if self.last_residual[0] > best[0]:
+                    q, self.last_residual = best_q, best
+                if self.last_residual[0] <= self.position_tol_m:
+                    break
         self.last_iterations = it
         pos_err = self.last_residual[0]
         if pos_err > self.position_tol_m:
@@ -223,6 +238,43 @@ class UrdfKinematics(PinocchioKinematics):
             q = q_next
             if step @ step < STEP_TOL * STEP_TOL:
                 break
+        self._residual(target, q)
+        return q, it
+
+    def _position_only(self, target: pin.SE3, q: FloatArray) -> tuple[FloatArray, int]:
+        """Damped least squares on the tool's position alone. A joint at a limit that
+        the step would push past is held there and the step solved again without it
+        (clamping the step instead stalls: the other joints never make up for it)."""
+        model, data, tool = self.model, self._data, self._tool_id
+        lo, hi = self._lo, self._hi
+        history = [math.inf] * STALL_WINDOW
+        it = 0
+        for it in range(1, 2 * MAX_ITERATIONS + 1):
+            pin.computeJointJacobians(model, data, q)
+            M = pin.updateFramePlacement(model, data, tool)
+            e_p = target.translation - M.translation
+            err = math.sqrt(e_p @ e_p)
+            if err <= self.position_tol_m:
+                break
+            if err > STALL_RATIO * history[it % STALL_WINDOW]:
+                break
+            history[it % STALL_WINDOW] = err
+            Jp = pin.getFrameJacobian(model, data, tool, pin.LOCAL_WORLD_ALIGNED)[:3]
+            free = self._carries_tool.copy()
+            dq = np.zeros_like(q)
+            for _ in range(len(q)):
+                J = Jp[:, free]
+                damping = (self._k * (e_p @ e_p) + 1e-12) * _I3
+                dq = np.zeros_like(q)
+                dq[free] = J.T @ np.linalg.solve(J @ J.T + damping, e_p)
+                blocked = free & (((q >= hi) & (dq > 0)) | ((q <= lo) & (dq < 0)))
+                if not blocked.any():
+                    break
+                free &= ~blocked
+            q_next = np.minimum(np.maximum(q + dq, lo), hi)
+            if (q_next - q) @ (q_next - q) < STEP_TOL * STEP_TOL:
+                break
+            q = q_next
         self._residual(target, q)
         return q, it
 

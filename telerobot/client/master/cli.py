@@ -9,14 +9,13 @@ import os
 import signal
 import sys
 import threading
-from urllib.parse import urlsplit
 
 import httpx
 import numpy as np
 
 from telerobot.client import local_url, stored_token
 from telerobot.client.master.bridge import BridgeSettings, MasterBridge
-from telerobot.client.master.link import PriorityLink
+from telerobot.client.master.link import open_link
 from telerobot.drivers.base import FloatArray, MasterArm, TelerobotError
 from telerobot.drivers.registry import driver_names, load_driver
 from telerobot.protocol.names import client_name
@@ -124,18 +123,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="forces as UDP datagrams (a lost one is lost, not late; TCP if none arrive)"
         " or on the TCP channel",
     )
-
-
-def open_link(server: str, token: str, *, datagrams: bool = True, name: str = "") -> PriorityLink:
-    """Find the server's priority channel (GET /api/v1/force/channel) and connect,
-    going by ``name``; forces as datagrams unless ``datagrams`` is False."""
-    base = server if server.endswith("/") else server + "/"
-    try:
-        channel = httpx.get(base + "api/v1/force/channel", timeout=5, verify=False).json()
-    except (httpx.HTTPError, ValueError) as exc:
-        raise TelerobotError(f"cannot ask {base} for its priority channel: {exc}") from None
-    host = urlsplit(base).hostname or "localhost"
-    return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams, name=name)
 
 
 def run_leader(args: argparse.Namespace, token: str) -> int:

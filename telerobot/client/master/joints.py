@@ -59,6 +59,9 @@ class MirrorSettings:
     align_rad: float = 0.15  # every joint this near the follower's before it follows
     max_speed_rad_s: float = 0.9  # per joint: under the server's joint speed limit
     heartbeat_s: float = 0.05
+    # False: follow from wherever the arm is, at ``max_speed_rad_s`` (the LeRobot robot
+    # plugin: a policy's or a replay's targets, which no hand brings near the arm first).
+    align: bool = True
 
     def check(self) -> MirrorSettings:
         for name in ("rate_hz", "align_rad", "max_speed_rad_s", "heartbeat_s"):
@@ -188,7 +191,7 @@ class JointMirror:
         if self._commanded is None:
             off = np.abs(leader - follower)
             worst = int(np.argmax(off))
-            if off[worst] > self.settings.align_rad:
+            if self.settings.align and off[worst] > self.settings.align_rad:
                 self.status = (
                     f"align the leader: {self.names[worst]} is "
                     f"{math.degrees(float(leader[worst] - follower[worst])):+.0f}° from the arm's"

@@ -23,8 +23,11 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
-from telerobot.drivers.base import DeviceError, ForceSample
+import httpx
+
+from telerobot.drivers.base import DeviceError, ForceSample, TelerobotError
 from telerobot.protocol import messages as m
 from telerobot.protocol.clock import ClockSync
 from telerobot.protocol.netprio import mark_high_priority
@@ -395,3 +398,15 @@ class PriorityLink:
             self.closed_reason = text
         if self.on_reply is not None:
             self.on_reply(Reply(msg.name, fields, text))
+
+
+def open_link(server: str, token: str, *, datagrams: bool = True, name: str = "") -> PriorityLink:
+    """Find the server's priority channel (GET /api/v1/force/channel) and connect,
+    going by ``name``; forces as datagrams unless ``datagrams`` is False."""
+    base = server if server.endswith("/") else server + "/"
+    try:
+        channel = httpx.get(base + "api/v1/force/channel", timeout=5, verify=False).json()
+    except (httpx.HTTPError, ValueError) as exc:
+        raise TelerobotError(f"cannot ask {base} for its priority channel: {exc}") from None
+    host = urlsplit(base).hostname or "localhost"
+    return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams, name=name)

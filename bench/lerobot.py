@@ -1,0 +1,104 @@
+"""The LeRobot robot plugin's calls against ``telerobot serve`` (the simulated SO-101 with
+its stereo video), as ``lerobot-record`` and ``lerobot-rollout`` make them at their fps:
+``get_observation`` with both cameras at the configured size, then ``send_action``.
+
+    python -m bench.lerobot [--json] [--seconds 20] [--fps 30] [--width 640 --height 480]
+                            [--busy-core]
+
+Figures, each ``{"p50": …, "p99": …}`` in ms: ``get_observation_ms`` (waits for a frame
+newer than the last, up to 1.5 frame periods, as a camera's ``async_read`` does),
+``send_action_ms``, and ``frame_state_skew_ms``: |the state's sample time − the
+frame's capture time| (both the server's clock: the simulated cameras date their
+frames with a timecode), which should be under half a frame. Also ``steps``,
+``repeated_frames`` (a step that found no new frame) and ``capture_source``.
+It runs ``telerobot.client.lerobot.arm`` directly, which the plugin only wraps: no
+LeRobot (nor torch) is needed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from bench.common import busy_core, emit, machine, parser, serve_for_bench
+
+TOKEN = "bench-lerobot-token-0123456789abcdef"
+
+
+def _p(values_s: list[float]) -> dict[str, float]:
+    v = np.array(values_s) * 1000.0
+    return {
+        "p50": round(float(np.percentile(v, 50)), 3),
+        "p99": round(float(np.percentile(v, 99)), 3),
+    }
+
+
+def measure(seconds: float, fps: float, width: int, height: int) -> dict[str, Any]:
+    from telerobot.client.lerobot.arm import ArmOptions, TelerobotArm
+
+    env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_VIDEO": "true",
+           "TELEROBOT_SIM_STARTS_AT_HOME": "true"}  # fmt: skip
+    with serve_for_bench("--model", "so101", env=env, ready=True) as (_, base):
+        options = ArmOptions(url=base, token=TOKEN, name="bench", width=width, height=height,
+                             fps=fps)  # fmt: skip
+        arm = TelerobotArm(options)
+        arm.connect()
+        try:
+            units = arm.units
+            assert units is not None
+            start = arm.observation()
+            home = np.array([start[k] for k in units.feature_names])
+            obs_s, act_s, skew_s = [], [], []
+            period = 1.0 / fps
+            t0 = time.perf_counter()
+            next_step = t0
+            steps = 0
+            while time.perf_counter() - t0 < seconds:
+                a = time.perf_counter()
+                arm.observation()
+                b = time.perf_counter()
+                if arm.last_skew_s is not None:
+                    skew_s.append(abs(arm.last_skew_s))
+                t = b - t0
+                target = home.copy()
+                target[0] += 15.0 * math.sin(2 * math.pi * t / 6)  # shoulder_pan, degrees
+                arm.send(dict(zip(units.feature_names, target.tolist(), strict=True)))
+                act_s.append(time.perf_counter() - b)
+                obs_s.append(b - a)
+                steps += 1
+                next_step += period
+                time.sleep(max(0.0, next_step - time.perf_counter()))
+            receiver = arm.receiver
+            source = receiver.latest().capture_source if receiver and receiver.latest() else None
+        finally:
+            arm.disconnect()
+    return {
+        "get_observation_ms": _p(obs_s),
+        "send_action_ms": _p(act_s),
+        "frame_state_skew_ms": _p(skew_s),
+        "half_frame_ms": round(500.0 / fps, 3),
+        "steps": steps,
+        "repeated_frames": arm.repeated_frames,
+        "capture_source": source,
+        "camera": f"{width}x{height} each, {fps:g} fps",
+    }
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--seconds", type=float, default=20.0)
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--busy-core", action="store_true", help="one core kept busy (stress-ng)")
+    args = p.parse_args()
+    with busy_core(args.busy_core):
+        figures = measure(args.seconds, args.fps, args.width, args.height)
+    emit({**figures, "busy_core": args.busy_core, "machine": machine()}, args.json)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,30 @@
+"""The robot's settings, as ``--robot.<field>=…`` on LeRobot's command lines."""
+
+from dataclasses import dataclass, field
+
+from lerobot.robots.config import RobotConfig
+
+from telerobot.client import local_url, stored_token
+
+
+@RobotConfig.register_subclass("telerobot")
+@dataclass
+class TelerobotConfig(RobotConfig):
+    # The server: TELEROBOT_URL, else http://localhost:8000 (what `make run` serves).
+    url: str = field(default_factory=local_url)
+    # The operator token: TELEROBOT_OPERATOR_TOKEN, else the one `telerobot serve` keeps
+    # on this machine. Commands need it; without it the server refuses control.
+    token: str = field(default_factory=lambda: stored_token() or "")
+    # The name this robot's client holds control by (the page shows it; the Telerobot
+    # teleoperator tells an operator's control from it).
+    client_name: str = "lerobot"
+    # The server's stereo pair as the cameras `left` and `right`, each frame resized to
+    # camera_width × camera_height (one eye); False: joints and force only.
+    use_cameras: bool = True
+    camera_width: int = 640
+    camera_height: int = 480
+    fps: float = 30.0  # the rate get_observation waits for a new frame at
+    # Each joint approaches its target at most this fast (the server's limits still apply).
+    max_speed_rad_s: float = 0.9
+    # Take control from whoever holds it (else connecting fails while someone drives).
+    take_over: bool = False

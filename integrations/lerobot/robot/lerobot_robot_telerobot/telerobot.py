@@ -1,0 +1,93 @@
+"""``Telerobot``: LeRobot's ``Robot`` over ``telerobot.client.lerobot.arm.TelerobotArm``.
+
+Everything the arm does is the server's: the limits, the lease, the dead-man and the
+e-stop apply to every target sent; ``send_action`` returns the target as applied
+(clipped to the limits), or, while someone else holds control, the server's target
+(their commands are applied by the server, not sent again).
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from typing import Any
+
+from lerobot.robots.robot import Robot
+from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
+
+from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
+from telerobot.client.lerobot.arm import (
+    ArmOptions,
+    TelerobotArm,
+    describe_arm,
+    observation_features,
+)
+
+
+class Telerobot(Robot):
+    config_class = TelerobotConfig
+    name = "telerobot"
+
+    def __init__(self, config: TelerobotConfig) -> None:
+        super().__init__(config)
+        self.config = config
+        self.options = ArmOptions(
+            url=config.url,
+            token=config.token,
+            name=config.client_name,
+            cameras=config.use_cameras,
+            width=config.camera_width,
+            height=config.camera_height,
+            fps=config.fps,
+            max_speed_rad_s=config.max_speed_rad_s,
+            take_over=config.take_over,
+        )
+        # LeRobot asks for the features before it connects: the arm's joints are the
+        # server's, asked now. A dataset is named for the arm (an SO-101's is LeRobot's
+        # so_follower), not for the way to it.
+        self.units = describe_arm(config.url)
+        self.name = self.robot_type = self.units.robot_type
+        self.arm = TelerobotArm(self.options)
+        # lerobot-record sizes its image writers by the cameras it sees here.
+        self.cameras: dict[str, Any] = {"left": None, "right": None} if config.use_cameras else {}
+
+    @cached_property
+    def observation_features(self) -> dict[str, Any]:
+        return observation_features(self.units.feature_names, self.options)
+
+    @cached_property
+    def action_features(self) -> dict[str, type]:
+        return {k: float for k in self.units.feature_names}
+
+    @property
+    def is_connected(self) -> bool:
+        return self.arm.connected
+
+    def connect(self, calibrate: bool = True) -> None:
+        if self.arm.connected:
+            raise DeviceAlreadyConnectedError(f"{self} is already connected")
+        self.arm.connect()
+
+    @property
+    def is_calibrated(self) -> bool:
+        return True  # the server's arm is calibrated on the server
+
+    def calibrate(self) -> None:
+        pass
+
+    def configure(self) -> None:
+        pass
+
+    def get_observation(self) -> dict[str, Any]:
+        if not self.arm.connected:
+            raise DeviceNotConnectedError(f"{self} is not connected")
+        return self.arm.observation()
+
+    def send_action(self, action: dict[str, Any]) -> dict[str, Any]:
+        if not self.arm.connected:
+            raise DeviceNotConnectedError(f"{self} is not connected")
+        return self.arm.send(action)
+
+    def disconnect(self) -> None:
+        if not self.arm.connected:
+            raise DeviceNotConnectedError(f"{self} is not connected")
+        self.arm.disconnect()

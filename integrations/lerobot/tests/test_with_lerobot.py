@@ -1,0 +1,198 @@
+"""The plugins in LeRobot's own tools (LeRobot 0.6.1, its real command lines), against a
+real Telerobot server on the simulation: discovered as LeRobot discovers plugins,
+`lerobot-record` with the Telerobot robot and teleoperator while a scripted operator
+drives through the server, `lerobot-replay` of an episode Telerobot exported, and
+LeRobot's own dataset reading both."""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+from conftest import TOKEN, run_lerobot, serving
+
+from telerobot.client import Telerobot
+
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+SMALL_VIDEO = {
+    "TELEROBOT_VIDEO": "true",
+    "TELEROBOT_VIDEO_WIDTH": "640",  # (the timecode the frames are dated by is 528 px)
+    "TELEROBOT_VIDEO_HEIGHT": "360",
+    "TELEROBOT_VIDEO_FPS": "15",
+}
+
+
+def test_lerobot_discovers_both_plugins_by_their_distribution_names() -> None:
+    from lerobot.robots.config import RobotConfig
+    from lerobot.teleoperators.config import TeleoperatorConfig
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
+    robot = RobotConfig.get_choice_class("telerobot")
+    teleop = TeleoperatorConfig.get_choice_class("telerobot")
+    assert robot.__module__ == "lerobot_robot_telerobot.config_telerobot"
+    assert teleop.__module__ == "lerobot_teleoperator_telerobot.config_telerobot"
+
+
+def _drive_as_an_operator(url: str, start: threading.Event, done: threading.Event) -> None:
+    """A person at the page: takes control over the robot's client, moves the first
+    joint there and back, and lets go."""
+    start.wait(60)
+    with Telerobot(url, TOKEN, name="scripted operator", take_over=True) as person:
+        for step in (0.15, -0.15, 0.1):
+            person.move_joints([step, 0, 0, 0, 0, 0], relative=True)
+    done.set()
+
+
+def test_lerobot_record_with_the_telerobot_robot_and_teleoperator(tmp_path: Path) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    with serving("--model", "so101", env=SMALL_VIDEO) as (url, _state):
+        start, done = threading.Event(), threading.Event()
+        operator = threading.Thread(target=_drive_as_an_operator, args=(url, start, done))
+        operator.start()
+        threading.Timer(8.0, start.set).start()  # once the recording is under way
+        root = tmp_path / "recorded"
+        said = run_lerobot(
+            "lerobot-record",
+            [
+                "--robot.type=telerobot",
+                "--robot.camera_width=320",
+                "--robot.camera_height=180",
+                "--robot.fps=15",
+                "--teleop.type=telerobot",
+                "--dataset.repo_id=telerobot/record-test",
+                f"--dataset.root={root}",
+                "--dataset.single_task=wave",
+                "--dataset.num_episodes=2",
+                "--dataset.episode_time_s=4",
+                "--dataset.reset_time_s=1",
+                "--dataset.fps=10",
+                "--dataset.push_to_hub=false",
+                "--play_sounds=false",
+            ],
+            url,
+            tmp_path,
+        )
+        operator.join(60)
+        assert done.is_set(), said[-3000:]
+    ds = LeRobotDataset("telerobot/record-test", root=root, video_backend="pyav")
+    assert ds.num_episodes == 2 and ds.meta.robot_type == "so_follower"
+    names = ds.meta.features["observation.state"]["names"]
+    assert names[:6] == [
+        "shoulder_pan.pos",
+        "shoulder_lift.pos",
+        "elbow_flex.pos",
+        "wrist_flex.pos",
+        "wrist_roll.pos",
+        "gripper.pos",
+    ]
+    assert names[6:] == [f"force.{n}" for n in ("fx", "fy", "fz", "tx", "ty", "tz")]
+    for i in range(len(ds)):
+        item = ds[i]
+        assert tuple(item["observation.images.left"].shape) == (3, 180, 320)
+    pans = np.array([float(ds[i]["action"][0]) for i in range(len(ds))])
+    assert pans.max() - pans.min() > 5.0, pans  # the operator's move, in degrees
+
+
+def _record_an_episode(url: str) -> Path:
+    """An SO-101 episode recorded and exported by the server: a few joint moves."""
+    with httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=120) as http:
+        assert http.post("recordings", json={"name": "replay source"}).status_code == 200
+        http.post("recordings/active/episodes", json={"task": "three poses"})
+        with Telerobot(url, TOKEN, name="recorder") as arm:
+            start = arm.state()["joints"]
+            for pose in ([0.3, -0.2, 0.3, 0.2, 0.0, 0.2], [-0.2, 0.1, 0.1, -0.3, 0.4, 0.5]):
+                arm.move_joints(pose)
+            arm.move_joints(start)
+        http.post("recordings/active/episodes/end", json={"success": True})
+        file = http.post("recordings/active/stop").json()["file"]
+        r = http.post(f"recordings/{file}/export/lerobot", json={})
+        assert r.status_code == 200, r.text
+        return Path(r.json()["path"])
+
+
+def test_lerobot_replay_drives_the_arm_through_a_recorded_episode(tmp_path: Path) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    with serving("--model", "so101") as (url, _state):
+        root = _record_an_episode(url)
+        info = json.loads((root / "meta/info.json").read_text())
+        assert info["robot_type"] == "so_follower"
+        ds = LeRobotDataset("telerobot/replay-source", root=root)
+        actions = np.array([ds[i]["action"].numpy() for i in range(len(ds))])
+        with Telerobot(url, TOKEN, name="setup") as arm:  # away from the episode's end
+            arm.move_joints([0.2, 0.0, 0.0, 0.0, 0.0, 0.3])
+        path: list[list[float]] = []
+        stop = threading.Event()
+
+        def watch() -> None:
+            while not stop.is_set():
+                path.append(httpx.get(url + "api/v1/robot/state").json()["joints_deg"])
+                time.sleep(0.05)
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        try:
+            said = run_lerobot(
+                "lerobot-replay",
+                [
+                    "--robot.type=telerobot",
+                    "--robot.use_cameras=false",
+                    "--dataset.repo_id=telerobot/replay-source",
+                    f"--dataset.root={root}",
+                    "--dataset.episode=0",
+                    "--play_sounds=false",
+                ],
+                url,
+                tmp_path,
+            )
+        finally:
+            stop.set()
+            watcher.join()
+    # The arm passed near every pose of the episode (the SO-101's LeRobot degrees are
+    # 360/4095 per step: 0.02 % from the model's), the gripper in % of its range aside.
+    went = np.array(path)[:, :5] * 4096 / 4095
+    worst = max(float(np.min(np.abs(went - a[:5]).max(axis=1))) for a in actions)
+    assert worst < 3.0, (worst, said[-2000:])
+    assert np.abs(went[-1] - actions[-1][:5]).max() < 3.0
+    assert "clipped" not in said
+
+
+def test_lerobot_reads_a_puma_export_made_with_video(tmp_path: Path) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    with serving(env=SMALL_VIDEO) as (url, _state):
+        root = _record_puma(url)
+    ds = LeRobotDataset("telerobot/puma", root=root, video_backend="pyav")
+    info = ds.meta.info
+    assert info["robot_type"] == "puma560" and ds.num_episodes == 1
+    fps = info["fps"]
+    for i in range(len(ds)):
+        item = ds[i]
+        assert abs(float(item["timestamp"]) - int(item["frame_index"]) / fps) < 0.5 / fps
+        assert tuple(item["observation.images.right"].shape) == (3, 360, 640)
+    degrees = np.array([ds[i]["observation.state"].numpy() for i in range(len(ds))])
+    assert np.abs(degrees).max() > math.degrees(0.2)  # degrees, not radians
+
+
+def _record_puma(url: str) -> Path:
+    with httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=120) as http:
+        deadline = time.monotonic() + 60
+        while not http.get("video").json()["worker_alive"]:
+            assert time.monotonic() < deadline, "the media worker never started"
+            time.sleep(0.2)
+        assert http.post("recordings", json={"name": "puma"}).status_code == 200
+        http.post("recordings/active/episodes", json={"task": "reach"})
+        with Telerobot(url, TOKEN, name="recorder") as arm:
+            arm.move_joints([0.3, 0, 0, 0, 0, 0], relative=True)
+        http.post("recordings/active/episodes/end", json={"success": True})
+        file = http.post("recordings/active/stop").json()["file"]
+        r = http.post(f"recordings/{file}/export/lerobot", json={})
+        assert r.status_code == 200, r.text
+        return Path(r.json()["path"])

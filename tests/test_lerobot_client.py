@@ -1,0 +1,178 @@
+"""What the LeRobot plugins are made of (``telerobot.client.lerobot``), without LeRobot:
+LeRobot's units against its own formulas, then the arm and the operator against a real
+server running the simulated SO-101 with its stereo video (the plugins themselves, in
+LeRobot's own tools: integrations/lerobot/tests)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import httpx
+import numpy as np
+import pytest
+
+from telerobot.client import Telerobot
+from telerobot.client.lerobot.arm import ArmOptions, TelerobotArm
+from telerobot.client.lerobot.cameras import capture_time
+from telerobot.client.lerobot.operator import OperatorOptions, TelerobotOperator
+from telerobot.client.lerobot.units import JointUnits
+from telerobot.drivers.camera import timecode
+from telerobot.drivers.robot.models import load_model
+from telerobot.drivers.robot.so101.calibration import STEPS_PER_RADIAN
+from tests.support import TOKEN, until
+from tests.support.servers import serving
+
+SO101 = load_model("so101")
+SO101_UNITS = JointUnits.of("so101", SO101.joint_names, SO101.qlim)
+
+
+def lerobot_degrees(steps: float, range_min: float, range_max: float) -> float:
+    """LeRobot 0.6.1's MotorNormMode.DEGREES (motors_bus._normalize)."""
+    mid = (range_min + range_max) / 2
+    return (steps - mid) * 360 / 4095
+
+
+def test_so101_joints_read_as_lerobots_so_follower_reads_them() -> None:
+    """The calibration puts a joint's zero at the middle of LeRobot's range (its
+    ``zero_steps``): the same servo position gives LeRobot's degrees exactly."""
+    lo, hi = 1000.0, 3000.0  # a joint's calibrated range, in steps
+    for steps in (1000.0, 1733.0, 2000.0, 2999.0):
+        q = (steps - (lo + hi) / 2) / STEPS_PER_RADIAN  # the model's angle (direction +1)
+        ours = SO101_UNITS.to_lerobot(np.array([q, 0, 0, 0, 0, SO101.qlim[5][0]]))[0]
+        assert ours == pytest.approx(lerobot_degrees(steps, lo, hi), abs=1e-9)
+
+
+def test_the_gripper_is_0_to_100_percent_of_its_range_and_units_go_back() -> None:
+    lo, hi = SO101.qlim[5]
+    q = np.array([0.1, -0.2, 0.3, -0.4, 0.5, lo])
+    assert SO101_UNITS.to_lerobot(q)[5] == pytest.approx(0.0)
+    q[5] = hi
+    assert SO101_UNITS.to_lerobot(q)[5] == pytest.approx(100.0)
+    q[5] = (lo + hi) / 2
+    values = SO101_UNITS.to_lerobot(q)
+    assert values[5] == pytest.approx(50.0)
+    np.testing.assert_allclose(SO101_UNITS.from_lerobot(values), q, atol=1e-12)
+    assert SO101_UNITS.robot_type == "so_follower"
+    assert SO101_UNITS.feature_names[-1] == "gripper.pos"
+
+
+def test_the_puma_is_in_plain_degrees() -> None:
+    puma = load_model("puma560")
+    units = JointUnits.of("puma560", puma.joint_names, puma.qlim)
+    np.testing.assert_allclose(units.to_lerobot(np.full(6, math.pi / 2)), np.full(6, 90.0))
+    assert units.robot_type == "puma560" and units.describe() == "degrees"
+
+
+def test_a_target_beyond_the_limits_is_clipped_and_named() -> None:
+    q = np.array(SO101.qlim)[:, 1] + 0.5
+    clipped, moved = SO101_UNITS.clip(q)
+    np.testing.assert_allclose(clipped, np.array(SO101.qlim)[:, 1])
+    assert moved == list(SO101.joint_names)
+
+
+def test_a_frames_capture_time_is_read_from_its_timecode() -> None:
+    image = np.zeros((64, 640, 3), np.uint8)
+    timecode.draw(image, 1234.5678)
+    assert capture_time(timecode.read(image), 1234.6) == pytest.approx(1234.5678, abs=2e-4)
+    assert capture_time(None, 1.0) is None
+
+
+VIDEO = {
+    "TELEROBOT_VIDEO": "true",
+    "TELEROBOT_VIDEO_WIDTH": "640",  # (the timecode is 528 pixels wide)
+    "TELEROBOT_VIDEO_HEIGHT": "360",
+}
+
+
+@pytest.fixture(scope="module")
+def so101() -> str:
+    with serving(VIDEO, "--model", "so101") as base:
+        yield base
+
+
+def _state(base: str) -> dict:
+    return httpx.get(base + "api/v1/robot/state").json()
+
+
+def test_the_arm_reads_moves_clips_and_gives_way_to_an_operator(so101: str) -> None:
+    options = ArmOptions(url=so101, token=TOKEN, name="lerobot test", width=320, height=180)
+    arm = TelerobotArm(options)
+    with pytest.raises(ConnectionError, match="not connected"):
+        arm.observation()
+    arm.connect()
+    operator = TelerobotOperator(OperatorOptions(so101, TOKEN, robot_client_name="lerobot test"))
+    operator.connect()
+    try:
+        units = arm.units
+        assert units is not None and units.names == SO101.joint_names
+        obs = arm.observation()
+        assert obs["left"].shape == obs["right"].shape == (180, 320, 3)
+        assert {f"force.{n}" for n in ("fx", "fy", "fz", "tx", "ty", "tz")} <= set(obs)
+        here = units.to_lerobot(_state(so101)["joints"])
+        got = [obs[k] for k in units.feature_names]
+        np.testing.assert_allclose(got, here, atol=0.5)  # the arm at rest: degrees
+        assert arm.receiver is not None and arm.receiver.latest().capture_source == "timecode"
+        assert arm.last_skew_s is not None and abs(arm.last_skew_s) < 1.0
+        assert not operator.intervening()  # the arm's own client holds control
+
+        # A move: shoulder_pan by 10°, through the server.
+        target = dict(zip(units.feature_names, got, strict=True))
+        target["shoulder_pan.pos"] += 10.0
+        applied = arm.send(target)
+        assert applied["shoulder_pan.pos"] == pytest.approx(target["shoulder_pan.pos"])
+        until(
+            lambda: abs(arm.observation()["shoulder_pan.pos"] - target["shoulder_pan.pos"]) < 1,
+            timeout=30,
+            what=lambda: f"shoulder_pan at {arm.observation()['shoulder_pan.pos']}",
+        )
+        assert operator.action()["shoulder_pan.pos"] == pytest.approx(
+            target["shoulder_pan.pos"], abs=0.5
+        )
+
+        # Beyond its limit: clipped to it, said and counted.
+        beyond = dict(target, **{"elbow_flex.pos": 1000.0})
+        applied = arm.send(beyond)
+        upper = math.degrees(SO101.qlim[2][1]) * 4096 / 4095  # LeRobot's degrees
+        assert applied["elbow_flex.pos"] == pytest.approx(upper)
+        assert arm.clipped == 1
+        with pytest.raises(ValueError, match=r"no wrist_roll\.pos"):
+            arm.send({k: v for k, v in target.items() if k != "wrist_roll.pos"})
+        with pytest.raises(ValueError, match="not finite"):
+            arm.send(dict(target, **{"gripper.pos": float("nan")}))
+
+        # An operator takes over: the arm's actions are no longer sent, what it returns
+        # is the server's target, and the operator is intervening.
+        with Telerobot(so101, TOKEN, name="operator", take_over=True) as person:
+            until(lambda: operator.intervening(), timeout=10, what="the operator's control")
+            until(lambda: not arm.mirror.has_control, timeout=10, what="the lease taken")
+            person.move_joints([0.0] * 6)
+            pan_before = _state(so101)["target_joints"][0]
+            returned = arm.send(dict(target, **{"shoulder_pan.pos": 40.0}))
+            time.sleep(0.3)
+            assert _state(so101)["target_joints"][0] == pytest.approx(pan_before)
+            assert returned == pytest.approx(operator.action(), abs=1e-6)
+    finally:
+        operator.disconnect()
+        arm.disconnect()
+    assert not arm.connected
+
+
+def test_without_the_operator_token_the_arm_is_refused(so101: str) -> None:
+    arm = TelerobotArm(ArmOptions(url=so101, token="", cameras=False))
+    with pytest.raises(PermissionError, match="operator token"):
+        arm.connect()
+    assert not arm.connected
+
+
+def test_an_unreachable_server_is_said() -> None:
+    arm = TelerobotArm(ArmOptions(url="http://127.0.0.1:9/", token=TOKEN, cameras=False))
+    with pytest.raises(ConnectionError, match=r"cannot ask http://127\.0\.0\.1:9/ for its arm"):
+        arm.connect()
+
+
+def test_a_picture_without_a_timecode_is_dated_by_its_arrival() -> None:
+    """A real camera's corner reads as some number: a time minutes away is no timecode."""
+    image = np.zeros((64, 640, 3), np.uint8)
+    timecode.draw(image, 1000.0)
+    assert capture_time(timecode.read(image), 1300.0) is None
