@@ -104,7 +104,11 @@ async def _export_in_own_process(
 
 class LeRobotExportRequest(BaseModel):
     fps: int | None = Field(
-        default=None, ge=1, le=120, description="rows per second (default: the video's rate)"
+        default=None,
+        ge=1,
+        le=120,
+        description="rows per second (default: the configured video rate; for a recording "
+        "without its settings, the video's real rate)",
     )
     allow_repeated_frames: bool = Field(
         default=False,
@@ -129,6 +133,10 @@ class LeRobotExport(BaseModel):
     )
     repeated_frames: int = Field(description="rows showing the same frame as the row before")
     warnings: list[str]
+    stale_rows: dict[str, int] = Field(
+        description="rows whose state, force or frame was older than its bound "
+        "(`telerobot.age_ms` in the dataset)"
+    )
 
 
 class LeRobotExportProgress(BaseModel):

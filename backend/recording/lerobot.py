@@ -957,7 +957,7 @@ def _write_videos(
 
     def rows_for(index: int, frame: av.VideoFrame) -> None:
         nonlocal row, width, height
-        eyes = _eyes(frame)
+        left, right, pix_fmt = _eyes(frame)
         while row < len(wanted) and wanted[row] == index:
             if not containers:
                 height, width = frame.height, frame.width // 2
@@ -976,7 +976,7 @@ def _write_videos(
                     stream.codec_context.time_base = Fraction(1, fps)
                     containers[cam], streams[cam] = container, stream
             for side, cam in enumerate(CAMERAS):
-                eye = av.VideoFrame.from_ndarray(eyes[side], format=eyes[2])
+                eye = av.VideoFrame.from_ndarray((left, right)[side], format=pix_fmt)
                 eye.pts = row
                 eye.time_base = Fraction(1, fps)
                 for packet in streams[cam].encode(eye):

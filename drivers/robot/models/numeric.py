@@ -28,6 +28,9 @@ from telerobot.drivers.base import FloatArray, InvalidCommand, JointLimitError, 
 from telerobot.drivers.robot.kinematics import PinocchioKinematics, joint_limit_faults
 
 MAX_ITERATIONS: Final = 60
+# Position-only solves tried when the position is still short (the best so far, then
+# the first restarts): each is bounded, as an unreachable pose must be refused quickly.
+FALLBACK_STARTS: Final = 2
 # Converged when a step moves the joints less than this (radians, largest joint).
 STEP_TOL: Final = 1e-10
 # Given up as stalled when the error is above this share of what it was
@@ -145,7 +148,7 @@ class UrdfKinematics(PinocchioKinematics):
             # its start position with an orientation it cannot have there stopped
             # 0.01–78 mm away). The position alone, limits as constraints, from the
             # best so far and then from the restarts; the orientation is what it gets.
-            for start in [q, *self._restarts]:
+            for start in [q, *self._restarts][:FALLBACK_STARTS]:
                 best_q, best = q, self.last_residual
                 start = np.where(self._carries_tool, start, q)
                 q, more = self._position_only(target, start)
@@ -249,7 +252,7 @@ class UrdfKinematics(PinocchioKinematics):
         lo, hi = self._lo, self._hi
         history = [math.inf] * STALL_WINDOW
         it = 0
-        for it in range(1, 2 * MAX_ITERATIONS + 1):
+        for it in range(1, MAX_ITERATIONS + 1):
             pin.computeJointJacobians(model, data, q)
             M = pin.updateFramePlacement(model, data, tool)
             e_p = target.translation - M.translation

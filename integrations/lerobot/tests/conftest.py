@@ -21,6 +21,7 @@ import httpx
 REPO = Path(__file__).resolve().parents[3]
 TOKEN = "lerobot-plugin-tests-0123456789abcdef"
 BIN = Path(sys.executable).parent  # lerobot-record, lerobot-replay
+os.environ["HF_HUB_OFFLINE"] = "1"  # LeRobot reads local datasets here: never the Hub
 
 
 @contextlib.contextmanager

@@ -56,7 +56,7 @@ class ArmOptions:
     width: int = 640  # of one camera: frames of another size are resized to it
     height: int = 480
     fps: float = 30.0
-    max_speed_rad_s: float = 0.9
+    max_speed_rad_s: float = 0.95  # per joint; the server's joint limit is 1 rad/s
     rate_hz: float = 100.0
     take_over: bool = False
 
@@ -125,7 +125,9 @@ class TelerobotArm:
             )
         self.link = link
         self._targets = _Targets(self.units.names, self._newest_joints)
-        settings = MirrorSettings(rate_hz=o.rate_hz, max_speed_rad_s=o.max_speed_rad_s, align=False)
+        settings = MirrorSettings(
+            rate_hz=o.rate_hz, max_speed_rad_s=o.max_speed_rad_s, align=False, straight=True
+        )
         # (_Targets is a JointLeader but for from_options: it is built here, not from a port.)
         leader = cast(JointLeader, self._targets)
         self.mirror = JointMirror(leader, link, self.units.names, settings.check())

@@ -62,6 +62,9 @@ class MirrorSettings:
     # False: follow from wherever the arm is, at ``max_speed_rad_s`` (the LeRobot robot
     # plugin: a policy's or a replay's targets, which no hand brings near the arm first).
     align: bool = True
+    # True: a step toward a far target keeps its direction (every joint scaled by the
+    # slowest's share), so a replayed path is followed, not bent where one joint is capped.
+    straight: bool = False
 
     def check(self) -> MirrorSettings:
         for name in ("rate_hz", "align_rad", "max_speed_rad_s", "heartbeat_s"):
@@ -199,7 +202,12 @@ class JointMirror:
                 return None
             self._commanded = follower.copy()
         cap = self.settings.max_speed_rad_s / self.settings.rate_hz
-        dq = np.clip(leader - self._commanded, -cap, cap)
+        want = leader - self._commanded
+        if self.settings.straight:
+            largest = float(np.abs(want).max())
+            dq = want * (cap / largest) if largest > cap else want
+        else:
+            dq = np.clip(want, -cap, cap)
         self._commanded = self._commanded + dq
         lag = np.abs(leader - self._commanded)
         worst = int(np.argmax(lag))

@@ -1565,6 +1565,13 @@ export interface components {
             repeated_frames: number;
             /** Warnings */
             warnings: string[];
+            /**
+             * Stale Rows
+             * @description rows whose state, force or frame was older than its bound (`telerobot.age_ms` in the dataset)
+             */
+            stale_rows: {
+                [key: string]: number;
+            };
         };
         /** LeRobotExportProgress */
         LeRobotExportProgress: {
@@ -1585,7 +1592,7 @@ export interface components {
         LeRobotExportRequest: {
             /**
              * Fps
-             * @description rows per second (default: the video's rate)
+             * @description rows per second (default: the configured video rate; for a recording without its settings, the video's real rate)
              */
             fps?: number | null;
             /**

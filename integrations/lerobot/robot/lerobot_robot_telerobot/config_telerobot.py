@@ -25,6 +25,6 @@ class TelerobotConfig(RobotConfig):
     camera_height: int = 480
     fps: float = 30.0  # the rate get_observation waits for a new frame at
     # Each joint approaches its target at most this fast (the server's limits still apply).
-    max_speed_rad_s: float = 0.9
+    max_speed_rad_s: float = 0.95
     # Take control from whoever holds it (else connecting fails while someone drives).
     take_over: bool = False
