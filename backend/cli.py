@@ -121,12 +121,11 @@ def _serve(args: argparse.Namespace) -> int:
 
     tune_for_realtime()
     logging.getLogger("telerobot.tuning").info("%s", raise_cpu_priority(settings.cpu_priority))
-    try:
+    # Ctrl+C: uvicorn shuts the server down cleanly, then (mostly) raises the signal
+    # again for whoever called it; at a terminal that is the way to stop, no error.
+    with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(run())
-    except KeyboardInterrupt:
-        # Ctrl+C: uvicorn has shut the server down cleanly, then raised the signal again
-        # for whoever called it; for a user at a terminal that is the normal way to stop.
-        print("Telerobot stopped.", flush=True)
+    print("Telerobot stopped.", flush=True)
     return 0
 
 

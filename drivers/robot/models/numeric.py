@@ -18,7 +18,7 @@ met within ``position_tol_m`` is refused as unreachable, nothing moved.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Final, TypedDict
 
 import numpy as np
@@ -132,31 +132,15 @@ class UrdfKinematics(PinocchioKinematics):
         q, it = self._solve(target, q)
         # A far move can end in a local minimum against a limit: start again from a
         # few fixed places across the joint space (only then: a warm start is quick).
-        for start in self._restarts:
-            if self.last_residual[0] <= self.position_tol_m:
-                break
-            best_q, best = q, self.last_residual
-            # Joints that do not carry the tool (a gripper) keep the seed's value.
-            start = np.where(self._carries_tool, start, q)
-            q, more = self._solve(target, start)
-            it += more
-            if self.last_residual[0] > best[0]:
-                q, self.last_residual = best_q, best
+        q, it = self._retry(target, q, it, self._restarts, self._solve)
         if self.last_residual[0] > self.position_tol_m:
             # Still short: the orientation task, kept in what the position leaves free,
             # can hold the position off against a joint limit (an SO-101 sent back to
             # its start position with an orientation it cannot have there stopped
             # 0.01–78 mm away). The position alone, limits as constraints, from the
-            # best so far and then from the restarts; the orientation is what it gets.
-            for start in [q, *self._restarts][:FALLBACK_STARTS]:
-                best_q, best = q, self.last_residual
-                start = np.where(self._carries_tool, start, q)
-                q, more = self._position_only(target, start)
-                it += more
-                if self.last_residual[0] > best[0]:
-                    q, self.last_residual = best_q, best
-                if self.last_residual[0] <= self.position_tol_m:
-                    break
+            # best so far and then from a restart; the orientation is what it gets.
+            starts = [q, *self._restarts][:FALLBACK_STARTS]
+            q, it = self._retry(target, q, it, starts, self._position_only)
         self.last_iterations = it
         pos_err = self.last_residual[0]
         if pos_err > self.position_tol_m:
@@ -166,6 +150,27 @@ class UrdfKinematics(PinocchioKinematics):
                 f"its joint limits: the nearest it gets is {pos_err * 1000:.2f} mm away"
             )
         return q
+
+    def _retry(
+        self,
+        target: pin.SE3,
+        q: FloatArray,
+        it: int,
+        starts: list[FloatArray],
+        solve: Callable[[pin.SE3, FloatArray], tuple[FloatArray, int]],
+    ) -> tuple[FloatArray, int]:
+        """``solve`` from each of ``starts`` until the position is met, keeping the best
+        (and its residual); the iterations counted on from ``it``."""
+        for start in starts:
+            if self.last_residual[0] <= self.position_tol_m:
+                break
+            best_q, best = q, self.last_residual
+            # Joints that do not carry the tool (a gripper) keep the seed's value.
+            q, more = solve(target, np.where(self._carries_tool, start, q))
+            it += more
+            if self.last_residual[0] > best[0]:
+                q, self.last_residual = best_q, best
+        return q, it
 
     def _solve(self, target: pin.SE3, q: FloatArray) -> tuple[FloatArray, int]:
         q, it = self._newton(target, q)
