@@ -9,15 +9,14 @@ import itertools
 import math
 import socket
 import struct
-import threading
 import time
 from collections.abc import Iterator
 
 import httpx
 import pytest
 
-from telerobot.client.master.link import PriorityLink, Reply
-from telerobot.drivers.base import DeviceError, ForceSample
+from telerobot.client.master.link import PriorityLink
+from telerobot.drivers.base import DeviceError
 from telerobot.protocol import messages as m
 from telerobot.protocol.netprio import (
     DSCP_CS1,
@@ -26,6 +25,7 @@ from telerobot.protocol.netprio import (
     mark_low_priority,
 )
 from tests.support import TOKEN, until
+from tests.support.priority import Recorder
 from tests.support.servers import serving
 
 
@@ -33,30 +33,6 @@ from tests.support.servers import serving
 def server() -> Iterator[tuple[str, int]]:
     with serving({"TELEROBOT_HOME_POSE": "qn"}) as base:
         yield base, httpx.get(base + "api/v1/force/channel").json()["port"]
-
-
-class Recorder:
-    def __init__(self) -> None:
-        self.forces: list[tuple[ForceSample, float]] = []
-        self.replies: list[Reply] = []
-        self.lock = threading.Lock()
-
-    def force(self, sample: ForceSample, at: float) -> None:
-        self.forces.append((sample, at))
-
-    def reply(self, r: Reply) -> None:
-        with self.lock:
-            self.replies.append(r)
-
-    def reply_to(self, seq: int) -> Reply:
-        until(
-            lambda: any(r.fields.get("seq") == seq for r in list(self.replies)),
-            what=lambda: (
-                f"no reply to #{seq}; the last replies: {list(self.replies)[-5:]}"
-                f" (forces received: {len(self.forces)})"
-            ),
-        )
-        return next(r for r in list(self.replies) if r.fields.get("seq") == seq)
 
 
 def connect(port: int, token: str = TOKEN) -> tuple[PriorityLink, Recorder]:

@@ -27,9 +27,8 @@ from telerobot.server.realtime.priority import (
     DEFAULT_FORCE_RATE_HZ,
 )
 from tests.support import TOKEN, until
+from tests.support.priority import ChannelServer, Recorder
 from tests.support.servers import serving
-from tests.test_priority_channel import Recorder
-from tests.test_priority_limits import ChannelServer
 
 FORGED_IP = "127.0.0.2"  # not the TCP client's 127.0.0.1
 

@@ -8,7 +8,6 @@ its counters and queues; limits are passed small."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import errno
 import json
@@ -19,7 +18,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -36,7 +35,7 @@ from telerobot.server.realtime.priority import (
     Stage,
 )
 from tests.support import TOKEN, until
-from tests.support.priority import FakeSensor, build_channel
+from tests.support.priority import ChannelServer
 
 T = TypeVar("T")
 
@@ -51,33 +50,6 @@ def hello(token: str = "") -> bytes:
 
 def ping(seq: int) -> bytes:
     return m.encode(m.PING, seq, 0.0)
-
-
-class ChannelServer:
-    """A channel on an event loop in a thread of its own, like the server's."""
-
-    def __init__(self, **limits: Any) -> None:
-        self.sensor = FakeSensor()
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        self.channel, self.hub = self.call(build_channel(self.sensor, **limits))
-        self.port = self.channel.port
-
-    def call(self, work: Coroutine[Any, Any, T]) -> T:
-        return asyncio.run_coroutine_threadsafe(work, self.loop).result(10)
-
-    def client(self, peer_port: int) -> PriorityClient:
-        """The server's side of a connection, by the client's port."""
-        until(lambda: any(c.peer.endswith(f":{peer_port}") for c in list(self.channel.clients)))
-        return next(c for c in list(self.channel.clients) if c.peer.endswith(f":{peer_port}"))
-
-    def close(self) -> None:
-        self.call(self.channel.stop())
-        self.call(self.hub.stop())
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(5)
-        self.loop.close()
 
 
 @pytest.fixture
