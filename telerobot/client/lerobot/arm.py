@@ -269,14 +269,6 @@ class TelerobotArm:
         applied = units.to_lerobot(q)
         return {k: float(v) for k, v in zip(units.feature_names, applied, strict=True)}
 
-    def features(self) -> tuple[dict[str, Any], dict[str, Any]]:
-        """(observation, action) features as LeRobot states them; only after connect()
-        are the joints known (LeRobot asks before: ``joint_names`` of the config)."""
-        units, _, _ = self._need()
-        return observation_features(units.feature_names, self.options), {
-            k: float for k in units.feature_names
-        }
-
 
 def describe_arm(url: str) -> JointUnits:
     """The server's arm (``GET /api/v1/robot/model``): its joints and their units."""

@@ -17,7 +17,6 @@ import asyncio
 import contextlib
 import logging
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -201,8 +200,3 @@ class StereoReceiver:
 def wait_s(fps: float) -> float:
     """How long ``get_observation`` waits for a new frame: one and a half frames."""
     return 1.5 / fps if fps > 0 else 0.05
-
-
-def monotonic_to(offset: Callable[[], float]) -> Callable[[], float]:
-    """This machine's monotonic clock moved to the server's (``offset``: server − ours)."""
-    return lambda: time.monotonic() + offset()
