@@ -335,6 +335,43 @@ def test_a_loop_of_timeline_reads_is_one_job_kept_beside_the_recording(
     assert not kept[0].exists() and not (folder / ".index" / f"{path.name}.json").exists()
 
 
+def test_a_read_job_is_started_off_the_event_loop(
+    app: tuple[TestClient, Services, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The job's process is started from a thread where no event loop runs. Before,
+    uvloop's subprocess_exec forked the whole server on its event loop: 16 ms of a
+    stalled loop per job in a ~300 MB server (the e-stop's worst case in bench.abuse)."""
+    c, _, folder = app
+    path = write_recording(folder / "20260101-000000-r.mcap")
+    loops_running: list[bool] = []
+    popen = readjobs.subprocess.Popen
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        try:
+            asyncio.get_running_loop()
+            loops_running.append(True)
+        except RuntimeError:
+            loops_running.append(False)
+        return popen(*args, **kwargs)
+
+    monkeypatch.setattr(readjobs.subprocess, "Popen", spy)
+    assert c.get(f"/api/v1/recordings/{path.name}/timeline").status_code == 200
+    assert loops_running == [False]
+
+
+async def test_a_read_job_past_its_time_is_stopped_with_a_clear_error(tmp_path: Path) -> None:
+    """A job that has not answered within its time is killed (its process reaped), and
+    the read fails saying so; the next job runs."""
+    path = write_recording(tmp_path / "20260101-000000-r.mcap")
+    jobs = readjobs.ReadJobs(timeout_s=0.01)  # less than the job's interpreter takes to start
+    request = {"kind": "summaries", "paths": [str(path)]}
+    with pytest.raises(readjobs.ReadFailed, match=r"longer than 0\.01 s and was stopped"):
+        await jobs.run("slow", request, privileged=True)
+    jobs.timeout_s = 60.0
+    answer = await jobs.run("again", request, privileged=True)
+    assert answer["entries"][0]["file"] == path.name
+
+
 def test_reads_have_a_budget_per_address_that_the_token_lifts(
     app: tuple[TestClient, Services, Path],
 ) -> None:

@@ -29,13 +29,15 @@ import json
 import logging
 import math
 import os
+import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from subprocess import PIPE
+from typing import IO, Any
 
 from telerobot.drivers.base import TelerobotError
 from telerobot.server.realtime.ratelimit import PeerLimits
@@ -170,32 +172,37 @@ class ReadJobs:
 
     async def _in_process(self, request: dict[str, Any]) -> dict[str, Any]:
         self.started += 1
-        proc = await asyncio.create_subprocess_exec(
-            *started_yielding([sys.executable, "-m", __name__], JOB_NICE),
-            stdin=asyncio.subprocess.PIPE,
-            stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.PIPE,
-            env={**os.environ, **ONE_THREAD},
-        )  # fmt: skip
+        argv = started_yielding([sys.executable, "-m", __name__], JOB_NICE)
+        line = json.dumps(request).encode() + b"\n"
+        # Started by subprocess.Popen in a thread, not by the event loop's own
+        # subprocess_exec: uvloop forks the whole server there (~300 MB of page tables,
+        # then copy-on-write faults), 16 ms of a stalled loop per job, the e-stop's worst
+        # case under tokenless timeline reads (bench.abuse); Popen vforks, ~0.3 ms, and
+        # only in that thread.
+        proc = await asyncio.to_thread(_start, argv, {**os.environ, **ONE_THREAD}, line)
         assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
+        transports: list[asyncio.BaseTransport] = []
+        answered = False  # both pipes closed: the job is ending of itself
         try:
-            proc.stdin.write(json.dumps(request).encode() + b"\n")
-            await proc.stdin.drain()
+            stdout = await _stream(proc.stdout, transports)
+            stderr = await _stream(proc.stderr, transports)
             out, err = await asyncio.wait_for(
-                asyncio.gather(_bounded(proc.stdout, MAX_ANSWER_BYTES), _tail(proc.stderr)),
+                asyncio.gather(_bounded(stdout, MAX_ANSWER_BYTES), _tail(stderr)),
                 self.timeout_s,
             )
-            await proc.wait()
+            answered = True
         except TimeoutError:
             raise ReadFailed(
                 f"reading the recording took longer than {self.timeout_s:g} s and was stopped"
             ) from None
         finally:
-            if proc.returncode is None:
-                with contextlib.suppress(ProcessLookupError):
-                    proc.kill()
-                await proc.wait()
-            proc.stdin.close()
+            if not answered:
+                proc.kill()
+            for transport in transports:
+                transport.close()
+            with contextlib.suppress(BrokenPipeError):
+                proc.stdin.close()
+            await asyncio.to_thread(proc.wait)
         try:
             answer = json.loads(out)
         except ValueError:
@@ -211,6 +218,27 @@ class ReadJobs:
             raise ERRORS.get(error.get("code"), ReadFailed)(str(error.get("detail")))
         result: dict[str, Any] = answer
         return result
+
+
+def _start(argv: list[str], env: dict[str, str], line: bytes) -> subprocess.Popen[bytes]:
+    """The job's process, its request written (a line: far below a pipe's buffer). Its
+    stdin stays open until the job has answered: its end tells the job we have gone."""
+    proc = subprocess.Popen(argv, stdin=PIPE, stdout=PIPE, stderr=PIPE, env=env)
+    assert proc.stdin is not None
+    with contextlib.suppress(BrokenPipeError):  # it ended at once: its stderr says why
+        proc.stdin.write(line)
+        proc.stdin.flush()
+    return proc
+
+
+async def _stream(pipe: IO[bytes], transports: list[asyncio.BaseTransport]) -> asyncio.StreamReader:
+    """``pipe`` read by the event loop; its transport added to ``transports``."""
+    reader = asyncio.StreamReader()
+    transport, _ = await asyncio.get_running_loop().connect_read_pipe(
+        lambda: asyncio.StreamReaderProtocol(reader), pipe
+    )
+    transports.append(transport)
+    return reader
 
 
 async def _bounded(stream: asyncio.StreamReader, limit: int) -> bytes:
