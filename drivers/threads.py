@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
+
+log = logging.getLogger(__name__)
 
 
 class WorkerThread:
@@ -13,7 +16,7 @@ class WorkerThread:
     def __init__(self, target: Callable[[], None], name: str, *, prompt: bool = False) -> None:
         self.target = target
         self.name = name
-        self.prompt = prompt  # a 1 kHz loop: short scheduler slices (tuning.short_slice)
+        self.prompt = prompt  # a 1 kHz loop: realtime or short slices (tuning.prompt_thread)
         self.stopping = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -30,9 +33,9 @@ class WorkerThread:
 
     def _main(self) -> None:
         if self.prompt:
-            from telerobot.tuning import short_slice
+            from telerobot.tuning import prompt_thread
 
-            short_slice()
+            log.info("%s runs %s", self.name, prompt_thread())
         self.target()
 
     def stop(self, timeout: float = 2.0) -> None:

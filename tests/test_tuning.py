@@ -4,6 +4,7 @@ own CPU priority where the system lets them, and say how to let them where not."
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 
@@ -122,9 +123,10 @@ def _slice_ns() -> int | None:
 
 @pytest.mark.skipif(_slice_ns() is None, reason="no per-thread scheduler figures here")
 def test_a_prompt_thread_runs_in_short_slices_and_its_helpers_in_the_default() -> None:
-    # The force sensor's, the priority channel's and the master link's threads ask for
-    # 0.1 ms slices (so they preempt the video encoder when they wake); a helper
-    # process started from such a thread goes back to the kernel's default.
+    # Where they may not run realtime, the force sensor's, the priority channel's and
+    # the master link's threads ask for 0.1 ms slices (so they preempt the video encoder
+    # when they wake); a helper process started from such a thread goes back to the
+    # kernel's default.
     code = (
         "import threading; from telerobot.drivers.threads import WorkerThread\n"
         "from telerobot.tuning import yield_cpu\n"
@@ -138,9 +140,64 @@ def test_a_prompt_thread_runs_in_short_slices_and_its_helpers_in_the_default() -
         "print(seen[0], seen[1], default)"
     )
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
-    ).stdout.split()
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60,
+        env={**os.environ, "TELEROBOT_RT_PRIORITY": "0"},  # realtime has no slice to ask
+    ).stdout.split()  # fmt: skip
     prompt, helper, default = (int(v) for v in out)
     if prompt == default:
         pytest.skip("this kernel keeps one slice for all (custom slices: Linux ≥ 6.12)")
     assert prompt == 100_000 and helper == default
+
+
+REALTIME_PROBE = (
+    "import os, subprocess, sys\n"
+    "from telerobot.drivers.threads import WorkerThread\n"
+    "from telerobot.tuning import prompt_thread, yield_cpu\n"
+    "seen = []\n"
+    "RESET_ON_FORK = 0x40000000  # sched_getscheduler's flag beside the policy\n"
+    "CHILD = [sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))']\n"
+    "def probe():\n"
+    "    seen.append(os.sched_getscheduler(0) & ~RESET_ON_FORK)\n"
+    "    seen.append(int(subprocess.run(CHILD, capture_output=True, text=True).stdout))\n"
+    "    yield_cpu(0)\n"
+    "    seen.append(os.sched_getscheduler(0))\n"
+    "w = WorkerThread(probe, 'probe', prompt=True)\n"
+    "w.start(); w.stop(10)\n"
+    "print(*seen, os.sched_getscheduler(0))"
+)
+
+
+def realtime_probe(**env: str) -> list[int]:
+    out = subprocess.run(
+        [sys.executable, "-c", REALTIME_PROBE], capture_output=True, text=True, check=True,
+        timeout=60, env={**os.environ, **env},
+    ).stdout.split()  # fmt: skip
+    return [int(v) for v in out]
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a realtime thread needs root or CAP_SYS_NICE")
+def test_a_prompt_thread_runs_realtime_where_allowed_and_what_it_starts_does_not() -> None:
+    # The 1 kHz threads preempt the video encoder at once when they wake (SCHED_FIFO);
+    # a process started from one (reset-on-fork) and a helper (yield_cpu) are ordinary,
+    # and so is the rest of the process.
+    fifo, other = os.SCHED_FIFO, os.SCHED_OTHER
+    assert realtime_probe() == [fifo, other, other, other]
+    # TELEROBOT_RT_PRIORITY=0: never realtime (short slices where the kernel has them)
+    assert realtime_probe(TELEROBOT_RT_PRIORITY="0") == [other, other, other, other]
+
+
+@pytest.mark.skipif(shutil.which("setpriv") is None, reason="needs util-linux's setpriv")
+def test_without_the_right_a_prompt_thread_runs_as_it_can() -> None:
+    # Where the system refuses realtime (no CAP_SYS_NICE, RLIMIT_RTPRIO 0: a login
+    # user's), the thread runs ordinary, in short slices where the kernel has them.
+    code = (
+        "import resource, os\n"
+        "resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))\n"
+        "from telerobot.tuning import prompt_thread\n"
+        "print(prompt_thread()); print(os.sched_getscheduler(0))"
+    )
+    out = subprocess.run(
+        ["setpriv", "--bounding-set", "-sys_nice", sys.executable, "-c", code],
+        capture_output=True, text=True, check=True, timeout=60,
+    ).stdout.splitlines()  # fmt: skip
+    assert out[0] in ("short slices", "as started") and int(out[1]) == os.SCHED_OTHER, out

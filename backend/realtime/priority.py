@@ -76,7 +76,7 @@ from telerobot.server.control.decision import DecisionServer
 from telerobot.server.realtime.hub import RealtimeHub
 from telerobot.server.realtime.ratelimit import BURST, MESSAGES_PER_S, TokenBucket
 from telerobot.server.realtime.session import Session, error
-from telerobot.tuning import short_slice
+from telerobot.tuning import prompt_thread
 
 log = logging.getLogger(__name__)
 
@@ -434,7 +434,7 @@ class PriorityChannel:
 
     # ------------------------------------------------------------ the channel's thread
     def _run(self) -> None:
-        short_slice()  # it flushes what the sensor's thread could not send at once
+        prompt_thread()  # it flushes what the sensor's thread could not send at once
         backoff = RESTART_BACKOFF_S[0]
         while not self._stop.is_set():
             try:

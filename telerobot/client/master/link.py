@@ -31,7 +31,7 @@ from telerobot.drivers.base import DeviceError, ForceSample, TelerobotError
 from telerobot.protocol import messages as m
 from telerobot.protocol.clock import ClockSync
 from telerobot.protocol.netprio import mark_high_priority
-from telerobot.tuning import short_slice
+from telerobot.tuning import prompt_thread
 
 log = logging.getLogger(__name__)
 
@@ -286,7 +286,7 @@ class PriorityLink:
             self.sock.sendall(m.LENGTH.pack(len(message)) + message)
 
     def _read_datagrams(self, udp: socket.socket) -> None:
-        short_slice()  # woken per sample: ahead of whatever runs on its core
+        prompt_thread()  # woken per sample: ahead of whatever runs on its core
         said_at = -DATAGRAM_KEEPALIVE_S
         while not self._stopping.is_set() and not self.datagrams.startswith("tcp"):
             now = time.monotonic()
@@ -334,7 +334,7 @@ class PriorityLink:
 
     # ------------------------------------------------------------ receiving
     def _read(self) -> None:
-        short_slice()
+        prompt_thread()
         buf = bytearray()
         try:
             while True:
