@@ -130,6 +130,10 @@ class ServerSettings(BaseSettings):
     # freeze detector: paced key frames arrive up to ~0.1 s late), which it does not
     # without; bench.wan measured the gain for forces on `mobile` (docs/PERFORMANCE.md).
     video_pacing: bool = False
+    # Each frame decoded and shown as soon as it is complete (the playout-delay RTP
+    # extension at 0–0 ms: media/playout.py), not held by the browser's jitter buffer
+    # for a smoother picture (21 ms a frame on loopback, bench.browser).
+    video_zero_playout_delay: bool = True
     # WebRTC peers of the robot's own server (each costs it encryption and sending; with
     # a media server only the operator's and the observers' when it is off are)
     video_max_viewers: int = Field(16, ge=1, le=1000)

@@ -22,6 +22,7 @@ import json
 import os
 import secrets
 import time
+from typing import Any
 
 import httpx
 import numpy as np
@@ -48,7 +49,8 @@ GPU_NICE = 10
 # The page's decoder's counts for its video, from getStats (inbound-rtp, video).
 DECODER = """async () => {
   const pc = window.telerobot.video.peer && window.telerobot.video.peer.pc;
-  const out = { received: 0, decoded: 0, dropped: 0, width: 0 };
+  const out = { received: 0, decoded: 0, dropped: 0, width: 0, jitterDelay: 0, jitterEmitted: 0,
+    decodeTime: 0, processingDelay: 0, assemblyTime: 0, assembled: 0 };
   out.renegotiations = window.telerobot.video.renegotiations;
   if (!pc) return out;
   (await pc.getStats()).forEach((r) => {
@@ -57,6 +59,12 @@ DECODER = """async () => {
       out.decoded = r.framesDecoded || 0;
       out.dropped = r.framesDropped || 0;
       out.width = r.frameWidth || 0;
+      out.jitterDelay = r.jitterBufferDelay || 0;
+      out.jitterEmitted = r.jitterBufferEmittedCount || 0;
+      out.decodeTime = r.totalDecodeTime || 0;
+      out.processingDelay = r.totalProcessingDelay || 0;
+      out.assemblyTime = r.totalAssemblyTime || 0;
+      out.assembled = r.framesAssembledFromMultiplePackets || 0;
     }
   });
   return out;
@@ -84,9 +92,44 @@ def yield_software_gpu(nice: int = GPU_NICE) -> int:
     return done
 
 
+def yield_browser_session(nice: int = GPU_NICE) -> bool:
+    """Set the scheduling autogroup of the browser started by this process to ``nice``.
+
+    Why: Linux's autogroups (``/proc/sys/kernel/sched_autogroup_enabled``, on in
+    Debian) share the CPU between sessions first, and a thread's niceness counts only
+    inside its own. Playwright starts Chromium in a session of its own, so the software
+    GPU's niceness (``yield_software_gpu``) did not hold it back from the server: the
+    two sessions split the 2 cores evenly, the encoder's threads waited in the run
+    queue, and capture → decoded had a p99 of ~100 ms (docs/PERFORMANCE.md, issue 29).
+    The operator's browser runs on another machine than the robot's server; here the
+    browser's session gets what the server's leaves, as the GPU alone was meant to."""
+    for process in psutil.Process().children(recursive=True):
+        try:
+            if "--type=gpu-process" in process.cmdline():
+                with open(f"/proc/{process.pid}/autogroup", "w") as f:
+                    f.write(str(nice))
+                return True
+        except (psutil.Error, OSError):
+            continue
+    return False
+
+
 def server_frames(base: str) -> int:
     """Frames the server's media worker has encoded so far (GET /api/v1/video)."""
-    return int(httpx.get(base + "api/v1/video", timeout=10).json()["stats"]["frames_encoded"])
+    return int(server_stats(base)["frames_encoded"])
+
+
+def server_stats(base: str) -> dict[str, Any]:
+    stats: dict[str, Any] = httpx.get(base + "api/v1/video", timeout=10).json()["stats"]
+    return stats
+
+
+def per_frame_ms(
+    d0: dict[str, float], d1: dict[str, float], total: str, count: str
+) -> float | None:
+    """A getStats total (s) over its count, between two reads, in ms per frame."""
+    n = d1[count] - d0[count]
+    return (d1[total] - d0[total]) / n * 1000.0 if n > 0 else None
 
 
 def main() -> None:
@@ -95,6 +138,13 @@ def main() -> None:
     p.add_argument("--width", type=int, default=1280)
     p.add_argument("--height", type=int, default=720)
     p.add_argument("--busy-core", action="store_true", help="stress-ng --cpu 1 meanwhile")
+    p.add_argument(
+        "--browser-equal",
+        dest="browser_yields",
+        action="store_false",
+        help="leave the browser's session level with the server's (yield_browser_session)",
+    )
+    p.add_argument("--dump", help="write every frame's latency (ms, in order) to this file")
     args = p.parse_args()
     token = secrets.token_hex(16)
     env = {
@@ -115,6 +165,7 @@ def main() -> None:
         page = browser.new_page(viewport={"width": 1600, "height": 900})
         page.goto(base + f"?token={token}")
         yield_software_gpu()
+        yielded_session = yield_browser_session() if args.browser_yields else False
         page.wait_for_function(
             "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
         )
@@ -137,10 +188,14 @@ def main() -> None:
             new = total - n0 - len(latencies)
             latencies += snap[len(snap) - min(len(snap), new) :] if new > 0 else []
         frames = page.evaluate("window.telerobot.view.frames") - f0
-        d1, e1 = page.evaluate(DECODER), server_frames(base)
+        d1, enc = page.evaluate(DECODER), server_stats(base)
+        e1 = int(enc["frames_encoded"])
         elapsed = time.monotonic() - t0
         browser.close()
     lat = np.array(latencies)
+    if args.dump:
+        with open(args.dump, "w") as f:
+            json.dump(latencies, f)
     figures = {
         "fps": frames / elapsed,
         "latency_p50_ms": float(np.percentile(lat, 50)),
@@ -154,9 +209,18 @@ def main() -> None:
         "frames_dropped": d1["dropped"] - d0["dropped"],
         "renegotiations": d1["renegotiations"] - d0["renegotiations"],
         "decoded_width": d1["width"],
+        # Where the latency goes (means per frame over the window, from getStats; the
+        # encoder's percentiles from the server's own figures since it started):
+        "jitter_buffer_ms": per_frame_ms(d0, d1, "jitterDelay", "jitterEmitted"),
+        "decode_ms": per_frame_ms(d0, d1, "decodeTime", "decoded"),
+        "processing_ms": per_frame_ms(d0, d1, "processingDelay", "decoded"),
+        "assembly_ms": per_frame_ms(d0, d1, "assemblyTime", "assembled"),
+        "server_encode_ms_p50": enc.get("encode_ms_p50"),
+        "server_encode_ms_p99": enc.get("encode_ms_p99"),
         "width": args.width,
         "height": args.height,
         "busy_core": args.busy_core,
+        "browser_session_yields": yielded_session,
     }
     emit(figures, False)
     if args.json:

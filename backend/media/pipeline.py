@@ -56,6 +56,8 @@ from telerobot.server.media.layers import (
     low_size,
 )
 from telerobot.server.media.pacer import Pacer, pace_peer
+from telerobot.server.media.playout import allow as allow_playout_delay
+from telerobot.server.media.playout import zero_playout_delay
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.security import token_matches
 from telerobot.server.telemetry.stats import InterArrival, StreamStats
@@ -113,6 +115,7 @@ class VideoSettings:
     low_scale: float = LOW_SCALE  # the low layer's size, of each side
     low_bitrate: int = LOW_BITRATE
     pacing: bool = False  # each viewer's packets paced (backend/media/pacer.py)
+    zero_playout_delay: bool = True  # frames shown when decoded (backend/media/playout.py)
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
 
 
@@ -277,6 +280,8 @@ class VideoPipeline:
     ) -> None:
         self.camera = camera
         self.settings = settings or VideoSettings()
+        if self.settings.zero_playout_delay:
+            allow_playout_delay()  # negotiated with each viewer from now on
         self.clock: Clock = clock or MonotonicClock()
         self.max_viewers = max_viewers
         self.max_pending = max_pending
@@ -543,6 +548,8 @@ class VideoPipeline:
             if pc.connectionState == "connected":
                 peer.connected = True  # no longer pending: it stays until it closes
                 mark_peer_low_priority(pc)  # forces and commands go first
+                if self.settings.zero_playout_delay:
+                    zero_playout_delay(pc)
                 if self.settings.pacing and peer.pacer is None:
                     # Spread each frame's packets (a key frame's burst would queue the
                     # forces behind it on a narrow link): backend/media/pacer.py.

@@ -101,6 +101,7 @@ async def _serve(
             keyframe_interval=settings.keyframe_interval_s,
             cbr=settings.video_cbr,
             pacing=settings.video_pacing,
+            zero_playout_delay=settings.video_zero_playout_delay,
             ice=settings.ice_config,
         ),
         max_viewers=settings.video_max_viewers,
