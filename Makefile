@@ -45,14 +45,16 @@ LEROBOT_VENV ?= $(HOME)/.cache/telerobot/lerobot-$(LEROBOT_VERSION)
 LEROBOT_PY := $(LEROBOT_VENV)/bin/python
 PYTHON312 ?= $(shell command -v python3.12 2>/dev/null || ls -d $(HOME)/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | tail -1)
 
-lerobot-deps: $(LEROBOT_VENV)/.installed
+# [feetech]: LeRobot's own SO-101 leader, on Telerobot's emulated servo bus, in the tests
+LEROBOT_SPEC := lerobot[dataset,feetech]==$(LEROBOT_VERSION)
+lerobot-deps: $(LEROBOT_VENV)/.installed-dataset-feetech
 
-$(LEROBOT_VENV)/.installed:
+$(LEROBOT_VENV)/.installed-dataset-feetech:
 	@test -n "$(PYTHON312)" || { echo "LeRobot needs Python 3.12: install python3.12 (or pyenv install 3.12)"; exit 1; }
-	@echo "installing LeRobot $(LEROBOT_VERSION) into $(LEROBOT_VENV) (once: torch and all, ~5 GB)"
+	@echo "installing $(LEROBOT_SPEC) into $(LEROBOT_VENV) (once: torch and all, ~5 GB the first time)"
 	@test -x $(LEROBOT_PY) || $(PYTHON312) -m venv $(LEROBOT_VENV)
 	$(LEROBOT_PY) -m pip install --quiet --upgrade pip
-	$(LEROBOT_PY) -m pip install --quiet 'lerobot[dataset]==$(LEROBOT_VERSION)' pytest pytest-timeout httpx aiortc setuptools
+	$(LEROBOT_PY) -m pip install --quiet '$(LEROBOT_SPEC)' pytest pytest-timeout httpx aiortc setuptools
 	@touch $@
 
 ## make lerobot-test: the LeRobot plugins in LeRobot's own command lines, against a real server

@@ -8,7 +8,9 @@
   recording on ÷ off;
 - ``dropped``: messages the recorder dropped in a ``--record-seconds`` recording of
   1 kHz force + video + 100 Hz commands (its own counters, and force seq gaps in the
-  file), ``mb_per_min`` the file's size per minute;
+  file), ``mb_per_min`` the file's size per minute; ``state_gap_max_ms`` and
+  ``state_gaps_over_40_ms``: the recorded 50 Hz states' longest spacing, and how many
+  came more than two periods apart;
 - ``replay_force_n`` / ``export_s_per_min``: from bench.task_replay / bench.export
   when those modules are there (merged here, measured by their owners).
 """
@@ -174,12 +176,17 @@ def recording(seconds: float) -> dict[str, Any]:
         counts, meta = summary(path)
         seqs = [m["seq"] for _t, _ns, m in read(path, ["/force"])]
         gaps = sum(b - a - 1 for a, b in itertools.pairwise(seqs) if b > a + 1)
+        # The state's own times: how far apart the recorded states came (50 Hz asked)
+        state_t = [float(m["t"]) for _t, _ns, m in read(path, ["/robot/state"])]
+        state_gaps = [(b - a) * 1000 for a, b in itertools.pairwise(state_t)]
         dropped = {k.removeprefix("dropped."): int(v) for k, v in meta.items() if "dropped." in k}
         minutes = float(meta["duration_s"]) / 60
         return {
             "dropped": sum(dropped.values()),
             "dropped_by_topic": dropped,
             "force_seq_gaps": gaps,
+            "state_gap_max_ms": max(state_gaps, default=None),
+            "state_gaps_over_40_ms": sum(g > 40 for g in state_gaps),
             "counts": counts,
             "commands_sent": commands["n"],
             "commands_refused": commands["refused"],
@@ -217,7 +224,13 @@ def main() -> None:
     p.add_argument("--record-seconds", type=float, default=60.0)
     p.add_argument("--no-others", action="store_true", help="skip task_replay / export")
     p.add_argument("--rounds", type=int, default=3, help="off/on alternations per figure")
+    p.add_argument(
+        "--recording-only", action="store_true", help="only the recording's losses and gaps"
+    )
     args = p.parse_args()
+    if args.recording_only:
+        emit(recording(args.record_seconds), args.json)
+        return
     f_off, f_on, f_offs, f_ons = alternated(lambda r: force_p99(args.seconds, r), args.rounds)
     c_off, c_on, c_offs, c_ons = alternated(lambda r: command_p99(args.commands, r), args.rounds)
     rec = recording(args.record_seconds)
@@ -226,6 +239,8 @@ def main() -> None:
         "command_p99_ratio": c_on / c_off,
         "dropped": rec["dropped"] + rec["force_seq_gaps"],
         "mb_per_min": rec["mb_per_min"],
+        "state_gap_max_ms": rec["state_gap_max_ms"],
+        "state_gaps_over_40_ms": rec["state_gaps_over_40_ms"],
         "force_p99_ms_off": f_off,
         "force_p99_ms_on": f_on,
         "command_p99_ms_off": c_off,

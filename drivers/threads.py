@@ -35,7 +35,7 @@ class WorkerThread:
         if self.prompt:
             from telerobot.tuning import prompt_thread
 
-            log.info("%s runs %s", self.name, prompt_thread())
+            log.debug("%s runs %s", self.name, prompt_thread())
         self.target()
 
     def stop(self, timeout: float = 2.0) -> None:

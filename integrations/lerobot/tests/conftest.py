@@ -96,15 +96,23 @@ def lerobot_env(url: str, home: Path) -> dict[str, str]:
     }
 
 
-def run_lerobot(tool: str, args: list[str], url: str, home: Path, timeout: float = 300) -> str:
-    """A LeRobot command line, headless (its keyboard listener reads no terminal)."""
+def run_lerobot(
+    tool: str,
+    args: list[str],
+    url: str,
+    home: Path,
+    timeout: float = 300,
+    env: dict[str, str] | None = None,
+) -> str:
+    """A LeRobot command line, headless (its keyboard listener reads no terminal; a
+    question it asks on stdin meets its end)."""
     out = subprocess.run(
         [str(BIN / tool), *args],
         stdin=subprocess.DEVNULL,
         capture_output=True,
         text=True,
         timeout=timeout,
-        env=lerobot_env(url, home),
+        env={**lerobot_env(url, home), **(env or {})},
     )
     said = out.stdout + out.stderr
     assert out.returncode == 0, f"{tool} exited with {out.returncode}:\n{said[-6000:]}"

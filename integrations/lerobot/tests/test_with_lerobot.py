@@ -106,6 +106,77 @@ def test_lerobot_record_with_the_telerobot_robot_and_teleoperator(tmp_path: Path
     assert pans.max() - pans.min() > 5.0, pans  # the operator's move, in degrees
 
 
+SO_LEADER_MOTORS = ["shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper"]
+
+
+def _emulated_leader(calibration: Path) -> tuple[object, str]:
+    """An SO-101 leader arm for LeRobot's own ``so101_leader``: Telerobot's emulated
+    Feetech bus (the servos' bytes, on a real pseudo-terminal) and, in LeRobot's
+    calibration folder, the calibration its registers hold (so LeRobot asks nothing)."""
+    from telerobot.drivers.motors.feetech.protocol import Register
+    from telerobot.drivers.robot.so101.emulator import BusLink, FeetechBusEmulator
+
+    bus = FeetechBusEmulator()
+    link = BusLink.on_pty(bus).start()
+    folder = calibration / "teleoperators" / "so_leader"
+    folder.mkdir(parents=True)
+    table = {
+        name: {
+            "id": servo_id,
+            "drive_mode": 0,
+            "homing_offset": bus.servos[servo_id].signed(Register.HOMING_OFFSET),
+            "range_min": bus.servos[servo_id].u16(Register.MIN_POSITION_LIMIT),
+            "range_max": bus.servos[servo_id].u16(Register.MAX_POSITION_LIMIT),
+        }
+        for servo_id, name in enumerate(SO_LEADER_MOTORS, start=1)
+    }
+    (folder / "leader.json").write_text(json.dumps(table))
+    return link, link.url
+
+
+def test_lerobot_teleoperate_with_lerobot_s_own_so101_leader(tmp_path: Path) -> None:
+    """`lerobot-teleoperate` with LeRobot's own teleoperator (``so101_leader``, reading an
+    emulated leader arm's servos) and the Telerobot robot: the simulated SO-101 follows
+    the leader, through the server's limits and lease."""
+    link, port = _emulated_leader(tmp_path / "calibration")
+    leader = link.bus.servos  # type: ignore[attr-defined]
+    pan_steps = 300  # the leader's shoulder_pan turned by hand, 26.4° (4096 steps a turn)
+
+    def turn_by_hand() -> None:
+        time.sleep(4.0)  # LeRobot connected and following
+        leader[1].position += pan_steps
+
+    with serving("--model", "so101") as (url, _state):
+        hand = threading.Thread(target=turn_by_hand)
+        hand.start()
+        try:
+            said = run_lerobot(
+                "lerobot-teleoperate",
+                [
+                    "--robot.type=telerobot",
+                    "--robot.use_cameras=false",
+                    "--teleop.type=so101_leader",
+                    f"--teleop.port={port}",
+                    "--teleop.id=leader",
+                    "--fps=30",
+                    "--teleop_time_s=9",
+                ],
+                url,
+                tmp_path,
+                env={"HF_LEROBOT_CALIBRATION": str(tmp_path / "calibration")},
+            )
+        finally:
+            hand.join()
+            link.stop()  # type: ignore[attr-defined]
+        state = httpx.get(url + "api/v1/robot/state").json()
+    # The follower stands where the leader is: LeRobot's degrees from mid-range (its
+    # 360/4095 per step against the model's 360/4096: within a few hundredths), the
+    # shoulder turned by hand, the others at the leader's zero.
+    deg = np.array(state["joints_deg"][:5]) * 4096 / 4095
+    expected = np.array([pan_steps * 360 / 4095, 0, 0, 0, 0])
+    assert np.abs(deg - expected).max() < 2.0, (deg, said[-1500:])
+
+
 def _record_an_episode(url: str) -> Path:
     """An SO-101 episode recorded and exported by the server: an operator's jogs out and
     back, about 0.5 rad/s a joint. (A scripted absolute move runs at the arm's own top
