@@ -106,7 +106,14 @@ def test_lerobot_record_with_the_telerobot_robot_and_teleoperator(tmp_path: Path
     assert pans.max() - pans.min() > 5.0, pans  # the operator's move, in degrees
 
 
-SO_LEADER_MOTORS = ["shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper"]
+SO_LEADER_MOTORS = [
+    "shoulder_pan",
+    "shoulder_lift",
+    "elbow_flex",
+    "wrist_flex",
+    "wrist_roll",
+    "gripper",
+]
 
 
 def _emulated_leader(calibration: Path) -> tuple[object, str]:
