@@ -67,10 +67,15 @@ def valid_summary(f: IO[bytes]) -> Summary | None:
 
 
 def read_raw(
-    path: str | os.PathLike[str], topics: Iterable[str] | None = None
+    path: str | os.PathLike[str],
+    topics: Iterable[str] | None = None,
+    *,
+    in_file_order: bool = False,
 ) -> Iterator[tuple[str, int, bytes, str]]:
     """``(topic, log_time_ns, data, message_encoding)``, nothing decoded: a reader that
-    keeps few of the messages (a decimated timeline) decodes only those."""
+    keeps few of the messages (a decimated timeline) decodes only those. In log-time
+    order, or with ``in_file_order`` as written (no merge of the chunks by time: a
+    topic's messages in the order they were logged, as a decoder wants a video's)."""
     from telerobot.server.recording.salvage import SalvageReader, is_mcap
 
     wanted = set(topics) if topics is not None else None
@@ -82,7 +87,7 @@ def read_raw(
             reader = make_reader(f)
             try:
                 for _s, channel, message in reader.iter_messages(
-                    topics=wanted, log_time_order=True
+                    topics=wanted, log_time_order=not in_file_order
                 ):
                     yield channel.topic, message.log_time, message.data, channel.message_encoding
             except BROKEN as exc:
@@ -97,9 +102,12 @@ def read_raw(
 
 
 def read(
-    path: str | os.PathLike[str], topics: Iterable[str] | None = None
+    path: str | os.PathLike[str],
+    topics: Iterable[str] | None = None,
+    *,
+    in_file_order: bool = False,
 ) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    for topic, log_time, data, encoding in read_raw(path, topics):
+    for topic, log_time, data, encoding in read_raw(path, topics, in_file_order=in_file_order):
         yield topic, log_time, _decode(topic, data, encoding)
 
 
