@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import struct
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable
@@ -31,6 +30,8 @@ from typing import Any
 
 from aiortc.clock import current_ntp_time
 from aiortc.rtp import is_rtcp
+
+from telerobot.server.media.rtp_extensions import block
 
 PACING_FACTOR = 2.5  # × the layer's measured rate (libwebrtc's default)
 MIN_RATE_BPS = 1_000_000  # never slower than this (a still scene's stream is tiny)
@@ -170,26 +171,10 @@ class Pacer:
 def abs_send_time_offset(packet: bytes, ext_id: int) -> int | None:
     """Where the 3 bytes of abs-send-time start in an RTP packet (one-byte header
     extensions, RFC 8285), or None if it has none."""
-    if len(packet) < 12 or not packet[0] & 0x10:  # no extension
-        return None
-    at = 12 + 4 * (packet[0] & 0x0F)  # past the CSRCs
-    if len(packet) < at + 4:
-        return None
-    profile, words = struct.unpack_from("!HH", packet, at)
-    if profile != 0xBEDE:  # two-byte headers: aiortc does not write them
-        return None
-    pos, end = at + 4, min(len(packet), at + 4 + 4 * words)
-    while pos < end:
-        head = packet[pos]
-        if head == 0:  # padding
-            pos += 1
-            continue
-        x_id, length = head >> 4, (head & 0x0F) + 1
-        if x_id == 15:
-            return None
+    found = block(packet)
+    for x_id, at, length in found.elements if found is not None else []:
         if x_id == ext_id:
-            return pos + 1 if length == 3 and pos + 4 <= end else None
-        pos += 1 + length
+            return at if length == 3 else None
     return None
 
 

@@ -24,6 +24,8 @@ from typing import Any
 
 from aiortc.rtp import is_rtcp
 
+from telerobot.server.media.rtp_extensions import ONE_BYTE_PROFILE, block
+
 URI = "http://www.webrtc.org/experiments/rtp-hdrext/playout-delay"
 OFFER_ID = 5  # the id when we offer (aiortc's own video extensions take 1 and 3)
 ZERO = b"\x00\x00\x00"  # 12 bits of minimum, 12 of maximum delay, in 10 ms units
@@ -57,36 +59,17 @@ def with_element(packet: bytes, ext_id: int, value: bytes) -> bytes:
     """``packet`` (RTP) with a one-byte header extension element ``ext_id`` = ``value``
     (RFC 8285), replacing one of that id; unchanged if it uses two-byte headers or
     is not RTP as expected."""
-    if len(packet) < 12 or not 1 <= ext_id <= 14 or not 1 <= len(value) <= 16:
+    found = block(packet)
+    if found is None or not 1 <= ext_id <= 14 or not 1 <= len(value) <= 16:
         return packet
-    at = 12 + 4 * (packet[0] & 0x0F)  # past the CSRCs
-    elements: list[tuple[int, bytes]] = []
-    rest = packet[at:]
-    if packet[0] & 0x10:
-        if len(packet) < at + 4:
-            return packet
-        profile, words = struct.unpack_from("!HH", packet, at)
-        end = at + 4 + 4 * words
-        if profile != 0xBEDE or end > len(packet):
-            return packet
-        pos = at + 4
-        while pos < end:
-            head = packet[pos]
-            if head == 0:  # padding
-                pos += 1
-                continue
-            x_id, length = head >> 4, (head & 0x0F) + 1
-            if x_id == 15 or pos + 1 + length > end:
-                return packet
-            if x_id != ext_id:
-                elements.append((x_id, packet[pos + 1 : pos + 1 + length]))
-            pos += 1 + length
-        rest = packet[end:]
+    elements = [(i, packet[at : at + n]) for i, at, n in found.elements if i != ext_id]
     elements.append((ext_id, value))
     body = b"".join(bytes([(i << 4) | (len(v) - 1)]) + v for i, v in elements)
     body += b"\x00" * (-len(body) % 4)
-    header = bytes([packet[0] | 0x10]) + packet[1:at]
-    return header + struct.pack("!HH", 0xBEDE, len(body) // 4) + body + rest
+    header = bytes([packet[0] | 0x10]) + packet[1 : found.start]
+    return (
+        header + struct.pack("!HH", ONE_BYTE_PROFILE, len(body) // 4) + body + packet[found.end :]
+    )
 
 
 class ZeroPlayoutDelay:
