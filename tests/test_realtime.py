@@ -286,13 +286,19 @@ def test_force_samples_one_by_one_or_batched(client: TestClient) -> None:
     with client.websocket_connect(WS) as every, client.websocket_connect(WS) as batched:
         every.send_bytes(hello(flags=m.HelloFlags.EVERY_FORCE_SAMPLE))
         batched.send_bytes(hello())
+        lost_before = client.get("/api/v1/force").json()["counters"].get("lost", 0)
         seqs: list[int] = []
         while len(seqs) < 30:
             fields, _, _ = receive_until(every, m.FORCE)
             samples = fields["samples"]
             assert isinstance(samples, list) and len(samples) >= 1
             seqs += [s[0] for s in samples]
-        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # consecutive: none lost
+        lost = client.get("/api/v1/force").json()["counters"].get("lost", 0) - lost_before
+        # In order, and none lost on the way: a number missing is one the simulated
+        # sensor itself skipped (its thread stalled past 0.1 s on a loaded machine: it
+        # counts those as lost, as a real sensor's dropped packets).
+        assert seqs == sorted(set(seqs))
+        assert seqs[-1] - seqs[0] + 1 - len(seqs) <= lost, (seqs, lost)
         sizes = [len(receive_until(batched, m.FORCE)[0]["samples"]) for _ in range(5)]  # type: ignore[arg-type]
         assert max(sizes) > 1
 
