@@ -383,8 +383,9 @@ class StereoCamera(Protocol):
 
     def start(self) -> None: ...
     def stop(self) -> None: ...
-    def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
-        """The newest frame newer than ``after_seq``, waiting up to ``timeout`` s."""
+    def next_frame(self, after_seq: int, timeout: float, every: bool = False) -> StereoFrame | None:
+        """The newest frame newer than ``after_seq``, waiting up to ``timeout`` s;
+        ``every``: the oldest one still kept (a reader that must miss none)."""
         ...
 
     def show_board(self, view: int | None) -> None:

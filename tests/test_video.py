@@ -13,6 +13,7 @@ from aiortc import RTCPeerConnection, RTCSessionDescription
 from telerobot.drivers.base import ArmSnapshot, StereoFrame
 from telerobot.drivers.camera import timecode
 from telerobot.drivers.camera.sim import FIDUCIAL_COLOURS, IDLE_AFTER_S, SimStereoCamera
+from telerobot.drivers.camera.slot import KEEP, FrameSlot
 from telerobot.drivers.robot.puma560.kinematics import (
     NAMED_POSES,
     Puma560Kinematics,
@@ -60,6 +61,69 @@ def test_newest_frame_wins_and_is_never_handed_out_twice() -> None:
     assert cam.next_frame(second.seq, timeout=0.01) is None  # nothing newer: no stale repeat
     assert first.seq < second.seq
     assert got.left.base is got.sbs and got.right.shape == got.left.shape  # views of one capture
+
+
+def test_a_reader_that_must_miss_none_gets_every_kept_frame_oldest_first() -> None:
+    slot = FrameSlot()
+    image = np.zeros((2, 4, 3), np.uint8)
+    for i in range(1, 4):
+        slot.put(StereoFrame(i, float(i), image))
+    got = []
+    seq = 0
+    while (f := slot.next_frame(seq, 0.0, every=True)) is not None:
+        got.append(f.seq)
+        seq = f.seq
+    assert got == [1, 2, 3] and slot.dropped == 0
+    for i in range(4, 4 + KEEP):  # KEEP more, unread: none pushed out yet
+        slot.put(StereoFrame(i, float(i), image))
+    assert slot.dropped == 0
+    slot.put(StereoFrame(4 + KEEP, 0.0, image))  # one more pushes frame 4 out, unread
+    assert slot.dropped == 1
+    first = slot.next_frame(seq, 0.0, every=True)
+    assert first is not None and first.seq == 5  # the oldest kept
+    newest = slot.next_frame(first.seq, 0.0)  # a live reader jumps to the newest
+    assert newest is not None and newest.seq == 4 + KEEP
+    assert slot.dropped == 1 + (KEEP - 2)  # those passed over, never read
+    assert slot.next_frame(newest.seq, 0.0, every=True) is None
+
+
+def test_a_held_up_camera_renders_the_exposures_it_missed_each_at_its_own_time() -> None:
+    """On a busy machine the capture thread wakes late. It renders the exposures it
+    missed (up to CATCH_UP_S), each stamped and drawn at its own grid time, so the
+    recording has no missing frame; held up longer, it skips to now (a gap, counted)."""
+    now = [100.0]
+    fps = 30.0
+    snap = ArmSnapshot(now[0], NAMED_POSES["qn"], np.zeros(6))
+    stalls = {5: 0.1, 14: 0.5}  # after frame 5: three periods late; after 14: fifteen
+    got: list[StereoFrame] = []
+
+    def sleep(delay: float) -> None:
+        seq = got[-1].seq if got else 0
+        while (f := cam.next_frame(seq, 0.0, every=True)) is not None:
+            got.append(f)
+            seq = f.seq
+        now[0] += delay + stalls.pop(cam._seq, 0.0)
+        if len(got) >= 30:
+            cam._stop.set()
+
+    cam = SimStereoCamera(
+        default_workcell(**SMALL),
+        lambda: snap,
+        Puma560Kinematics(tool_transform(0.1)),
+        fps=fps,
+        time_source=lambda: now[0],
+        sleep=sleep,
+    )
+    cam.next_frame(0, 0.0)  # a reader asks: it renders
+    cam._run()
+    seqs = [f.seq for f in got]
+    assert seqs == list(range(1, len(got) + 1)) and cam.dropped == 0  # none missed
+    steps = np.diff([f.time for f in got])
+    assert np.allclose(steps[:13], 1 / fps)  # the first stall caught up on the grid
+    assert steps[13] > 0.5  # the second was too long: skipped to now, once
+    assert np.allclose(steps[14:], 1 / fps)
+    for f in got:  # each frame shows the time it was exposed at
+        assert timecode.read(f.left) == timecode.encode_time(f.time)
 
 
 def test_the_simulated_camera_renders_only_while_someone_reads() -> None:

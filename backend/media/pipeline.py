@@ -382,7 +382,10 @@ class VideoPipeline:
                 # the force stream.
                 await asyncio.sleep(IDLE_POLL_S)
                 continue
-            frame = await loop.run_in_executor(self._grab, self.camera.next_frame, seq, 0.5)
+            # Recording: every frame, oldest first (a skipped one would be missing from
+            # the dataset); only live viewers: the newest.
+            every = bool(self.taps)
+            frame = await loop.run_in_executor(self._grab, self.camera.next_frame, seq, 0.5, every)
             if frame is None:
                 # No frame for 0.5 s: show viewers why, twice a second, until it is back.
                 self._no_signal_seq += 1

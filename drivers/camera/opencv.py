@@ -118,8 +118,8 @@ class _OpenCVCapture:
         self._worker.stop(timeout=5)
         self._status, self._message = CameraStatus.STOPPED, "stopped"
 
-    def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
-        return self._slot.next_frame(after_seq, timeout)
+    def next_frame(self, after_seq: int, timeout: float, every: bool = False) -> StereoFrame | None:
+        return self._slot.next_frame(after_seq, timeout, every)
 
     def _run(self) -> None:
         period = 1.0 / self.fps

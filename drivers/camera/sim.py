@@ -57,6 +57,12 @@ def _shade(colour: tuple[int, int, int], k: float) -> tuple[int, int, int]:
 
 
 IDLE_AFTER_S = 1.0  # no reader for this long: stop rendering until one asks
+# The camera exposes on its own grid of 1/fps, like a triggered camera: a thread that
+# was held up (a busy machine) renders the exposures it missed, each at its own time,
+# as long as it is at most this far behind; further behind it skips to now (the frames
+# between are missing, and the recording's export flags the rows they leave).
+CATCH_UP_S = 0.2
+EXTRAPOLATE_S = 0.05  # ahead of the newest arm sample, at most (its period is 1-20 ms)
 
 
 @dataclass(frozen=True)
@@ -84,6 +90,7 @@ class SimStereoCamera:
         fps: float = 30.0,
         show_timecode: bool = True,
         time_source: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         self.workcell = workcell
         self.cameras = (workcell.rig.left, workcell.rig.right)
@@ -95,6 +102,7 @@ class SimStereoCamera:
         self.drawing = drawing or ArmDrawing(load_model(DEFAULT_MODEL))
         self.show_timecode = show_timecode
         self._now = time_source
+        self._sleep = sleep
         self._slot = FrameSlot()
         self._seq = 0
         self.board: tuple[np.ndarray, np.ndarray] | None = None  # pose, while shown
@@ -270,9 +278,10 @@ class SimStereoCamera:
         self._draw_ball(img, cam, pts[-1], 0.018 * scale, GRIPPER_COLOUR)
 
     def render(self, t: float) -> np.ndarray:
-        """The side-by-side image at time ``t`` (arm at its extrapolated joints)."""
+        """The side-by-side image at time ``t`` (arm at its joints extrapolated from the
+        newest sample, back to ``t`` for an exposure the thread renders late)."""
         snap = self.probe()
-        dt = min(max(t - snap.time, 0.0), 0.05)
+        dt = min(max(t - snap.time, -CATCH_UP_S), EXTRAPOLATE_S)
         q = snap.joints + snap.velocities * dt
         sbs = self._background.copy()
         board = self.board
@@ -313,17 +322,18 @@ class SimStereoCamera:
         core from the 1 kHz force path for nothing (bench.force_stream)."""
         return self._now() - self._wanted_at <= IDLE_AFTER_S
 
-    def next_frame(self, after_seq: int, timeout: float) -> StereoFrame | None:
+    def next_frame(self, after_seq: int, timeout: float, every: bool = False) -> StereoFrame | None:
         self._wanted_at = self._now()
-        return self._slot.next_frame(after_seq, timeout)
+        return self._slot.next_frame(after_seq, timeout, every)
 
     @property
     def dropped(self) -> int:
         return self._slot.dropped
 
-    def capture(self) -> StereoFrame:
-        """Render one frame now and publish it (the thread calls this at ``fps``)."""
-        t = self._now()
+    def capture(self, at: float | None = None) -> StereoFrame:
+        """Render one frame exposed at ``at`` (now if None) and publish it (the thread
+        calls this on its grid of ``1/fps``)."""
+        t = self._now() if at is None else at
         started = time.perf_counter()
         sbs = self.render(t)
         self.render_ms = (time.perf_counter() - started) * 1000
@@ -336,9 +346,11 @@ class SimStereoCamera:
         period = 1.0 / self.fps
         next_t = self._now()
         while not self._stop.is_set():
+            if self._now() - next_t > CATCH_UP_S:
+                next_t = self._now()  # too far behind: skip to now (the frames between lost)
             try:
                 if self.wanted:
-                    self.capture()
+                    self.capture(next_t)
             except Exception:  # keep going: a bad frame must not end the stream
                 log.exception("simulated camera failed to render")
                 self._status = CameraStatus.FAILED
@@ -347,6 +359,4 @@ class SimStereoCamera:
             next_t += period
             delay = next_t - self._now()
             if delay > 0:
-                time.sleep(delay)
-            else:
-                next_t = self._now()  # behind: skip, never burst
+                self._sleep(delay)
