@@ -25,6 +25,7 @@ from telerobot.drivers.base import DeviceError, ForceSensor, Robot, TelerobotErr
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.drivers.sim.workcell import Workcell
+from telerobot.server.control.autonomy import ReleaseTo
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.devices import (
@@ -213,6 +214,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         limits=safety_limits(settings),
         force=force,
     )
+    decision.release_to = ReleaseTo(settings.autonomy_release)
     hub = RealtimeHub(
         robot, decision, force, telemetry, clock, state_rate_hz=settings.state_rate_hz
     )

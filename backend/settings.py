@@ -81,6 +81,9 @@ class ServerSettings(BaseSettings):
     max_command_age_ms: float = Field(250.0, ge=20.0, le=5000.0)
     max_speed_m_s: float = Field(0.25, gt=0, le=2.0)
     contact_speed_m_s: float = Field(0.02, gt=0, le=2.0)  # toward a recent contact
+    # Supervised autonomy: an operator's release during a correction hands control back
+    # to the policy driving ("autonomous") or holding still until resumed ("pause").
+    autonomy_release: Literal["autonomous", "pause"] = "autonomous"
 
     # Security: the operator token is generated into state_dir at first start unless given.
     operator_token: str | None = Field(

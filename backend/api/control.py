@@ -11,6 +11,7 @@ from telerobot.drivers.base import StopCategory, WorkingFrame
 from telerobot.protocol.names import MAX_NAME, RULE, name_problem
 from telerobot.server.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
 from telerobot.server.api.requests import StrictRequest
+from telerobot.server.control.autonomy import Mode
 from telerobot.server.control.decision import DecisionServer, NotAllowed
 from telerobot.server.control.limits import full_speed_stop_s, stopping
 
@@ -33,6 +34,11 @@ class LeaseRequest(StrictRequest):
         " name from the same address takes its own idle lease again (a script run twice)",
     )
     force: bool = Field(False, description="take control even if another client holds it")
+    policy: bool = Field(
+        False,
+        description="this client is a learned policy: it drives under supervision, and"
+        " any operator takes control from it at will (GET /autonomy)",
+    )
     idle_timeout_s: float = Field(
         REST_LEASE_IDLE_S,
         gt=0,
@@ -214,6 +220,7 @@ async def take_lease(
             lease_idle_s=body.idle_timeout_s,
             source="rest",
             address=request.client.host if request.client else "",
+            policy=body.policy,
         )
     )
     try:
@@ -259,6 +266,41 @@ async def estop(request: Request, decision: DecisionDep) -> SafetyView:
 async def reset(client: ClientDep, decision: DecisionDep) -> SafetyView:
     await decision.reset(client.id)
     return _safety(decision)
+
+
+class AutonomyView(BaseModel):
+    mode: Mode = Field(description="off (no policy), autonomous, paused or correcting")
+    policy: str | None = Field(description="the policy's name")
+    operator: str | None = Field(description="who corrected, paused or resumed it last")
+    cause: str = Field(description="why the mode is what it is")
+    rate_hz: float = Field(description="the policy's commands a second, as received")
+    refused: int = Field(description="its commands refused while paused or corrected")
+    interventions: int = Field(description="takeovers since the policy took control")
+
+
+def _autonomy(decision: DecisionServer) -> AutonomyView:
+    return AutonomyView.model_validate(decision.autonomy.state().as_dict())
+
+
+@router.get("/autonomy")
+async def autonomy(decision: DecisionDep) -> AutonomyView:
+    """Who drives while a policy is connected. Take over with ``POST /lease`` (no
+    ``force`` needed from a policy), hand back with ``DELETE /lease`` or ``resume``."""
+    return _autonomy(decision)
+
+
+@router.post("/autonomy/pause")
+async def pause_autonomy(client: ClientDep, decision: DecisionDep) -> AutonomyView:
+    """Hold the policy still: its commands are refused until resumed (an operator)."""
+    await decision.pause(client.id)
+    return _autonomy(decision)
+
+
+@router.post("/autonomy/resume")
+async def resume_autonomy(client: ClientDep, decision: DecisionDep) -> AutonomyView:
+    """The policy drives again from where the arm is (an operator; the e-stop reset)."""
+    await decision.resume_policy(client.id)
+    return _autonomy(decision)
 
 
 @router.get("/control")

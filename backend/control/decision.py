@@ -45,6 +45,7 @@ from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
 from telerobot.protocol.names import client_name
+from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, ReleaseTo
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.slave_port import SlavePort
 from telerobot.server.security import token_matches
@@ -137,6 +138,9 @@ class Client:
     # A task's client: the operator it runs for. That operator supervises it, and its
     # heartbeats keep it present while the task holds the lease in its place.
     on_behalf_of: str | None = None
+    # A learned policy (HELLO's POLICY flag): it drives under supervision
+    # (telerobot.server.control.autonomy); an operator takes control from it at will.
+    policy: bool = False
 
 
 @dataclass(frozen=True)
@@ -178,6 +182,10 @@ class CommandReport:
     error: TelerobotError | None
     target: FloatArray | None  # what reached the driver
     lease_holder: str | None
+    # Who drives: "policy" (a learned policy's client), "operator" (anyone else, a
+    # task included) or "server"; and the autonomy mode it was decided in.
+    role: str = "operator"
+    autonomy: str = "off"
 
 
 @dataclass
@@ -186,6 +194,9 @@ class DecisionEvents:
     safety_changed: Event[SafetyState] = field(default_factory=lambda: Event("safety_changed"))
     applied: Event[Applied] = field(default_factory=lambda: Event("applied"))
     command: Event[CommandReport] = field(default_factory=lambda: Event("command"))
+    autonomy_changed: Event[AutonomyState] = field(
+        default_factory=lambda: Event("autonomy_changed")
+    )
 
 
 P = ParamSpec("P")
@@ -265,6 +276,8 @@ class DecisionServer:
         self.max_clients = max_clients
         self._watchdog: asyncio.Task[None] | None = None
         self._unsubscribe: Callable[[], None] | None = None
+        self.autonomy = Autonomy(clock.now())
+        self.release_to = ReleaseTo.AUTONOMOUS  # where an operator's release leaves a policy
 
     # ------------------------------------------------------------ its own loop
     def start(self) -> None:
@@ -340,8 +353,11 @@ class DecisionServer:
         resumable: bool = False,
         address: str = "",
         on_behalf_of: str | None = None,
+        policy: bool = False,
     ) -> Client:
         role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
+        if policy and role is not Role.OPERATOR:
+            raise NotAllowed("a policy moves the arm: it needs the operator token")
         if len(self._clients) >= self.max_clients:
             self._forget_idle(self.clock.now())
         if len(self._clients) >= self.max_clients:
@@ -360,6 +376,7 @@ class DecisionServer:
             resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES) if resumable else None,
             address=address,
             on_behalf_of=on_behalf_of,
+            policy=policy,
         )
         self._clients[client.id] = client
         return client
@@ -394,6 +411,9 @@ class DecisionServer:
                 del self._clients[client.id]
 
     async def leave(self, client_id: str) -> None:
+        if client_id == self.autonomy.policy_id:
+            self.autonomy.end()
+            self._set_mode(Mode.OFF, "the policy left")
         if self._lease == client_id:
             await self._lapse("controller disconnected")
         self._clients.pop(client_id, None)
@@ -460,6 +480,13 @@ class DecisionServer:
         if self._lease is not None:
             holder = self._clients[self._lease]
             again = self._runs_again(client, holder)
+            if client.policy and not holder.policy:
+                raise NotAllowed(
+                    f"{holder.name!r} has control: a policy never takes it from a person;"
+                    " it drives again when the operator hands control back"
+                )
+            if holder.policy and not client.policy:
+                force = True  # a person may always take control from a policy
             if not force and not again:
                 raise NotAllowed(
                     f"{holder.name!r} has control{self._lapses_in(holder)}; take it over"
@@ -475,10 +502,16 @@ class DecisionServer:
             )
         else:
             self._lease_note = f"taken by {client.name!r}"
+        taken_from = self._clients.get(self._lease) if self._lease else None
         self._lease = client_id
         self._halted = False
         client.last_command_at = None
         self._changed_lease()
+        if client.policy:
+            self.autonomy.start(client.id, client.name)
+            self._set_mode(Mode.AUTONOMOUS, f"{client.name!r} took control")
+        elif taken_from is not None and taken_from.id == self.autonomy.policy_id:
+            self._set_mode(Mode.CORRECTING, f"taken over by {client.name!r}", operator=client.name)
 
     @staticmethod
     def _runs_again(client: Client, holder: Client) -> bool:
@@ -509,9 +542,91 @@ class DecisionServer:
     async def release_lease(self, client_id: str) -> None:
         if self._lease != client_id:
             raise NotAllowed("you do not hold the lease")
+        if self.autonomy.mode is Mode.CORRECTING and client_id != self.autonomy.policy_id:
+            name = self._clients[client_id].name
+            paused = self.release_to is ReleaseTo.PAUSE
+            await self._hand_to_policy(
+                Mode.PAUSED if paused else Mode.AUTONOMOUS,
+                f"handed back by {name!r}" + (" (paused: autonomy_release)" if paused else ""),
+                name,
+            )
+            return
         await self._lapse("released")
 
+    # ------------------------------------------------------------ supervised autonomy
+    def _set_mode(self, mode: Mode, cause: str, *, operator: str | None = None) -> None:
+        if self.autonomy.set(mode, cause, self.clock.now(), operator=operator):
+            log.info("autonomy %s: %s", mode.value.upper(), cause)
+            self.events.autonomy_changed.emit(self.autonomy.state())
+
+    def _supervisor(self, client_id: str) -> Client:
+        """An operator (a person's client, not the policy) acting on the autonomy."""
+        client = self.client(client_id)
+        self._heard(client)
+        if client.role is not Role.OPERATOR or client.policy:
+            raise NotAllowed("only an operator supervises a policy")
+        if self.autonomy.policy_id not in self._clients:
+            raise NotAllowed("no policy is connected to supervise")
+        return client
+
+    async def _hand_to_policy(self, mode: Mode, cause: str, operator: str) -> None:
+        """The lease back to the policy, the arm stopped where it is: it drives on from
+        there (``AUTONOMOUS``) or waits for a resume (``PAUSED``)."""
+        policy = self._clients[self.autonomy.policy_id or ""]
+        await self.robot.stop()
+        self._lease, self._halted = policy.id, False
+        policy.last_command_at = None  # its first increment is allowed 0.1 s of speed
+        policy.last_seen = self.clock.now()
+        self._lease_note = cause
+        self._changed_lease()
+        self._set_mode(mode, cause, operator=operator)
+
+    @reported("autonomy", action="pause")
+    async def pause(self, client_id: str) -> None:
+        """Hold the policy still (look, think): its commands are refused until resumed.
+        From a correction, control goes back to the policy, paused."""
+        client = self._supervisor(client_id)
+        if self.autonomy.mode is Mode.CORRECTING:
+            await self._hand_to_policy(Mode.PAUSED, f"paused by {client.name!r}", client.name)
+            return
+        await self.robot.stop()
+        self._set_mode(Mode.PAUSED, f"paused by {client.name!r}", operator=client.name)
+
+    @reported("autonomy", action="resume")
+    async def resume_policy(self, client_id: str) -> None:
+        """The policy drives again, from where the arm is (from a correction: handed back)."""
+        client = self._supervisor(client_id)
+        if self._estop:
+            raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
+        cause = f"resumed by {client.name!r}"
+        if self._lease != self.autonomy.policy_id:
+            await self._hand_to_policy(Mode.AUTONOMOUS, cause, client.name)
+        else:
+            self._set_mode(Mode.AUTONOMOUS, cause, operator=client.name)
+
+    def _check_autonomy(self, client: Client) -> None:
+        """A policy drives only while AUTONOMOUS; otherwise its command is refused,
+        counted and said to it (before the lease check: it is told why)."""
+        if client.id != self.autonomy.policy_id:
+            return
+        self.autonomy.heard_command(self.clock.now())
+        if self.autonomy.mode is not Mode.AUTONOMOUS:
+            raise self.autonomy.refuse()
+
     async def _lapse(self, why: str) -> None:
+        holder = self._lease
+        policy = self.autonomy.policy_id
+        if (
+            self.autonomy.mode is Mode.CORRECTING
+            and holder is not None
+            and holder != policy
+            and policy in self._clients
+        ):
+            name = self._clients[holder].name if holder in self._clients else "the operator"
+            await self._hand_to_policy(Mode.PAUSED, f"{name}'s control lapsed: {why}", name)
+            return
+        if holder is not None and holder == policy:
+            self._set_mode(Mode.OFF, f"the policy lost control: {why}")
         log.info("lease lapses: %s", why)
         self._lease = None
         self._halted = False
@@ -603,13 +718,16 @@ class DecisionServer:
         self._estop, self._estop_reason = True, f"{reason} ({who})"
         await self.robot.stop()
         self.events.safety_changed.emit(self.state())
+        if self.autonomy.mode is Mode.AUTONOMOUS:
+            self._set_mode(Mode.PAUSED, f"e-stop: {self._estop_reason}")
 
     @reported("reset")
     async def reset(self, client_id: str) -> None:
         client = self.client(client_id)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("only an operator can reset the e-stop")
-        if self._lease not in (None, client_id):
+        supervising = self._lease == self.autonomy.policy_id and not client.policy
+        if self._lease not in (None, client_id) and not supervising:
             raise NotAllowed("only the client in control can reset the e-stop")
         self._estop, self._estop_reason = False, ""
         self.events.safety_changed.emit(self.state())
@@ -655,6 +773,8 @@ class DecisionServer:
                 )
                 asyncio.get_running_loop().create_task(self.robot.stop())
                 self.events.safety_changed.emit(self.state())
+                if self.autonomy.mode is Mode.AUTONOMOUS:
+                    self._set_mode(Mode.PAUSED, f"force limit: {magnitude:.1f} N")
         elif (
             self._force_limited
             and magnitude < self.limits.force_limit_n * self.limits.force_release_ratio
@@ -686,6 +806,10 @@ class DecisionServer:
                 error,
                 result.target if isinstance(result, Applied) else None,
                 self._lease,
+                "policy"
+                if client is not None and client.policy
+                else ("operator" if client is not None else "server"),
+                self.autonomy.mode.value,
             )
         )
 
@@ -694,6 +818,7 @@ class DecisionServer:
         self._heard(client)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("observers cannot move the robot")
+        self._check_autonomy(client)
         if self._lease != client_id:
             raise NotAllowed("take the control lease before moving the robot")
         if self._estop:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 from collections import deque
 from collections.abc import Awaitable, Callable
@@ -27,6 +28,7 @@ from dataclasses import dataclass, field
 from telerobot.drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
 from telerobot.drivers.clock import Clock
 from telerobot.protocol import messages as m
+from telerobot.server.control.autonomy import AutonomyState
 from telerobot.server.control.decision import DecisionServer, SafetyState
 from telerobot.server.realtime.ratelimit import PeerLimits
 from telerobot.server.telemetry.stats import Telemetry
@@ -187,6 +189,7 @@ class RealtimeHub:
             self._unsubscribe.append(self.force.subscribe(from_sensor_thread))
         self._unsubscribe.append(self.robot.events.status_changed.subscribe(self._on_status))
         self._unsubscribe.append(self.decision.events.safety_changed.subscribe(self._on_safety))
+        self._unsubscribe.append(self.decision.events.autonomy_changed.subscribe(self._on_autonomy))
         self._tasks.append(asyncio.create_task(self._broadcast_state(), name="state-broadcast"))
 
     async def stop(self) -> None:
@@ -258,6 +261,9 @@ class RealtimeHub:
         routine = {change.old, change.new} <= {RobotStatus.READY, RobotStatus.MOVING}
         if not routine:
             self.broadcast_event(m.EventKind.STATUS, f"{change.new.value}: {change.message}")
+
+    def _on_autonomy(self, state: AutonomyState) -> None:
+        self.broadcast_event(m.EventKind.AUTONOMY, json.dumps(state.as_dict()))
 
     def _on_safety(self, state: SafetyState) -> None:
         parts = [f"control: {state.lease_holder_name or 'nobody'}"]

@@ -119,6 +119,7 @@ class Session:
                 source=source,
                 synced_clock=bool(flags & m.HelloFlags.SYNCED_CLOCK),
                 resumable=bool(flags & m.HelloFlags.RESUMABLE),
+                policy=bool(flags & m.HelloFlags.POLICY),
             )
         if every_force_sample is None:
             every_force_sample = bool(flags & m.HelloFlags.EVERY_FORCE_SAMPLE)
@@ -232,6 +233,10 @@ async def handle(
                 await decision.release_lease(client_id)
             elif action in (m.LeaseAction.TAKE, m.LeaseAction.TAKE_OVER):
                 await decision.take_lease(client_id, force=action == m.LeaseAction.TAKE_OVER)
+            elif action == m.LeaseAction.PAUSE:
+                await decision.pause(client_id)
+            elif action == m.LeaseAction.RESUME:
+                await decision.resume_policy(client_id)
             else:
                 raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
             conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))

@@ -41,6 +41,9 @@ class LeaseAction(IntEnum):
     RELEASE = 0
     TAKE = 1
     TAKE_OVER = 2  # forced: takes control from whoever holds it
+    # Supervising a policy (an operator only; docs/protocol.md, Supervised autonomy):
+    PAUSE = 3  # hold the policy still: its commands refused until RESUME
+    RESUME = 4  # the policy drives again (from a correction: control handed back to it)
 
 
 class HelloFlags(IntEnum):
@@ -57,6 +60,9 @@ class HelloFlags(IntEnum):
     # through at once when the link is back, where the old one may wait out TCP's
     # doubling retransmission timeout (0.2, 0.6, 1.4, 3 s after a loss).
     RESUME = 8
+    # This client is a learned policy (needs the operator token): it drives under
+    # supervision, and any operator takes control from it without forcing.
+    POLICY = 16
 
 
 class StateFlags(IntEnum):
@@ -78,6 +84,7 @@ class EventKind(IntEnum):
     LEASE = 2  # who has control changed
     SAFETY = 3  # e-stop / force limit changed
     INFO = 4
+    AUTONOMY = 5  # a policy's supervision changed: text is JSON (mode, policy, operator, cause…)
 
 
 @dataclass(frozen=True)

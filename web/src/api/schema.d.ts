@@ -284,6 +284,67 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/autonomy": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Autonomy
+         * @description Who drives while a policy is connected. Take over with ``POST /lease`` (no
+         *     ``force`` needed from a policy), hand back with ``DELETE /lease`` or ``resume``.
+         */
+        get: operations["autonomy_api_v1_autonomy_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/autonomy/pause": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Pause Autonomy
+         * @description Hold the policy still: its commands are refused until resumed (an operator).
+         */
+        post: operations["pause_autonomy_api_v1_autonomy_pause_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/autonomy/resume": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Resume Autonomy
+         * @description The policy drives again from where the arm is (an operator; the e-stop reset).
+         */
+        post: operations["resume_autonomy_api_v1_autonomy_resume_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/control": {
         parameters: {
             query?: never;
@@ -1160,6 +1221,41 @@ export interface components {
              */
             peer_secret: string;
         };
+        /** AutonomyView */
+        AutonomyView: {
+            /** @description off (no policy), autonomous, paused or correcting */
+            mode: components["schemas"]["Mode"];
+            /**
+             * Policy
+             * @description the policy's name
+             */
+            policy: string | null;
+            /**
+             * Operator
+             * @description who corrected, paused or resumed it last
+             */
+            operator: string | null;
+            /**
+             * Cause
+             * @description why the mode is what it is
+             */
+            cause: string;
+            /**
+             * Rate Hz
+             * @description the policy's commands a second, as received
+             */
+            rate_hz: number;
+            /**
+             * Refused
+             * @description its commands refused while paused or corrected
+             */
+            refused: number;
+            /**
+             * Interventions
+             * @description takeovers since the policy took control
+             */
+            interventions: number;
+        };
         /** BoardRequest */
         BoardRequest: {
             /**
@@ -1625,12 +1721,23 @@ export interface components {
              */
             force: boolean;
             /**
+             * Policy
+             * @description this client is a learned policy: it drives under supervision, and any operator takes control from it at will (GET /autonomy)
+             * @default false
+             */
+            policy: boolean;
+            /**
              * Idle Timeout S
              * @description how long the lease is kept with no request between absolute moves (a script pausing); while it jogs (incremental moves) the dead-man's limit applies
              * @default 5
              */
             idle_timeout_s: number;
         };
+        /**
+         * Mode
+         * @enum {string}
+         */
+        Mode: "off" | "autonomous" | "paused" | "correcting";
         /** ModelFlange */
         ModelFlange: {
             /** Parent */
@@ -2749,6 +2856,88 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["SafetyView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    autonomy_api_v1_autonomy_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["AutonomyView"];
+                };
+            };
+        };
+    };
+    pause_autonomy_api_v1_autonomy_pause_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-client-id"?: string | null;
+            };
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["AutonomyView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    resume_autonomy_api_v1_autonomy_resume_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "x-client-id"?: string | null;
+            };
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["AutonomyView"];
                 };
             };
             /** @description Validation Error */

@@ -239,11 +239,11 @@ export type MessageOf<N extends MessageName> = Extract<Message, { readonly type:
 export type FieldsOf<N extends MessageName> = Omit<MessageOf<N>, "type" | "text" | "samples">;
 
 export const Frame = { BASE: 0, WRIST: 1, TOOL: 2 } as const;
-export const LeaseAction = { RELEASE: 0, TAKE: 1, TAKE_OVER: 2 } as const;
-export const HelloFlags = { EVERY_FORCE_SAMPLE: 1, SYNCED_CLOCK: 2, RESUMABLE: 4, RESUME: 8 } as const;
+export const LeaseAction = { RELEASE: 0, TAKE: 1, TAKE_OVER: 2, PAUSE: 3, RESUME: 4 } as const;
+export const HelloFlags = { EVERY_FORCE_SAMPLE: 1, SYNCED_CLOCK: 2, RESUMABLE: 4, RESUME: 8, POLICY: 16 } as const;
 export const StateFlags = { YOU_HAVE_CONTROL: 1, SOMEONE_HAS_CONTROL: 2, ESTOP: 4, FORCE_LIMITED: 8, OPERATOR: 16, HALTED: 32 } as const;
 export const Ack = { APPLIED: 0, LIMITED: 1 } as const;
-export const EventKind = { STATUS: 1, LEASE: 2, SAFETY: 3, INFO: 4 } as const;
+export const EventKind = { STATUS: 1, LEASE: 2, SAFETY: 3, INFO: 4, AUTONOMY: 5 } as const;
 export const ERROR_CODES = {"malformed": 1, "unknown_type": 2, "invalid_command": 3, "unreachable_pose": 4, "joint_limit": 5, "limit_exceeded": 6, "not_ready": 7, "not_allowed": 8, "safety_stop": 9, "device_error": 10, "telerobot_error": 11} as const;
 /** STATE's `status` is an index into this list (telerobot.drivers.base.RobotStatus). */
 export const ROBOT_STATUS = ["NOT_CONNECTED", "CONNECTED", "WAITING", "READY", "MOVING", "ERROR"] as const;

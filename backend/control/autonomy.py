@@ -1,0 +1,150 @@
+"""Supervised autonomy: a learned policy drives, an operator supervises and takes over
+(docs/architecture.md, "Supervised autonomy").
+
+A client that joins as a *policy* (HELLO's ``POLICY`` flag; the LeRobot robot plugin
+does) may hold the lease like any operator, and every command of its passes the same
+DecisionServer checks. What this adds is who may drive while a policy is connected,
+as a state machine with lerobot's DAgger names:
+
+- ``AUTONOMOUS``: the policy holds the lease and its commands are applied.
+- ``PAUSED``: the policy keeps the lease but its commands are refused (said to it,
+  counted); the arm holds still. An operator's pause, or the e-stop or the force limit
+  tripping during autonomy (then only an operator's resume goes on).
+- ``CORRECTING``: an operator took the lease from the policy (no ``force`` needed: a
+  person always may); the policy's commands are refused. The operator drives from where
+  the arm is: taking the lease stops the arm, and every input moves by increments from
+  the measured pose (a master or leader aligns first, as it always does).
+- Handing back (the operator releases, or ``RESUME``): the lease goes back to the policy,
+  ``AUTONOMOUS`` (or ``PAUSED``: ``autonomy_release`` = ``pause``). An operator whose
+  lease lapses while correcting (the dead-man) hands back paused.
+- ``OFF``: no policy has held the lease since it joined, or it left.
+
+Every change is an ``AutonomyState`` on ``events.autonomy_changed``, with its cause: the
+recording logs them (``/autonomy``), the export's ``intervention`` column comes from
+them, the page shows them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+from telerobot.drivers.base import TelerobotError
+
+
+class Mode(StrEnum):
+    OFF = "off"
+    AUTONOMOUS = "autonomous"
+    PAUSED = "paused"
+    CORRECTING = "correcting"
+
+
+class ReleaseTo(StrEnum):
+    """Where an operator's release during a correction leaves the policy."""
+
+    AUTONOMOUS = "autonomous"
+    PAUSE = "pause"
+
+
+RATE_SMOOTHING = 0.1  # the policy's command rate: an exponential average of its intervals
+
+
+class Supervised(TelerobotError):
+    """The policy's command was refused: the operator has paused it or is correcting."""
+
+    code = "not_allowed"
+    http_status = 409
+
+
+@dataclass(frozen=True)
+class AutonomyState:
+    mode: Mode
+    policy_id: str | None
+    policy: str | None  # its name
+    operator: str | None  # who is correcting, paused or resumed it last
+    cause: str
+    rate_hz: float  # the policy's commands a second, as received
+    refused: int  # its commands refused while paused or corrected, this session
+    interventions: int  # takeovers this session
+    t: float  # when it changed (server clock)
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "mode": self.mode.value,
+            "policy": self.policy,
+            "operator": self.operator,
+            "cause": self.cause,
+            "rate_hz": round(self.rate_hz, 1),
+            "refused": self.refused,
+            "interventions": self.interventions,
+        }
+
+
+class Autonomy:
+    """The mode and its counters. The DecisionServer moves it (it owns the lease);
+    this keeps what was decided and says it."""
+
+    def __init__(self, now: float) -> None:
+        self.mode = Mode.OFF
+        self.policy_id: str | None = None
+        self.policy: str | None = None
+        self.operator: str | None = None
+        self.cause = "no policy"
+        self.refused = 0
+        self.interventions = 0
+        self.changed_at = now
+        self._rate_interval: float | None = None
+        self._last_command: float | None = None
+
+    def state(self) -> AutonomyState:
+        return AutonomyState(
+            self.mode,
+            self.policy_id,
+            self.policy,
+            self.operator,
+            self.cause,
+            1.0 / self._rate_interval if self._rate_interval else 0.0,
+            self.refused,
+            self.interventions,
+            self.changed_at,
+        )
+
+    def set(self, mode: Mode, cause: str, now: float, *, operator: str | None = None) -> bool:
+        """Whether anything changed (then the caller says so)."""
+        if mode is self.mode and cause == self.cause:
+            return False
+        if mode is Mode.CORRECTING and self.mode is not Mode.CORRECTING:
+            self.interventions += 1
+        self.mode, self.cause, self.changed_at = mode, cause, now
+        if operator is not None:
+            self.operator = operator
+        return True
+
+    def start(self, policy_id: str, name: str) -> None:
+        if policy_id != self.policy_id:
+            self.refused = self.interventions = 0
+            self._rate_interval = self._last_command = None
+        self.policy_id, self.policy = policy_id, name
+
+    def end(self) -> None:
+        self.policy_id = self.policy = self.operator = None
+
+    def heard_command(self, now: float) -> None:
+        """A command of the policy's arrived (applied or not): its rate."""
+        last, self._last_command = self._last_command, now
+        if last is None or now <= last:
+            return
+        gap = now - last
+        avg = self._rate_interval
+        self._rate_interval = gap if avg is None else avg + RATE_SMOOTHING * (gap - avg)
+
+    def refuse(self) -> Supervised:
+        self.refused += 1
+        if self.mode is Mode.CORRECTING:
+            why = f"{self.operator or 'an operator'} is correcting"
+        else:
+            why = f"autonomy is paused ({self.cause})"
+        return Supervised(
+            f"{why}: your command was not applied ({self.refused} refused so far);"
+            " you drive again when the operator hands control back"
+        )
