@@ -232,7 +232,10 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         max_bytes=settings.recording_max_bytes,
         min_free_bytes=settings.recording_min_free_bytes,
     )
-    recorder.snapshot = lambda: recording_snapshot(settings, workcell, calibration, recorder)
+    recorder.snapshot = lambda: [
+        *recording_snapshot(settings, workcell, calibration, recorder),
+        ("/autonomy", decision.autonomy.state().as_dict()),  # who drives as it starts
+    ]
     # A recalibration mid-recording is in the file from that moment on.
     calibration.changed.subscribe(
         lambda _store: recorder.log("/calibration", calibration_payload(workcell, calibration))

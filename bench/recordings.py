@@ -104,12 +104,14 @@ def build(
     jitter: float = 0.0,
     command_every: float = 0.25,
     settings: dict[str, Any] | None = None,
+    autonomy: list[tuple[float, str]] | None = None,
 ) -> Built:
     """Write a recording of ``duration`` seconds: state at ``state_hz``, force at
     ``force_hz``, an accepted ``move_joints`` every ``command_every`` s (and a refused one
     between, which must not count), the episodes' start/label/end events, and video at
     ``video_fps`` (capture times jittered by up to ``jitter`` of a frame), and the
-    server's ``settings`` first if given (as a recording starts with them)."""
+    server's ``settings`` first if given (as a recording starts with them), and the
+    supervised autonomy's changes ``(t, mode)`` if given."""
     if episodes is None:
         episodes = [Episode(0.5, 1.7, "pick the block"), Episode(2.2, 3.6, "place the block")]
     rng = np.random.default_rng(7)
@@ -210,6 +212,9 @@ def build(
             )
         )
 
+    for t, mode in autonomy or []:
+        messages.append((t, "/autonomy", {"t": MONO0 + t, "mode": mode, "cause": "test"}))
+
     # The video: H.264 Annex B access units, as the server's encoder makes them.
     frame_times = []
     enc = av.CodecContext.create("libx264", "w")
@@ -243,6 +248,7 @@ def build(
             "/episodes": "telerobot.Episode",
             "/video/stereo": "foxglove.CompressedVideo",
             "/settings": "telerobot.Settings",
+            "/autonomy": "telerobot.Autonomy",
         }
         channels = {
             topic: writer.register_channel(

@@ -725,3 +725,36 @@ def test_a_gap_in_the_states_is_flagged_not_held(tmp_path: Path) -> None:
     ages = np.array(data["telerobot.age_ms"])[:, 0]
     assert summary.stale_rows["state"] == int(np.count_nonzero(ages > 40.0 + 1e-3)) > 0
     assert any("have a state older than 40 ms" in w for w in summary.warnings)
+
+
+def test_the_intervention_column_is_true_exactly_on_the_corrected_rows(tmp_path: Path) -> None:
+    """A policy's rollout with two corrections: lerobot's DAgger column ``intervention``
+    is true on the rows an operator drove (CORRECTING), false elsewhere, and the
+    episode spans the whole attempt, corrections included."""
+    changes = [
+        (0.1, "autonomous"),
+        (0.85, "correcting"),  # (between rows: no tie with a row's time)
+        (1.15, "autonomous"),
+        (2.55, "paused"),  # holding still is not a correction
+        (2.75, "correcting"),
+        (3.05, "autonomous"),
+    ]
+    built = recordings.build(
+        tmp_path / "rec.mcap", episodes=[Episode(0.5, 3.6, "push the block")], autonomy=changes
+    )
+    export_lerobot(built.path, tmp_path / "ds", fps=10)
+    info = json.loads((tmp_path / "ds/meta/info.json").read_text())
+    assert info["features"]["intervention"] == {"dtype": "bool", "shape": [1], "names": None}
+    data = pq.read_table(tmp_path / "ds/data/chunk-000/file-000.parquet").to_pydict()
+    assert set(data["episode_index"]) == {0}  # one episode: the whole attempt
+    row_t = 0.5 + np.array(data["timestamp"], np.float64)
+    expected = ((row_t > 0.85) & (row_t < 1.15)) | ((row_t > 2.75) & (row_t < 3.05))
+    assert data["intervention"] == expected.tolist() and 0 < sum(expected) < len(expected)
+
+
+def test_a_recording_without_a_policy_has_no_intervention_column(
+    exported: tuple[Any, Any, Path],
+) -> None:
+    _, _, root = exported
+    info = json.loads((root / "meta/info.json").read_text())
+    assert "intervention" not in info["features"]

@@ -50,6 +50,11 @@ At each row time:
   warning): never silently held. (Not ``observation.*``: LeRobot's policies take every
   ``observation.`` feature as an input.)
 
+- ``intervention`` (bool, lerobot-rollout's DAgger column), only in a recording of a
+  policy under supervision (``/autonomy``): true on the rows whose time falls while an
+  operator had taken over from the policy (CORRECTING); paused is not a correction.
+  An episode spans the whole attempt, its corrections included.
+
 Episodes come from ``/episodes`` (``start``/``end``, the task from the last ``label``);
 a recording without any is exported as one episode, the whole recording, with the task
 ``"(whole recording)"`` (the summary says so).
@@ -118,6 +123,7 @@ ALLOW_REPEATS = "--allow-repeated-frames; allow_repeated_frames over the API"
 LOAD_SHARE = 0.1
 FINISH_SHARE = 0.05
 VIDEO_TOPIC = "/video/stereo"
+AUTONOMY_TOPIC = "/autonomy"
 # A row's state, force or frame older than these is flagged (``telerobot.age_ms``,
 # counted in the summary), never silently held: a state more than two of its periods
 # old, a force interval with no sample, a frame more than one row period from the row.
@@ -199,19 +205,30 @@ class _Recording:
     # What the recording's /settings said (None: a recording from before they were kept).
     configured_fps: float | None = None
     state_rate_hz: float | None = None
+    # Supervised autonomy (/autonomy): when each mode began; empty without a policy.
+    autonomy: list[tuple[float, str]] = field(default_factory=list)
 
 
 def _load(path: Path) -> _Recording:
     """Everything but the video's frames (of the video, its capture times), each series
     kept as packed doubles (a Python list of lists costs five times as much: 1 kHz of
     forces for an hour would take about a gigabyte)."""
-    topics = ["/settings", "/robot/state", "/force", "/commands", "/episodes", VIDEO_TOPIC]
+    topics = [
+        "/settings",
+        "/robot/state",
+        "/force",
+        "/commands",
+        "/episodes",
+        AUTONOMY_TOPIC,
+        VIDEO_TOPIC,
+    ]
     model_name = DEFAULT_MODEL  # recordings from before robot models were all of the PUMA
     recorded_settings: dict[str, Any] = {}
     state_t, joints, targets, pose = array("d"), array("d"), array("d"), array("d")
     force_t, force = array("d"), array("d")
     command_t, command_target = array("d"), array("d")
     events: list[dict[str, Any]] = []
+    autonomy: list[tuple[float, str]] = []
     video_wall = array("d")
     offsets: list[float] = []  # wall (log time) − monotonic (t), from the JSON channels
     # As written: each topic's messages in the order they were logged (the log times of a
@@ -246,6 +263,8 @@ def _load(path: Path) -> _Recording:
                 command_target.extend(m["target_joints"])
         elif topic == "/episodes":
             events.append(m)
+        elif topic == AUTONOMY_TOPIC:
+            autonomy.append((t, str(m.get("mode", "off"))))
     if not state_t:
         raise ExportError(f"{path.name} has no /robot/state messages: nothing to export")
     # The video's capture times are wall clock; the rest is on the server's monotonic
@@ -287,7 +306,17 @@ def _load(path: Path) -> _Recording:
         skipped=skipped,
         configured_fps=_positive(recorded_settings.get("video_fps")),
         state_rate_hz=_positive(recorded_settings.get("state_rate_hz")),
+        autonomy=sorted(autonomy, key=lambda x: x[0]),
     )
+
+
+def _corrected(autonomy: list[tuple[float, str]], t: Array) -> npt.NDArray[np.bool_]:
+    """Whether the autonomy mode at each row time ``t`` was CORRECTING (an operator
+    had taken over from the policy): the last change at or before it."""
+    times = np.array([a for a, _ in autonomy])
+    correcting = np.array([mode == "correcting" for _, mode in autonomy])
+    at = np.searchsorted(times, t, side="right") - 1
+    return np.where(at >= 0, correcting[np.maximum(at, 0)], False)
 
 
 def _in_time_order(t: Array, *series: Array) -> tuple[Array, tuple[Array, ...]]:
@@ -746,9 +775,16 @@ def export_lerobot(
         "index": [],
         "task_index": [],
     }
+    # lerobot-rollout's DAgger column: true on the rows an operator drove, taking over
+    # from the policy (CORRECTING). Only for recordings of a policy under supervision.
+    supervised = any(mode != "off" for _, mode in rec.autonomy)
+    if supervised:
+        index_cols["intervention"] = []
     total = 0
     for e, (t, (_, _, task)) in enumerate(zip(rows, kept, strict=True)):
         n = len(t)
+        if supervised:
+            index_cols["intervention"].append(_corrected(rec.autonomy, t))
         state = _held(rec.state_t, rec.joints, t)
         columns["observation.state"].append(units.to_lerobot(state))
         columns["observation.tool_pose"].append(_held(rec.state_t, rec.pose, t))
@@ -805,7 +841,7 @@ def export_lerobot(
             }
     report(1.0 - FINISH_SHARE)
     for key in index_cols:
-        dtype = "float32" if key == "timestamp" else "int64"
+        dtype = {"timestamp": "float32", "intervention": "bool"}.get(key, "int64")
         features[key] = {"dtype": dtype, "shape": [1], "names": None}
 
     # data/chunk-000/file-000.parquet

@@ -567,6 +567,8 @@ def command_payload(r: CommandReport) -> dict[str, Any]:
         "code": r.error.code if r.error is not None else "",
         "target_joints": r.target,
         "lease_holder": r.lease_holder,
+        "role": r.role,
+        "autonomy": r.autonomy,
     }
 
 
@@ -612,6 +614,11 @@ class RecordingTaps:
             )
         )
         self._unsubscribe.append(self.decision.events.safety_changed.subscribe(self._on_safety))
+        self._unsubscribe.append(
+            self.decision.events.autonomy_changed.subscribe(
+                lambda a: rec.log(ch.AUTONOMY, a.as_dict(), a.t)
+            )
+        )
         if self.tasks is not None:
             self._unsubscribe.append(self.tasks.subscribe(self._on_task))
         self._task = asyncio.get_running_loop().create_task(self._states(), name="record-state")

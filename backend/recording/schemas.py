@@ -14,6 +14,7 @@ ROBOT_STATE = "/robot/state"
 FORCE = "/force"
 COMMANDS = "/commands"
 SAFETY = "/safety"
+AUTONOMY = "/autonomy"
 EPISODES = "/episodes"
 VIDEO = "/video/stereo"
 TF = "/tf"
@@ -59,6 +60,21 @@ CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
             code=_str,
             target_joints={"type": ["array", "null"], "items": _num},
             lease_holder={"type": ["string", "null"]},
+            role=_str,
+            autonomy=_str,
+        ),
+    ),
+    AUTONOMY: (
+        "telerobot.Autonomy",
+        _obj(
+            t=_num,
+            mode=_str,
+            policy={"type": ["string", "null"]},
+            operator={"type": ["string", "null"]},
+            cause=_str,
+            rate_hz=_num,
+            refused={"type": "integer"},
+            interventions={"type": "integer"},
         ),
     ),
     SAFETY: (
