@@ -17,10 +17,12 @@ import { ServerArmReloader, type ServerArm } from "./robot/server-arm";
 import { Rolling } from "./stats";
 import type { ForceSample } from "./transport/codec";
 import { RealtimeLink } from "./transport/link";
+import { EventKind, StateFlags } from "./transport/messages";
 import type { RobotState } from "./transport/realtime";
 import { VideoConnection, layerParam } from "./transport/video";
 import { Alignment, viewerName } from "./ui/alignment";
 import { ConnectionHud } from "./ui/connection-hud";
+import { Supervision, parseAutonomy } from "./ui/autonomy";
 import { ControlWatch, showControlAlerts } from "./ui/control-alert";
 import { setupControls } from "./ui/controls";
 import { $, numberIn } from "./ui/dom";
@@ -73,18 +75,28 @@ async function main(): Promise<void> {
   let armReloader: ServerArmReloader | null = null; // the arm drawn, read again at each new session
   let welcomed = false;
   let tasks: TasksPanel | null = null; // a task this page started holds the lease: not lost
+  let supervision: Supervision | null = null; // a learned policy's, when one drives
   // Recording: the header's REC indicator for every viewer, the operator's panel.
   const recording = new RecordingPanel({ api, log, operator: () => link.operator });
   const link = new RealtimeLink(namedUrl(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`, pageName), token, {
     state: (s) => {
       state = s;
       arm.report(s.joints, s.status === "MOVING", performance.now());
+      if (supervision?.active) supervision.refresh();
       if (!tasks?.handedOver) control.state(s.flags, performance.now(), link.timerLateMs, link.pageStallMs);
     },
     forces: (samples) => {
       lastForce = samples[samples.length - 1] ?? lastForce;
     },
-    event: (text) => {
+    event: (text, kind) => {
+      if (kind === EventKind.AUTONOMY) {
+        const s = parseAutonomy(text);
+        if (s) {
+          supervision?.update(s);
+          log.add(`autonomy ${s.mode.toUpperCase()}: ${s.cause}`);
+        }
+        return;
+      }
       log.add(text);
       const who = controllerIn(text);
       if (who !== undefined) controller = who;
@@ -100,6 +112,7 @@ async function main(): Promise<void> {
     },
     welcome: (operator) => {
       // A new session after the first: the server may have restarted with another arm.
+      void readAutonomy();
       if (welcomed) {
         void armReloader?.reload();
         api.request("get", "/api/v1/safety").then((s) => (controller = s.controller ?? null)).catch(() => undefined);
@@ -160,7 +173,9 @@ async function main(): Promise<void> {
     keyboard,
     view: cell.cameras[0] ? viewFrame(cell.cameras[0].P) : null, // the left camera's
     now: performance.now(),
+    policyHolds: () => supervision?.policyHolds ?? false,
   });
+  supervision = setupSupervision(loop, link, () => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0);
   // The active frame's axes at the gripper, in both eyes (shown with the AR ball).
   const axes = new AxisMarker(cell.cameras, model.tool.flat(), view);
   // The whole predicted arm, a translucent skeleton in both eyes (the "Ghost arm" switch).
@@ -179,7 +194,10 @@ async function main(): Promise<void> {
     fullscreen: toggleFullscreen,
     deadmanHeld: () => keyboard.read().deadman,
   };
-  keyboard.onKey = (key, e) => routeKey(keyTargets, key, e);
+  keyboard.onKey = (key, e) => {
+    routeKey(keyTargets, key, e);
+    if (!e.repeat && !e.altKey && !e.ctrlKey && !e.metaKey) supervision?.key(key);
+  };
   const rumble = new ContactRumble(() => (lastForce ? rumbleStrength(Math.hypot(...lastForce.values.slice(0, 3)), safety.force_limit_n) : 0));
   const rumbleBox = $<HTMLInputElement>("rumble");
   rumble.enabled = rumbleBox.checked;
@@ -276,8 +294,42 @@ async function main(): Promise<void> {
       recording,
       hud,
       arms,
+      supervision,
     },
   });
+}
+
+/** Who drives while a policy is connected (GET /autonomy): at each new session, as
+ * events may have been missed while the link was down. */
+async function readAutonomy(): Promise<void> {
+  try {
+    supervisionRef?.update(parseAutonomy(JSON.stringify(await api.request("get", "/api/v1/autonomy"))));
+  } catch {
+    // the server said nothing: the next EVENT autonomy says it
+  }
+}
+let supervisionRef: Supervision | null = null;
+
+/** The header's supervision badge and buttons, wired to the loop and the link. */
+function setupSupervision(loop: InputLoop, link: RealtimeLink, youHaveControl: () => boolean): Supervision {
+  const s = new Supervision({ take: () => loop.take(), release: () => loop.release(), lease: (a) => link.lease(a), youHaveControl });
+  const badge = $("autonomy");
+  s.onChange = (v) => {
+    badge.hidden = v.badge === "";
+    badge.textContent = v.badge;
+    badge.dataset.mode = s.state?.mode ?? "off";
+    const operator = link.operator;
+    $("pause-policy").hidden = !(operator && v.pause);
+    $("resume-policy").hidden = !(operator && v.resume);
+    $("hand-back").hidden = !(operator && v.handBack);
+    $("take").textContent = v.takeLabel;
+  };
+  $("pause-policy").onclick = () => s.pause();
+  $("resume-policy").onclick = () => s.handBack();
+  $("hand-back").onclick = () => s.handBack();
+  supervisionRef = s;
+  void readAutonomy();
+  return s;
 }
 
 main().catch((e: Error) => log.add(`start-up failed: ${e.message}`, true));

@@ -45,6 +45,7 @@ SETTLE_S = 5.0  # disconnecting waits at most this for the arm to reach its last
 SETTLED_RAD = 0.01
 STATES_KEPT = 250  # 5 s of STATEs at 50 Hz: the frame's capture time is within them
 CONNECT_S = 10.0
+REANCHOR_RAD = 0.02
 
 
 @dataclass
@@ -59,6 +60,10 @@ class ArmOptions:
     max_speed_rad_s: float = 0.95  # per joint; the server's joint limit is 1 rad/s
     rate_hz: float = 100.0
     take_over: bool = False
+    # A learned policy drives (lerobot-rollout, lerobot-eval): the server supervises it
+    # (docs/protocol.md, Supervised autonomy): an operator takes over at will, and its
+    # actions are refused while paused or corrected (send returns the server's target).
+    policy: bool = False
 
 
 class _Targets:
@@ -115,7 +120,7 @@ class TelerobotArm:
         base = o.url if o.url.endswith("/") else o.url + "/"
         self.units = describe_arm(o.url)
         try:
-            link = open_link(o.url, o.token, datagrams=False, name=o.name)
+            link = open_link(o.url, o.token, datagrams=False, name=o.name, policy=o.policy)
         except TelerobotError as exc:  # no priority channel, or the token refused
             raise ConnectionError(str(exc)) from None
         if not link.operator:
@@ -126,7 +131,14 @@ class TelerobotArm:
         self.link = link
         self._targets = _Targets(self.units.names, self._newest_joints)
         settings = MirrorSettings(
-            rate_hz=o.rate_hz, max_speed_rad_s=o.max_speed_rad_s, align=False, straight=True
+            rate_hz=o.rate_hz,
+            max_speed_rad_s=o.max_speed_rad_s,
+            align=False,
+            straight=True,
+            # No leader to align, but an arm that came to rest this far from the record
+            # (stopped by a pause, an e-stop, a takeover) is followed again from where
+            # it is, not from the record: the policy resumes from the arm's pose.
+            align_rad=REANCHOR_RAD,
         )
         # (_Targets is a JointLeader but for from_options: it is built here, not from a port.)
         leader = cast(JointLeader, self._targets)

@@ -123,7 +123,10 @@ class PriorityLink:
         timeout_s: float = 5.0,
         datagrams: bool = False,
         name: str = "",
+        policy: bool = False,
     ) -> None:
+        """``policy``: this client is a learned policy (HELLO's POLICY flag): it drives
+        under an operator's supervision (docs/protocol.md, Supervised autonomy)."""
         self.on_force = on_force
         self.on_state = on_state
         self.on_reply = on_reply
@@ -165,7 +168,8 @@ class PriorityLink:
         self.sock.settimeout(None)
         self._welcome = threading.Event()
         self._pings: dict[int, float] = {}
-        self._send(m.encode(m.HELLO, m.PROTOCOL_VERSION, 0, token.encode("ascii")))
+        flags = m.HelloFlags.POLICY if policy else 0
+        self._send(m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode("ascii")))
         self._reader = threading.Thread(target=self._read, name="priority-link", daemon=True)
         self._reader.start()
         if not self._welcome.wait(timeout_s):
@@ -400,13 +404,18 @@ class PriorityLink:
             self.on_reply(Reply(msg.name, fields, text))
 
 
-def open_link(server: str, token: str, *, datagrams: bool = True, name: str = "") -> PriorityLink:
+def open_link(
+    server: str, token: str, *, datagrams: bool = True, name: str = "", policy: bool = False
+) -> PriorityLink:
     """Find the server's priority channel (GET /api/v1/force/channel) and connect,
-    going by ``name``; forces as datagrams unless ``datagrams`` is False."""
+    going by ``name`` (as a ``policy`` if said); forces as datagrams unless
+    ``datagrams`` is False."""
     base = server if server.endswith("/") else server + "/"
     try:
         channel = httpx.get(base + "api/v1/force/channel", timeout=5, verify=False).json()
     except (httpx.HTTPError, ValueError) as exc:
         raise TelerobotError(f"cannot ask {base} for its priority channel: {exc}") from None
     host = urlsplit(base).hostname or "localhost"
-    return PriorityLink(host, int(channel["port"]), token, datagrams=datagrams, name=name)
+    return PriorityLink(
+        host, int(channel["port"]), token, datagrams=datagrams, name=name, policy=policy
+    )

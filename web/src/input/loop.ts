@@ -69,6 +69,9 @@ export interface InputLoopOptions {
   view: Mat3 | null;
   /** When the loop starts (ms, the clock `tick` is given). */
   now: number;
+  /** A learned policy holds control (ui/autonomy.ts): pressing the dead-man or the XR
+   * grip takes over from it, the one motion that starts a correction. */
+  policyHolds?: () => boolean;
 }
 
 export class InputLoop {
@@ -80,6 +83,8 @@ export class InputLoop {
   private last: number;
   private inputState = "";
   private readonly xr = new XRMaster();
+  private deadmanWas = false;
+  private gripWas = false;
 
   constructor(private readonly o: InputLoopOptions) {
     this.last = o.now;
@@ -134,6 +139,8 @@ export class InputLoop {
     const pad = this.o.gamepad.read();
     if (pad.cycleFrame) this.pickFrame(FRAMES[(FRAMES.indexOf(this.frame) + 1) % FRAMES.length]!);
     const cmd = combine(pad.command, this.o.keyboard.read());
+    if (cmd.deadman && !this.deadmanWas) this.takeOverFromPolicy();
+    this.deadmanWas = cmd.deadman;
     const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
     if (inputState !== this.inputState) this.onInputState?.((this.inputState = inputState));
     const step = increments(cmd, this.o.speed(), dt);
@@ -146,12 +153,22 @@ export class InputLoop {
   xrFrame(controller: XRControllerReading | null, now: number): void {
     if (!controller) {
       this.xr.update(false, [0, 0, 0], [0, 0, 0, 1], 0);
+      this.gripWas = false;
       return;
     }
+    if (controller.gripping && !this.gripWas) this.takeOverFromPolicy();
+    this.gripWas = controller.gripping;
     const delta = this.xr.update(controller.gripping, controller.position, controller.orientation, now / 1000);
     if (!delta || !this.hasControl) return;
     const speed = this.o.speed();
     this.send(delta.dX.map((v) => v * speed) as Vec3, delta.rotvec.map((v) => v * speed) as Vec3, "base", now);
+  }
+
+  /** The dead-man or the grip went down while a policy holds control: take over. The
+   * server stops the arm where it is; the increments drive from there once the STATE
+   * says this page has control (none is sent before). */
+  private takeOverFromPolicy(): void {
+    if (this.o.policyHolds?.() && !this.hasControl) this.take();
   }
 
   /** Send an increment in `frame`, and give the local model the very same one. */

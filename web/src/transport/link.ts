@@ -38,7 +38,7 @@ export interface LinkMeta {
 export type FromWorker =
   | { kind: "state"; state: RobotState; at: number; meta: LinkMeta }
   | { kind: "forces"; samples: ForceSample[]; at: number }
-  | { kind: "event"; text: string }
+  | { kind: "event"; text: string; eventKind: number }
   | { kind: "error"; text: string; seq: number; code: number }
   | { kind: "connection"; up: boolean; why: string; meta: LinkMeta }
   | { kind: "ack"; latencyMs: number; meta: LinkMeta }
@@ -116,7 +116,7 @@ export class RealtimeLink implements LinkMeta {
         this.handlers.forces?.(m.samples);
         break;
       case "event":
-        this.handlers.event?.(m.text);
+        this.handlers.event?.(m.text, m.eventKind);
         break;
       case "error":
         this.handlers.error?.(m.text, m.seq, m.code);

@@ -34,7 +34,8 @@ export const RESUME_GIVE_UP_MS = 10_000;
 export interface RealtimeHandlers {
   state?: (s: RobotState) => void;
   forces?: (samples: ForceSample[]) => void;
-  event?: (text: string) => void;
+  /** An EVENT: its text and kind (EventKind). */
+  event?: (text: string, kind: number) => void;
   error?: (text: string, seq: number, code: number) => void;
   connection?: (up: boolean, why: string) => void;
   /** A command's latency (ms): sent here → taken by the server's driver. */
@@ -329,7 +330,7 @@ export class RealtimeClient {
         break;
       }
       case "EVENT":
-        this.handlers.event?.(msg.text);
+        this.handlers.event?.(msg.text, msg.kind);
         break;
       case "ERROR":
         this.handlers.error?.(msg.text, msg.seq, msg.code);

@@ -59,7 +59,7 @@ port.onmessage = (e) => {
         port.postMessage({ kind: "state", state, at: pageNow(), meta: meta(c) });
       },
       forces: (samples) => port.postMessage({ kind: "forces", samples, at: pageNow() }),
-      event: (text) => port.postMessage({ kind: "event", text }),
+      event: (text, eventKind) => port.postMessage({ kind: "event", text, eventKind }),
       error: (text, seq, code) => port.postMessage({ kind: "error", text, seq, code }),
       connection: (up, why) => port.postMessage({ kind: "connection", up, why, meta: meta(c) }),
       ack: (latencyMs) => port.postMessage({ kind: "ack", latencyMs, meta: meta(c) }),

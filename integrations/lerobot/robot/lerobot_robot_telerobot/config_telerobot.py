@@ -28,3 +28,6 @@ class TelerobotConfig(RobotConfig):
     max_speed_rad_s: float = 0.95
     # Take control from whoever holds it (else connecting fails while someone drives).
     take_over: bool = False
+    # A learned policy drives this robot (lerobot-rollout): the server supervises it, an
+    # operator at the page takes over at will and hands back (docs/lerobot.md).
+    policy: bool = False

@@ -40,6 +40,7 @@ class Telerobot(Robot):
             fps=config.fps,
             max_speed_rad_s=config.max_speed_rad_s,
             take_over=config.take_over,
+            policy=config.policy,
         )
         # LeRobot asks for the features before it connects: the arm's joints are the
         # server's, asked now. A dataset is named for the arm (an SO-101's is LeRobot's

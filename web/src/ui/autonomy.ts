@@ -1,0 +1,144 @@
+// Supervising a policy (docs/protocol.md, Supervised autonomy). When a learned policy
+// drives, the header says AUTONOMOUS / PAUSED / CORRECTING (lerobot's DAgger names)
+// with the policy's name and rate, and one action takes over: T or "Take over", the
+// dead-man (Space, the gamepad's R1) or the XR grip (input/loop.ts). The arm stops
+// where it is and the operator drives from there. H or "Hand back" gives control back
+// to the policy; P or "Pause" holds it still (look, think) and P again resumes it.
+// The server decides; the page shows what it said (EVENT autonomy, GET /autonomy).
+import { LeaseAction } from "../transport/messages";
+
+export type AutonomyMode = "off" | "autonomous" | "paused" | "correcting";
+
+export interface AutonomyState {
+  mode: AutonomyMode;
+  policy: string | null;
+  operator: string | null;
+  cause: string;
+  rate_hz: number;
+  refused: number;
+  interventions: number;
+}
+
+const MODES: readonly AutonomyMode[] = ["off", "autonomous", "paused", "correcting"];
+
+/** An EVENT autonomy's text (JSON) as a state; null if it is not one. */
+export function parseAutonomy(text: string): AutonomyState | null {
+  let v: unknown;
+  try {
+    v = JSON.parse(text);
+  } catch {
+    return null;
+  }
+  if (typeof v !== "object" || v === null) return null;
+  const o = v as Record<string, unknown>;
+  if (!MODES.includes(o.mode as AutonomyMode)) return null;
+  const str = (x: unknown): string | null => (typeof x === "string" ? x : null);
+  const num = (x: unknown): number => (typeof x === "number" && Number.isFinite(x) ? x : 0);
+  return {
+    mode: o.mode as AutonomyMode,
+    policy: str(o.policy),
+    operator: str(o.operator),
+    cause: str(o.cause) ?? "",
+    rate_hz: num(o.rate_hz),
+    refused: num(o.refused),
+    interventions: num(o.interventions),
+  };
+}
+
+/** What the header shows: the badge's text (empty: hidden), and which buttons. */
+export interface AutonomyView {
+  badge: string;
+  pause: boolean; // "Pause" (the policy drives)
+  resume: boolean; // "Resume" (paused)
+  handBack: boolean; // "Hand back" (this page corrects)
+  takeLabel: string;
+}
+
+export function autonomyView(s: AutonomyState | null, youHaveControl: boolean): AutonomyView {
+  const policy = s?.policy ?? "the policy";
+  switch (s?.mode ?? "off") {
+    case "autonomous":
+      return {
+        badge: `AUTONOMOUS · ${policy}${s && s.rate_hz > 0 ? ` · ${Math.round(s.rate_hz)} Hz` : ""}`,
+        pause: true,
+        resume: false,
+        handBack: false,
+        takeLabel: "Take over (T)",
+      };
+    case "paused":
+      return { badge: `PAUSED · ${policy} (${s?.cause ?? ""})`, pause: false, resume: true, handBack: false, takeLabel: "Take over (T)" };
+    case "correcting":
+      return {
+        badge: `CORRECTING · ${s?.operator ?? "an operator"} drives, ${policy} waits`,
+        pause: false,
+        resume: false,
+        handBack: youHaveControl,
+        takeLabel: "Take control",
+      };
+    default:
+      return { badge: "", pause: false, resume: false, handBack: false, takeLabel: "Take control" };
+  }
+}
+
+/** The keys (KeyboardEvent.code) that supervise a policy. */
+export const AUTONOMY_KEYS: Record<string, "take" | "pause" | "handBack"> = { KeyT: "take", KeyP: "pause", KeyH: "handBack" };
+
+export interface AutonomyActions {
+  /** Take control (over the policy: the server needs no force for it). */
+  take(): void;
+  /** Give control back (correcting: the server hands it to the policy). */
+  release(): void;
+  lease(action: number): void;
+  youHaveControl(): boolean;
+}
+
+/** The supervision's state and what the operator's actions send. */
+export class Supervision {
+  state: AutonomyState | null = null;
+  onChange: ((view: AutonomyView) => void) | null = null;
+
+  constructor(private readonly a: AutonomyActions) {}
+
+  /** A policy is connected and supervised (autonomous, paused or corrected). */
+  get active(): boolean {
+    return (this.state?.mode ?? "off") !== "off";
+  }
+
+  /** A policy holds control (autonomous or paused): the dead-man or the grip takes over. */
+  get policyHolds(): boolean {
+    const mode = this.state?.mode;
+    return mode === "autonomous" || mode === "paused";
+  }
+
+  update(state: AutonomyState | null): void {
+    this.state = state;
+    this.refresh();
+  }
+
+  refresh(): void {
+    this.onChange?.(autonomyView(this.state, this.a.youHaveControl()));
+  }
+
+  takeOver(): void {
+    if (this.policyHolds) this.a.take();
+  }
+
+  pause(): void {
+    if (this.state?.mode === "autonomous" || this.state?.mode === "correcting") this.a.lease(LeaseAction.PAUSE);
+    else if (this.state?.mode === "paused") this.a.lease(LeaseAction.RESUME);
+  }
+
+  handBack(): void {
+    if (this.state?.mode === "correcting" && this.a.youHaveControl()) this.a.release();
+    else if (this.state?.mode === "paused") this.a.lease(LeaseAction.RESUME);
+  }
+
+  /** A key went down (KeyboardEvent.code): T, P and H act only while a policy is supervised. */
+  key(code: string): void {
+    const action = AUTONOMY_KEYS[code];
+    if (!action || !this.active) return;
+    if (action === "take") this.takeOver();
+    else if (action === "pause") this.pause();
+    else this.handBack();
+  }
+}
