@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from telerobot.drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
 from telerobot.drivers.clock import Clock
 from telerobot.protocol import messages as m
-from telerobot.server.control.autonomy import AutonomyState
+from telerobot.server.control.autonomy import AutonomyState, Mode
 from telerobot.server.control.decision import DecisionServer, SafetyState
 from telerobot.server.realtime.ratelimit import PeerLimits
 from telerobot.server.telemetry.stats import Telemetry
@@ -264,6 +264,15 @@ class RealtimeHub:
 
     def _on_autonomy(self, state: AutonomyState) -> None:
         self.broadcast_event(m.EventKind.AUTONOMY, json.dumps(state.as_dict()))
+
+    def autonomy_event(self) -> bytes | None:
+        """The supervision as it is now, for a client that just joined (the EVENTs say
+        only changes); None with no policy."""
+        state = self.decision.autonomy.state()
+        if state.mode is Mode.OFF:
+            return None
+        text = json.dumps(state.as_dict())
+        return m.encode(m.EVENT, m.EventKind.AUTONOMY, self.clock.now(), text=text)
 
     def _on_safety(self, state: SafetyState) -> None:
         parts = [f"control: {state.lease_holder_name or 'nobody'}"]

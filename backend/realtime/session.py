@@ -155,8 +155,12 @@ class Session:
         )
 
     def attach(self) -> None:
-        """From now on the client gets states, forces and events."""
+        """From now on the client gets states, forces and events (a policy's
+        supervision first, if one is connected: the events say only its changes)."""
         self.hub.add(self.conn)
+        autonomy = self.hub.autonomy_event()
+        if autonomy is not None:
+            self.conn.reply(autonomy)
 
     async def receive(self, data: bytes, received: float) -> bool:
         """One message from the client (any message but PING is a heartbeat); False if

@@ -1,6 +1,6 @@
 import { afterEach, beforeEach, describe, expect, it, vi } from "vitest";
 import type { GamepadState } from "./input/gamepad";
-import { InputLoop } from "./input/loop";
+import { HAND_BACK_MS, InputLoop } from "./input/loop";
 import { IDLE, type MotionCommand } from "./input/motion";
 import { LeaseAction, StateFlags } from "./transport/messages";
 import { Supervision, autonomyView, parseAutonomy, type AutonomyState } from "./ui/autonomy";
@@ -77,6 +77,7 @@ describe("the dead-man and the grip take over from a policy", () => {
 
   function loopRig(policyHolds: boolean) {
     const calls: unknown[][] = [];
+    const flags = { value: StateFlags.SOMEONE_HAS_CONTROL as number };
     const link = {
       cartesian: () => void calls.push(["cartesian"]),
       lease: (a: number) => void calls.push(["lease", a]),
@@ -87,7 +88,7 @@ describe("the dead-man and the grip take over from a policy", () => {
     const loop = new InputLoop({
       link,
       arm: { commandCartesian: () => undefined },
-      flags: () => StateFlags.SOMEONE_HAS_CONTROL,
+      flags: () => flags.value,
       speed: () => 0.5,
       gamepad: { read: () => ({ command: IDLE, cycleFrame: false, pad: null }) as GamepadState },
       keyboard: { read: () => keys.cmd },
@@ -95,7 +96,7 @@ describe("the dead-man and the grip take over from a policy", () => {
       now: 0,
       policyHolds: () => policyHolds,
     });
-    return { loop, calls, keys };
+    return { loop, calls, keys, flags };
   }
 
   it("pressing the dead-man takes over once, and sends nothing before control is given", () => {
@@ -112,6 +113,26 @@ describe("the dead-man and the grip take over from a policy", () => {
     loop.xrFrame(reading, 16);
     loop.xrFrame(reading, 32);
     expect(calls).toEqual([["lease", LeaseAction.TAKE_OVER]]);
+  });
+
+  it("let go for a moment (a re-clutch) it keeps control; let go longer, it hands back", () => {
+    const { loop, calls, keys, flags } = loopRig(true);
+    const held: MotionCommand = { deadman: true, linear: [0, 0, 0], angular: [0, 0, 0] };
+    keys.cmd = held;
+    loop.tick(0);
+    flags.value = StateFlags.SOMEONE_HAS_CONTROL | StateFlags.YOU_HAVE_CONTROL; // given
+    keys.cmd = IDLE;
+    loop.tick(100);
+    loop.tick(100 + HAND_BACK_MS - 50);
+    keys.cmd = held; // gripped again in time
+    loop.tick(100 + HAND_BACK_MS);
+    keys.cmd = IDLE;
+    loop.tick(200 + HAND_BACK_MS);
+    expect(calls).toEqual([["lease", LeaseAction.TAKE_OVER]]);
+    loop.tick(200 + 2 * HAND_BACK_MS);
+    expect(calls).toEqual([["lease", LeaseAction.TAKE_OVER], ["lease", LeaseAction.RELEASE]]);
+    loop.tick(300 + 3 * HAND_BACK_MS);
+    expect(calls).toHaveLength(2); // once
   });
 
   it("with a person in control, the dead-man takes nothing", () => {

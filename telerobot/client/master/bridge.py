@@ -64,6 +64,8 @@ from telerobot.protocol import messages as m
 
 log = logging.getLogger(__name__)
 
+HAND_BACK_S = 0.6  # a clutch that took over from a policy, let go this long, hands back
+
 CONTACT_RAMP_N = 2.0  # remote force over which the contact damper fades in
 
 
@@ -213,6 +215,13 @@ class MasterBridge:
         self.arm_energy_in = 0.0  # the newest PORT_ENERGY e_in (J, the arm's units)
         self.arm_energy_out = 0.0  # …and e_out: what the arm put into its surroundings
         self.jumps_dropped = 0
+        # Supervising a policy (docs/protocol.md, Supervised autonomy; the mode is the
+        # link's): a clutch pressed while a policy holds control takes over, and let go
+        # for HAND_BACK_S it hands back.
+        self.takeovers = 0
+        self._clutch_was = False
+        self._clutch_took_over = False
+        self._let_go_at: float | None = None
         self.forces_received = 0
         self.forces_stale = 0
         self.states_received = 0
@@ -276,6 +285,29 @@ class MasterBridge:
             self.last_error = reply.text
             log.warning("server: %s", reply.text)
 
+    def _supervise(self, clutch: bool, now: float) -> None:
+        """The clutch as a policy's supervisor: pressed while the policy holds control
+        (autonomous or paused) it takes over (the server stops the arm where it is and
+        needs no force); let go for ``HAND_BACK_S`` after that, it hands back (a quicker
+        re-clutch keeps control). Motion starts from the handle's pose at the press."""
+        policy_holds = self.link.autonomy in ("autonomous", "paused")
+        if clutch and not self._clutch_was and policy_holds and not self.has_control:
+            self.link.lease(m.LeaseAction.TAKE)
+            self.takeovers += 1
+            self._clutch_took_over = True
+        self._clutch_was = clutch
+        if not self._clutch_took_over:
+            return
+        if clutch:
+            self._let_go_at = None
+            return
+        if self._let_go_at is None:
+            self._let_go_at = now
+        elif now - self._let_go_at >= HAND_BACK_S:
+            self._clutch_took_over, self._let_go_at = False, None
+            if self.has_control:
+                self.link.lease(m.LeaseAction.RELEASE)
+
     def _take_arm_energy(self, e_in: float) -> None:
         """The arm's surroundings gave back ``e_in`` so far: what the handle may be
         given (in the device's units). Called with the lock held."""
@@ -328,6 +360,7 @@ class MasterBridge:
             force = force - self._contact_damping(remote) * velocity
         self.last_rendered = force
         self.device.set_force(force)
+        self._supervise(state.clutch, now)
         # Motion: increments while the clutch is held.
         if state.clutch:
             if self._anchor is not None:

@@ -16,6 +16,7 @@ the socket a new port), the link registers again, for a new key."""
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import socket
 import threading
@@ -135,6 +136,9 @@ class PriorityLink:
         self.operator = False
         self.client_id = ""
         self.joint_count = 0  # the arm's, from WELCOME
+        # A policy's supervision as the server last said it (EVENT autonomy, sent on
+        # joining and at each change): off, autonomous, paused or correcting.
+        self.autonomy = "off"
         self.clock = ClockSync()  # the server's clock, from PING
         self.closed_reason: str | None = None
         self.received = 0
@@ -394,6 +398,9 @@ class PriorityLink:
             if self.on_state is not None:
                 self.on_state(fields)
             return
+        elif msg is m.EVENT and int(fields["kind"]) == m.EventKind.AUTONOMY:
+            with contextlib.suppress(ValueError, TypeError, KeyError):
+                self.autonomy = str(json.loads(text)["mode"])
         elif msg is m.PONG:
             t0 = self._pings.pop(int(fields["seq"]), None)
             if t0 is not None:

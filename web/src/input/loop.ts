@@ -18,6 +18,10 @@ export const MAX_FRAME_S = 0.1; // a longer gap between frames moves no further 
 /** Heartbeats start the moment we ask for control, before a STATE confirms it; after
  * this long they go on only while we hold it. */
 export const WANT_CONTROL_MS = 2000;
+/** A correction taken over by holding the dead-man or the XR grip is handed back to the
+ * policy when it has been let go this long: a re-clutch (let go, grip again) is quicker
+ * and keeps control. */
+export const HAND_BACK_MS = 600;
 /** The frames the operator drives in: the view (W away from the camera, A left and R up
  * in the image) or one of the server's. */
 export type DriveFrame = "view" | FrameName;
@@ -85,6 +89,8 @@ export class InputLoop {
   private readonly xr = new XRMaster();
   private deadmanWas = false;
   private gripWas = false;
+  private heldTakeover = false; // this correction began by holding the dead-man or the grip
+  private letGoAt: number | null = null;
 
   constructor(private readonly o: InputLoopOptions) {
     this.last = o.now;
@@ -141,6 +147,7 @@ export class InputLoop {
     const cmd = combine(pad.command, this.o.keyboard.read());
     if (cmd.deadman && !this.deadmanWas) this.takeOverFromPolicy();
     this.deadmanWas = cmd.deadman;
+    this.handBackWhenLetGo(now);
     const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
     if (inputState !== this.inputState) this.onInputState?.((this.inputState = inputState));
     const step = increments(cmd, this.o.speed(), dt);
@@ -154,10 +161,12 @@ export class InputLoop {
     if (!controller) {
       this.xr.update(false, [0, 0, 0], [0, 0, 0, 1], 0);
       this.gripWas = false;
+      this.handBackWhenLetGo(now);
       return;
     }
     if (controller.gripping && !this.gripWas) this.takeOverFromPolicy();
     this.gripWas = controller.gripping;
+    this.handBackWhenLetGo(now);
     const delta = this.xr.update(controller.gripping, controller.position, controller.orientation, now / 1000);
     if (!delta || !this.hasControl) return;
     const speed = this.o.speed();
@@ -168,7 +177,25 @@ export class InputLoop {
    * server stops the arm where it is; the increments drive from there once the STATE
    * says this page has control (none is sent before). */
   private takeOverFromPolicy(): void {
-    if (this.o.policyHolds?.() && !this.hasControl) this.take();
+    if (this.o.policyHolds?.() && !this.hasControl) {
+      this.take();
+      this.heldTakeover = true;
+    }
+  }
+
+  /** A correction begun by holding hands back once the dead-man and the grip have both
+   * been let go for HAND_BACK_MS (the server then gives control to the policy). */
+  private handBackWhenLetGo(now: number): void {
+    if (!this.heldTakeover) return;
+    if (this.deadmanWas || this.gripWas) {
+      this.letGoAt = null;
+      return;
+    }
+    this.letGoAt ??= now;
+    if (now - this.letGoAt < HAND_BACK_MS) return;
+    this.heldTakeover = false;
+    this.letGoAt = null;
+    if (this.hasControl) this.release();
   }
 
   /** Send an increment in `frame`, and give the local model the very same one. */

@@ -3,7 +3,9 @@
 // with the policy's name and rate, and one action takes over: T or "Take over", the
 // dead-man (Space, the gamepad's R1) or the XR grip (input/loop.ts). The arm stops
 // where it is and the operator drives from there. H or "Hand back" gives control back
-// to the policy; P or "Pause" holds it still (look, think) and P again resumes it.
+// to the policy, as does letting go of the dead-man or the grip that took over for
+// HAND_BACK_MS (a quicker re-clutch keeps control); P or "Pause" holds it still (look,
+// think) and P again resumes it.
 // The server decides; the page shows what it said (EVENT autonomy, GET /autonomy).
 import { LeaseAction } from "../transport/messages";
 

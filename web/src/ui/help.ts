@@ -30,7 +30,7 @@ export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<
           : []),
         { keys: "Alt + arrows", does: "shift the right image against the left (stereo alignment)" },
         { keys: "F", does: "fullscreen video (not while Space is held: then F drives down)" },
-        { keys: "T", does: "a policy drives: take over (so does pressing the dead-man or the XR grip); the arm stops where it is" },
+        { keys: "T", does: "a policy drives: take over; the arm stops where it is. Pressing the dead-man or the XR grip takes over too, and letting go of it for 0.6 s hands back" },
         { keys: "H", does: "hand control back to the policy (or resume it when paused)" },
         { keys: "P", does: "pause the policy (it holds still); P again resumes it" },
         { keys: "?", does: "this help" },

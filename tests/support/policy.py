@@ -1,0 +1,109 @@
+"""A stand-in learned policy for the supervision tests: a real priority-channel client
+that joins as a policy (HELLO's POLICY flag), takes control and sends a small joint
+increment 30 times a second, back and forth, noting every reply and the arm's states."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from telerobot.client.master.link import PriorityLink, Reply, open_link
+from telerobot.protocol import messages as m
+from tests.support import TOKEN, until
+
+RATE_HZ = 30.0
+STEP_RAD = 0.002  # joint 1, each command: 0.06 rad/s, well under every limit
+
+
+@dataclass
+class Answer:
+    at: float  # time.monotonic() when it came
+    applied: bool
+    text: str
+
+
+@dataclass
+class PolicyClient:
+    server: str
+    name: str = "test-policy"
+    answers: list[Answer] = field(default_factory=list)
+    # (server time, tool position) of every STATE
+    states: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    autonomy: list[str] = field(default_factory=list)  # the modes the server said
+
+    def __post_init__(self) -> None:
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.link: PriorityLink = open_link(
+            self.server, TOKEN, datagrams=False, name=self.name, policy=True
+        )
+        self.link.on_reply = self._on_reply
+        self.link.on_state = self._on_state
+        self.flags = 0
+        self._thread = threading.Thread(target=self._run, name="test-policy", daemon=True)
+
+    def _on_reply(self, reply: Reply) -> None:
+        if reply.name in ("ACK", "ERROR"):
+            with self._lock:
+                self.answers.append(Answer(time.monotonic(), reply.name == "ACK", reply.text))
+        elif reply.name == "EVENT" and int(reply.fields["kind"]) == m.EventKind.AUTONOMY:
+            with self._lock:
+                self.autonomy.append(reply.text)
+
+    def _on_state(self, fields: dict[str, object]) -> None:
+        self.flags = int(fields["flags"])  # type: ignore[call-overload]
+        p = np.array([fields["x"], fields["y"], fields["z"]], float)
+        with self._lock:
+            self.states.append((float(fields["server_time"]), p))  # type: ignore[arg-type]
+
+    @property
+    def has_control(self) -> bool:
+        return bool(self.flags & m.StateFlags.YOU_HAVE_CONTROL)
+
+    def start(self) -> PolicyClient:
+        self.link.lease(m.LeaseAction.TAKE)
+        until(lambda: self.has_control, timeout=10, what=lambda: "the policy takes control")
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        period = 1.0 / RATE_HZ
+        joints = self.link.joint_count
+        k = 0
+        while not self._stop.is_set():
+            dq = [0.0] * joints
+            dq[0] = STEP_RAD if (k // 30) % 2 == 0 else -STEP_RAD  # a second each way
+            self.link.joints(dq, self.link.next_seq())
+            k += 1
+            self._stop.wait(period)
+
+    def since(self, t: float) -> list[Answer]:
+        with self._lock:
+            return [a for a in self.answers if a.at >= t]
+
+    def refused_since(self, t: float) -> list[Answer]:
+        return [a for a in self.since(t) if not a.applied]
+
+    def applied_since(self, t: float) -> list[Answer]:
+        return [a for a in self.since(t) if a.applied]
+
+    def largest_step_m(self) -> float:
+        """The largest tool move between two consecutive STATEs (50 Hz)."""
+        with self._lock:
+            p = np.array([s[1] for s in self.states])
+        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).max()) if len(p) > 1 else 0.0
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+        self.link.close()
+
+    def __enter__(self) -> PolicyClient:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
