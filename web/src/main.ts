@@ -175,7 +175,8 @@ async function main(): Promise<void> {
     now: performance.now(),
     policyHolds: () => supervision?.policyHolds ?? false,
   });
-  supervision = setupSupervision(loop, link, () => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0);
+  const youHaveControl = (): boolean => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0;
+  supervision = setupSupervision(loop, link, youHaveControl, () => control.released());
   // The active frame's axes at the gripper, in both eyes (shown with the AR ball).
   const axes = new AxisMarker(cell.cameras, model.tool.flat(), view);
   // The whole predicted arm, a translucent skeleton in both eyes (the "Ghost arm" switch).
@@ -184,6 +185,7 @@ async function main(): Promise<void> {
   setupGhostSwitch($<HTMLInputElement>("ghost"), ghost, localStorage, () => view.overlayChanged());
   setupControls(loop, link);
   const alarm = showControlAlerts(control, [keyboard, gamepad], () => loop.take());
+  loop.onRelease = () => control.released(); // handing back to a policy, too
   const help = new HelpOverlay();
   // Escape closes an open dialog (the help…) and only that; else it is the e-stop.
   const keyTargets = {
@@ -311,8 +313,12 @@ async function readAutonomy(): Promise<void> {
 let supervisionRef: Supervision | null = null;
 
 /** The header's supervision badge and buttons, wired to the loop and the link. */
-function setupSupervision(loop: InputLoop, link: RealtimeLink, youHaveControl: () => boolean): Supervision {
-  const s = new Supervision({ take: () => loop.take(), release: () => loop.release(), lease: (a) => link.lease(a), youHaveControl });
+function setupSupervision(loop: InputLoop, link: RealtimeLink, youHaveControl: () => boolean, givingUp: () => void): Supervision {
+  const lease = (action: number): void => {
+    if (youHaveControl()) givingUp(); // pausing or resuming from a correction hands control back
+    link.lease(action);
+  };
+  const s = new Supervision({ take: () => loop.take(), release: () => loop.release(), lease, youHaveControl });
   const badge = $("autonomy");
   s.onChange = (v) => {
     badge.hidden = v.badge === "";

@@ -84,6 +84,8 @@ export class InputLoop {
   onFrameChange: ((frame: DriveFrame) => void) | null = null;
   /** The inputs' state changed (which devices, the dead-man): for the page to show. */
   onInputState: ((text: string) => void) | null = null;
+  /** This page gives control up on purpose (not a loss to alarm about). */
+  onRelease: (() => void) | null = null;
   private last: number;
   private inputState = "";
   private readonly xr = new XRMaster();
@@ -117,6 +119,7 @@ export class InputLoop {
   }
 
   release(): void {
+    this.onRelease?.();
     this.o.link.wantControl(false);
     this.o.link.lease(LeaseAction.RELEASE);
   }

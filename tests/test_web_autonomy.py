@@ -1,0 +1,99 @@
+"""Supervising a policy from the operator page, in a real browser against the real
+server, with a policy client driving over the priority channel: the header says
+AUTONOMOUS; T (and the Take over button) takes over, the policy's next command is
+refused and said to it, the arm does not jump, the page drives from where the arm is;
+H (and Hand back) gives control back; P pauses and resumes; holding the dead-man takes
+over and letting go hands back; the e-stop pauses it."""
+
+from __future__ import annotations
+
+import time
+
+import httpx
+import pytest
+from playwright.sync_api import Browser, Page
+
+from tests.support import until
+from tests.support.browser import DRIVE_S, NO_VIDEO, open_page, page_said, target, wait
+from tests.support.policy import PolicyClient
+
+pytestmark = pytest.mark.browser
+SERVER_ENV = NO_VIDEO
+STEP_LIMIT_M = 0.025  # the server's per-increment limit (0.25 m/s × 0.1 s)
+
+
+def mode(server: str) -> str:
+    return str(httpx.get(server + "api/v1/autonomy").json()["mode"])
+
+
+def badge(page: Page) -> str:
+    return page.locator("#autonomy").inner_text() if page.is_visible("#autonomy") else ""
+
+
+def press(page: Page, key: str) -> None:
+    page.click("#view")  # the page, not a control, has the focus
+    page.keyboard.press(key)
+
+
+def test_the_page_takes_over_from_a_policy_and_hands_back(browser: Browser, server: str) -> None:
+    with PolicyClient(server) as policy:
+        page, errors = open_page(browser, server, video=False)
+        wait(page, "document.getElementById('autonomy').textContent.startsWith('AUTONOMOUS')")
+        assert "test-policy" in badge(page)
+        assert page.locator("#take").inner_text() == "Take over (T)"
+
+        # T: the operator takes over; the policy's next command is refused and said.
+        took = time.monotonic()
+        press(page, "t")
+        until(lambda: mode(server) == "correcting", timeout=10, what=page_said(page, "T takes"))
+        wait(page, "document.getElementById('autonomy').textContent.startsWith('CORRECTING')")
+        until(lambda: policy.refused_since(took), timeout=5, what=lambda: "the policy refused")
+        assert "is correcting: your command was not applied" in policy.refused_since(took)[0].text
+        held = target(server)
+        time.sleep(0.3)
+        assert target(server) == held  # stopped where it was: nothing of the policy's applied
+        # The page drives from there.
+        page.keyboard.down("Space")
+        page.keyboard.down("KeyW")
+        until(lambda: target(server) != held, timeout=DRIVE_S, what=page_said(page, "W drives"))
+        page.keyboard.up("KeyW")
+        page.keyboard.up("Space")
+
+        # H: back to the policy, which drives on from where the arm is.
+        wait(page, "!document.getElementById('hand-back').hidden")
+        press(page, "h")
+        until(lambda: mode(server) == "autonomous", timeout=10, what=page_said(page, "H hands"))
+        back = time.monotonic()
+        until(lambda: policy.applied_since(back), timeout=5, what=lambda: "it drives again")
+
+        # The buttons do the same.
+        page.click("#take")
+        until(lambda: mode(server) == "correcting", timeout=10, what=page_said(page, "button"))
+        wait(page, "!document.getElementById('hand-back').hidden")
+        page.click("#hand-back")
+        until(lambda: mode(server) == "autonomous", timeout=10, what=page_said(page, "hand back"))
+
+        # P pauses (the policy refused, told it is paused), P again resumes.
+        press(page, "p")
+        until(lambda: mode(server) == "paused", timeout=10, what=page_said(page, "P pauses"))
+        paused = time.monotonic()
+        until(lambda: policy.refused_since(paused), timeout=5)
+        assert "autonomy is paused (paused by" in policy.refused_since(paused)[-1].text
+        press(page, "p")
+        until(lambda: mode(server) == "autonomous", timeout=10, what=page_said(page, "resumes"))
+
+        # Holding the dead-man takes over; letting go hands back.
+        page.click("#view")
+        page.keyboard.down("Space")
+        until(lambda: mode(server) == "correcting", timeout=10, what=page_said(page, "dead-man"))
+        page.keyboard.up("Space")
+        until(lambda: mode(server) == "autonomous", timeout=10, what=page_said(page, "let go"))
+
+        # The e-stop during autonomy pauses it.
+        press(page, "Escape")
+        until(lambda: mode(server) == "paused", timeout=10, what=page_said(page, "e-stop"))
+        wait(page, "document.getElementById('autonomy').textContent.includes('e-stop')")
+        state = httpx.get(server + "api/v1/autonomy").json()
+        assert state["interventions"] == 3, state  # T, the button, the dead-man
+        assert policy.largest_step_m() < STEP_LIMIT_M  # no jump at any handover
+        assert not errors, errors
