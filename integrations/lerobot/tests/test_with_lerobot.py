@@ -306,3 +306,68 @@ def _record_puma(url: str) -> dict[str, Any]:
         assert r.status_code == 200, r.text
         summary: dict[str, Any] = r.json()
         return summary
+
+
+def test_a_supervised_rollouts_corrections_are_lerobots_intervention_column(
+    tmp_path: Path,
+) -> None:
+    """A policy (the robot plugin's arm as a policy client) drives through one episode;
+    a supervisor takes over twice and hands back. The export loads in LeRobot with one
+    episode (the whole attempt) whose ``intervention`` is true on two runs of rows,
+    each as long as its correction."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from telerobot.client.lerobot.arm import ArmOptions, TelerobotArm
+
+    fps = 10
+    windows: list[float] = []
+    with serving(env={"TELEROBOT_VIDEO_FPS": str(fps)}) as (url, _state):
+        http = httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=60)
+        assert http.post("recordings", json={"name": "rollout"}).status_code == 200
+        http.post("recordings/active/episodes", json={"task": "reach"})
+        arm = TelerobotArm(ArmOptions(url, TOKEN, name="act-policy", cameras=False, policy=True))
+        arm.connect()
+        stop = threading.Event()
+
+        def policy() -> None:  # a stand-in policy: joint 1 back and forth, 30 Hz
+            start = arm.observation()
+            names = [k for k in start if k.endswith(".pos")]
+            k = 0
+            while not stop.is_set():
+                action = {n: float(start[n]) for n in names}
+                action[names[0]] += 5.0 * math.sin(k / 30)
+                arm.send(action)
+                k += 1
+                stop.wait(1 / 30)
+
+        driver = threading.Thread(target=policy)
+        driver.start()
+        try:
+            for _ in range(2):
+                time.sleep(0.8)
+                me = http.post("lease", json={"name": "supervisor"}).json()["client_id"]
+                took = time.monotonic()
+                assert http.get("autonomy").json()["mode"] == "correcting"
+                time.sleep(0.6)
+                http.delete("lease", headers={"X-Client-Id": me})  # hands back
+                windows.append(time.monotonic() - took)
+                assert http.get("autonomy").json()["mode"] == "autonomous"
+            time.sleep(0.8)
+        finally:
+            stop.set()
+            driver.join(10)
+            arm.disconnect(settle=False)
+        http.post("recordings/active/episodes/end", json={"success": True})
+        file = http.post("recordings/active/stop").json()["file"]
+        r = http.post(f"recordings/{file}/export/lerobot", json={})
+        assert r.status_code == 200, r.text
+        root = shutil.copytree(r.json()["path"], tmp_path / "rollout")
+    ds = LeRobotDataset("telerobot/rollout", root=root)
+    assert ds.num_episodes == 1  # the whole attempt, corrections included
+    assert ds.meta.features["intervention"]["dtype"] == "bool"
+    flags = np.array([bool(ds[i]["intervention"]) for i in range(len(ds))])
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
+    runs = (edges[1::2] - edges[::2]).tolist()
+    assert len(runs) == 2, flags.astype(int).tolist()
+    for rows, window in zip(runs, windows, strict=True):
+        assert abs(rows - window * fps) <= 2, (runs, windows)
