@@ -12,13 +12,13 @@ import httpx
 import numpy as np
 import pytest
 
+from bench.policy_stub import PolicyClient
 from telerobot.client.master.bridge import HAND_BACK_S, BridgeSettings, MasterBridge
 from telerobot.client.master.cli import open_link
 from telerobot.drivers.base import FloatArray
 from telerobot.drivers.master.sim import SimMaster
 from tests.support import TOKEN, until
 from tests.support.browser import NO_VIDEO
-from tests.support.policy import PolicyClient
 
 SERVER_ENV = NO_VIDEO
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -36,7 +36,7 @@ def mode_is(server: str, mode: str) -> bool:
 
 
 def test_a_script_takes_over_without_force_and_hands_back(server: str) -> None:
-    with PolicyClient(server) as policy:
+    with PolicyClient(server, TOKEN) as policy:
         until(lambda: mode_is(server, "autonomous"), timeout=10)
         until(lambda: len(policy.applied_since(0)) > 5, timeout=10, what=lambda: "it drives")
         with httpx.Client(base_url=server + "api/v1/", headers=AUTH, timeout=10) as rest:
@@ -71,7 +71,7 @@ def test_the_masters_clutch_takes_over_and_letting_go_hands_back(server: str) ->
         # While gripped the hand moves 1 cm/s along the device's x.
         return np.array([0.01 * t if grip["on"] else 0.0, 0.0, 0.0]), grip["on"]
 
-    with PolicyClient(server) as policy:
+    with PolicyClient(server, TOKEN) as policy:
         until(lambda: mode_is(server, "autonomous"), timeout=10)
         device = SimMaster(hand)
         link = open_link(server, TOKEN)
@@ -106,7 +106,7 @@ def test_the_masters_clutch_takes_over_and_letting_go_hands_back(server: str) ->
 
 
 def test_an_estop_during_autonomy_pauses_it_until_an_operator_resumes(server: str) -> None:
-    with PolicyClient(server) as policy:
+    with PolicyClient(server, TOKEN) as policy:
         until(lambda: mode_is(server, "autonomous"), timeout=10)
         with httpx.Client(base_url=server + "api/v1/", headers=AUTH, timeout=10) as rest:
             rest.post("safety/estop")

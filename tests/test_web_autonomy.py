@@ -13,9 +13,9 @@ import httpx
 import pytest
 from playwright.sync_api import Browser, Page
 
-from tests.support import until
+from bench.policy_stub import PolicyClient
+from tests.support import TOKEN, until
 from tests.support.browser import DRIVE_S, NO_VIDEO, open_page, page_said, target, wait
-from tests.support.policy import PolicyClient
 
 pytestmark = pytest.mark.browser
 SERVER_ENV = NO_VIDEO
@@ -36,7 +36,7 @@ def press(page: Page, key: str) -> None:
 
 
 def test_the_page_takes_over_from_a_policy_and_hands_back(browser: Browser, server: str) -> None:
-    with PolicyClient(server) as policy:
+    with PolicyClient(server, TOKEN) as policy:
         page, errors = open_page(browser, server, video=False)
         wait(page, "document.getElementById('autonomy').textContent.startsWith('AUTONOMOUS')")
         assert "test-policy" in badge(page)

@@ -1,6 +1,8 @@
-"""A stand-in learned policy for the supervision tests: a real priority-channel client
-that joins as a policy (HELLO's POLICY flag), takes control and sends a small joint
-increment 30 times a second, back and forth, noting every reply and the arm's states."""
+"""A stand-in learned policy for the supervision tests and bench.rollout: a real
+priority-channel client that joins as a policy (HELLO's POLICY flag), takes control and
+sends a small joint increment 30 times a second, back and forth, noting every reply (its
+time on this machine's monotonic clock) and the arm's states (tool position and joints,
+on the server's clock)."""
 
 from __future__ import annotations
 
@@ -12,9 +14,9 @@ import numpy as np
 
 from telerobot.client.master.link import PriorityLink, Reply, open_link
 from telerobot.protocol import messages as m
-from tests.support import TOKEN, until
 
 RATE_HZ = 30.0
+CONTROL_S = 10.0  # taking control may wait this long (a loaded machine's server)
 STEP_RAD = 0.002  # joint 1, each command: 0.06 rad/s, well under every limit
 
 
@@ -28,17 +30,18 @@ class Answer:
 @dataclass
 class PolicyClient:
     server: str
+    token: str
     name: str = "test-policy"
     answers: list[Answer] = field(default_factory=list)
-    # (server time, tool position) of every STATE
-    states: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    # (server time, tool position, joints) of every STATE
+    states: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     autonomy: list[str] = field(default_factory=list)  # the modes the server said
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.link: PriorityLink = open_link(
-            self.server, TOKEN, datagrams=False, name=self.name, policy=True
+            self.server, self.token, datagrams=False, name=self.name, policy=True
         )
         self.link.on_reply = self._on_reply
         self.link.on_state = self._on_state
@@ -56,16 +59,23 @@ class PolicyClient:
     def _on_state(self, fields: dict[str, object]) -> None:
         self.flags = int(fields["flags"])  # type: ignore[call-overload]
         p = np.array([fields["x"], fields["y"], fields["z"]], float)
+        q = np.array(fields["joints"], float)
         with self._lock:
-            self.states.append((float(fields["server_time"]), p))  # type: ignore[arg-type]
+            self.states.append((float(fields["server_time"]), p, q))  # type: ignore[arg-type]
 
     @property
     def has_control(self) -> bool:
         return bool(self.flags & m.StateFlags.YOU_HAVE_CONTROL)
 
     def start(self) -> PolicyClient:
+        for _ in range(5):  # the clock offset (server_now)
+            self.link.ping()
         self.link.lease(m.LeaseAction.TAKE)
-        until(lambda: self.has_control, timeout=10, what=lambda: "the policy takes control")
+        deadline = time.monotonic() + CONTROL_S
+        while not self.has_control:
+            if time.monotonic() > deadline:
+                raise AssertionError(f"the policy was not given control: {self.answers[-1:]}")
+            time.sleep(0.005)
         self._thread.start()
         return self
 
@@ -92,9 +102,23 @@ class PolicyClient:
 
     def largest_step_m(self) -> float:
         """The largest tool move between two consecutive STATEs (50 Hz)."""
+        return self.largest_steps()[0]
+
+    def largest_steps(self, since: float = -np.inf, until: float = np.inf) -> tuple[float, float]:
+        """The largest tool move (m) and joint move (rad) between two consecutive STATEs
+        whose server times are within [since, until]."""
         with self._lock:
-            p = np.array([s[1] for s in self.states])
-        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).max()) if len(p) > 1 else 0.0
+            kept = [s for s in self.states if since <= s[0] <= until]
+        if len(kept) < 2:
+            return 0.0, 0.0
+        p = np.array([s[1] for s in kept])
+        q = np.array([s[2] for s in kept])
+        tool = float(np.linalg.norm(np.diff(p, axis=0), axis=1).max())
+        return tool, float(np.abs(np.diff(q, axis=0)).max())
+
+    def server_now(self) -> float:
+        """This machine's monotonic clock on the server's (PING-synced)."""
+        return time.monotonic() + self.link.offset
 
     def stop(self) -> None:
         self._stop.set()
