@@ -107,6 +107,7 @@ class TelerobotArm:
         self.clipped = 0  # targets that had a joint outside the limits
         self._said_clipped: set[str] = set()
         self.last_skew_s: float | None = None  # state time − frame capture time
+        self.last_capture_time: float | None = None  # the newest observation's frame (server clock)
         self.repeated_frames = 0
         self._said_not_in_control = False
 
@@ -237,6 +238,7 @@ class TelerobotArm:
             if frame.seq == self._frame_seq:
                 self.repeated_frames += 1
             self._frame_seq = frame.seq
+            self.last_capture_time = frame.capture_time
             t_state, joints = self._state_at(frame.capture_time)
             self.last_skew_s = t_state - frame.capture_time
         else:

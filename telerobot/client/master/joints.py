@@ -21,6 +21,7 @@ limits and dead-man as every other input.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import math
@@ -121,6 +122,9 @@ class JointMirror:
         self.scaled = 0  # increments the server applied in part
         self.refused = 0
         self.last_error: str | None = None
+        # When the server applied each increment (ACK's server_time), newest last: when
+        # a new target first moved the arm (bench.rollout's observation → action).
+        self.applied_at: collections.deque[float] = collections.deque(maxlen=10_000)
         link.on_state = self._on_state
         link.on_reply = self._on_reply
 
@@ -146,6 +150,8 @@ class JointMirror:
             elif dq is not None and reply.name == "ACK" and float(reply.fields["scale"]) < 1.0:
                 self._taken_back += dq * (1.0 - float(reply.fields["scale"]))
                 self.scaled += 1
+            if dq is not None and reply.name == "ACK":
+                self.applied_at.append(float(reply.fields["server_time"]))
         if reply.name == "ERROR":
             self.last_error = reply.text
             log.warning("server: %s", reply.text)

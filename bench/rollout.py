@@ -1,0 +1,246 @@
+"""Supervised autonomy: a policy drives the simulated arm, an operator supervises from the
+page and the master arm and takes over (docs/lerobot.md, Supervised rollout).
+
+    python -m bench.rollout [--json] [--handovers 20] [--no-page] [--busy-core]
+                            [--policy DIR] [--episodes 20] [--no-policy]
+
+The last line's keys:
+
+- ``takeover_ms`` ``{"p50", "p99"}``: an operator's takeover (the page's T key, the
+  master's clutch) → the first command of the policy refused, as the policy's client
+  sees it (both on this machine's clock; the policy sends 30 commands a second, so up to
+  a period of it is waiting for its next command). ``policy_period_ms`` for scale.
+- ``handover_jump_mm``, ``handover_jump_rad``: the worst tool and joint step between two
+  consecutive STATEs (20 ms apart) within 0.5 s after a takeover or a release, over
+  ``--handovers`` from the page and as many from the simulated master. For scale:
+  ``steady_step_mm`` / ``steady_step_rad``, the same while control stays put (the
+  policy's own motion), and ``step_limit_mm`` / ``step_limit_rad``, what the server lets
+  one command move (its speed limits over the longest interval it allows, 0.1 s).
+- ``obs_to_action_ms`` ``{"p50", "p99"}``: LeRobot's ACT (untrained unless ``--policy``)
+  driving through the robot plugin at 30 Hz with both cameras: the observation's frame
+  captured → the server applying the first increment toward the action computed from it
+  (bench.rollout_policy, in LeRobot's own venv; ``make lerobot-deps`` makes it).
+- ``success_rate`` ``{"unsupervised", "supervised"}`` and ``interventions_per_episode``:
+  with ``--policy DIR`` (a policy trained by ``python -m bench.rollout_policy --train``),
+  over ``--episodes`` episodes of the reach task each way; null without one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from bench.common import busy_core, emit, machine, parser, serve_for_bench
+from bench.policy_stub import RATE_HZ, PolicyClient
+
+TOKEN = "bench-rollout-token-0123456789abcdef"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+REPO = Path(__file__).resolve().parents[1]
+LEROBOT_PYTHON = (
+    Path(os.environ.get("LEROBOT_VENV", Path.home() / ".cache/telerobot/lerobot-0.6.1"))
+    / "bin/python"
+)
+AFTER_S = 0.5  # a handover's jump: the steps this long after it
+MAX_INTERVAL_S = 0.1  # the server's longest interval for one increment's speed limit
+
+
+def _p(values_ms: list[float]) -> dict[str, float] | None:
+    if not values_ms:
+        return None
+    v = np.array(values_ms)
+    return {
+        "p50": round(float(np.percentile(v, 50)), 2),
+        "p99": round(float(np.percentile(v, 99)), 2),
+    }
+
+
+def _mode(http: httpx.Client) -> str:
+    return str(http.get("autonomy").json()["mode"])
+
+
+def _wait_mode(http: httpx.Client, mode: str, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while _mode(http) != mode:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"autonomy never became {mode}: {http.get('autonomy').json()}")
+        time.sleep(0.01)
+
+
+class Handovers:
+    """Takeovers and releases, with when each was asked for (monotonic)."""
+
+    def __init__(self, policy: PolicyClient) -> None:
+        self.policy = policy
+        self.takeover_ms: list[float] = []
+        self.times: list[float] = []  # every takeover and release
+
+    def took(self, asked: float) -> None:
+        deadline = time.monotonic() + 5
+        while not self.policy.refused_since(asked):
+            if time.monotonic() > deadline:
+                raise RuntimeError("the policy was never refused after a takeover")
+            time.sleep(0.001)
+        self.takeover_ms.append((self.policy.refused_since(asked)[0].at - asked) * 1000)
+        self.times.append(asked)
+
+    def jumps(self) -> tuple[float, float]:
+        offset = self.policy.link.offset
+        worst = [self.policy.largest_steps(t + offset, t + offset + AFTER_S) for t in self.times]
+        return max(w[0] for w in worst), max(w[1] for w in worst)
+
+
+def from_the_page(base: str, http: httpx.Client, log: Handovers, n: int) -> None:
+    from playwright.sync_api import sync_playwright
+
+    from bench.browser import ARGS, yield_browser_session
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(f"{base}?token={TOKEN}")
+            yield_browser_session()
+            page.wait_for_function(
+                "window.telerobot && window.telerobot.state && "
+                "document.getElementById('autonomy').textContent.startsWith('AUTONOMOUS')",
+                timeout=60_000,
+            )
+            page.click("#view")
+            for _ in range(n):
+                asked = time.monotonic()
+                page.keyboard.press("t")
+                log.took(asked)
+                _wait_mode(http, "correcting")
+                page.wait_for_function("!document.getElementById('hand-back').hidden")
+                time.sleep(0.3)
+                log.times.append(time.monotonic())
+                page.keyboard.press("h")
+                _wait_mode(http, "autonomous")
+                time.sleep(0.3)
+        finally:
+            browser.close()
+
+
+def from_the_master(base: str, http: httpx.Client, log: Handovers, n: int) -> None:
+    from telerobot.client.master.bridge import HAND_BACK_S, BridgeSettings, MasterBridge
+    from telerobot.client.master.cli import open_link
+    from telerobot.drivers.master.sim import SimMaster
+
+    grip: dict[str, Any] = {"on": False, "since": None}
+
+    def hand(t: float) -> tuple[np.ndarray, bool]:
+        # Gripped: 1 cm/s along the device's x from where it was gripped.
+        if not grip["on"]:
+            grip["since"] = None
+            return np.zeros(3), False
+        if grip["since"] is None:
+            grip["since"] = t
+        return np.array([0.01 * (t - grip["since"]), 0.0, 0.0]), True
+
+    device = SimMaster(hand)
+    link = open_link(base, TOKEN, datagrams=False)
+    bridge = MasterBridge(device, link, BridgeSettings(force_scale=0.05))
+    bridge.start(take_control=False)
+    try:
+        deadline = time.monotonic() + 10
+        while link.autonomy != "autonomous":
+            if time.monotonic() > deadline:
+                raise RuntimeError("the master bridge was never told a policy drives")
+            time.sleep(0.01)
+        for _ in range(n):
+            asked = time.monotonic()
+            grip["on"] = True
+            log.took(asked)
+            _wait_mode(http, "correcting")
+            time.sleep(0.4)
+            grip["on"] = False
+            log.times.append(time.monotonic() + HAND_BACK_S)  # it hands back after this
+            _wait_mode(http, "autonomous", timeout=5 + HAND_BACK_S)
+            time.sleep(0.3)
+    finally:
+        bridge.stop()
+        link.close()
+
+
+def handovers(base: str, n: int, page: bool) -> dict[str, Any]:
+    from telerobot.server.control.limits import SafetyLimits
+
+    with (
+        httpx.Client(base_url=base + "api/v1/", headers=AUTH, timeout=30) as http,
+        PolicyClient(base, TOKEN, name="bench-policy") as policy,
+    ):
+        _wait_mode(http, "autonomous")
+        time.sleep(3.0)  # the policy alone: its own steps, for scale
+        steady = policy.largest_steps()
+        log = Handovers(policy)
+        if page:
+            from_the_page(base, http, log, n)
+        from_the_master(base, http, log, n)
+        jump_m, jump_rad = log.jumps()
+        said = http.get("autonomy").json()
+    limits = SafetyLimits()
+    return {
+        "takeover_ms": _p(log.takeover_ms),
+        "policy_period_ms": round(1000 / RATE_HZ, 2),
+        "handover_jump_mm": round(jump_m * 1000, 3),
+        "handover_jump_rad": round(jump_rad, 5),
+        "steady_step_mm": round(steady[0] * 1000, 3),
+        "steady_step_rad": round(steady[1], 5),
+        "step_limit_mm": round(limits.max_speed_m_s * MAX_INTERVAL_S * 1000, 1),
+        "step_limit_rad": round(limits.max_joint_speed_rad_s * MAX_INTERVAL_S, 3),
+        "handovers": {"page": n if page else 0, "master": n},
+        "interventions": said["interventions"],
+    }
+
+
+def with_lerobot(base: str, args: Any) -> dict[str, Any]:
+    """bench.rollout_policy in LeRobot's venv against this server: its JSON's figures."""
+    if not LEROBOT_PYTHON.exists():
+        why = f"no LeRobot venv at {LEROBOT_PYTHON.parent.parent}: make lerobot-deps makes it"
+        return {"obs_to_action_ms": None, "policy_note": why}
+    cmd = [str(LEROBOT_PYTHON), "-m", "bench.rollout_policy", "--url", base, "--token", TOKEN,
+           "--json", "--episodes", str(args.episodes)]  # fmt: skip
+    if args.policy:  # trained on small images (bench.rollout_policy TRAIN_SIZE)
+        cmd += ["--policy", str(args.policy), "--width", "320", "--height", "240"]
+    env = {**os.environ, "PYTHONPATH": str(REPO), "HF_HUB_OFFLINE": "1"}
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    if done.returncode != 0 or not lines:
+        sys.stderr.write(done.stdout[-3000:] + done.stderr[-3000:])
+        return {
+            "obs_to_action_ms": None,
+            "policy_note": f"bench.rollout_policy failed ({done.returncode})",
+        }
+    return dict(json.loads(lines[-1]))
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--handovers", type=int, default=20, help="from the page, and from the master")
+    p.add_argument("--no-page", action="store_true", help="no browser: the master's only")
+    p.add_argument("--no-policy", action="store_true", help="no LeRobot policy part")
+    p.add_argument("--policy", type=Path, help="a trained policy (bench.rollout_policy --train)")
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--busy-core", action="store_true", help="one core kept busy (stress-ng)")
+    args = p.parse_args()
+    env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_VIDEO": "true",
+           "TELEROBOT_VIDEO_WIDTH": "640", "TELEROBOT_VIDEO_HEIGHT": "480",
+           "TELEROBOT_SIM_STARTS_AT_HOME": "true"}  # fmt: skip
+    figures: dict[str, Any] = {}
+    with busy_core(args.busy_core), serve_for_bench(env=env, ready=True) as (_, base):
+        figures.update(handovers(base, args.handovers, not args.no_page))
+        if not args.no_policy:
+            figures.update(with_lerobot(base, args))
+    emit({**figures, "busy_core": args.busy_core, "machine": machine()}, args.json)
+
+
+if __name__ == "__main__":
+    main()
