@@ -208,8 +208,8 @@ def with_lerobot(base: str, args: Any) -> dict[str, Any]:
         return {"obs_to_action_ms": None, "policy_note": why}
     cmd = [str(LEROBOT_PYTHON), "-m", "bench.rollout_policy", "--url", base, "--token", TOKEN,
            "--json", "--episodes", str(args.episodes)]  # fmt: skip
-    if args.policy:  # trained on small images (bench.rollout_policy TRAIN_SIZE)
-        cmd += ["--policy", str(args.policy), "--width", "320", "--height", "240"]
+    if args.policy:  # (at the size of the images it was trained on)
+        cmd += ["--policy", str(args.policy)]
     env = {**os.environ, "PYTHONPATH": str(REPO), "HF_HUB_OFFLINE": "1"}
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]

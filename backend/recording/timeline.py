@@ -1,6 +1,6 @@
 """A recording's channels on one timeline for the review page (web/review.html): forces
 and states decimated to a bounded number of points, events (commands, safety,
-episodes, calibration) as they are up to a bounded number, each message with ``time``
+episodes, calibration, who drove) as they are up to a bounded number, each message with ``time``
 (s from the recording's first message) added.
 
 Computed by ``readjobs`` in a process of its own and kept beside the recording (the
@@ -24,7 +24,15 @@ MAX_POINTS = 20_000  # per decimated series (force, state): a page plots this ma
 MAX_EVENTS = 5_000  # commands, safety changes, episodes: the first this many
 MAX_TOPIC_BYTES = 4 * 1024 * 1024  # of one topic's kept payloads (a foreign file's may be big)
 SERIES = ("/force", "/robot/state")
-REVIEW_TOPICS = ("/force", "/robot/state", "/commands", "/safety", "/episodes", "/calibration")
+REVIEW_TOPICS = (
+    "/force",
+    "/robot/state",
+    "/commands",
+    "/safety",
+    "/episodes",
+    "/calibration",
+    "/autonomy",  # (last: the cache's topic masks of the others keep their bits)
+)
 
 
 def _counts_in_summary(path: str | os.PathLike[str]) -> dict[str, int] | None:

@@ -2,7 +2,7 @@
 // parts review.ts draws from.
 import { describe, expect, it } from "vitest";
 import { TIMECODE_ROWS, shownFrame } from "./review/frame";
-import { episodeLabel, episodesOf, markRows, safetyMarks, spanOf, whoSent, type SafetySnapshot } from "./review/marks";
+import { droveSpans, episodeLabel, episodesOf, markRows, safetyMarks, spanOf, whoSent, type SafetySnapshot } from "./review/marks";
 import { episodeText } from "./ui/recording";
 import { TIMECODE_ROWS as LIVE_TIMECODE_ROWS } from "./view/stereo";
 
@@ -111,5 +111,27 @@ describe("the review's picture hides the timecode stripe as the live page does",
     expect(shownFrame(1280, 360)).toEqual({ crop: 28, width: 1280, height: 332 });
     expect(shownFrame(1280, 10)).toEqual({ crop: 9, width: 1280, height: 1 }); // a row left
     expect(shownFrame(0, 0)).toEqual({ crop: 0, width: 0, height: 1 });
+  });
+});
+
+describe("who drove", () => {
+  it("colours the spans of a supervised policy's recording by who drove", () => {
+    const spans = droveSpans(
+      [
+        { time: 0, mode: "off" },
+        { time: 1, mode: "autonomous", policy: "act" },
+        { time: 3, mode: "correcting", policy: "act", operator: "alice" },
+        { time: 4, mode: "autonomous", policy: "act" },
+        { time: 6, mode: "paused", policy: "act" },
+      ],
+      8,
+    );
+    expect(spans.map((s) => [s.mode, s.start, s.end, s.who])).toEqual([
+      ["autonomous", 1, 3, "act drove"],
+      ["correcting", 3, 4, "alice corrected"],
+      ["autonomous", 4, 6, "act drove"],
+      ["paused", 6, 8, "act paused"],
+    ]);
+    expect(droveSpans([], 5)).toEqual([]);
   });
 });

@@ -12,7 +12,7 @@ import { Api, MessageLog, readToken, withoutToken } from "./api";
 import { GHOST_RGB, type Pixel, ghostChain } from "./ar/ghost";
 import { project, type Projection } from "./ar/projection";
 import { shownFrame } from "./review/frame";
-import { episodeLabel, episodesOf, markRows, safetyMarks, spanOf, verdictOf, whoSent, type EpisodeEvent, type SafetySnapshot } from "./review/marks";
+import { droveSpans, episodeLabel, episodesOf, markRows, safetyMarks, spanOf, verdictOf, whoSent, type EpisodeEvent, type SafetySnapshot } from "./review/marks";
 import { SPEEDS, forceRange, formatTime, latestAt, timelineOf, videoTimeOf } from "./review/timeline";
 import { $ } from "./ui/dom";
 import { tracePolyline } from "./view/overlay";
@@ -72,6 +72,8 @@ async function main(): Promise<void> {
   type RecordedCalibration = Timed & { cameras?: Record<string, { P?: Projection }>; ground_truth_P?: Record<string, Projection> };
   const episodes = episodesOf(topic("/episodes") as (Timed & EpisodeEvent)[]);
   const safety = safetyMarks(topic("/safety") as (Timed & SafetySnapshot)[]);
+  // A supervised policy's recording: who drove when (the strip's coloured foot).
+  const drove = droveSpans(topic("/autonomy") as (Timed & { mode: string; policy?: string | null; operator?: string | null })[], tl.duration);
   const calibrations = (topic("/calibration") as RecordedCalibration[]).map((c) => ({
     time: c.time,
     cameras: ["left", "right"].map((eye) => ({ P: c.cameras?.[eye]?.P ?? c.ground_truth_P?.[eye] ?? [] })),
@@ -152,8 +154,17 @@ async function main(): Promise<void> {
     tick.onclick = () => seekTo(m.time);
     strip.append(tick);
   }
+  for (const d of drove) {
+    const span = spanOf(d.start, d.end, tl.duration);
+    const band = document.createElement("div");
+    band.className = `drove ${d.mode}`;
+    band.style.left = `${span.left}%`;
+    band.style.width = `${span.width}%`;
+    band.title = `${formatTime(d.start)}–${formatTime(d.end)} ${d.who}`;
+    strip.append(band);
+  }
   strip.append(cursor);
-  strip.hidden = episodes.length + safety.length === 0;
+  strip.hidden = episodes.length + safety.length + drove.length === 0;
   const eventList = $("review-events");
   const eventRows = markRows(episodes, safety).map((r) => {
     const li = document.createElement("li");
@@ -256,7 +267,7 @@ async function main(): Promise<void> {
   requestAnimationFrame(frame);
   // For tests: what the timeline holds, and the video.
   Object.assign(window, {
-    review: { video, overlay, duration: tl.duration, videoStart: tl.video_start, forces: forces.length, states: states.length, commands: commands.length, episodes, safety, frame: shown },
+    review: { video, overlay, duration: tl.duration, videoStart: tl.video_start, forces: forces.length, states: states.length, commands: commands.length, episodes, safety, drove, frame: shown },
   });
   document.body.dataset.reviewReady = "1";
 }

@@ -371,3 +371,70 @@ def test_a_supervised_rollouts_corrections_are_lerobots_intervention_column(
     assert len(runs) == 2, flags.astype(int).tolist()
     for rows, window in zip(runs, windows, strict=True):
         assert abs(rows - window * fps) <= 2, (runs, windows)
+
+
+def test_lerobot_rollout_drives_as_a_supervised_policy_and_the_page_can_take_over(
+    tmp_path: Path,
+) -> None:
+    """LeRobot's own ``lerobot-rollout`` (its base strategy) runs a LeRobot policy (a
+    small ACT, untrained: the plumbing is under test) on the simulation through the robot
+    plugin as a policy. The supervision is the server's: an operator takes over mid-run
+    (the policy's actions are then not applied; send_action gives back the server's
+    target), hands back, and the rollout runs on to its end."""
+    from bench.rollout_policy import build_untrained, make_robot
+
+    with serving(env={"TELEROBOT_VIDEO": "true", **SMALL_VIDEO}) as (url, _state):
+        robot = make_robot(url, TOKEN, 320, 240, name="rollout-setup")
+        robot.connect()
+        try:
+            policy = build_untrained(tmp_path / "act", robot, robot.get_observation())
+        finally:
+            robot.disconnect()
+        http = httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=60)
+        seen: list[str] = []
+
+        def supervise() -> None:
+            deadline = time.monotonic() + 120
+            while http.get("autonomy").json()["mode"] != "autonomous":
+                assert time.monotonic() < deadline
+                time.sleep(0.1)
+            seen.append("autonomous")
+            start = http.get("robot/state").json()["target_joints"]
+            while http.get("robot/state").json()["target_joints"] == start:
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+            seen.append("the policy moved the arm")
+            me = http.post("lease", json={"name": "supervisor"}).json()["client_id"]
+            seen.append(http.get("autonomy").json()["mode"])
+            time.sleep(1.0)
+            http.delete("lease", headers={"X-Client-Id": me})
+            seen.append(http.get("autonomy").json()["mode"])
+
+        supervisor = threading.Thread(target=supervise)
+        supervisor.start()
+        said = run_lerobot(
+            "lerobot-rollout",
+            [
+                "--robot.type=telerobot",
+                "--robot.policy=true",
+                "--robot.client_name=act-policy",
+                "--robot.camera_width=320",
+                "--robot.camera_height=240",
+                f"--policy.path={policy}",
+                "--policy.device=cpu",
+                "--strategy.type=base",
+                "--duration=25",
+                "--fps=15",
+                "--play_sounds=false",
+                "--return_to_initial_position=false",
+            ],
+            url,
+            tmp_path,
+        )
+        supervisor.join(60)
+        state = http.get("autonomy").json()
+    assert seen == ["autonomous", "the policy moved the arm", "correcting", "autonomous"], (
+        seen,
+        said[-3000:],
+    )
+    assert state["mode"] == "off" and state["interventions"] == 1, state  # it left, one takeover

@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 FORCE_NAMES = ("fx", "fy", "fz", "tx", "ty", "tz")
 SETTLE_S = 5.0  # disconnecting waits at most this for the arm to reach its last target
 SETTLED_RAD = 0.01
+POSE_FIELDS = ("x", "y", "z", "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")
 STATES_KEPT = 250  # 5 s of STATEs at 50 Hz: the frame's capture time is within them
 CONNECT_S = 10.0
 REANCHOR_RAD = 0.02
@@ -102,6 +103,7 @@ class TelerobotArm:
         self._states: collections.deque[tuple[float, FloatArray]] = collections.deque(
             maxlen=STATES_KEPT
         )
+        self._poses: collections.deque[FloatArray] = collections.deque(maxlen=STATES_KEPT)
         self._force: ForceSample | None = None
         self._frame_seq = -1
         self.clipped = 0  # targets that had a joint outside the limits
@@ -203,6 +205,7 @@ class TelerobotArm:
     def _on_state(self, fields: dict[str, Any]) -> None:
         with self._lock:
             self._states.append((float(fields["server_time"]), np.array(fields["joints"], float)))
+            self._poses.append(np.array([fields[k] for k in POSE_FIELDS], float))
 
     def _on_force(self, sample: ForceSample, _received: float) -> None:
         self._force = sample
@@ -210,6 +213,15 @@ class TelerobotArm:
     def _newest_joints(self) -> FloatArray | None:
         with self._lock:
             return self._states[-1][1].copy() if self._states else None
+
+    def tool_pose_at(self, t: float) -> FloatArray:
+        """The tool's pose in the STATE sampled nearest to ``t`` (server clock): position
+        (m) then the row-major rotation, base frame, as the export's
+        ``observation.tool_pose``."""
+        with self._lock:
+            times = np.array([s[0] for s in self._states])
+            poses = list(self._poses)
+        return poses[int(np.argmin(np.abs(times - t)))].copy()
 
     def _state_at(self, t: float) -> tuple[float, FloatArray]:
         with self._lock:

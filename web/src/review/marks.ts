@@ -164,3 +164,25 @@ export function markRows(episodes: readonly ReviewEpisode[], marks: readonly Saf
 export function verdictOf(e: Pick<ReviewEpisode, "success">): "success" | "failure" | "unlabelled" {
   return e.success === true ? "success" : e.success === false ? "failure" : "unlabelled";
 }
+
+/** Who drove when, from a supervised policy's /autonomy changes: a span per mode until
+ * the next change (or the end); "off" (no policy) is not drawn. */
+export interface DroveSpan {
+  mode: "autonomous" | "paused" | "correcting";
+  start: number;
+  end: number;
+  who: string;
+}
+
+export function droveSpans(changes: readonly { time: number; mode: string; policy?: string | null; operator?: string | null }[], duration: number): DroveSpan[] {
+  const sorted = [...changes].sort((a, b) => a.time - b.time);
+  const out: DroveSpan[] = [];
+  sorted.forEach((c, i) => {
+    if (c.mode !== "autonomous" && c.mode !== "paused" && c.mode !== "correcting") return;
+    const end = sorted[i + 1]?.time ?? duration;
+    if (end <= c.time) return;
+    const who = c.mode === "correcting" ? `${c.operator ?? "an operator"} corrected` : c.mode === "paused" ? `${c.policy ?? "the policy"} paused` : `${c.policy ?? "the policy"} drove`;
+    out.push({ mode: c.mode, start: c.time, end, who });
+  });
+  return out;
+}
