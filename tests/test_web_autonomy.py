@@ -15,7 +15,17 @@ from playwright.sync_api import Browser, Page
 
 from bench.policy_stub import PolicyClient
 from tests.support import TOKEN, until
-from tests.support.browser import DRIVE_S, NO_VIDEO, open_page, page_said, target, wait
+from tests.support.browser import (
+    DRIVE_S,
+    ENV,
+    NO_VIDEO,
+    open_page,
+    page_said,
+    target,
+    wait,
+    xr_frames_pass,
+)
+from tests.support.servers import serving
 
 pytestmark = pytest.mark.browser
 SERVER_ENV = NO_VIDEO
@@ -96,4 +106,38 @@ def test_the_page_takes_over_from_a_policy_and_hands_back(browser: Browser, serv
         state = httpx.get(server + "api/v1/autonomy").json()
         assert state["interventions"] == 3, state  # T, the button, the dead-man
         assert policy.largest_step_m() < STEP_LIMIT_M  # no jump at any handover
+        assert not errors, errors
+
+
+def test_the_xr_grip_takes_over_from_a_policy_and_letting_go_hands_back(
+    browser: Browser,
+) -> None:
+    """In the emulated headset (iwer): gripping the right controller while the policy
+    drives takes over at once; the grip's motion drives; let go, control goes back."""
+    with serving(ENV) as server, PolicyClient(server, TOKEN) as policy:
+        page, errors = open_page(browser, server, xr=True)
+        wait(page, "document.getElementById('autonomy').textContent.startsWith('AUTONOMOUS')")
+        page.click("#xr")
+        wait(page, "window.telerobot.view.renderer.xr.isPresenting")
+        hand = "window.__xr.controllers.right"
+        # iwer marks every space as emulated; a tracked controller is not (the page
+        # ignores a hand whose position is only estimated).
+        page.evaluate(
+            f"() => {{ const s = {hand}.inputSource.gripSpace;"
+            "s[Object.getOwnPropertySymbols(s).find((k) => k.description === '@iwer/xr-space')]"
+            ".emulated = false; }"
+        )
+        took = time.monotonic()
+        page.evaluate(f"{hand}.updateButtonValue('squeeze', 1)")
+        until(lambda: mode(server) == "correcting", timeout=10, what=page_said(page, "grip"))
+        until(lambda: policy.refused_since(took), timeout=5, what=lambda: "the policy refused")
+        held = target(server)
+        for _ in range(20):
+            page.evaluate(f"{hand}.position.z -= 0.004")
+            page.wait_for_timeout(50)
+        until(lambda: target(server) != held, timeout=DRIVE_S, what=page_said(page, "drives"))
+        page.evaluate(f"{hand}.updateButtonValue('squeeze', 0)")
+        xr_frames_pass(page)
+        until(lambda: mode(server) == "autonomous", timeout=10, what=page_said(page, "let go"))
+        assert policy.largest_step_m() < STEP_LIMIT_M
         assert not errors, errors
