@@ -46,7 +46,7 @@ EPISODE_S = 8.0
 START_SPREAD_RAD = 0.35  # each start: home + this much at most on the first three joints
 # The trained policy's cameras: small, so it trains on a CPU (a training step took 1.8 s
 # with a 320×240 pair here); rolled out, the plugin resizes the server's frames to it.
-TRAIN_SIZE = (128, 96)
+TRAIN_SIZE = (160, 120)  # (the least video the server makes: 120 rows)
 
 
 def _p(values_ms: list[float]) -> dict[str, float] | None:

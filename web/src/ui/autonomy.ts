@@ -7,19 +7,12 @@
 // HAND_BACK_MS (a quicker re-clutch keeps control); P or "Pause" holds it still (look,
 // think) and P again resumes it.
 // The server decides; the page shows what it said (EVENT autonomy, GET /autonomy).
+import type { components } from "../api/schema";
 import { LeaseAction } from "../transport/messages";
 
-export type AutonomyMode = "off" | "autonomous" | "paused" | "correcting";
-
-export interface AutonomyState {
-  mode: AutonomyMode;
-  policy: string | null;
-  operator: string | null;
-  cause: string;
-  rate_hz: number;
-  refused: number;
-  interventions: number;
-}
+/** What GET /autonomy says, and each EVENT autonomy's JSON. */
+export type AutonomyState = components["schemas"]["AutonomyView"];
+export type AutonomyMode = AutonomyState["mode"];
 
 const MODES: readonly AutonomyMode[] = ["off", "autonomous", "paused", "correcting"];
 
