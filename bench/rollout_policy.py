@@ -257,9 +257,20 @@ class Reach:
         self.rng = np.random.default_rng(11)
 
     def start(self) -> np.ndarray:
-        q = self.home.copy()
-        q[:3] += self.rng.uniform(-START_SPREAD_RAD, START_SPREAD_RAD, 3)
-        return q
+        """A start pose the task can be done from: the straight joint path from it to the
+        goal (the demonstrations' path) touches nothing (tried once by a REST move)."""
+        from telerobot.client.rest import TelerobotError
+
+        while True:
+            q = self.home.copy()
+            q[:3] += self.rng.uniform(-START_SPREAD_RAD, START_SPREAD_RAD, 3)
+            try:
+                self.place(q, name="reach-start")
+                self.place(self.goal_joints, name="reach-start")
+            except TelerobotError:
+                continue
+            if self.distance() < SUCCESS_M / 3:
+                return q
 
     def tool(self) -> np.ndarray:
         return np.array(self.http.get("robot/state").json()["position"])
@@ -273,8 +284,10 @@ class Reach:
         from telerobot.client import Telerobot
 
         with Telerobot(self.url, self.token, name=name) as arm:
-            if self.http.get("safety").json()["force_limited"]:
-                arm.move_cartesian([0.0, 0.0, 0.03], relative=True)
+            for _ in range(3):  # (one relative move may go 20 mm at most)
+                if not self.http.get("safety").json()["force_limited"]:
+                    break
+                arm.move_cartesian([0.0, 0.0, 0.015], relative=True)
             arm.move_joints(q.tolist())
 
 
