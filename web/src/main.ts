@@ -176,7 +176,7 @@ async function main(): Promise<void> {
     policyHolds: () => supervision?.policyHolds ?? false,
   });
   const youHaveControl = (): boolean => ((state?.flags ?? 0) & StateFlags.YOU_HAVE_CONTROL) !== 0;
-  supervision = setupSupervision(loop, link, youHaveControl, () => control.released());
+  supervision = setupSupervision(view, loop, link, youHaveControl, () => control.released());
   // The active frame's axes at the gripper, in both eyes (shown with the AR ball).
   const axes = new AxisMarker(cell.cameras, model.tool.flat(), view);
   // The whole predicted arm, a translucent skeleton in both eyes (the "Ghost arm" switch).
@@ -313,7 +313,10 @@ async function readAutonomy(): Promise<void> {
 let supervisionRef: Supervision | null = null;
 
 /** The header's supervision badge and buttons, wired to the loop and the link. */
-function setupSupervision(loop: InputLoop, link: RealtimeLink, youHaveControl: () => boolean, givingUp: () => void): Supervision {
+/** The headset's supervision line, coloured as the header's badge (style.css). */
+const XR_BADGE_COLOURS: Record<string, string> = { autonomous: "#1d5fa8", paused: "#9a7a10", correcting: "#2e7d32" };
+
+function setupSupervision(view: StereoView, loop: InputLoop, link: RealtimeLink, youHaveControl: () => boolean, givingUp: () => void): Supervision {
   const lease = (action: number): void => {
     if (youHaveControl()) givingUp(); // pausing or resuming from a correction hands control back
     link.lease(action);
@@ -329,6 +332,7 @@ function setupSupervision(loop: InputLoop, link: RealtimeLink, youHaveControl: (
     $("resume-policy").hidden = !(operator && v.resume);
     $("hand-back").hidden = !(operator && v.handBack);
     $("take").textContent = v.takeLabel;
+    view.setXRBadge(v.badge, XR_BADGE_COLOURS[s.state?.mode ?? "off"] ?? "#444");
   };
   $("pause-policy").onclick = () => s.pause();
   $("resume-policy").onclick = () => s.handBack();

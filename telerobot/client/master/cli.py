@@ -169,12 +169,26 @@ def run_leader(args: argparse.Namespace, token: str) -> int:
             print(
                 f"control {'yes' if mirror.has_control else 'no '}"
                 f" · commands {mirror.commands_sent} · {mirror.status}"
+                + _supervision(mirror.link.autonomy, clutch=False)
                 + (f" · last error: {mirror.last_error}" if mirror.last_error else ""),
                 flush=True,
             )
     mirror.stop()
     mirror.link.close()
     return 0
+
+
+def _supervision(mode: str, clutch: bool = True) -> str:
+    """A policy's supervision on the status line (lerobot's DAgger names), and what the
+    clutch does now (a leader has none: started, it takes over; stopped, it hands back)."""
+    take = " (grip the clutch to take over)" if clutch else ""
+    said = {
+        "autonomous": f" · AUTONOMOUS: a policy drives{take}",
+        "paused": f" · PAUSED: the policy holds still{take}",
+        "correcting": " · CORRECTING: an operator drives"
+        + (" (let go 0.6 s to hand back)" if clutch else ""),
+    }
+    return said.get(mode, "")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -254,6 +268,7 @@ def run(args: argparse.Namespace) -> int:
                     else ""
                 )
                 + ("" if bridge.connected else " · reconnecting")
+                + _supervision(bridge.link.autonomy)
                 + (f" · last error: {bridge.last_error}" if bridge.last_error else ""),
                 flush=True,
             )

@@ -179,6 +179,9 @@ export class StereoView {
       this.xrQuads.push(quad);
       this.xrGroup.add(quad);
     }
+    this.xrGroup.add(this.xrBadge);
+    this.xrBadge.position.set(0, 1.6 + 0.8 + 0.08, -2); // above the picture, seen by both eyes
+    this.xrBadge.visible = false;
     this.xrGroup.visible = false;
     this.scene.add(this.xrGroup);
     this.renderer.xr.addEventListener("sessionstart", () => this.setXR(true));
@@ -303,6 +306,30 @@ export class StereoView {
       },
     });
   }
+
+  /** A line above the picture in the headset (a policy's supervision: who drives); an
+   * empty text hides it. The header is not seen there. */
+  setXRBadge(text: string, colour: string): void {
+    this.xrBadge.visible = text !== "";
+    if (!text) return;
+    const canvas = this.xrBadgeCanvas;
+    const g = canvas.getContext("2d");
+    if (!g) return;
+    g.clearRect(0, 0, canvas.width, canvas.height);
+    g.fillStyle = colour;
+    g.fillRect(0, 0, canvas.width, canvas.height);
+    g.fillStyle = "#fff";
+    g.font = "bold 40px sans-serif";
+    g.textBaseline = "middle";
+    g.fillText(text, 16, canvas.height / 2, canvas.width - 32);
+    (this.xrBadge.material as THREE.MeshBasicMaterial).map!.needsUpdate = true;
+  }
+
+  private readonly xrBadgeCanvas = Object.assign(document.createElement("canvas"), { width: 1024, height: 64 });
+  private readonly xrBadge = new THREE.Mesh(
+    new THREE.PlaneGeometry(1.6, 0.1),
+    new THREE.MeshBasicMaterial({ map: new THREE.CanvasTexture(this.xrBadgeCanvas), transparent: true }),
+  );
 
   private setXR(on: boolean): void {
     this.xrGroup.visible = on;
