@@ -122,6 +122,7 @@ class JointMirror:
         self.scaled = 0  # increments the server applied in part
         self.refused = 0
         self.last_error: str | None = None
+        self._said: str | None = None  # the refusal last logged
         # When the server applied each increment (ACK's server_time), newest last: when
         # a new target first moved the arm (bench.rollout's observation → action).
         self.applied_at: collections.deque[float] = collections.deque(maxlen=10_000)
@@ -153,8 +154,13 @@ class JointMirror:
             if dq is not None and reply.name == "ACK":
                 self.applied_at.append(float(reply.fields["server_time"]))
         if reply.name == "ERROR":
-            self.last_error = reply.text
-            log.warning("server: %s", reply.text)
+            # Said once until an increment is applied again: a policy held still by its
+            # supervisor has each of its 100 increments a second refused alike.
+            if reply.text != self._said:
+                log.warning("server: %s", reply.text)
+            self.last_error = self._said = reply.text
+        elif reply.name == "ACK":
+            self._said = None
 
     def _forget(self) -> None:
         """Not following: the record, the increments in flight and their replies go."""
