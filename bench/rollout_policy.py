@@ -249,11 +249,12 @@ class Reach:
         self.http = httpx.Client(base_url=url + "api/v1/", timeout=30)
         block = next(b for b in self.http.get("workcell").json()["boxes"] if b["name"] == "block")
         self.goal = np.array(block["centre"]) + [0.0, 0.0, block["size"][2] / 2 + 0.03]
+        # (made before anything else moves the arm: it starts at home)
         with Telerobot(url, token, name="reach-setup") as arm:
             self.home = np.array(arm.state()["joints"])
             arm.move_cartesian(self.goal.tolist())  # (keeping the tool's orientation)
             self.goal_joints = np.array(arm.state()["joints"])
-            arm.move_joints(self.home.tolist())
+        self.place(self.home, name="reach-setup")
         self.rng = np.random.default_rng(11)
 
     def start(self) -> np.ndarray:
@@ -439,14 +440,16 @@ def main() -> None:
         )
         try:
             policy = Policy(path, robot)
+            reach = Reach(args.url, args.token) if args.policy else None
+            if reach is not None:  # the trained policy at its task
+                reach.place(reach.start())
             policy.reset()
             steps = run_loop(robot, policy, args.seconds)
             out["obs_to_action_ms"] = _p(obs_to_action(robot, steps))
             out["chunk_ms"] = _p(policy.chunk_ms)
             out["steps"] = len(steps)
             out["policy"] = "trained: " + str(args.policy) if args.policy else "ACT, untrained"
-            if args.policy:
-                reach = Reach(args.url, args.token)
+            if reach is not None:
                 free = evaluate(robot, policy, reach, args.episodes, supervised=False)
                 helped = evaluate(robot, policy, reach, args.episodes, supervised=True)
                 out["success_rate"] = {"unsupervised": free["success_rate"],
