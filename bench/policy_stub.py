@@ -36,6 +36,7 @@ class PolicyClient:
     # (server time, tool position, joints) of every STATE
     states: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     autonomy: list[str] = field(default_factory=list)  # the modes the server said
+    autonomy_at: list[float] = field(default_factory=list)  # when each came (monotonic)
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
@@ -55,6 +56,7 @@ class PolicyClient:
         elif reply.name == "EVENT" and int(reply.fields["kind"]) == m.EventKind.AUTONOMY:
             with self._lock:
                 self.autonomy.append(reply.text)
+                self.autonomy_at.append(time.monotonic())
 
     def _on_state(self, fields: dict[str, object]) -> None:
         self.flags = int(fields["flags"])  # type: ignore[call-overload]
@@ -93,6 +95,14 @@ class PolicyClient:
     def since(self, t: float) -> list[Answer]:
         with self._lock:
             return [a for a in self.answers if a.at >= t]
+
+    def told_since(self, t: float, mode: str) -> float | None:
+        """When the server first told this policy it is in ``mode`` after ``t``."""
+        with self._lock:
+            for text, at in zip(self.autonomy, self.autonomy_at, strict=True):
+                if at >= t and f'"mode": "{mode}"' in text:
+                    return at
+        return None
 
     def refused_since(self, t: float) -> list[Answer]:
         return [a for a in self.since(t) if not a.applied]

@@ -9,7 +9,9 @@ The last line's keys:
 - ``takeover_ms`` ``{"p50", "p99"}``: an operator's takeover (the page's T key, the
   master's clutch) → the first command of the policy refused, as the policy's client
   sees it (both on this machine's clock; the policy sends 30 commands a second, so up to
-  a period of it is waiting for its next command). ``policy_period_ms`` for scale.
+  a period of it is waiting for its next command). ``policy_period_ms`` for scale, and
+  ``takeover_told_ms``: the takeover → the server's EVENT telling the policy (the
+  instant from which its commands are refused, no command of its needed).
 - ``handover_jump_mm``, ``handover_jump_rad``: the worst tool and joint step between two
   consecutive STATEs (20 ms apart) within 0.5 s after a takeover or a release, over
   ``--handovers`` from the page and as many from the simulated master. For scale:
@@ -80,6 +82,7 @@ class Handovers:
     def __init__(self, policy: PolicyClient) -> None:
         self.policy = policy
         self.takeover_ms: list[float] = []
+        self.told_ms: list[float] = []  # the takeover → the policy told it is corrected
         self.times: list[float] = []  # every takeover and release
 
     def took(self, asked: float) -> None:
@@ -89,6 +92,9 @@ class Handovers:
                 raise RuntimeError("the policy was never refused after a takeover")
             time.sleep(0.001)
         self.takeover_ms.append((self.policy.refused_since(asked)[0].at - asked) * 1000)
+        told = self.policy.told_since(asked, "correcting")
+        if told is not None:
+            self.told_ms.append((told - asked) * 1000)
         self.times.append(asked)
 
     def jumps(self) -> tuple[float, float]:
@@ -189,6 +195,7 @@ def handovers(base: str, n: int, page: bool) -> dict[str, Any]:
     limits = SafetyLimits()
     return {
         "takeover_ms": _p(log.takeover_ms),
+        "takeover_told_ms": _p(log.told_ms),
         "policy_period_ms": round(1000 / RATE_HZ, 2),
         "handover_jump_mm": round(jump_m * 1000, 3),
         "handover_jump_rad": round(jump_rad, 5),
@@ -222,6 +229,15 @@ def with_lerobot(base: str, args: Any) -> dict[str, Any]:
     return dict(json.loads(lines[-1]))
 
 
+def _policy_size(policy: Path) -> tuple[int, int]:
+    """The cameras' size a trained policy saw: the server renders at it, as it did for
+    the demonstrations (a picture scaled down from a larger one is not the same: the
+    timecode's blocks, the lines' widths)."""
+    features = json.loads((policy / "config.json").read_text())["input_features"]
+    height, width = features["observation.images.left"]["shape"][1:]
+    return int(width), int(height)
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--handovers", type=int, default=20, help="from the page, and from the master")
@@ -231,8 +247,9 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--busy-core", action="store_true", help="one core kept busy (stress-ng)")
     args = p.parse_args()
+    width, height = _policy_size(args.policy) if args.policy else (640, 480)
     env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_VIDEO": "true",
-           "TELEROBOT_VIDEO_WIDTH": "640", "TELEROBOT_VIDEO_HEIGHT": "480",
+           "TELEROBOT_VIDEO_WIDTH": str(width), "TELEROBOT_VIDEO_HEIGHT": str(height),
            "TELEROBOT_SIM_STARTS_AT_HOME": "true"}  # fmt: skip
     figures: dict[str, Any] = {}
     with busy_core(args.busy_core), serve_for_bench(env=env, ready=True) as (_, base):
