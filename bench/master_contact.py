@@ -354,6 +354,7 @@ class VirtualLink:
         self.on_reply: Callable[[Reply], None] | None = None
         self.offset = 0.0
         self.closed_reason: str | None = None
+        self.autonomy = "off"  # no policy here (PriorityLink says what the server said)
         # Sent, not yet handled, in order: (seq, send time, dX, rotation vector, frame),
         # or (seq, e_in, e_out) for an ENERGY.
         self.commands: list[

@@ -86,9 +86,10 @@ def test_a_scaled_or_refused_increment_is_taken_back_from_the_record() -> None:
     second = mir.step(leader, follower)
     assert first is not None and second is not None
     mir._sent = {7: first, 8: second}
-    mir._on_reply(Reply("ACK", {"seq": 7, "result": m.Ack.LIMITED, "scale": 0.25}, ""))
+    limited = {"result": m.Ack.LIMITED, "server_time": 1.0}
+    mir._on_reply(Reply("ACK", {"seq": 7, **limited, "scale": 0.25}, ""))
     mir._on_reply(Reply("ERROR", {"seq": 8, "code": 6}, "refused"))
-    mir._on_reply(Reply("ACK", {"seq": 99, "result": m.Ack.LIMITED, "scale": 0.5}, ""))  # not ours
+    mir._on_reply(Reply("ACK", {"seq": 99, **limited, "scale": 0.5}, ""))  # not ours
     third = mir.step(leader, follower)
     assert third is not None and (mir.scaled, mir.refused) == (1, 1)
     # The record is what the server applied: a quarter of the first, none of the second.

@@ -122,6 +122,7 @@ class FakeLink:
     def __init__(self) -> None:
         self.offset = 0.0
         self.closed_reason = None
+        self.autonomy = "off"  # no policy's supervision
         self.sent: list[tuple[float, tuple[float, ...]]] = []
         self.energies: list[tuple[float, float, float]] = []
         self.now = 0.0
