@@ -44,6 +44,26 @@ describe("losing control", () => {
     expect(seen).toEqual([]);
   });
 
+  it("is quiet when a STATE sent before the release still showed control", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.released();
+    w.state(MINE, 20); // already on its way when the release was sent (a busy machine)
+    w.state(MINE, 40);
+    w.state(NOBODY, 60);
+    expect(seen).toEqual([]);
+  });
+
+  it("a release that never happened does not hide a later loss", () => {
+    const { w, seen } = watched();
+    w.state(MINE, 0);
+    w.released();
+    w.state(MINE, 10);
+    w.state(MINE, 5_000); // still ours long after: the release did not take
+    w.state(NOBODY, 6_000);
+    expect(seen[0]!.alert?.text).toContain("CONTROL LOST");
+  });
+
   it("halted by the dead-man: an alarm while the lease is kept, gone when the link is back", () => {
     const { w, seen } = watched();
     w.state(MINE, 0);

@@ -53,6 +53,10 @@ export function haltedText(timerLateMs: number, pageStallMs = 0): string {
 export class ControlWatch {
   private had = false; // this page held control at the last STATE
   private releasing = false; // the operator asked to release: no alarm
+  // When a STATE first still showed control after the release was asked (ms): STATEs
+  // already on their way say so for a while (a busy machine's, longer); past
+  // IN_FLIGHT_MS the release is taken not to have happened.
+  private releasingSeen: number | null = null;
   private heldWhenDropped = false;
   private dropped = false; // the link went down since the last WELCOME
   private reason = "";
@@ -66,6 +70,7 @@ export class ControlWatch {
   /** The operator released control (or took it: clears the offer). */
   released(): void {
     this.releasing = true;
+    this.releasingSeen = null;
   }
 
   /** A server event: "control: nobody (dead-man: …)" says why control changed. */
@@ -109,7 +114,10 @@ export class ControlWatch {
     if (mine) {
       this.had = true;
       this.heldWhenDropped = false;
-      this.releasing = false;
+      if (this.releasing) {
+        this.releasingSeen ??= now;
+        if (now - this.releasingSeen > IN_FLIGHT_MS) this.releasing = false;
+      }
       if ((flags & StateFlags.HALTED) !== 0) {
         const cause = haltCause(timerLateMs, pageStallMs);
         if (this.alert?.level !== "halted") {
