@@ -180,6 +180,16 @@ def percentiles_ms(values_s: list[float]) -> dict[str, float]:
     }
 
 
+def p50_p99(values_ms: list[float]) -> dict[str, float] | None:
+    """``{"p50", "p99"}`` of figures already in ms, rounded to 0.01; None with none."""
+    import numpy as np
+
+    if not values_ms:
+        return None
+    p50, p99 = np.percentile(np.array(values_ms), [50, 99])
+    return {"p50": round(float(p50), 2), "p99": round(float(p99), 2)}
+
+
 async def open_viewer(base: str, timeout: float = 30.0) -> tuple[Any, Any]:
     """An aiortc peer that asks ``base`` for the stereo video (one POST, as a browser
     does): returns the peer connection and its video track once the track is up."""

@@ -40,7 +40,7 @@ from typing import Any
 import httpx
 import numpy as np
 
-from bench.common import busy_core, emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, p50_p99, parser, serve_for_bench
 from bench.policy_stub import RATE_HZ, PolicyClient
 
 TOKEN = "bench-rollout-token-0123456789abcdef"
@@ -52,16 +52,6 @@ LEROBOT_PYTHON = (
 )
 AFTER_S = 0.5  # a handover's jump: the steps this long after it
 MAX_INTERVAL_S = 0.1  # the server's longest interval for one increment's speed limit
-
-
-def _p(values_ms: list[float]) -> dict[str, float] | None:
-    if not values_ms:
-        return None
-    v = np.array(values_ms)
-    return {
-        "p50": round(float(np.percentile(v, 50)), 2),
-        "p99": round(float(np.percentile(v, 99)), 2),
-    }
 
 
 def _mode(http: httpx.Client) -> str:
@@ -194,8 +184,8 @@ def handovers(base: str, n: int, page: bool) -> dict[str, Any]:
         said = http.get("autonomy").json()
     limits = SafetyLimits()
     return {
-        "takeover_ms": _p(log.takeover_ms),
-        "takeover_told_ms": _p(log.told_ms),
+        "takeover_ms": p50_p99(log.takeover_ms),
+        "takeover_told_ms": p50_p99(log.told_ms),
         "policy_period_ms": round(1000 / RATE_HZ, 2),
         "handover_jump_mm": round(jump_m * 1000, 3),
         "handover_jump_rad": round(jump_rad, 5),

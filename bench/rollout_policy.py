@@ -39,6 +39,8 @@ from typing import Any
 import httpx
 import numpy as np
 
+from bench.common import p50_p99
+
 REPO = Path(__file__).resolve().parents[1]
 FPS = 30.0
 SUCCESS_M = 0.015  # the tool this near the goal at the episode's end: a success
@@ -47,13 +49,6 @@ START_SPREAD_RAD = 0.35  # each start: home + this much at most on the first thr
 # The trained policy's cameras: small, so it trains on a CPU (a training step took 1.8 s
 # with a 320×240 pair here); rolled out, the plugin resizes the server's frames to it.
 TRAIN_SIZE = (160, 120)  # (the least video the server makes: 120 rows)
-
-
-def _p(values_ms: list[float]) -> dict[str, float] | None:
-    if not values_ms:
-        return None
-    p50, p99 = np.percentile(np.array(values_ms), [50, 99])
-    return {"p50": round(float(p50), 2), "p99": round(float(p99), 2)}
 
 
 # ------------------------------------------------------------ the policy
@@ -445,8 +440,8 @@ def main() -> None:
                 reach.place(reach.start())
             policy.reset()
             steps = run_loop(robot, policy, args.seconds)
-            out["obs_to_action_ms"] = _p(obs_to_action(robot, steps))
-            out["chunk_ms"] = _p(policy.chunk_ms)
+            out["obs_to_action_ms"] = p50_p99(obs_to_action(robot, steps))
+            out["chunk_ms"] = p50_p99(policy.chunk_ms)
             out["steps"] = len(steps)
             out["policy"] = "trained: " + str(args.policy) if args.policy else "ACT, untrained"
             if reach is not None:
