@@ -9,14 +9,27 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
-from telerobot.drivers.base import ArmSnapshot, DeviceContext, ForceSensor, Robot, StereoCamera
+from telerobot.drivers.base import (
+    ArmSnapshot,
+    DeviceContext,
+    FloatArray,
+    ForceSensor,
+    Robot,
+    StereoCamera,
+)
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.registry import load_driver
 from telerobot.drivers.robot.kinematics import ArmKinematics, tool_transform
-from telerobot.drivers.sim.workcell import Workcell, default_workcell
+from telerobot.drivers.sim.workcell import (
+    Workcell,
+    default_workcell,
+    facing_mounts,
+    mount_transform,
+)
 from telerobot.server.settings import Settings
 
 
@@ -26,7 +39,43 @@ def make_kinematics(settings: Settings) -> ArmKinematics:
     return settings.model.kinematics(tool_transform(settings.tool_length_m))
 
 
+@dataclass(frozen=True)
+class ArmDevices:
+    """One arm the server drives: its name, its settings (the server's with its own
+    over them), its driver and force sensor, and where its base stands (4×4, in the
+    workcell's frame)."""
+
+    name: str
+    settings: Settings
+    robot: Robot
+    force: ForceSensor
+    mount: FloatArray
+
+
+def arm_mounts(settings: Settings) -> list[FloatArray]:
+    """Each arm's base in the workcell (in the settings' arm order): its ``mount`` if
+    set; else the first at the origin and, of two, the second across the table facing
+    it (``facing_mounts``). A third arm or more needs its mount said."""
+    arms = settings.arm_settings()
+    model = arms[0][1].model
+    facing = facing_mounts(model.scene_scale, model.scene_offset)
+    mounts = []
+    for i, (name, own) in enumerate(arms):
+        if own.mount is not None:
+            mounts.append(mount_transform(own.mount))
+        elif i < 2:
+            mounts.append(facing[i])
+        else:
+            raise ValueError(
+                f"arms.{name}: say where its base stands (mount = [x, y, z, turn°]): the"
+                " simulated workcell places two arms by itself, not three"
+            )
+    return mounts
+
+
 def build_workcell(settings: Settings) -> Workcell:
+    mounts = arm_mounts(settings) if settings.arms else []
+    settings = settings.arm_settings()[0][1]  # the scene is sized for the first arm's model
     cell = default_workcell(
         camera_distance=settings.camera_distance,
         baseline=settings.camera_baseline,
@@ -37,6 +86,7 @@ def build_workcell(settings: Settings) -> Workcell:
         scale=settings.model.scene_scale,
         offset=settings.model.scene_offset,
         pedestal_m=settings.model.pedestal_m,
+        mounts=tuple(mounts),
     )
     if settings.fiducials is not None:  # where they really are (a real workcell)
         cell = dataclasses.replace(cell, fiducials=np.array(settings.fiducials, dtype=float))
@@ -72,11 +122,28 @@ def describe_robot(settings: Settings) -> str:
     return load_driver("robot", settings.robot).describe(settings.model_dump())
 
 
-def build_force_sensor(settings: Settings, robot: Robot, workcell: Workcell) -> ForceSensor:
-    """The sensor the settings name; a simulated one feels ``robot`` in ``workcell``."""
+def build_force_sensor(
+    settings: Settings, robot: Robot, workcell: Workcell, mount: FloatArray | None = None
+) -> ForceSensor:
+    """The sensor the settings name; a simulated one feels ``robot`` in ``workcell``
+    (seen from the arm's base at ``mount``: its sensor's physics is in the arm's frame)."""
     cls = load_driver("force", settings.force)
-    context = device_context(settings, workcell=workcell, arm_probe=robot.snapshot)
+    cell = workcell if mount is None else workcell.seen_from(mount)
+    context = device_context(settings, workcell=cell, arm_probe=robot.snapshot)
     return cls.from_settings(settings.model_dump(), context)
+
+
+def build_arms(settings: Settings, clock: Clock | None, workcell: Workcell) -> list[ArmDevices]:
+    """Every arm the settings name, each with its own driver and force sensor (one arm,
+    named "arm", when they name none)."""
+    mounts = arm_mounts(settings)
+    arms = []
+    for (name, own), mount in zip(settings.arm_settings(), mounts, strict=True):
+        robot = build_robot(own, clock)
+        arms.append(
+            ArmDevices(name, own, robot, build_force_sensor(own, robot, workcell, mount), mount)
+        )
+    return arms
 
 
 def build_camera(settings: Settings, arm_probe: Callable[[], ArmSnapshot]) -> StereoCamera:

@@ -25,12 +25,13 @@ from telerobot.drivers.base import DeviceError, ForceSensor, Robot, TelerobotErr
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.drivers.sim.workcell import Workcell
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import ReleaseTo
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.devices import (
-    build_force_sensor,
-    build_robot,
+    ArmDevices,
+    build_arms,
     build_workcell,
     make_kinematics,
 )
@@ -141,7 +142,7 @@ class Services:
     calibration: CalibrationRecord
     intrinsics: Intrinsics
     alignments: Alignments
-    robot: Robot
+    robot: Robot  # the first arm's (the only one's on a one-arm server)
     force: ForceSensor
     decision: DecisionServer
     hub: RealtimeHub
@@ -153,6 +154,8 @@ class Services:
     recorder: Recorder
     recording_taps: RecordingTaps
     task_runner: TaskRunner  # supervisory tasks: taught motions repeated under guards
+    # Every arm, the first included (docs/arms.md): names, drivers, sensors, mounts.
+    arms: list[ArmDevices] = field(default_factory=list)
     ws_limits: PeerLimits = field(default_factory=PeerLimits)  # per address, on /ws
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
 
@@ -203,17 +206,31 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
     """Every service, made once; nothing runs until ``start_services``."""
     telemetry = Telemetry()
     workcell = build_workcell(settings)
-    robot = build_robot(settings, clock)
-    force = build_force_sensor(settings, robot, workcell)
-    # The DecisionServer's own model (same tool): Pinocchio data is per instance.
+    arms = build_arms(settings, clock, workcell)
+    robot, force = arms[0].robot, arms[0].force
+    # The DecisionServer's own models (same tool): Pinocchio data is per instance.
     decision = DecisionServer(
         robot,
-        kinematics=make_kinematics(settings),
+        kinematics=make_kinematics(arms[0].settings),
         clock=clock,
         operator_token=token.value,
-        limits=safety_limits(settings),
+        limits=safety_limits(arms[0].settings),
         force=force,
+        arm_name=arms[0].name,
+        more_arms=[
+            ArmGuard(
+                arm.name,
+                i + 2,
+                arm.robot,
+                make_kinematics(arm.settings),
+                safety_limits(arm.settings),
+                arm.force,
+                arm.mount,
+            )
+            for i, arm in enumerate(arms[1:])
+        ],
     )
+    decision.arms[0].mount = arms[0].mount
     decision.release_to = ReleaseTo(settings.autonomy_release)
     hub = RealtimeHub(
         robot, decision, force, telemetry, clock, state_rate_hz=settings.state_rate_hz
@@ -286,6 +303,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
             tasks=task_runner.events.changed,
         ),
         task_runner=task_runner,
+        arms=arms,
     )
 
 
@@ -355,7 +373,8 @@ async def start_services(s: Services) -> None:
     s.hub.start()
     s.decision.start()  # the force limit and the dead-man, whatever transports run
     s.priority.start()
-    s.force.start()
+    for arm in s.arms:
+        arm.force.start()
     s.recording_taps.start()
     if s.viewer.view is not None:
         s.viewer.view.start()
@@ -365,9 +384,12 @@ async def start_services(s: Services) -> None:
         s.observer_feed.start()
     if s.media is not None:
         await s.media.start()
-    s.tasks.append(
-        asyncio.create_task(bring_up_robot(s.robot, s.settings.auto_initialize), name="bring-up")
-    )
+    for arm in s.arms:
+        s.tasks.append(
+            asyncio.create_task(
+                bring_up_robot(arm.robot, s.settings.auto_initialize), name=f"bring-up-{arm.name}"
+            )
+        )
 
 
 async def stop_services(s: Services) -> None:
@@ -378,7 +400,8 @@ async def stop_services(s: Services) -> None:
     if s.recorder.active:
         await s.recorder.stop("the server stopped")
     await s.recording_taps.stop()
-    s.force.stop()
+    for arm in s.arms:
+        arm.force.stop()
     if s.viewer.view is not None:
         await s.viewer.view.stop()
     if s.media is not None:
@@ -391,4 +414,5 @@ async def stop_services(s: Services) -> None:
     await s.hub.stop()
     await s.task_runner.stop()
     await s.decision.stop()
-    await s.robot.disconnect()
+    for arm in s.arms:
+        await arm.robot.disconnect()

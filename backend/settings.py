@@ -9,15 +9,18 @@ environment variables ``TELEROBOT_*``, a TOML file (``--config`` or
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import re
 from contextvars import ContextVar
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, ValidationInfo, create_model, field_validator, model_validator
 from pydantic_settings import (
     BaseSettings,
+    NoDecode,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
     TomlConfigSettingsSource,
@@ -32,6 +35,42 @@ from telerobot.drivers.robot.models import (
     model_names,
 )
 from telerobot.server.media.ice import IceConfig
+
+SINGLE_ARM = "arm"  # the one arm's name when the settings name no arms
+MAX_ARMS = 8
+ARM_NAME = re.compile(r"[A-Za-z0-9_-]{1,32}")
+# Settings of the whole server, never one arm's (an arm table that sets one is refused).
+NOT_PER_ARM = frozenset(
+    {"arms", "host", "http_port", "priority_port", "viewer", "viewer_port", "operator_token",
+     "state_dir", "camera", "video", "deadman_timeout_s", "lease_grace_s", "max_command_age_ms",
+     "state_rate_hz", "autonomy_release"}
+)  # fmt: skip
+
+
+def parse_arms(spec: str) -> dict[str, dict[str, Any]]:
+    """``left=so101:sim,right=so101:sim[:force]`` (the CLI's and the environment's form)
+    as the arms table: name=model:robot driver, and optionally :force driver."""
+    if spec.lstrip().startswith("{"):  # the table as JSON (TELEROBOT_ARMS='{"left": …}')
+        table: dict[str, dict[str, Any]] = json.loads(spec)
+        return table
+    arms: dict[str, dict[str, Any]] = {}
+    for part in filter(None, (p.strip() for p in spec.split(","))):
+        name, eq, rest = part.partition("=")
+        fields = rest.split(":")
+        if not eq or not name or not 1 <= len(fields) <= 3 or not all(fields):
+            raise ValueError(
+                f"arms: {part!r} is not name=model:robot[:force] (e.g. left=so101:sim)"
+            )
+        own: dict[str, Any] = {"robot_model": fields[0]}
+        if len(fields) > 1:
+            own["robot"] = fields[1]
+        if len(fields) > 2:
+            own["force"] = fields[2]
+        if name in arms:
+            raise ValueError(f"arms: {name!r} is named twice")
+        arms[name] = own
+    return arms
+
 
 _config_file: ContextVar[Path | None] = ContextVar("telerobot_config_file", default=None)
 
@@ -64,6 +103,18 @@ class ServerSettings(BaseSettings):
     # The tool's length along the flange's z axis, m; None: the model's (PUMA 0.1 m, the
     # SO-101 0: its tool frame is already between the jaws)
     tool_length: float | None = Field(None, ge=0.0, le=0.5)
+
+    # Where the arm's base stands in the workcell: x, y, z (m) and a turn about z (°).
+    # None: the simulated workcell's place for it (the first arm at the origin; a second
+    # across the table, facing it).
+    mount: tuple[float, float, float, float] | None = None
+    # Two arms or more (docs/arms.md): each by its name, with the settings it has of its
+    # own (robot, robot_model, force, home_pose, tool_length, mount, force_limit_n, a
+    # driver's port…); every other setting is the server's. TOML: a table per arm,
+    # [arms.left] robot_model = "so101"; the CLI: --arms left=so101:sim,right=so101:sim
+    # (name=model:robot driver[:force driver]). Empty: one arm, named "arm", with the
+    # settings' own robot.
+    arms: Annotated[dict[str, dict[str, Any]], NoDecode] = {}
 
     force: str = "sim"
     force_rate_hz: float = Field(1000.0, ge=1.0, le=10_000.0)
@@ -198,6 +249,65 @@ class ServerSettings(BaseSettings):
     # makes a delayed force-feedback loop harder to keep stable).
     block_stiffness_n_m: float = Field(5.0e4, ge=100.0, le=1.0e7)
     block_damping_n_s_m: float = Field(80.0, ge=0.0, le=1.0e4)
+
+    @field_validator("arms", mode="before")
+    @classmethod
+    def _arms_spec(cls, v: Any) -> Any:
+        return parse_arms(v) if isinstance(v, str) else v
+
+    @field_validator("arms")
+    @classmethod
+    def _arms_usable(cls, v: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        if len(v) == 1:
+            raise ValueError("arms: name two arms or more (one arm needs no arms table)")
+        if len(v) > MAX_ARMS:
+            raise ValueError(f"arms: at most {MAX_ARMS} arms, not {len(v)}")
+        for name, own in v.items():
+            if not ARM_NAME.fullmatch(name):
+                raise ValueError(
+                    f"arms: {name!r} is not an arm name (letters, digits, _ and -, 1–32)"
+                )
+            bad = sorted(set(own) & NOT_PER_ARM)
+            if bad:
+                raise ValueError(f"arms.{name}: {', '.join(bad)} is the server's, not an arm's")
+        return v
+
+    @model_validator(mode="after")
+    def _arms_valid(self) -> ServerSettings:
+        """Each arm's settings are whole (its model and drivers known) at start."""
+        if self.arms:
+            self.arm_settings()
+        return self
+
+    @property
+    def arm_names(self) -> list[str]:
+        """The arms' names, in order (the wire's arm index is 1 + the position)."""
+        return list(self.arms) or [SINGLE_ARM]
+
+    def arm_settings(self) -> list[tuple[str, ServerSettings]]:
+        """Each arm's name and settings: the server's with the arm's own over them
+        (validated as a whole: an arm's unknown driver or model is refused by name)."""
+        if not self.arms:
+            return [(SINGLE_ARM, self)]
+        base = self.model_dump()
+        base["arms"] = {}
+        out = []
+        for name, own in self.arms.items():
+            merged = {**base, **own}
+            model = str(merged["robot_model"])
+            if (
+                "home_pose" not in own
+                and model in MODELS
+                and merged["home_pose"] not in load_model(model).named_poses
+            ):
+                # The server's home pose is another model's (qn of a PUMA for an SO-101):
+                # the arm's model's own home then.
+                merged["home_pose"] = None
+            try:
+                out.append((name, type(self).model_validate(merged)))
+            except ValueError as exc:
+                raise ValueError(f"arms.{name}: {exc}") from None
+        return out
 
     @field_validator("fiducials")
     @classmethod

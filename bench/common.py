@@ -157,12 +157,14 @@ def busy_core(on: bool) -> Iterator[None]:
 
 
 def wait_until_ready(base: str, timeout: float = 30.0) -> None:
-    """Wait until the server at ``base`` says its robot is READY (the simulated arm
+    """Wait until the server at ``base`` says every arm is READY (the simulated arm
     initialises to its home pose first)."""
     import httpx
 
     deadline = time.monotonic() + timeout
-    while (status := httpx.get(base + "api/v1/robot/state").json()["status"]) != "READY":
+    while any(
+        (status := arm["status"]) != "READY" for arm in httpx.get(base + "api/v1/robot/arms").json()
+    ):
         if time.monotonic() > deadline:
             raise RuntimeError(f"the robot never became READY (still {status})")
         time.sleep(0.05)

@@ -121,7 +121,7 @@ async def test_a_command_that_ages_past_the_limit_waiting_for_the_driver_is_drop
     a = ds.join("alice", TOKEN, synced_clock=True)
     await ds.take_lease(a.id)
     before = len(robot.sent)
-    async with ds._lock:  # another command's move in flight
+    async with ds.arms[0].lock:  # another command's move in flight
         pending = asyncio.create_task(
             ds.cartesian_increment(
                 a.id, np.array([1e-4, 0, 0]), np.zeros(3), client_time=clock.now() - 0.24
@@ -590,7 +590,7 @@ async def test_a_refused_increment_forgives_what_was_owed(clock: ManualClock) ->
     # later increment, backing away included: a refusal drops it.
     ds, robot, a = await in_control(clock)
     ds.master_energy(a.id, 10.0, 0.0)
-    port = ds.client(a.id).port
+    port = ds.client(a.id).ports["arm"]
     assert port is not None
     await ds.cartesian_increment(a.id, np.array([-0.001, 0, 0]), np.zeros(3))  # the stream
     port.owed = np.array([0.008, 0.0, 0.0])  # 8 mm toward the contact, held back before

@@ -39,7 +39,7 @@ async def started_with_a_sensor() -> tuple[DecisionServer, ThreadedForceSource]:
     thread, and no transport at all."""
     ds, _ = await make(ManualClock())
     sensor = ThreadedForceSource()
-    ds.force = sensor
+    ds.arms[0].force = sensor
     ds.start()
     return ds, sensor
 

@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Header, Security
+from fastapi import Depends, Header, Query, Security
 from fastapi.requests import HTTPConnection
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from telerobot.drivers.base import ForceSensor, Robot
 from telerobot.drivers.sim.workcell import Workcell
 from telerobot.server.control.decision import Client, DecisionServer, NotAllowed
+from telerobot.server.devices import ArmDevices
 from telerobot.server.media.media_server import MediaServerSupervisor
 from telerobot.server.media.supervisor import MediaSupervisor, MediaUnavailable
 from telerobot.server.realtime.hub import RealtimeHub
@@ -43,6 +44,20 @@ def _settings(s: ServicesDep) -> Settings:
 
 def _robot(s: ServicesDep) -> Robot:
     return s.robot
+
+
+def _arm(
+    s: ServicesDep,
+    arm: Annotated[
+        str | None,
+        Query(
+            max_length=32,
+            description="which arm (GET /robot/arms lists them); needed on a server with"
+            " two arms or more, where a call without one is refused with their names",
+        ),
+    ] = None,
+) -> ArmDevices:
+    return s.arms[s.decision.arm(arm).index - 1]
 
 
 def _workcell(s: ServicesDep) -> Workcell:
@@ -101,6 +116,9 @@ def _media_server(s: ServicesDep) -> MediaServerSupervisor | None:
 
 SettingsDep = Annotated[Settings, Depends(_settings)]
 RobotDep = Annotated[Robot, Depends(_robot)]
+# The arm a call names with ``?arm=`` (the only one if it names none; refused if the
+# server has more): docs/arms.md.
+ArmDep = Annotated[ArmDevices, Depends(_arm)]
 WorkcellDep = Annotated[Workcell, Depends(_workcell)]
 DecisionDep = Annotated[DecisionServer, Depends(_decision)]
 ForceDep = Annotated[ForceSensor, Depends(_force)]

@@ -7,18 +7,20 @@ import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Body, Response
+from fastapi import APIRouter, Body, Query, Response
 from pydantic import BaseModel, Field
 
 from telerobot.drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
-from telerobot.server.api.deps import ClientDep, DecisionDep, RobotDep, SettingsDep
+from telerobot.server.api.deps import ArmDep, ClientDep, DecisionDep, ServicesDep
 from telerobot.server.api.requests import StrictRequest
 from telerobot.server.control.decision import StillMoving
+from telerobot.server.settings import SINGLE_ARM
 
 router = APIRouter(prefix="/robot", tags=["robot"])
 
 
 class RobotState(BaseModel):
+    arm: str  # its name ("arm" on a one-arm server; GET /robot/arms)
     driver: str
     status: RobotStatus
     message: str
@@ -29,6 +31,18 @@ class RobotState(BaseModel):
     target_joints: list[float]  # last commanded target, radians
     joint_offsets: list[float]  # model angle = controller angle + offset, radians
     frame: WorkingFrame
+
+
+class ArmInfo(BaseModel):
+    name: str  # what ``?arm=`` takes
+    index: int  # on the wire (CART_INC's arm; 1 for the first)
+    model: str  # its model's settings name: puma560, so101
+    driver: str
+    dof: int
+    status: RobotStatus
+    # Where its base stands in the workcell (4×4): each arm's commands, state and
+    # workspace are in its own base frame; this places them in one scene.
+    mount: list[list[float]]
 
 
 class ModelJoint(BaseModel):
@@ -98,10 +112,11 @@ class JointOffsets(StrictRequest):
     offsets: list[float] = Field(description="radians: model angle = controller angle + offset")
 
 
-def robot_state(robot: Robot, frame: WorkingFrame) -> RobotState:
+def robot_state(robot: Robot, frame: WorkingFrame, arm: str = SINGLE_ARM) -> RobotState:
     q = robot.joints
     pose = robot.pose
     return RobotState(
+        arm=arm,
         driver=robot.name,
         status=robot.status,
         message=robot.status_message,
@@ -115,23 +130,42 @@ def robot_state(robot: Robot, frame: WorkingFrame) -> RobotState:
     )
 
 
+@router.get("/arms")
+async def arms(services: ServicesDep) -> list[ArmInfo]:
+    """The arms this server drives, in order (one, named "arm", unless the settings
+    name more: docs/arms.md)."""
+    return [
+        ArmInfo(
+            name=a.name,
+            index=i + 1,
+            model=a.settings.robot_model,
+            driver=a.robot.name,
+            dof=a.settings.model.dof,
+            status=a.robot.status,
+            mount=a.mount.tolist(),
+        )
+        for i, a in enumerate(services.arms)
+    ]
+
+
 @router.get("/state")
-async def state(robot: RobotDep, decision: DecisionDep) -> RobotState:
-    return robot_state(robot, decision.frame)
+async def state(arm: ArmDep, decision: DecisionDep) -> RobotState:
+    return robot_state(arm.robot, decision.frame, arm.name)
 
 
 @router.get("/diagnostics")
-async def diagnostics(robot: RobotDep) -> dict[str, Any]:
+async def diagnostics(arm: ArmDep) -> dict[str, Any]:
     """The driver's view of the hardware: for the SO-101 each servo's position, speed,
     load, voltage, temperature, error bits and missed reads, the bus's read rate and
     how long goals wait for it (``goal_to_bus_ms``); only ``driver`` for the simulation."""
-    return {"driver": robot.name, **robot.diagnostics()}
+    return {"driver": arm.robot.name, **arm.robot.diagnostics()}
 
 
 @router.get("/model")
-async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
-    """The connected arm's model: the page computes its kinematics and draws it from
-    this; ``/robot/model.urdf`` is the same arm as URDF."""
+async def model(arm: ArmDep) -> RobotModel:
+    """The arm's model: the page computes its kinematics and draws it from this;
+    ``/robot/model.urdf`` is the same arm as URDF."""
+    robot, settings = arm.robot, arm.settings
     description = settings.model
     chain = description.chain()
     return RobotModel(
@@ -154,15 +188,15 @@ async def model(robot: RobotDep, settings: SettingsDep) -> RobotModel:
     response_class=Response,
     responses={200: {"content": {"application/xml": {}}, "description": "the arm as URDF"}},
 )
-async def model_urdf(settings: SettingsDep) -> Response:
-    """The connected arm as URDF (primitives only), for URDF tools (RViz, Foxglove,
+async def model_urdf(arm: ArmDep) -> Response:
+    """The arm as URDF (primitives only), for URDF tools (RViz, Foxglove,
     urdf-loader). The tool set on the server is not in it: it is ``/robot/model``'s."""
-    return Response(settings.model.urdf, media_type="application/xml")
+    return Response(arm.settings.model.urdf, media_type="application/xml")
 
 
 @router.post("/initialize")
 async def initialize(
-    robot: RobotDep,
+    arm: ArmDep,
     decision: DecisionDep,
     client: ClientDep,
     body: Annotated[InitializeRequest | None, Body()] = None,
@@ -174,12 +208,12 @@ async def initialize(
     client.busy += 1
     try:
         await decision.initialize(
-            client.id, None if joints is None else np.array(joints, dtype=float)
+            client.id, None if joints is None else np.array(joints, dtype=float), arm=arm.name
         )
     finally:
         client.busy -= 1
         decision.seen(client.id)
-    return robot_state(robot, decision.frame)
+    return robot_state(arm.robot, decision.frame, arm.name)
 
 
 def _need(value: list[float] | None, what: str) -> np.ndarray:
@@ -190,25 +224,29 @@ def _need(value: list[float] | None, what: str) -> np.ndarray:
 
 @router.post("/move")
 async def move(
-    body: MoveRequest, robot: RobotDep, decision: DecisionDep, client: ClientDep
+    body: MoveRequest, arm: ArmDep, decision: DecisionDep, client: ClientDep
 ) -> MoveResult:
-    """A scripted move, absolute or incremental, in joint or Cartesian space. With
-    ``wait`` it returns when the motion has ended (or fails); otherwise at once."""
+    """A scripted move of the arm (``?arm=``), absolute or incremental, in joint or
+    Cartesian space (its own base frame). With ``wait`` it returns when the motion
+    has ended (or fails); otherwise at once."""
+    robot, name = arm.robot, arm.name
     if body.space == "joint" and body.mode == "absolute":
-        applied = await decision.move_joints(client.id, _need(body.joints, "joints"))
+        applied = await decision.move_joints(client.id, _need(body.joints, "joints"), arm=name)
     elif body.space == "joint":
         applied = await decision.joint_increment(
-            client.id, _need(body.joints, "joints (increments)")
+            client.id, _need(body.joints, "joints (increments)"), arm=name
         )
     elif body.mode == "absolute":
         rotation = (
             robot.pose.rotation if body.rotation is None else np.array(body.rotation, dtype=float)
         )
-        applied = await decision.move_pose(client.id, _need(body.position, "position"), rotation)
+        applied = await decision.move_pose(
+            client.id, _need(body.position, "position"), rotation, arm=name
+        )
     else:
         dX = np.zeros(3) if body.position is None else np.array(body.position, dtype=float)
         rv = np.zeros(3) if body.rotvec is None else np.array(body.rotvec, dtype=float)
-        applied = await decision.cartesian_increment(client.id, dX, rv, frame=body.frame)
+        applied = await decision.cartesian_increment(client.id, dX, rv, frame=body.frame, arm=name)
     if body.wait:
         client.busy += 1
         try:
@@ -226,22 +264,32 @@ async def move(
     return MoveResult(
         limited=applied.limited,
         target_joints=applied.target.tolist(),
-        state=robot_state(robot, decision.frame),
+        state=robot_state(robot, decision.frame, name),
     )
 
 
 @router.post("/stop")
-async def stop(robot: RobotDep, decision: DecisionDep, client: ClientDep) -> RobotState:
-    """Stop the current motion (not latched; the e-stop is /safety/estop)."""
-    await robot.stop()
-    return robot_state(robot, decision.frame)
+async def stop(
+    services: ServicesDep,
+    decision: DecisionDep,
+    client: ClientDep,
+    arm: Annotated[
+        str | None, Query(max_length=32, description="which arm; none: every arm stops")
+    ] = None,
+) -> list[RobotState]:
+    """Stop the current motion of the arm named, or of every arm (not latched; the
+    e-stop is /safety/estop). One state for each arm stopped."""
+    chosen = services.arms if arm is None else [services.arms[decision.arm(arm).index - 1]]
+    for a in chosen:
+        await a.robot.stop()
+    return [robot_state(a.robot, decision.frame, a.name) for a in chosen]
 
 
 @router.put("/joint-offsets")
 async def set_joint_offsets(
-    body: JointOffsets, robot: RobotDep, decision: DecisionDep, client: ClientDep
+    body: JointOffsets, arm: ArmDep, decision: DecisionDep, client: ClientDep
 ) -> RobotState:
     if decision.lease_holder != client.id:
         raise InvalidCommand("take the control lease before changing joint corrections")
-    robot.joint_offsets = np.array(body.offsets, dtype=float)
-    return robot_state(robot, decision.frame)
+    arm.robot.joint_offsets = np.array(body.offsets, dtype=float)
+    return robot_state(arm.robot, decision.frame, arm.name)

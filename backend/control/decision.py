@@ -22,7 +22,7 @@ import functools
 import logging
 import math
 import secrets
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Concatenate, ParamSpec, TypeVar
@@ -45,6 +45,7 @@ from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
 from telerobot.protocol.names import client_name
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, ReleaseTo
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.slave_port import SlavePort
@@ -133,7 +134,8 @@ class Client:
     resume_key: str | None = field(default=None, repr=False)
     generation: int = 0
     # A master arm's side of the two-port passivity, made by its first ENERGY message.
-    port: SlavePort | None = field(default=None, repr=False)
+    # Keyed by the arm it drives (a master per arm: two leaders, two haptic masters).
+    ports: dict[str, SlavePort] = field(default_factory=dict, repr=False)
     address: str = ""  # the host it joined from (a script's: who may take its idle lease again)
     # A task's client: the operator it runs for. That operator supervises it, and its
     # heartbeats keep it present while the task holds the lease in its place.
@@ -154,6 +156,7 @@ class Applied:
     limited: bool  # the speed limit scaled it down
     target: FloatArray
     scale: float = 1.0  # the share of the increment applied (below 1 when limited)
+    arm: str = "arm"  # which arm (its name)
 
 
 @dataclass(frozen=True)
@@ -166,6 +169,8 @@ class SafetyState:
     # The dead-man stopped the holder's arm; the lease is kept for lease_grace_s.
     halted: bool = False
     lease_note: str = ""  # why control last changed hands (or was lost)
+    # The arms stopped by their own force limit (force_limited: any of them is).
+    force_limited_arms: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -243,14 +248,24 @@ class DecisionServer:
         limits: SafetyLimits | None = None,
         force: ForceSensor | None = None,
         max_clients: int = MAX_CLIENTS,
+        arm_name: str = "arm",
+        more_arms: Sequence[ArmGuard] = (),
     ) -> None:
+        """``robot`` (with ``kinematics``, ``limits`` and ``force``) is the first arm,
+        named ``arm_name``; ``more_arms`` the others, in order (docs/arms.md). The first
+        arm's limits hold the shared ones: the dead-man, the lease's grace, the age of a
+        command."""
         if len(operator_token) < 16:
             raise ValueError("the operator token must have at least 16 characters")
-        self.robot = robot
-        self.kinematics = kinematics
-        self._dof = len(kinematics.qlim)  # the model's joint count
         self.clock = clock
         self.limits = limits or SafetyLimits()
+        first = ArmGuard(arm_name, 1, robot, kinematics, self.limits, force)
+        self.arms: list[ArmGuard] = [first, *more_arms]
+        for i, guard in enumerate(self.arms):
+            guard.index = i + 1
+        self._by_name = {guard.name: guard for guard in self.arms}
+        if len(self._by_name) != len(self.arms):
+            raise ValueError("two arms have the same name")
         self.events = DecisionEvents()
         self._token = operator_token
         self._clients: dict[str, Client] = {}
@@ -264,18 +279,11 @@ class DecisionServer:
         self.stale_dropped = 0  # commands dropped as older than max_command_age_s
         self.deadman_halts = 0  # arms stopped by the dead-man with the lease kept
         self.resumed_sessions = 0  # sessions continued on a new connection
-        self._force_limited = False
-        self._force_base = np.zeros(3)  # last contact force, base frame
-        self._contact_at: float | None = None  # when a contact force was last felt
-        self._contact_sensor = (0.0, 0.0, 0.0)  # and that force, sensor frame
-        self._lock = asyncio.Lock()  # one command at a time reaches the driver
         self._last_tick: float | None = None
         self._deferred = False  # the last tick left its verdict to this one
         self._last_sweep = clock.now()
-        self.force = force
         self.max_clients = max_clients
         self._watchdog: asyncio.Task[None] | None = None
-        self._unsubscribe: Callable[[], None] | None = None
         self.autonomy = Autonomy(clock.now())
         self.release_to = ReleaseTo.AUTONOMOUS  # where an operator's release leaves a policy
 
@@ -285,20 +293,23 @@ class DecisionServer:
         running event loop). Force samples arrive on the sensor's thread and are
         judged on the loop, in order, like every command."""
         loop = asyncio.get_running_loop()
-        if self.force is not None and self._unsubscribe is None:
+        for guard in self.arms:
+            if guard.force is None or guard.unsubscribe is not None:
+                continue
 
-            def from_sensor_thread(sample: ForceSample) -> None:
+            def from_sensor_thread(sample: ForceSample, guard: ArmGuard = guard) -> None:
                 with contextlib.suppress(RuntimeError):  # the loop is closing
-                    loop.call_soon_threadsafe(self.on_force, sample)
+                    loop.call_soon_threadsafe(self.on_force, sample, guard)
 
-            self._unsubscribe = self.force.subscribe(from_sensor_thread)
+            guard.unsubscribe = guard.force.subscribe(from_sensor_thread)
         if self._watchdog is None:
             self._watchdog = loop.create_task(self._run_watchdog(), name="dead-man")
 
     async def stop(self) -> None:
-        if self._unsubscribe is not None:
-            self._unsubscribe()
-            self._unsubscribe = None
+        for guard in self.arms:
+            if guard.unsubscribe is not None:
+                guard.unsubscribe()
+                guard.unsubscribe = None
         if self._watchdog is not None:
             self._watchdog.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -325,16 +336,69 @@ class DecisionServer:
             raise InvalidCommand(f"scale must be between 0.01 and 10, got {value!r}")
         self._scale = float(value)
 
+    # ------------------------------------------------------------ arms
+    @property
+    def robot(self) -> Robot:
+        """The first arm's driver (the only one on a one-arm server)."""
+        return self.arms[0].robot
+
+    @property
+    def kinematics(self) -> ArmKinematics:
+        return self.arms[0].kinematics
+
+    @property
+    def force(self) -> ForceSensor | None:
+        return self.arms[0].force
+
+    @property
+    def arm_names(self) -> list[str]:
+        return [guard.name for guard in self.arms]
+
+    def arm(self, name: str | None = None) -> ArmGuard:
+        """The arm called ``name``; None: the only arm, refused on a server with more
+        (a one-arm client must not drive whichever arm happens to be first)."""
+        if name is None or name == "":
+            if len(self.arms) == 1:
+                return self.arms[0]
+            raise InvalidCommand(
+                f"this server drives {len(self.arms)} arms ({', '.join(self.arm_names)}):"
+                " name the arm (REST: ?arm=NAME; the protocol: its index, from ARM)"
+            )
+        guard = self._by_name.get(name)
+        if guard is None:
+            raise InvalidCommand(
+                f"no arm named {name[:40]!r}: this server drives {', '.join(self.arm_names)}"
+            )
+        return guard
+
+    def arm_at(self, index: int) -> ArmGuard:
+        """The arm by its index on the wire: 1…N, or 0 for the only one."""
+        if index == 0:
+            return self.arm(None)
+        if not 1 <= index <= len(self.arms):
+            raise InvalidCommand(
+                f"no arm {index}: this server drives {len(self.arms)}"
+                f" ({', '.join(f'{g.index} {g.name}' for g in self.arms)})"
+            )
+        return self.arms[index - 1]
+
+    async def _stop_all(self) -> None:
+        """Every arm stopped (the e-stop, the dead-man, a lease lost or changing hands)."""
+        for guard in self.arms:
+            await guard.robot.stop()
+
     def state(self) -> SafetyState:
         holder = self._clients.get(self._lease) if self._lease else None
+        limited = tuple(guard.name for guard in self.arms if guard.force_limited)
         return SafetyState(
             self._estop,
             self._estop_reason,
-            self._force_limited,
+            bool(limited),
             self._lease,
             holder.name if holder else None,
             halted=self._halted,
             lease_note=self._lease_note,
+            force_limited_arms=limited,
         )
 
     # ------------------------------------------------------------ clients
@@ -493,7 +557,7 @@ class DecisionServer:
                     " explicitly (force) if you must"
                 )
             log.warning("%s takes control from %s", client.name, holder.name)
-            await self.robot.stop()
+            await self._stop_all()
             self._lease_note = (
                 f"taken again by {client.name!r} from {client.address} (the same script, "
                 "run again while its earlier run's lease was idle)"
@@ -573,7 +637,7 @@ class DecisionServer:
         """The lease back to the policy, the arm stopped where it is: it drives on from
         there (``AUTONOMOUS``) or waits for a resume (``PAUSED``)."""
         policy = self._clients[self.autonomy.policy_id or ""]
-        await self.robot.stop()
+        await self._stop_all()
         self._lease, self._halted = policy.id, False
         policy.last_command_at = None  # its first increment is allowed 0.1 s of speed
         policy.last_seen = self.clock.now()
@@ -589,7 +653,7 @@ class DecisionServer:
         if self.autonomy.mode is Mode.CORRECTING:
             await self._hand_to_policy(Mode.PAUSED, f"paused by {client.name!r}", client.name)
             return
-        await self.robot.stop()
+        await self._stop_all()
         self._set_mode(Mode.PAUSED, f"paused by {client.name!r}", operator=client.name)
 
     @reported("autonomy", action="resume")
@@ -631,7 +695,7 @@ class DecisionServer:
         self._lease = None
         self._halted = False
         self._lease_note = why
-        await self.robot.stop()
+        await self._stop_all()
         self._changed_lease()
 
     def _changed_lease(self) -> None:
@@ -705,7 +769,7 @@ class DecisionServer:
                     silent * 1000,
                     grace,
                 )
-                await self.robot.stop()
+                await self._stop_all()
                 self.events.safety_changed.emit(self.state())
 
     # ------------------------------------------------------------ safety
@@ -716,7 +780,7 @@ class DecisionServer:
         """Anyone may stop the arm; it stays stopped until an operator resets it."""
         who = self._clients[client_id].name if client_id in self._clients else "server"
         self._estop, self._estop_reason = True, f"{reason} ({who})"
-        await self.robot.stop()
+        await self._stop_all()
         self.events.safety_changed.emit(self.state())
         if self.autonomy.mode is Mode.AUTONOMOUS:
             self._set_mode(Mode.PAUSED, f"e-stop: {self._estop_reason}")
@@ -732,7 +796,9 @@ class DecisionServer:
         self._estop, self._estop_reason = False, ""
         self.events.safety_changed.emit(self.state())
 
-    def master_energy(self, client_id: str, e_in: float, e_out: float) -> tuple[float, float]:
+    def master_energy(
+        self, client_id: str, e_in: float, e_out: float, *, arm: str | None = None
+    ) -> tuple[float, float]:
         """A master arm's books (``ENERGY``: what its operator put into the link and
         got back, J, cumulative); answers the arm's (``PORT_ENERGY``: what the arm's
         surroundings gave back into the link, and what the arm put into them). From
@@ -743,43 +809,53 @@ class DecisionServer:
             raise NotAllowed("only an operator's master arm sends its energy")
         if not (math.isfinite(e_in) and math.isfinite(e_out) and e_in >= 0 and e_out >= 0):
             raise InvalidCommand("energies must be finite numbers ≥ 0 (J)")
-        if client.port is None:
-            client.port = SlavePort()
-        client.port.master_energy(e_in, e_out)
-        return client.port.given, client.port.out
+        guard = self.arm(arm)
+        port = client.ports.get(guard.name)
+        if port is None:
+            port = client.ports[guard.name] = SlavePort()
+        port.master_energy(e_in, e_out)
+        return port.given, port.out
 
-    def on_force(self, sample: ForceSample) -> None:
-        """Force limit: a contact force above the limit stops motion; only commands that
-        back away from the contact are taken until it falls below the release level.
-        Any contact (above ``contact_force_n``) is remembered: approaching it again is
-        slowed to ``contact_speed_m_s`` for ``contact_memory_s``."""
+    def on_force(self, sample: ForceSample, guard: ArmGuard | None = None) -> None:
+        """Force limit (per arm: ``guard``, the first if None): a contact force above the
+        arm's limit stops that arm; only commands that back it away from the contact are
+        taken until the force falls below the release level. Any contact (above
+        ``contact_force_n``) is remembered: approaching it again is slowed to
+        ``contact_speed_m_s`` for ``contact_memory_s``."""
+        guard = guard or self.arms[0]
+        lim = guard.limits
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
         holder = self._clients.get(self._lease) if self._lease is not None else None
-        if holder is not None and holder.port is not None:
+        port = holder.ports.get(guard.name) if holder is not None and holder.ports else None
+        if port is not None:
             # Its books are kept on the measured tool (one FK a sample, for a master only).
-            pose = self.robot.pose
-            holder.port.add_sample(pose.rotation @ np.array([fx, fy, fz]), pose.position)
-        if magnitude > self.limits.contact_force_n:
+            pose = guard.robot.pose
+            port.add_sample(pose.rotation @ np.array([fx, fy, fz]), pose.position)
+        if magnitude > lim.contact_force_n:
             # Kept in the sensor frame: rotated only when a command asks (100 Hz, not 1 kHz).
-            self._contact_sensor = (fx, fy, fz)
-            self._contact_at = self.clock.now()
-        if magnitude > self.limits.force_limit_n:
-            self._force_base = self.robot.pose.rotation @ np.array([fx, fy, fz])
-            if not self._force_limited:
-                self._force_limited = True
+            guard.contact_sensor = (fx, fy, fz)
+            guard.contact_at = self.clock.now()
+        if magnitude > lim.force_limit_n:
+            guard.force_base = guard.robot.pose.rotation @ np.array([fx, fy, fz])
+            if not guard.force_limited:
+                guard.force_limited = True
                 log.warning(
-                    "force limit: %.1f N > %.1f N, stopping", magnitude, self.limits.force_limit_n
+                    "%s",
+                    guard.said(
+                        f"force limit: {magnitude:.1f} N > {lim.force_limit_n:.1f} N, stopping",
+                        len(self.arms),
+                    ),
                 )
-                asyncio.get_running_loop().create_task(self.robot.stop())
+                asyncio.get_running_loop().create_task(guard.robot.stop())
                 self.events.safety_changed.emit(self.state())
                 if self.autonomy.mode is Mode.AUTONOMOUS:
-                    self._set_mode(Mode.PAUSED, f"force limit: {magnitude:.1f} N")
-        elif (
-            self._force_limited
-            and magnitude < self.limits.force_limit_n * self.limits.force_release_ratio
-        ):
-            self._force_limited = False
+                    self._set_mode(
+                        Mode.PAUSED,
+                        guard.said(f"force limit: {magnitude:.1f} N", len(self.arms)),
+                    )
+        elif guard.force_limited and magnitude < lim.force_limit_n * lim.force_release_ratio:
+            guard.force_limited = False
             self.events.safety_changed.emit(self.state())
 
     def _report(
@@ -825,17 +901,23 @@ class DecisionServer:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         return client
 
+    @staticmethod
     def _approaches_last_contact(
-        self, T0: FloatArray, dX: FloatArray, rv: FloatArray, frame: WorkingFrame, now: float
+        guard: ArmGuard,
+        T0: FloatArray,
+        dX: FloatArray,
+        rv: FloatArray,
+        frame: WorkingFrame,
+        now: float,
     ) -> bool:
         """Whether the increment (``dX``, ``rv`` in ``frame`` from ``T0``) heads back into
         a surface the tool pressed on (above ``contact_force_n``) within the last
         ``contact_memory_s``: the contact force pushes the tool away from the surface,
         so moving against it approaches. With no recent contact nothing is computed."""
-        if self._contact_at is None or now - self._contact_at >= self.limits.contact_memory_s:
+        if guard.contact_at is None or now - guard.contact_at >= guard.limits.contact_memory_s:
             return False
-        moved = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
-        contact = self.robot.pose.rotation @ np.array(self._contact_sensor)
+        moved = guard.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
+        contact = guard.robot.pose.rotation @ np.array(guard.contact_sensor)
         return float(moved @ contact) < 0.0
 
     def _check_age(self, client: Client, client_time: float | None, now: float) -> None:
@@ -902,16 +984,19 @@ class DecisionServer:
         frame: WorkingFrame | None = None,
         seq: int = 0,
         client_time: float | None = None,
+        arm: str | None = None,
     ) -> Applied:
-        """ΔX (m) and ΔM as a rotation vector (rad), in ``frame`` (default: the working frame)."""
+        """ΔX (m) and ΔM as a rotation vector (rad), in ``frame`` (default: the working
+        frame), for ``arm`` (None: the only arm)."""
         client = self._authorise(client_id)
+        guard = self.arm(arm)
         client.streaming = True
         self._check_fresh(client, client_time)
         dX = check_vector("position increment", dX, 3) * self._scale
         rv = check_vector("rotation increment", rotvec, 3) * self._scale
         with np.errstate(over="ignore"):  # 1e300 is refused below, not a warning
             step, angle = float(np.linalg.norm(dX)), float(np.linalg.norm(rv))
-        lim = self.limits
+        lim = guard.limits
         if step > lim.max_step_m or angle > lim.max_step_rad:
             raise LimitExceeded(
                 f"increment of {step * 1000:.1f} mm / {math.degrees(angle):.1f}° (after scale "
@@ -923,31 +1008,34 @@ class DecisionServer:
         frame = frame or self.frame
         # A master arm's port (it sends ENERGY): what the arm still owes its motion
         # comes with this increment, and the part into a contact keeps to its energy.
-        port = client.port if frame is WorkingFrame.BASE else None
+        port = client.ports.get(guard.name) if frame is WorkingFrame.BASE else None
         wanted = dX
         if port is not None:
             port.settle()
             wanted = dX = dX + port.owed_for(now)
             step = float(np.linalg.norm(dX))
         try:
-            seed = self.robot.target_joints
-            T0 = self.kinematics.fk(seed).copy()
+            seed = guard.robot.target_joints
+            T0 = guard.kinematics.fk(seed).copy()
             speed = lim.max_speed_m_s
-            if self._approaches_last_contact(T0, dX, rv, frame, now):
+            if self._approaches_last_contact(guard, T0, dX, rv, frame, now):
                 speed = min(speed, lim.contact_speed_m_s)
             factor = min(1.0, speed * dt / step if step else 1.0)
             factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
             dX, rv = dX * factor, rv * factor
             if port is not None:
                 dX = port.allow(dX, T0[:3, 3])
-            T = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
-            if self._force_limited and float((T[:3, 3] - T0[:3, 3]) @ self._force_base) <= 0.0:
+            T = guard.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
+            if guard.force_limited and float((T[:3, 3] - T0[:3, 3]) @ guard.force_base) <= 0.0:
                 raise SafetyStop(
-                    "force limit: only moves that back away from the contact are allowed"
+                    guard.said(
+                        "force limit: only moves that back away from the contact are allowed",
+                        len(self.arms),
+                    )
                 )
-            self._check_workspace(T[:3, 3])
-            q = self.kinematics.ik(T, seed)
-            applied = await self._apply(client, q, seed, seq, client_time, factor)
+            self._check_workspace(guard, T[:3, 3])
+            q = guard.kinematics.ik(T, seed)
+            applied = await self._apply(client, guard, q, seed, seq, client_time, factor)
         except TelerobotError:
             if port is not None:  # refused (force limit, workspace…): nothing more is owed
                 port.forgive()
@@ -958,86 +1046,115 @@ class DecisionServer:
 
     @reported("joint_increment")
     async def joint_increment(
-        self, client_id: str, dq: FloatArray, *, seq: int = 0, client_time: float | None = None
+        self,
+        client_id: str,
+        dq: FloatArray,
+        *,
+        seq: int = 0,
+        client_time: float | None = None,
+        arm: str | None = None,
     ) -> Applied:
         client = self._authorise(client_id)
+        guard = self.arm(arm)
         client.streaming = True
         self._check_fresh(client, client_time)
-        dq = check_vector("joint increment", dq, self._dof)
-        lim = self.limits
+        dq = check_vector("joint increment", dq, guard.dof)
+        lim = guard.limits
         biggest = float(np.max(np.abs(dq)))
         if biggest > lim.max_joint_step_rad:
             raise LimitExceeded(
                 f"joint increment of {math.degrees(biggest):.1f}° exceeds the per-command limit of "
                 f"{math.degrees(lim.max_joint_step_rad):.1f}°"
             )
-        if self._force_limited:
-            raise SafetyStop("force limit: back away with a Cartesian move first")
+        self._check_force_limited(guard)
         now = self.clock.now()
         allowed = lim.max_joint_speed_rad_s * self._interval(client, now)
         factor = min(1.0, allowed / biggest) if biggest > 0 else 1.0
         dq = dq * factor
-        seed = self.robot.target_joints
+        seed = guard.robot.target_joints
         q = seed + dq
-        self.kinematics.check_joint_limits(q)
-        self._check_workspace(self.kinematics.fk(q)[:3, 3])
-        return await self._apply(client, q, seed, seq, client_time, factor)
+        guard.kinematics.check_joint_limits(q)
+        self._check_workspace(guard, guard.kinematics.fk(q)[:3, 3])
+        return await self._apply(client, guard, q, seed, seq, client_time, factor)
 
     @reported("move_joints")
-    async def move_joints(self, client_id: str, q: FloatArray, *, seq: int = 0) -> Applied:
+    async def move_joints(
+        self, client_id: str, q: FloatArray, *, seq: int = 0, arm: str | None = None
+    ) -> Applied:
         """An absolute joint move (scripted): joint limits and the workspace apply; the
         arm's own velocity limits pace it."""
         client = self._authorise(client_id)
+        guard = self.arm(arm)
         client.streaming = False  # a bounded move, not jogging: a scripted lease may idle
-        q = check_vector("joints", q, self._dof)
-        if self._force_limited:
-            raise SafetyStop("force limit: back away with a Cartesian move first")
-        self.kinematics.check_joint_limits(q)
-        self._check_workspace(self.kinematics.fk(q)[:3, 3])
-        return await self._apply(client, q, None, seq, None, 1.0)
+        q = check_vector("joints", q, guard.dof)
+        self._check_force_limited(guard)
+        guard.kinematics.check_joint_limits(q)
+        self._check_workspace(guard, guard.kinematics.fk(q)[:3, 3])
+        return await self._apply(client, guard, q, None, seq, None, 1.0)
 
     @reported("move_pose")
     async def move_pose(
-        self, client_id: str, position: FloatArray, rotation: FloatArray, *, seq: int = 0
+        self,
+        client_id: str,
+        position: FloatArray,
+        rotation: FloatArray,
+        *,
+        seq: int = 0,
+        arm: str | None = None,
     ) -> Applied:
         client = self._authorise(client_id)
+        guard = self.arm(arm)
         client.streaming = False
         p = check_vector("position", position, 3)
         R = check_rotation("orientation", rotation)
-        if self._force_limited:
-            raise SafetyStop("force limit: back away with a Cartesian move first")
-        self._check_workspace(p)
+        self._check_force_limited(guard)
+        self._check_workspace(guard, p)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, p
-        q = self.kinematics.ik(T, self.robot.target_joints)
-        return await self._apply(client, q, None, seq, None, 1.0)
+        q = guard.kinematics.ik(T, guard.robot.target_joints)
+        return await self._apply(client, guard, q, None, seq, None, 1.0)
 
     @reported("initialize")
-    async def initialize(self, client_id: str, q: FloatArray | None = None) -> None:
+    async def initialize(
+        self, client_id: str, q: FloatArray | None = None, *, arm: str | None = None
+    ) -> None:
         """Connect if needed and initialise (to ``q`` or the home pose); needs the lease."""
         self._authorise(client_id)
+        guard = self.arm(arm)
         if q is not None:
-            q = check_vector("joints", q, self._dof)
-            self.kinematics.check_joint_limits(q)
-            self._check_workspace(self.kinematics.fk(q)[:3, 3])
-        await self.robot.connect()
-        await self.robot.initialize(q)
+            q = check_vector("joints", q, guard.dof)
+            guard.kinematics.check_joint_limits(q)
+            self._check_workspace(guard, guard.kinematics.fk(q)[:3, 3])
+        await guard.robot.connect()
+        await guard.robot.initialize(q)
 
-    def _joint_name(self, i: int) -> str:
-        name = self.kinematics.joint_names[i]
+    def _check_force_limited(self, guard: ArmGuard) -> None:
+        if guard.force_limited:
+            raise SafetyStop(
+                guard.said("force limit: back away with a Cartesian move first", len(self.arms))
+            )
+
+    @staticmethod
+    def _joint_name(guard: ArmGuard, i: int) -> str:
+        name = guard.kinematics.joint_names[i]
         return f"joint {i + 1}" if name == f"joint{i + 1}" else f"joint {i + 1} ({name})"
 
-    def _check_workspace(self, p: FloatArray) -> None:
-        if not self.limits.in_workspace(p):
-            lo, hi = self.limits.workspace_min, self.limits.workspace_max
+    def _check_workspace(self, guard: ArmGuard, p: FloatArray) -> None:
+        lim = guard.limits
+        if not lim.in_workspace(p):
+            lo, hi = lim.workspace_min, lim.workspace_max
             box = ", ".join(f"{a} {lo[i]:.2f}…{hi[i]:.2f}" for i, a in enumerate("xyz"))
             raise LimitExceeded(
-                f"target {np.round(p, 3).tolist()} m is outside the workspace ({box} m)"
+                guard.said(
+                    f"target {np.round(p, 3).tolist()} m is outside the workspace ({box} m)",
+                    len(self.arms),
+                )
             )
 
     async def _apply(
         self,
         client: Client,
+        guard: ArmGuard,
         q: FloatArray,
         seed: FloatArray | None,
         seq: int,
@@ -1047,21 +1164,25 @@ class DecisionServer:
         if seed is not None:
             jump = [abs(a - b) for a, b in zip(q.tolist(), seed.tolist(), strict=True)]
             worst = max(range(len(jump)), key=jump.__getitem__)
-            if jump[worst] > self.limits.max_joint_step_rad:
+            if jump[worst] > guard.limits.max_joint_step_rad:
                 raise LimitExceeded(
-                    f"too close to a singularity: {self._joint_name(worst)} would turn "
+                    f"too close to a singularity: {self._joint_name(guard, worst)} would turn "
                     f"{math.degrees(jump[worst]):.1f}° for this small move"
                 )
-        async with self._lock:
-            if self.robot.status not in (RobotStatus.READY, RobotStatus.MOVING):
-                raise NotReady(f"robot is {self.robot.status}: initialise it first")
+        robot = guard.robot
+        async with guard.lock:
+            if robot.status not in (RobotStatus.READY, RobotStatus.MOVING):
+                raise NotReady(
+                    guard.said(f"robot is {robot.status}: initialise it first", len(self.arms))
+                    + (f" ({robot.status_message})" if robot.status is RobotStatus.ERROR else "")
+                )
             # Again as it goes to the driver: the IK and a wait for the lock (another
             # command's move in flight) came after the first check. bench.wan saw one
             # command taken 250.2 ms old.
             self._check_age(client, client_time, self.clock.now())
-            target = await self.robot.move_joints(q, relative=False)
+            target = await robot.move_joints(q, relative=False)
             now = self.clock.now()
         client.last_command_at = now
-        applied = Applied(client.id, seq, client_time, now, scale < 1.0, target, scale)
+        applied = Applied(client.id, seq, client_time, now, scale < 1.0, target, scale, guard.name)
         self.events.applied.emit(applied)
         return applied

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import logging
 from collections import deque
@@ -28,6 +29,7 @@ from dataclasses import dataclass, field
 from telerobot.drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
 from telerobot.drivers.clock import Clock
 from telerobot.protocol import messages as m
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import AutonomyState, Mode
 from telerobot.server.control.decision import DecisionServer, SafetyState
 from telerobot.server.realtime.ratelimit import PeerLimits
@@ -48,8 +50,12 @@ RESUME_BURST = 10
 @dataclass
 class Outbox:
     replies: deque[bytes] = field(default_factory=lambda: deque(maxlen=1000))
-    forces: deque[ForceSample] = field(default_factory=lambda: deque(maxlen=FORCE_BUFFER))
+    # (arm index, sample): every arm's in one buffer, sent as a FORCE per arm
+    forces: deque[tuple[int, ForceSample]] = field(
+        default_factory=lambda: deque(maxlen=FORCE_BUFFER)
+    )
     state: bytes | None = None
+    states: list[bytes] | None = None  # every arm's, on a server with more than one
     forces_lost: int = 0
 
 
@@ -98,13 +104,18 @@ class Connection:
         self.outbox.state = data
         self._ready.set()
 
-    def add_force(self, sample: ForceSample) -> None:
+    def set_states(self, states: list[bytes]) -> None:
+        """Every arm's STATE (the newest of each replaces the one not yet sent)."""
+        self.outbox.states = states
+        self._ready.set()
+
+    def add_force(self, sample: ForceSample, arm: int = 1) -> None:
         if self.direct_forces:
             return
         box = self.outbox
         if len(box.forces) == box.forces.maxlen:
             box.forces_lost += 1
-        box.forces.append(sample)
+        box.forces.append((arm, sample))
         if self.every_force_sample or len(box.forces) >= FORCE_BATCH:
             self._ready.set()
         elif self._flush_timer is None:
@@ -127,16 +138,23 @@ class Connection:
                     or len(box.forces) >= FORCE_BATCH
                     or self._flush_timer is None
                 ):
-                    batch = [(s.seq, s.time, s.values) for s in box.forces]
+                    by_arm: dict[int, list[tuple[int, float, tuple[float, ...]]]] = {}
+                    for arm, s in box.forces:
+                        by_arm.setdefault(arm, []).append((s.seq, s.time, s.values))
                     box.forces.clear()
                     if self._flush_timer is not None:
                         self._flush_timer.cancel()
                         self._flush_timer = None
-                    for i in range(0, len(batch), 500):
-                        await self._send(m.encode_force(batch[i : i + 500]))
+                    for arm, batch in by_arm.items():
+                        for i in range(0, len(batch), 500):
+                            await self._send(m.encode_force(batch[i : i + 500], arm))
                 if box.state is not None:
                     state, box.state = box.state, None
                     await self._send(state)
+                if box.states is not None:
+                    states, box.states = box.states, None
+                    for state in states:
+                        await self._send(state)
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # the socket went away: the receive loop will notice
@@ -181,13 +199,18 @@ class RealtimeHub:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         loop = asyncio.get_running_loop()
-        if self.force is not None:
+        for guard in self.decision.arms:
+            if guard.force is not None:
 
-            def from_sensor_thread(sample: ForceSample) -> None:
-                loop.call_soon_threadsafe(self._on_force, sample)
+                def from_sensor_thread(sample: ForceSample, arm: int = guard.index) -> None:
+                    loop.call_soon_threadsafe(self._on_force, sample, arm)
 
-            self._unsubscribe.append(self.force.subscribe(from_sensor_thread))
-        self._unsubscribe.append(self.robot.events.status_changed.subscribe(self._on_status))
+                self._unsubscribe.append(guard.force.subscribe(from_sensor_thread))
+            self._unsubscribe.append(
+                guard.robot.events.status_changed.subscribe(
+                    functools.partial(self._on_status, guard=guard)
+                )
+            )
         self._unsubscribe.append(self.decision.events.safety_changed.subscribe(self._on_safety))
         self._unsubscribe.append(self.decision.events.autonomy_changed.subscribe(self._on_autonomy))
         self._tasks.append(asyncio.create_task(self._broadcast_state(), name="state-broadcast"))
@@ -212,7 +235,7 @@ class RealtimeHub:
     def add(self, conn: Connection) -> None:
         self.connections[conn.client_id] = conn
         conn.start()
-        conn.set_state(self.encode_state(conn))
+        self._send_states(conn)
 
     def supersede(self, client_id: str) -> None:
         """The client resumed on a new connection: its old one gets nothing more, its
@@ -245,22 +268,27 @@ class RealtimeHub:
         await conn.close()
 
     # ------------------------------------------------------------ streams
-    def _on_force(self, sample: ForceSample) -> None:
-        self._force_interarrival.tick(self.clock.now())
+    def _on_force(self, sample: ForceSample, arm: int = 1) -> None:
+        if arm == 1:  # the interarrival is the first sensor's (they run on one clock)
+            self._force_interarrival.tick(self.clock.now())
         for conn in self.connections.values():
-            conn.add_force(sample)
+            conn.add_force(sample, arm)
 
     def broadcast_event(self, kind: m.EventKind, text: str) -> None:
         data = m.encode(m.EVENT, kind, self.clock.now(), text=text)
         for conn in self.connections.values():
             conn.reply(data)
 
-    def _on_status(self, change: StatusChanged) -> None:
+    def _on_status(self, change: StatusChanged, guard: ArmGuard | None = None) -> None:
         # READY ↔ MOVING flips with every teleoperation command; STATE carries it at
         # 50 Hz. Events are for what a person should read: errors, (re)initialisation.
+        # With two arms or more, each says which arm it is about ("right: ERROR: …").
         routine = {change.old, change.new} <= {RobotStatus.READY, RobotStatus.MOVING}
         if not routine:
-            self.broadcast_event(m.EventKind.STATUS, f"{change.new.value}: {change.message}")
+            text = f"{change.new.value}: {change.message}"
+            if guard is not None:
+                text = guard.said(text, len(self.decision.arms))
+            self.broadcast_event(m.EventKind.STATUS, text)
 
     def _on_autonomy(self, state: AutonomyState) -> None:
         self.broadcast_event(m.EventKind.AUTONOMY, json.dumps(state.as_dict()))
@@ -283,17 +311,35 @@ class RealtimeHub:
         if state.estop:
             parts.append(f"E-STOP: {state.estop_reason}")
         if state.force_limited:
-            parts.append("FORCE LIMIT: back away from the contact")
+            which = (
+                f" ({', '.join(state.force_limited_arms)})" if len(self.decision.arms) > 1 else ""
+            )
+            parts.append(f"FORCE LIMIT{which}: back away from the contact")
         self.broadcast_event(m.EventKind.SAFETY, "; ".join(parts))
 
     def encode_state(self, conn: Connection) -> bytes:
         return self.encode_state_for(conn.client_id, conn.operator)
 
-    def encode_state_for(self, client_id: str | None, operator: bool) -> bytes:
-        """STATE as ``client_id`` sees it (None: an observer with no connection here,
-        e.g. one watching through the media server)."""
-        q = self.robot.joints
-        pose = self.robot.pose
+    def encode_states_for(self, client_id: str | None, operator: bool) -> list[bytes]:
+        """Every arm's STATE as ``client_id`` sees it."""
+        return [self.encode_state_for(client_id, operator, guard) for guard in self.decision.arms]
+
+    def _send_states(self, conn: Connection) -> None:
+        if len(self.decision.arms) == 1:
+            conn.set_state(self.encode_state(conn))
+        else:
+            conn.set_states(self.encode_states_for(conn.client_id, conn.operator))
+
+    def encode_state_for(
+        self, client_id: str | None, operator: bool, guard: ArmGuard | None = None
+    ) -> bytes:
+        """STATE of ``guard``'s arm (the first if None) as ``client_id`` sees it (None:
+        an observer with no connection here, e.g. one watching through the media
+        server)."""
+        guard = guard or self.decision.arms[0]
+        robot = guard.robot
+        q = robot.joints
+        pose = robot.pose
         safety = self.decision.state()
         flags = 0
         if client_id is not None and safety.lease_holder == client_id:
@@ -302,7 +348,7 @@ class RealtimeHub:
             flags |= m.StateFlags.SOMEONE_HAS_CONTROL
         if safety.estop:
             flags |= m.StateFlags.ESTOP
-        if safety.force_limited:
+        if guard.force_limited:
             flags |= m.StateFlags.FORCE_LIMITED
         if safety.halted:
             flags |= m.StateFlags.HALTED
@@ -312,10 +358,11 @@ class RealtimeHub:
             m.STATE,
             self._state_seq,
             self.clock.now(),
-            STATUS_INDEX[self.robot.status],
+            STATUS_INDEX[robot.status],
             flags,
             *pose.position.tolist(),
             *pose.rotation.ravel().tolist(),
+            guard.index,
             joints=q.tolist(),
         )
 
@@ -325,4 +372,4 @@ class RealtimeHub:
             self._state_interarrival.tick(self.clock.now())
             self._state_seq += 1
             for conn in list(self.connections.values()):
-                conn.set_state(self.encode_state(conn))
+                self._send_states(conn)

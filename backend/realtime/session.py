@@ -143,16 +143,22 @@ class Session:
         return self.client.generation != self.generation
 
     @property
-    def welcome(self) -> bytes:
+    def welcome(self) -> list[bytes]:
+        """WELCOME, then an ARM for each arm (first on the wire, in this order)."""
         key = self.client.resume_key
-        return m.encode(
-            m.WELCOME,
-            m.PROTOCOL_VERSION,
-            int(self.conn.operator),
-            self.hub.clock.now(),
-            self.hub.robot.model.dof,
-            text=self.client.id if key is None else f"{self.client.id} {key}",
-        )
+        arms = self.decision.arms
+        return [
+            m.encode(
+                m.WELCOME,
+                m.PROTOCOL_VERSION,
+                int(self.conn.operator),
+                self.hub.clock.now(),
+                arms[0].dof,
+                len(arms),
+                text=self.client.id if key is None else f"{self.client.id} {key}",
+            ),
+            *(m.encode(m.ARM, guard.index, guard.dof, text=guard.name) for guard in arms),
+        ]
 
     def attach(self) -> None:
         """From now on the client gets states, forces and events (a policy's
@@ -213,12 +219,17 @@ async def handle(
                 frame=frame,
                 seq=seq,
                 client_time=float(f["client_time"]),
+                arm=decision.arm_at(int(f["arm"])).name,
             )
             acknowledge(conn, hub, applied, received)
         elif msg is m.JOINT_INC:
             dq = np.array(f["joints"], dtype=float)  # the DecisionServer checks the count
             applied = await decision.joint_increment(
-                client_id, dq, seq=seq, client_time=float(f["client_time"])
+                client_id,
+                dq,
+                seq=seq,
+                client_time=float(f["client_time"]),
+                arm=decision.arm_at(int(f["arm"])).name,
             )
             acknowledge(conn, hub, applied, received)
         elif msg is m.HEARTBEAT:
@@ -245,7 +256,12 @@ async def handle(
                 raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
             conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
         elif msg is m.ENERGY:
-            given, out = decision.master_energy(client_id, float(f["e_in"]), float(f["e_out"]))
+            given, out = decision.master_energy(
+                client_id,
+                float(f["e_in"]),
+                float(f["e_out"]),
+                arm=decision.arm_at(int(f["arm"])).name,
+            )
             conn.reply(m.encode(m.PORT_ENERGY, seq, given, out))
         elif msg is m.NAME:
             decision.rename(client_id, text)

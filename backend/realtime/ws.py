@@ -102,7 +102,8 @@ async def realtime(websocket: WebSocket, services: ServicesDep) -> None:
         # whoever else is there (a NAT, this machine), and a tokenless flood from the
         # same address must not make the operator's commands wait and go stale.
         bucket = TokenBucket()
-    conn.reply(session.welcome)
+    for message in session.welcome:  # WELCOME, then an ARM for each arm
+        conn.reply(message)
     session.attach()
     garbage = MalformedRun()
     try:

@@ -16,7 +16,7 @@ origin at the top-left corner of the image.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -159,6 +159,51 @@ class Workcell:
     obstacles: tuple[Box, ...] = field(default=())
     scale: float = 1.0  # of the PUMA-sized scene: what is drawn is sized with it
     pedestal_m: float = 0.6  # the arm's pedestal, from the floor to its base (0: none)
+    # Each arm's base in this scene's frame (4×4), in the server's arm order; the first
+    # arm's base is the scene's frame, so one arm needs none.
+    mounts: tuple[FloatArray, ...] = field(default=())
+
+    def seen_from(self, base: FloatArray) -> Workcell:
+        """This scene in the frame of an arm based at ``base`` (4×4 in this scene's
+        frame): what that arm's force sensor feels is computed in its own frame. Boxes
+        stay axis-aligned: exact for a base turned by a multiple of 90°, their bounding
+        box otherwise."""
+        R, t = base[:3, :3], base[:3, 3]
+        if np.allclose(R, np.eye(3)) and np.allclose(t, 0.0):
+            return self
+
+        def moved(box: Box) -> Box:
+            return replace(box, centre=R.T @ (box.centre - t), size=np.abs(R.T) @ box.size)
+
+        table, block = moved(self.table), moved(self.block)
+        others = tuple(moved(b) for b in self.obstacles if b not in (self.table, self.block))
+        return replace(self, table=table, block=block, obstacles=(table, block, *others))
+
+
+def mount_transform(mount: tuple[float, float, float, float] | None) -> FloatArray:
+    """x, y, z (m) and a turn about z (°) as a 4×4 transform; None: the identity."""
+    T = np.eye(4)
+    if mount is None:
+        return T
+    x, y, z, yaw = mount
+    c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def facing_mounts(
+    scale: float, offset: tuple[float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """Two arms facing each other across the table (as LeRobot's bimanual setups and
+    ALOHA stand): the first at the origin, looking along +x, the second at the far side
+    of the table, turned 180°. The table's centre is where one arm's scene has it."""
+    return mount_transform(None), mount_transform((2 * bimanual_centre(scale, offset), 0, 0, 180))
+
+
+def bimanual_centre(scale: float, offset: tuple[float, float, float]) -> float:
+    """x of the two-arm table's centre: where the one-arm scene has its table."""
+    return 0.70 * scale + offset[0]
 
     def contact(self, point: FloatArray) -> tuple[Box | None, float, FloatArray]:
         """The obstacle ``point`` is deepest in, its penetration depth and outward normal."""
@@ -219,11 +264,17 @@ def default_workcell(
     scale: float = 1.0,
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
     pedestal_m: float = 0.6,
+    mounts: tuple[FloatArray, ...] = (),
 ) -> Workcell:
     """The scene sized for the PUMA 560; another arm gets it ``scale``d about the base
     and moved by ``offset`` (its model's ``scene``): the same table, block, fiducials and
     camera view, in reach of a smaller arm. ``camera_distance`` and ``baseline`` are the
-    PUMA-sized ones, scaled with the rest."""
+    PUMA-sized ones, scaled with the rest.
+
+    With two ``mounts`` or more it is the two-arm workcell: the table between the arms
+    (``facing_mounts``), the block in its middle where both reach it, and the cameras
+    looking across from the first arm's right (its ``-y``), so the first arm is on the
+    left of the picture."""
     if not 0.05 <= scale <= 5.0:
         raise InvalidCommand(f"the scene's scale must be 0.05–5, not {scale}")
     shift = np.asarray(offset, dtype=float)
@@ -241,9 +292,12 @@ def default_workcell(
         stiffness=2.0e4,
         damping=50.0,
     )
+    two = len(mounts) > 1
+    if two:  # the table between the arms, centred on the line between their bases
+        table = replace(table, centre=at(0.70, 0.0, table_top - 0.025))
     block = Box(
         "block",
-        centre=at(0.65, -0.30, table_top + 0.05),
+        centre=at(0.70, 0.0, table_top + 0.05) if two else at(0.65, -0.30, table_top + 0.05),
         size=scale * np.array([0.10, 0.10, 0.10]),
         colour=(200, 60, 50),
         stiffness=block_stiffness,
@@ -263,11 +317,12 @@ def default_workcell(
          [0.98, 0.35, table_top]]
     )  # fmt: skip
     fiducials = scale * np.vstack([cube, corners]) + shift
-    centre = at(0.65, -0.15, 0.55)
+    centre = at(0.70, 0.0, 0.55) if two else at(0.65, -0.15, 0.55)
     rig = stereo_rig(
         centre,
         distance=scale * camera_distance,
         baseline=scale * baseline,
+        azimuth_deg=-70.0 if two else 20.0,
         width=width,
         height=height,
     )
@@ -280,4 +335,5 @@ def default_workcell(
         obstacles=(table, block),
         scale=scale,
         pedestal_m=pedestal_m,
+        mounts=tuple(mounts),
     )

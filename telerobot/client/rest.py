@@ -7,6 +7,10 @@
         print(robot.state()["joints"])
     # leaving the block releases the lease; an error stops the arm first
 
+On a server with two arms or more, every move and state call names its arm:
+``robot.arm("left").move_cartesian(...)`` (``robot.arms()`` lists them); one that
+does not is refused with their names.
+
 The lease is kept alive by a background heartbeat (every second: a scripted lease is
 kept 5 s between moves), so a script may pause between moves; every command still
 goes through the server's DecisionServer (lease, limits, dead-man, e-stop). While a
@@ -102,9 +106,17 @@ class Telerobot:
         return cls(url or local_url(), token, **options)
 
     # ------------------------------------------------------------ requests
-    def _call(self, method: str, path: str, body: dict[str, Any] | None = None) -> Any:
+    def _call(
+        self,
+        method: str,
+        path: str,
+        body: dict[str, Any] | None = None,
+        *,
+        arm: str | None = None,
+    ) -> Any:
         headers = {"X-Client-Id": self.client_id} if self.client_id else {}
-        r = self._http.request(method, path, json=body, headers=headers)
+        params = {"arm": arm} if arm is not None else None
+        r = self._http.request(method, path, json=body, headers=headers, params=params)
         if r.status_code >= 400:
             try:
                 detail = str(r.json().get("detail", r.text))
@@ -160,17 +172,31 @@ class Telerobot:
         self.close()
 
     # ------------------------------------------------------------ motion
+    def arms(self) -> list[dict[str, Any]]:
+        """The arms the server drives (name, index, model, dof, status, mount)."""
+        result: list[dict[str, Any]] = self._call("GET", "robot/arms")
+        return result
+
+    def arm(self, name: str) -> Arm:
+        """The arm called ``name``, driven under this client's lease."""
+        return Arm(self, name)
+
     def move_joints(
-        self, joints: Sequence[float], *, relative: bool = False, wait: bool = True
+        self,
+        joints: Sequence[float],
+        *,
+        relative: bool = False,
+        wait: bool = True,
+        arm: str | None = None,
     ) -> dict[str, Any]:
-        """Six joint angles (radians), absolute or relative; returns when done."""
+        """One angle per joint (radians), absolute or relative; returns when done."""
         body = {
             "space": "joint",
             "mode": "incremental" if relative else "absolute",
             "joints": [float(j) for j in joints],
             "wait": wait,
         }
-        result: dict[str, Any] = self._call("POST", "robot/move", body)
+        result: dict[str, Any] = self._call("POST", "robot/move", body, arm=arm)
         return result
 
     def move_cartesian(
@@ -181,6 +207,7 @@ class Telerobot:
         relative: bool = False,
         frame: str | None = None,
         wait: bool = True,
+        arm: str | None = None,
     ) -> dict[str, Any]:
         """The tool to ``position`` (metres, robot base; keeps its orientation unless
         ``rotation``, a 3×3 matrix, is given), or by it if ``relative``."""
@@ -194,11 +221,12 @@ class Telerobot:
             body["rotation"] = [[float(v) for v in row] for row in rotation]
         if frame is not None:
             body["frame"] = frame
-        result: dict[str, Any] = self._call("POST", "robot/move", body)
+        result: dict[str, Any] = self._call("POST", "robot/move", body, arm=arm)
         return result
 
-    def stop(self) -> dict[str, Any]:
-        result: dict[str, Any] = self._call("POST", "robot/stop")
+    def stop(self, *, arm: str | None = None) -> list[dict[str, Any]]:
+        """Stop the arm named, or every arm: each stopped arm's state."""
+        result: list[dict[str, Any]] = self._call("POST", "robot/stop", arm=arm)
         return result
 
     def estop(self) -> dict[str, Any]:
@@ -231,8 +259,8 @@ class Telerobot:
         return view
 
     # ------------------------------------------------------------ reading
-    def state(self) -> dict[str, Any]:
-        result: dict[str, Any] = self._call("GET", "robot/state")
+    def state(self, *, arm: str | None = None) -> dict[str, Any]:
+        result: dict[str, Any] = self._call("GET", "robot/state", arm=arm)
         return result
 
     def force(self) -> dict[str, Any]:
@@ -242,3 +270,36 @@ class Telerobot:
     def safety(self) -> dict[str, Any]:
         result: dict[str, Any] = self._call("GET", "safety")
         return result
+
+
+class Arm:
+    """One arm of a server that drives more (``Telerobot.arm``): the same calls, each
+    naming this arm; the lease, its heartbeat and the e-stop are the client's."""
+
+    def __init__(self, robot: Telerobot, name: str) -> None:
+        self.robot = robot
+        self.name = name
+
+    def move_joints(
+        self, joints: Sequence[float], *, relative: bool = False, wait: bool = True
+    ) -> dict[str, Any]:
+        return self.robot.move_joints(joints, relative=relative, wait=wait, arm=self.name)
+
+    def move_cartesian(
+        self,
+        position: Sequence[float],
+        rotation: Sequence[Sequence[float]] | None = None,
+        *,
+        relative: bool = False,
+        frame: str | None = None,
+        wait: bool = True,
+    ) -> dict[str, Any]:
+        return self.robot.move_cartesian(
+            position, rotation, relative=relative, frame=frame, wait=wait, arm=self.name
+        )
+
+    def state(self) -> dict[str, Any]:
+        return self.robot.state(arm=self.name)
+
+    def stop(self) -> dict[str, Any]:
+        return self.robot.stop(arm=self.name)[0]

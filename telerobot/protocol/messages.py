@@ -18,7 +18,9 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Final
 
-PROTOCOL_VERSION: Final = 2  # 2: joints as a tail, their count in WELCOME
+# 2: joints as a tail, their count in WELCOME. 3: a server drives one arm or more (each
+# command names its arm, STATE and FORCE say whose, ARM lists them after WELCOME).
+PROTOCOL_VERSION: Final = 3
 
 # Stream framing (the priority channel, any TCP transport): every message preceded by
 # its length, u16 little-endian. Here with the messages, so a client (the master-arm
@@ -97,6 +99,9 @@ class Message:
     # (f64 each to the end: as many as WELCOME's ``joints`` says the arm has)
     tail: str = ""
     doc: str = ""
+    # Values of the last fields when a sender leaves them out (``encode``): the arm
+    # index, added in version 3 at the end, is 0 (the only arm) unless named.
+    defaults: tuple[object, ...] = ()
 
     @property
     def struct(self) -> struct.Struct:
@@ -120,17 +125,20 @@ HELLO = Message(
 CART_INC = Message(
     "CART_INC",
     0x02,
-    ("seq", "client_time", "frame", "dx", "dy", "dz", "rx", "ry", "rz"),
-    "IdB3d3d",
-    doc="ΔX (m) and ΔM as a rotation vector (rad) in the given frame",
+    ("seq", "client_time", "frame", "dx", "dy", "dz", "rx", "ry", "rz", "arm"),
+    "IdB3d3dB",
+    doc="ΔX (m) and ΔM as a rotation vector (rad) in the given frame, for the arm"
+    " (ARM's index; 0: the only arm, refused on a server with more)",
+    defaults=(0,),
 )
 JOINT_INC = Message(
     "JOINT_INC",
     0x03,
-    ("seq", "client_time"),
-    "Id",
+    ("seq", "client_time", "arm"),
+    "IdB",
     tail="joints",
-    doc="joint increments (rad), one per joint of the arm (WELCOME's joints)",
+    doc="joint increments (rad), one per joint of the arm (ARM's joints; arm as in CART_INC)",
+    defaults=(0,),
 )
 HEARTBEAT = Message(
     "HEARTBEAT",
@@ -167,21 +175,24 @@ NAME = Message(
 ENERGY = Message(
     "ENERGY",
     0x0B,
-    ("seq", "e_in", "e_out"),
-    "Idd",
+    ("seq", "e_in", "e_out", "arm"),
+    "IddB",
     doc="a master arm's side of the two-port passivity: the energy its operator has put"
     " into the link so far (e_in) and got back from it (e_out), J in the arm's units,"
     " since the connection opened; from the first, the arm keeps to it"
-    " (docs/protocol.md, Passivity); answered by PORT_ENERGY",
+    " (docs/protocol.md, Passivity); answered by PORT_ENERGY; arm as in CART_INC",
+    defaults=(0,),
 )
 
 WELCOME = Message(
     "WELCOME",
     0x81,
-    ("version", "role", "server_time", "joints"),
-    "HBdB",
+    ("version", "role", "server_time", "joints", "arms"),
+    "HBdBB",
     tail="text",
-    doc="role 1 = operator; joints: how many the arm has (JOINT_INC, STATE); text = client id",
+    doc="role 1 = operator; joints: how many the first arm has; arms: how many arms the"
+    " server drives (an ARM message for each follows at once); text = client id",
+    defaults=(1,),
 )
 STATE = Message(
     "STATE",
@@ -203,18 +214,23 @@ STATE = Message(
         "r20",
         "r21",
         "r22",
+        "arm",
     ),
-    "IdBB3d9d",
+    "IdBB3d9dB",
     tail="joints",
-    doc="robot state; status: index in RobotStatus order; flags: StateFlags; then the joints (rad)",
+    doc="one arm's state (every arm's, each tick); status: index in RobotStatus order;"
+    " flags: StateFlags (FORCE_LIMITED and HALTED for this arm); pose in the arm's own base"
+    " frame; arm: ARM's index; then the joints (rad)",
+    defaults=(1,),
 )
 FORCE = Message(
     "FORCE",
     0x83,
-    (),
-    "",
+    ("arm",),
+    "B",
     tail="samples",
-    doc="u16 count, then count × (u32 seq, f64 time, 6 × f64)",
+    doc="the force sensor of the arm (ARM's index): u16 count, then count × (u32 seq,"
+    " f64 time, 6 × f64)",
 )
 EVENT = Message(
     "EVENT",
@@ -257,9 +273,19 @@ PORT_ENERGY = Message(
     " cumulative; the master renders no more than e_in",
 )
 
+ARM = Message(
+    "ARM",
+    0x89,
+    ("index", "joints"),
+    "BB",
+    tail="text",
+    doc="one arm the server drives, right after WELCOME (one each, in order from index 1):"
+    " its joint count; text = its name (left, right…), which REST calls take",
+)
+
 MESSAGES: Final[tuple[Message, ...]] = (
     HELLO, CART_INC, JOINT_INC, HEARTBEAT, ESTOP, PING, LEASE, RESET, DATAGRAMS, NAME, ENERGY,
-    WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG, PORT_ENERGY,
+    WELCOME, STATE, FORCE, EVENT, ERROR, ACK, PONG, PORT_ENERGY, ARM,
 )  # fmt: skip
 BY_ID: Final = {m.type_id: m for m in MESSAGES}
 
@@ -291,6 +317,11 @@ MAX_JOINTS: Final = 16
 
 
 def encode(msg: Message, *values: object, text: str = "", joints: Sequence[float] = ()) -> bytes:
+    """``values`` in field order; the last ones may be left out where ``msg.defaults``
+    has them (a one-arm sender need not name its arm)."""
+    missing = len(msg.fields) - len(values)
+    if 0 < missing <= len(msg.defaults):
+        values = (*values, *msg.defaults[len(msg.defaults) - missing :])
     body = msg.struct.pack(msg.type_id, *values)
     if msg.tail == "text":
         return body + text.encode("utf-8")
@@ -299,24 +330,37 @@ def encode(msg: Message, *values: object, text: str = "", joints: Sequence[float
     return body
 
 
-def encode_force(samples: Sequence[tuple[int, float, tuple[float, ...]]]) -> bytes:
-    out = bytearray(struct.pack("<BH", FORCE.type_id, len(samples)))
+FORCE_HEAD: Final = struct.Struct("<BBH")  # type, arm, count
+
+
+def encode_force(samples: Sequence[tuple[int, float, tuple[float, ...]]], arm: int = 1) -> bytes:
+    out = bytearray(FORCE_HEAD.pack(FORCE.type_id, arm, len(samples)))
     for seq, t, values in samples:
         out += FORCE_SAMPLE.pack(seq & 0xFFFFFFFF, t, *values)
     return bytes(out)
 
 
-def decode_force(data: bytes) -> list[tuple[int, float, tuple[float, ...]]]:
-    if len(data) < 3 or data[0] != FORCE.type_id:
+def force_arm(data: bytes) -> int:
+    """The arm index of a FORCE message (its second byte)."""
+    if len(data) < FORCE_HEAD.size or data[0] != FORCE.type_id:
         raise MalformedMessage("not a FORCE message")
-    (count,) = struct.unpack_from("<H", data, 1)
-    if len(data) != 3 + count * FORCE_SAMPLE.size:
+    return data[1]
+
+
+def decode_force(data: bytes) -> list[tuple[int, float, tuple[float, ...]]]:
+    if len(data) < FORCE_HEAD.size or data[0] != FORCE.type_id:
+        raise MalformedMessage("not a FORCE message")
+    _, _, count = FORCE_HEAD.unpack_from(data)
+    head = FORCE_HEAD.size
+    if len(data) != head + count * FORCE_SAMPLE.size:
         raise MalformedMessage(
-            f"FORCE with {count} samples must be {3 + count * FORCE_SAMPLE.size} bytes"
+            f"FORCE with {count} samples must be {head + count * FORCE_SAMPLE.size} bytes"
         )
     return [
         (s[0], s[1], tuple(s[2:]))
-        for s in (FORCE_SAMPLE.unpack_from(data, 3 + i * FORCE_SAMPLE.size) for i in range(count))
+        for s in (
+            FORCE_SAMPLE.unpack_from(data, head + i * FORCE_SAMPLE.size) for i in range(count)
+        )
     ]
 
 
@@ -333,7 +377,7 @@ def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
         raise MalformedMessage(f"unknown message type 0x{data[0]:02x}", "unknown_type")
     if msg.tail == "samples":
         decode_force(data)
-        return msg, {}, ""
+        return msg, {"arm": data[1]}, ""
     size = msg.size
     extra = len(data) - size
     if extra < 0 or (
@@ -377,10 +421,10 @@ def markdown_table() -> str:
     for msg in MESSAGES:
         size = {
             "text": f"{msg.size} + text",
-            "samples": "3 + 60 × n",
+            "samples": "4 + 60 × n",
             "joints": f"{msg.size} + 8 × joints",
         }.get(msg.tail, str(msg.size))
-        fields = ", ".join(msg.fields) or "count: u16, samples"
+        fields = ", ".join(msg.fields) + (", count: u16, samples" if msg.tail == "samples" else "")
         layout = f"`<B{msg.fmt}`"
         rows.append(
             f"| `{msg.name}` | 0x{msg.type_id:02x} | {layout} | {size} | {fields} | {msg.doc} |"
