@@ -132,8 +132,8 @@ def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock
     [
         (b"", "empty"),
         (b"\x7f\x00\x00", "unknown message type 0x7f"),
-        (cart(5)[:-1], "CART_INC must be 62 bytes, got 61"),
-        (cart(5) + b"\x00", "CART_INC must be 62 bytes, got 63"),
+        (cart(5)[:-1], "CART_INC must be 63 bytes, got 62"),
+        (cart(5) + b"\x00", "CART_INC must be 63 bytes, got 64"),
         (cart(5, nan=True), "CART_INC.dx is nan"),
         (cart(5, frame=9), "unknown frame 9"),
         (m.encode(m.LEASE, 5, 7), "unknown lease action 7"),
@@ -141,7 +141,7 @@ def test_operator_takes_control_and_moves(client: TestClient, clock: ManualClock
         # The joints: as many as the arm has (6), finite, whole, at most MAX_JOINTS.
         (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.01] * 5), "must have 6 values"),
         (m.encode(m.JOINT_INC, 5, 1.0, joints=[0, 0, math.nan, 0, 0, 0]), "has NaN"),
-        (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.01] * 6)[:-1], "JOINT_INC must be 13 + 8"),
+        (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.01] * 6)[:-1], "JOINT_INC must be 14 + 8"),
         (m.encode(m.JOINT_INC, 5, 1.0, joints=[0.0] * 17), "(≤ 16)"),
     ],
 )

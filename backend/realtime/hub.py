@@ -199,13 +199,14 @@ class RealtimeHub:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         loop = asyncio.get_running_loop()
-        for guard in self.decision.arms:
-            if guard.force is not None:
+        for guard in self.decision.arms:  # the first arm's sensor is ``force``
+            sensor = self.force if guard.index == 1 else guard.force
+            if sensor is not None:
 
                 def from_sensor_thread(sample: ForceSample, arm: int = guard.index) -> None:
                     loop.call_soon_threadsafe(self._on_force, sample, arm)
 
-                self._unsubscribe.append(guard.force.subscribe(from_sensor_thread))
+                self._unsubscribe.append(sensor.subscribe(from_sensor_thread))
             self._unsubscribe.append(
                 guard.robot.events.status_changed.subscribe(
                     functools.partial(self._on_status, guard=guard)

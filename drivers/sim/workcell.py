@@ -179,6 +179,15 @@ class Workcell:
         others = tuple(moved(b) for b in self.obstacles if b not in (self.table, self.block))
         return replace(self, table=table, block=block, obstacles=(table, block, *others))
 
+    def contact(self, point: FloatArray) -> tuple[Box | None, float, FloatArray]:
+        """The obstacle ``point`` is deepest in, its penetration depth and outward normal."""
+        best: tuple[Box | None, float, FloatArray] = (None, 0.0, np.zeros(3))
+        for box in self.obstacles:
+            depth, normal = box.penetration(point)
+            if depth > best[1]:
+                best = (box, depth, normal)
+        return best
+
 
 def mount_transform(mount: tuple[float, float, float, float] | None) -> FloatArray:
     """x, y, z (m) and a turn about z (°) as a 4×4 transform; None: the identity."""
@@ -204,15 +213,6 @@ def facing_mounts(
 def bimanual_centre(scale: float, offset: tuple[float, float, float]) -> float:
     """x of the two-arm table's centre: where the one-arm scene has its table."""
     return 0.70 * scale + offset[0]
-
-    def contact(self, point: FloatArray) -> tuple[Box | None, float, FloatArray]:
-        """The obstacle ``point`` is deepest in, its penetration depth and outward normal."""
-        best: tuple[Box | None, float, FloatArray] = (None, 0.0, np.zeros(3))
-        for box in self.obstacles:
-            depth, normal = box.penetration(point)
-            if depth > best[1]:
-                best = (box, depth, normal)
-        return best
 
 
 def stereo_rig(

@@ -62,7 +62,7 @@ class FakeSocket {
   }
 }
 
-const welcome = (text: string) => encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0 , joints: 6 }, text);
+const welcome = (text: string) => encode(M.WELCOME, { version: M.PROTOCOL_VERSION, role: 1, server_time: 0, joints: 6, arms: 1 }, text);
 const KEY = "k".repeat(32);
 
 // Every test: a fake WebSocket and fake timers.

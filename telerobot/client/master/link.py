@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 
 ForceCallback = Callable[[ForceSample, float], None]  # sample, receive time (monotonic)
 DATAGRAM_KEEPALIVE_S = 0.5  # DATAGRAMS to the server this often (it waits 2 s)
+FIRST_SEQ_END = m.FORCE_HEAD.size + 4  # a FORCE's first sample's seq ends here
 DATAGRAM_FALLBACK_S = 2.0  # no force datagram this long after asking: stay on TCP
 
 
@@ -313,8 +314,8 @@ class PriorityLink:
                 continue
             except OSError:
                 continue  # (an ICMP error; or closed, and the loop ends)
-            if data[:1] == bytes((m.FORCE.type_id,)) and len(data) >= 7:
-                seq = int.from_bytes(data[3:7], "little")
+            if data[:1] == bytes((m.FORCE.type_id,)) and len(data) >= FIRST_SEQ_END:
+                seq = int.from_bytes(data[m.FORCE_HEAD.size : FIRST_SEQ_END], "little")
                 self.datagrams = "udp"
                 self.datagrams_received += 1
                 if self._last_datagram_seq is None or newer(seq, self._last_datagram_seq):
@@ -328,9 +329,9 @@ class PriorityLink:
         the server has gone back to TCP (our keep-alives stopped reaching it, or come
         from a port it does not know: a NAT's new mapping). Register again, at most
         once per ``DATAGRAM_FALLBACK_S``."""
-        if len(message) < 7 or self._last_datagram_seq is None:
+        if len(message) < FIRST_SEQ_END or self._last_datagram_seq is None:
             return
-        seq = int.from_bytes(message[3:7], "little")
+        seq = int.from_bytes(message[m.FORCE_HEAD.size : FIRST_SEQ_END], "little")
         now = time.monotonic()
         if (
             newer(seq, self._last_datagram_seq)

@@ -21,6 +21,27 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/robot/arms": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Arms
+         * @description The arms this server drives, in order (one, named "arm", unless the settings
+         *     name more: docs/arms.md).
+         */
+        get: operations["arms_api_v1_robot_arms_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/robot/state": {
         parameters: {
             query?: never;
@@ -69,8 +90,8 @@ export interface paths {
         };
         /**
          * Model
-         * @description The connected arm's model: the page computes its kinematics and draws it from
-         *     this; ``/robot/model.urdf`` is the same arm as URDF.
+         * @description The arm's model: the page computes its kinematics and draws it from this;
+         *     ``/robot/model.urdf`` is the same arm as URDF.
          */
         get: operations["model_api_v1_robot_model_get"];
         put?: never;
@@ -90,7 +111,7 @@ export interface paths {
         };
         /**
          * Model Urdf
-         * @description The connected arm as URDF (primitives only), for URDF tools (RViz, Foxglove,
+         * @description The arm as URDF (primitives only), for URDF tools (RViz, Foxglove,
          *     urdf-loader). The tool set on the server is not in it: it is ``/robot/model``'s.
          */
         get: operations["model_urdf_api_v1_robot_model_urdf_get"];
@@ -135,8 +156,9 @@ export interface paths {
         put?: never;
         /**
          * Move
-         * @description A scripted move, absolute or incremental, in joint or Cartesian space. With
-         *     ``wait`` it returns when the motion has ended (or fails); otherwise at once.
+         * @description A scripted move of the arm (``?arm=``), absolute or incremental, in joint or
+         *     Cartesian space (its own base frame). With ``wait`` it returns when the motion
+         *     has ended (or fails); otherwise at once.
          */
         post: operations["move_api_v1_robot_move_post"];
         delete?: never;
@@ -156,7 +178,8 @@ export interface paths {
         put?: never;
         /**
          * Stop
-         * @description Stop the current motion (not latched; the e-stop is /safety/estop).
+         * @description Stop the current motion of the arm named, or of every arm (not latched; the
+         *     e-stop is /safety/estop). One state for each arm stopped.
          */
         post: operations["stop_api_v1_robot_stop_post"];
         delete?: never;
@@ -1221,6 +1244,22 @@ export interface components {
              */
             peer_secret: string;
         };
+        /** ArmInfo */
+        ArmInfo: {
+            /** Name */
+            name: string;
+            /** Index */
+            index: number;
+            /** Model */
+            model: string;
+            /** Driver */
+            driver: string;
+            /** Dof */
+            dof: number;
+            status: components["schemas"]["RobotStatus"];
+            /** Mount */
+            mount: number[][];
+        };
         /** AutonomyView */
         AutonomyView: {
             /** @description off (no policy), autonomous, paused or correcting */
@@ -1960,6 +1999,8 @@ export interface components {
         };
         /** RobotState */
         RobotState: {
+            /** Arm */
+            arm: string;
             /** Driver */
             driver: string;
             status: components["schemas"]["RobotStatus"];
@@ -2483,9 +2524,32 @@ export interface operations {
             };
         };
     };
-    state_api_v1_robot_state_get: {
+    arms_api_v1_robot_arms_get: {
         parameters: {
             query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ArmInfo"][];
+                };
+            };
+        };
+    };
+    state_api_v1_robot_state_get: {
+        parameters: {
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -2501,11 +2565,23 @@ export interface operations {
                     "application/json": components["schemas"]["RobotState"];
                 };
             };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
         };
     };
     diagnostics_api_v1_robot_diagnostics_get: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -2523,11 +2599,23 @@ export interface operations {
                     };
                 };
             };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
         };
     };
     model_api_v1_robot_model_get: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -2543,11 +2631,23 @@ export interface operations {
                     "application/json": components["schemas"]["RobotModel"];
                 };
             };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
         };
     };
     model_urdf_api_v1_robot_model_urdf_get: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -2563,11 +2663,23 @@ export interface operations {
                     "application/xml": unknown;
                 };
             };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
         };
     };
     initialize_api_v1_robot_initialize_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: {
                 "x-client-id"?: string | null;
             };
@@ -2602,7 +2714,10 @@ export interface operations {
     };
     move_api_v1_robot_move_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: {
                 "x-client-id"?: string | null;
             };
@@ -2637,7 +2752,10 @@ export interface operations {
     };
     stop_api_v1_robot_stop_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm; none: every arm stops */
+                arm?: string | null;
+            };
             header?: {
                 "x-client-id"?: string | null;
             };
@@ -2652,7 +2770,7 @@ export interface operations {
                     [name: string]: unknown;
                 };
                 content: {
-                    "application/json": components["schemas"]["RobotState"];
+                    "application/json": components["schemas"]["RobotState"][];
                 };
             };
             /** @description Validation Error */
@@ -2668,7 +2786,10 @@ export interface operations {
     };
     set_joint_offsets_api_v1_robot_joint_offsets_put: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: {
                 "x-client-id"?: string | null;
             };

@@ -50,7 +50,7 @@ export function decode(data: ArrayBuffer): Message {
   if (data.byteLength === 0) throw new Error("empty message");
   const spec = BY_ID.get(view.getUint8(0));
   if (!spec) throw new Error(`unknown message type 0x${view.getUint8(0).toString(16)}`);
-  if (spec.tail === "samples") return { type: "FORCE", samples: decodeForce(data) };
+  if (spec.tail === "samples") return { type: "FORCE", arm: view.getUint8(1), samples: decodeForce(data) };
   if (data.byteLength < spec.size) throw new Error(`${spec.name} is too short`);
   // The layout table and the interfaces are generated from the same Python definitions:
   // the object built from the table is the interface of `spec.name`.
@@ -75,12 +75,14 @@ export function decode(data: ArrayBuffer): Message {
 export function decodeForce(data: ArrayBuffer): ForceSample[] {
   const view = new DataView(data);
   if (view.getUint8(0) !== FORCE.typeId) throw new Error("not a FORCE message");
-  if (data.byteLength < 3) throw new Error("FORCE has the wrong size");
-  const count = view.getUint16(1, true);
-  if (data.byteLength !== 3 + count * FORCE_SAMPLE_SIZE) throw new Error("FORCE has the wrong size");
+  // type (u8), arm (u8), count (u16), then the samples
+  const head = FORCE.size + 2;
+  if (data.byteLength < head) throw new Error("FORCE has the wrong size");
+  const count = view.getUint16(FORCE.size, true);
+  if (data.byteLength !== head + count * FORCE_SAMPLE_SIZE) throw new Error("FORCE has the wrong size");
   const out: ForceSample[] = [];
   for (let i = 0; i < count; i++) {
-    const o = 3 + i * FORCE_SAMPLE_SIZE;
+    const o = head + i * FORCE_SAMPLE_SIZE;
     const values = [];
     for (let k = 0; k < 6; k++) values.push(view.getFloat64(o + 12 + 8 * k, true));
     out.push({ seq: view.getUint32(o, true), time: view.getFloat64(o + 4, true), values });

@@ -273,7 +273,8 @@ export class RealtimeClient {
     this.send(encode(M.HEARTBEAT, { seq: this.nextSeq(), client_time: this.serverNow() }));
   }
 
-  cartesian(dX: number[], rotvec: number[], frame: number): number {
+  /** `arm`: the arm's index from its ARM message; 0 for the only arm of a one-arm server. */
+  cartesian(dX: number[], rotvec: number[], frame: number, arm = 0): number {
     const seq = this.nextSeq();
     // Not before the first clock sync (the first ~RTT after connecting): the server
     // could not tell how old the command is.
@@ -284,7 +285,7 @@ export class RealtimeClient {
       encode(M.CART_INC, {
         seq, client_time: t + this.clock.offset, frame,
         dx: dX[0] ?? 0, dy: dX[1] ?? 0, dz: dX[2] ?? 0,
-        rx: rotvec[0] ?? 0, ry: rotvec[1] ?? 0, rz: rotvec[2] ?? 0,
+        rx: rotvec[0] ?? 0, ry: rotvec[1] ?? 0, rz: rotvec[2] ?? 0, arm,
       }),
     );
     return seq;
