@@ -110,7 +110,11 @@ class Client:
     role: Role
     last_seen: float
     busy: int = 0  # requests in flight (a REST call waiting for its move counts as alive)
-    last_command_at: float | None = None
+    # When its last command reached each arm (by name): the speed limit allows an
+    # increment the time since the last one *to that arm*; two arms driven at 100 Hz
+    # each, interleaved, must not have the second arm's increments cut to the gap
+    # between the two (docs/arms.md).
+    last_command_at: dict[str, float] = field(default_factory=dict)
     # A client with no connection of its own (a REST script's lease) is forgotten after
     # this long without a request, unless it holds the lease: a script that crashes
     # without DELETE /lease must not fill the table for good. None: while connected.
@@ -525,7 +529,7 @@ class DecisionServer:
             # The link is back: the arm stays where the dead-man stopped it until a
             # fresh command moves it (a backlog's stale ones are refused: _check_fresh).
             self._halted = False
-            client.last_command_at = None
+            client.last_command_at.clear()
             log.info("dead-man: %s is back; the lease was kept", client.name)
             self.events.safety_changed.emit(self.state())
 
@@ -569,7 +573,7 @@ class DecisionServer:
         taken_from = self._clients.get(self._lease) if self._lease else None
         self._lease = client_id
         self._halted = False
-        client.last_command_at = None
+        client.last_command_at.clear()
         self._changed_lease()
         if client.policy:
             self.autonomy.start(client.id, client.name)
@@ -639,7 +643,7 @@ class DecisionServer:
         policy = self._clients[self.autonomy.policy_id or ""]
         await self._stop_all()
         self._lease, self._halted = policy.id, False
-        policy.last_command_at = None  # its first increment is allowed 0.1 s of speed
+        policy.last_command_at.clear()  # its first increment is allowed 0.1 s of speed
         policy.last_seen = self.clock.now()
         self._lease_note = cause
         self._changed_lease()
@@ -966,12 +970,14 @@ class DecisionServer:
                 f"the dead-man's {self.limits.deadman_timeout_s * 1000:.0f} ms); dropped"
             )
 
-    def _interval(self, client: Client, now: float) -> float:
+    @staticmethod
+    def _interval(client: Client, guard: ArmGuard, now: float) -> float:
         """Time the speed limit allows for this increment: since the client's last
-        command, within [1 ms, 100 ms] so a pause does not bank a big jump."""
-        if client.last_command_at is None:
+        command to this arm, within [1 ms, 100 ms] so a pause does not bank a big jump."""
+        last = client.last_command_at.get(guard.name)
+        if last is None:
             return 0.1
-        return min(max(now - client.last_command_at, 0.001), 0.1)
+        return min(max(now - last, 0.001), 0.1)
 
     # ------------------------------------------------------------ commands
     @reported("cartesian_increment")
@@ -1004,7 +1010,7 @@ class DecisionServer:
                 f"{lim.max_step_m * 1000:.0f} mm / {math.degrees(lim.max_step_rad):.1f}°"
             )
         now = self.clock.now()
-        dt = self._interval(client, now)
+        dt = self._interval(client, guard, now)
         frame = frame or self.frame
         # A master arm's port (it sends ENERGY): what the arm still owes its motion
         # comes with this increment, and the part into a contact keeps to its energy.
@@ -1068,7 +1074,7 @@ class DecisionServer:
             )
         self._check_force_limited(guard)
         now = self.clock.now()
-        allowed = lim.max_joint_speed_rad_s * self._interval(client, now)
+        allowed = lim.max_joint_speed_rad_s * self._interval(client, guard, now)
         factor = min(1.0, allowed / biggest) if biggest > 0 else 1.0
         dq = dq * factor
         seed = guard.robot.target_joints
@@ -1182,7 +1188,7 @@ class DecisionServer:
             self._check_age(client, client_time, self.clock.now())
             target = await robot.move_joints(q, relative=False)
             now = self.clock.now()
-        client.last_command_at = now
+        client.last_command_at[guard.name] = now
         applied = Applied(client.id, seq, client_time, now, scale < 1.0, target, scale, guard.name)
         self.events.applied.emit(applied)
         return applied
