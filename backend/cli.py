@@ -48,6 +48,7 @@ def _serve(args: argparse.Namespace) -> int:
             viewer_port=args.viewer_port,
             robot=args.robot,
             robot_model=args.model,
+            arms=args.arms,
             serial_port=args.port,
             serial_baudrate=args.baudrate,
             auto_initialize=False if args.no_init else None,
@@ -428,6 +429,12 @@ def main(argv: list[str] | None = None) -> int:
     serve.add_argument("--robot", choices=driver_names("robot"), help="robot driver (default sim)")
     serve.add_argument(
         "--model", choices=model_names(), help="the arm's description (default puma560)"
+    )
+    serve.add_argument(
+        "--arms",
+        metavar="NAME=MODEL:DRIVER,…",
+        help="two arms or more, e.g. left=so101:sim,right=so101:sim (docs/arms.md;"
+        " a TOML [arms.NAME] table gives each its own settings)",
     )
     serve.add_argument(
         "--port", help="serial port for --robot val: /dev/ttyS0, a pty, socket://host:port"

@@ -118,8 +118,14 @@ def build_robot(settings: Settings, clock: Clock | None = None) -> Robot:
 
 
 def describe_robot(settings: Settings) -> str:
-    """What the settings drive, for a person: "the simulation", "the val robot on …"."""
-    return load_driver("robot", settings.robot).describe(settings.model_dump())
+    """What the settings drive, for a person: "the simulation", "the val robot on …";
+    with two arms or more, each by name ("left: the simulation, right: …")."""
+    if not settings.arms:
+        return load_driver("robot", settings.robot).describe(settings.model_dump())
+    return ", ".join(
+        f"{name}: {load_driver('robot', own.robot).describe(own.model_dump())}"
+        for name, own in settings.arm_settings()
+    )
 
 
 def build_force_sensor(

@@ -431,9 +431,12 @@ def test_the_observer_feed_thins_the_forces_and_keeps_the_newest_within_its_boun
     from telerobot.server.media.observer_feed import MAX_BATCH, ObserverFeed
 
     class Hub:
-        def encode_state_for(self, client_id: str | None, operator: bool) -> bytes:
+        class decision:  # one arm  # noqa: N801
+            arms = (type("Arm", (), {"index": 1, "force": None}),)
+
+        def encode_states_for(self, client_id: str | None, operator: bool) -> list[bytes]:
             assert client_id is None and not operator  # an observer's view
-            return b"STATE"
+            return [b"STATE"]
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
         rx.bind(("127.0.0.1", 0))

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Request
+from fastapi import APIRouter, Header, Query, Request
 from pydantic import BaseModel, Field, field_validator
 
 from telerobot.drivers.base import StopCategory, WorkingFrame
 from telerobot.protocol.names import MAX_NAME, RULE, name_problem
 from telerobot.server.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
 from telerobot.server.api.requests import StrictRequest
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Mode
 from telerobot.server.control.decision import DecisionServer, NotAllowed
 from telerobot.server.control.limits import full_speed_stop_s, stopping
@@ -93,6 +94,8 @@ class SafetyView(BaseModel):
     estop: bool
     estop_reason: str
     force_limited: bool
+    force_limited_arms: list[str] = Field(description="the arms stopped by their force limit")
+    arm: str = Field(description="whose limits and stopping follow (?arm=; the first arm's)")
     controller: str | None  # name of the client in control
     halted: bool = Field(
         description="the dead-man stopped the arm; its controller keeps the lease for "
@@ -145,9 +148,9 @@ class ControlSettingsUpdate(BaseModel):
     frame: WorkingFrame | None = None
 
 
-def _stopping(decision: DecisionServer) -> list[StoppingView]:
-    spec = decision.robot.stop_spec
-    jacobian = decision.kinematics.jacobian(decision.robot.joints)
+def _stopping(guard: ArmGuard) -> list[StoppingView]:
+    spec = guard.robot.stop_spec
+    jacobian = guard.kinematics.jacobian(guard.robot.joints)
     return [
         StoppingView(
             speed_m_s=row.speed_m_s,
@@ -156,17 +159,21 @@ def _stopping(decision: DecisionServer) -> list[StoppingView]:
             after_silence_time_s=row.after_silence_time_s,
             after_silence_distance_m=row.after_silence_distance_m,
         )
-        for row in stopping(decision.limits, spec, jacobian)
+        for row in stopping(guard.limits, spec, jacobian)
     ]
 
 
-def _safety(decision: DecisionDep) -> SafetyView:
-    s, lim = decision.state(), decision.limits
-    spec = decision.robot.stop_spec
+def _safety(decision: DecisionServer, arm: str | None = None) -> SafetyView:
+    """The safety state (one for every arm) and the limits of the arm named."""
+    guard = decision.arm(arm) if arm else decision.arms[0]
+    s, lim = decision.state(), guard.limits
+    spec = guard.robot.stop_spec
     return SafetyView(
         estop=s.estop,
         estop_reason=s.estop_reason,
         force_limited=s.force_limited,
+        force_limited_arms=list(s.force_limited_arms),
+        arm=guard.name,
         controller=s.lease_holder_name,
         halted=s.halted,
         lease_note=s.lease_note,
@@ -190,7 +197,7 @@ def _safety(decision: DecisionDep) -> SafetyView:
         stop=spec.summary,
         stop_decel_rad_s2=spec.decel.tolist(),
         stop_reaction_s=spec.reaction_s,
-        stopping=_stopping(decision),
+        stopping=_stopping(guard),
         stopping_full_speed_s=full_speed_stop_s(spec),
     )
 
@@ -250,8 +257,14 @@ async def release_lease(client: ClientDep, decision: DecisionDep) -> SafetyView:
 
 
 @router.get("/safety")
-async def safety(decision: DecisionDep) -> SafetyView:
-    return _safety(decision)
+async def safety(
+    decision: DecisionDep,
+    arm: Annotated[
+        str | None,
+        Query(max_length=32, description="whose limits and stopping (default: the first arm)"),
+    ] = None,
+) -> SafetyView:
+    return _safety(decision, arm)
 
 
 @router.post("/safety/estop")

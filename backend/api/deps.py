@@ -68,8 +68,9 @@ def _decision(s: ServicesDep) -> DecisionServer:
     return s.decision
 
 
-def _force(s: ServicesDep) -> ForceSensor:
-    return s.force
+def _force(arm: ArmDevices = Depends(_arm)) -> ForceSensor:  # noqa: B008 (FastAPI's way)
+    """The force sensor of the arm ``?arm=`` names (the only one's if it names none)."""
+    return arm.force
 
 
 def _priority(s: ServicesDep) -> PriorityChannel:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import socket
 from collections import deque
@@ -48,7 +49,11 @@ class ObserverFeed:
         self.force_every = force_every
         # Filled by the sensor's thread (deque appends are atomic), emptied each tick;
         # bounded: a stalled loop keeps the newest.
-        self._samples: deque[ForceSample] = deque(maxlen=MAX_BATCH)
+        # Per arm (its index on the wire): every arm's STATE and FORCE go out, each
+        # naming its arm; the first arm's sensor is ``force``.
+        self._samples: dict[int, deque[ForceSample]] = {
+            g.index: deque(maxlen=MAX_BATCH) for g in hub.decision.arms
+        }
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
         self._task: asyncio.Task[None] | None = None
@@ -56,13 +61,18 @@ class ObserverFeed:
         self.sent = 0
         self.failed = 0
 
-    def _on_force(self, sample: ForceSample) -> None:
+    def _on_force(self, sample: ForceSample, arm: int = 1) -> None:
         if sample.seq % self.force_every == 0:
-            self._samples.append(sample)
+            self._samples[arm].append(sample)
 
     def start(self) -> None:
-        if self.force is not None:
-            self._unsubscribe.append(self.force.subscribe(self._on_force))
+        arms = self.hub.decision.arms
+        sensors = [(1, self.force), *((g.index, g.force) for g in arms[1:])]
+        for index, sensor in sensors:
+            if sensor is not None:
+                self._unsubscribe.append(
+                    sensor.subscribe(functools.partial(self._on_force, arm=index))
+                )
         self._task = asyncio.create_task(self._run(), name="observer-feed")
 
     async def stop(self) -> None:
@@ -75,17 +85,19 @@ class ObserverFeed:
         self._sock.close()
 
     def tick(self) -> None:
-        """One STATE and the FORCE samples since the last tick (if any), two datagrams."""
-        batch = []
-        while True:  # popleft: a sample the sensor's thread adds meanwhile stays
-            try:
-                s = self._samples.popleft()
-            except IndexError:
-                break
-            batch.append((s.seq, s.time, s.values))
-        out = [self.hub.encode_state_for(None, False)]
-        if batch:
-            out.append(m.encode_force(batch))
+        """Each arm's STATE and FORCE samples since the last tick (if any), a datagram
+        each."""
+        out = self.hub.encode_states_for(None, False)
+        for arm, samples in self._samples.items():
+            batch = []
+            while True:  # popleft: a sample the sensor's thread adds meanwhile stays
+                try:
+                    s = samples.popleft()
+                except IndexError:
+                    break
+                batch.append((s.seq, s.time, s.values))
+            if batch:
+                out.append(m.encode_force(batch, arm))
         for data in out:
             try:
                 self._sock.sendto(data, self.to)
