@@ -22,7 +22,7 @@ from telerobot.protocol import messages as m
 from tests.support import TOKEN, until
 from tests.support.browser import NO_VIDEO
 from tests.support.servers import serving
-from tests.test_joint_mirror import FOLLOWER_CAL, SO101, emulated
+from tests.support.so101_bus import FOLLOWER_CAL, SO101, emulated
 
 TWO_SIM_ARMS = {**NO_VIDEO, "TELEROBOT_ARMS": "left=so101:sim,right=so101:sim"}
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
