@@ -263,7 +263,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
     if settings.video and settings.media_server != "none":
         media_settings = resolve_media_server(settings, token.value)
         media_server = MediaServerSupervisor(media_settings, settings.media_server_url is None)
-    media = MediaSupervisor(media_settings, robot) if settings.video else None
+    media = MediaSupervisor(media_settings, [a.robot for a in arms]) if settings.video else None
     if media is not None:  # the video as sent, while a recording runs
         follow_recorder(VideoTap(media), recorder)
     task_runner = TaskRunner(decision, force, clock, operator_token=token.value)

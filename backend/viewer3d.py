@@ -1,7 +1,8 @@
 """A 3D view of the workcell (viser), served on its own port and linked from the
-operator page: the arm as it is (live), the predicted gripper (where the commanded
-target puts it), the cameras as frusta from the calibration (or the simulated ground
-truth), the fiducials, the table and block, and the contact force as an arrow.
+operator page: every arm as it is (live, each at its mount), its predicted gripper
+(where the commanded target puts it), the cameras as frusta from the calibration (or the
+simulated ground truth), the fiducials, the table and block, and each arm's contact
+force as an arrow.
 
 viser runs its own server thread; the event loop refreshes the scene at 20 Hz by
 setting the properties of what moves (the arm, the target, the force).
@@ -13,6 +14,8 @@ import asyncio
 import contextlib
 import logging
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,6 +30,28 @@ log = logging.getLogger(__name__)
 
 FORCE_M_PER_N = 0.005  # arrow length: 60 N → 0.3 m
 REFRESH_S = 0.05
+
+
+@dataclass(frozen=True)
+class ViewedArm:
+    """An arm the view draws besides the first: its driver, its own kinematics (read on
+    the event loop), where its base stands in the workcell (4×4) and its force sensor."""
+
+    robot: Robot
+    kinematics: ArmKinematics
+    mount: FloatArray = field(default_factory=lambda: np.eye(4))
+    force: ForceSensor | None = None
+
+
+@dataclass
+class ArmNodes:
+    """One arm's scene nodes, made once; each refresh sets their properties."""
+
+    arm: ViewedArm
+    links: Any
+    gripper: Any
+    predicted: Any
+    force: Any
 
 
 def camera_pose(
@@ -54,6 +79,11 @@ def decompose(P: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray] | None
     return K / K[2, 2], R, t
 
 
+def _name(node: str, arm: int) -> str:
+    """The scene node of the ``arm``-th arm: the first's as it always was, "/arm_2" …"""
+    return node if arm == 0 else f"{node}_{arm + 1}"
+
+
 class Workcell3DView:
     def __init__(
         self,
@@ -64,7 +94,10 @@ class Workcell3DView:
         force: ForceSensor | None,
         calibration: CalibrationStore,
         kinematics: ArmKinematics,
+        more_arms: Sequence[ViewedArm] = (),
     ) -> None:
+        """``robot``, ``force`` and ``kinematics`` are the first arm's (at the workcell's
+        first mount); ``more_arms`` the others, in the server's order."""
         import viser  # an optional part of the server: imported when the view is on
 
         self.workcell = workcell
@@ -72,6 +105,8 @@ class Workcell3DView:
         self.force = force
         self.calibration = calibration
         self.kinematics = kinematics
+        first = workcell.mounts[0] if workcell.mounts else np.eye(4)
+        self.arms = (ViewedArm(robot, kinematics, first, force), *more_arms)
         self.server: Any = viser.ViserServer(host=host, port=port, label="Telerobot", verbose=False)
         self.port: int = self.server.get_port()
         self._task: asyncio.Task[None] | None = None
@@ -98,7 +133,16 @@ class Workcell3DView:
         )
         for i, p in enumerate(f):
             scene.add_label(f"/workcell/fiducials/{i + 1}", str(i + 1), position=tuple(p))
-        scene.add_frame("/base", axes_length=0.2, axes_radius=0.008)
+        import viser.transforms as tf
+
+        for i, arm in enumerate(self.arms):
+            scene.add_frame(
+                _name("/base", i),
+                axes_length=0.2,
+                axes_radius=0.008,
+                wxyz=tf.SO3.from_matrix(arm.mount[:3, :3]).wxyz,
+                position=tuple(arm.mount[:3, 3]),
+            )
 
     def _cameras(self) -> None:
         """Frusta from the calibration (perspective models) or the simulated ground truth."""
@@ -127,33 +171,48 @@ class Workcell3DView:
         """The nodes that move, made once; each refresh only sets their properties
         (a tenth of the cost of adding them again)."""
         scene = self.server.scene
-        self._arm = scene.add_line_segments(
-            "/arm", np.zeros((7, 2, 3)), (110, 110, 120), thickness=0.04
-        )
-        self._gripper = scene.add_icosphere("/gripper", radius=0.02, color=(255, 140, 0))
-        self._predicted = scene.add_icosphere(
-            "/predicted", radius=0.025, color=(0, 255, 102), opacity=0.6
-        )
-        self._force = scene.add_line_segments(
-            "/force", np.zeros((1, 2, 3)), (255, 40, 40), thickness=0.012
-        )
+        self.nodes = [
+            ArmNodes(
+                arm,
+                scene.add_line_segments(
+                    _name("/arm", i), np.zeros((7, 2, 3)), (110, 110, 120), thickness=0.04
+                ),
+                scene.add_icosphere(_name("/gripper", i), radius=0.02, color=(255, 140, 0)),
+                scene.add_icosphere(
+                    _name("/predicted", i), radius=0.025, color=(0, 255, 102), opacity=0.6
+                ),
+                scene.add_line_segments(
+                    _name("/force", i), np.zeros((1, 2, 3)), (255, 40, 40), thickness=0.012
+                ),
+            )
+            for i, arm in enumerate(self.arms)
+        ]
 
     def refresh(self) -> None:
-        """The arm, the predicted gripper, the force; the cameras when the calibration changed."""
+        """Each arm, its predicted gripper, its force; the cameras when the calibration
+        changed."""
         seen = {name: m.created for name, m in self.calibration.cameras.items()}
         if seen != self._calibration_seen:
             self._calibration_seen = seen
             self._cameras()
-        pts = self.kinematics.link_origins(self.robot.joints)
-        self._arm.points = np.stack([pts[:-1], pts[1:]], axis=1)
-        tool = pts[-1]
-        self._gripper.position = tuple(tool)
-        self._predicted.position = tuple(self.kinematics.fk(self.robot.target_joints)[:3, 3])
-        sample = self.force.latest if self.force is not None else None
-        if sample is not None:
-            f_base = self.robot.pose.rotation @ np.array(sample.values[:3])
-            self._force.points = np.array([[tool, tool + f_base * FORCE_M_PER_N]])
+        for nodes in self.nodes:
+            self._refresh_arm(nodes)
         self.refreshes += 1
+
+    @staticmethod
+    def _refresh_arm(nodes: ArmNodes) -> None:
+        arm = nodes.arm
+        R, t = arm.mount[:3, :3], arm.mount[:3, 3]  # the arm's base frame → the workcell's
+        pts = arm.kinematics.link_origins(arm.robot.joints) @ R.T + t
+        nodes.links.points = np.stack([pts[:-1], pts[1:]], axis=1)
+        tool = pts[-1]
+        nodes.gripper.position = tuple(tool)
+        predicted = R @ arm.kinematics.fk(arm.robot.target_joints)[:3, 3] + t
+        nodes.predicted.position = tuple(predicted)
+        sample = arm.force.latest if arm.force is not None else None
+        if sample is not None:
+            f_cell = R @ arm.robot.pose.rotation @ np.array(sample.values[:3])
+            nodes.force.points = np.array([[tool, tool + f_cell * FORCE_M_PER_N]])
 
     # ------------------------------------------------------------ running
     # On the event loop, where the robot's state may be read (the arm's kinematics and

@@ -1,5 +1,6 @@
 """The server's side of the media worker: starts it, restarts it if it dies, forwards
-signalling to it, and publishes the arm's state into shared memory for it."""
+signalling to it, and publishes every arm's state into shared memory for it (one array
+per arm, in the server's arm order)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import itertools
 import logging
 import multiprocessing
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,11 +39,21 @@ class MediaRequestFailed(TelerobotError):
 
 
 class MediaSupervisor:
-    def __init__(self, settings: Settings, robot: Robot) -> None:
+    def __init__(self, settings: Settings, robots: Robot | Sequence[Robot]) -> None:
+        """``robots``: every arm's driver, in the settings' arm order (one: that arm)."""
         self.settings = settings
-        self.robot = robot
+        self.robots = list(robots) if isinstance(robots, Sequence) else [robots]
+        self.robot = self.robots[0]
+        arms = settings.arm_settings()
+        if len(arms) != len(self.robots):
+            raise ValueError(
+                f"the media worker follows {len(arms)} arms, but was given"
+                f" {len(self.robots)} drivers"
+            )
         self._ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
-        self._arm: Any = self._ctx.Array("d", arm_fields(settings.model.dof), lock=True)
+        self._arms: list[Any] = [
+            self._ctx.Array("d", arm_fields(own.model.dof), lock=True) for _, own in arms
+        ]
         self._proc: Any = None
         self._conn: Any = None
         self._ids = itertools.count(1)
@@ -76,7 +87,7 @@ class MediaSupervisor:
         self._ready.clear()
         self._proc = self._ctx.Process(
             target=worker_main,
-            args=(child, self.settings.model_dump_json(), self._arm, video_out),
+            args=(child, self.settings.model_dump_json(), self._arms, video_out),
             name="telerobot-media",
             daemon=True,
         )
@@ -132,10 +143,11 @@ class MediaSupervisor:
             future.set_result(msg)
 
     def _publish_arm(self) -> None:
-        s = self.robot.snapshot()
-        values = [s.time, *s.joints.tolist(), *s.velocities.tolist()]
-        with self._arm.get_lock():
-            np.frombuffer(self._arm.get_obj(), dtype=np.float64)[:] = values
+        for robot, shared in zip(self.robots, self._arms, strict=True):
+            s = robot.snapshot()
+            values = [s.time, *s.joints.tolist(), *s.velocities.tolist()]
+            with shared.get_lock():
+                np.frombuffer(shared.get_obj(), dtype=np.float64)[:] = values
 
     async def _publish_loop(self) -> None:
         while True:

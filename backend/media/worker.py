@@ -1,7 +1,7 @@
 """The media worker: a process of its own running capture, the encoder and every
 WebRTC peer, so video can never stall the control and force channel on the server's
-event loop. The server talks to it over a pipe (``MediaSupervisor``) and shares the
-arm's state with it through shared memory (for the simulated camera).
+event loop. The server talks to it over a pipe (``MediaSupervisor``) and shares every
+arm's state with it through shared memory, one array per arm (for the simulated camera).
 """
 
 from __future__ import annotations
@@ -13,13 +13,20 @@ import multiprocessing
 import multiprocessing.connection
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, assert_never
 
 import numpy as np
 
-from telerobot.drivers.base import ArmSnapshot, TelerobotError
-from telerobot.server.devices import build_camera
+from telerobot.drivers.base import ArmSnapshot, StereoCamera, TelerobotError
+from telerobot.drivers.registry import load_driver
+from telerobot.server.devices import (
+    arm_mounts,
+    build_camera,
+    build_workcell,
+    device_context,
+    make_kinematics,
+)
 from telerobot.server.media import rpc
 from telerobot.server.settings import Settings
 from telerobot.tuning import yield_cpu
@@ -53,14 +60,55 @@ def shared_arm_probe(arm: Any) -> Callable[[], ArmSnapshot]:
     return probe
 
 
+def build_arms_camera(
+    settings: Settings, probes: Sequence[Callable[[], ArmSnapshot]]
+) -> StereoCamera:
+    """The camera the settings name, following every arm (``probes``, in the settings'
+    arm order). With two arms or more it is built for the first arm (its model, its
+    kinematics) in the two-arm workcell; a simulated one draws the others too, each from
+    its own model at its mount (a real camera films them as they are)."""
+    if len(probes) == 1:
+        return build_camera(settings, probes[0])
+    arms = settings.arm_settings()
+    first = arms[0][1]
+    context = device_context(first, workcell=build_workcell(settings), arm_probe=probes[0])
+    camera: StereoCamera = load_driver("camera", settings.camera).from_settings(
+        first.model_dump(), context
+    )
+    # The simulated camera is the one driver that draws arms. A DeviceContext names one
+    # arm only, so the others are handed to it here (a context with every arm's probe
+    # would let it take them in its from_settings, and this check would go).
+    from telerobot.drivers.camera.sim import DrawnArm, SimStereoCamera
+    from telerobot.drivers.robot.models.drawing import ArmDrawing
+
+    if isinstance(camera, SimStereoCamera):
+        camera.add_arms(
+            [
+                DrawnArm(
+                    probe,
+                    make_kinematics(own),
+                    ArmDrawing(own.model),
+                    mount=mount,
+                    pedestal_m=own.model.pedestal_m,
+                    scale=own.model.scene_scale,
+                )
+                for (_, own), mount, probe in zip(
+                    arms[1:], arm_mounts(settings)[1:], probes[1:], strict=True
+                )
+            ]
+        )
+    return camera
+
+
 def worker_main(
     conn: multiprocessing.connection.Connection,
     settings_json: str,
-    arm: Any,
+    arms: Sequence[Any],
     video: multiprocessing.connection.Connection | None = None,
 ) -> None:
-    """``conn`` carries requests and replies; ``video`` (send only) the recording's
-    packets while one runs (``backend/media/tap.py``)."""
+    """``conn`` carries requests and replies; ``arms`` is every arm's shared state (time,
+    joints, velocities; ``arm_fields``), in the settings' arm order; ``video`` (send
+    only) the recording's packets while one runs (``backend/media/tap.py``)."""
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s media-worker: %(message)s"
     )
@@ -79,20 +127,20 @@ def worker_main(
         uvloop.install()
     except ImportError:
         pass
-    asyncio.run(_serve(conn, settings, arm, video))
+    asyncio.run(_serve(conn, settings, arms, video))
 
 
 async def _serve(
     conn: multiprocessing.connection.Connection,
     settings: Settings,
-    arm: Any,
+    arms: Sequence[Any],
     video: multiprocessing.connection.Connection | None = None,
 ) -> None:
     from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
     from telerobot.server.media.relay import RELAY_PREFIX
     from telerobot.server.media.tap import PacketPipe
 
-    camera = build_camera(settings, shared_arm_probe(arm))
+    camera = build_arms_camera(settings, [shared_arm_probe(arm) for arm in arms])
     pipeline = VideoPipeline(
         camera,
         VideoSettings(

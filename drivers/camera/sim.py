@@ -2,10 +2,11 @@
 stereo pair (drivers/sim/workcell.py), so calibration and AR can be checked against
 known projections.
 
-The static scene (background, table, block, fiducials, pedestal) is rendered once
-per eye; each frame copies it and draws the arm at its current joints, plus an
-optional visual timecode. Rendering runs in its own thread on an absolute schedule
-and hands frames over through a newest-wins slot.
+The static scene (background, table, block, fiducials, each arm's pedestal) is
+rendered once per eye; each frame copies it and draws every arm (``DrawnArm``: its own
+model's drawing, kinematics and state, placed at its mount) at its current joints,
+plus an optional visual timecode. Rendering runs in its own thread on an absolute
+schedule and hands frames over through a newest-wins slot.
 """
 
 from __future__ import annotations
@@ -14,14 +15,20 @@ import itertools
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any, Self
 
 import cv2
 import numpy as np
 
-from telerobot.drivers.base import ArmSnapshot, CameraStatus, DeviceContext, StereoFrame
+from telerobot.drivers.base import (
+    ArmSnapshot,
+    CameraStatus,
+    DeviceContext,
+    FloatArray,
+    StereoFrame,
+)
 from telerobot.drivers.camera import timecode
 from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
 from telerobot.drivers.camera.slot import FrameSlot
@@ -66,6 +73,27 @@ EXTRAPOLATE_S = 0.05  # ahead of the newest arm sample, at most (its period is 1
 
 
 @dataclass(frozen=True)
+class DrawnArm:
+    """One arm the camera draws: where its state comes from (any thread), its own
+    kinematics and drawing (Pinocchio data is per thread: the camera's own), where its
+    base stands in the workcell (4×4) and its pedestal (0: none)."""
+
+    probe: Callable[[], ArmSnapshot]
+    kinematics: ArmKinematics
+    drawing: ArmDrawing
+    mount: FloatArray = field(default_factory=lambda: np.eye(4))
+    pedestal_m: float = 0.0  # from the floor up to the base, along the base's z
+    scale: float = 1.0  # of the PUMA-sized scene: the gripper and pedestal are sized by it
+
+    def placed(self, points: FloatArray) -> FloatArray:
+        """Points in the arm's base frame (… × 3) in the workcell's frame."""
+        if np.array_equal(self.mount, np.eye(4)):
+            return points  # the first arm's base is the scene's frame: unchanged
+        moved: FloatArray = points @ self.mount[:3, :3].T + self.mount[:3, 3]
+        return moved
+
+
+@dataclass(frozen=True)
 class SimStereoCameraConfig:
     """What ``SimStereoCamera`` reads from the settings (its image size is the
     workcell's cameras', made for the video's size)."""
@@ -87,6 +115,7 @@ class SimStereoCamera:
         kinematics: ArmKinematics,
         *,
         drawing: ArmDrawing | None = None,
+        more_arms: Sequence[DrawnArm] = (),
         fps: float = 30.0,
         show_timecode: bool = True,
         time_source: Callable[[], float] = time.monotonic,
@@ -100,6 +129,17 @@ class SimStereoCamera:
         self.kinematics = kinematics  # this camera's own (Pinocchio data is per thread)
         # The arm's links as its model draws them (the PUMA if not said).
         self.drawing = drawing or ArmDrawing(load_model(DEFAULT_MODEL))
+        # Every arm drawn, the first (the one above) first: at the workcell's first mount,
+        # on the workcell's pedestal, sized with its scene.
+        first = DrawnArm(
+            probe,
+            kinematics,
+            self.drawing,
+            workcell.mounts[0] if workcell.mounts else np.eye(4),
+            workcell.pedestal_m,
+            workcell.scale,
+        )
+        self.arms: tuple[DrawnArm, ...] = (first, *more_arms)
         self.show_timecode = show_timecode
         self._now = time_source
         self._sleep = sleep
@@ -125,6 +165,11 @@ class SimStereoCamera:
             drawing=drawing,
             fps=config.fps,
         )
+
+    def add_arms(self, arms: Sequence[DrawnArm]) -> None:
+        """Draw these arms too (the server's other arms, in its order); before ``start``."""
+        self.arms = (*self.arms, *arms)
+        self._background = np.concatenate([self._render_static(c) for c in self.cameras], axis=1)
 
     @classmethod
     def default_rig(cls, settings: Mapping[str, Any]) -> str:
@@ -154,11 +199,12 @@ class SimStereoCamera:
         img[:] = (np.array([200, 205, 212]) * (1 - ramp) + np.array([120, 124, 130]) * ramp).astype(
             np.uint8
         )[:, None]
-        # The pedestal first: seen from the cameras it stands behind the table.
-        cell = self.workcell
-        if cell.pedestal_m > 0:
-            top = np.array([0.0, 0.0, cell.pedestal_m])
-            self._draw_link(img, cam, np.zeros(3), top, 0.09 * cell.scale, (90, 90, 96))
+        # The pedestals first: seen from the cameras they stand behind the table.
+        for k in self._far_first(cam):
+            arm = self.arms[k]
+            if arm.pedestal_m > 0:
+                foot, top = arm.placed(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, arm.pedestal_m]]))
+                self._draw_link(img, cam, foot, top, 0.09 * arm.scale, (90, 90, 96))
         # The table, its grid, then what stands on it. A box's visible faces never
         # overlap each other, so they need no sorting.
         for i, box in enumerate(self.workcell.obstacles):
@@ -264,30 +310,41 @@ class SimStereoCamera:
                 cv2.LINE_AA,
             )
 
-    def _draw_arm(self, img: np.ndarray, cam: PinholeCamera, q: np.ndarray) -> None:
-        pts = self.kinematics.link_origins(q)
-        drawing = self.drawing
-        for (a, b), radius in zip(drawing.segments(q), drawing.radii, strict=True):
+    def _far_first(self, cam: PinholeCamera) -> list[int]:
+        """The arms' indices, the one whose base is farthest from ``cam`` first (painted
+        over by the nearer ones)."""
+        if len(self.arms) == 1:
+            return [0]
+        depth = [float(cam.to_camera(arm.mount[None, :3, 3])[0, 2]) for arm in self.arms]
+        return [int(k) for k in np.argsort(depth, kind="stable")[::-1]]
+
+    def _draw_arm(self, img: np.ndarray, cam: PinholeCamera, arm: DrawnArm, q: FloatArray) -> None:
+        pts = arm.placed(arm.kinematics.link_origins(q))
+        drawing = arm.drawing
+        for (a, b), radius in zip(arm.placed(drawing.segments(q)), drawing.radii, strict=True):
             if np.linalg.norm(b - a) > 1e-6:
                 self._draw_link(img, cam, a, b, radius, (160, 162, 170))
         joint_radius = 1.1 * float(drawing.radii.max())
         for p in pts[1:-1]:  # each joint
             self._draw_ball(img, cam, p, joint_radius, (110, 112, 120))
-        scale = self.workcell.scale
+        scale = arm.scale
         self._draw_link(img, cam, pts[-2], pts[-1], 0.012 * scale, GRIPPER_COLOUR)
         self._draw_ball(img, cam, pts[-1], 0.018 * scale, GRIPPER_COLOUR)
 
     def render(self, t: float) -> np.ndarray:
-        """The side-by-side image at time ``t`` (arm at its joints extrapolated from the
-        newest sample, back to ``t`` for an exposure the thread renders late)."""
-        snap = self.probe()
-        dt = min(max(t - snap.time, -CATCH_UP_S), EXTRAPOLATE_S)
-        q = snap.joints + snap.velocities * dt
+        """The side-by-side image at time ``t`` (each arm at its joints extrapolated from
+        its newest sample, back to ``t`` for an exposure the thread renders late)."""
+        joints = []
+        for arm in self.arms:
+            snap = arm.probe()
+            dt = min(max(t - snap.time, -CATCH_UP_S), EXTRAPOLATE_S)
+            joints.append(snap.joints + snap.velocities * dt)
         sbs = self._background.copy()
         board = self.board
         for i, cam in enumerate(self.cameras):
             eye = sbs[:, i * self.width : (i + 1) * self.width]
-            self._draw_arm(eye, cam, q)
+            for k in self._far_first(cam):
+                self._draw_arm(eye, cam, self.arms[k], joints[k])
             if board is not None:  # held up in front of the cameras, for calibration
                 draw_board(eye, cam.K, cam.R, cam.t, board[0], board[1], BOARD)
         if self.show_timecode:

@@ -253,6 +253,12 @@ def stereo_rig(
     return StereoRig(cams[0], cams[1])
 
 
+# The two-arm scene's cameras stand this much further back than the one-arm scene's,
+# aimed this high (PUMA-sized metres): both arms are seen whole, reaching up or out.
+TWO_ARM_DISTANCE = 1.3
+TWO_ARM_TARGET_Z = 0.6
+
+
 def default_workcell(
     *,
     camera_distance: float = 1.8,
@@ -272,9 +278,10 @@ def default_workcell(
     PUMA-sized ones, scaled with the rest.
 
     With two ``mounts`` or more it is the two-arm workcell: the table between the arms
-    (``facing_mounts``), the block in its middle where both reach it, and the cameras
-    looking across from the first arm's right (its ``-y``), so the first arm is on the
-    left of the picture."""
+    (``facing_mounts``), the block in its middle where both reach it, the fiducials moved
+    with the table, and the cameras looking across from the first arm's right (its
+    ``-y``) and further back (``TWO_ARM_DISTANCE``), so the first arm is on the left of
+    the picture and both are seen whole."""
     if not 0.05 <= scale <= 5.0:
         raise InvalidCommand(f"the scene's scale must be 0.05–5, not {scale}")
     shift = np.asarray(offset, dtype=float)
@@ -316,11 +323,13 @@ def default_workcell(
         [[0.42, -0.55, table_top], [0.98, -0.55, table_top], [0.42, 0.35, table_top],
          [0.98, 0.35, table_top]]
     )  # fmt: skip
+    if two:  # on the table as it moved: its corner markers stay on its corners
+        cube, corners = cube + [0.0, 0.10, 0.0], corners + [0.0, 0.10, 0.0]
     fiducials = scale * np.vstack([cube, corners]) + shift
-    centre = at(0.70, 0.0, 0.55) if two else at(0.65, -0.15, 0.55)
+    centre = at(0.70, 0.0, TWO_ARM_TARGET_Z) if two else at(0.65, -0.15, 0.55)
     rig = stereo_rig(
         centre,
-        distance=scale * camera_distance,
+        distance=scale * camera_distance * (TWO_ARM_DISTANCE if two else 1.0),
         baseline=scale * baseline,
         azimuth_deg=-70.0 if two else 20.0,
         width=width,
