@@ -48,7 +48,7 @@ from telerobot.server.security import state_dir
 from telerobot.server.settings import Settings
 from telerobot.server.tasks.runner import TaskRunner
 from telerobot.server.telemetry.stats import Telemetry
-from telerobot.server.viewer3d import Workcell3DView
+from telerobot.server.viewer3d import ViewedArm, Workcell3DView
 
 log = logging.getLogger("telerobot")
 
@@ -178,12 +178,11 @@ def safety_limits(settings: Settings) -> SafetyLimits:
 def build_viewer(
     settings: Settings,
     workcell: Workcell,
-    robot: Robot,
-    force: ForceSensor,
+    arms: list[ArmDevices],
     calibration: CalibrationStore,
 ) -> Viewer3D:
-    """The 3D view, if on; one that cannot start (port taken) is reported, and the
-    server runs without it."""
+    """The 3D view of every arm, if on; one that cannot start (port taken) is reported,
+    and the server runs without it."""
     if not settings.viewer:
         return Viewer3D(None, "the 3D view is off (setting viewer)")
     try:
@@ -191,10 +190,14 @@ def build_viewer(
             settings.host,
             settings.viewer_port,
             workcell,
-            robot,
-            force,
+            arms[0].robot,
+            arms[0].force,
             calibration,
-            make_kinematics(settings),
+            make_kinematics(arms[0].settings),  # the arm's model, not the server's default
+            more_arms=[
+                ViewedArm(a.robot, make_kinematics(a.settings), a.mount, a.force)
+                for a in arms[1:]
+            ],
         )
     except (OSError, ImportError) as exc:
         log.error("the 3D view cannot start on port %s: %s", settings.viewer_port, exc)
@@ -291,7 +294,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         )
         if media_server is not None and media_settings.media_server_data_port
         else None,
-        viewer=build_viewer(settings, workcell, robot, force, calibration.store),
+        viewer=build_viewer(settings, workcell, arms, calibration.store),
         recorder=recorder,
         recording_taps=RecordingTaps(
             recorder,

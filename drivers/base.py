@@ -458,6 +458,18 @@ def _no_arm() -> ArmSnapshot:
 
 
 @dataclass(frozen=True)
+class OtherArm:
+    """Another arm of the same server, for a device that sees every arm (the simulated
+    cameras draw them all): its state, its kinematics (a new model at each call), its
+    model's settings name and where its base stands in the workcell (4×4)."""
+
+    probe: Callable[[], ArmSnapshot]
+    kinematics: Callable[[], ArmKinematics]
+    model: str
+    mount: FloatArray
+
+
+@dataclass(frozen=True)
 class DeviceContext:
     """What the server hands a driver's ``from_settings`` besides the settings: what it
     makes once and shares, or makes one way for every device."""
@@ -468,3 +480,5 @@ class DeviceContext:
     workcell: Callable[[], Workcell]  # the simulated workcell every sim device reads
     arm_probe: Callable[[], ArmSnapshot] = _no_arm  # the arm's state, from any thread
     clock: Clock | None = None  # None: the driver's own monotonic clock
+    # The server's other arms (docs/arms.md), for a device that sees them all.
+    other_arms: tuple[OtherArm, ...] = ()

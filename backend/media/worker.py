@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
+import functools
 import logging
 import multiprocessing
 import multiprocessing.connection
@@ -18,7 +20,7 @@ from typing import TYPE_CHECKING, Any, assert_never
 
 import numpy as np
 
-from telerobot.drivers.base import ArmSnapshot, StereoCamera, TelerobotError
+from telerobot.drivers.base import ArmSnapshot, OtherArm, StereoCamera, TelerobotError
 from telerobot.drivers.registry import load_driver
 from telerobot.server.devices import (
     arm_mounts,
@@ -71,32 +73,19 @@ def build_arms_camera(
         return build_camera(settings, probes[0])
     arms = settings.arm_settings()
     first = arms[0][1]
-    context = device_context(first, workcell=build_workcell(settings), arm_probe=probes[0])
+    others = tuple(
+        OtherArm(probe, functools.partial(make_kinematics, own), own.robot_model, mount)
+        for (_, own), mount, probe in zip(
+            arms[1:], arm_mounts(settings)[1:], probes[1:], strict=True
+        )
+    )
+    context = dataclasses.replace(
+        device_context(first, workcell=build_workcell(settings), arm_probe=probes[0]),
+        other_arms=others,
+    )
     camera: StereoCamera = load_driver("camera", settings.camera).from_settings(
         first.model_dump(), context
     )
-    # The simulated camera is the one driver that draws arms. A DeviceContext names one
-    # arm only, so the others are handed to it here (a context with every arm's probe
-    # would let it take them in its from_settings, and this check would go).
-    from telerobot.drivers.camera.sim import DrawnArm, SimStereoCamera
-    from telerobot.drivers.robot.models.drawing import ArmDrawing
-
-    if isinstance(camera, SimStereoCamera):
-        camera.add_arms(
-            [
-                DrawnArm(
-                    probe,
-                    make_kinematics(own),
-                    ArmDrawing(own.model),
-                    mount=mount,
-                    pedestal_m=own.model.pedestal_m,
-                    scale=own.model.scene_scale,
-                )
-                for (_, own), mount, probe in zip(
-                    arms[1:], arm_mounts(settings)[1:], probes[1:], strict=True
-                )
-            ]
-        )
     return camera
 
 

@@ -155,14 +155,29 @@ class SimStereoCamera:
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any], context: DeviceContext) -> Self:
-        """The workcell's ground-truth pair, drawing the arm the context follows."""
+        """The workcell's ground-truth pair, drawing the arm the context follows and the
+        server's other arms, each from its own model at its mount."""
         config = SimStereoCameraConfig.from_settings(settings)
         drawing = ArmDrawing(load_model(str(settings.get("robot_model", DEFAULT_MODEL))))
+        others = []
+        for arm in context.other_arms:
+            model = load_model(arm.model)
+            others.append(
+                DrawnArm(
+                    arm.probe,
+                    arm.kinematics(),
+                    ArmDrawing(model),
+                    mount=arm.mount,
+                    pedestal_m=model.pedestal_m,
+                    scale=model.scene_scale,
+                )
+            )
         return cls(
             context.workcell(),
             context.arm_probe,
             context.kinematics(),
             drawing=drawing,
+            more_arms=others,
             fps=config.fps,
         )
 
