@@ -14,6 +14,7 @@ export const GHOST_RGB = [255, 0, 255] as const;
 const LINK_ALPHA = 0.45;
 const LINK_WIDTH = 7; // camera pixels
 const JOINT_RADIUS = 5;
+const LABEL_PX = 16; // camera pixels
 /** A smaller move is not worth an overlay upload (costly on a software GPU). */
 export const REDRAW_PX = 0.5;
 export const GHOST_KEY = "telerobot.ghost";
@@ -40,18 +41,41 @@ export function largestShift(a: readonly Pixel[], b: readonly Pixel[]): number {
   return most;
 }
 
+/** How a ghost is drawn: its colour, and a name by its base (two arms or more). */
+export interface GhostStyle {
+  rgb: readonly [number, number, number];
+  label?: string;
+}
+/** An arm not driven now (two arms or more) is drawn fainter: its links and joints at
+ * this part of their opacity. */
+export const IDLE_ALPHA = 0.45;
+
 export class GhostArm implements OverlayPainter {
   /** The chain as last drawn, in the left and the right camera's pixels. */
   readonly pixels: [Pixel[], Pixel[]] = [[], []];
   private shown = true;
   private P: [Projection, Projection] | null = null;
+  /** Driven now (drawn at full strength) or not. */
+  private highlit = true;
 
-  /** `cameras`: the left camera's, then the right's. */
+  /** `cameras`: the left camera's, then the right's (an arm's own: P · its mount). */
   constructor(
     private model: RobotModelInfo,
     cameras: readonly CameraCalibration[],
+    readonly style: GhostStyle = { rgb: GHOST_RGB },
   ) {
     this.setArm(model, cameras);
+  }
+
+  get highlighted(): boolean {
+    return this.highlit;
+  }
+
+  /** Driven now or not; true when that changed what is drawn (the overlay must be redrawn). */
+  setHighlight(on: boolean): boolean {
+    const changed = on !== this.highlit;
+    this.highlit = on;
+    return changed && this.shown;
   }
 
   /** Another arm or other cameras (a restarted server): nothing is drawn until the next
@@ -92,27 +116,42 @@ export class GhostArm implements OverlayPainter {
   paint(ctx: CanvasRenderingContext2D, eye: Eye, _size: EyeSize): void {
     if (!this.shown) return;
     const chain = this.pixels[eye];
-    const [r, g, b] = GHOST_RGB;
+    const [r, g, b] = this.style.rgb;
+    const a = this.highlit ? 1 : IDLE_ALPHA;
     ctx.lineCap = "round";
     ctx.lineJoin = "round";
-    ctx.lineWidth = LINK_WIDTH;
-    ctx.strokeStyle = `rgba(${r}, ${g}, ${b}, ${LINK_ALPHA})`;
+    ctx.lineWidth = this.highlit ? LINK_WIDTH : LINK_WIDTH - 2;
+    ctx.strokeStyle = `rgba(${r}, ${g}, ${b}, ${LINK_ALPHA * a})`;
     ctx.beginPath();
     tracePolyline(ctx, chain);
     ctx.stroke();
-    ctx.fillStyle = `rgb(${r}, ${g}, ${b})`;
+    ctx.fillStyle = a === 1 ? `rgb(${r}, ${g}, ${b})` : `rgba(${r}, ${g}, ${b}, ${a})`;
     for (const p of chain) {
       if (!p) continue;
       ctx.beginPath();
       ctx.arc(p[0], p[1], JOINT_RADIUS, 0, 2 * Math.PI);
       ctx.fill();
     }
+    const base = chain[0];
+    if (this.style.label && base) {
+      // The arm's name under its base, outlined to read on any background; bold while driven.
+      ctx.save();
+      ctx.font = `${this.highlit ? "bold " : ""}${LABEL_PX}px sans-serif`;
+      ctx.textAlign = "center";
+      ctx.textBaseline = "top";
+      ctx.lineWidth = 3;
+      ctx.strokeStyle = `rgba(0, 0, 0, ${0.8 * a})`;
+      ctx.strokeText(this.style.label, base[0], base[1] + 2 * JOINT_RADIUS);
+      ctx.fillStyle = `rgba(${r}, ${g}, ${b}, ${a})`;
+      ctx.fillText(this.style.label, base[0], base[1] + 2 * JOINT_RADIUS);
+      ctx.restore();
+    }
   }
 }
 
 /** The "Ghost arm" checkbox: remembered in `storage` (on unless switched off), and
  * `changed` is called with the new setting. */
-export function setupGhostSwitch(box: HTMLInputElement, ghost: GhostArm, storage: Storage, changed: () => void): void {
+export function setupGhostSwitch(box: HTMLInputElement, ghost: Pick<GhostArm, "setEnabled">, storage: Storage, changed: () => void): void {
   box.checked = storage.getItem(GHOST_KEY) !== "off";
   ghost.setEnabled(box.checked);
   box.addEventListener("change", () => {

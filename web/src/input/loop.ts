@@ -4,11 +4,15 @@
 // Also the lease requests (take, take over, release), the e-stop key and the frame.
 // The view frame (the default) moves as the left camera's image shows: its increments
 // are turned into the base frame's here, and sent (and predicted) as base ones.
+// With two arms or more each command names its arm, and which input drives which is
+// input/arms.ts's: the keys the selected arm, the gamepad each side's (or the selected
+// one alone), the left XR controller or hand the left arm and the right the right.
 import type { Mat3, Vec3 } from "../robot/math";
 import type { FrameName } from "../robot/model";
 import { Frame, LeaseAction, StateFlags } from "../transport/messages";
+import { ARM_KEYS, type PadMode, armCommands, handArms, routingText, stepArm } from "./arms";
 import type { GamepadState } from "./gamepad";
-import { combine, type MotionCommand } from "./motion";
+import type { MotionCommand } from "./motion";
 import { viewToBase } from "./viewframe";
 import { XRMaster, type XRControllerReading } from "./xr";
 
@@ -34,7 +38,8 @@ export const FRAME_IDS: Record<DriveFrame, number> = { view: Frame.BASE, base: F
 
 /** The realtime channel, as far as the loop uses it. */
 export interface CommandLink {
-  cartesian(dX: number[], rotvec: number[], frame: number): void;
+  /** `arm`: ARM's index (0: the only arm of a one-arm server). */
+  cartesian(dX: number[], rotvec: number[], frame: number, arm?: number): void;
   lease(action: number): void;
   wantControl(on: boolean): void;
   estop(): void;
@@ -42,6 +47,23 @@ export interface CommandLink {
 /** The local model that shows each command at once. */
 export interface CommandPredictor {
   commandCartesian(dX: Vec3, rotvec: Vec3, frame: FrameName, now: number): void;
+}
+
+/** One arm as the loop drives it. */
+export interface DriveArm {
+  /** ARM's index, sent with each of its commands (0: the only arm of a one-arm server). */
+  index: number;
+  name: string;
+  /** Its local model, told each command as it is sent. */
+  predictor: CommandPredictor;
+  /** The view frame's rotation in this arm's base frame (null: no camera). */
+  view: Mat3 | null;
+}
+
+/** Each XR hand's reading in one frame (null: none). */
+export interface XRHands {
+  left: XRControllerReading | null;
+  right: XRControllerReading | null;
 }
 
 export const hasControl = (flags: number): boolean => (flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
@@ -86,26 +108,82 @@ export class InputLoop {
   onInputState: ((text: string) => void) | null = null;
   /** This page gives control up on purpose (not a loss to alarm about). */
   onRelease: (() => void) | null = null;
+  /** Another arm was selected, the gamepad swapped between both arms and one, or the
+   * arms are others (a restarted server). */
+  onArmChange: ((why: "select" | "swap" | "arms") => void) | null = null;
+  /** The arm the keys drive (and the gamepad in "one"): an index into `arms`. */
+  selected = 0;
+  /** Two arms or more: the gamepad drives both (a side each) or the selected one. */
+  padMode: PadMode = "both";
+  private arms: DriveArm[];
   private last: number;
   private inputState = "";
   private readonly xr = new XRMaster();
+  private readonly hands = { left: new XRMaster(), right: new XRMaster() };
   private deadmanWas = false;
   private gripWas = false;
+  // Each arm's dead-man, as the last frame's inputs held it (keys, gamepad, XR grips).
+  private deadmen: boolean[] = [false];
+  private xrHeld: boolean[] = [false];
   private heldTakeover = false; // this correction began by holding the dead-man or the grip
   private letGoAt: number | null = null;
 
   constructor(private readonly o: InputLoopOptions) {
     this.last = o.now;
+    this.arms = [{ index: 0, name: "arm", predictor: o.arm, view: o.view }];
   }
 
-  /** The view frame's rotation in the base frame (null: no camera). */
+  /** The view frame's rotation in the selected arm's base frame (null: no camera). */
   get view(): Mat3 | null {
-    return this.o.view;
+    return this.arms[this.selected]?.view ?? null;
   }
 
-  /** Another left camera (a restarted server). */
+  /** Another left camera (a restarted server): the first arm's. */
   set view(view: Mat3 | null) {
     this.o.view = view;
+    if (this.arms[0]) this.arms[0].view = view;
+  }
+
+  /** The arms to drive (the server's, in order); the selection stays if it still can. */
+  setArms(arms: readonly DriveArm[]): void {
+    this.arms = arms.slice();
+    this.selected = Math.min(this.selected, Math.max(0, arms.length - 1));
+    this.deadmen = arms.map(() => false);
+    this.xrHeld = arms.map(() => false);
+    this.onArmChange?.("arms");
+  }
+
+  get armCount(): number {
+    return this.arms.length;
+  }
+
+  /** The arms' names, in order. */
+  get armNames(): string[] {
+    return this.arms.map((a) => a.name);
+  }
+
+  /** Select the arm the keys (and the gamepad alone) drive. */
+  selectArm(i: number): void {
+    const next = stepArm(i, 0, this.arms.length);
+    if (next === this.selected) return;
+    this.selected = next;
+    this.onArmChange?.("select");
+  }
+
+  /** The arms whose dead-man (or XR grip) is held now. Indices into the arms. */
+  get held(): number[] {
+    return this.arms.map((_, i) => i).filter((i) => this.deadmen[i] || this.xrHeld[i]);
+  }
+
+  /** The arms driven now: those held; when none is, the selected one (what the keys
+   * would drive). Indices into the arms. */
+  get driven(): number[] {
+    const on = this.held;
+    return on.length ? on : [this.selected];
+  }
+
+  private get routing() {
+    return { count: this.arms.length, selected: this.selected, padMode: this.padMode, hands: handArms(this.armNames) };
   }
 
   get hasControl(): boolean {
@@ -129,11 +207,13 @@ export class InputLoop {
   }
 
   /** A key went down (KeyboardEvent.code): Escape is the e-stop, 1/2/3/4 pick the
-   * base/wrist/tool/view frame. */
+   * base/wrist/tool/view frame, [ and ] the arm (two arms or more). */
   key(code: string): void {
     if (code === "Escape") this.estop();
     const frame = FRAME_KEYS[code];
     if (frame) this.pickFrame(frame);
+    const step = ARM_KEYS[code];
+    if (step && this.arms.length > 1) this.selectArm(this.selected + step);
   }
 
   private pickFrame(frame: DriveFrame): void {
@@ -147,14 +227,27 @@ export class InputLoop {
     this.last = now;
     const pad = this.o.gamepad.read();
     if (pad.cycleFrame) this.pickFrame(FRAMES[(FRAMES.indexOf(this.frame) + 1) % FRAMES.length]!);
-    const cmd = combine(pad.command, this.o.keyboard.read());
-    if (cmd.deadman && !this.deadmanWas) this.takeOverFromPolicy();
-    this.deadmanWas = cmd.deadman;
+    if (this.arms.length > 1) {
+      if (pad.swapArms) {
+        this.padMode = this.padMode === "both" ? "one" : "both";
+        this.onArmChange?.("swap");
+      }
+      if (pad.pickArm) this.selectArm(this.selected + pad.pickArm);
+    }
+    const cmds = armCommands(this.routing, pad, this.o.keyboard.read());
+    this.deadmen = cmds.map((c) => c.deadman);
+    const deadman = this.deadmen.some(Boolean);
+    if (deadman && !this.deadmanWas) this.takeOverFromPolicy();
+    this.deadmanWas = deadman;
     this.handBackWhenLetGo(now);
-    const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${cmd.deadman ? "held" : "released"}`;
+    const routing = routingText(this.armNames, this.routing);
+    const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${deadman ? "held" : "released"}${routing ? ` · ${routing}` : ""}`;
     if (inputState !== this.inputState) this.onInputState?.((this.inputState = inputState));
-    const step = increments(cmd, this.o.speed(), dt);
-    if (step && this.hasControl) this.send(step.dX, step.rotvec, this.frame, now);
+    const speed = this.o.speed();
+    cmds.forEach((cmd, i) => {
+      const step = increments(cmd, speed, dt);
+      if (step && this.hasControl) this.send(step.dX, step.rotvec, this.frame, now, i);
+    });
     return pad;
   }
 
@@ -164,16 +257,41 @@ export class InputLoop {
     if (!controller) {
       this.xr.update(false, [0, 0, 0], [0, 0, 0, 1], 0);
       this.gripWas = false;
+      this.xrHeld = this.arms.map(() => false);
       this.handBackWhenLetGo(now);
       return;
     }
     if (controller.gripping && !this.gripWas) this.takeOverFromPolicy();
     this.gripWas = controller.gripping;
     this.handBackWhenLetGo(now);
+    this.xrHeld = this.arms.map((_, i) => i === this.selected && controller.gripping);
     const delta = this.xr.update(controller.gripping, controller.position, controller.orientation, now / 1000);
     if (!delta || !this.hasControl) return;
     const speed = this.o.speed();
-    this.send(delta.dX.map((v) => v * speed) as Vec3, delta.rotvec.map((v) => v * speed) as Vec3, "base", now);
+    this.send(delta.dX.map((v) => v * speed) as Vec3, delta.rotvec.map((v) => v * speed) as Vec3, "base", now, this.selected);
+  }
+
+  /** One XR frame at `now` (ms) with two arms or more: the left hand (controller or
+   * tracked hand) drives the left arm and the right hand the right one (handArms), each
+   * with its own clutch. A hand's motion is taken in the view frame (forward: into the
+   * picture, right and up as it shows them: what the headset shows), each arm's own. */
+  xrHands(hands: XRHands, now: number): void {
+    const { left, right } = handArms(this.armNames);
+    const gripping = !!hands.left?.gripping || !!hands.right?.gripping;
+    if (gripping && !this.gripWas) this.takeOverFromPolicy();
+    this.gripWas = gripping;
+    this.handBackWhenLetGo(now);
+    this.xrHeld = this.arms.map((_, i) => (i === left && !!hands.left?.gripping) || (i === right && !!hands.right?.gripping));
+    for (const hand of ["left", "right"] as const) {
+      const r = hands[hand];
+      const arm = hand === "left" ? left : right;
+      const delta = this.hands[hand].update(r?.gripping ?? false, r?.position ?? [0, 0, 0], r?.orientation ?? [0, 0, 0, 1], now / 1000);
+      if (!delta || !this.hasControl || !this.arms[arm]) continue;
+      const view = this.arms[arm].view;
+      const speed = this.o.speed();
+      const [dX, rotvec] = [delta.dX, delta.rotvec].map((v) => (view ? viewToBase(view, v) : v).map((x) => x * speed) as Vec3) as [Vec3, Vec3];
+      this.send(dX, rotvec, "base", now, arm);
+    }
   }
 
   /** The dead-man or the grip went down while a policy holds control: take over. The
@@ -201,14 +319,17 @@ export class InputLoop {
     if (this.hasControl) this.release();
   }
 
-  /** Send an increment in `frame`, and give the local model the very same one. */
-  private send(dX: Vec3, rotvec: Vec3, frame: DriveFrame, now: number): void {
+  /** Send an increment in `frame` to arm `i` (of `arms`), and give its local model the
+   * very same one. */
+  private send(dX: Vec3, rotvec: Vec3, frame: DriveFrame, now: number, i = 0): void {
+    const arm = this.arms[i];
+    if (!arm) return;
     if (frame === "view") {
-      const view = this.o.view;
+      const view = arm.view;
       if (view) [dX, rotvec] = [viewToBase(view, dX), viewToBase(view, rotvec)];
       frame = "base";
     }
-    this.o.link.cartesian(dX, rotvec, FRAME_IDS[frame]);
-    this.o.arm.commandCartesian(dX, rotvec, frame, now);
+    this.o.link.cartesian(dX, rotvec, FRAME_IDS[frame], arm.index);
+    arm.predictor.commandCartesian(dX, rotvec, frame, now);
   }
 }

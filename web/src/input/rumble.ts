@@ -20,40 +20,51 @@ export class Rumble {
   private next = 0;
   enabled = true;
 
-  /** Pulse ``pads`` (gamepads or XR controllers' gamepads) at ``strength`` if one is due. */
-  drive(now: number, strength: number, pads: readonly (Gamepad | null | undefined)[]): void {
-    if (!this.enabled || strength <= 0 || now < this.next) return;
+  /** Pulse ``pads`` (gamepads or XR controllers' gamepads) at ``strength`` if one is due;
+   * ``weak``: a gamepad's other motor (the right grip's; an XR controller has one). */
+  drive(now: number, strength: number, pads: readonly (Gamepad | null | undefined)[], weak = 0): void {
+    if (!this.enabled || (strength <= 0 && weak <= 0) || now < this.next) return;
     this.next = now + RUMBLE_PERIOD_MS;
     for (const pad of pads) {
       // An XR controller's gamepad pulses (WebXR Gamepads Module); a gamepad plays an
       // effect (Gamepad API). Some expose both names for one motor: use one, never both.
       const h = (pad as (Gamepad & Haptic) | null | undefined)?.hapticActuators?.[0];
       const v = (pad as (Gamepad & Vibrating) | null | undefined)?.vibrationActuator;
-      if (typeof h?.pulse === "function") void h.pulse(strength, PULSE_MS);
+      if (typeof h?.pulse === "function") void h.pulse(Math.max(strength, weak), PULSE_MS);
       else if (typeof v?.playEffect === "function") {
-        void v.playEffect("dual-rumble", { duration: PULSE_MS, strongMagnitude: strength, weakMagnitude: 0 });
+        void v.playEffect("dual-rumble", { duration: PULSE_MS, strongMagnitude: strength, weakMagnitude: weak });
       }
     }
   }
 }
 
-/** The contact force as rumble on the gamepad and on the XR controller, each paced on
- * its own; `strength` is read when a pulse may be due. */
+/** The contact force as rumble on the gamepad and on the XR controllers, each paced on
+ * its own; `strength(arm)` (an index into the page's arms) is read when a pulse may be
+ * due. With two arms each hand feels its own arm: the left XR controller the left arm's
+ * force and the right the right's; the gamepad's left motor (strong, in the left grip)
+ * the left arm's and its right motor (weak) the right's, or, driving one arm alone, its
+ * left motor that arm's. */
 export class ContactRumble {
   readonly pad = new Rumble();
+  /** The controller that drives (one arm), or the right hand's. */
   readonly xr = new Rumble();
+  readonly xrLeft = new Rumble();
 
-  constructor(private readonly strength: () => number) {}
+  constructor(private readonly strength: (arm: number) => number) {}
 
   set enabled(on: boolean) {
-    this.pad.enabled = this.xr.enabled = on;
+    this.pad.enabled = this.xr.enabled = this.xrLeft.enabled = on;
   }
 
-  drivePad(now: number, pad: Gamepad | null): void {
-    this.pad.drive(now, this.strength(), [pad]);
+  /** `arms`: whose force each motor gives (null: none); by default the first arm's on
+   * the left motor, as with one arm. */
+  drivePad(now: number, pad: Gamepad | null, arms: { strong: number | null; weak: number | null } = { strong: 0, weak: null }): void {
+    const of = (arm: number | null) => (arm === null ? 0 : this.strength(arm));
+    this.pad.drive(now, of(arms.strong), [pad], of(arms.weak));
   }
 
-  driveXR(now: number, gamepad: Gamepad): void {
-    this.xr.drive(now, this.strength(), [gamepad]);
+  /** The controller of `hand` (one arm: the one that drives, "right") with `arm`'s force. */
+  driveXR(now: number, gamepad: Gamepad, arm = 0, hand: "left" | "right" = "right"): void {
+    (hand === "left" ? this.xrLeft : this.xr).drive(now, this.strength(arm), [gamepad]);
   }
 }

@@ -19,9 +19,17 @@ export interface XRControllerReading {
 /** The right-hand controller (else the first with a grip and buttons), or null. Hands
  * (which may carry a gamepad for their pinch) are not controllers. */
 export function readController(frame: XRFrame, space: XRReferenceSpace): XRControllerReading | null {
-  const sources = Array.from(frame.session.inputSources).filter((s) => s.gripSpace && s.gamepad && !s.hand);
+  const sources = Array.from(frame.session.inputSources).filter(isController);
   const source = sources.find((s) => s.handedness === "right") ?? sources[0];
-  if (!source?.gripSpace || !source.gamepad) return null;
+  return source ? controllerReading(frame, space, source) : null;
+}
+
+/** A controller: a grip and buttons, and no hand (a hand may carry a gamepad for its pinch). */
+const isController = (s: XRInputSource): boolean => !!s.gripSpace && !!s.gamepad && !s.hand;
+
+/** One controller's reading (null: it has no grip or no gamepad). */
+function controllerReading(frame: XRFrame, space: XRReferenceSpace, source: XRInputSource): XRControllerReading | null {
+  if (!source.gripSpace || !source.gamepad) return null;
   const pose = frame.getPose(source.gripSpace, space);
   // xr-standard mapping: button 1 is the squeeze. An emulated (lost) position is no grip.
   const gripping = (source.gamepad.buttons[1]?.pressed ?? false) && !!pose && !pose.emulatedPosition;
@@ -37,6 +45,27 @@ export function readController(frame: XRFrame, space: XRReferenceSpace): XRContr
 export class XRMasterInput {
   private readonly pinches = new Map<XRHandedness, Pinch>();
   private last: XRInputSource | null = null;
+  private readonly lastOf = new Map<XRHandedness, XRInputSource | null>();
+
+  /** Each hand's master, for two arms: its controller, else its tracked hand (null:
+   * neither). As `read`, a hand whose input changes lets go for one frame. */
+  readHands(frame: XRFrame, space: XRReferenceSpace): { left: XRControllerReading | null; right: XRControllerReading | null } {
+    const sources = Array.from(frame.session.inputSources);
+    const readOne = (handedness: "left" | "right"): XRControllerReading | null => {
+      const controller = sources.find((s) => s.handedness === handedness && isController(s));
+      const hand = controller ? undefined : sources.find((s) => s.hand && s.handedness === handedness);
+      const source = controller ?? hand ?? null;
+      let reading: XRControllerReading | null = null;
+      if (controller) reading = controllerReading(frame, space, controller);
+      else if (hand?.hand) reading = handReading(readHandJoints(frame, hand.hand, space), this.pinch(handedness));
+      if (source !== (this.lastOf.get(handedness) ?? null)) {
+        this.lastOf.set(handedness, source);
+        if (reading) reading = { ...reading, gripping: false };
+      }
+      return reading;
+    };
+    return { left: readOne("left"), right: readOne("right") };
+  }
 
   read(frame: XRFrame, space: XRReferenceSpace): XRControllerReading | null {
     const controller = readController(frame, space);

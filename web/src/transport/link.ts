@@ -3,7 +3,7 @@
 // mirrored here on the page's clock.
 import type { ForceSample } from "./codec";
 import { type BeatSkip, PAGE_CHECK_IN_MS } from "./heartbeat";
-import type { RealtimeHandlers, RobotState } from "./realtime";
+import type { ArmAnnouncement, RealtimeHandlers, RobotState } from "./realtime";
 import { Rolling } from "../stats";
 
 export type ToWorker =
@@ -14,7 +14,7 @@ export type ToWorker =
   | { op: "lease"; action: number }
   | { op: "estop" }
   | { op: "reset" }
-  | { op: "cartesian"; dX: number[]; rotvec: number[]; frame: number };
+  | { op: "cartesian"; dX: number[]; rotvec: number[]; frame: number; arm: number };
 
 export interface LinkMeta {
   operator: boolean;
@@ -37,7 +37,8 @@ export interface LinkMeta {
 
 export type FromWorker =
   | { kind: "state"; state: RobotState; at: number; meta: LinkMeta }
-  | { kind: "forces"; samples: ForceSample[]; at: number }
+  | { kind: "forces"; samples: ForceSample[]; arm: number; at: number }
+  | { kind: "arms"; arms: ArmAnnouncement[] }
   | { kind: "event"; text: string; eventKind: number }
   | { kind: "error"; text: string; seq: number; code: number }
   | { kind: "connection"; up: boolean; why: string; meta: LinkMeta }
@@ -55,6 +56,8 @@ export class RealtimeLink implements LinkMeta {
   beatGapMs = 0;
   beatSkips: Record<BeatSkip, number> = { unwanted: 0, pageSilent: 0, recent: 0 };
   resumes = 0;
+  /** The arms the server drives, from its ARM messages (this session's). */
+  arms: ArmAnnouncement[] = [];
   readonly stateInterval = new Rolling();
   readonly forceInterval = new Rolling(2000);
   readonly commandLatency = new Rolling();
@@ -96,8 +99,9 @@ export class RealtimeLink implements LinkMeta {
     this.post({ op: "reset" });
   }
 
-  cartesian(dX: number[], rotvec: number[], frame: number): void {
-    this.post({ op: "cartesian", dX, rotvec, frame });
+  /** `arm`: ARM's index (0: the only arm of a one-arm server). */
+  cartesian(dX: number[], rotvec: number[], frame: number, arm = 0): void {
+    this.post({ op: "cartesian", dX, rotvec, frame, arm });
   }
 
   private post(m: ToWorker): void {
@@ -113,7 +117,11 @@ export class RealtimeLink implements LinkMeta {
         break;
       case "forces":
         this.forceInterval.tick(m.at); // per message, timed where it arrived
-        this.handlers.forces?.(m.samples);
+        this.handlers.forces?.(m.samples, m.arm);
+        break;
+      case "arms":
+        this.arms = m.arms;
+        this.handlers.arms?.(m.arms);
         break;
       case "event":
         this.handlers.event?.(m.text, m.eventKind);

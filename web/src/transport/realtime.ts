@@ -17,6 +17,15 @@ export interface RobotState {
   rotation: [number, number, number][];
   flags: number;
   serverTime: number;
+  /** Whose state (ARM's index, 1…N; the pose is in that arm's own base frame). */
+  arm: number;
+}
+
+/** One arm the server drives, as its ARM message (after WELCOME) says. */
+export interface ArmAnnouncement {
+  index: number;
+  joints: number;
+  name: string;
 }
 
 /** No message for this long (ms) on an open connection: the link has stalled (the
@@ -33,7 +42,10 @@ export const RESUME_GIVE_UP_MS = 10_000;
 
 export interface RealtimeHandlers {
   state?: (s: RobotState) => void;
-  forces?: (samples: ForceSample[]) => void;
+  /** `arm`: whose sensor (ARM's index). */
+  forces?: (samples: ForceSample[], arm: number) => void;
+  /** The server's arms, once every ARM after a WELCOME has come (each new session). */
+  arms?: (arms: ArmAnnouncement[]) => void;
   /** An EVENT: its text and kind (EventKind). */
   event?: (text: string, kind: number) => void;
   error?: (text: string, seq: number, code: number) => void;
@@ -66,6 +78,9 @@ export class RealtimeClient {
   resumes = 0;
   operator = false;
   clientId = "";
+  /** The arms the server drives (its ARM messages), and how many its WELCOME said. */
+  arms: ArmAnnouncement[] = [];
+  private armCount = 0;
   readonly stateInterval = new Rolling();
   readonly forceInterval = new Rolling(2000);
   readonly commandLatency = new Rolling();
@@ -150,7 +165,10 @@ export class RealtimeClient {
     };
     a.onmessage = (ev) => {
       const msg = decode(ev.data as ArrayBuffer);
-      if (msg.type === "WELCOME") this.adopt(a, performance.now(), msg.text);
+      if (msg.type === "WELCOME") {
+        this.expectArms(msg.arms);
+        this.adopt(a, performance.now(), msg.text);
+      }
       else if (msg.type === "ERROR") this.startAfresh(msg.text); // the session has ended
     };
     a.onclose = () => {
@@ -273,6 +291,12 @@ export class RealtimeClient {
     this.send(encode(M.HEARTBEAT, { seq: this.nextSeq(), client_time: this.serverNow() }));
   }
 
+  /** A WELCOME said how many arms: their ARM messages follow. */
+  private expectArms(count: number): void {
+    this.armCount = count;
+    this.arms = [];
+  }
+
   /** `arm`: the arm's index from its ARM message; 0 for the only arm of a one-arm server. */
   cartesian(dX: number[], rotvec: number[], frame: number, arm = 0): number {
     const seq = this.nextSeq();
@@ -296,14 +320,21 @@ export class RealtimeClient {
     switch (msg.type) {
       case "FORCE":
         this.forceInterval.tick(performance.now()); // per message: browsers get ~10 ms batches
-        this.handlers.forces?.(msg.samples);
+        this.handlers.forces?.(msg.samples, msg.arm);
         break;
+      case "ARM": {
+        // One per arm right after WELCOME, in order: told once they have all come.
+        this.arms = [...this.arms.filter((a) => a.index !== msg.index), { index: msg.index, joints: msg.joints, name: msg.text }].sort((a, b) => a.index - b.index);
+        if (this.arms.length === this.armCount) this.handlers.arms?.(this.arms);
+        break;
+      }
       case "WELCOME": {
         // "<client id> <resume key>" (HELLO's RESUMABLE flag).
         const [id = "", key = ""] = msg.text.split(" ");
         this.operator = msg.role === 1;
         this.clientId = id;
         this.resumeKey = key;
+        this.expectArms(msg.arms);
         this.handlers.welcome?.(this.operator, this.clientId);
         break;
       }
@@ -353,5 +384,6 @@ export function robotState(msg: StateMessage): RobotState {
     ],
     flags: msg.flags,
     serverTime: msg.server_time,
+    arm: msg.arm,
   };
 }

@@ -58,7 +58,8 @@ port.onmessage = (e) => {
         hasControl = (state.flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
         port.postMessage({ kind: "state", state, at: pageNow(), meta: meta(c) });
       },
-      forces: (samples) => port.postMessage({ kind: "forces", samples, at: pageNow() }),
+      forces: (samples, arm) => port.postMessage({ kind: "forces", samples, arm, at: pageNow() }),
+      arms: (arms) => port.postMessage({ kind: "arms", arms }),
       event: (text, eventKind) => port.postMessage({ kind: "event", text, eventKind }),
       error: (text, seq, code) => port.postMessage({ kind: "error", text, seq, code }),
       connection: (up, why) => port.postMessage({ kind: "connection", up, why, meta: meta(c) }),
@@ -90,7 +91,7 @@ port.onmessage = (e) => {
       client.reset();
       break;
     case "cartesian":
-      client.cartesian(m.dX, m.rotvec, m.frame);
+      client.cartesian(m.dX, m.rotvec, m.frame, m.arm);
       break;
   }
 };

@@ -2,6 +2,7 @@
 // "?" button toggles it; Escape closes it and does nothing else (ui/keys.ts: a key
 // pressed to close a window must not latch the e-stop). Every other key still reaches
 // the input loop while it is open, and the E-STOP button stays above it.
+import { handArms } from "../input/arms";
 import { FRAMES, FRAME_KEYS } from "../input/loop";
 import { $ } from "./dom";
 
@@ -10,8 +11,24 @@ export interface HelpRow {
   does: string;
 }
 
-/** What the overlay lists, in sections. */
-export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<Record<string, string>> = FRAME_KEYS): { title: string; rows: HelpRow[] }[] {
+/** What a server with two arms or more adds: which input drives which arm (input/arms.ts). */
+export function armRows(names: readonly string[]): HelpRow[] {
+  const { left, right } = handArms(names);
+  const [l, r] = [names[left] ?? "left", names[right] ?? "right"];
+  return [
+    { keys: "[ / ]", does: `the arm the keys drive: the previous / the next (${names.join(", ")}); or click its chip in the header` },
+    { keys: "gamepad L1 + left stick", does: `the ${l} arm: L1 (hold) its dead-man, the stick forward/back and left/right; with L2 pulled, up/down and turn` },
+    { keys: "gamepad R1 + right stick", does: `the ${r} arm, the same with R1 and R2` },
+    { keys: "gamepad Back / Select", does: "swap to one arm (the keys' arm, with the one-arm mapping: R1, both sticks, triggers) for fine work, and back to both" },
+    { keys: "gamepad D-pad ← / →", does: "the previous / the next arm (for the keys and the gamepad alone)" },
+    { keys: "VR left / right hand", does: `the left controller (or hand) drives the ${l} arm, the right the ${r}, each with its own grip (pinch); as the picture shows them` },
+    { keys: "rumble", does: `each hand feels its own arm's contact: the left XR controller and the gamepad's left motor the ${l} arm's, the right the ${r}'s` },
+  ];
+}
+
+/** What the overlay lists, in sections (`arms`: the server's arms' names; two or more
+ * add a section saying which input drives which). */
+export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<Record<string, string>> = FRAME_KEYS, arms: readonly string[] = []): { title: string; rows: HelpRow[] }[] {
   const picks = Object.entries(keys).sort(([a], [b]) => a.localeCompare(b));
   const digits = picks.map(([code]) => code.replace(/^Digit/, "")).join(" / ");
   return [
@@ -51,11 +68,12 @@ export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<
         { keys: "Enter VR", does: "the View panel's button" },
       ],
     },
+    ...(arms.length > 1 ? [{ title: `Two arms (${arms.join(", ")})`, rows: armRows(arms) }] : []),
     {
       title: "Buttons",
       rows: [
         { keys: "Take / Release control", does: "the lease: one operator drives at a time" },
-        { keys: "Home", does: "move the arm to its home pose (click twice to confirm)" },
+        { keys: "Home", does: `move ${arms.length > 1 ? "every arm to its" : "the arm to its"} home pose (click twice to confirm)` },
         { keys: "E-STOP", does: "stop at once, latched; anyone may press it" },
         { keys: "Reset e-stop", does: "clear the latch (the operator in control)" },
         { keys: "Speed", does: "scales every motion, 0.10–1.00" },
@@ -76,7 +94,7 @@ const escape = (s: string) => s.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": 
 export class HelpOverlay {
   readonly element: HTMLElement;
 
-  constructor(doc: Document = document, button: HTMLElement | null = $("help-button")) {
+  constructor(doc: Document = document, button: HTMLElement | null = $("help-button"), arms: readonly string[] = []) {
     const el = doc.createElement("div");
     el.id = "help";
     el.hidden = true;
@@ -84,7 +102,7 @@ export class HelpOverlay {
     el.setAttribute("aria-label", "Keys and controls");
     el.innerHTML =
       `<div class="help-box"><button type="button" class="help-close" title="Escape">×</button><h2>Keys and controls</h2>` +
-      helpSections()
+      helpSections(FRAMES, FRAME_KEYS, arms)
         .map((s) => `<h3>${escape(s.title)}</h3><table>${s.rows.map((r) => `<tr><th>${escape(r.keys)}</th><td>${escape(r.does)}</td></tr>`).join("")}</table>`)
         .join("") +
       `</div>`;

@@ -17,7 +17,13 @@ export const HOME_CONFIRM_MS = 4000;
 
 /** The figures the panels show, read at each redraw. */
 export interface PanelSources {
+  /** The header's state (with two arms or more, every arm's as one: robot/arms.ts). */
   state(): RobotState | null;
+  /** The Robot panel's arm's state (the arm the keys drive); by default `state()`'s. */
+  armState?: () => RobotState | null;
+  /** That arm's name beside the Robot and Force panels' titles ("" with one arm). */
+  armName?: () => string;
+  /** The Force panel's: that arm's sensor. */
   force(): ForceSample | null;
   link: {
     readonly operator: boolean;
@@ -37,6 +43,8 @@ export interface PanelSources {
   /** For the Home button (POST /api/v1/robot/initialize) and its errors. */
   api?: Api;
   log?: MessageLog;
+  /** The arms' names with two arms or more (Home moves each); none or one: the only arm. */
+  arms?: () => readonly string[];
 }
 
 let disconnectReason = "";
@@ -57,6 +65,7 @@ export class HomeButton {
     private readonly link: { readonly clientId: string },
     private readonly log: Pick<MessageLog, "add">,
     private readonly changed: () => void = () => {},
+    private readonly arms: () => readonly string[] = () => [],
   ) {}
 
   click(): void {
@@ -70,9 +79,15 @@ export class HomeButton {
     }
     this.set("moving");
     this.log.add("home: moving to the home pose…");
-    this.api
-      .request("post", "/api/v1/robot/initialize", { body: {}, headers: { "X-Client-Id": this.link.clientId } })
-      .then(() => this.log.add("home: at the home pose"))
+    const headers = { "X-Client-Id": this.link.clientId };
+    const arms = this.arms();
+    // Two arms or more: each to its home pose, at the same time.
+    const done =
+      arms.length > 1
+        ? Promise.all(arms.map((arm) => this.api.request("post", "/api/v1/robot/initialize", { body: {}, headers, query: { arm } })))
+        : this.api.request("post", "/api/v1/robot/initialize", { body: {}, headers });
+    done
+      .then(() => this.log.add(arms.length > 1 ? "home: every arm at its home pose" : "home: at the home pose"))
       .catch((e: Error) => this.log.add(`home: ${e.message}`, true))
       .finally(() => this.set("idle"));
   }
@@ -138,11 +153,15 @@ export function updatePanels(src: PanelSources, fresh: Freshness, home: HomeStep
     }),
   );
   $("speed-value").textContent = speedText(numberIn("speed"));
-  if (s) {
-    $("joints").innerHTML = jointTable(src.jointNames, s.joints);
-    $("pose").textContent = `tool at ${s.position.map((v) => v.toFixed(3)).join(", ")} m`;
-    $("orientation").textContent = s.rotation ? orientationText(s.rotation) : "";
+  const arm = src.armState ? src.armState() : s;
+  if (arm) {
+    $("joints").innerHTML = jointTable(src.jointNames, arm.joints);
+    $("pose").textContent = `tool at ${arm.position.map((v) => v.toFixed(3)).join(", ")} m`;
+    $("orientation").textContent = arm.rotation ? orientationText(arm.rotation) : "";
   }
+  const name = src.armName?.() ?? "";
+  $("robot-arm").textContent = name;
+  $("force-arm").textContent = name;
   const limit = src.forceLimitN;
   const f = src.force()?.values ?? [0, 0, 0, 0, 0, 0];
   $("force-limit").textContent = `limit ${limit.toFixed(0)} N`;
@@ -170,7 +189,7 @@ export function startPanels(src: PanelSources): { home: HomeButton | null; redra
   let home: HomeButton | null = null;
   const redraw = () => updatePanels(src, fresh, home?.step);
   if (src.api && src.log) {
-    home = new HomeButton(src.api, src.link, src.log, redraw);
+    home = new HomeButton(src.api, src.link, src.log, redraw, src.arms);
     const button = home;
     $("home").onclick = () => button.click();
   }

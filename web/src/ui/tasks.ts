@@ -33,6 +33,9 @@ export interface TaskSources {
   path: PathOverlay;
   /** Asks the operator (window.confirm on the page). */
   confirm?: (text: string) => boolean;
+  /** The arm whose model the recordings are checked against, on a server with two arms
+   * or more (its first; `?arm=`); null or absent: the only arm. */
+  arm?: () => string | null;
 }
 
 /** A stopped task's line: why, in the server's words. */
@@ -210,11 +213,12 @@ export class TasksPanel {
 
   /** Read the recordings (and follow a task already under way). */
   async load(): Promise<void> {
+    const arm = this.src.arm?.() ?? null;
     try {
       const [recordings, tasks, model] = await Promise.all([
         this.src.api.request("get", "/api/v1/recordings"),
         this.src.api.request("get", "/api/v1/tasks"),
-        this.src.api.request("get", "/api/v1/robot/model"),
+        arm ? this.src.api.request("get", "/api/v1/robot/model", { query: { arm } }) : this.src.api.request("get", "/api/v1/robot/model"),
       ]);
       this.arm = { model: model.model, name: model.name };
       this.recordings = recordings.filter((r) => !r.active && r.episodes.length > 0);

@@ -41,11 +41,13 @@ uniform float cropTop;  // rows of each eye not shown (the timecode stripe)
 uniform float dim;      // 0: the video as it is, 1: black (stale video)
 uniform vec2 outSize;   // this quad's size in pixels
 uniform vec2 shift;     // right image moved by this many pixels (x right, y down)
-uniform bool showBall;
-uniform vec2 ballL;     // AR ball centre in each camera's pixels
-uniform vec2 ballR;
+// AR balls (one per arm; BALLS of MAX_BALLS drawn): each shown or not, its centre in
+// each camera's pixels, its colour.
+uniform float showBall[MAX_BALLS];
+uniform vec2 ballL[MAX_BALLS];
+uniform vec2 ballR[MAX_BALLS];
+uniform vec3 ballColor[MAX_BALLS];
 uniform float radius;
-uniform vec3 ballColor;
 uniform mat3 duboisL;
 uniform mat3 duboisR;
 varying vec2 vUv;
@@ -57,13 +59,15 @@ vec3 sampleEye(int which, vec2 px) {
   if (px.x < 0.0 || px.y < 0.0 || px.x >= eye.x || px.y >= eye.y) return vec3(0.0);
   vec2 uv = vec2((px.x + float(which) * eye.x) / (2.0 * eye.x), 1.0 - px.y / eye.y);
   vec3 c = texture2D(tex, uv).rgb * (1.0 - dim);
-  if (showBall) {
-    // A ring: the tip it marks shows through its middle.
-    vec2 b = which == 0 ? ballL : ballR;
-    float e = abs(distance(px, b) - radius);
-    float w = max(1.5, 0.2 * radius);
-    if (e < w) c = ballColor;
-    else if (e < w + 1.5) c = mix(ballColor, vec3(0.0), 0.6);
+  for (int k = 0; k < BALLS; k++) {
+    if (showBall[k] > 0.5) {
+      // A ring: the tip it marks shows through its middle.
+      vec2 b = which == 0 ? ballL[k] : ballR[k];
+      float e = abs(distance(px, b) - radius);
+      float w = max(1.5, 0.2 * radius);
+      if (e < w) c = ballColor[k];
+      else if (e < w + 1.5) c = mix(ballColor[k], vec3(0.0), 0.6);
+    }
   }
 #if OVERLAY
   vec4 o = texture2D(overlay, uv);
@@ -98,6 +102,9 @@ export interface Ball {
   left: [number, number] | null;
   right: [number, number] | null;
 }
+
+/** The most AR balls drawn (one per arm); a program draws as many as the arms (BALLS). */
+export const MAX_BALLS = 4;
 
 /** Rows at the top of each camera image that the view does not show: the simulated
  * cameras' timecode stripe (drivers/camera/timecode.py: blocks of 16 px at y 8, a 4 px
@@ -287,7 +294,7 @@ export class StereoView {
     return new THREE.ShaderMaterial({
       vertexShader: VERTEX,
       fragmentShader: FRAGMENT,
-      defines: { MODE: mode, OVERLAY: 1 },
+      defines: { MODE: mode, OVERLAY: 1, BALLS: 1, MAX_BALLS },
       uniforms: {
         tex: { value: this.texture },
         overlay: { value: this.overlayTexture },
@@ -296,11 +303,11 @@ export class StereoView {
         eye: { value: new THREE.Vector2(1280, 720) },
         outSize: { value: new THREE.Vector2(2560, 720) },
         shift: { value: new THREE.Vector2(0, 0) },
-        showBall: { value: true },
-        ballL: { value: new THREE.Vector2(-1000, -1000) },
-        ballR: { value: new THREE.Vector2(-1000, -1000) },
+        showBall: { value: Array.from({ length: MAX_BALLS }, () => 0) },
+        ballL: { value: Array.from({ length: MAX_BALLS }, () => new THREE.Vector2(-1000, -1000)) },
+        ballR: { value: Array.from({ length: MAX_BALLS }, () => new THREE.Vector2(-1000, -1000)) },
         radius: { value: 10 },
-        ballColor: { value: new THREE.Color(0x00ff66) },
+        ballColor: { value: Array.from({ length: MAX_BALLS }, () => new THREE.Color(0x00ff66)) },
         duboisL: { value: DUBOIS_LEFT },
         duboisR: { value: DUBOIS_RIGHT },
       },
@@ -345,15 +352,29 @@ export class StereoView {
     this.render();
   }
 
-  setBall(ball: Ball, show: boolean, colour: string, radius: number): void {
+  /** Draw the AR ball of arm `k` (0 for the only one; under MAX_BALLS). */
+  setBall(ball: Ball, show: boolean, colour: string, radius: number, k = 0): void {
+    if (k < 0 || k >= MAX_BALLS) return;
     for (const m of this.all()) {
-      m.uniforms.showBall!.value = show && ball.left !== null;
-      if (ball.left) (m.uniforms.ballL!.value as THREE.Vector2).set(...ball.left);
-      if (ball.right) (m.uniforms.ballR!.value as THREE.Vector2).set(...ball.right);
+      (m.uniforms.showBall!.value as number[])[k] = show && ball.left !== null ? 1 : 0;
+      if (ball.left) (m.uniforms.ballL!.value as THREE.Vector2[])[k]!.set(...ball.left);
+      if (ball.right) (m.uniforms.ballR!.value as THREE.Vector2[])[k]!.set(...ball.right);
       // Our pixels bypass colour management, so the picked colour is used as it is.
-      (m.uniforms.ballColor!.value as THREE.Color).setStyle(colour, THREE.LinearSRGBColorSpace);
+      (m.uniforms.ballColor!.value as THREE.Color[])[k]!.setStyle(colour, THREE.LinearSRGBColorSpace);
       m.uniforms.radius!.value = radius;
     }
+  }
+
+  /** How many AR balls the programs draw (one per arm, at most MAX_BALLS): each mode's
+   * program is built again for it; one, as with one arm, until told. */
+  setBallCount(n: number): void {
+    const balls = Math.max(1, Math.min(MAX_BALLS, n));
+    for (const m of this.all()) {
+      if (m.defines.BALLS === balls) continue;
+      m.defines.BALLS = balls;
+      m.needsUpdate = true;
+    }
+    for (let k = balls; k < MAX_BALLS; k++) for (const m of this.all()) (m.uniforms.showBall!.value as number[])[k] = 0;
   }
 
   setMode(mode: ViewMode): void {
