@@ -105,7 +105,7 @@ def test_replies_that_never_come_make_it_align_again_rather_than_grow() -> None:
             self.seq += 1
             return self.seq
 
-        def joints(self, dq: list[float], seq: int) -> int:
+        def joints(self, dq: list[float], seq: int, arm: int | str = 0) -> int:
             return seq
 
     mir = JointMirror(SimLeader(SO101), Sending(), SO101.joint_names)  # type: ignore[arg-type]

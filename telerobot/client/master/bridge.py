@@ -32,6 +32,10 @@ normal jitter, kept in order), so a slow link can be had without network namespa
 When the priority channel goes away (a server restart, a network cut), the device is
 let go (no force, clutch re-anchored) and, given a ``reconnect`` function, the bridge
 connects again with a doubling backoff (0.5 s … 8 s, from the start after a success).
+
+On a server driving two arms or more (docs/arms.md) the bridge drives one, ``arm``
+(the wire's index): its increments and ENERGY name it, and it renders that arm's
+forces and reads that arm's STATE only. 0 (the default) is a one-arm server's arm.
 """
 
 from __future__ import annotations
@@ -160,8 +164,10 @@ class MasterBridge:
         time_source: Callable[[], float] = time.monotonic,
         reconnect: Callable[[], PriorityLink] | None = None,
         backoff: Backoff | None = None,
+        arm: int = 0,
     ) -> None:
         self.device = device
+        self.arm = arm  # the server's arm it drives (ARM's index; 0: the only arm)
         self.link = link
         self.reconnect = reconnect  # a new link to the server; None: stop when it goes
         self.backoff = backoff or Backoff()
@@ -231,6 +237,7 @@ class MasterBridge:
         self._attach(link)
 
     def _attach(self, link: PriorityLink) -> None:
+        link.force_arm = self.arm  # its arm's forces only (0: the only arm's)
         link.on_force = self._on_force
         link.on_state = self._on_state
         link.on_reply = self._on_reply
@@ -265,6 +272,8 @@ class MasterBridge:
         return due
 
     def _on_state(self, fields: dict[str, Any]) -> None:
+        if self.arm and int(fields.get("arm", self.arm)) != self.arm:
+            return  # another arm's
         R = np.array([[fields[f"r{i}{j}"] for j in range(3)] for i in range(3)], dtype=float)
         with self._lock:
             self._tool_rotation = R
@@ -425,11 +434,19 @@ class MasterBridge:
     def _send_command(
         self, dx: FloatArray, rv: FloatArray, now: float, energy: tuple[float, float] | None
     ) -> None:
+        # (The arm is named only when there is one to name: a one-arm link, such as
+        # bench.master_contact's virtual one, is called as it always was.)
         if energy is not None:  # first: the increment after it may spend it
-            self.link.energy(*energy)
+            if self.arm:
+                self.link.energy(*energy, arm=self.arm)
+            else:
+                self.link.energy(*energy)
             self.energy_sent += 1
         d, r = dx.tolist(), rv.tolist()
-        self.link.cartesian((d[0], d[1], d[2]), (r[0], r[1], r[2]))
+        if self.arm:
+            self.link.cartesian((d[0], d[1], d[2]), (r[0], r[1], r[2]), arm=self.arm)
+        else:
+            self.link.cartesian((d[0], d[1], d[2]), (r[0], r[1], r[2]))
         self.commands_sent += 1
         self._last_heartbeat = now  # any command keeps the dead-man satisfied
 

@@ -1,4 +1,9 @@
-"""``telerobot master``: the master-arm bridge as a command."""
+"""``telerobot master``: the master-arm bridge as a command.
+
+A leader arm (``--device <name>-leader``) is mirrored joint for joint; on a server that
+drives two arms (docs/arms.md) two leaders are, each into its own arm, each on its own
+bus and calibration, named by the arm (``--leader-port left=/dev/ttyACM0
+--leader-port right=/dev/ttyACM1``), over one link and one lease."""
 
 from __future__ import annotations
 
@@ -6,16 +11,19 @@ import argparse
 import contextlib
 import math
 import os
+import re
 import signal
 import sys
 import threading
+from dataclasses import dataclass
 
 import httpx
 import numpy as np
 
 from telerobot.client import local_url, stored_token
 from telerobot.client.master.bridge import BridgeSettings, MasterBridge
-from telerobot.client.master.link import open_link
+from telerobot.client.master.joints import JointMirrors
+from telerobot.client.master.link import PriorityLink, open_link
 from telerobot.drivers.base import FloatArray, MasterArm, TelerobotError
 from telerobot.drivers.registry import driver_names, load_driver
 from telerobot.protocol.names import client_name
@@ -30,6 +38,10 @@ def demo_hand(t: float) -> tuple[FloatArray, bool]:
 
 
 CPU_PRIORITY = 5  # nice steps the bridge raises itself by (as the server: cpu_priority)
+LEADER_PORT = "/dev/ttyACM1"  # a leader's bus unless said (the follower's is ttyACM0)
+ARM_NAME = re.compile(r"[A-Za-z0-9_-]{1,32}")  # as the server's settings take them
+# Leaders with no bus and no calibration (scripted): any number may share the options.
+BUSLESS_LEADERS = frozenset({"sim"})
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,11 +72,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--leader-port",
-        default="/dev/ttyACM1",
-        help="so101-leader: its servo bus (a device, a pty or socket://host:port)",
+        action="append",
+        metavar="[ARM=]PORT",
+        help=f"so101-leader: its servo bus (a device, a pty or socket://host:port; default"
+        f" {LEADER_PORT}). Two leaders for a server's two arms: one each, named by the arm"
+        " it drives (--leader-port left=/dev/ttyACM0 --leader-port right=/dev/ttyACM2)",
     )
     p.add_argument("--leader-baudrate", type=int, default=1_000_000)
-    p.add_argument("--leader-calibration", help="so101-leader: its joint calibration (JSON) file")
+    p.add_argument(
+        "--leader-calibration",
+        action="append",
+        metavar="[ARM=]FILE",
+        help="so101-leader: its joint calibration (JSON; default: the file `telerobot"
+        " so101-calibrate --leader` writes). Two leaders: one each, named by arm"
+        " (--leader-calibration left=left-leader.json), as `so101-calibrate --leader"
+        " --out FILE` recorded them",
+    )
+    p.add_argument(
+        "--arm",
+        action="append",
+        metavar="NAME",
+        help="on a server that drives two arms or more (GET /api/v1/robot/arms): the arm"
+        " this device drives (a haptic master, or one leader on --leader-port PORT);"
+        " sim-leader: once per arm, a scripted leader for each",
+    )
     p.add_argument(
         "--align-deg",
         type=float,
@@ -125,57 +156,192 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+@dataclass(frozen=True)
+class LeaderPlan:
+    """One leader to mirror: into which arm (its name; "": a one-arm server's arm), read
+    from which bus, with which calibration (None: the driver's default)."""
+
+    arm: str
+    port: str
+    calibration: str | None
+
+
+def _by_arm(values: list[str] | None, option: str) -> tuple[str | None, dict[str, str]]:
+    """``[ARM=]VALUE`` options: the one value without an arm (or None), and the named ones."""
+    plain: list[str] = []
+    named: dict[str, str] = {}
+    for value in values or []:
+        name, eq, rest = value.partition("=")
+        if eq and rest and ARM_NAME.fullmatch(name):
+            if name in named:
+                raise TelerobotError(f"{option}: {name} is given twice")
+            named[name] = rest
+        else:
+            plain.append(value)
+    if len(plain) > 1:
+        raise TelerobotError(
+            f"{option}: {len(plain)} given without their arms: name each one's"
+            f" ({option} left=… {option} right=…)"
+        )
+    return (plain[0] if plain else None), named
+
+
+def plan_leaders(
+    kind: str,
+    ports: list[str] | None,
+    calibrations: list[str] | None,
+    arms: list[str] | None,
+    server_arms: list[str],
+) -> list[LeaderPlan]:
+    """Which leaders to mirror into which of the server's arms (``server_arms``: their
+    names, in order), from the command line's options; a ``TelerobotError`` saying what
+    to give when they do not add up."""
+    port, port_of = _by_arm(ports, "--leader-port")
+    calibration, calibration_of = _by_arm(calibrations, "--leader-calibration")
+    chosen = list(dict.fromkeys([*port_of, *(arms or [])]))
+    listed = ", ".join(server_arms)
+    for name in (*chosen, *calibration_of):
+        if name not in server_arms:
+            raise TelerobotError(f"the server has no arm {name!r}: it drives {listed}")
+    for name in calibration_of:
+        if chosen and name not in chosen:
+            raise TelerobotError(f"--leader-calibration {name}=…: no leader drives {name}")
+    if not chosen:
+        if len(server_arms) > 1:
+            a, b = server_arms[:2]
+            raise TelerobotError(
+                f"the server drives {len(server_arms)} arms ({listed}): give each leader"
+                f" the bus of its arm (--leader-port {a}=PORT --leader-port {b}=PORT, and"
+                f" --leader-calibration {a}=FILE …), or choose the arm of one leader"
+                " (--arm NAME)"
+            )
+        only = server_arms[0]
+        return [LeaderPlan("", port or LEADER_PORT, calibration_of.get(only, calibration))]
+    if len(chosen) == 1:
+        arm = chosen[0]
+        return [
+            LeaderPlan(
+                arm, port_of.get(arm, port or LEADER_PORT), calibration_of.get(arm, calibration)
+            )
+        ]
+    plans = [
+        LeaderPlan(arm, port_of.get(arm, port or LEADER_PORT), calibration_of.get(arm))
+        for arm in chosen
+    ]
+    if kind in BUSLESS_LEADERS:
+        return plans
+    for i, plan in enumerate(plans):
+        for other in plans[:i]:
+            if other.port == plan.port:
+                raise TelerobotError(
+                    f"the {other.arm} and {plan.arm} leaders would read one bus ({plan.port}):"
+                    f" give each its own (--leader-port {other.arm}=PORT"
+                    f" --leader-port {plan.arm}=PORT)"
+                )
+    missing = [plan.arm for plan in plans if plan.calibration is None]
+    if missing or calibration is not None:
+        raise TelerobotError(
+            "each leader has its own calibration (its zeros are its own): give one for"
+            f" each arm, {' '.join(f'--leader-calibration {p.arm}=FILE' for p in plans)}"
+            " (`telerobot so101-calibrate --leader --out FILE` records one)"
+        )
+    return plans
+
+
 def run_leader(args: argparse.Namespace, token: str) -> int:
-    """A leader arm mirrored joint for joint (``--device <name>-leader``)."""
+    """Leader arms mirrored joint for joint (``--device <name>-leader``): one, or one
+    for each of the server's arms."""
     from telerobot.client.master.joints import JointMirror, MirrorSettings
     from telerobot.drivers.robot.models import load_model
 
     base = args.server if args.server.endswith("/") else args.server + "/"
     kind = args.device.removesuffix("-leader")
-    mirror: JointMirror | None = None
+    link = None
+    lines: list[str] = []
     try:
         try:
-            described = httpx.get(base + "api/v1/robot/model", timeout=5, verify=False).json()
-        except (httpx.HTTPError, ValueError) as exc:
-            raise TelerobotError(f"cannot ask {base} for its arm's model: {exc}") from None
-        model = load_model(str(described["model"]))
-        leader = load_driver("leader", kind).from_options(
-            model,
-            port=args.leader_port,
-            baudrate=args.leader_baudrate,
-            calibration=args.leader_calibration,
+            server_arms = httpx.get(base + "api/v1/robot/arms", timeout=5, verify=False)
+            server_arms.raise_for_status()
+            names = [str(a["name"]) for a in server_arms.json()]
+        except (httpx.HTTPError, ValueError, KeyError, TypeError) as exc:
+            raise TelerobotError(f"cannot ask {base} for its arms: {exc}") from None
+        plans = plan_leaders(
+            kind, args.leader_port, args.leader_calibration, args.arm, server_arms=names
         )
+        built = []
+        for plan in plans:
+            query = {"arm": plan.arm} if plan.arm else {}
+            try:
+                described = httpx.get(
+                    base + "api/v1/robot/model", params=query, timeout=5, verify=False
+                ).json()
+                model = load_model(str(described["model"]))
+            except (httpx.HTTPError, ValueError, KeyError, TypeError) as exc:
+                raise TelerobotError(f"cannot ask {base} for its arm's model: {exc}") from None
+            leader = load_driver("leader", kind).from_options(
+                model,
+                port=plan.port,
+                baudrate=args.leader_baudrate,
+                calibration=plan.calibration,
+            )
+            built.append((plan, model, leader))
         link = open_link(args.server, token, datagrams=False, name=args.name)  # no forces
         settings = MirrorSettings(align_rad=math.radians(args.align_deg)).check()
-        mirror = JointMirror(leader, link, model.joint_names, settings)
-        # Why the arm is as it is, should it be in ERROR already: STATE carries only
-        # its status, and the EVENT that said why came before this client joined.
-        with contextlib.suppress(httpx.HTTPError, ValueError, KeyError, TypeError):
-            arm = httpx.get(base + "api/v1/robot/state", timeout=5, verify=False).json()
-            mirror.arm_message = f"{arm['status']}: {arm['message']}"
-        mirror.start(take_control=bool(token), take_over=args.take_over)
+        mirrors = []
+        several = len(link.arms) > 1
+        for plan, model, leader in built:
+            mirror = JointMirror(leader, link, model.joint_names, settings, arm=plan.arm or 0)
+            # Why the arm is as it is, should it be in ERROR already: STATE carries only
+            # its status, and the EVENT that said why came before this client joined.
+            with contextlib.suppress(httpx.HTTPError, ValueError, KeyError, TypeError):
+                query = {"arm": plan.arm} if plan.arm else {}
+                arm = httpx.get(
+                    base + "api/v1/robot/state", params=query, timeout=5, verify=False
+                ).json()
+                mirror.arm_message = f"{arm['status']}: {arm['message']}"
+            mirrors.append(mirror)
+            onto = f"{plan.arm} {model.title}" if several else model.title
+            lines.append(f"Leader {leader.name} mirrored onto the {onto}")
+        group = JointMirrors(mirrors)
+        group.start(take_control=bool(token), take_over=args.take_over)
     except TelerobotError as exc:
         print(f"telerobot master: {exc}", file=sys.stderr)
+        if link is not None:
+            link.close()
         return 1
     role = "operator" if link.operator else "observer (no token: watching only)"
-    print(
-        f"Leader {leader.name} mirrored onto the {model.title} at {args.server} as {role}",
-        flush=True,
-    )
+    for line in lines:
+        print(f"{line} at {args.server} as {role}", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with contextlib.suppress(KeyboardInterrupt):
         while not stop.wait(1.0):
-            print(
-                f"control {'yes' if mirror.has_control else 'no '}"
-                f" · commands {mirror.commands_sent} · {mirror.status}"
-                + _supervision(mirror.link.autonomy, clutch=False)
-                + (f" · last error: {mirror.last_error}" if mirror.last_error else ""),
-                flush=True,
-            )
-    mirror.stop()
-    mirror.link.close()
+            print(_leaders_status(group), flush=True)
+    group.stop()
+    group.link.close()
     return 0
+
+
+def _leaders_status(group: JointMirrors) -> str:
+    """The leaders' status line: control, commands, each mirror's state and errors."""
+    said = [
+        f"{mirror.arm_name}: {mirror.status}" if mirror.arm_name else mirror.status
+        for mirror in group.mirrors
+    ]
+    errors = [
+        f"{mirror.arm_name + ' ' if mirror.arm_name else ''}last error: {mirror.last_error}"
+        for mirror in group.mirrors
+        if mirror.last_error
+    ]
+    if group.last_error:
+        errors.append(f"last error: {group.last_error}")
+    return (
+        f"control {'yes' if group.has_control else 'no '}"
+        f" · commands {group.commands_sent} · "
+        + " · ".join(said)
+        + _supervision(group.link.autonomy, clutch=False)
+        + "".join(f" · {e}" for e in errors)
+    )
 
 
 def _supervision(mode: str, clutch: bool = True) -> str:
@@ -189,6 +355,20 @@ def _supervision(mode: str, clutch: bool = True) -> str:
         + (" (let go 0.6 s to hand back)" if clutch else ""),
     }
     return said.get(mode, "")
+
+
+def master_arm(link: PriorityLink, arms: list[str] | None) -> int:
+    """The arm a haptic master drives (its index; 0 on a one-arm server unless named)."""
+    if arms and len(arms) > 1:
+        raise TelerobotError(f"--arm: a haptic master drives one arm, not {', '.join(arms)}")
+    if arms:
+        return link.arm_index(arms[0])
+    if len(link.arms) > 1:
+        raise TelerobotError(
+            f"the server drives {len(link.arms)} arms ({', '.join(link.arm_names)}): choose"
+            " the one this master drives (--arm NAME)"
+        )
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -235,12 +415,18 @@ def run(args: argparse.Namespace) -> int:
         device: MasterArm = cls(demo_hand) if args.device == "sim" else cls()
         udp = args.forces == "udp"
         link = open_link(args.server, token, datagrams=udp, name=args.name)
+        try:
+            arm = master_arm(link, args.arm)
+        except TelerobotError:
+            link.close()
+            raise
         # A server restart or a cut: connect again (with backoff) rather than exit.
         bridge = MasterBridge(
             device,
             link,
             settings,
             reconnect=lambda: open_link(args.server, token, datagrams=udp, name=args.name),
+            arm=arm,
         )
         bridge.start(take_control=bool(token), take_over=args.take_over)
     except TelerobotError as exc:

@@ -17,6 +17,11 @@ limits and dead-man as every other input.
   exactly; a refused one (ERROR) is taken back whole.
 - **The dead-man** is the server's: if this bridge stops sending, the arm stops. A
   leader has no clutch; letting go of it leaves the follower where the leader rests.
+- **Two leaders** (a server driving two arms, docs/arms.md): one ``JointMirror`` per
+  arm, each naming its arm (``arm``: the wire's index) in every increment and taking
+  only that arm's STATE and status events, aligned and following on its own;
+  ``JointMirrors`` runs them over one link (one client, one lease) in one loop. A
+  leader that fails stops them all: the server's dead-man then stops both arms.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,6 +40,7 @@ import numpy as np
 
 from telerobot.client.master.link import PriorityLink, Reply
 from telerobot.drivers.base import (
+    DeviceError,
     FloatArray,
     InvalidCommand,
     JointLeader,
@@ -85,18 +91,27 @@ class JointMirror:
         follower_joints: tuple[str, ...],
         settings: MirrorSettings | None = None,
         *,
+        arm: int | str = 0,
         time_source: Callable[[], float] = time.monotonic,
     ) -> None:
+        """``arm``: the server's arm it drives, by index or name (0: the only arm)."""
         if tuple(leader.joint_names) != tuple(follower_joints):
             raise InvalidCommand(
                 f"the leader's joints {list(leader.joint_names)} are not the arm's "
                 f"{list(follower_joints)}: a joint-for-joint mirror needs the same arm"
             )
-        if link.joint_count != len(follower_joints):
+        # Its arm as the link knows it (0: the only arm, whose count WELCOME says).
+        self.arm = 0 if arm == 0 else link.arm_index(arm)
+        self.arm_name = link.arm(self.arm).name if self.arm else ""
+        joint_count = link.arm(self.arm).joints if self.arm else link.joint_count
+        if joint_count != len(follower_joints):
             raise InvalidCommand(
-                f"the server's arm has {link.joint_count} joints, its model names "
-                f"{len(follower_joints)}"
+                f"the server's arm{f' {self.arm_name}' if self.arm else ''} has"
+                f" {joint_count} joints, its model names {len(follower_joints)}"
             )
+        # A server with two arms or more starts each status event with its arm's name
+        # ("left: ERROR: …"): this mirror keeps its own arm's, not the others'.
+        self._said_prefix = f"{self.arm_name}: " if self.arm and len(link.arms) > 1 else ""
         self.leader = leader
         self.link = link
         self.names = tuple(follower_joints)
@@ -131,6 +146,8 @@ class JointMirror:
 
     # ------------------------------------------------------------ from the link's thread
     def _on_state(self, fields: dict[str, Any]) -> None:
+        if self.arm and int(fields.get("arm", self.arm)) != self.arm:
+            return  # another arm's
         status = int(fields["status"])
         with self._lock:
             self._follower = np.array(fields["joints"], dtype=float)
@@ -140,7 +157,8 @@ class JointMirror:
 
     def _on_reply(self, reply: Reply) -> None:
         if reply.name == "EVENT" and int(reply.fields["kind"]) == m.EventKind.STATUS:
-            self.arm_message = reply.text
+            if reply.text.startswith(self._said_prefix):
+                self.arm_message = reply.text[len(self._said_prefix) :]
             return
         seq = int(reply.fields.get("seq", -1))
         with self._lock:
@@ -161,6 +179,11 @@ class JointMirror:
             self.last_error = self._said = reply.text
         elif reply.name == "ACK":
             self._said = None
+
+    def owns(self, seq: int) -> bool:
+        """Whether ``seq`` is one of this mirror's increments awaiting its reply."""
+        with self._lock:
+            return seq in self._sent
 
     def _forget(self) -> None:
         """Not following: the record, the increments in flight and their replies go."""
@@ -270,7 +293,7 @@ class JointMirror:
                 self._forget()
             else:
                 # Sent outside the lock: the link's reader needs it to hand replies over.
-                self.link.joints(dq.tolist(), seq)
+                self.link.joints(dq.tolist(), seq, arm=self.arm)
             self.commands_sent += 1
             self._last_heartbeat = now
         elif now - self._last_heartbeat >= self.settings.heartbeat_s:
@@ -292,20 +315,110 @@ class JointMirror:
                 self.link.lease(m.LeaseAction.RELEASE)
 
     def _run(self) -> None:
-        period = 1.0 / self.settings.rate_hz
-        next_tick = time.monotonic()
-        stop = self._worker.stopping
-        while not stop.is_set():
+        _run_mirrors([self], self._worker.stopping)
+
+
+def _run_mirrors(mirrors: Sequence[JointMirror], stop: threading.Event) -> None:
+    """Tick every mirror each period (the first's rate) until ``stop``; a leader that
+    fails, or the link closing, ends it for all (say so, stop sending: the server's
+    dead-man stops the arms)."""
+    period = 1.0 / mirrors[0].settings.rate_hz
+    next_tick = time.monotonic()
+    while not stop.is_set():
+        for mirror in mirrors:
             try:
-                self.tick()
+                mirror.tick()
             except TelerobotError as exc:  # the leader failed: say so, stop sending
-                self.last_error = str(exc)
-                self.status = f"leader: {exc}"
-                log.error("leader: %s", exc)
+                whose = f"{mirror.arm_name} leader" if mirror.arm_name else "leader"
+                mirror.last_error = str(exc)
+                mirror.status = f"leader: {exc}"
+                log.error("%s: %s", whose, exc)
+                for other in mirrors:
+                    if other is not mirror:
+                        other.status = f"stopped: the {whose} failed ({exc})"
                 return
             except OSError as exc:
-                self.last_error = f"the priority channel closed: {exc}"
-                self.status = self.last_error
+                for each in mirrors:
+                    each.last_error = f"the priority channel closed: {exc}"
+                    each.status = each.last_error
                 return
-            next_tick += period
-            stop.wait(max(0.0, next_tick - time.monotonic()))
+        next_tick += period
+        stop.wait(max(0.0, next_tick - time.monotonic()))
+
+
+class JointMirrors:
+    """Leaders mirrored each into its own arm over one link: one client, one lease,
+    one loop. It takes the link's callbacks over from the mirrors, handing each STATE
+    to its arm's mirror, each reply to the mirror whose increment it answers, and the
+    status events to all (each keeps its own arm's)."""
+
+    def __init__(self, mirrors: Sequence[JointMirror]) -> None:
+        if not mirrors:
+            raise InvalidCommand("no leader to mirror")
+        link = mirrors[0].link
+        arms = [mirror.arm for mirror in mirrors]
+        if any(mirror.link is not link for mirror in mirrors):
+            raise InvalidCommand("the leaders' mirrors must share one link")
+        if len(set(arms)) != len(arms) or (len(arms) > 1 and 0 in arms):
+            raise InvalidCommand(f"one leader per arm, each naming its arm (not {arms})")
+        self.mirrors = tuple(mirrors)
+        self.link = link
+        self.last_error: str | None = None  # a refusal of no mirror's increment (LEASE…)
+        self._said: str | None = None
+        self._worker = WorkerThread(self._run, "joint-mirror")
+        link.on_state = self._on_state
+        link.on_reply = self._on_reply
+
+    def _on_state(self, fields: dict[str, Any]) -> None:
+        for mirror in self.mirrors:
+            mirror._on_state(fields)  # (each takes its own arm's)
+
+    def _on_reply(self, reply: Reply) -> None:
+        if reply.name == "EVENT":
+            for mirror in self.mirrors:
+                mirror._on_reply(reply)
+            return
+        seq = int(reply.fields.get("seq", -1))
+        for mirror in self.mirrors:
+            if mirror.owns(seq):
+                mirror._on_reply(reply)
+                return
+        if reply.name == "ERROR":  # none of the increments: the lease, a heartbeat…
+            if reply.text != self._said:
+                log.warning("server: %s", reply.text)
+            self.last_error = self._said = reply.text
+
+    @property
+    def has_control(self) -> bool:
+        return any(mirror.has_control for mirror in self.mirrors)
+
+    @property
+    def commands_sent(self) -> int:
+        return sum(mirror.commands_sent for mirror in self.mirrors)
+
+    def start(self, take_control: bool = True, take_over: bool = False) -> None:
+        opened: list[JointMirror] = []
+        for mirror in self.mirrors:
+            try:
+                mirror.leader.open()
+            except TelerobotError as exc:
+                for each in opened:
+                    each.leader.close()
+                if not mirror.arm_name:
+                    raise
+                raise DeviceError(f"the {mirror.arm_name} arm's leader: {exc}") from None
+            opened.append(mirror)
+        if take_control:  # one lease covers every arm
+            self.link.lease(m.LeaseAction.TAKE_OVER if take_over else m.LeaseAction.TAKE)
+        self._worker.start()
+
+    def stop(self) -> None:
+        self._worker.stop()
+        for mirror in self.mirrors:
+            mirror.leader.close()
+        if self.has_control:
+            with contextlib.suppress(OSError):
+                self.link.lease(m.LeaseAction.RELEASE)
+
+    def _run(self) -> None:
+        _run_mirrors(self.mirrors, self._worker.stopping)

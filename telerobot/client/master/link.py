@@ -11,7 +11,16 @@ new at every registration; a second reader thread takes the datagrams and keeps 
 server's mapping alive with that key. If none arrives within ``DATAGRAM_FALLBACK_S``,
 or the server refuses, the forces stay on TCP (``datagrams`` says which and why); if
 the server goes back to TCP later (the keep-alives lost, or refused because a NAT gave
-the socket a new port), the link registers again, for a new key."""
+the socket a new port), the link registers again, for a new key.
+
+**Arms** (docs/protocol.md, "Arms (version 3)"). A server drives one arm or more: the
+link learns them from WELCOME and the ARM messages after it (``arms``: index, name,
+joint count) before its constructor returns. Every command takes the arm it is for,
+by index or name; left out it is 0, "the only arm", so a one-arm caller works
+unchanged (and is refused, with the arms' names, by a server with more). STATE comes
+per arm (``states``: the newest of each); each arm's sensor numbers its own samples,
+so the stale filter is per arm, and ``on_arm_force`` says whose each sample is
+(``on_force`` gets them all, or only ``force_arm``'s when that names one)."""
 
 from __future__ import annotations
 
@@ -28,7 +37,7 @@ from urllib.parse import urlsplit
 
 import httpx
 
-from telerobot.drivers.base import DeviceError, ForceSample, TelerobotError
+from telerobot.drivers.base import DeviceError, ForceSample, InvalidCommand, TelerobotError
 from telerobot.protocol import messages as m
 from telerobot.protocol.clock import ClockSync
 from telerobot.protocol.netprio import mark_high_priority
@@ -37,6 +46,7 @@ from telerobot.tuning import prompt_thread
 log = logging.getLogger(__name__)
 
 ForceCallback = Callable[[ForceSample, float], None]  # sample, receive time (monotonic)
+ArmForceCallback = Callable[[int, ForceSample, float], None]  # arm index, sample, receive time
 DATAGRAM_KEEPALIVE_S = 0.5  # DATAGRAMS to the server this often (it waits 2 s)
 FIRST_SEQ_END = m.FORCE_HEAD.size + 4  # a FORCE's first sample's seq ends here
 DATAGRAM_FALLBACK_S = 2.0  # no force datagram this long after asking: stay on TCP
@@ -103,6 +113,15 @@ class Reply:
     text: str
 
 
+@dataclass(frozen=True)
+class LinkArm:
+    """One arm the server drives, as its ARM message said."""
+
+    index: int  # on the wire: 1 for the first
+    name: str  # what REST's ``?arm=`` takes ("arm" on a one-arm server)
+    joints: int
+
+
 class PriorityLink:
     @property
     def offset(self) -> float:
@@ -120,6 +139,7 @@ class PriorityLink:
         token: str = "",
         *,
         on_force: ForceCallback | None = None,
+        on_arm_force: ArmForceCallback | None = None,
         on_state: Callable[[dict[str, Any]], None] | None = None,
         on_reply: Callable[[Reply], None] | None = None,
         timeout_s: float = 5.0,
@@ -136,15 +156,22 @@ class PriorityLink:
         self._seq = 0
         self.operator = False
         self.client_id = ""
-        self.joint_count = 0  # the arm's, from WELCOME
+        self.joint_count = 0  # the first arm's, from WELCOME
+        self.arms: tuple[LinkArm, ...] = ()  # from the ARM messages after WELCOME
+        self._arms_said = 0  # WELCOME.arms: how many ARM messages follow it
+        # The newest STATE of each arm (by index), as decoded.
+        self.states: dict[int, dict[str, Any]] = {}
+        self.on_arm_force = on_arm_force
+        self.force_arm = 0  # on_force gets this arm's samples only (0: every arm's)
         # A policy's supervision as the server last said it (EVENT autonomy, sent on
         # joining and at each change): off, autonomous, paused or correcting.
         self.autonomy = "off"
         self.clock = ClockSync()  # the server's clock, from PING
         self.closed_reason: str | None = None
         self.received = 0
+        self.received_by_arm: dict[int, int] = {}
         self.stale_samples = 0  # older than one already handed over (datagrams reorder)
-        self._last_seq: int | None = None
+        self._last_seq: dict[int, int] = {}  # per arm: each sensor numbers its own samples
         self._force_lock = threading.Lock()  # two readers with datagrams
         # Forces as datagrams: "tcp" (not asked), "asking", "udp", or "tcp: <why>".
         self.datagrams = "tcp"
@@ -154,7 +181,8 @@ class PriorityLink:
         self._datagram_seq = -1
         self._datagram_key = b""  # the server's (none until it answers)
         self._datagram_asked_at = -DATAGRAM_FALLBACK_S  # time.monotonic()
-        self._last_datagram_seq: int | None = None  # the newest sample that came by UDP
+        # The newest sample that came by UDP, per arm (each sensor numbers its own).
+        self._last_datagram_seq: dict[int, int] = {}
         self.thinning = Thinning(0.0)
         self._stopping = threading.Event()
         try:
@@ -209,16 +237,19 @@ class PriorityLink:
         return seq
 
     def cartesian(self, dX: tuple[float, float, float], rotvec: tuple[float, float, float],
-                  frame: m.Frame = m.Frame.BASE) -> int:  # fmt: skip
+                  frame: m.Frame = m.Frame.BASE, arm: int | str = 0) -> int:  # fmt: skip
+        """A Cartesian increment for ``arm`` (index or name; 0: the only arm)."""
+        index = self.arm_index(arm)
         seq = self._next()
-        self._send(m.encode(m.CART_INC, seq, time.monotonic(), int(frame), *dX, *rotvec))
+        self._send(m.encode(m.CART_INC, seq, time.monotonic(), int(frame), *dX, *rotvec, index))
         return seq
 
-    def energy(self, e_in: float, e_out: float) -> int:
-        """This master's side of the two-port (ENERGY: J, the arm's units, so far);
-        answered by PORT_ENERGY."""
+    def energy(self, e_in: float, e_out: float, arm: int | str = 0) -> int:
+        """This master's side of the two-port with ``arm`` (ENERGY: J, the arm's units,
+        so far); answered by PORT_ENERGY."""
+        index = self.arm_index(arm)
         seq = self._next()
-        self._send(m.encode(m.ENERGY, seq, e_in, e_out))
+        self._send(m.encode(m.ENERGY, seq, e_in, e_out, index))
         return seq
 
     def next_seq(self) -> int:
@@ -226,11 +257,49 @@ class PriorityLink:
         with self._send_lock:
             return self._next()
 
-    def joints(self, dq: Sequence[float], seq: int | None = None) -> int:
-        """A joint increment (rad), one per joint of the arm; returns its seq."""
+    def joints(self, dq: Sequence[float], seq: int | None = None, arm: int | str = 0) -> int:
+        """A joint increment (rad) for ``arm`` (index or name; 0: the only arm), one per
+        joint of that arm; returns its seq."""
+        index = self.arm_index(arm)
         seq = self.next_seq() if seq is None else seq
-        self._send(m.encode(m.JOINT_INC, seq, time.monotonic(), joints=dq))
+        self._send(m.encode(m.JOINT_INC, seq, time.monotonic(), index, joints=dq))
         return seq
+
+    # ------------------------------------------------------------ arms
+    @property
+    def arm_names(self) -> list[str]:
+        return [a.name for a in self.arms]
+
+    def arm_index(self, arm: int | str = 0) -> int:
+        """``arm`` as the wire names it: an index as it is (0: the only arm; the server
+        refuses 0 when it drives more), a name as its ARM message's index."""
+        if isinstance(arm, str):
+            for a in self.arms:
+                if a.name == arm:
+                    return a.index
+            raise InvalidCommand(f"no arm named {arm!r} here: {self._listed()}")
+        if not 0 <= arm <= len(self.arms):
+            raise InvalidCommand(f"no arm {arm} here: {self._listed()}")
+        return arm
+
+    def arm(self, arm: int | str = 0) -> LinkArm:
+        """The arm ``arm`` names (index or name); 0 is the only arm, refused (with the
+        arms' names) on a server that drives more."""
+        index = self.arm_index(arm)
+        if index == 0:
+            if len(self.arms) != 1:
+                raise InvalidCommand(
+                    f"this server drives {len(self.arms)} arms ({', '.join(self.arm_names)}):"
+                    " name the arm"
+                )
+            return self.arms[0]
+        return self.arms[index - 1]
+
+    def _listed(self) -> str:
+        return (
+            f"this server drives {len(self.arms)} arm{'s' if len(self.arms) != 1 else ''}"
+            f" ({', '.join(f'{a.index} {a.name}' for a in self.arms)})"
+        )
 
     def heartbeat(self) -> None:
         self._send(m.encode(m.HEARTBEAT, self._next(), time.monotonic()))
@@ -316,11 +385,16 @@ class PriorityLink:
                 continue  # (an ICMP error; or closed, and the loop ends)
             if data[:1] == bytes((m.FORCE.type_id,)) and len(data) >= FIRST_SEQ_END:
                 seq = int.from_bytes(data[m.FORCE_HEAD.size : FIRST_SEQ_END], "little")
+                arm = data[1]
                 self.datagrams = "udp"
                 self.datagrams_received += 1
-                if self._last_datagram_seq is None or newer(seq, self._last_datagram_seq):
-                    self._last_datagram_seq = seq
-                self.thinning.arrived(seq)
+                last = self._last_datagram_seq.get(arm)
+                if last is None or newer(seq, last):
+                    self._last_datagram_seq[arm] = seq
+                # Judged on the first arm's samples (each sensor numbers its own; they
+                # share the link, so one tells the link's loss).
+                if arm == min(self._last_datagram_seq):
+                    self.thinning.arrived(seq)
                 with contextlib.suppress(m.MalformedMessage):
                     self._forces(data, time.monotonic())
 
@@ -329,14 +403,12 @@ class PriorityLink:
         the server has gone back to TCP (our keep-alives stopped reaching it, or come
         from a port it does not know: a NAT's new mapping). Register again, at most
         once per ``DATAGRAM_FALLBACK_S``."""
-        if len(message) < FIRST_SEQ_END or self._last_datagram_seq is None:
+        last = self._last_datagram_seq.get(message[1]) if len(message) > 1 else None
+        if len(message) < FIRST_SEQ_END or last is None:
             return
         seq = int.from_bytes(message[m.FORCE_HEAD.size : FIRST_SEQ_END], "little")
         now = time.monotonic()
-        if (
-            newer(seq, self._last_datagram_seq)
-            and now - self._datagram_asked_at > DATAGRAM_FALLBACK_S
-        ):
+        if newer(seq, last) and now - self._datagram_asked_at > DATAGRAM_FALLBACK_S:
             log.info("forces came on TCP again: asking for datagrams anew")
             with contextlib.suppress(OSError):
                 self._register_datagrams()
@@ -364,15 +436,21 @@ class PriorityLink:
             self.closed_reason = self.closed_reason or str(exc)
 
     def _forces(self, message: bytes, now: float) -> None:
+        arm = m.force_arm(message)
         with self._force_lock:
             for seq, t, values in m.decode_force(message):
-                if self._last_seq is not None and not newer(seq, self._last_seq):
+                last = self._last_seq.get(arm)
+                if last is not None and not newer(seq, last):
                     self.stale_samples += 1
                     continue
-                self._last_seq = seq
+                self._last_seq[arm] = seq
                 self.received += 1
-                if self.on_force is not None:
-                    self.on_force(ForceSample(seq, t, values), now)  # type: ignore[arg-type]
+                self.received_by_arm[arm] = self.received_by_arm.get(arm, 0) + 1
+                sample = ForceSample(seq, t, values)  # type: ignore[arg-type]
+                if self.on_arm_force is not None:
+                    self.on_arm_force(arm, sample, now)
+                if self.on_force is not None and self.force_arm in (0, arm):
+                    self.on_force(sample, now)
 
     def _dispatch(self, message: bytes, now: float) -> None:
         if message[0] == m.FORCE.type_id:
@@ -394,8 +472,17 @@ class PriorityLink:
             self.operator = int(fields["role"]) == 1
             self.joint_count = int(fields["joints"])
             self.client_id = text
-            self._welcome.set()
+            self._arms_said = int(fields["arms"])
+            self.arms = ()
+            if self._arms_said == 0:  # (no arm: nothing follows)
+                self._welcome.set()
+        elif msg is m.ARM:  # the constructor returns once every arm is in
+            arm = LinkArm(int(fields["index"]), text, int(fields["joints"]))
+            self.arms = (*self.arms, arm)
+            if len(self.arms) >= self._arms_said:
+                self._welcome.set()
         elif msg is m.STATE:
+            self.states[int(fields["arm"])] = fields
             if self.on_state is not None:
                 self.on_state(fields)
             return
