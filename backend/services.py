@@ -195,8 +195,7 @@ def build_viewer(
             calibration,
             make_kinematics(arms[0].settings),  # the arm's model, not the server's default
             more_arms=[
-                ViewedArm(a.robot, make_kinematics(a.settings), a.mount, a.force)
-                for a in arms[1:]
+                ViewedArm(a.robot, make_kinematics(a.settings), a.mount, a.force) for a in arms[1:]
             ],
         )
     except (OSError, ImportError) as exc:

@@ -16,7 +16,9 @@ import pytest
 from websockets.sync.client import connect
 
 from telerobot.client import Telerobot
+from telerobot.client.master.cli import open_link
 from telerobot.client.rest import TelerobotError
+from telerobot.drivers.base import ForceSample
 from telerobot.drivers.robot.so101.emulator import BusLink
 from telerobot.protocol import messages as m
 from tests.support import TOKEN, until
@@ -175,3 +177,25 @@ def test_a_fault_on_the_right_arm_stops_it_alone_and_says_which(tmp_path: Path) 
                 robot.arm("left").move_cartesian([0.0, 0.0, 0.005], relative=True)
                 with pytest.raises(TelerobotError, match=r"^right: robot is ERROR"):
                     robot.arm("right").move_cartesian([0.0, 0.0, 0.01], relative=True)
+
+
+def test_both_arms_forces_come_as_datagrams_none_held_back_by_the_rate(server: str) -> None:
+    """A client's datagram budget is every arm's sensors' rate together (sized for one,
+    the server dropped half of two arms' samples as over the rate)."""
+    got: dict[int, int] = {1: 0, 2: 0}
+
+    def on_arm_force(arm: int, sample: ForceSample, received: float) -> None:
+        got[arm] += 1
+
+    link = open_link(server, TOKEN, datagrams=True)
+    link.on_arm_force = on_arm_force
+    try:
+        until(lambda: link.datagrams == "udp", what=lambda: link.datagrams)
+        start = dict(got)
+        time.sleep(1.5)
+        counts = {arm: got[arm] - start[arm] for arm in got}
+        assert min(counts.values()) > 0.7 * max(counts.values()), counts
+        channel = httpx.get(server + "api/v1/force/channel").json()
+        assert channel["limits"]["datagrams_over_rate"] == 0, channel
+    finally:
+        link.close()

@@ -546,9 +546,16 @@ class PriorityChannel:
                 client.datagram_heard = time.monotonic()
 
     def _datagram_bucket(self, every: int, bucket: TokenBucket | None) -> TokenBucket:
-        """The bucket for ``every``: the same one (its tokens kept) if the rate holds."""
-        rate_hz = getattr(self.force, "rate_hz", None) or DEFAULT_FORCE_RATE_HZ
-        rate = DATAGRAM_RATE_SLACK * float(rate_hz) / every
+        """The bucket for ``every``: the same one (its tokens kept) if the rate holds.
+        Every arm's sensor sends the client its samples: the rate is theirs together
+        (sized for one, it dropped half of two arms' samples as over the rate)."""
+        sensors = [self.force, *(g.force for g in self.decision.arms[1:])]
+        rate_hz = sum(
+            float(getattr(sensor, "rate_hz", None) or DEFAULT_FORCE_RATE_HZ)
+            for sensor in sensors
+            if sensor is not None
+        ) or float(DEFAULT_FORCE_RATE_HZ)
+        rate = DATAGRAM_RATE_SLACK * rate_hz / every
         if bucket is not None and bucket.rate == rate:
             return bucket
         return TokenBucket(rate, max(2.0, rate * DATAGRAM_BURST_S))
