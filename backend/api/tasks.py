@@ -160,8 +160,9 @@ def _caller(request: Request, decision: DecisionDep) -> tuple[bool, str]:
     return decision.check_token(token), address
 
 
-async def _trajectory(body: TaskSource, recorder: Recorder, runner: TaskRunner) -> Trajectory:
-    return await runner.sources.trajectory(
+async def _paths(body: TaskSource, recorder: Recorder, runner: TaskRunner) -> dict[str, Trajectory]:
+    """Each recorded arm's path (one arm's, or a multi-arm recording's each)."""
+    return await runner.sources.paths(
         _source(body, recorder), body.episode, body.segment, operator=True, address=""
     )
 
@@ -196,10 +197,10 @@ async def start_task(
 ) -> TaskView:
     """Read the recording, build the trajectory and start it (it runs on its own;
     poll GET /tasks/{id})."""
-    trajectory = await _trajectory(body, recorder, runner)
+    paths = await _paths(body, recorder, runner)
     c = body.compliance
-    spec = TaskSpec(
-        trajectory,
+    spec = TaskSpec.of_paths(
+        paths,
         speed=body.speed,
         compliance=None if c is None else ComplianceSettings(**c.model_dump()),
         force_margin_n=body.force_margin_n,
@@ -225,13 +226,15 @@ async def preview_task(
     preview = await runner.sources.preview(
         path, body.episode, body.segment, operator=operator, address=address
     )
-    # The approach from where the arm is now, as POST /tasks would plan it.
+    # The approach from where the arm is now, as POST /tasks would plan it (of a
+    # multi-arm recording: its first arm's, on this server's arm of that name).
     p0, R0 = preview.positions[0], preview.start_rotation
-    distance, angle = runner.distance_to(p0, R0)
+    guard = decision.arm(None if len(decision.arms) == 1 else preview.arm)
+    distance, angle = runner.distance_to(p0, R0, guard)
     plan, refused = None, ""
     if distance > START_TOLERANCE_M or angle > START_TOLERANCE_RAD:
         try:
-            plan = runner.plan_approach(p0, R0)
+            plan = runner.plan_approach(p0, R0, guard=guard)
         except InvalidCommand as exc:
             refused = str(exc)
     return _path("preview", preview, (distance, angle), plan, refused)
@@ -246,7 +249,8 @@ async def get_task(task_id: str, runner: RunnerDep) -> TaskView:
 async def task_path(task_id: str, runner: RunnerDep) -> TaskPath:
     """The path the task follows, for the page's ghost of it."""
     task = runner.get(task_id)
-    return _path(task.id, PathPreview.of(task.spec.trajectory), task.start_offset, task.approach)
+    first = task.runs[0]  # (of a multi-arm task: its first arm's)
+    return _path(task.id, PathPreview.of(first.trajectory), first.start_offset, first.approach)
 
 
 @router.post("/{task_id}/pause")

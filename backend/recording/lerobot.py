@@ -63,6 +63,15 @@ The state and action columns are named after the robot model's joints, with LeRo
 ``.pos`` (joint position) after each: ``joint1.pos`` … for the PUMA, ``shoulder_pan.pos``
 … for the SO-101 (the names the API and the page use, one rule for every arm).
 
+A multi-arm recording (its settings name the arms; each arm's ``/arms/<name>/state`` and
+``/arms/<name>/force``) exports in LeRobot's bimanual convention: every arm's columns
+side by side, each name prefixed with its arm's (``left_shoulder_pan.pos`` …
+``right_gripper.pos``, ``left_x``, ``right_fx``), each arm in the single arm's units;
+an arm's action is the last accepted command that named it. Two SO-101s named left and
+right are LeRobot's ``bi_so_follower`` (``lerobot/robots/bi_so_follower``: left's columns
+first); other arms' ``robot_type`` is theirs joined by ``+``. A one-arm recording's
+export is as it always was.
+
 The export's memory does not grow with the recording's video: the video is read twice
 (its capture times first, then its frames, decoded and encoded one at a time) and the
 image stats are counted into a histogram per channel. The encoder's log is kept to
@@ -89,9 +98,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from av.video.reformatter import VideoReformatter
 
-from telerobot.client.lerobot.units import JointUnits
+from telerobot.client.lerobot.units import JointUnits, robot_type
 from telerobot.drivers.base import DriverUnavailable, TelerobotError
 from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
+from telerobot.server.recording import schemas as ch
 from telerobot.server.recording.reader import decode, read, read_raw
 
 CODEBASE_VERSION = "v3.0"
@@ -129,6 +139,7 @@ AUTONOMY_TOPIC = "/autonomy"
 # old, a force interval with no sample, a frame more than one row period from the row.
 STALE_STATE_PERIODS = 2.0
 AGE_NAMES = ["state", "force", "frame"]
+OLDEST_ARM = "; of several arms, the oldest arm's"
 
 Progress = Callable[[float], None]
 
@@ -142,6 +153,29 @@ def joint_feature_names(model: RobotModel) -> list[str]:
 
 POSE_NAMES = ["x", "y", "z", *(f"r{r}{c}" for r in range(1, 4) for c in range(1, 4))]
 FORCE_NAMES = ["fx", "fy", "fz", "tx", "ty", "tz"]
+# LeRobot's two SO-101 followers as one robot (lerobot/robots/bi_so_follower): its
+# robot_type, and its arms' names, which prefix each motor's key (left_shoulder_pan.pos).
+BIMANUAL_SO = "bi_so_follower"
+BIMANUAL_ARMS = ("left", "right")
+
+
+def _bimanual_so(arms: list[tuple[str, str]]) -> bool:
+    """Two SO-101s named left and right: LeRobot's bimanual SO follower."""
+    return sorted(name for name, _ in arms) == list(BIMANUAL_ARMS) and all(
+        model == "so101" for _, model in arms
+    )
+
+
+def dataset_robot_type(arms: list[tuple[str, str]]) -> str:
+    """The dataset's ``robot_type`` for the arms recorded (``(name, model)``, in column
+    order): one arm's as LeRobot names it (``so_follower``); two SO-101s named left and
+    right, LeRobot's bimanual ``bi_so_follower``; other arms, theirs joined by ``+``."""
+    if len(arms) == 1:
+        return robot_type(arms[0][1])
+    if _bimanual_so(arms):
+        return BIMANUAL_SO
+    return "+".join(robot_type(model) for _, model in arms)
+
 
 Array = npt.NDArray[np.float64]
 
@@ -176,6 +210,53 @@ class ExportSummary:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """The columns' names and what their descriptions say: one arm's as LeRobot's
+    single-arm robots name them; several arms' side by side, each name prefixed with its
+    arm's (``left_shoulder_pan.pos`` … ``right_gripper.pos``, ``left_x``, ``right_fx``),
+    LeRobot's bimanual convention."""
+
+    joint_names: list[str]
+    pose_names: list[str]
+    force_names: list[str]
+    units_text: str
+    robot_type: str
+    state_topic: str = "/robot/state"
+    force_topic: str = "/force"
+    pose_frame: str = "the base frame"
+    force_frame: str = "sensor frame"
+    each_named: str = ""  # said of each arm's action
+
+    @classmethod
+    def of(cls, rec: _Recording) -> _Layout:
+        arms = rec.arms
+        if not rec.multi:
+            units = arms[0].units
+            return cls(
+                joint_feature_names(arms[0].model),
+                POSE_NAMES,
+                FORCE_NAMES,
+                units.describe(),
+                units.robot_type,
+            )
+        described = list(dict.fromkeys(a.units.describe() for a in arms))
+        return cls(
+            [f"{a.name}_{n}" for a in arms for n in joint_feature_names(a.model)],
+            [f"{a.name}_{n}" for a in arms for n in POSE_NAMES],
+            [f"{a.name}_{n}" for a in arms for n in FORCE_NAMES],
+            described[0]
+            if len(described) == 1
+            else "; ".join(f"{a.name}: {a.units.describe()}" for a in arms),
+            dataset_robot_type([(a.name, a.model.name) for a in arms]),
+            state_topic="/arms/<arm>/state",
+            force_topic="/arms/<arm>/force",
+            pose_frame="each arm's own base frame",
+            force_frame="each arm's own sensor frame",
+            each_named=" that named the arm",
+        )
+
+
 # ---------------------------------------------------------------- reading
 
 
@@ -187,9 +268,45 @@ def _stamp_s(value: Any) -> float:
     return v * 1e-9 if v > 1e12 else v
 
 
+class _Packed:
+    """One arm's series as they are read: packed doubles."""
+
+    def __init__(self) -> None:
+        self.state_t, self.joints, self.targets = array("d"), array("d"), array("d")
+        self.pose, self.force_t, self.force = array("d"), array("d"), array("d")
+        self.command_t, self.command_target = array("d"), array("d")
+
+    def state(self, t: float, m: dict[str, Any]) -> None:
+        self.state_t.append(t)
+        self.joints.extend(m["joints"])
+        self.targets.extend(m.get("target_joints") or m["joints"])
+        self.pose.extend([*m["position"], *m["rotation"]])
+
+    def arm(self, name: str, model: RobotModel) -> _Arm:
+        n = model.dof
+
+        def packed(values: array[float], width: int) -> Array:
+            return np.frombuffer(values, np.float64).reshape(-1, width)
+
+        s_t, (s_joints, s_targets, s_pose) = _in_time_order(
+            packed(self.state_t, 1).ravel(),
+            packed(self.joints, n),
+            packed(self.targets, n),
+            packed(self.pose, 12),
+        )
+        f_t, (f_values,) = _in_time_order(packed(self.force_t, 1).ravel(), packed(self.force, 6))
+        c_t, (c_target,) = _in_time_order(
+            packed(self.command_t, 1).ravel(), packed(self.command_target, n)
+        )
+        return _Arm(name, model, s_t, s_joints, s_targets, s_pose, f_t, f_values, c_t, c_target)
+
+
 @dataclass
-class _Recording:
-    path: Path
+class _Arm:
+    """One arm's recorded series, each in time order."""
+
+    name: str  # "arm" for a one-arm recording's
+    model: RobotModel  # its settings' robot_model
     state_t: Array
     joints: Array
     targets: Array
@@ -198,35 +315,87 @@ class _Recording:
     force: Array
     command_t: Array
     command_target: Array
+
+    @property
+    def units(self) -> JointUnits:
+        return JointUnits.of(self.model.name, self.model.joint_names, self.model.qlim)
+
+
+@dataclass
+class _Recording:
+    path: Path
+    arms: list[_Arm]  # one; or, of a multi-arm recording, in the order its columns take
     episodes: list[tuple[float, float, str]]  # (start, end, task) on the monotonic clock
     video_t: Array  # capture times, monotonic clock (the frames are read again to export)
     skipped: list[str]
-    model: RobotModel  # the arm recorded (its settings' robot_model)
+    # A multi-arm recording (its settings name the arms): columns per arm, prefixed.
+    multi: bool = False
     # What the recording's /settings said (None: a recording from before they were kept).
     configured_fps: float | None = None
     state_rate_hz: float | None = None
     # Supervised autonomy (/autonomy): when each mode began; empty without a policy.
     autonomy: list[tuple[float, str]] = field(default_factory=list)
 
+    @property
+    def model(self) -> RobotModel:
+        """The arm recorded (the first, of several)."""
+        return self.arms[0].model
+
+    @property
+    def state_t(self) -> Array:
+        """The (first) arm's state times: the recording's span."""
+        return self.arms[0].state_t
+
+
+def _settings(path: Path) -> dict[str, Any]:
+    """The recording's ``/settings`` (its first message), {} if it has none."""
+    for _topic, _log_ns, m in read(path, ["/settings"]):
+        return m
+    return {}
+
+
+def _arms_recorded(path: Path, settings: dict[str, Any]) -> list[tuple[str, RobotModel]]:
+    """The arms the recording's settings name, each with its model, in the order its
+    columns take: LeRobot's bimanual arms left before right, else as the settings list
+    them; one arm (recordings from before robot models: a PUMA) when they name none."""
+    named = ch.recorded_arms(settings)
+    arms = []
+    for name, model_name in named:
+        try:
+            arms.append((name, load_model(model_name or DEFAULT_MODEL)))
+        except DriverUnavailable as exc:
+            raise ExportError(
+                f"{path.name} is of a robot this version does not know: {exc}"
+            ) from None
+    if _bimanual_so([(name, model.name) for name, model in arms]):
+        arms.sort(key=lambda a: BIMANUAL_ARMS.index(a[0]))
+    return arms
+
 
 def _load(path: Path) -> _Recording:
     """Everything but the video's frames (of the video, its capture times), each series
     kept as packed doubles (a Python list of lists costs five times as much: 1 kHz of
-    forces for an hour would take about a gigabyte)."""
+    forces for an hour would take about a gigabyte). A multi-arm recording's arms each
+    from their own channels (``/arms/<name>/state``, ``/arms/<name>/force``) and the
+    commands that named them."""
+    recorded_settings = _settings(path)
+    multi = bool(recorded_settings.get("arms"))
+    arms = _arms_recorded(path, recorded_settings)
+    series = {name: _Packed() for name, _ in arms}
+    state_topics = {ch.ROBOT_STATE: arms[0][0]}
+    force_topics = {ch.FORCE: arms[0][0]}
+    if multi:
+        state_topics = {ch.arm_topic(name, ch.ARM_STATE): name for name, _ in arms}
+        force_topics = {ch.arm_topic(name, ch.ARM_FORCE): name for name, _ in arms}
     topics = [
-        "/settings",
-        "/robot/state",
-        "/force",
+        *state_topics,
+        *force_topics,
         "/commands",
         "/episodes",
         AUTONOMY_TOPIC,
         VIDEO_TOPIC,
     ]
-    model_name = DEFAULT_MODEL  # recordings from before robot models were all of the PUMA
-    recorded_settings: dict[str, Any] = {}
-    state_t, joints, targets, pose = array("d"), array("d"), array("d"), array("d")
-    force_t, force = array("d"), array("d")
-    command_t, command_target = array("d"), array("d")
+    only = arms[0][0]
     events: list[dict[str, Any]] = []
     autonomy: list[tuple[float, str]] = []
     video_wall = array("d")
@@ -242,31 +411,29 @@ def _load(path: Path) -> _Recording:
             video_wall.append(_stamp_s(stamp))
             continue
         m = decode(topic, data, encoding)
-        if topic == "/settings":
-            model_name = str(m.get("robot_model", DEFAULT_MODEL))
-            recorded_settings = m
-            continue
         t = float(m["t"])
         if len(offsets) < 1000:
             offsets.append(log_ns * 1e-9 - t)
-        if topic == "/robot/state":
-            state_t.append(t)
-            joints.extend(m["joints"])
-            targets.extend(m.get("target_joints") or m["joints"])
-            pose.extend([*m["position"], *m["rotation"]])
-        elif topic == "/force":
-            force_t.append(t)
-            force.extend(m["values"])
+        if topic in state_topics:
+            series[state_topics[topic]].state(t, m)
+        elif topic in force_topics:
+            arm = series[force_topics[topic]]
+            arm.force_t.append(t)
+            arm.force.extend(m["values"])
         elif topic == "/commands":
             if m.get("accepted") and m.get("target_joints") is not None:
-                command_t.append(t)
-                command_target.extend(m["target_joints"])
+                # Of several arms, the arm it named (a multi-arm server moves none unnamed).
+                named = (m.get("args") or {}).get("arm") if multi else only
+                if named in series:
+                    series[named].command_t.append(t)
+                    series[named].command_target.extend(m["target_joints"])
         elif topic == "/episodes":
             events.append(m)
         elif topic == AUTONOMY_TOPIC:
             autonomy.append((t, str(m.get("mode", "off"))))
-    if not state_t:
-        raise ExportError(f"{path.name} has no /robot/state messages: nothing to export")
+    for state_topic, name in state_topics.items():
+        if not series[name].state_t:
+            raise ExportError(f"{path.name} has no {state_topic} messages: nothing to export")
     # The video's capture times are wall clock; the rest is on the server's monotonic
     # clock. Each JSON message has both (its log time and its t): the smallest offset is
     # the one least delayed by logging.
@@ -275,35 +442,14 @@ def _load(path: Path) -> _Recording:
     order = np.argsort(video_t, kind="stable")  # (capture order is the stream's order)
     if not np.all(order == np.arange(len(order))):
         video_t = np.maximum.accumulate(video_t)
-    episodes, skipped = _episodes(events, state_t[-1])
-    try:
-        model = load_model(model_name)
-    except DriverUnavailable as exc:
-        raise ExportError(f"{path.name} is of a robot this version does not know: {exc}") from None
-    n = model.dof
-
-    def packed(values: array[float], width: int) -> Array:
-        return np.frombuffer(values, np.float64).reshape(-1, width)
-
-    s_t, (s_joints, s_targets, s_pose) = _in_time_order(
-        packed(state_t, 1).ravel(), packed(joints, n), packed(targets, n), packed(pose, 12)
-    )
-    f_t, (f_values,) = _in_time_order(packed(force_t, 1).ravel(), packed(force, 6))
-    c_t, (c_target,) = _in_time_order(packed(command_t, 1).ravel(), packed(command_target, n))
+    episodes, skipped = _episodes(events, max(series[name].state_t[-1] for name, _ in arms))
     return _Recording(
         path=path,
-        model=model,
-        state_t=s_t,
-        joints=s_joints,
-        targets=s_targets,
-        pose=s_pose,
-        force_t=f_t,
-        force=f_values,
-        command_t=c_t,
-        command_target=c_target,
+        arms=[series[name].arm(name, model) for name, model in arms],
         episodes=episodes,
         video_t=video_t,
         skipped=skipped,
+        multi=multi,
         configured_fps=_positive(recorded_settings.get("video_fps")),
         state_rate_hz=_positive(recorded_settings.get("state_rate_hz")),
         autonomy=sorted(autonomy, key=lambda x: x[0]),
@@ -417,9 +563,10 @@ def _age_of_held(t_src: Array, t: Array) -> Array:
 
 
 def _ages(rec: _Recording, t: Array, source: npt.NDArray[np.int64] | None) -> Array:
-    """Per row: the age of its state, of its newest force sample, of its frame (ms)."""
-    state = _age_of_held(rec.state_t, t)
-    force = _age_of_held(rec.force_t, t)
+    """Per row: the age of its state, of its newest force sample, of its frame (ms); of
+    several arms, the oldest arm's state and force (an arm without forces: none)."""
+    state = np.max([_age_of_held(a.state_t, t) for a in rec.arms], axis=0)
+    force = np.max([_age_of_held(a.force_t, t) for a in rec.arms], axis=0)
     frame = np.abs(t - rec.video_t[source]) if source is not None else np.zeros(len(t))
     ms = np.stack([state, force, frame], axis=1) * 1000.0
     ms[:, 1] = np.where(force < 0, -1.0, ms[:, 1])
@@ -729,38 +876,39 @@ def export_lerobot(
             tasks.append(task)
 
     out.mkdir(parents=True, exist_ok=True)
-    joint_names = joint_feature_names(rec.model)
-    units = JointUnits.of(rec.model.name, rec.model.joint_names, rec.model.qlim)
+    layout = _Layout.of(rec)
     state_period = _state_period(rec)
     features: dict[str, dict[str, Any]] = {
         "observation.state": _feature(
-            [rec.model.dof],
-            joint_names,
-            f"joints ({units.describe()}, LeRobot's units): the last /robot/state at or "
-            "before the row time",
+            [len(layout.joint_names)],
+            layout.joint_names,
+            f"joints ({layout.units_text}, LeRobot's units): the last {layout.state_topic} "
+            "at or before the row time",
         ),
         "observation.tool_pose": _feature(
-            [12],
-            POSE_NAMES,
-            "tool position (m) and row-major rotation in the base frame: the last "
-            "/robot/state at or before the row time",
+            [len(layout.pose_names)],
+            layout.pose_names,
+            f"tool position (m) and row-major rotation in {layout.pose_frame}: the last "
+            f"{layout.state_topic} at or before the row time",
         ),
         "observation.force": _feature(
-            [6],
-            FORCE_NAMES,
-            "force (N) and torque (N·m), sensor frame: the mean of the /force samples in "
-            "(t - 1/fps, t], else the last before",
+            [len(layout.force_names)],
+            layout.force_names,
+            f"force (N) and torque (N·m), {layout.force_frame}: the mean of the "
+            f"{layout.force_topic} samples in (t - 1/fps, t], else the last before",
         ),
         "action": _feature(
-            [rec.model.dof],
-            joint_names,
-            f"commanded target joints ({units.describe()}): the last accepted /commands "
-            "target at or before the row time (before any: the state's target)",
+            [len(layout.joint_names)],
+            layout.joint_names,
+            f"commanded target joints ({layout.units_text}): the last accepted /commands "
+            f"target{layout.each_named} at or before the row time (before any: the state's "
+            "target)",
         ),
         "telerobot.age_ms": _feature(
             [3],
             AGE_NAMES,
-            "how old the row's state, force and frame are (ms; force −1: none recorded); "
+            "how old the row's state, force and frame are (ms; force −1: none recorded"
+            f"{OLDEST_ARM if rec.multi else ''}); "
             f"flagged stale above {1000 * STALE_STATE_PERIODS * state_period:.0f} ms "
             "(state) and one row period (force, frame)",
         ),
@@ -785,13 +933,19 @@ def export_lerobot(
         n = len(t)
         if supervised:
             index_cols["intervention"].append(_corrected(rec.autonomy, t))
-        state = _held(rec.state_t, rec.joints, t)
-        columns["observation.state"].append(units.to_lerobot(state))
-        columns["observation.tool_pose"].append(_held(rec.state_t, rec.pose, t))
-        columns["observation.force"].append(_interval_mean(rec.force_t, rec.force, t, 1.0 / fps))
-        fallback = _held(rec.state_t, rec.targets, t)
-        action = _held(rec.command_t, rec.command_target, t, before=fallback)
-        columns["action"].append(units.to_lerobot(action))
+        state, pose, force, action = [], [], [], []
+        for arm in rec.arms:  # (side by side, in the columns' order)
+            units = arm.units
+            state.append(units.to_lerobot(_held(arm.state_t, arm.joints, t)))
+            pose.append(_held(arm.state_t, arm.pose, t))
+            force.append(_interval_mean(arm.force_t, arm.force, t, 1.0 / fps))
+            fallback = _held(arm.state_t, arm.targets, t)
+            target = _held(arm.command_t, arm.command_target, t, before=fallback)
+            action.append(units.to_lerobot(target))
+        columns["observation.state"].append(np.hstack(state))
+        columns["observation.tool_pose"].append(np.hstack(pose))
+        columns["observation.force"].append(np.hstack(force))
+        columns["action"].append(np.hstack(action))
         index_cols["timestamp"].append((np.arange(n) / fps).astype(np.float32))
         index_cols["frame_index"].append(np.arange(n, dtype=np.int64))
         index_cols["episode_index"].append(np.full(n, e, np.int64))
@@ -915,7 +1069,7 @@ def export_lerobot(
 
     info = {
         "codebase_version": CODEBASE_VERSION,
-        "robot_type": units.robot_type,
+        "robot_type": layout.robot_type,
         "total_episodes": len(kept),
         "total_frames": total,
         "total_tasks": len(tasks),
@@ -937,8 +1091,8 @@ def export_lerobot(
         "repeated_frames": repeated,
         "stale_rows": stale,
         "units": {
-            "observation.state": units.describe(),
-            "action": units.describe(),
+            "observation.state": layout.units_text,
+            "action": layout.units_text,
             "observation.tool_pose": "m, rotation matrix",
             "observation.force": "N, N·m",
         },

@@ -49,6 +49,7 @@ import numpy as np
 from telerobot.drivers.base import ForceSample, ForceSensor, InvalidCommand, Robot, TelerobotError
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import CommandReport, DecisionServer, SafetyState
 from telerobot.server.recording import schemas as ch
 from telerobot.server.recording.library import RecordingLibrary
@@ -119,6 +120,14 @@ class _Active:
     counts: dict[str, int] = field(default_factory=dict)  # per topic, from the writer
     metadata: dict[str, str] | None = None  # as written at close
     robot_model: str = ""  # the arm model recorded (its /settings'), "" if not known
+
+
+def recorded_model(settings: dict[str, Any]) -> str:
+    """The arm model a recording's settings say it was made with, for its list entry:
+    the model's name (``so101``), of several arms each different one joined by ``+``
+    (``so101+puma560``), "" if not said."""
+    models = list(dict.fromkeys(model for _, model in ch.recorded_arms(settings) if model))
+    return "+".join(models)
 
 
 def _free_bytes(folder: Path) -> int:
@@ -251,7 +260,7 @@ class Recorder:
         self._active = active
         for topic, payload in self.snapshot():
             if topic == "/settings" and isinstance(payload, dict):
-                active.robot_model = str(payload.get("robot_model") or "")
+                active.robot_model = recorded_model(payload)
             self.log(topic, payload)
         active.thread = threading.Thread(
             target=self._forward, args=(active,), name=f"recorder {path.name}", daemon=True
@@ -574,7 +583,13 @@ def command_payload(r: CommandReport) -> dict[str, Any]:
 
 class RecordingTaps:
     """The recorder's subscriptions: force samples (on the sensor's thread), the
-    state at the state rate (its own task), every command and safety change."""
+    state at the state rate (its own task), every command and safety change.
+
+    On a server with two arms or more (the DecisionServer's ``arms``), each arm's state
+    and forces go to its own channels (``/arms/<name>/state``, ``/arms/<name>/force``),
+    ``/tf`` places each arm's base and tool (``<name>/base``, ``<name>/tool``) in the
+    workcell's ``base``, and ``/arms`` says the arms once as a recording starts
+    (docs/recording.md). One arm: ``robot`` and ``force``, on the channels as before."""
 
     def __init__(
         self,
@@ -597,17 +612,23 @@ class RecordingTaps:
         self._unsubscribe: list[Callable[[], None]] = []
         self._task: asyncio.Task[None] | None = None
 
+    @property
+    def arms(self) -> list[ArmGuard]:
+        """The arms recorded on channels of their own (none on a one-arm server)."""
+        arms = self.decision.arms
+        return list(arms) if len(arms) > 1 else []
+
     def start(self) -> None:
         rec = self.recorder
-        if self.force is not None:
-
-            def on_sample(s: ForceSample) -> None:  # the sensor's thread: one queue put
-                if rec._active is not None:
-                    rec.log(
-                        ch.FORCE, {"seq": s.seq, "sensor_time": s.time, "values": list(s.values)}
-                    )
-
-            self._unsubscribe.append(self.force.subscribe(on_sample))
+        arms = self.arms
+        sensors: list[tuple[ForceSensor | None, str, str | None]] = [
+            (g.force, ch.arm_topic(g.name, ch.ARM_FORCE), g.name) for g in arms
+        ] or [(self.force, ch.FORCE, None)]
+        for sensor, topic, arm in sensors:
+            if sensor is not None:
+                self._unsubscribe.append(sensor.subscribe(self._force_tap(topic, arm)))
+        if arms:
+            self._unsubscribe.append(self.recorder.events.subscribe(self._on_recording))
         self._unsubscribe.append(
             self.decision.events.command.subscribe(
                 lambda r: rec.log(ch.COMMANDS, command_payload(r), r.t)
@@ -623,28 +644,72 @@ class RecordingTaps:
             self._unsubscribe.append(self.tasks.subscribe(self._on_task))
         self._task = asyncio.get_running_loop().create_task(self._states(), name="record-state")
 
+    def _force_tap(self, topic: str, arm: str | None) -> Callable[[ForceSample], None]:
+        rec = self.recorder
+        if arm is None:
+
+            def on_sample(s: ForceSample) -> None:  # the sensor's thread: one queue put
+                if rec._active is not None:
+                    rec.log(topic, {"seq": s.seq, "sensor_time": s.time, "values": list(s.values)})
+
+            return on_sample
+
+        def on_arm_sample(s: ForceSample) -> None:
+            if rec._active is not None:
+                rec.log(
+                    topic,
+                    {"arm": arm, "seq": s.seq, "sensor_time": s.time, "values": list(s.values)},
+                )
+
+        return on_arm_sample
+
+    def _on_recording(self, e: RecordingEvent) -> None:
+        """A recording started: which arms it holds, and where each stands (once)."""
+        if e.kind != "started":
+            return
+        arms = []
+        for g in self.arms:
+            arms.append(
+                {
+                    "name": g.name,
+                    "index": g.index,
+                    "model": g.robot.model.name,
+                    "dof": g.dof,
+                    "joint_names": list(g.kinematics.joint_names),
+                    "mount": np.asarray(g.mount, dtype=float).tolist(),
+                }
+            )
+        self.recorder.log(ch.ARMS, {"arms": arms})
+
     def _on_safety(self, s: SafetyState) -> None:
-        self.recorder.log(
-            ch.SAFETY,
-            {
-                "estop": s.estop,
-                "estop_reason": s.estop_reason,
-                "force_limited": s.force_limited,
-                "halted": s.halted,
-                "lease_holder": s.lease_holder,
-                "lease_holder_name": s.lease_holder_name,
-                "lease_note": s.lease_note,
-            },
-        )
+        payload: dict[str, Any] = {
+            "estop": s.estop,
+            "estop_reason": s.estop_reason,
+            "force_limited": s.force_limited,
+            "halted": s.halted,
+            "lease_holder": s.lease_holder,
+            "lease_holder_name": s.lease_holder_name,
+            "lease_note": s.lease_note,
+        }
+        if self.arms:  # which arm's force limit (a one-arm recording's is as before)
+            payload["force_limited_arms"] = list(s.force_limited_arms)
+        self.recorder.log(ch.SAFETY, payload)
 
     def _on_task(self, status: Any) -> None:
         payload = dataclasses.asdict(status)
         payload["state"] = str(getattr(status.state, "value", status.state))
         payload["offset"] = list(payload["offset"])
+        if payload.get("arms"):  # a multi-arm task's arms (a one-arm task's are as before)
+            payload["arms"] = list(payload["arms"])
+        else:
+            payload.pop("arms", None)
         self.recorder.log(ch.TASKS, payload)
 
     def log_state(self) -> None:
         rec = self.recorder
+        if self.arms:
+            self._log_arm_states()
+            return
         pose = self.robot.pose
         rec.log(
             ch.ROBOT_STATE,
@@ -664,6 +729,35 @@ class RecordingTaps:
                 ]
             },
         )
+
+    def _log_arm_states(self) -> None:
+        """Each arm's state on its channel, and one ``/tf`` placing every arm's base (its
+        mount) and tool in the workcell's ``base``."""
+        rec = self.recorder
+        wall = rec.wall_ns()
+        transforms = []
+        for g in self.arms:
+            robot = g.robot
+            pose = robot.pose
+            rec.log(
+                ch.arm_topic(g.name, ch.ARM_STATE),
+                {
+                    "arm": g.name,
+                    "status": str(robot.status),
+                    "joints": robot.joints.tolist(),
+                    "target_joints": robot.target_joints.tolist(),
+                    "position": pose.position.tolist(),
+                    "rotation": pose.rotation.ravel().tolist(),
+                },
+            )
+            mount = np.asarray(g.mount, dtype=float)
+            transforms.append(
+                transform("base", f"{g.name}/base", mount[:3, :3], mount[:3, 3], wall)
+            )
+            transforms.append(
+                transform(f"{g.name}/base", f"{g.name}/tool", pose.rotation, pose.position, wall)
+            )
+        rec.log(ch.TF, {"transforms": transforms})
 
     async def _states(self) -> None:
         while True:

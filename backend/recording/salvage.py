@@ -24,7 +24,7 @@ import base64
 import json
 import os
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -142,16 +142,19 @@ class SalvageReader:
                     return
 
     def messages(
-        self, topics: Iterable[str] | None = None
+        self, topics: Iterable[str] | None = None, *, keep: Callable[[str], bool] | None = None
     ) -> Iterator[tuple[str, int, dict[str, Any]]]:
         """``(topic, log_time_ns, payload)`` of the valid part, in file order; a message
-        that is not the JSON it claims to be is skipped and counted (``undecodable``)."""
+        that is not the JSON it claims to be is skipped and counted (``undecodable``).
+        ``topics`` (or ``keep``, for topics not known by name in advance) chooses."""
         wanted = set(topics) if topics is not None else None
         for r in self.records():
             if not isinstance(r, Message):
                 continue
             channel = self.channels[r.channel_id]
             if wanted is not None and channel.topic not in wanted:
+                continue
+            if keep is not None and not keep(channel.topic):
                 continue
             try:
                 payload = decode(channel.topic, r.data, channel.message_encoding)

@@ -4,10 +4,17 @@
 All channels are JSON (``message_encoding: json``). The video and the transforms use
 Foxglove's well-known schemas in their JSON form (bytes as base64, as Foxglove's
 JSON schemas say), so Foxglove and Lichtblick show them in their Image and 3D panels.
+
+**Two arms or more** (docs/arms.md): each arm's state and forces are channels of its own,
+``/arms/<name>/state`` and ``/arms/<name>/force`` (the schemas of ``/robot/state`` and
+``/force``, with ``arm``), in place of ``/robot/state`` and ``/force``; ``/arms`` says
+once, at the start, which arms there are (names, models, where each base stands). A
+one-arm recording has none of these: its channels are as they always were.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 ROBOT_STATE = "/robot/state"
@@ -21,6 +28,11 @@ TF = "/tf"
 CALIBRATION = "/calibration"
 SETTINGS = "/settings"
 TASKS = "/tasks"
+ARMS = "/arms"  # a multi-arm recording's arms (once, at its start)
+ARM_PREFIX = "/arms/"  # …and each arm's channels: /arms/<name>/state, /arms/<name>/force
+ARM_STATE = "state"
+ARM_FORCE = "force"
+SINGLE_ARM = "arm"  # the one arm's name (the settings' SINGLE_ARM)
 
 _num = {"type": "number"}
 _vec = {"type": "array", "items": _num}
@@ -88,6 +100,7 @@ CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
             lease_holder={"type": ["string", "null"]},
             lease_holder_name={"type": ["string", "null"]},
             lease_note=_str,
+            force_limited_arms={"type": "array", "items": _str},
         ),
     ),
     EPISODES: (
@@ -143,11 +156,70 @@ CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
             offset=_vec,
             supervisor=_str,
             source=_str,
+            arms={"type": "array", "items": _str},
         ),
     ),
     CALIBRATION: ("telerobot.Calibration", {"type": "object"}),
     SETTINGS: ("telerobot.Settings", {"type": "object"}),
+    ARMS: (
+        "telerobot.Arms",
+        _obj(
+            t=_num,
+            arms={
+                "type": "array",
+                "items": _obj(
+                    name=_str,
+                    index={"type": "integer"},
+                    model=_str,
+                    dof={"type": "integer"},
+                    joint_names={"type": "array", "items": _str},
+                    mount={"type": "array", "items": _vec},
+                ),
+            },
+        ),
+    ),
 }
 
 # Fields carried as bytes in Python and as base64 in the file.
 BYTES_FIELDS: dict[str, str] = {VIDEO: "data"}
+
+
+def arm_topic(arm: str, kind: str) -> str:
+    """One arm's channel of a multi-arm recording: ``/arms/left/state``, ``/arms/left/force``."""
+    return f"{ARM_PREFIX}{arm}/{kind}"
+
+
+def arm_of(topic: str) -> tuple[str, str] | None:
+    """``(arm, kind)`` of an arm's channel (``kind``: ``state`` or ``force``), else None."""
+    if not topic.startswith(ARM_PREFIX):
+        return None
+    arm, _, kind = topic[len(ARM_PREFIX) :].partition("/")
+    return (arm, kind) if arm and kind in (ARM_STATE, ARM_FORCE) else None
+
+
+def schema_of(topic: str) -> tuple[str, dict[str, Any]]:
+    """The schema name and JSON Schema of any channel (an arm's as ``/robot/state``'s or
+    ``/force``'s, with its ``arm``)."""
+    found = CHANNELS.get(topic)
+    if found is not None:
+        return found
+    arm = arm_of(topic)
+    if arm is None:
+        return f"telerobot.{topic.strip('/')}", {}
+    name, schema = CHANNELS[ROBOT_STATE if arm[1] == ARM_STATE else FORCE]
+    return name, {**schema, "properties": {**schema["properties"], "arm": _str}}
+
+
+def recorded_arms(settings: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The arms a recording's ``/settings`` names, in order, each with its model:
+    ``[("left", "so101"), ("right", "so101")]``; one arm, ``("arm", robot_model)``, when
+    they name none. (An arm's own ``robot_model``, else the server's.)"""
+    default = str(settings.get("robot_model") or "")
+    arms = settings.get("arms")
+    if not isinstance(arms, Mapping) or not arms:
+        return [(SINGLE_ARM, default)]
+    out = []
+    for name, own in arms.items():
+        model = own.get("robot_model") if isinstance(own, Mapping) else None
+        out.append((str(name), str(model or default)))
+    return out

@@ -1,7 +1,9 @@
 """A recording's channels on one timeline for the review page (web/review.html): forces
 and states decimated to a bounded number of points, events (commands, safety,
 episodes, calibration, who drove) as they are up to a bounded number, each message with ``time``
-(s from the recording's first message) added.
+(s from the recording's first message) added. A multi-arm recording's arms' states and
+forces (``/arms/<name>/state``, ``/arms/<name>/force``) come with ``/robot/state`` and
+``/force`` (each arm's a series of its own), and ``/arms`` says which arms there are.
 
 Computed by ``readjobs`` in a process of its own and kept beside the recording (the
 review reads it many times; the server's interpreter never decodes the file). Bounded
@@ -17,22 +19,34 @@ import math
 import os
 from typing import Any
 
+from telerobot.server.recording import schemas as ch
 from telerobot.server.recording.reader import read_raw, valid_summary
 from telerobot.server.recording.schemas import VIDEO as VIDEO_TOPIC
 
 MAX_POINTS = 20_000  # per decimated series (force, state): a page plots this many at most
 MAX_EVENTS = 5_000  # commands, safety changes, episodes: the first this many
 MAX_TOPIC_BYTES = 4 * 1024 * 1024  # of one topic's kept payloads (a foreign file's may be big)
+MAX_ARMS = 16  # arms' series kept (a server drives at most 8; a foreign file may name more)
 SERIES = ("/force", "/robot/state")
 REVIEW_TOPICS = (
-    "/force",
-    "/robot/state",
+    "/force",  # with every arm's /arms/<name>/force (a multi-arm recording's)
+    "/robot/state",  # with every arm's /arms/<name>/state
     "/commands",
     "/safety",
     "/episodes",
     "/calibration",
-    "/autonomy",  # (last: the cache's topic masks of the others keep their bits)
+    "/autonomy",
+    "/arms",  # (new ones last: the cache's topic masks of the others keep their bits)
 )
+
+
+def _asked_as(topic: str) -> str:
+    """The review topic that asks for ``topic``: an arm's state or force channel is
+    asked for with ``/robot/state`` or ``/force``; any other is itself."""
+    arm = ch.arm_of(topic)
+    if arm is None:
+        return topic
+    return ch.ROBOT_STATE if arm[1] == ch.ARM_STATE else ch.FORCE
 
 
 def _counts_in_summary(path: str | os.PathLike[str]) -> dict[str, int] | None:
@@ -61,6 +75,8 @@ def timeline(path: str | os.PathLike[str], topics: list[str], max_points: int) -
     stride = {t: max(1, math.ceil(known.get(t, 0) / max_points)) for t in topics if t in SERIES}
     out: dict[str, list[dict[str, Any]]] = {t: [] for t in topics}
     kept_bytes: dict[str, int] = dict.fromkeys(topics, 0)
+    asked = set(topics)
+    arm_series = 0
     counts: dict[str, int] = {}
     first_ns: int | None = None
     last_ns = 0
@@ -77,6 +93,11 @@ def timeline(path: str | os.PathLike[str], topics: list[str], max_points: int) -
                 if isinstance(ts, dict):
                     video_start = float(ts.get("sec", 0)) + float(ts.get("nsec", 0)) / 1e9
             continue
+        if topic not in out and _asked_as(topic) in asked and arm_series < MAX_ARMS:
+            # An arm's state or forces (a multi-arm recording): a series like /robot/state's.
+            arm_series += 1
+            out[topic], kept_bytes[topic] = [], 0
+            stride[topic] = max(1, math.ceil(known.get(topic, 0) / max_points))
         if topic not in out or encoding != "json":
             continue
         if topic in stride:

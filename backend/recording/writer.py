@@ -24,7 +24,7 @@ from typing import IO, Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from telerobot.server.recording.schemas import BYTES_FIELDS, CHANNELS
+from telerobot.server.recording.schemas import BYTES_FIELDS, schema_of
 from telerobot.tuning import yield_cpu
 
 CHUNK_BYTES = 256 * 1024  # a killed writer loses at most the chunk being filled
@@ -59,6 +59,7 @@ class McapFile:
         self._writer = Writer(self._file, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="telerobot (mcap python)")
         self._channels: dict[str, int] = {}
+        self._schemas: dict[bytes, int] = {}  # one record per schema (the arms' share theirs)
         self._sequence: dict[str, int] = {}
         self.count: dict[str, int] = {}
         self._last_log_ns = 0
@@ -66,10 +67,13 @@ class McapFile:
     def _channel(self, topic: str) -> int:
         channel = self._channels.get(topic)
         if channel is None:
-            name, schema = CHANNELS.get(topic, (f"telerobot.{topic.strip('/')}", {}))
-            schema_id = self._writer.register_schema(
-                name, "jsonschema", json.dumps({"title": name, **schema}).encode()
-            )
+            name, schema = schema_of(topic)
+            data = json.dumps({"title": name, **schema}).encode()
+            schema_id = self._schemas.get(data)
+            if schema_id is None:
+                schema_id = self._schemas[data] = self._writer.register_schema(
+                    name, "jsonschema", data
+                )
             channel = self._writer.register_channel(topic, "json", schema_id)
             self._channels[topic] = channel
             self._sequence[topic] = 0

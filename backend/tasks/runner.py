@@ -38,19 +38,31 @@ gets no closer for ``stall_s`` stops the task, saying where. A recording whose p
 the speed limit). A task ends ``done`` only with the tool within ``end_tolerance_m``
 of the path's end; otherwise ``stopped``, with how far from it the tool came to rest.
 
+**Two arms or more** (docs/tasks.md): a task from a multi-arm recording repeats every
+recorded arm's path together, each on this server's arm of the same name (the reader
+refuses a recording whose arms are not this server's). One path clock drives them all:
+it waits while any arm is behind, and the task is done when every arm is at its path's
+end. Each arm has its own guards: its force limit (the DecisionServer's), its margin over
+the force recorded on that arm, its compliance, its approach; a contact on one arm stops
+the task and the reason names the arm. The task's commands name their arm (``arm=``);
+a one-arm task's name none, as before.
+
 Time is the injected clock's; the loop runs every ``period_s``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import builtins
 import contextlib
 import itertools
 import logging
 import math
 from collections import OrderedDict, deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -65,7 +77,9 @@ from telerobot.drivers.base import (
 )
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
+from telerobot.server.recording.schemas import SINGLE_ARM
 from telerobot.server.tasks.approach import ApproachPlan, approach_step, plan_approach
 from telerobot.server.tasks.compliance import Admittance, ComplianceSettings
 from telerobot.server.tasks.source_reader import SourceReader
@@ -109,6 +123,12 @@ class UnknownTask(TelerobotError):
     http_status = 404
 
 
+class ArmRefused(TelerobotError):
+    """A multi-arm task's command for one arm was refused (the reason names the arm)."""
+
+    code = "arm_refused"
+
+
 class TaskState(StrEnum):
     APPROACHING = "approaching"  # the guarded move to the first pose
     RUNNING = "running"
@@ -124,7 +144,7 @@ class TaskState(StrEnum):
 
 @dataclass(frozen=True)
 class TaskSpec:
-    trajectory: Trajectory
+    trajectory: Trajectory  # the one arm's path (of several arms: the first's)
     speed: float = 1.0  # share of the taught speed, 0.1–1
     compliance: ComplianceSettings | None = None
     force_margin_n: float | None = 15.0  # None: no unexpected-contact guard
@@ -145,6 +165,9 @@ class TaskSpec:
     stall_s: float = 2.0
     # The margin compares with the strongest force recorded this near in time.
     margin_window_s: float = 0.25
+    # Several arms (a multi-arm recording's): each arm's name and path, the first's being
+    # ``trajectory``. Empty: one arm's task, on the server's only arm.
+    arm_paths: tuple[tuple[str, Trajectory], ...] = ()
 
     def __post_init__(self) -> None:
         if not (isinstance(self.speed, int | float) and 0.1 <= self.speed <= 1.0):
@@ -152,17 +175,42 @@ class TaskSpec:
         m = self.force_margin_n
         if m is not None and not (math.isfinite(m) and 0.5 <= m <= 200.0):
             raise InvalidCommand(f"force_margin_n must be 0.5–200 N, got {m}")
-        if len(self.trajectory) < 2:
+        if any(len(traj) < 2 for _, traj in self.paths):
             raise InvalidCommand("a task needs a trajectory of at least two poses")
+        names = [name for name, _ in self.arm_paths]
+        if len(set(names)) != len(names):
+            raise InvalidCommand(f"a task moves each arm once, not {names}")
+
+    @classmethod
+    def of_paths(cls, paths: Mapping[str, Trajectory], **options: Any) -> TaskSpec:
+        """The task repeating each recorded arm's path (``read_paths``): one arm's
+        ("arm", a one-arm recording's) on the only arm, several on the arms they name."""
+        items = list(paths.items())
+        if not items:
+            raise InvalidCommand("a task needs a trajectory of at least two poses")
+        if len(items) == 1 and items[0][0] == SINGLE_ARM:
+            return cls(items[0][1], **options)
+        return cls(items[0][1], arm_paths=tuple(items), **options)
+
+    @property
+    def paths(self) -> list[tuple[str | None, Trajectory]]:
+        """Each arm's name (None: the only arm) and path."""
+        if not self.arm_paths:
+            return [(None, self.trajectory)]
+        return [(name, traj) for name, traj in self.arm_paths]
+
+    @property
+    def duration(self) -> float:
+        return max(traj.duration for _, traj in self.paths)
 
 
 @dataclass(frozen=True)
 class TracePoint:
     t: float  # server clock
     s: float  # trajectory time
-    force_n: float  # measured contact force magnitude
-    recorded_n: float  # recorded at this point of the path
-    offset: tuple[float, float, float]  # compliance offset, base frame, m
+    force_n: float  # measured contact force magnitude (of several arms: the strongest)
+    recorded_n: float  # recorded at this point of the path (on that arm)
+    offset: tuple[float, float, float]  # compliance offset, base frame, m (the first arm's)
 
 
 @dataclass(frozen=True)
@@ -174,12 +222,44 @@ class TaskStatus:
     s: float  # trajectory time reached, s
     duration: float  # trajectory duration at the taught speed, s
     speed: float
-    force_n: float  # the last measured contact force
-    recorded_n: float  # and the recorded one at that point
+    force_n: float  # the last measured contact force (of several arms: the strongest)
+    recorded_n: float  # and the recorded one at that point (on that arm)
     peak_force_n: float
     offset: tuple[float, float, float]
     supervisor: str  # the operator who started it (client name)
     source: str  # the trajectory's origin
+    arms: tuple[str, ...] = ()  # the arms it moves, of a multi-arm task (else none)
+
+
+@dataclass(eq=False)
+class ArmRun:
+    """One arm's part of a task: its path and guard (driver, model, limits), its force
+    sensor, compliance and approach, how far its commanded target is behind the path,
+    and the forces it feels and was taught."""
+
+    guard: ArmGuard
+    trajectory: Trajectory
+    force: ForceSensor | None
+    named: bool  # its commands name it (a multi-arm server's); else the only arm
+    admittance: Admittance | None = None
+    approach: ApproachPlan | None = None  # the joint move to the first pose, if it needs one
+    approached: bool = False  # …and it is there
+    start_offset: tuple[float, float] = (0.0, 0.0)  # the tool from the first pose at start
+    gap_m: float = 0.0  # how far the commanded target was from the path's point
+    gap_rad: float = 0.0
+    held_gap: float = math.inf  # the approach: the smallest joint gap so far…
+    held_since: float | None = None  # …and when it last shrank
+    force_n: float = 0.0
+    recorded_n: float = 0.0
+    measured: FloatArray = field(default_factory=lambda: np.zeros(3))  # base frame, N
+
+    @property
+    def name(self) -> str:
+        return self.guard.name
+
+    def said(self, text: str) -> str:
+        """``text`` about this arm, named when the task moves arms by name."""
+        return f"{self.name}: {text}" if self.named else text
 
 
 @dataclass
@@ -190,39 +270,61 @@ class Task:
     supervisor_name: str
     client_id: str
     state: TaskState
+    runs: list[ArmRun]  # each arm's part, in the task's arm order
     reason: str = ""
     s: float = 0.0
     force_n: float = 0.0
     recorded_n: float = 0.0
     peak_force_n: float = 0.0
-    admittance: Admittance | None = None
-    approach: ApproachPlan | None = None  # the joint move to the first pose, if it needs one
-    start_offset: tuple[float, float] = (0.0, 0.0)  # the tool from the first pose at start, m, rad
-    gap_m: float = 0.0  # how far the commanded target was from the path's point
-    gap_rad: float = 0.0
     held_gap: float = math.inf  # the smallest gap while the path's clock waits…
     held_since: float | None = None  # …and when it last shrank by a millimetre
     trace: deque[TracePoint] = field(default_factory=lambda: deque(maxlen=TRACE_LIMIT))
     loop: asyncio.Task[None] | None = None
     finished: asyncio.Event = field(default_factory=asyncio.Event)
 
+    @property
+    def admittance(self) -> Admittance | None:
+        """The first arm's compliance."""
+        return self.runs[0].admittance
+
+    @property
+    def approach(self) -> ApproachPlan | None:
+        """The first arm's approach."""
+        return self.runs[0].approach
+
+    @property
+    def start_offset(self) -> tuple[float, float]:
+        """The first arm's tool from its first pose at start (m, rad)."""
+        return self.runs[0].start_offset
+
+    @property
+    def gap_m(self) -> float:
+        """How far the commanded target furthest behind was from the path's point."""
+        return max(run.gap_m for run in self.runs)
+
+    @property
+    def gap_rad(self) -> float:
+        return max(run.gap_rad for run in self.runs)
+
     def status(self) -> TaskStatus:
-        traj = self.spec.trajectory
+        spec = self.spec
+        duration = spec.duration
         offset = self.admittance.offset if self.admittance else np.zeros(3)
         return TaskStatus(
             id=self.id,
             state=self.state,
             reason=self.reason,
-            progress=min(self.s / traj.duration, 1.0) if traj.duration > 0 else 1.0,
+            progress=min(self.s / duration, 1.0) if duration > 0 else 1.0,
             s=self.s,
-            duration=traj.duration,
-            speed=self.spec.speed,
+            duration=duration,
+            speed=spec.speed,
             force_n=self.force_n,
             recorded_n=self.recorded_n,
             peak_force_n=self.peak_force_n,
             offset=(float(offset[0]), float(offset[1]), float(offset[2])),
             supervisor=self.supervisor_name,
-            source=traj.source,
+            source=spec.trajectory.source,
+            arms=tuple(run.name for run in self.runs if run.named),
         )
 
 
@@ -245,7 +347,7 @@ class TaskRunner:
         settle_s: float = 1.0,
     ) -> None:
         self.decision = decision
-        self.force = force
+        self.force = force  # the only arm's (a multi-arm task's arms: each its guard's)
         self.clock = clock
         self.period_s = period_s
         self.settle_s = settle_s  # after the path's end, how long the arm may take to arrive
@@ -254,8 +356,11 @@ class TaskRunner:
         self._tasks: OrderedDict[str, Task] = OrderedDict()
         self._ids = itertools.count(1)
         # Reads the recordings tasks and their previews come from (off the loop, one
-        # at a time, budgeted per address; this arm model's only).
-        self.sources = SourceReader(clock=clock.now, robot_model=decision.robot.model.name)
+        # at a time, budgeted per address; this server's arms' only).
+        self.sources = SourceReader(
+            clock=clock.now,
+            arm_models={guard.name: guard.robot.model.name for guard in decision.arms},
+        )
 
     # ------------------------------------------------------------ queries
     def get(self, task_id: str) -> Task:
@@ -271,14 +376,20 @@ class TaskRunner:
     def active(self) -> Task | None:
         return next((t for t in self._tasks.values() if not t.state.finished), None)
 
-    def distance_to_start(self, trajectory: Trajectory) -> tuple[float, float]:
-        """How far the arm's tool is from the trajectory's first pose (m, rad)."""
+    def distance_to_start(
+        self, trajectory: Trajectory, guard: ArmGuard | None = None
+    ) -> tuple[float, float]:
+        """How far the arm's tool (``guard``'s, else the first arm's) is from the
+        trajectory's first pose (m, rad)."""
         p0, R0, _ = trajectory.at(0.0)
-        return self.distance_to(p0, R0)
+        return self.distance_to(p0, R0, guard)
 
-    def distance_to(self, position: FloatArray, rotation: FloatArray) -> tuple[float, float]:
-        """How far the arm's tool is from the pose (m, rad)."""
-        pose = self.decision.robot.pose
+    def distance_to(
+        self, position: FloatArray, rotation: FloatArray, guard: ArmGuard | None = None
+    ) -> tuple[float, float]:
+        """How far the arm's tool (``guard``'s, else the first arm's) is from the pose
+        (m, rad)."""
+        pose = (guard.robot if guard is not None else self.decision.robot).pose
         angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ rotation)))
         return float(np.linalg.norm(pose.position - position)), angle
 
@@ -289,14 +400,16 @@ class TaskRunner:
         *,
         tolerance_m: float = START_TOLERANCE_M,
         tolerance_rad: float = START_TOLERANCE_RAD,
+        guard: ArmGuard | None = None,
     ) -> ApproachPlan:
-        """The joint move from the arm's commanded joints to the tool pose (a task's
-        first pose), checked (``approach.plan_approach``); InvalidCommand if none."""
-        decision = self.decision
+        """The joint move from the arm's (``guard``'s, else the first arm's) commanded
+        joints to the tool pose (a task's first pose), checked
+        (``approach.plan_approach``); InvalidCommand if none."""
+        guard = guard or self.decision.arms[0]
         return plan_approach(
-            decision.kinematics,
-            decision.limits,
-            decision.robot.target_joints,
+            guard.kinematics,
+            guard.limits,
+            guard.robot.target_joints,
             position,
             rotation,
             # The approach hands over to the path at half the start's tolerance: its goal
@@ -306,6 +419,19 @@ class TaskRunner:
         )
 
     # ------------------------------------------------------------ control
+    def _runs(self, spec: TaskSpec) -> builtins.list[ArmRun]:
+        """Each arm's part of ``spec``: the only arm's (with this runner's sensor), or
+        each named arm's (with its own)."""
+        decision = self.decision
+        if not spec.arm_paths:
+            return [ArmRun(decision.arm(None), spec.trajectory, self.force, named=False)]
+        named = len(decision.arms) > 1
+        runs = []
+        for name, trajectory in spec.arm_paths:
+            guard = decision.arm(name)
+            runs.append(ArmRun(guard, trajectory, guard.force, named=named))
+        return runs
+
     async def start(self, spec: TaskSpec, supervisor_id: str) -> Task:
         """Start ``spec`` for the operator ``supervisor_id``, who must hold the lease:
         the task takes it over for its run and hands it back at the end."""
@@ -321,26 +447,45 @@ class TaskRunner:
         if state.estop:
             raise SafetyStop(f"e-stop is latched ({state.estop_reason}): reset it first")
         if state.force_limited:
-            raise SafetyStop("the force limit is active: back away from the contact first")
+            where = "" if len(decision.arms) == 1 else f" on {_arms(state.force_limited_arms)}"
+            raise SafetyStop(f"the force limit is active{where}: back away from the contact first")
         if self.active is not None:
             raise TaskBusy(f"task {self.active.id} is running: abort it first")
-        self._check_jumps(spec)
-        distance, angle = self.distance_to_start(spec.trajectory)
-        near = distance <= spec.start_tolerance_m and angle <= spec.start_tolerance_rad
-        if not near and not spec.approach:
+        runs = self._runs(spec)
+        for run in runs:
+            self._check_jumps(spec, run)
+        for run in runs:
+            run.start_offset = self.distance_to_start(run.trajectory, run.guard)
+        away = [run for run in runs if not self._near(spec, run)]
+        if away and not spec.approach:
+            distance, angle = away[0].start_offset
             raise AwayFromStart(
-                f"the tool is {distance * 1000:.1f} mm / {math.degrees(angle):.1f}° from the "
-                f"task's first pose (it starts within {spec.start_tolerance_m * 1000:.0f} mm / "
-                f"{math.degrees(spec.start_tolerance_rad):.0f}°): move there, or confirm the "
-                "approach (approach: true), a slow joint move there (its way: POST "
-                "/tasks/preview, approach)"
+                away[0].said(
+                    f"the tool is {distance * 1000:.1f} mm / {math.degrees(angle):.1f}° from "
+                    f"the task's first pose (it starts within "
+                    f"{spec.start_tolerance_m * 1000:.0f} mm / "
+                    f"{math.degrees(spec.start_tolerance_rad):.0f}°): move there, or confirm the "
+                    "approach (approach: true), a slow joint move there (its way: POST "
+                    "/tasks/preview, approach)"
+                )
             )
-        plan = None
-        if not near:  # checked before the lease changes hands: a refusal moves nothing
-            p0, R0, _ = spec.trajectory.at(0.0)
-            plan = self.plan_approach(
-                p0, R0, tolerance_m=spec.start_tolerance_m, tolerance_rad=spec.start_tolerance_rad
-            )
+        for run in away:  # checked before the lease changes hands: a refusal moves nothing
+            p0, R0, _ = run.trajectory.at(0.0)
+            try:
+                run.approach = self.plan_approach(
+                    p0,
+                    R0,
+                    tolerance_m=spec.start_tolerance_m,
+                    tolerance_rad=spec.start_tolerance_rad,
+                    guard=run.guard,
+                )
+            except InvalidCommand as exc:
+                if not run.named:
+                    raise
+                raise InvalidCommand(run.said(str(exc))) from None
+        for run in runs:
+            run.approached = run.approach is None
+            run.admittance = Admittance(spec.compliance) if spec.compliance else None
         task_id = str(next(self._ids))
         # Run for its supervisor: its heartbeats keep it present while the task holds
         # the lease (a script's keep-alive goes on; DecisionServer.heartbeat).
@@ -358,10 +503,8 @@ class TaskRunner:
             supervisor_id=supervisor_id,
             supervisor_name=supervisor.name,
             client_id=client.id,
-            state=TaskState.RUNNING if near else TaskState.APPROACHING,
-            admittance=Admittance(spec.compliance) if spec.compliance else None,
-            approach=plan,
-            start_offset=(distance, angle),
+            state=TaskState.APPROACHING if away else TaskState.RUNNING,
+            runs=runs,
         )
         self._remember(task)
         log.info("task %s starts (%s) for %s", task_id, spec.trajectory.source, supervisor.name)
@@ -369,19 +512,26 @@ class TaskRunner:
         self._changed(task)
         return task
 
-    def _check_jumps(self, spec: TaskSpec) -> None:
-        lim = self.decision.limits
-        lag_m, lag_rad, at = spec.trajectory.lag_behind(
+    @staticmethod
+    def _near(spec: TaskSpec, run: ArmRun) -> bool:
+        distance, angle = run.start_offset
+        return distance <= spec.start_tolerance_m and angle <= spec.start_tolerance_rad
+
+    def _check_jumps(self, spec: TaskSpec, run: ArmRun) -> None:
+        lim = run.guard.limits
+        lag_m, lag_rad, at = run.trajectory.lag_behind(
             lim.max_speed_m_s, lim.max_angular_speed_rad_s, spec.speed
         )
         if (lag_m > JUMP_LAG_M or lag_rad > JUMP_LAG_RAD) and not spec.allow_jumps:
             raise PathJumps(
-                f"the recorded path jumps near s = {at:.2f} s: at {spec.speed:g}× the taught "
-                f"pace it moves faster than the arm may ({lim.max_speed_m_s:g} m/s, "
-                f"{math.degrees(lim.max_angular_speed_rad_s):.0f}°/s), so the tool would fall "
-                f"{lag_m * 1000:.0f} mm / {math.degrees(lag_rad):.0f}° behind and cross "
-                "that stretch in a straight line at the speed limit: confirm with "
-                "allow_jumps: true, or choose a segment without it"
+                run.said(
+                    f"the recorded path jumps near s = {at:.2f} s: at {spec.speed:g}× the taught "
+                    f"pace it moves faster than the arm may ({lim.max_speed_m_s:g} m/s, "
+                    f"{math.degrees(lim.max_angular_speed_rad_s):.0f}°/s), so the tool would fall "
+                    f"{lag_m * 1000:.0f} mm / {math.degrees(lag_rad):.0f}° behind and cross "
+                    "that stretch in a straight line at the speed limit: confirm with "
+                    "allow_jumps: true, or choose a segment without it"
+                )
             )
 
     def _remember(self, task: Task) -> None:
@@ -448,7 +598,9 @@ class TaskRunner:
                     return
                 if await self._step(task, dt):
                     settle_until = settle_until if settle_until is not None else now + self.settle_s
-                    arrived = self.decision.robot.status is not RobotStatus.MOVING
+                    arrived = all(
+                        run.guard.robot.status is not RobotStatus.MOVING for run in task.runs
+                    )
                     if arrived or now >= settle_until:
                         short = self._short_of_end(task, arrived)
                         state = TaskState.DONE if not short else TaskState.STOPPED
@@ -471,7 +623,13 @@ class TaskRunner:
         if decision.lease_holder != task.client_id:
             return f"lease lost ({state.lease_note or 'control changed hands'})"
         if state.force_limited:
-            return f"force limit ({decision.limits.force_limit_n:g} N) reached"
+            if len(decision.arms) == 1:
+                return f"force limit ({decision.limits.force_limit_n:g} N) reached"
+            # Any arm's: an arm the task does not move was pushed (by one it moves?).
+            limited = [decision.arm(name) for name in state.force_limited_arms]
+            return "force limit reached on " + ", ".join(
+                f"{guard.name} ({guard.limits.force_limit_n:g} N)" for guard in limited
+            )
         try:
             decision.client(task.supervisor_id)
         except NotAllowed:
@@ -483,34 +641,38 @@ class TaskRunner:
         return None
 
     def _short_of_end(self, task: Task, arrived: bool) -> str:
-        """Why the task is not done though its path's end was commanded ("" if the
-        tool is at the end, within the tolerance)."""
-        spec, traj = task.spec, task.spec.trajectory
-        p, R, _ = traj.at(traj.duration)
-        if task.admittance is not None:
-            p = p + task.admittance.offset
-        pose = self.decision.robot.pose
-        distance = float(np.linalg.norm(pose.position - p))
-        angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ R)))
-        if distance <= spec.end_tolerance_m and angle <= spec.end_tolerance_rad:
-            return ""
-        where = f"{distance * 1000:.0f} mm / {math.degrees(angle):.1f}° from it"
-        when = (
-            f"came to rest {where}"
-            if arrived
-            else f"was still {where} {self.settle_s:g} s after it was sent there"
-        )
-        return (
-            f"did not reach the path's end: the tool {when} (done is within "
-            f"{spec.end_tolerance_m * 1000:.0f} mm / {math.degrees(spec.end_tolerance_rad):.0f}°)"
-        )
+        """Why the task is not done though its path's end was commanded ("" if every
+        arm's tool is at its end, within the tolerance)."""
+        spec = task.spec
+        for run in task.runs:
+            traj = run.trajectory
+            p, R, _ = traj.at(traj.duration)
+            if run.admittance is not None:
+                p = p + run.admittance.offset
+            pose = run.guard.robot.pose
+            distance = float(np.linalg.norm(pose.position - p))
+            angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ R)))
+            if distance <= spec.end_tolerance_m and angle <= spec.end_tolerance_rad:
+                continue
+            where = f"{distance * 1000:.0f} mm / {math.degrees(angle):.1f}° from it"
+            when = (
+                f"came to rest {where}"
+                if arrived
+                else f"was still {where} {self.settle_s:g} s after it was sent there"
+            )
+            return run.said(
+                f"did not reach the path's end: the tool {when} (done is within "
+                f"{spec.end_tolerance_m * 1000:.0f} mm / "
+                f"{math.degrees(spec.end_tolerance_rad):.0f}°)"
+            )
+        return ""
 
     def _advance(self, task: Task, dt: float) -> None:
-        """The path's clock: it runs while the arm keeps up and waits while the
+        """The path's clock: it runs while every arm keeps up and waits while a
         commanded target is behind; a wait that gains nothing for ``stall_s`` ends it."""
-        spec, traj = task.spec, task.spec.trajectory
+        spec = task.spec
         if not self._behind(task):
-            task.s = min(task.s + dt * spec.speed, traj.duration)
+            task.s = min(task.s + dt * spec.speed, spec.duration)
             task.held_gap, task.held_since = math.inf, None
             return
         now = self.clock.now()
@@ -519,41 +681,55 @@ class TaskRunner:
         if task.held_since is None or gap < task.held_gap - 0.001:
             task.held_gap, task.held_since = gap, now
         elif now - task.held_since > spec.stall_s:
+            worst = max(task.runs, key=lambda run: run.gap_m + run.gap_rad)
             raise SafetyStop(
-                f"the arm could not follow the path: {task.gap_m * 1000:.0f} mm / "
-                f"{math.degrees(task.gap_rad):.1f}° behind it at s = {task.s:.2f} s, and no "
-                f"closer for {spec.stall_s:g} s"
+                worst.said(
+                    f"the arm could not follow the path: {worst.gap_m * 1000:.0f} mm / "
+                    f"{math.degrees(worst.gap_rad):.1f}° behind it at s = {task.s:.2f} s, and no "
+                    f"closer for {spec.stall_s:g} s"
+                )
             )
 
-    def _measured_force(self) -> FloatArray:
-        """The newest contact force (x, y, z) in the base frame."""
-        sample = self.force.latest if self.force is not None else None
+    def _measured_force(self, run: ArmRun) -> FloatArray:
+        """The arm's newest contact force (x, y, z) in its base frame."""
+        sample = run.force.latest if run.force is not None else None
         if sample is None:
             return np.zeros(3)
         f = np.asarray(sample.values[:3], dtype=float)
-        result: FloatArray = self.decision.robot.pose.rotation @ f
+        result: FloatArray = run.guard.robot.pose.rotation @ f
         return result
 
     async def _step(self, task: Task, dt: float) -> bool:
-        """One period: advance along the path, check the margin, command the pose.
-        True once the path's end has been commanded."""
-        spec, traj = task.spec, task.spec.trajectory
-        measured = self._measured_force()
-        task.force_n = float(np.linalg.norm(measured))
+        """One period: advance along the path, check the margins, command each arm's
+        pose. True once the path's end has been commanded."""
+        spec = task.spec
+        for run in task.runs:
+            run.measured = self._measured_force(run)
+            run.force_n = float(np.linalg.norm(run.measured))
+        strongest = max(task.runs, key=lambda run: run.force_n)
+        task.force_n = strongest.force_n
         task.peak_force_n = max(task.peak_force_n, task.force_n)
         if task.state is TaskState.APPROACHING:
-            self._check_margin(task, traj.peak_force_near(0.0, spec.margin_window_s))
+            for run in task.runs:
+                self._check_margin(
+                    task, run, run.trajectory.peak_force_near(0.0, spec.margin_window_s)
+                )
             await self._approach(task, dt)
             return False
         if task.state is TaskState.RUNNING:
             self._advance(task, dt)
-        p, R, recorded = traj.at(task.s)
-        task.recorded_n = float(np.linalg.norm(recorded))
-        self._check_margin(task, traj.peak_force_near(task.s, spec.margin_window_s))
-        offset = np.zeros(3)
-        if task.admittance is not None:
-            offset = task.admittance.step(measured, recorded, dt)
-            p = p + offset
+        targets = []
+        for run in task.runs:
+            p, R, recorded = run.trajectory.at(task.s)
+            run.recorded_n = float(np.linalg.norm(recorded))
+            self._check_margin(
+                task, run, run.trajectory.peak_force_near(task.s, spec.margin_window_s)
+            )
+            if run.admittance is not None:
+                p = p + run.admittance.step(run.measured, recorded, dt)
+            targets.append((run, p, R))
+        task.recorded_n = strongest.recorded_n
+        offset = task.admittance.offset if task.admittance is not None else np.zeros(3)
         task.trace.append(
             TracePoint(
                 self.clock.now(),
@@ -563,87 +739,121 @@ class TaskRunner:
                 (float(offset[0]), float(offset[1]), float(offset[2])),
             )
         )
-        await self._command_towards(task, p, R, None)
-        return task.s >= traj.duration and not self._behind(task)
+        for run, p, R in targets:
+            await self._command_towards(task, run, p, R, None)
+        return task.s >= spec.duration and not self._behind(task)
 
     async def _approach(self, task: Task, dt: float) -> None:
-        """One period of the approach: a joint increment along the line to the first
-        pose's joints (the DecisionServer's checks, as every joint jog), then RUNNING
-        once the tool is within half the start's tolerance. An arm that gets no nearer
-        for ``stall_s`` stops the task, saying how far it still was."""
-        spec, plan, decision = task.spec, task.approach, self.decision
-        assert plan is not None  # APPROACHING only with a plan (start)
-        lim = decision.limits
+        """One period of the approach: each arm not yet there takes a joint increment
+        along the line to its first pose's joints (the DecisionServer's checks, as every
+        joint jog), until its tool is within half the start's tolerance; RUNNING once
+        every arm is. An arm that gets no nearer for ``stall_s`` stops the task, saying
+        how far it still was."""
+        for run in task.runs:
+            if not run.approached:
+                await self._approach_arm(task, run, dt)
+        if all(run.approached for run in task.runs):
+            task.state = TaskState.RUNNING
+            task.held_gap, task.held_since = math.inf, None
+            self._changed(task)
+
+    async def _approach_arm(self, task: Task, run: ArmRun, dt: float) -> None:
+        spec, plan, guard = task.spec, run.approach, run.guard
+        assert plan is not None  # not approached only with a plan (start)
+        lim = guard.limits
         dq = approach_step(
-            decision.kinematics,
-            decision.robot.target_joints,
+            guard.kinematics,
+            guard.robot.target_joints,
             plan.goal,
             dt,
             joint_speed_rad_s=min(spec.approach_joint_speed_rad_s, lim.max_joint_speed_rad_s),
             tool_speed_m_s=min(spec.approach_speed_m_s, lim.max_speed_m_s),
             max_step_rad=lim.max_joint_step_rad * 0.99,
         )
-        await decision.joint_increment(task.client_id, dq)
-        distance, angle = self.distance_to_start(spec.trajectory)
+        try:
+            if run.named:
+                await self.decision.joint_increment(task.client_id, dq, arm=run.name)
+            else:  # (the only arm: named in no command, as a one-arm task's always were)
+                await self.decision.joint_increment(task.client_id, dq)
+        except TelerobotError as exc:
+            raise self._refused(run, exc) from exc
+        distance, angle = self.distance_to_start(run.trajectory, guard)
         if distance <= spec.start_tolerance_m / 2 and angle <= spec.start_tolerance_rad / 2:
-            task.state = TaskState.RUNNING
-            task.held_gap, task.held_since = math.inf, None
-            self._changed(task)
+            run.approached = True
             return
         # The measured joints' way still to go: it shrinks while the arm follows.
-        gap = float(np.max(np.abs(plan.goal - decision.robot.joints)))
+        gap = float(np.max(np.abs(plan.goal - guard.robot.joints)))
         now = self.clock.now()
-        if task.held_since is None or gap < task.held_gap - math.radians(0.1):
-            task.held_gap, task.held_since = gap, now
-        elif now - task.held_since > spec.stall_s:
+        if run.held_since is None or gap < run.held_gap - math.radians(0.1):
+            run.held_gap, run.held_since = gap, now
+        elif now - run.held_since > spec.stall_s:
             raise SafetyStop(
-                f"the arm did not follow the approach: still {distance * 1000:.0f} mm / "
-                f"{math.degrees(angle):.1f}° from the task's first pose (a joint "
-                f"{math.degrees(gap):.1f}° from it), and no nearer for {spec.stall_s:g} s"
+                run.said(
+                    f"the arm did not follow the approach: still {distance * 1000:.0f} mm / "
+                    f"{math.degrees(angle):.1f}° from the task's first pose (a joint "
+                    f"{math.degrees(gap):.1f}° from it), and no nearer for {spec.stall_s:g} s"
+                )
             )
 
     @staticmethod
     def _behind(task: Task) -> bool:
-        """The commanded target is too far behind the path's point for the path's
-        clock to run on."""
+        """A commanded target is too far behind the path's point for the path's clock
+        to run on."""
         spec = task.spec
         return task.gap_m > spec.hold_gap_m or task.gap_rad > spec.hold_gap_rad
 
     @staticmethod
-    def _check_margin(task: Task, recorded_n: float) -> None:
+    def _check_margin(task: Task, run: ArmRun, recorded_n: float) -> None:
         margin = task.spec.force_margin_n
-        if margin is not None and task.force_n > recorded_n + margin:
+        if margin is not None and run.force_n > recorded_n + margin:
             raise SafetyStop(
-                f"unexpected contact: {task.force_n:.1f} N where {recorded_n:.1f} N was "
-                f"taught near this point (margin {margin:g} N)"
+                run.said(
+                    f"unexpected contact: {run.force_n:.1f} N where {recorded_n:.1f} N was "
+                    f"taught near this point (margin {margin:g} N)"
+                )
             )
 
+    @staticmethod
+    def _refused(run: ArmRun, exc: TelerobotError) -> TelerobotError:
+        """A command's refusal, naming the arm (a multi-arm task's) if it does not."""
+        if not run.named or str(exc).startswith(f"{run.name}: "):
+            return exc
+        return ArmRefused(run.said(str(exc)))
+
     async def _command_towards(
-        self, task: Task, p: FloatArray, R: FloatArray, max_step: float | None
+        self, task: Task, run: ArmRun, p: FloatArray, R: FloatArray, max_step: float | None
     ) -> None:
-        """One Cartesian increment (base frame) from the commanded target toward
-        (p, R), within the per-command step limits (the DecisionServer's speed limit
-        paces it further)."""
-        decision = self.decision
-        T0 = decision.kinematics.fk(decision.robot.target_joints)
+        """One Cartesian increment (the arm's base frame) from its commanded target
+        toward (p, R), within the per-command step limits (the DecisionServer's speed
+        limit paces it further)."""
+        decision, guard = self.decision, run.guard
+        T0 = guard.kinematics.fk(guard.robot.target_joints)
         dX = p - T0[:3, 3]
         rv = pin.log3(R @ T0[:3, :3].T)
-        lim = decision.limits
+        lim = guard.limits
         cap = lim.max_step_m * 0.99 if max_step is None else min(max_step, lim.max_step_m * 0.99)
         step = float(np.linalg.norm(dX))
-        task.gap_m = step
+        run.gap_m = step
         if step > cap:
             dX = dX * (cap / step)
         angle = float(np.linalg.norm(rv))
-        task.gap_rad = angle
+        run.gap_rad = angle
         if angle > lim.max_step_rad * 0.99:
             rv = rv * (lim.max_step_rad * 0.99 / angle)
         # Scale 1 would be applied by the DecisionServer to every client's increments:
         # the task's increments are absolute distances, so undo the operator's scale.
         scale = decision.scale
-        await decision.cartesian_increment(
-            task.client_id, dX / scale, rv / scale, frame=WorkingFrame.BASE
-        )
+        try:
+            if run.named:
+                await decision.cartesian_increment(
+                    task.client_id, dX / scale, rv / scale, frame=WorkingFrame.BASE, arm=run.name
+                )
+            else:
+                await decision.cartesian_increment(
+                    task.client_id, dX / scale, rv / scale, frame=WorkingFrame.BASE
+                )
+        except TelerobotError as exc:
+            raise self._refused(run, exc) from exc
 
     async def _end(self, task: Task, state: TaskState, reason: str) -> None:
         if task.state.finished:
@@ -652,7 +862,8 @@ class TaskRunner:
         log.info("task %s %s%s", task.id, state, f": {reason}" if reason else "")
         decision = self.decision
         if decision.lease_holder == task.client_id:
-            await decision.robot.stop()
+            for run in task.runs:
+                await run.guard.robot.stop()
             # Hand the lease back to the operator who started the task, if still here.
             try:
                 decision.client(task.supervisor_id)
@@ -670,3 +881,7 @@ class TaskRunner:
 
     def _changed(self, task: Task) -> None:
         self.events.changed.emit(task.status())
+
+
+def _arms(names: tuple[str, ...]) -> str:
+    return ", ".join(names) if names else "an arm"

@@ -18,9 +18,10 @@ operator commands dropped as stale). So:
   most.
 - **Previews are cached** by (file, size, modification time, episode, segment): asking
   again costs a lookup. ``CACHE_SIZE`` previews of at most ``PREVIEW_POINTS`` points.
-- **Only this arm model's recordings** (``robot_model``): a recording made with another
-  arm model is refused as soon as its first message says so (``AnotherArm``, 422): its
-  tool path is another arm's.
+- **Only this server's arms' recordings** (``arm_models``: each arm's name and model):
+  a recording made with another arm model, or with arms this server has none of the name
+  for, is refused as soon as its first message says so (``AnotherArm``, ``OtherArms``,
+  422): its tool path is another arm's. A multi-arm recording gives each arm's path.
 - **A budget per address** (a token bucket, as /ws has): an answer from the cache costs
   1, a read ``READ_COST``, refilled at ``RATE_PER_S`` up to ``BURST``; past it, 429 saying
   when to come back. The operator token skips the budget, not the one-at-a-time rule.
@@ -34,7 +35,7 @@ import os
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -42,10 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
-from telerobot.drivers.base import FloatArray, TelerobotError
+from telerobot.drivers.base import FloatArray, InvalidCommand, TelerobotError
 from telerobot.server.realtime.ratelimit import TokenBucket
 from telerobot.server.recording.readjobs import JOB_NICE
-from telerobot.server.tasks.trajectory import READ_LIMIT_S, Trajectory
+from telerobot.server.recording.schemas import SINGLE_ARM
+from telerobot.server.tasks.trajectory import READ_LIMIT_S, Trajectory, read_recording
 from telerobot.tuning import yield_cpu
 
 PREVIEW_POINTS = 400
@@ -96,9 +98,18 @@ class PathPreview:
     positions: FloatArray  # (k, 3) m, base frame
     forces_n: FloatArray  # (k,)
     start_rotation: FloatArray  # (3, 3) the tool's at the first pose (for the approach)
+    arm: str = SINGLE_ARM  # whose path it is (a multi-arm recording's first arm)
 
     @classmethod
-    def of(cls, traj: Trajectory, max_points: int = PREVIEW_POINTS) -> PathPreview:
+    def of_paths(cls, paths: Mapping[str, Trajectory]) -> PathPreview:
+        """The first arm's path (a multi-arm task's other arms' are not previewed)."""
+        arm, traj = next(iter(paths.items()))
+        return cls.of(traj, arm=arm)
+
+    @classmethod
+    def of(
+        cls, traj: Trajectory, max_points: int = PREVIEW_POINTS, *, arm: str = SINGLE_ARM
+    ) -> PathPreview:
         step = max(1, -(-len(traj) // max_points))
         idx = list(range(0, len(traj), step))
         if idx[-1] != len(traj) - 1:
@@ -107,6 +118,7 @@ class PathPreview:
             traj.positions[idx].copy(),
             np.linalg.norm(traj.forces[idx], axis=1),
             traj.rotations[0].copy(),
+            arm,
         )
 
 
@@ -132,9 +144,13 @@ class SourceReader:
         read_cost: float = READ_COST,
         cache_size: int = CACHE_SIZE,
         robot_model: str | None = None,
+        arm_models: Mapping[str, str] | None = None,
     ) -> None:
         self.clock = clock
-        self.robot_model = robot_model  # the server's arm model (None: any recording)
+        # The server's arms, name → model (None: any recording); one arm's: robot_model.
+        if arm_models is None and robot_model is not None:
+            arm_models = {SINGLE_ARM: robot_model}
+        self.arm_models = None if arm_models is None else dict(arm_models)
         self.time_limit_s = time_limit_s
         self.rate_per_s, self.burst, self.read_cost = rate_per_s, burst, read_cost
         self.cache_size = cache_size
@@ -148,6 +164,21 @@ class SourceReader:
         self._in_flight = 0  # reads submitted and not yet finished (the thread's count)
 
     # ------------------------------------------------------------ the API's calls
+    async def paths(
+        self,
+        path: Path,
+        episode: int | None,
+        segment: tuple[float, float] | None,
+        *,
+        operator: bool,
+        address: str,
+    ) -> dict[str, Trajectory]:
+        """Each recorded arm's path (by name; one arm's named "arm") of ``path``'s
+        episode or segment, read now."""
+        if not operator:
+            self._charge(address, self.read_cost)
+        return await self._read(path, episode, segment, operator=operator)
+
     async def trajectory(
         self,
         path: Path,
@@ -157,10 +188,11 @@ class SourceReader:
         operator: bool,
         address: str,
     ) -> Trajectory:
-        """The trajectory of ``path``'s episode or segment, read now."""
-        if not operator:
-            self._charge(address, self.read_cost)
-        return await self._read(path, episode, segment, operator=operator)
+        """The trajectory of a one-arm recording's episode or segment, read now."""
+        paths = await self.paths(path, episode, segment, operator=operator, address=address)
+        if len(paths) != 1:
+            raise InvalidCommand(f"{path.name} was recorded with {len(paths)} arms: read paths")
+        return next(iter(paths.values()))
 
     async def preview(
         self,
@@ -182,7 +214,7 @@ class SourceReader:
             return cached
         if not operator:
             self._charge(address, self.read_cost)
-        found = PathPreview.of(await self._read(path, episode, segment, operator=operator))
+        found = PathPreview.of_paths(await self._read(path, episode, segment, operator=operator))
         self._cache[key] = found
         while len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)
@@ -221,7 +253,7 @@ class SourceReader:
         segment: tuple[float, float] | None,
         *,
         operator: bool,
-    ) -> Trajectory:
+    ) -> dict[str, Trajectory]:
         with self._lock:
             busy = self._in_flight
             if (busy and not operator) or busy >= MAX_QUEUED:
@@ -242,12 +274,12 @@ class SourceReader:
                     initializer=_behind_control,
                 )
             future = self._executor.submit(
-                Trajectory.from_recording,
+                read_recording,
                 path,
                 episode=episode,
                 segment=segment,
                 time_limit_s=self.time_limit_s,
-                robot_model=self.robot_model,
+                arm_models=self.arm_models,
             )
         except RuntimeError:  # shut down
             self._finished(None)

@@ -7,10 +7,15 @@
 // under it (and listed), and the command log. Pause, seek, 0.25–4× speed. The picture is
 // the live page's: without the cameras' timecode stripe (review/frame.ts). Whatever the
 // recording lacks (video, forces, commands, episodes) is left out, not shown empty.
-// Data: GET /api/v1/recordings/{id}/timeline, …/video.mp4, /api/v1/robot/model.
+// A multi-arm recording (review/arms.ts) plays every arm back: each arm's ghost and ring
+// through P · its mount, its forces in a band of the plot of its own, and its joints at
+// the cursor in a readout under the plot.
+// Data: GET /api/v1/recordings/{id}/timeline, …/video.mp4, /api/v1/robot/arms and
+// /api/v1/robot/model (each recorded arm's, from the server's arm of its name).
 import { Api, MessageLog, readToken, withoutToken } from "./api";
 import { GHOST_RGB, type Pixel, ghostChain } from "./ar/ghost";
 import { project, type Projection } from "./ar/projection";
+import { forceBand, jointsLine, modelArm, mountedProjection, recordedArms, severalArms } from "./review/arms";
 import { shownFrame } from "./review/frame";
 import { droveSpans, episodeLabel, episodesOf, markRows, safetyMarks, spanOf, verdictOf, whoSent, type EpisodeEvent, type SafetySnapshot } from "./review/marks";
 import { SPEEDS, forceRange, formatTime, latestAt, timelineOf, videoTimeOf } from "./review/timeline";
@@ -55,19 +60,42 @@ async function main(): Promise<void> {
     return;
   }
   $("review-name").textContent = recordingId;
-  const [tl, model] = await Promise.all([
+  const [tl, serverArms] = await Promise.all([
     api.request("get", "/api/v1/recordings/{recording_id}/timeline", {
       params: { recording_id: recordingId },
       query: { max_points: 4000 },
     }),
-    api.request("get", "/api/v1/robot/model"),
+    api.request("get", "/api/v1/robot/arms").catch(() => []),
   ]);
   const topic = (name: string) => (tl.topics[name] ?? []) as Timed[];
-  const forces = topic("/force") as (Timed & { values: number[] })[];
-  const states = topic("/robot/state") as (Timed & { position: number[]; target_joints?: number[] })[];
-  // What the overlay shows now, per eye (for tests): the predicted tool and the actual one.
-  const overlay: { predicted: (Pixel | null)[]; actual: (Pixel | null)[] } = { predicted: [null, null], actual: [null, null] };
-  const commands = topic("/commands") as (Timed & { kind: string; accepted: boolean; reason: string; source: string; client: string })[];
+  // Each recorded arm (one, "arm", unless the recording is of several) and its series.
+  const arms = recordedArms(tl.topics);
+  const several = severalArms(arms);
+  // Its model to draw it with: the server's arm of its name (a one-arm server's only one).
+  const serverNames = serverArms.map((a) => a.name);
+  const models = await Promise.all(
+    arms.map((a) => {
+      const name = modelArm(a.name, serverNames);
+      const asked = name === null ? api.request("get", "/api/v1/robot/model") : api.request("get", "/api/v1/robot/model", { query: { arm: name } });
+      return asked.catch((e: Error) => {
+        log.add(`the ${a.name} arm is not drawn: ${e.message}`, true);
+        return null;
+      });
+    }),
+  );
+  type State = Timed & { position: number[]; target_joints?: number[]; joints?: number[] };
+  const armStates = arms.map((a) => topic(a.stateTopic) as State[]);
+  const armForces = arms.map((a) => topic(a.forceTopic) as (Timed & { values: number[] })[]);
+  const forces = armForces.flat();
+  const states = armStates.flat();
+  // What the overlay shows now, per eye (for tests): the predicted tool and the actual one
+  // (the first arm's; every arm's by name in `arms`).
+  const overlay: { predicted: (Pixel | null)[]; actual: (Pixel | null)[]; arms: Record<string, { predicted: (Pixel | null)[]; actual: (Pixel | null)[] }> } = {
+    predicted: [null, null],
+    actual: [null, null],
+    arms: Object.fromEntries(arms.map((a) => [a.name, { predicted: [null, null], actual: [null, null] }])),
+  };
+  const commands = topic("/commands") as (Timed & { kind: string; accepted: boolean; reason: string; source: string; client: string; args?: { arm?: unknown } })[];
   // As recorded: {cameras: {left: {P}, right: {P}}, ground_truth_P: {left, right}}.
   type RecordedCalibration = Timed & { cameras?: Record<string, { P?: Projection }>; ground_truth_P?: Record<string, Projection> };
   const episodes = episodesOf(topic("/episodes") as (Timed & EpisodeEvent)[]);
@@ -123,7 +151,9 @@ async function main(): Promise<void> {
   const list = $("review-commands");
   const rows = commands.map((c) => {
     const li = document.createElement("li");
-    li.textContent = `${formatTime(c.time)} ${whoSent(c.source, c.client)} ${c.kind}${c.accepted ? "" : ` refused: ${c.reason}`}`;
+    // Several arms: the arm a command moved (its args name it).
+    const arm = several && typeof c.args?.arm === "string" ? ` ${c.args.arm}` : "";
+    li.textContent = `${formatTime(c.time)} ${whoSent(c.source, c.client)} ${c.kind}${arm}${c.accepted ? "" : ` refused: ${c.reason}`}`;
     if (!c.accepted) li.classList.add("refused");
     list.append(li);
     return li;
@@ -181,72 +211,100 @@ async function main(): Promise<void> {
   const fctx = forcePlot.getContext("2d");
   const range = forceRange(forces);
   forcePlot.hidden = forces.length === 0; // no force sensor recorded: no empty plot
+  // Several arms: the plot twice as tall, a band for each arm's forces.
+  if (several) forcePlot.height = forcePlot.height * Math.min(arms.length, 4);
   function drawForces(t: number): void {
     if (!fctx) return;
     const { width: w, height: h } = forcePlot;
     fctx.clearRect(0, 0, w, h);
     const x = (s: number) => (s / Math.max(tl.duration, 1e-6)) * w;
-    const y = (v: number) => h / 2 - (v / range) * (h / 2 - 4);
-    for (let axis = 0; axis < 6; axis++) {
-      fctx.strokeStyle = FORCE_COLOURS[axis] ?? "#fff";
-      fctx.beginPath();
-      forces.forEach((f, i) => (i ? fctx.lineTo(x(f.time), y(f.values[axis] ?? 0)) : fctx.moveTo(x(f.time), y(f.values[axis] ?? 0))));
-      fctx.stroke();
-    }
+    armForces.forEach((series, k) => {
+      const band = forceBand(k, armForces.length, h);
+      const y = (v: number) => band.top + band.height / 2 - (v / range) * (band.height / 2 - 4);
+      for (let axis = 0; axis < 6; axis++) {
+        fctx.strokeStyle = FORCE_COLOURS[axis] ?? "#fff";
+        fctx.beginPath();
+        series.forEach((f, i) => (i ? fctx.lineTo(x(f.time), y(f.values[axis] ?? 0)) : fctx.moveTo(x(f.time), y(f.values[axis] ?? 0))));
+        fctx.stroke();
+      }
+      fctx.fillStyle = "#ccc";
+      fctx.fillText(several ? `${arms[k]?.name ?? ""}  ±${range.toFixed(1)} N / N·m` : `±${range.toFixed(1)} N / N·m`, 4, band.top + 12);
+    });
     fctx.strokeStyle = "#fff";
     fctx.beginPath();
     fctx.moveTo(x(t), 0);
     fctx.lineTo(x(t), h);
     fctx.stroke();
-    fctx.fillStyle = "#ccc";
-    fctx.fillText(`±${range.toFixed(1)} N / N·m`, 4, 12);
   }
+
+  // Several arms: each arm's joints at the cursor, under the plot.
+  const jointsReadout = document.createElement("pre");
+  jointsReadout.id = "review-joints";
+  jointsReadout.hidden = !several;
+  forcePlot.after(jointsReadout);
 
   function frame(): void {
     const t = tl.video_start === null || tl.video_start === undefined ? Number(seek.value) : timelineOf(video.currentTime, tl.video_start);
     if (document.activeElement !== seek) seek.value = String(t);
     $("review-time").textContent = `${formatTime(t)} / ${formatTime(tl.duration)}`;
+    const now = armStates.map((series) => series[latestAt(series, t)]);
+    if (several) {
+      const text = arms.map((a, k) => jointsLine(a.name, now[k]?.joints, a.jointNames.length ? a.jointNames : (models[k]?.joint_names ?? []))).join("\n");
+      if (jointsReadout.textContent !== text) jointsReadout.textContent = text;
+    }
     if (ctx && video.readyState >= 2) {
       ctx.drawImage(video, 0, shown.crop, shown.width, shown.height, 0, 0, canvas.width, canvas.height);
-      const state = states[latestAt(states, t)];
       const cameras = calibrations[Math.max(0, latestAt(calibrations, t))]?.cameras ?? [];
-      const p = state?.position;
-      const q = state?.target_joints;
-      cameras.slice(0, 2).forEach((cam, eye) => {
-        if (cam.P.length !== 3) return;
-        ctx.save();
-        ctx.translate((eye * canvas.width) / 2, -shown.crop); // camera pixels, stripe cropped
-        // The ghost arm and the ball where the gripper was commanded to be.
-        const chain = q && q.length === model.joints.length ? ghostChain(model, q, cam.P) : [];
-        const tool = chain[chain.length - 1] ?? null;
-        overlay.predicted[eye] = tool;
-        if (chain.length) {
-          const [r, g, b] = GHOST_RGB;
-          ctx.strokeStyle = `rgba(${r}, ${g}, ${b}, 0.45)`;
-          ctx.lineWidth = 7;
-          ctx.lineCap = ctx.lineJoin = "round";
-          ctx.beginPath();
-          tracePolyline(ctx, chain);
-          ctx.stroke();
-        }
-        if (tool) {
-          ctx.strokeStyle = "#0f0";
-          ctx.lineWidth = 3;
-          ctx.beginPath();
-          ctx.arc(tool[0], tool[1], 12, 0, 2 * Math.PI);
-          ctx.stroke();
-        }
-        // Where it actually was: a thin white ring.
-        const actual = p && p.length === 3 ? project(cam.P, [p[0] ?? 0, p[1] ?? 0, p[2] ?? 0]) : null;
-        overlay.actual[eye] = actual;
-        if (actual) {
-          ctx.strokeStyle = "#fff";
-          ctx.lineWidth = 1;
-          ctx.beginPath();
-          ctx.arc(actual[0], actual[1], 6, 0, 2 * Math.PI);
-          ctx.stroke();
-        }
-        ctx.restore();
+      arms.forEach((arm, k) => {
+        const model = models[k];
+        const state = now[k];
+        const p = state?.position;
+        const q = state?.target_joints;
+        const drawn = overlay.arms[arm.name] ?? { predicted: [null, null], actual: [null, null] };
+        cameras.slice(0, 2).forEach((cam, eye) => {
+          if (cam.P.length !== 3) return;
+          // An arm's pose is in its own base frame: drawn through P · its mount.
+          const P = several ? mountedProjection(cam.P, arm.mount) : cam.P;
+          ctx.save();
+          ctx.translate((eye * canvas.width) / 2, -shown.crop); // camera pixels, stripe cropped
+          // The ghost arm and the ball where the gripper was commanded to be.
+          const chain = model && q && q.length === model.joints.length ? ghostChain(model, q, P) : [];
+          const tool = chain[chain.length - 1] ?? null;
+          drawn.predicted[eye] = tool;
+          if (k === 0) overlay.predicted[eye] = tool;
+          if (chain.length) {
+            const [r, g, b] = GHOST_RGB;
+            ctx.strokeStyle = `rgba(${r}, ${g}, ${b}, 0.45)`;
+            ctx.lineWidth = 7;
+            ctx.lineCap = ctx.lineJoin = "round";
+            ctx.beginPath();
+            tracePolyline(ctx, chain);
+            ctx.stroke();
+          }
+          if (tool) {
+            ctx.strokeStyle = "#0f0";
+            ctx.lineWidth = 3;
+            ctx.beginPath();
+            ctx.arc(tool[0], tool[1], 12, 0, 2 * Math.PI);
+            ctx.stroke();
+          }
+          // Where it actually was: a thin white ring.
+          const actual = p && p.length === 3 ? project(P, [p[0] ?? 0, p[1] ?? 0, p[2] ?? 0]) : null;
+          drawn.actual[eye] = actual;
+          if (k === 0) overlay.actual[eye] = actual;
+          if (actual) {
+            ctx.strokeStyle = "#fff";
+            ctx.lineWidth = 1;
+            ctx.beginPath();
+            ctx.arc(actual[0], actual[1], 6, 0, 2 * Math.PI);
+            ctx.stroke();
+          }
+          if (several && tool) {
+            ctx.fillStyle = "#fff";
+            ctx.fillText(arm.name, tool[0] + 14, tool[1] - 14);
+          }
+          ctx.restore();
+        });
       });
     }
     drawForces(t);
@@ -267,7 +325,21 @@ async function main(): Promise<void> {
   requestAnimationFrame(frame);
   // For tests: what the timeline holds, and the video.
   Object.assign(window, {
-    review: { video, overlay, duration: tl.duration, videoStart: tl.video_start, forces: forces.length, states: states.length, commands: commands.length, episodes, safety, drove, frame: shown },
+    review: {
+      video,
+      overlay,
+      duration: tl.duration,
+      videoStart: tl.video_start,
+      forces: forces.length,
+      states: states.length,
+      commands: commands.length,
+      episodes,
+      safety,
+      drove,
+      frame: shown,
+      // Each recorded arm: its name, and how many states and force samples it has.
+      arms: arms.map((a, k) => ({ name: a.name, states: armStates[k]?.length ?? 0, forces: armForces[k]?.length ?? 0 })),
+    },
   });
   document.body.dataset.reviewReady = "1";
 }
