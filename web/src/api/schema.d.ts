@@ -2033,6 +2033,16 @@ export interface components {
             estop_reason: string;
             /** Force Limited */
             force_limited: boolean;
+            /**
+             * Force Limited Arms
+             * @description the arms stopped by their force limit
+             */
+            force_limited_arms: string[];
+            /**
+             * Arm
+             * @description whose limits and stopping follow (?arm=; the first arm's)
+             */
+            arm: string;
             /** Controller */
             controller: string | null;
             /**
@@ -2921,7 +2931,10 @@ export interface operations {
     };
     safety_api_v1_safety_get: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description whose limits and stopping (default: the first arm) */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -2935,6 +2948,15 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["SafetyView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };
@@ -3149,7 +3171,10 @@ export interface operations {
     };
     force_state_api_v1_force_get: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -3165,11 +3190,23 @@ export interface operations {
                     "application/json": components["schemas"]["ForceState"];
                 };
             };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
         };
     };
     update_force_api_v1_force_put: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -3202,7 +3239,10 @@ export interface operations {
     };
     start_api_v1_force_start_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -3216,13 +3256,25 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["ForceState"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };
     };
     stop_api_v1_force_stop_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -3238,11 +3290,23 @@ export interface operations {
                     "application/json": components["schemas"]["ForceState"];
                 };
             };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
         };
     };
     tare_api_v1_force_tare_post: {
         parameters: {
-            query?: never;
+            query?: {
+                /** @description which arm (GET /robot/arms lists them); needed on a server with two arms or more, where a call without one is refused with their names */
+                arm?: string | null;
+            };
             header?: never;
             path?: never;
             cookie?: never;
@@ -3256,6 +3320,15 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["ForceState"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };
