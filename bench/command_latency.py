@@ -20,6 +20,23 @@ pseudo-terminal and over TCP, paced (the default 5 ms period: 200 Hz) and flat o
 (no period), each over ``READ_WINDOW_S`` after the first 0.5 s
 (tests/test_so101_driver.py asserts the pacing, not these rates).
 
+``--arms 2`` (issue 33, two arms at once): afterwards, a server driving two arms of
+``--arms-model`` (``TELEROBOT_ARMS=left=so101:sim,right=so101:sim``) and one client
+holding the one lease, as a bimanual operator: one connection, a CART_INC for every arm
+each tick at ``--arm-rate-hz`` (100 Hz) per arm, sent back to back (``--stagger``: spread
+over the tick), each naming its arm; ACKs are read as they come and matched by seq.
+Phases of ``--block-seconds`` (1 s) alternate, ABBA, a one-arm phase (only the first
+arm driven) with the all-arms phase on the same server, ``--arms-seconds`` (30 s) of
+each, so the shared machine's changing load falls on both alike. The JSON adds
+``p99_ms_per_arm`` (all-arms phase), ``p99_ms_one_arm`` (one-arm phase),
+``p99_ratio_two_vs_one`` (the worse arm's p99 over the one-arm phase's, every phase
+pooled) and ``arms``: the details (p50/max per arm; the ratio from each half of the run
+alone, and the median of the rounds' ratios, which a stall of the machine moves less;
+``ack_spread_ms``, the last arm's ACK after the first's in one tick; and a one-arm
+server of the same model driven the same way in the same run, ``one_arm_server``, with
+``p99_ratio_vs_one_arm_server``). The second client receives every force sample of
+every arm throughout (``--batched-forces``: ~10 ms batches).
+
 Thesis reference (§4.7): a 48-byte command took ~0.7 ms client to server (1.1 ms with video).
 """
 
@@ -27,16 +44,22 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import secrets
 import tempfile
 import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
 
 import httpx
 import numpy as np
 
 from bench.common import (
+    arms_env,
     emit,
     machine,
+    p50_p99,
     parser,
     percentiles_ms,
     serve_for_bench,
@@ -66,16 +89,20 @@ async def measure(
     await op.take_lease()
     rtt = await op.sync_clock()
     latencies: list[float] = []
-    limited = 0
+    limited = refused = 0
     next_send = time.monotonic()
     for i in range(commands):
         dz = 0.0002 if (i // 50) % 2 == 0 else -0.0002  # a small back-and-forth
         seq = op.next_seq()
         sent = time.monotonic()
         await op.ws.send(m.encode(m.CART_INC, seq, sent, m.Frame.BASE, 0.0, 0.0, dz, 0.0, 0.0, 0.0))
-        ack = await op.expect(m.ACK)
-        latencies.append(ack["server_time"] - op.offset - sent)
-        limited += ack["result"] == m.Ack.LIMITED
+        try:
+            ack = await op.expect(m.ACK)
+        except RuntimeError:  # refused: stale after a stall of the shared machine (>150 ms)
+            refused += 1
+        else:
+            latencies.append(ack["server_time"] - op.offset - sent)
+            limited += ack["result"] == m.Ack.LIMITED
         next_send += period_s
         await asyncio.sleep(max(0.0, next_send - time.monotonic()))
     drain.cancel()
@@ -88,9 +115,10 @@ async def measure(
         **figures,
         "n": len(latencies),
         "limited": limited,
+        "refused": refused,
         "ping_rtt_ms": rtt * 1000.0,
         "forces_received": received[0],
-        "force_rate_hz": received[0] / (len(latencies) * period_s),
+        "force_rate_hz": received[0] / (commands * period_s),
         "p50_ms_raw_clock": float(np.percentile(np.array(latencies) + op.offset, 50) * 1000.0),
     }
 
@@ -114,6 +142,230 @@ def run_server(
         if "read_rate_hz" in bus:
             figures["bus_read_rate_hz"] = bus["read_rate_hz"]
     return figures
+
+
+# ---------------------------------------------------------------- two arms or more
+WARMUP_S = 1.0  # every arm driven this long first, not counted
+
+
+def arms_plan(conditions: tuple[str, ...], rounds: int) -> list[tuple[int, str]]:
+    """The phases in order, (round, condition): ``rounds`` rounds of every condition,
+    ABBA (the order turned every other round)."""
+    plan: list[tuple[int, str]] = []
+    for r in range(rounds):
+        plan.extend((r, c) for c in (conditions if r % 2 == 0 else reversed(conditions)))
+    return plan
+
+
+@dataclass
+class ArmsRun:
+    """What ``drive_arms`` measured: latencies (s) by (round, condition, arm name)."""
+
+    names: list[str]
+    rounds: int
+    latencies: dict[tuple[int, str, str], list[float]] = field(
+        default_factory=lambda: defaultdict(list)
+    )
+    limited: int = 0
+    refused: int = 0
+    refusals: list[str] = field(default_factory=list)  # the first few ERRORs (distinct)
+    # all-arms ticks: each arm's ACK time (the server's clock) by tick, then arm name
+    acked: dict[int, dict[str, float]] = field(default_factory=lambda: defaultdict(dict))
+    unanswered: int = 0
+    ping_rtt_ms: float = 0.0
+    force_rate_hz: float = 0.0
+
+    def pooled(self, cond: str, name: str) -> list[float]:
+        return [v for r in range(self.rounds) for v in self.latencies.get((r, cond, name), [])]
+
+
+async def drive_arms(
+    port: int,
+    token: str,
+    conditions: tuple[str, ...],
+    seconds: float,
+    rounds: int,
+    rate_hz: float,
+    stagger: bool,
+    every_force: bool = True,
+) -> ArmsRun:
+    """One client holding the lease drives the arms at ``rate_hz`` each: in a ``one``
+    phase only the first arm, in an ``all`` phase every arm each tick (back to back, or
+    spread over the tick with ``stagger``); ``rounds`` phases of each condition,
+    ``seconds`` in all per condition. A second client receives every force sample of
+    every arm (``every_force``; else ~10 ms batches)."""
+    url = f"ws://127.0.0.1:{port}/ws"
+    forces = await RealtimeClient.connect(
+        url, flags=m.HelloFlags.EVERY_FORCE_SAMPLE if every_force else 0
+    )
+    received = [0]
+    drain = asyncio.create_task(drain_forces(forces, received))
+    op = await RealtimeClient.connect(url, token=token)
+    run = ArmsRun(list(op.arms), rounds)  # the names in index order
+    await op.take_lease()
+    run.ping_rtt_ms = await op.sync_clock() * 1000.0
+    # seq → (round, condition, arm name, send time, tick); round -1: the warm-up
+    pending: dict[int, tuple[int, str, str, float, int]] = {}
+
+    async def read_acks() -> None:
+        while True:
+            data = await op.ws.recv()
+            if data[0] == m.ACK.type_id:
+                _, ack, _ = m.decode(data)
+                sent = pending.pop(int(ack["seq"]), None)
+                if sent is not None and sent[0] >= 0:
+                    r, cond, name, t, at_tick = sent
+                    run.latencies[(r, cond, name)].append(ack["server_time"] - op.offset - t)
+                    run.limited += ack["result"] == m.Ack.LIMITED
+                    if cond == "all":
+                        run.acked[at_tick][name] = ack["server_time"]
+            elif data[0] == m.ERROR.type_id:
+                _, error, text = m.decode(data)
+                if pending.pop(int(error["seq"]), None) is not None:
+                    run.refused += 1
+                    if len(run.refusals) < 5 and str(text) not in run.refusals:
+                        run.refusals.append(str(text))
+
+    reader = asyncio.create_task(read_acks())
+    period = 1.0 / rate_hz
+    phase_ticks = max(1, round(seconds / rounds * rate_hz))
+    phases = [(-1, "all", round(WARMUP_S * rate_hz))]
+    phases += [(r, c, phase_ticks) for r, c in arms_plan(conditions, rounds)]
+    tick = 0
+    next_tick = time.monotonic()
+    for r, cond, ticks in phases:
+        driven = run.names if cond == "all" else run.names[:1]
+        for _ in range(ticks):
+            dz = 0.0002 if (tick // 50) % 2 == 0 else -0.0002  # a small back-and-forth
+            for j, name in enumerate(driven):
+                if stagger and j:
+                    due = next_tick + j * period / len(driven)
+                    await asyncio.sleep(max(0.0, due - time.monotonic()))
+                seq = op.next_seq()
+                sent = time.monotonic()
+                pending[seq] = (r, cond, name, sent, tick)
+                move = (m.Frame.BASE, 0.0, 0.0, dz, 0.0, 0.0, 0.0, op.arms[name])
+                await op.ws.send(m.encode(m.CART_INC, seq, sent, *move))
+            tick += 1
+            next_tick += period
+            await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
+    await asyncio.sleep(0.5)  # the last ACKs
+    for task in (reader, drain):
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    await op.close()
+    await forces.close()
+    run.unanswered = len(pending)
+    run.force_rate_hz = received[0] / (tick * period)
+    return run
+
+
+def p99_ms(values_s: list[float]) -> float:
+    return float(np.percentile(np.array(values_s), 99) * 1000.0) if values_s else math.nan
+
+
+def arms_figures(run: ArmsRun) -> dict[str, Any]:
+    """Per arm of the all-arms phase and the one-arm phase (pooled over the rounds),
+    the worse arm's p99 over the one arm's, and that ratio in each half of the run."""
+    first = run.names[0]
+    one = percentiles_ms(run.pooled("one", first))
+    every = {name: percentiles_ms(run.pooled("all", name)) for name in run.names}
+    worst = max(f["p99_ms"] for f in every.values())
+    halves = [range(run.rounds // 2), range(run.rounds // 2, run.rounds)]
+
+    def ratio(rounds: range) -> float:
+        def pool(cond: str, name: str) -> list[float]:
+            return [v for r in rounds for v in run.latencies.get((r, cond, name), [])]
+
+        worst_arm = max(p99_ms(pool("all", name)) for name in run.names)
+        return worst_arm / p99_ms(pool("one", first))
+
+    # Round by round (a phase of each, side by side), the median: what a stall of the
+    # shared machine does to the few rounds it falls in leaves it be.
+    by_round = [ratio(range(r, r + 1)) for r in range(run.rounds)]
+
+    return {
+        "p99_ms_per_arm": {name: f["p99_ms"] for name, f in every.items()},
+        "p50_ms_per_arm": {name: f["p50_ms"] for name, f in every.items()},
+        "max_ms_per_arm": {name: f["max_ms"] for name, f in every.items()},
+        "n_per_arm": {name: len(run.pooled("all", name)) for name in run.names},
+        "p50_ms_one_arm": one["p50_ms"],
+        "p99_ms_one_arm": one["p99_ms"],
+        "max_ms_one_arm": one["max_ms"],
+        "n_one_arm": len(run.pooled("one", first)),
+        "p99_ratio_two_vs_one": worst / one["p99_ms"],
+        # in an all-arms tick, the last arm's ACK after the first's (the server's clock):
+        # how long the one loop took over the commands before it
+        "ack_spread_ms": p50_p99(
+            [
+                (acks[run.names[-1]] - acks[first]) * 1000.0
+                for acks in run.acked.values()
+                if len(acks) == len(run.names)
+            ]
+        ),
+        # the same from each half of the run alone: how far the figure holds still
+        "p99_ratio_by_half": [ratio(h) for h in halves] if run.rounds >= 2 else [],
+        "p99_ratio_median_of_rounds": float(np.nanmedian(by_round)),
+    }
+
+
+def run_arms(
+    arms: int,
+    model: str,
+    seconds: float,
+    rounds: int,
+    rate_hz: float,
+    stagger: bool,
+    every_force: bool = True,
+) -> dict[str, Any]:
+    """The arms on one server (one-arm and all-arms phases alternating), then a one-arm
+    server of the same model driven the same way, in this run."""
+    token = secrets.token_hex(16)
+    env = {"TELEROBOT_OPERATOR_TOKEN": token, **arms_env(arms, model)}
+    with serve_for_bench(env=env, ready=True) as (_, base):
+        port = int(base.rstrip("/").rsplit(":", 1)[1])
+        time.sleep(0.5)
+        both = ("one", "all")
+        run = asyncio.run(
+            drive_arms(port, token, both, seconds, rounds, rate_hz, stagger, every_force)
+        )
+        server = server_processing(base)
+    figures = arms_figures(run)
+    single = {"TELEROBOT_OPERATOR_TOKEN": token, **arms_env(1, model)}
+    with serve_for_bench(env=single, ready=True) as (_, base):
+        port = int(base.rstrip("/").rsplit(":", 1)[1])
+        time.sleep(0.5)
+        alone = asyncio.run(
+            drive_arms(port, token, ("one",), seconds, rounds, rate_hz, stagger, every_force)
+        )
+    one_server = percentiles_ms(alone.pooled("one", alone.names[0]))
+    worst = max(figures["p99_ms_per_arm"].values())
+    return {
+        **figures,
+        "one_arm_server": {**one_server, "n": len(alone.pooled("one", alone.names[0]))},
+        "p99_ratio_vs_one_arm_server": worst / one_server["p99_ms"],
+        "arms": arms,
+        "model": model,
+        "rate_hz_per_arm": rate_hz,
+        "stagger": stagger,
+        "every_force_sample": every_force,
+        "rounds": rounds,
+        "seconds_per_condition": seconds,
+        "limited": run.limited,
+        "refused": run.refused,
+        "refusals": run.refusals,
+        "unanswered": run.unanswered,
+        "ping_rtt_ms": run.ping_rtt_ms,
+        "force_rate_hz": run.force_rate_hz,
+        **server,
+    }
+
+
+def server_processing(base: str) -> dict[str, float]:
+    streams = httpx.get(base + "api/v1/telemetry").json()["streams"]
+    server = next(s for s in streams if s["name"] == "command_processing")
+    return {"server_processing_p50_ms": server["p50"], "server_processing_p99_ms": server["p99"]}
 
 
 READ_WINDOW_S = 2.0
@@ -169,6 +421,16 @@ def main() -> None:
         "--batched-forces", action="store_true", help="the second client takes ~10 ms force batches"
     )
     p.add_argument("--robot", choices=("sim", "so101-emulator"), default="sim")
+    p.add_argument("--arms", type=int, default=1, help="then N arms driven at once (2: issue 33)")
+    p.add_argument("--arms-model", default="so101", help="the model of every arm (--arms)")
+    p.add_argument("--arm-rate-hz", type=float, default=100.0, help="commands per arm (--arms)")
+    p.add_argument(
+        "--arms-seconds", type=float, default=30.0, help="per condition: one arm / every arm"
+    )
+    p.add_argument(
+        "--block-seconds", type=float, default=1.0, help="one phase: one arm or every arm"
+    )
+    p.add_argument("--stagger", action="store_true", help="spread the arms' commands over a tick")
     args = p.parse_args()
     period, every = args.period_ms / 1000, not args.batched_forces
     figures = run_server({"TELEROBOT_HOME_POSE": "qn"}, args.commands, period, every)
@@ -205,6 +467,23 @@ def main() -> None:
         emit(reads, False)
         result["so101_p99_ratio"] = float(so101["p99_ms"]) / float(figures["p99_ms"])
         print(f"so101 p99 / simulation p99: {result['so101_p99_ratio']:.2f}")
+    if args.arms > 1:
+        rounds = max(1, round(args.arms_seconds / args.block_seconds))
+        arms = run_arms(
+            args.arms,
+            args.arms_model,
+            args.arms_seconds,
+            rounds,
+            args.arm_rate_hz,
+            args.stagger,
+            every,
+        )
+        print(f"{args.arms} arms ({args.arms_model}) at {args.arm_rate_hz:g} Hz each, one client:")
+        emit(arms, False)
+        for k in ("p99_ms_per_arm", "p99_ratio_two_vs_one", "p99_ms_one_arm"):
+            result[k] = arms[k]
+        result["arms"] = arms
+        print(f"p99 per arm: {arms['p99_ms_per_arm']}")
     if args.json:
         import json
 

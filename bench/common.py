@@ -143,6 +143,22 @@ def serve_for_bench(
         yield proc, base
 
 
+def arm_names(arms: int) -> list[str]:
+    """The benches' names for ``arms`` arms: left and right for two, arm1… else."""
+    return ["left", "right"] if arms == 2 else [f"arm{i + 1}" for i in range(arms)]
+
+
+def arms_env(arms: int, model: str, robot: str = "sim") -> dict[str, str]:
+    """The environment of a server driving ``arms`` arms of ``model`` (issue 33):
+    ``TELEROBOT_ARMS`` (``left=so101:sim,right=so101:sim``) for two or more, the robot's
+    own settings for one; a PUMA at its ``qn`` pose, as the benches' one arm."""
+    env = {"TELEROBOT_HOME_POSE": "qn"} if model == "puma560" else {}
+    if arms == 1:
+        return {**env, "TELEROBOT_ROBOT_MODEL": model, "TELEROBOT_ROBOT": robot}
+    spec = ",".join(f"{name}={model}:{robot}" for name in arm_names(arms))
+    return {**env, "TELEROBOT_ARMS": spec}
+
+
 @contextlib.contextmanager
 def busy_core(on: bool) -> Iterator[None]:
     """With ``on``, one core kept busy meanwhile (Debian's stress-ng), as a machine that

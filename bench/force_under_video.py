@@ -13,6 +13,17 @@ machine's CLOCK_MONOTONIC, also across network namespaces. Each run measures wit
 video, then with an aiortc viewer receiving the video (not decoding it: the link and
 the server are under test, not the viewer's CPU).
 
+``--tcp``: the forces on the channel's TCP socket (the bridge asks for datagrams).
+
+``--arms 2`` (issue 33): per link, a server of one ``--arms-model`` arm (the one
+stream), then one of two (``TELEROBOT_ARMS=left=…,right=…``: two sensors, two 1 kHz
+streams on the one priority channel, each FORCE naming its arm) measured the same way,
+``--rounds`` times alternated (ABBA). The bridge's link hands every arm's samples over
+(``on_arm_force``); each stream's one-way latency and losses are its own. The one-arm
+server's figures are then the usual keys; the JSON adds ``p99_ms_per_arm_under_video``,
+``p99_ratio_two_vs_one`` (the worse stream's p99 under video over the one stream's,
+medians over the rounds) and ``lost_per_arm``, each by link, and ``arms`` (the details).
+
 Links: loopback; and, when run as root, a veth pair between two network namespaces
 (bench.netem's NetemPair on its ``lan`` profile: no delay, no loss), the server's side
 shaped to 100 Mbit/s by HTB with DSCP EF (the priority channel's mark) in its own class
@@ -24,18 +35,30 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import multiprocessing
 import os
 import secrets
+import statistics
 import subprocess
 import sys
 import time
+from collections import defaultdict
 from typing import Any, Literal
 
 import httpx
 import numpy as np
 
-from bench.common import busy_core, emit, machine, open_viewer, parser, serve_for_bench
+from bench.common import (
+    arm_names,
+    arms_env,
+    busy_core,
+    emit,
+    machine,
+    open_viewer,
+    parser,
+    serve_for_bench,
+)
 from bench.netem import NetemPair, netns_available
 from telerobot.protocol import messages as m
 
@@ -96,7 +119,7 @@ def ws_listener(base: str, seconds: float, out: Any) -> None:
         while time.monotonic() < end:
             data = await client.ws.recv()
             now = time.monotonic()
-            if data[0] == m.FORCE.type_id:
+            if data[0] == m.FORCE.type_id and m.force_arm(data) == 1:  # the first arm's
                 records.extend((seq, t, now) for seq, t, _ in m.decode_force(data))
         await client.close()
         return records
@@ -111,7 +134,9 @@ def viewer(base: str, seconds: float, out: Any) -> None:
     out.put(asyncio.run(_view(base, seconds)))
 
 
-def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any]:
+def client(
+    base: str, seconds: float, compare_ws: bool = False, arms: int = 1, tcp: bool = False
+) -> dict[str, Any]:
     from telerobot.client.master.bridge import BridgeSettings, MasterBridge
     from telerobot.client.master.cli import CPU_PRIORITY, open_link
     from telerobot.drivers.master.sim import SimMaster
@@ -120,10 +145,14 @@ def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any
     tune_for_realtime()  # as `telerobot master` does, and its CPU priority (where allowed)
     raise_thread_priority(int(os.environ.get("BENCH_CLIENT_PRIORITY", CPU_PRIORITY)))
     # The token: forces as datagrams are for operators only (it does not take control).
-    link = open_link(base, os.environ.get("BENCH_FORCE_TOKEN", ""))
+    link = open_link(base, os.environ.get("BENCH_FORCE_TOKEN", ""), datagrams=not tcp)
     bridge = MasterBridge(SimMaster(), link, BridgeSettings())
     records: list[tuple[int, float, float]] = []
-    bridge.on_sample = lambda s, at: records.append((s.seq, s.time, at))
+    by_arm: dict[int, list[tuple[int, float, float]]] = defaultdict(list)
+    if arms == 1:
+        bridge.on_sample = lambda s, at: records.append((s.seq, s.time, at))
+    else:  # every arm's stream, each by itself (both stamped at the same socket read)
+        link.on_arm_force = lambda arm, s, at: by_arm[arm].append((s.seq, s.time, at))
     bridge.start(take_control=False)
     ctx = multiprocessing.get_context("spawn")
     ws_out = ctx.Queue()
@@ -132,17 +161,21 @@ def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any
         ws.start()
     time.sleep(2.0)  # connected, past the start-up
     records.clear()
+    by_arm.clear()
     quiet_window = (time.monotonic(), time.monotonic() + seconds)
     time.sleep(seconds)
-    quiet = _phase(list(records))
+    quiet = _phase(list(records)) if arms == 1 else None
+    quiet_by_arm = {arm: _phase(list(r)) for arm, r in sorted(by_arm.items())}
     out = ctx.Queue()
     view = ctx.Process(target=viewer, args=(base, seconds, out), daemon=True)
     view.start()
     time.sleep(8.0)  # the viewer starts, connects, the first keyframe, the rate settles
     records.clear()
+    by_arm.clear()
     busy_window = (time.monotonic(), time.monotonic() + seconds)
     time.sleep(seconds)
-    busy = _phase(list(records))
+    busy = _phase(list(records)) if arms == 1 else None
+    busy_by_arm = {arm: _phase(list(r)) for arm, r in sorted(by_arm.items())}
     mbps = float(out.get(timeout=60))
     ws_figures = None
     if compare_ws:
@@ -156,7 +189,18 @@ def client(base: str, seconds: float, compare_ws: bool = False) -> dict[str, Any
     bridge.stop()
     link.close()
     channel = httpx.get(base + "api/v1/force/channel", timeout=10).json()
-    return {"no_video": quiet, "video": busy, "video_mbps": mbps, "ws": ws_figures, **channel}
+    if arms > 1:  # the first arm's under the usual keys; every arm's by its index
+        if 1 not in quiet_by_arm or 1 not in busy_by_arm:
+            raise RuntimeError(f"no sample of the first arm came (arms heard: {list(by_arm)})")
+        quiet, busy = quiet_by_arm[1], busy_by_arm[1]
+    return {
+        "no_video": quiet,
+        "video": busy,
+        "video_mbps": mbps,
+        "ws": ws_figures,
+        "per_arm": {"no_video": quiet_by_arm, "video": busy_by_arm} if arms > 1 else None,
+        **channel,
+    }
 
 
 # ---------------------------------------------------------------- the shaped link
@@ -182,10 +226,18 @@ def prioritise_ef(pair: NetemPair) -> None:
 
 # ---------------------------------------------------------------- one measurement
 def measure(
-    seconds: float, netns: NetemPair | Literal[False] | None, compare_ws: bool = False
+    seconds: float,
+    netns: NetemPair | Literal[False] | None,
+    compare_ws: bool = False,
+    arms: int = 1,
+    arms_model: str | None = None,
+    tcp: bool = False,
 ) -> dict[str, Any]:
     """One run: on loopback when ``netns`` is None or False (bench.recording passes
-    False), else the server in the pair's server namespace, the client in its client's."""
+    False), else the server in the pair's server namespace, the client in its client's.
+    With ``arms_model``: a server of ``arms`` arms of that model (else the default one);
+    with two or more, each arm's stream by itself too (``*_per_arm``). ``tcp``: the
+    forces on the channel's TCP socket (else as datagrams, as the bridge asks)."""
     pair = netns or None
     env = {
         "TELEROBOT_VIDEO": "true",
@@ -195,6 +247,7 @@ def measure(
         "TELEROBOT_VIDEO_BITRATE": str(VIDEO_BITRATE),
         "TELEROBOT_VIDEO_CBR": "true",
         "TELEROBOT_OPERATOR_TOKEN": (token := secrets.token_hex(16)),
+        **(arms_env(arms, arms_model) if arms_model else {}),
     }
     host = pair.server_addr if pair else "127.0.0.1"
     server_prefix = pair.server_prefix if pair else ()
@@ -202,8 +255,8 @@ def measure(
     with serve_for_bench("--host", host, env=env, prefix=server_prefix) as (_, base):
         out = subprocess.run(
             [*client_prefix, sys.executable, "-m", "bench.force_under_video",
-             "--client", base, "--seconds", str(seconds),
-             *(["--compare-ws"] if compare_ws else [])],
+             "--client", base, "--seconds", str(seconds), "--arms", str(arms),
+             *(["--compare-ws"] if compare_ws else []), *(["--tcp"] if tcp else [])],
             capture_output=True, text=True, timeout=seconds * 2 + 120,
             env={**os.environ, "BENCH_FORCE_TOKEN": token},
         )  # fmt: skip
@@ -211,7 +264,7 @@ def measure(
             raise RuntimeError(f"the client failed:\n{out.stderr[-3000:]}")
         result: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
     quiet, busy = result["no_video"], result["video"]
-    return {
+    figures = {
         "p50_ms_no_video": quiet["p50_ms"],
         "p99_ms_no_video": quiet["p99_ms"],
         "max_ms_no_video": quiet["max_ms"],
@@ -235,6 +288,84 @@ def measure(
             else {}
         ),
     }
+    if result.get("per_arm"):
+        figures.update(per_arm_figures(result, arms))
+    return figures
+
+
+def per_arm_figures(result: dict[str, Any], arms: int) -> dict[str, Any]:
+    """Each arm's stream by the arm's name: p50/p99/max with video and p99 without,
+    samples and sequence gaps (None: nothing came of it); and what the channel did not
+    send (forces dropped for a slow client, datagrams past a client's rate: the
+    channel's counts, every arm's)."""
+    names = arm_names(arms)
+    # by the arm's index, as JSON keys: "1", "2"
+    quiet: dict[str, dict[str, Any]] = result["per_arm"]["no_video"]
+    busy: dict[str, dict[str, Any]] = result["per_arm"]["video"]
+
+    def each(phase: dict[str, dict[str, Any]], key: str) -> dict[str, Any]:
+        return {name: phase.get(str(i + 1), {}).get(key) for i, name in enumerate(names)}
+
+    def both(key: str) -> dict[str, Any]:
+        q, b = each(quiet, key), each(busy, key)
+        return {n: None if q[n] is None or b[n] is None else q[n] + b[n] for n in names}
+
+    return {
+        "p50_ms_per_arm_under_video": each(busy, "p50_ms"),
+        "p99_ms_per_arm_under_video": each(busy, "p99_ms"),
+        "max_ms_per_arm_under_video": each(busy, "max_ms"),
+        "interarrival_p99_ms_per_arm_under_video": each(busy, "interarrival_p99_ms"),
+        "p99_ms_per_arm_no_video": each(quiet, "p99_ms"),
+        "samples_per_arm": both("samples"),
+        "lost_per_arm": both("lost"),
+        "channel_forces_dropped": result["forces_dropped"],
+        "datagrams_over_rate": result.get("limits", {}).get("datagrams_over_rate"),
+    }
+
+
+def compare_arms(
+    seconds: float,
+    netns: NetemPair | Literal[False] | None,
+    arms: int,
+    model: str,
+    rounds: int,
+    tcp: bool = False,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A one-arm server (one stream) and one of ``arms`` arms, ``rounds`` times
+    alternated (ABBA): the one-arm run with the median p99 under video (the usual keys),
+    and the arms' figures with ``p99_ratio_two_vs_one``: the median over the rounds of
+    the worse stream's p99 under video over the median of the one stream's."""
+    one: list[dict[str, Any]] = []
+    many: list[dict[str, Any]] = []
+    for r in range(rounds):
+        for n in (1, arms) if r % 2 == 0 else (arms, 1):
+            (one if n == 1 else many).append(measure(seconds, netns, False, n, model, tcp))
+    names = arm_names(arms)
+    # A stream of which nothing came counts as infinitely late (the JSON says None).
+    p99s = {n: [f["p99_ms_per_arm_under_video"][n] or math.inf for f in many] for n in names}
+    one_p99 = [f["p99_ms_video"] for f in one]
+    worst_p99 = [max(run) for run in zip(*p99s.values(), strict=True)]
+    middle = one_p99.index(statistics.median_low(one_p99))
+
+    def finite(x: float) -> float | None:
+        return x if math.isfinite(x) else None
+
+    arms_figures = {
+        "p99_ms_per_arm_under_video": {n: finite(statistics.median(v)) for n, v in p99s.items()},
+        "p99_ms_one_arm_under_video": statistics.median(one_p99),
+        "p99_ratio_two_vs_one": finite(statistics.median(worst_p99) / statistics.median(one_p99)),
+        "lost_per_arm": {  # None: a stream of which nothing came in some run
+            n: None if None in (lost := [f["lost_per_arm"][n] for f in many]) else sum(lost)
+            for n in names
+        },
+        "lost_one_arm": sum(f["lost"] for f in one),
+        "rounds": [
+            {"one_arm_p99_ms_video": o, "worst_arm_p99_ms_video": finite(w), "ratio": finite(w / o)}
+            for o, w in zip(one_p99, worst_p99, strict=True)
+        ],
+        "runs": many,
+    }
+    return one[middle], arms_figures
 
 
 def main() -> None:
@@ -246,26 +377,56 @@ def main() -> None:
         help="also receive the samples over /ws in another process (for comparison)",
     )
     p.add_argument("--busy-core", action="store_true", help="stress-ng --cpu 1 meanwhile")
+    p.add_argument(
+        "--arms", type=int, default=1, help="2: one stream against two (issue 33), per link"
+    )
+    p.add_argument("--arms-model", default="so101", help="every arm's model (--arms)")
+    p.add_argument(
+        "--rounds", type=int, default=1, help="one-arm / two-arm servers alternated (--arms)"
+    )
+    p.add_argument(
+        "--tcp", action="store_true", help="forces on the channel's TCP socket, not datagrams"
+    )
     p.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.client:
-        print(json.dumps(client(args.client, args.seconds, args.compare_ws)))
+        print(json.dumps(client(args.client, args.seconds, args.compare_ws, args.arms, args.tcp)))
         return
+    arms: dict[str, Any] = {}  # by link, with --arms
+
+    def one_link(link: str, netns: NetemPair | Literal[False]) -> dict[str, Any]:
+        if args.arms == 1:
+            return measure(args.seconds, netns, args.compare_ws, tcp=args.tcp)
+        one, arms[link] = compare_arms(
+            args.seconds, netns, args.arms, args.arms_model, args.rounds, args.tcp
+        )
+        return one
+
     with busy_core(args.busy_core):
-        figures: dict[str, Any] = {"loopback": measure(args.seconds, False, args.compare_ws)}
+        figures: dict[str, Any] = {"loopback": one_link("loopback", False)}
         why_not = netns_available()
         if why_not is None:
             with NetemPair("lan") as pair:
                 prioritise_ef(pair)
-                figures["netns"] = measure(args.seconds, pair, args.compare_ws)
+                figures["netns"] = one_link("netns", pair)
         else:
             figures["netns"] = None
             figures["netns_skipped"] = why_not
     figures["busy_core"] = args.busy_core
+    figures["forces_on"] = "tcp" if args.tcp else "datagrams"
+    if arms:
+        for key in ("p99_ms_per_arm_under_video", "p99_ratio_two_vs_one", "lost_per_arm"):
+            figures[key] = {name: a[key] for name, a in arms.items()}
+        figures["arms"] = {"arms": args.arms, "model": args.arms_model, **arms}
     for link in ("loopback", "netns"):
         if figures.get(link):
             print(f"-- {link}")
             emit(figures[link], False)
+        if link in arms:
+            print(f"-- {link}, {args.arms} arms ({args.arms_model}), each stream:")
+            emit({k: v for k, v in arms[link].items() if k != "runs"}, False)
+            for key in ("p99_ms_per_arm_under_video", "lost_per_arm"):
+                print(f"{key}: {arms[link][key]}")
     if args.json:
         print(json.dumps({**figures, "machine": machine()}))
 

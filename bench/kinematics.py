@@ -15,10 +15,19 @@ The PUMA 560's IK is its closed form (``ik_us`` is the nearest-configuration cal
 it also prints the all-eight-solutions figures (``ik_all_us``, ``roundtrip_max_err``,
 ``nearest_recovers_start``) measured from the start. Other models use the numeric IK
 from their URDF (``telerobot.drivers.robot.models.numeric``).
+
+``--arms 2`` (issue 33): the kinematics a server of two such arms builds, one instance
+per arm (``make_kinematics`` over each arm's settings: each its own Pinocchio data; an
+arm's mount in the workcell is not in them, its poses are in its own base frame), timed
+beside a one-arm server's, round-robin: ``per_arm`` (``fk_us``, ``jacobian_us``,
+``ik_us`` per arm and for the one arm), ``per_arm_ratio_max`` (the largest of an arm's
+over the one arm's) and ``arms_share_kinematics`` (whether any two arms share an
+instance or its data: False).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -26,7 +35,7 @@ import pinocchio as pin
 
 from bench.common import emit, machine, parser, time_per_call_us
 from telerobot.drivers.base import TelerobotError
-from telerobot.drivers.robot.kinematics import ArmKinematics, tool_transform
+from telerobot.drivers.robot.kinematics import ArmKinematics, PinocchioKinematics, tool_transform
 from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model, model_names
 
 
@@ -79,6 +88,7 @@ def main() -> None:
     p.add_argument("--model", default=DEFAULT_MODEL, choices=model_names())
     p.add_argument("--poses", type=int, default=10_000)
     p.add_argument("--warm-rad", type=float, default=0.02)
+    p.add_argument("--arms", type=int, default=1, help="2: each arm's kinematics (issue 33)")
     args = p.parse_args()
     model = load_model(args.model)
     kin = model.kinematics(tool_transform(model.default_tool_length))
@@ -103,10 +113,49 @@ def main() -> None:
         worst, recovered = roundtrip(kin, args.poses)
         figures["roundtrip_max_err"] = worst
         figures["nearest_recovers_start"] = recovered
+    if args.arms > 1:
+        figures.update(per_arm(model, args.arms, T, start, q))
     figures["warm_rad"] = args.warm_rad
     figures["poses"] = args.poses
     figures["machine"] = machine()
     emit(figures, args.json)
+
+
+def per_arm(
+    model: RobotModel, arms: int, T: np.ndarray, start: np.ndarray, q: np.ndarray
+) -> dict[str, Any]:
+    """The kinematics a server of ``arms`` such arms makes (one per arm) and a one-arm
+    server's, each timed as above, taking turns (three rounds, medians)."""
+    from bench.common import arm_names
+    from telerobot.server.devices import make_kinematics
+    from telerobot.server.settings import Settings
+
+    spec = ",".join(f"{name}={model.name}:sim" for name in arm_names(arms))
+    kins = {name: make_kinematics(own) for name, own in Settings(arms=spec).arm_settings()}
+    kins["one_arm"] = make_kinematics(Settings(robot_model=model.name))
+    # What could be shared: the instance, and Pinocchio's data (scratch of every call).
+    parts = [id(kin) for kin in kins.values()]
+    parts += [id(kin._data) for kin in kins.values() if isinstance(kin, PinocchioKinematics)]
+    shared = len(set(parts)) < len(parts)
+    calls = {"fk_us": 20_000, "jacobian_us": 20_000, "ik_us": 2_000}
+    samples: dict[str, dict[str, list[float]]] = {n: {k: [] for k in calls} for n in kins}
+    for _ in range(3):
+        for name, kin in kins.items():
+            for key, fn in (
+                ("fk_us", functools.partial(kin.fk, q)),
+                ("jacobian_us", functools.partial(kin.jacobian, q)),
+                ("ik_us", functools.partial(kin.ik, T, start)),
+            ):
+                samples[name][key].append(time_per_call_us(fn, calls=calls[key], repeats=3))
+    times = {n: {k: float(np.median(v)) for k, v in by.items()} for n, by in samples.items()}
+    one = times["one_arm"]
+    return {
+        "per_arm": times,
+        "per_arm_ratio_max": max(
+            t[k] / one[k] for n, t in times.items() if n != "one_arm" for k in calls
+        ),
+        "arms_share_kinematics": shared,
+    }
 
 
 def roundtrip(kin: Any, poses: int, seed: int = 1) -> tuple[float, float]:

@@ -26,6 +26,7 @@ class RealtimeClient:
         self.seq = 0
         self.client_id = ""
         self.resume_key = ""  # with HELLO's RESUMABLE flag: continue the session elsewhere
+        self.arms: dict[str, int] = {}  # each arm's name → its index (the ARMs after WELCOME)
 
     @classmethod
     async def connect(cls, url: str, token: str = "", flags: int = 0) -> RealtimeClient:
@@ -36,8 +37,11 @@ class RealtimeClient:
         """Say HELLO on an open WebSocket and wait for the WELCOME."""
         client = cls(ws)
         await ws.send(m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode()))
-        welcome = await client.expect_message(m.WELCOME)
-        client.client_id, _, client.resume_key = welcome[2].partition(" ")
+        _, fields, text = await client.expect_message(m.WELCOME)
+        client.client_id, _, client.resume_key = text.partition(" ")
+        for _ in range(int(fields["arms"])):  # an ARM for each arm follows at once
+            _, arm, name = await client.expect_message(m.ARM)
+            client.arms[name] = int(arm["index"])
         return client
 
     @classmethod
