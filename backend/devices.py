@@ -129,13 +129,20 @@ def describe_robot(settings: Settings) -> str:
 
 
 def build_force_sensor(
-    settings: Settings, robot: Robot, workcell: Workcell, mount: FloatArray | None = None
+    settings: Settings,
+    robot: Robot,
+    workcell: Workcell,
+    mount: FloatArray | None = None,
+    phase: float = 0.0,
 ) -> ForceSensor:
     """The sensor the settings name; a simulated one feels ``robot`` in ``workcell``
-    (seen from the arm's base at ``mount``: its sensor's physics is in the arm's frame)."""
+    (seen from the arm's base at ``mount``: its sensor's physics is in the arm's frame),
+    sampling at ``phase`` of its period (arm i of N: i/N)."""
     cls = load_driver("force", settings.force)
     cell = workcell if mount is None else workcell.seen_from(mount)
-    context = device_context(settings, workcell=cell, arm_probe=robot.snapshot)
+    context = dataclasses.replace(
+        device_context(settings, workcell=cell, arm_probe=robot.snapshot), sample_phase=phase
+    )
     return cls.from_settings(settings.model_dump(), context)
 
 
@@ -144,11 +151,11 @@ def build_arms(settings: Settings, clock: Clock | None, workcell: Workcell) -> l
     named "arm", when they name none)."""
     mounts = arm_mounts(settings)
     arms = []
-    for (name, own), mount in zip(settings.arm_settings(), mounts, strict=True):
+    named = settings.arm_settings()
+    for i, ((name, own), mount) in enumerate(zip(named, mounts, strict=True)):
         robot = build_robot(own, clock)
-        arms.append(
-            ArmDevices(name, own, robot, build_force_sensor(own, robot, workcell, mount), mount)
-        )
+        sensor = build_force_sensor(own, robot, workcell, mount, phase=i / len(named))
+        arms.append(ArmDevices(name, own, robot, sensor, mount))
     return arms
 
 

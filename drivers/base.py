@@ -482,3 +482,8 @@ class DeviceContext:
     clock: Clock | None = None  # None: the driver's own monotonic clock
     # The server's other arms (docs/arms.md), for a device that sees them all.
     other_arms: tuple[OtherArm, ...] = ()
+    # Where in its period a sensor that sets its own schedule takes its samples, as a
+    # share of the period (arm i of N: i/N): several arms' sensors then never wake at
+    # the same instant to queue behind one another for the interpreter (bench.
+    # force_under_video --arms 2: the second stream's p99 was twice the first's).
+    sample_phase: float = 0.0

@@ -206,3 +206,13 @@ def test_two_arms_face_each_other_and_each_feels_the_block_in_its_own_frame() ->
     inside = top.centre + np.array([0.0, 0.0, top.size[2] / 2 - 0.002])
     assert top.penetration(inside)[0] > 0.0
     assert np.allclose(mount_transform(None), np.eye(4))
+
+
+def test_each_arms_simulated_sensor_samples_at_its_own_share_of_the_period() -> None:
+    """Two arms' sensors take turns (phase 0 and ½): woken at the same instant, the
+    second queued behind the first for the interpreter (bench.force_under_video)."""
+    from telerobot.server.devices import build_arms, build_workcell
+
+    settings = load_settings(arms="left=so101:sim,right=so101:sim", viewer=False)
+    arms = build_arms(settings, None, build_workcell(settings))
+    assert [getattr(a.force, "phase", None) for a in arms] == [0.0, 0.5]

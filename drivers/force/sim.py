@@ -51,7 +51,11 @@ class SimForceSensor(SampledForceSensor):
         noise_n: float = 0.02,
         seed: int = 0,
         time_source: Callable[[], float] = time.monotonic,
+        phase: float = 0.0,
     ) -> None:
+        """``phase``: where in each period the samples are taken (a share of it, on the
+        clock's own grid of periods), so two arms' sensors take turns."""
+        self.phase = phase % 1.0
         self.workcell = workcell
         self.probe = probe
         self.kinematics = kinematics  # this sensor's own: Pinocchio data is not thread-safe
@@ -77,7 +81,11 @@ class SimForceSensor(SampledForceSensor):
         """Feels the arm the context follows in the context's workcell."""
         config = SimForceConfig.from_settings(settings)
         return cls(
-            context.workcell(), context.arm_probe, context.kinematics(), rate_hz=config.rate_hz
+            context.workcell(),
+            context.arm_probe,
+            context.kinematics(),
+            rate_hz=config.rate_hz,
+            phase=context.sample_phase,
         )
 
     # ------------------------------------------------------------ physics
@@ -120,7 +128,10 @@ class SimForceSensor(SampledForceSensor):
         return self._deliver(self._seq, t, raw)
 
     def _run(self) -> None:
-        next_t = self._now()
+        period = 1.0 / self._pipeline.rate_hz
+        now = self._now()
+        # The last slot of the grid at ``phase`` before now (the loop adds a period).
+        next_t = (math.floor(now / period - self.phase) + self.phase) * period
         while not self._stop.is_set():
             period = 1.0 / self._pipeline.rate_hz
             next_t += period
