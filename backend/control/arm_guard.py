@@ -12,7 +12,7 @@ and a lease lost stop them all.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,3 +47,13 @@ class ArmGuard:
     def said(self, text: str, arms: int) -> str:
         """``text`` about this arm, named when the server drives more than one."""
         return text if arms == 1 else f"{self.name}: {text}"
+
+
+def arm_sensors(
+    arms: Sequence[ArmGuard], first: ForceSensor | None
+) -> list[tuple[int, ForceSensor]]:
+    """Every arm's force sensor with the arm's wire index, the first arm's being
+    ``first`` (the one a transport was given: a test's may differ from the arm's own);
+    arms with no sensor left out."""
+    sensors = [(1, first), *((guard.index, guard.force) for guard in arms[1:])]
+    return [(index, sensor) for index, sensor in sensors if sensor is not None]

@@ -23,6 +23,7 @@ from collections import deque
 
 from telerobot.drivers.base import ForceSample, ForceSensor
 from telerobot.protocol import messages as m
+from telerobot.server.control.arm_guard import arm_sensors
 from telerobot.server.realtime.hub import RealtimeHub
 
 log = logging.getLogger(__name__)
@@ -66,13 +67,8 @@ class ObserverFeed:
             self._samples[arm].append(sample)
 
     def start(self) -> None:
-        arms = self.hub.decision.arms
-        sensors = [(1, self.force), *((g.index, g.force) for g in arms[1:])]
-        for index, sensor in sensors:
-            if sensor is not None:
-                self._unsubscribe.append(
-                    sensor.subscribe(functools.partial(self._on_force, arm=index))
-                )
+        for index, sensor in arm_sensors(self.hub.decision.arms, self.force):
+            self._unsubscribe.append(sensor.subscribe(functools.partial(self._on_force, arm=index)))
         self._task = asyncio.create_task(self._run(), name="observer-feed")
 
     async def stop(self) -> None:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from telerobot.drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
 from telerobot.drivers.clock import Clock
 from telerobot.protocol import messages as m
-from telerobot.server.control.arm_guard import ArmGuard
+from telerobot.server.control.arm_guard import ArmGuard, arm_sensors
 from telerobot.server.control.autonomy import AutonomyState, Mode
 from telerobot.server.control.decision import DecisionServer, SafetyState
 from telerobot.server.realtime.ratelimit import PeerLimits
@@ -199,14 +199,13 @@ class RealtimeHub:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         loop = asyncio.get_running_loop()
-        for guard in self.decision.arms:  # the first arm's sensor is ``force``
-            sensor = self.force if guard.index == 1 else guard.force
-            if sensor is not None:
+        for index, sensor in arm_sensors(self.decision.arms, self.force):
 
-                def from_sensor_thread(sample: ForceSample, arm: int = guard.index) -> None:
-                    loop.call_soon_threadsafe(self._on_force, sample, arm)
+            def from_sensor_thread(sample: ForceSample, arm: int = index) -> None:
+                loop.call_soon_threadsafe(self._on_force, sample, arm)
 
-                self._unsubscribe.append(sensor.subscribe(from_sensor_thread))
+            self._unsubscribe.append(sensor.subscribe(from_sensor_thread))
+        for guard in self.decision.arms:
             self._unsubscribe.append(
                 guard.robot.events.status_changed.subscribe(
                     functools.partial(self._on_status, guard=guard)

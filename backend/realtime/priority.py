@@ -73,6 +73,7 @@ from typing import Any
 from telerobot.drivers.base import ForceSample, ForceSensor, TelerobotError
 from telerobot.protocol import messages as m
 from telerobot.protocol.netprio import mark_high_priority
+from telerobot.server.control.arm_guard import arm_sensors
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.realtime.hub import RealtimeHub
 from telerobot.server.realtime.ratelimit import BURST, MESSAGES_PER_S, TokenBucket
@@ -348,10 +349,7 @@ class PriorityChannel:
         if self._udp is not None:
             self._selector.register(self._udp, selectors.EVENT_READ, _DATAGRAM)
         # Every arm's sensor (the first's is ``force``), each FORCE naming its arm.
-        sensors = [(1, self.force), *((g.index, g.force) for g in self.decision.arms[1:])]
-        for index, sensor in sensors:
-            if sensor is None:
-                continue
+        for index, sensor in arm_sensors(self.decision.arms, self.force):
             # First: the other subscribers wake the event loop (call_soon_threadsafe),
             # whose thread then takes the GIL from this one, and under video a loop
             # thread put off the CPU while holding it made the datagram wait with it
@@ -549,11 +547,9 @@ class PriorityChannel:
         """The bucket for ``every``: the same one (its tokens kept) if the rate holds.
         Every arm's sensor sends the client its samples: the rate is theirs together
         (sized for one, it dropped half of two arms' samples as over the rate)."""
-        sensors = [self.force, *(g.force for g in self.decision.arms[1:])]
         rate_hz = sum(
             float(getattr(sensor, "rate_hz", None) or DEFAULT_FORCE_RATE_HZ)
-            for sensor in sensors
-            if sensor is not None
+            for _, sensor in arm_sensors(self.decision.arms, self.force)
         ) or float(DEFAULT_FORCE_RATE_HZ)
         rate = DATAGRAM_RATE_SLACK * rate_hz / every
         if bucket is not None and bucket.rate == rate:

@@ -181,11 +181,6 @@ class SimStereoCamera:
             fps=config.fps,
         )
 
-    def add_arms(self, arms: Sequence[DrawnArm]) -> None:
-        """Draw these arms too (the server's other arms, in its order); before ``start``."""
-        self.arms = (*self.arms, *arms)
-        self._background = np.concatenate([self._render_static(c) for c in self.cameras], axis=1)
-
     @classmethod
     def default_rig(cls, settings: Mapping[str, Any]) -> str:
         return "sim"
