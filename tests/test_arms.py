@@ -22,29 +22,17 @@ from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.settings import load_settings, parse_arms
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
-from tests.support.decision import RecordingPuma
+from tests.support.decision import RecordingPuma, recording_puma
 
 STEP = np.array([0.005, 0.0, 0.0])
 NO_TURN = np.zeros(3)
-
-
-async def puma(clock: ManualClock) -> RecordingPuma:
-    robot = RecordingPuma(
-        clock=clock,
-        kinematics=Puma560Kinematics(tool_transform(0.1)),
-        start_joints=NAMED_POSES["qn"],
-    )
-    await robot.connect()
-    await run_with_clock(clock, robot.initialize())
-    robot.sent.clear()
-    return robot
 
 
 async def two_arms(
     clock: ManualClock,
 ) -> tuple[DecisionServer, RecordingPuma, RecordingPuma, Client]:
     """Two simulated PUMAs, "left" and "right", and "alice" holding the one lease."""
-    left, right = await puma(clock), await puma(clock)
+    left, right = await recording_puma(clock), await recording_puma(clock)
     limits = SafetyLimits()
     ds = DecisionServer(
         left,

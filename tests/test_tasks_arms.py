@@ -17,7 +17,6 @@ import pytest
 from telerobot.drivers.base import ForceSample, InvalidCommand
 from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.robot.puma560.kinematics import (
-    NAMED_POSES,
     Puma560Kinematics,
     tool_transform,
 )
@@ -33,8 +32,7 @@ from telerobot.server.tasks.trajectory import (
     read_paths,
 )
 from tests.support import TOKEN
-from tests.support.clock import run_with_clock
-from tests.support.decision import RecordingPuma
+from tests.support.decision import RecordingPuma, recording_puma
 
 ROT = np.eye(3).reshape(9).tolist()
 Messages = list[tuple[str, dict[str, object]]]
@@ -176,15 +174,7 @@ async def cell() -> AsyncIterator[TwoArmCell]:
     clock = ManualClock()
     robots, sensors = {}, {}
     for name in ("left", "right"):
-        robot = RecordingPuma(
-            clock=clock,
-            kinematics=Puma560Kinematics(tool_transform(0.1)),
-            start_joints=NAMED_POSES["qn"],
-        )
-        await robot.connect()
-        await run_with_clock(clock, robot.initialize())
-        robot.sent.clear()
-        robots[name], sensors[name] = robot, PushedSensor()
+        robots[name], sensors[name] = await recording_puma(clock), PushedSensor()
     limits = SafetyLimits()
     decision = DecisionServer(
         robots["left"],

@@ -28,14 +28,20 @@ class RecordingPuma(SimPuma):
         await super()._send_target(raw_target)
 
 
-async def make(
-    clock: ManualClock, limits: SafetyLimits | None = None
-) -> tuple[DecisionServer, RecordingPuma]:
+async def recording_puma(clock: ManualClock) -> RecordingPuma:
+    """A simulated PUMA, initialised at qn in virtual time, nothing yet sent."""
     kin = Puma560Kinematics(tool_transform(0.1))
     robot = RecordingPuma(clock=clock, kinematics=kin, start_joints=NAMED_POSES["qn"])
     await robot.connect()
     await run_with_clock(clock, robot.initialize())
     robot.sent.clear()
+    return robot
+
+
+async def make(
+    clock: ManualClock, limits: SafetyLimits | None = None
+) -> tuple[DecisionServer, RecordingPuma]:
+    robot = await recording_puma(clock)
     ds = DecisionServer(
         robot,
         kinematics=Puma560Kinematics(tool_transform(0.1)),
