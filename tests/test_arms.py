@@ -172,6 +172,7 @@ def test_the_settings_name_the_arms_and_refuse_what_cannot_be() -> None:
         ("left=so101,right=nope:sim", "unknown robot model 'nope'"),
         ("left=so101:sim,right so=so101:sim", "not an arm name"),
         ("left:so101", "not name=model"),
+        (",".join(f"a{i}=so101:sim" for i in range(9)), "at most 8 arms, not 9"),
     ):
         with pytest.raises(ValueError, match=why):
             load_settings(arms=spec)
