@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
+import numpy as np
 from fastapi import APIRouter, Header, Query, Request
 from pydantic import BaseModel, Field, field_validator
 
@@ -15,6 +16,7 @@ from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Mode
 from telerobot.server.control.decision import DecisionServer, NotAllowed
 from telerobot.server.control.limits import full_speed_stop_s, stopping
+from telerobot.server.telemetry.stats import StreamTally
 
 # A script's client (no connection of its own) is forgotten this long after its last
 # request, unless it holds the lease (the setting rest_client_idle_s, 60 s by default):
@@ -90,6 +92,38 @@ class StoppingView(BaseModel):
     )
 
 
+class CommandAgeView(BaseModel):
+    """Executed commands' ages as they went to the driver (clients on the server's
+    clock): the server's clock at its last age check, the driver's call next, minus
+    the command's ``client_time``."""
+
+    count: int = Field(description="executed commands with a known age, since the start")
+    window: int = Field(description="the last this many, which p50 and p99 are of")
+    p50: float | None = Field(description="ms; null before the first")
+    p99: float | None = Field(description="ms; null before the first")
+    max: float | None = Field(description="ms, the oldest since the start; null before the first")
+    over_limit: int = Field(
+        description="executed older than max_command_age_ms, since the start (the check"
+        " before the driver refuses them: anything but 0 is a defect)"
+    )
+
+
+def command_ages(tally: StreamTally | None) -> CommandAgeView:
+    """The figures of ``tally`` (None: a client with no executed command yet)."""
+    values = tally.values() if tally is not None else np.empty(0)
+    if tally is None or len(values) == 0:
+        return CommandAgeView(count=0, window=0, p50=None, p99=None, max=None, over_limit=0)
+    p50, p99 = np.percentile(values, [50, 99]).tolist()
+    return CommandAgeView(
+        count=tally.count,
+        window=len(values),
+        p50=p50,
+        p99=p99,
+        max=tally.largest,
+        over_limit=tally.over,
+    )
+
+
 class SafetyView(BaseModel):
     estop: bool
     estop_reason: str
@@ -118,6 +152,14 @@ class SafetyView(BaseModel):
         "is dropped, not executed late"
     )
     stale_commands_dropped: int = Field(description="commands dropped as too old, so far")
+    executed_age_ms: CommandAgeView = Field(
+        description="every executed command's age as it went to the driver, all clients"
+    )
+    executed_age_ms_client: CommandAgeView | None = Field(
+        None,
+        description="the same for the client asked for (?client=ID) alone, since it joined;"
+        " null if none was asked for or none by that id is connected",
+    )
     deadman_halts: int = Field(
         description="times the dead-man stopped the arm of a silent holder (lease kept), so far"
     )
@@ -163,9 +205,13 @@ def _stopping(guard: ArmGuard) -> list[StoppingView]:
     ]
 
 
-def _safety(decision: DecisionServer, arm: str | None = None) -> SafetyView:
-    """The safety state (one for every arm) and the limits of the arm named."""
+def _safety(
+    decision: DecisionServer, arm: str | None = None, client_id: str | None = None
+) -> SafetyView:
+    """The safety state (one for every arm) and the limits of the arm named; with
+    ``client_id``, that client's executed commands' ages too."""
     guard = decision.arm(arm) if arm else decision.arms[0]
+    asked = decision.known_client(client_id) if client_id else None
     s, lim = decision.state(), guard.limits
     spec = guard.robot.stop_spec
     return SafetyView(
@@ -190,6 +236,8 @@ def _safety(decision: DecisionServer, arm: str | None = None) -> SafetyView:
         lease_grace_s=lim.lease_grace_s,
         max_command_age_ms=lim.max_command_age_s * 1000,
         stale_commands_dropped=decision.stale_dropped,
+        executed_age_ms=command_ages(decision.executed_age),
+        executed_age_ms_client=command_ages(asked.executed_age) if asked is not None else None,
         deadman_halts=decision.deadman_halts,
         resumed_sessions=decision.resumed_sessions,
         stop_category=int(spec.category),
@@ -263,8 +311,16 @@ async def safety(
         str | None,
         Query(max_length=32, description="whose limits and stopping (default: the first arm)"),
     ] = None,
+    client: Annotated[
+        str | None,
+        Query(
+            max_length=64,
+            description="a client id (its WELCOME's, or POST /lease's): its own executed"
+            " commands' ages in executed_age_ms_client",
+        ),
+    ] = None,
 ) -> SafetyView:
-    return _safety(decision, arm)
+    return _safety(decision, arm, client)
 
 
 @router.post("/safety/estop")

@@ -50,6 +50,7 @@ from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, Rel
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.slave_port import SlavePort
 from telerobot.server.security import token_matches
+from telerobot.server.telemetry.stats import StreamTally
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +97,12 @@ TRANSIT_DRIFT = 2e-4
 RECONNECT_ONE_WAYS = 6
 MAX_GRACE_EXTENSION_S = 1.0
 TRANSIT_SMOOTHING = 0.1  # the usual transit: an exponential average of each command's
+# Every executed command's age (synced clients: our clock − its client_time, where it
+# goes to the driver), in ms: the last this many over all clients, and per client (a
+# bench's own figures: 4096 is 80 s at 50 Hz). A client's is made by its first such
+# command (only a lease holder has any): 32 kB each, at most MAX_CLIENTS of them.
+EXECUTED_AGE_WINDOW = 10_000
+CLIENT_AGE_WINDOW = 4_096
 
 
 class Role(StrEnum):
@@ -133,6 +140,8 @@ class Client:
     # Its client_time is on our clock (it syncs with PING): its commands' age is known.
     synced_clock: bool = False
     stale_dropped: int = 0  # its commands dropped as too old
+    # Its executed commands' ages (ms) as they went to the driver; None until the first.
+    executed_age: StreamTally | None = field(default=None, repr=False)
     # The secret that lets this client's session continue on a new connection (HELLO's
     # RESUME flag); None: not resumable. Its generation counts the connections so far.
     resume_key: str | None = field(default=None, repr=False)
@@ -156,11 +165,15 @@ class Applied:
     client_id: str
     seq: int
     client_time: float | None  # the client's own clock, as sent
-    applied_at: float  # server clock when the driver took it
+    applied_at: float  # server clock as the driver's call returned (the ACK's server_time)
     limited: bool  # the speed limit scaled it down
     target: FloatArray
     scale: float = 1.0  # the share of the increment applied (below 1 when limited)
     arm: str = "arm"  # which arm (its name)
+    # Its age as it went to the driver: our clock − client_time, taken by the last age
+    # check, the driver's call next with no await between (s). None: its client is not
+    # on our clock, or it carries no send time (REST, tasks).
+    age: float | None = None
 
 
 @dataclass(frozen=True)
@@ -195,6 +208,7 @@ class CommandReport:
     # task included) or "server"; and the autonomy mode it was decided in.
     role: str = "operator"
     autonomy: str = "off"
+    age: float | None = None  # an executed command's age at the driver (Applied.age), s
 
 
 @dataclass
@@ -281,6 +295,10 @@ class DecisionServer:
         self._halted = False  # the dead-man stopped the arm; the lease is in its grace
         self._lease_note = ""
         self.stale_dropped = 0  # commands dropped as older than max_command_age_s
+        # Every executed command's age at the driver (ms), synced clients only.
+        self.executed_age = StreamTally(
+            "executed_age", capacity=EXECUTED_AGE_WINDOW, limit=self.limits.max_command_age_s * 1000
+        )
         self.deadman_halts = 0  # arms stopped by the dead-man with the lease kept
         self.resumed_sessions = 0  # sessions continued on a new connection
         self._last_tick: float | None = None
@@ -491,6 +509,10 @@ class DecisionServer:
             return self._clients[client_id]
         except KeyError:
             raise NotAllowed(f"unknown client {client_id!r}: join first") from None
+
+    def known_client(self, client_id: str) -> Client | None:
+        """The client by this id, if one is joined (a read that must not fail)."""
+        return self._clients.get(client_id)
 
     def rename(self, client_id: str, name: str) -> None:
         """The name ``client_id`` goes by from now on (a NAME message: a client with no
@@ -890,6 +912,7 @@ class DecisionServer:
                 if client is not None and client.policy
                 else ("operator" if client is not None else "server"),
                 self.autonomy.mode.value,
+                result.age if isinstance(result, Applied) else None,
             )
         )
 
@@ -924,10 +947,11 @@ class DecisionServer:
         contact = guard.robot.pose.rotation @ np.array(guard.contact_sensor)
         return float(moved @ contact) < 0.0
 
-    def _check_age(self, client: Client, client_time: float | None, now: float) -> None:
-        """A synced client's command older than ``max_command_age_s`` is dropped."""
+    def _check_age(self, client: Client, client_time: float | None, now: float) -> float | None:
+        """A synced client's command older than ``max_command_age_s`` is dropped; its
+        age otherwise (None: not on our clock, or no send time)."""
         if not client.synced_clock or client_time is None:
-            return
+            return None
         age, limit = now - client_time, self.limits.max_command_age_s
         if age > limit:
             client.stale_dropped += 1
@@ -936,6 +960,7 @@ class DecisionServer:
                 f"stale command: sent {age * 1000:.0f} ms ago, older than the "
                 f"{limit * 1000:.0f} ms limit; dropped ({client.stale_dropped} so far)"
             )
+        return age
 
     def _check_fresh(self, client: Client, client_time: float | None) -> None:
         """Refuse an increment that waited on the way longer than the dead-man's limit
@@ -1184,11 +1209,28 @@ class DecisionServer:
                 )
             # Again as it goes to the driver: the IK and a wait for the lock (another
             # command's move in flight) came after the first check. bench.wan saw one
-            # command taken 250.2 ms old.
-            self._check_age(client, client_time, self.clock.now())
+            # command taken 250.2 ms old. Nothing may come between this check and the
+            # driver's call (no await): the age it measures is the command's age at
+            # execution (Applied.age). applied_at, taken after the call, is later by
+            # the driver's own time.
+            age = self._check_age(client, client_time, self.clock.now())
             target = await robot.move_joints(q, relative=False)
             now = self.clock.now()
         client.last_command_at[guard.name] = now
-        applied = Applied(client.id, seq, client_time, now, scale < 1.0, target, scale, guard.name)
+        applied = Applied(
+            client.id, seq, client_time, now, scale < 1.0, target, scale, guard.name, age=age
+        )
+        if age is not None:
+            self._executed_age(client).record(age * 1000.0)
+            self.executed_age.record(age * 1000.0)
         self.events.applied.emit(applied)
         return applied
+
+    def _executed_age(self, client: Client) -> StreamTally:
+        if client.executed_age is None:
+            client.executed_age = StreamTally(
+                "executed_age",
+                capacity=CLIENT_AGE_WINDOW,
+                limit=self.limits.max_command_age_s * 1000,
+            )
+        return client.executed_age

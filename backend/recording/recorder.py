@@ -578,6 +578,7 @@ def command_payload(r: CommandReport) -> dict[str, Any]:
         "lease_holder": r.lease_holder,
         "role": r.role,
         "autonomy": r.autonomy,
+        "age_ms": r.age * 1000.0 if r.age is not None else None,
     }
 
 

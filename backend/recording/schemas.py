@@ -74,6 +74,7 @@ CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
             lease_holder={"type": ["string", "null"]},
             role=_str,
             autonomy=_str,
+            age_ms={"type": ["number", "null"]},
         ),
     ),
     AUTONOMY: (

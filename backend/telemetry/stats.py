@@ -73,6 +73,43 @@ class StreamStats:
         )
 
 
+class StreamTally(StreamStats):
+    """A StreamStats that also keeps, over every value since its start (not only the
+    window the percentiles are of), the largest and how many were above ``limit``:
+    a rolling window forgets its worst value, and these must not."""
+
+    def __init__(
+        self, name: str, unit: str = "ms", capacity: int = 10_000, *, limit: float
+    ) -> None:
+        super().__init__(name, unit, capacity)
+        self.limit = limit
+        self._largest = -math.inf
+        self._over = 0
+
+    def record(self, value: float) -> None:
+        with self._lock:
+            self._values[self._n % len(self._values)] = value
+            self._n += 1
+            if value > self._largest:
+                self._largest = value
+            if value > self.limit:
+                self._over += 1
+
+    @property
+    def capacity(self) -> int:
+        return len(self._values)
+
+    @property
+    def largest(self) -> float:
+        """The largest value since the start (NaN before the first)."""
+        return self._largest if self._n else math.nan
+
+    @property
+    def over(self) -> int:
+        """How many values since the start were above ``limit``."""
+        return self._over
+
+
 class InterArrival(StreamStats):
     """Time between consecutive events, in milliseconds."""
 

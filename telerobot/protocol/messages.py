@@ -253,7 +253,8 @@ ACK = Message(
     0x86,
     ("seq", "result", "server_time", "scale"),
     "IBdd",
-    doc="the command reached the driver at server_time; scale: the share of an increment"
+    doc="the command reached the driver; server_time: as the driver's call returned (its"
+    " age at the driver is age_ms on /commands); scale: the share of an increment"
     " applied (1 unless the speed limit scaled it down: LIMITED)",
 )
 PONG = Message(

@@ -1422,6 +1422,44 @@ export interface components {
                 [key: string]: number;
             };
         };
+        /**
+         * CommandAgeView
+         * @description Executed commands' ages as they went to the driver (clients on the server's
+         *     clock): the server's clock at its last age check, the driver's call next, minus
+         *     the command's ``client_time``.
+         */
+        CommandAgeView: {
+            /**
+             * Count
+             * @description executed commands with a known age, since the start
+             */
+            count: number;
+            /**
+             * Window
+             * @description the last this many, which p50 and p99 are of
+             */
+            window: number;
+            /**
+             * P50
+             * @description ms; null before the first
+             */
+            p50: number | null;
+            /**
+             * P99
+             * @description ms; null before the first
+             */
+            p99: number | null;
+            /**
+             * Max
+             * @description ms, the oldest since the start; null before the first
+             */
+            max: number | null;
+            /**
+             * Over Limit
+             * @description executed older than max_command_age_ms, since the start (the check before the driver refuses them: anything but 0 is a defect)
+             */
+            over_limit: number;
+        };
         /** Compliance */
         Compliance: {
             /**
@@ -2099,6 +2137,10 @@ export interface components {
              * @description commands dropped as too old, so far
              */
             stale_commands_dropped: number;
+            /** @description every executed command's age as it went to the driver, all clients */
+            executed_age_ms: components["schemas"]["CommandAgeView"];
+            /** @description the same for the client asked for (?client=ID) alone, since it joined; null if none was asked for or none by that id is connected */
+            executed_age_ms_client?: components["schemas"]["CommandAgeView"] | null;
             /**
              * Deadman Halts
              * @description times the dead-man stopped the arm of a silent holder (lease kept), so far
@@ -2934,6 +2976,8 @@ export interface operations {
             query?: {
                 /** @description whose limits and stopping (default: the first arm) */
                 arm?: string | null;
+                /** @description a client id (its WELCOME's, or POST /lease's): its own executed commands' ages in executed_age_ms_client */
+                client?: string | null;
             };
             header?: never;
             path?: never;

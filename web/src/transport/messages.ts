@@ -43,7 +43,7 @@ export const FORCE: MessageSpec<"FORCE"> = {"name": "FORCE", "typeId": 131, "siz
 export const EVENT: MessageSpec<"EVENT"> = {"name": "EVENT", "typeId": 132, "size": 10, "tail": "text", "fields": [{"name": "kind", "kind": "u8", "offset": 1, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 2, "size": 8}]};
 /** the command with this seq was refused; nothing moved */
 export const ERROR: MessageSpec<"ERROR"> = {"name": "ERROR", "typeId": 133, "size": 7, "tail": "text", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "code", "kind": "u16", "offset": 5, "size": 2}]};
-/** the command reached the driver at server_time; scale: the share of an increment applied (1 unless the speed limit scaled it down: LIMITED) */
+/** the command reached the driver; server_time: as the driver's call returned (its age at the driver is age_ms on /commands); scale: the share of an increment applied (1 unless the speed limit scaled it down: LIMITED) */
 export const ACK: MessageSpec<"ACK"> = {"name": "ACK", "typeId": 134, "size": 22, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "result", "kind": "u8", "offset": 5, "size": 1}, {"name": "server_time", "kind": "f64", "offset": 6, "size": 8}, {"name": "scale", "kind": "f64", "offset": 14, "size": 8}]};
 /** t0 echoed, t1 server receive, t2 server send */
 export const PONG: MessageSpec<"PONG"> = {"name": "PONG", "typeId": 135, "size": 29, "tail": "", "fields": [{"name": "seq", "kind": "u32", "offset": 1, "size": 4}, {"name": "t0", "kind": "f64", "offset": 5, "size": 8}, {"name": "t1", "kind": "f64", "offset": 13, "size": 8}, {"name": "t2", "kind": "f64", "offset": 21, "size": 8}]};
@@ -194,7 +194,7 @@ export interface ErrorMessage {
   code: number; // u16
   text: string; // UTF-8 to the end
 }
-/** ACK (0x86, server → client): the command reached the driver at server_time; scale: the share of an increment applied (1 unless the speed limit scaled it down: LIMITED) */
+/** ACK (0x86, server → client): the command reached the driver; server_time: as the driver's call returned (its age at the driver is age_ms on /commands); scale: the share of an increment applied (1 unless the speed limit scaled it down: LIMITED) */
 export interface AckMessage {
   readonly type: "ACK";
   seq: number; // u32
