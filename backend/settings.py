@@ -188,6 +188,17 @@ class ServerSettings(BaseSettings):
     # extension at 0–0 ms: media/playout.py), not held by the browser's jitter buffer
     # for a smoother picture (21 ms a frame on loopback, bench.browser).
     video_zero_playout_delay: bool = True
+    # …unless the viewer's link loses packets: then frames are held by what a repair
+    # takes (the round trip and jitter, at most 0.5 s), back to 0 after 10 s without
+    # one (media/playout.py). False: always shown at once, frozen while repaired.
+    video_adaptive_playout: bool = True
+    # Forward error correction (RED + ULPFEC, media/fec.py) to viewers that offer it
+    # (Chromium does): "auto" follows each viewer's loss (none on a clean link), "on"
+    # protects every viewer at the most (1 FEC packet per 2), "off" never.
+    video_fec: Literal["auto", "on", "off"] = "auto"
+    # Tests and demos: every Nth video packet to each viewer is lost for good, its
+    # resends too (only FEC can bring it back). 0: none.
+    video_drop_every: int = Field(0, ge=0, le=1000)
     # WebRTC peers of the robot's own server (each costs it encryption and sending; with
     # a media server only the operator's and the observers' when it is off are)
     video_max_viewers: int = Field(16, ge=1, le=1000)

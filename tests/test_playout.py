@@ -159,7 +159,7 @@ async def test_the_transport_s_rtcp_passes_unchanged() -> None:
             ),
         )
     )
-    wrapper = playout.ZeroPlayoutDelay(send, PLAYOUT)
+    wrapper = playout.PlayoutDelayStamp(send, PLAYOUT)
     await wrapper(sr)
     await wrapper(_packet(mid="0"))
     assert sent[0] == sr and _elements(sent[1])[PLAYOUT] == playout.ZERO

@@ -42,6 +42,7 @@ from aiortc.rtp import (
 from telerobot.drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
 from telerobot.drivers.clock import Clock, MonotonicClock
 from telerobot.protocol.netprio import mark_peer_low_priority
+from telerobot.server.media import fec as ulpfec
 from telerobot.server.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from telerobot.server.media.fanout import Broadcaster, SharedVideoTrack
 from telerobot.server.media.ice import IceConfig, parse_url
@@ -56,8 +57,8 @@ from telerobot.server.media.layers import (
     low_size,
 )
 from telerobot.server.media.pacer import Pacer, pace_peer
+from telerobot.server.media.playout import AdaptivePlayout, stamp_playout_delay
 from telerobot.server.media.playout import allow as allow_playout_delay
-from telerobot.server.media.playout import zero_playout_delay
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.security import token_matches
 from telerobot.server.telemetry.stats import InterArrival, StreamStats
@@ -104,6 +105,10 @@ PENDING_EXPIRY_S = 10.0
 EXPIRY_CHECK_S = 1.0  # how often the worker looks for expired peers
 PEER_SECRET_BYTES = 16  # 128 bits, sent back once with the answer
 PACE_MAX_LOSS = 0.05  # a viewer's link losing this much is not paced (_layer_bps)
+NACKED_KEPT = 1024  # media packets a viewer NACKed, remembered to count each once
+# The loss a viewer's NACKs show, smoothed: up at once, down by this share a second.
+LOSS_DECAY = 0.3
+FEC_MODES = ("auto", "off", "on")
 
 
 @dataclass(frozen=True)
@@ -116,6 +121,14 @@ class VideoSettings:
     low_bitrate: int = LOW_BITRATE
     pacing: bool = False  # each viewer's packets paced (backend/media/pacer.py)
     zero_playout_delay: bool = True  # frames shown when decoded (backend/media/playout.py)
+    # …unless the viewer's link loses packets: then held by what a repair takes.
+    adaptive_playout: bool = True
+    # RED + ULPFEC (backend/media/fec.py): "auto" follows each viewer's loss, "on"
+    # protects every viewer at the most, "off" never (not even offered).
+    fec: str = "auto"
+    # Tests and demos: every Nth media packet to each viewer is lost for good (its
+    # resends too), so only FEC brings it back. 0: none.
+    drop_every: int = 0
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
 
 
@@ -140,6 +153,19 @@ class ViewerLink:
     # `mobile`, each queueing the link for ~250 ms).
     keyframe_covers_through: int | None = None
     nacks_superseded: int = 0
+    jitter_s: float | None = None  # the receiver's interarrival jitter
+    # Media packets NACKed (each once): the loss before any repair, which receiver
+    # reports hide (a resent packet counts as received in them).
+    nacked: int = 0
+    nacked_recent: dict[int, None] = field(default_factory=dict)
+
+    def count_nacked(self, seqs: list[int]) -> None:
+        for seq in seqs:
+            if seq not in self.nacked_recent:
+                self.nacked += 1
+                self.nacked_recent[seq] = None
+        while len(self.nacked_recent) > NACKED_KEPT:
+            del self.nacked_recent[next(iter(self.nacked_recent))]
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -150,6 +176,8 @@ class ViewerLink:
             "reports": self.reports,
             "nacks_unservable": self.nacks_unservable,
             "nacks_superseded": self.nacks_superseded,
+            "jitter_ms": None if self.jitter_s is None else self.jitter_s * 1000,
+            "packets_nacked": self.nacked,
         }
 
 
@@ -166,12 +194,31 @@ def newest_sent(history: dict[int, Any]) -> int | None:
     return max(seqs, key=lambda s: (s - seqs[0] + 32768) % 65536)
 
 
-def follow_link(sender: RTCRtpSender, link: ViewerLink) -> None:
+def follow_link(
+    sender: RTCRtpSender,
+    link: ViewerLink,
+    fec: Callable[[], ulpfec.FecSender | None] = lambda: None,
+    on_repair: Callable[[], None] = lambda: None,
+) -> None:
     """Copy what the receiver reports over RTCP into ``link`` (aiortc keeps REMB and the
-    loss to itself: its handler is wrapped, as ``_send_keyframe`` is below)."""
+    loss to itself: its handler is wrapped, as ``_send_keyframe`` is below). With FEC
+    on (``fec()``), a NACK names the wire's sequence numbers: aiortc gets its own
+    numbers for the media, the FEC packets are resent here. ``on_repair`` hears of
+    each NACK for media (a repair the viewer waits for)."""
     handle = sender._handle_rtcp_packet
 
     async def on_rtcp(packet: Any) -> None:
+        if isinstance(packet, RtcpRtpfbPacket) and packet.fmt == RTCP_RTPFB_NACK:
+            protection = fec()
+            if protection is not None:
+                media, fec_seqs = protection.nacked(packet.lost)
+                await protection.resend_fec(fec_seqs)
+                packet = RtcpRtpfbPacket(
+                    fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
+                )
+            link.count_nacked(packet.lost)
+            if packet.lost:
+                on_repair()
         await handle(packet)
         if isinstance(packet, RtcpRrPacket | RtcpSrPacket):
             for report in packet.reports:
@@ -179,6 +226,7 @@ def follow_link(sender: RTCRtpSender, link: ViewerLink) -> None:
                     link.fraction_lost = report.fraction_lost / 256
                     link.packets_lost = report.packets_lost
                     link.rtt_s = getattr(sender, "_RTCRtpSender__rtt", None)
+                    link.jitter_s = report.jitter / 90000  # (video's clock)
                     link.reports += 1
         elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == RTCP_PSFB_APP:
             with contextlib.suppress(ValueError):
@@ -221,6 +269,11 @@ class Peer:
     mode: LayerMode = "auto"  # "auto": the layer follows this viewer's link
     choice: LayerChoice = field(default_factory=LayerChoice)
     pacer: Pacer | None = None  # in front of its transport's RTP, once connected
+    fec: ulpfec.FecSender | None = None  # likewise, if RED and ULPFEC were agreed
+    playout: AdaptivePlayout = field(default_factory=AdaptivePlayout)
+    loss: float | None = None  # the share of packets its NACKs show lost, smoothed
+    fec_share: float = 0.0  # FEC packets per media packet now
+    counted: tuple[int, int] = (0, 0)  # (packets sent, NACKed) when loss was last judged
 
     def owned_by(self, secret: str | None) -> bool:
         return token_matches(secret, self.secret)
@@ -282,6 +335,10 @@ class VideoPipeline:
         self.settings = settings or VideoSettings()
         if self.settings.zero_playout_delay:
             allow_playout_delay()  # negotiated with each viewer from now on
+        if self.settings.fec not in FEC_MODES:
+            raise ValueError(f"video fec must be one of {FEC_MODES}, not {self.settings.fec!r}")
+        if self.settings.fec != "off":
+            ulpfec.allow()
         self.clock: Clock = clock or MonotonicClock()
         self.max_viewers = max_viewers
         self.max_pending = max_pending
@@ -454,6 +511,7 @@ class VideoPipeline:
             await self.clock.sleep(EXPIRY_CHECK_S)
             self.expire_pending()
             self.adapt_layers()
+            self.adapt_protection()
 
     def adapt_layers(self) -> None:
         """Each connected viewer on "auto" gets the layer its link carries (called about
@@ -468,6 +526,38 @@ class VideoPipeline:
             if layer != before:
                 log.info("a viewer moves to the %s layer: %s", layer, peer.choice.why)
                 self.set_layer(peer, layer)
+
+    def adapt_protection(self) -> None:
+        """Each connected viewer's loss (from its NACKs, about once a second) and the
+        FEC share that follows it (backend/media/fec.py)."""
+        for peer in self.peers.values():
+            if not peer.connected:
+                continue
+            sent = _packets_sent(peer)
+            nacked = peer.link.nacked
+            d_sent, d_nacked = sent - peer.counted[0], nacked - peer.counted[1]
+            if d_sent <= 0:
+                continue
+            peer.counted = (sent, nacked)
+            loss = min(1.0, d_nacked / d_sent)
+            was = peer.loss
+            peer.loss = loss if was is None or loss > was else was + LOSS_DECAY * (loss - was)
+            mode = self.settings.fec
+            if mode == "on":
+                peer.fec_share = ulpfec.MAX_SHARE
+            elif mode == "auto":
+                peer.fec_share = ulpfec.protection_share(peer.loss, peer.fec_share > 0)
+
+    def _repair_asked(self, peer: Peer) -> None:
+        """The viewer NACKed media: a repair it waits for a round trip (and the
+        jitter) plus the frame interval in which it saw the gap."""
+        if not self.settings.adaptive_playout or not self.settings.zero_playout_delay:
+            return
+        link = peer.link
+        if link.rtt_s is None:
+            return
+        repair = link.rtt_s + 2 * (link.jitter_s or 0.0) + 1.0 / self.settings.fps
+        peer.playout.repair(self.clock.now(), repair)
 
     def set_layer(self, peer: Peer, layer: Layer) -> None:
         """Move ``peer`` to ``layer`` (from that layer's next keyframe, asked for now)."""
@@ -529,7 +619,9 @@ class VideoPipeline:
         transceiver = pc.addTransceiver(track, direction="sendonly")
         wanted = f"video/{codec}"
         caps = RTCRtpSender.getCapabilities("video").codecs
-        transceiver.setCodecPreferences([c for c in caps if c.mimeType == wanted])
+        # The codec first (aiortc sends with the first agreed), then RED and ULPFEC.
+        fec_codecs = [c for c in caps if ulpfec.is_fec_codec(c) and self.settings.fec != "off"]
+        transceiver.setCodecPreferences([c for c in caps if c.mimeType == wanted] + fec_codecs)
         sender = transceiver.sender
         resend = (
             sender._send_keyframe
@@ -543,7 +635,7 @@ class VideoPipeline:
         peer_id = secrets.token_hex(8)
         peer = Peer(pc, track, created=self.clock.now(), mode=mode)
         peer.choice.layer = layer
-        follow_link(sender, peer.link)
+        follow_link(sender, peer.link, lambda: peer.fec, lambda: self._repair_asked(peer))
         self.peers[peer_id] = peer
 
         @pc.on("connectionstatechange")
@@ -551,16 +643,30 @@ class VideoPipeline:
             if pc.connectionState == "connected":
                 peer.connected = True  # no longer pending: it stays until it closes
                 mark_peer_low_priority(pc)  # forces and commands go first
-                if self.settings.zero_playout_delay:
-                    zero_playout_delay(pc)
-                if self.settings.pacing and peer.pacer is None:
-                    # Spread each frame's packets (a key frame's burst would queue the
-                    # forces behind it on a narrow link): backend/media/pacer.py.
-                    peer.pacer = pace_peer(pc, lambda: self._layer_bps(peer))
+                self._wrap_transport(peer)
             if pc.connectionState in ("failed", "closed"):
                 await self.close_peer(peer_id)
 
         return peer_id, peer
+
+    def _wrap_transport(self, peer: Peer) -> None:
+        """What each RTP packet to this viewer passes on its way out, from aiortc to
+        the socket: the playout-delay stamp, then RED and FEC (over the packets as they
+        will leave), then the pacer. Each goes in front of the transport's RTP path,
+        so the last put there is the first passed."""
+        pc = peer.pc
+        if self.settings.pacing and peer.pacer is None:
+            # Spread each frame's packets (a key frame's burst would queue the
+            # forces behind it on a narrow link): backend/media/pacer.py.
+            peer.pacer = pace_peer(pc, lambda: self._layer_bps(peer))
+        if self.settings.fec != "off" and peer.fec is None:
+            every = self.settings.drop_every
+            drop = (lambda seq: seq % every == 0) if every > 0 else None
+            peer.fec = ulpfec.protect_peer(pc, lambda: peer.fec_share, drop)
+            if self.settings.fec == "on":
+                peer.fec_share = ulpfec.MAX_SHARE
+        if self.settings.zero_playout_delay:
+            stamp_playout_delay(pc, lambda: peer.playout.current(self.clock.now()))
 
     def _detach(self, peer_id: str) -> Peer | None:
         peer = self.peers.pop(peer_id, None)
@@ -721,6 +827,12 @@ class VideoPipeline:
                     "layer_switches": p.track.switches,
                     "layer_why": p.choice.why,
                     "link": p.link.as_dict(),
+                    # FEC (None: not agreed with this viewer): the share now, the loss
+                    # it follows, what was sent.
+                    "fec": None
+                    if p.fec is None
+                    else {"share": p.fec_share, "loss": p.loss, **p.fec.counts.as_dict()},
+                    "playout_delay_ms": p.playout.current(now),
                     # The pacer (None: not pacing): its rate now, and how many packets
                     # waited for it, how long in all.
                     "pacing": None
@@ -754,3 +866,14 @@ class VideoPipeline:
 
     def _layer_of(self, peer: Peer) -> Layer:
         return next(x for (_, x), b in self.broadcasters.items() if b is peer.track.source)
+
+
+def _packets_sent(peer: Peer) -> int:
+    """Media packets sent to this viewer so far (FEC's count, else aiortc's own)."""
+    if peer.fec is not None:
+        return peer.fec.counts.media_packets
+    for transceiver in peer.pc.getTransceivers():
+        count = getattr(transceiver.sender, "_RTCRtpSender__packet_count", None)
+        if isinstance(count, int):
+            return count
+    return 0

@@ -1,6 +1,8 @@
-"""Frames shown as soon as they are decoded: the playout-delay RTP header extension
-(http://www.webrtc.org/experiments/rtp-hdrext/playout-delay) at 0–0 ms on every
-video packet, as cloud gaming senders do.
+"""The playout-delay RTP header extension
+(http://www.webrtc.org/experiments/rtp-hdrext/playout-delay) on every video packet:
+frames shown as soon as they are decoded (0–0 ms, as cloud gaming senders do) on a
+clean link, and held by a delay that covers a repair where the link loses packets
+(``AdaptivePlayout``).
 
 Why: without it Chromium's jitter buffer holds each frame for its own estimate of the
 stream's jitter, which grows with the spread of frame sizes (a still scene topped up
@@ -10,14 +12,26 @@ frame on loopback, half of the page's capture → decoded p50 (42 ms). A 0–0 p
 delay tells the receiver to decode and show each frame when it is complete. An
 operator wants the newest picture, not the smoothest.
 
+Why it grows on a lossy link: a frame that lost a packet waits for its repair, a NACK
+round trip (170–280 ms on bench.netem's `mobile` link), and every frame behind it
+waits too. Shown at once, the picture stops for that long and then jumps. Held by the
+time a repair takes (``AdaptivePlayout``: the round trip and the jitter, less the two
+frame intervals a late frame may be without a visible stop), a repaired frame is
+shown on time and the picture flows, later by that delay. The delay grows at once
+when the viewer asks for a repair, holds while repairs go on, and shrinks back to 0
+``HOLD_S`` after the last one. Min and max are both the delay: libwebrtc then holds
+each frame that long after the time it expected it, and ignores its own jitter
+estimate (which grew with the spread of frame sizes, not with the repairs).
+
 aiortc negotiates only the extensions it lists (``HEADER_EXTENSIONS``) and writes only
 those it knows; this adds the URI to its list (``allow``) and writes the element into
-each RTP packet as it leaves (``ZeroPlayoutDelay`` in front of the transport's RTP
+each RTP packet as it leaves (``PlayoutDelayStamp`` in front of the transport's RTP
 path, as the pacer is).
 """
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -29,6 +43,13 @@ from telerobot.server.media.rtp_extensions import ONE_BYTE_PROFILE, block
 URI = "http://www.webrtc.org/experiments/rtp-hdrext/playout-delay"
 OFFER_ID = 5  # the id when we offer (aiortc's own video extensions take 1 and 3)
 ZERO = b"\x00\x00\x00"  # 12 bits of minimum, 12 of maximum delay, in 10 ms units
+UNIT_MS = 10
+MAX_DELAY_MS = 500  # never held longer (the operator's picture would lag too far)
+HOLD_S = 10.0  # after the last repair the delay holds this long…
+SHRINK_MS_PER_S = 50.0  # …then shrinks back this fast
+# A repaired frame this late (two frame intervals at 30 fps) still shows before the
+# picture visibly stops: the delay covers only the rest of a repair.
+TOLERANCE_S = 0.067
 
 Send = Callable[[bytes], Awaitable[None]]
 
@@ -72,32 +93,84 @@ def with_element(packet: bytes, ext_id: int, value: bytes) -> bytes:
     )
 
 
-class ZeroPlayoutDelay:
-    """In front of a transport's RTP path: each RTP packet leaves with a 0–0 playout
-    delay."""
+def element(min_ms: float, max_ms: float) -> bytes:
+    """The extension's 3 bytes for a delay of ``min_ms``–``max_ms`` (10 ms units)."""
+    lo = min(0xFFF, max(0, math.ceil(min_ms / UNIT_MS)))
+    hi = min(0xFFF, max(lo, math.ceil(max_ms / UNIT_MS)))
+    return ((lo << 12) | hi).to_bytes(3, "big")
 
-    def __init__(self, send: Send, ext_id: int) -> None:
+
+def read_element(value: bytes) -> tuple[int, int]:
+    """(min, max) in ms from the extension's 3 bytes."""
+    n = int.from_bytes(value[:3], "big")
+    return (n >> 12) * UNIT_MS, (n & 0xFFF) * UNIT_MS
+
+
+class AdaptivePlayout:
+    """The playout delay for one viewer (ms, a multiple of 10): 0 on a clean link; on
+    a repair asked for, at least what the repair takes less ``TOLERANCE_S``; held
+    ``HOLD_S`` after the last, then shrinking by ``SHRINK_MS_PER_S``. ``now`` is any
+    monotonic clock (s)."""
+
+    def __init__(self, max_ms: float = MAX_DELAY_MS) -> None:
+        self.max_ms = max_ms
+        self.delay_ms = 0.0
+        self.repairs = 0
+        self._repair_at: float | None = None
+        self._at: float | None = None
+
+    def repair(self, now: float, repair_s: float) -> None:
+        """The viewer asked for a repair that takes ``repair_s`` (its round trip and
+        jitter)."""
+        self.repairs += 1
+        need = min(self.max_ms, max(0.0, (repair_s - TOLERANCE_S) * 1000))
+        self.delay_ms = max(self.delay_ms, math.ceil(need / UNIT_MS) * UNIT_MS)
+        self._repair_at = now
+
+    def current(self, now: float) -> int:
+        """The delay now (call it now and then: the shrinking is by the time since)."""
+        since = None if self._at is None else now - self._at
+        self._at = now
+        quiet = self._repair_at is None or now - self._repair_at > HOLD_S
+        if quiet and since is not None and self.delay_ms > 0:
+            self.delay_ms = max(0.0, self.delay_ms - SHRINK_MS_PER_S * since)
+        return int(math.ceil(self.delay_ms / UNIT_MS) * UNIT_MS)
+
+
+class PlayoutDelayStamp:
+    """In front of a transport's RTP path: each RTP packet leaves with a playout delay
+    of ``delay_ms()`` (min and max alike; 0 unless told)."""
+
+    def __init__(self, send: Send, ext_id: int, delay_ms: Callable[[], int] | None = None) -> None:
         self._send = send
         self.ext_id = ext_id
+        self._delay_ms = delay_ms
+        self._value = (0, ZERO)
+
+    def value(self) -> bytes:
+        delay = 0 if self._delay_ms is None else self._delay_ms()
+        if delay != self._value[0]:
+            self._value = (delay, element(delay, delay))
+        return self._value[1]
 
     async def __call__(self, data: bytes) -> None:
         # The transport's RTCP (sender reports) takes the same path: left as it is
-        await self._send(data if is_rtcp(data) else with_element(data, self.ext_id, ZERO))
+        await self._send(data if is_rtcp(data) else with_element(data, self.ext_id, self.value()))
 
 
-def zero_playout_delay(pc: Any) -> bool:
-    """Put ``ZeroPlayoutDelay`` in front of the video sender's transport, if the peers
+def stamp_playout_delay(pc: Any, delay_ms: Callable[[], int] | None = None) -> bool:
+    """Put ``PlayoutDelayStamp`` in front of the video sender's transport, if the peers
     agreed on the extension (else the receiver keeps its own jitter buffer). Before
-    the pacer: it then paces the packets as they will leave."""
+    the pacer and the FEC: the FEC then covers the packets as they will leave."""
     ext_id = negotiated_id(pc)
     if ext_id is None:
         return False
     for transceiver in pc.getTransceivers():
         transport = getattr(transceiver.sender, "transport", None)
         send = getattr(transport, "_send_rtp", None)
-        if transceiver.kind != "video" or send is None or isinstance(send, ZeroPlayoutDelay):
+        if transceiver.kind != "video" or send is None or isinstance(send, PlayoutDelayStamp):
             continue
         assert transport is not None
-        transport._send_rtp = ZeroPlayoutDelay(send, ext_id)  # the sender calls this
+        transport._send_rtp = PlayoutDelayStamp(send, ext_id, delay_ms)  # the sender calls this
         return True
     return False

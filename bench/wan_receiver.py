@@ -1,0 +1,100 @@
+"""What bench.wan's aiortc viewer adds to aiortc's receiver so that it receives as
+libwebrtc's (Chromium's) does on a lossy link:
+
+* **FEC**: RED unwrapped and lost packets rebuilt from ULPFEC (``FecReceiver`` of
+  telerobot/server/media/fec.py) before aiortc sees the packets; an FEC packet reaches
+  aiortc as an empty packet of the media (libwebrtc counts it as padding), so its
+  number is not NACKed and the frame after it is released, as in libwebrtc's H.264
+  packet buffer, only once every earlier number has come.
+* **The playout delay** the server stamps on each packet (the playout-delay header
+  extension, min = max): a decoded frame is shown at the time the stream's fastest
+  frames would show it (its RTP time on the floor of the transit times seen) plus that
+  delay, or at once if it is later than that, as libwebrtc's VCMTiming renders it.
+
+``install()`` before the peer connection is made (the offer then carries RED, ULPFEC
+and the extension), or ``allow()`` and then ``attach()`` to one peer's transport;
+``Playout.show_at`` per decoded frame.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from telerobot.server.media import fec, playout
+from telerobot.server.media.rtp_extensions import block
+
+# The transit floor rises this fast (s per s) when no frame is as fast: a link whose
+# delay grew is followed within seconds (libwebrtc's timestamp extrapolator does the
+# same with a filter).
+FLOOR_DRIFT = 0.02
+
+
+class Received:
+    """What the receiver saw: the FEC's counts and the newest playout delay (ms)."""
+
+    def __init__(self) -> None:
+        self.fec = fec.FecReceiver(fec.RED_OFFER_PT, fec.ULPFEC_OFFER_PT)
+        self.delay_ms = 0
+        self.delays_seen: set[int] = set()
+
+
+def allow() -> None:
+    """Offer RED, ULPFEC and the playout delay from now on (this process)."""
+    fec.allow()
+    playout.allow()
+
+
+def _receiving(received: Received, original: Any) -> Any:
+    async def handle(self: Any, data: bytes, arrival_time_ms: int) -> None:
+        found = block(data)
+        for x_id, at, length in found.elements if found is not None else []:
+            if x_id == playout.OFFER_ID and length == 3:
+                received.delay_ms = playout.read_element(data[at : at + 3])[0]
+                received.delays_seen.add(received.delay_ms)
+        for packet in received.fec.receive(data):
+            await original(self, packet, arrival_time_ms)
+
+    return handle
+
+
+def install() -> Received:
+    """``allow()``, and the FEC receiver in front of aiortc's RTP handling, of every
+    DTLS transport in this process (bench.wan's viewer has one)."""
+    from aiortc.rtcdtlstransport import RTCDtlsTransport
+
+    allow()
+    received = Received()
+    handle = _receiving(received, RTCDtlsTransport._handle_rtp_data)
+    RTCDtlsTransport._handle_rtp_data = handle  # type: ignore[method-assign]
+    return received
+
+
+def attach(transport: Any) -> Received:
+    """The same on one DTLS transport (a test's viewer), after ``allow()``."""
+    received = Received()
+    original = type(transport)._handle_rtp_data
+    handle = _receiving(received, original)
+
+    async def bound(data: bytes, arrival_time_ms: int) -> None:
+        await handle(transport, data, arrival_time_ms)
+
+    transport._handle_rtp_data = bound
+    return received
+
+
+class Playout:
+    """When to show each decoded frame: ``show_at(now, rtp_seconds, delay_s)``."""
+
+    def __init__(self) -> None:
+        self._floor: float | None = None
+        self._floor_at = 0.0
+
+    def show_at(self, now: float, rtp_s: float, delay_s: float) -> float:
+        transit = now - rtp_s
+        floor = self._floor
+        if floor is not None:
+            floor += (now - self._floor_at) * FLOOR_DRIFT
+        if floor is None or transit < floor:
+            floor = transit
+        self._floor, self._floor_at = floor, now
+        return max(now, floor + rtp_s + delay_s)

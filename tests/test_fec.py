@@ -1,0 +1,239 @@
+"""Forward error correction for the video (backend/media/fec.py): the ULPFEC codec, the
+sender in front of a viewer's transport (RED, FEC packets, the sequence numbers'
+mapping for NACKs and resends), the protection that follows the loss, and a real
+aiortc viewer that recovers the packets a lossy link took for good."""
+
+from __future__ import annotations
+
+import asyncio
+import random
+from typing import Any
+
+import pytest
+from aiortc import RTCPeerConnection, RTCSessionDescription
+from aiortc.rtp import RTCP_RTPFB_NACK, RtcpRtpfbPacket
+
+from bench import wan_receiver
+from telerobot.server.media import fec
+from telerobot.server.media.pipeline import VideoPipeline, VideoSettings, ViewerLink, follow_link
+from tests.support.video import SMALL, camera
+
+MEDIA_PT, RED_PT, ULPFEC_PT = 102, 121, 122
+
+
+def _rtp(seq: int, ts: int, payload: bytes, marker: bool = False, ext: bool = False) -> bytes:
+    head = bytes([0x90 if ext else 0x80, (0x80 if marker else 0) | MEDIA_PT])
+    head += (seq & 0xFFFF).to_bytes(2, "big") + ts.to_bytes(4, "big") + b"\x11\x22\x33\x44"
+    if ext:  # one element (id 1, 1 byte) and padding to a word
+        head += b"\xbe\xde\x00\x01" + bytes([0x10, 7, 0, 0])
+    return head + payload
+
+
+def _stream(n: int, first_seq: int = 65530, seed: int = 1) -> list[bytes]:
+    """``n`` media packets, three to a frame, of any size, some with an extension."""
+    rng = random.Random(seed)
+    return [
+        _rtp(first_seq + i, 1000 + 3000 * (i // 3), rng.randbytes(rng.randrange(1, 1200)),
+             marker=i % 3 == 2, ext=i % 2 == 0)
+        for i in range(n)
+    ]  # fmt: skip
+
+
+# ---------------------------------------------------------------- the codec
+@pytest.mark.parametrize("count", [1, 2, 16, 17, 48], ids=lambda n: f"{n} packets")
+def test_one_fec_packet_rebuilds_any_one_packet_it_covers(count: int) -> None:
+    packets = _stream(count)  # sequence numbers wrap past 65535 on the way
+    payload = fec.ulpfec_payload(packets)
+    assert bool(payload[0] & 0x40) == (count > fec.SHORT_MASK)  # the long mask past 16
+    parsed = fec.FecPacket.parse(payload, packets[0][8:12])
+    assert parsed.protected == tuple(fec.seq_of(p) for p in packets)
+    for lost in range(count):
+        others = packets[:lost] + packets[lost + 1 :]
+        assert fec.recover(parsed, others, fec.seq_of(packets[lost])) == packets[lost]
+
+
+def test_fec_refuses_a_span_it_cannot_name() -> None:
+    with pytest.raises(ValueError, match="within 48"):
+        fec.ulpfec_payload(_stream(49))
+    with pytest.raises(ValueError, match="at least one"):
+        fec.ulpfec_payload([])
+
+
+def test_red_carries_the_media_packet_unchanged() -> None:
+    for packet in _stream(4):
+        red = fec.red_wrap(packet, RED_PT)
+        assert red[1] & 0x7F == RED_PT and red[1] & 0x80 == packet[1] & 0x80  # the marker kept
+        assert len(red) == len(packet) + 1
+        assert fec.red_unwrap(red) == packet
+
+
+# ---------------------------------------------------------------- the sender
+class Wire:
+    """What a FecSender sends, and a receiver at the other end."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    async def __call__(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+async def test_no_loss_no_fec_the_packets_leave_as_they_came() -> None:
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.0)
+    packets = _stream(30)
+    for p in packets:
+        await sender(p)
+    assert wire.sent == packets  # byte for byte: a clean link's video does not change
+    assert sender.counts.as_dict()["overhead"] == 0.0
+
+
+async def test_with_protection_each_group_gets_fec_and_numbers_stay_in_order() -> None:
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
+    packets = _stream(24)
+    for p in packets:
+        await sender(p)
+    seqs = [fec.seq_of(p) for p in wire.sent]
+    assert seqs == [(65530 + i) & 0xFFFF for i in range(len(wire.sent))]  # no gap, no repeat
+    kinds = ["fec" if fec.red_unwrap(p)[1] & 0x7F == ULPFEC_PT else "media" for p in wire.sent]
+    assert kinds.count("media") == 24 and kinds.count("fec") == sender.counts.fec_packets > 0
+    # Two frames of three (MIN_GROUP 4 reached at the second's end): 6 media, then FEC
+    assert kinds[:8] == ["media"] * 6 + ["fec"] * 2
+    assert 0 < sender.counts.as_dict()["overhead"] < 0.5
+
+
+async def test_nacks_and_resends_are_mapped_between_aiortc_s_numbers_and_the_wire_s() -> None:
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
+    packets = _stream(12, first_seq=100)
+    for p in packets:
+        await sender(p)
+    # On the wire: 100-105 media, 106-107 FEC, 108-113 media, 114-115 FEC
+    media, fec_seqs = sender.nacked([101, 106, 109, 999])
+    assert media == [101, 107] and fec_seqs == [106]  # 109 on the wire is aiortc's 107
+    assert sender.to_sent(107) == 109
+    # aiortc resends its 107: it leaves as the wire's 109, as plain media
+    await sender(packets[7])
+    assert fec.seq_of(wire.sent[-1]) == 109 and wire.sent[-1][1] & 0x7F == MEDIA_PT
+    await sender.resend_fec(fec_seqs)
+    assert wire.sent[-1] == wire.sent[6] and sender.counts.fec_resent == 1
+
+
+async def test_the_receiver_rebuilds_what_the_link_lost() -> None:
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
+    packets = _stream(48, first_seq=0)
+    for p in packets:
+        await sender(p)
+    receiver = fec.FecReceiver(RED_PT, ULPFEC_PT)
+    got: dict[int, bytes] = {}
+    media_at = [i for i, p in enumerate(wire.sent) if fec.red_unwrap(p)[1] & 0x7F == MEDIA_PT]
+    lost = set(media_at[1::5])  # one in five media packets: one per interleaved group
+    for i, data in enumerate(wire.sent):
+        if i in lost:
+            continue
+        for out in receiver.receive(data):
+            assert out[1] & 0x7F == MEDIA_PT  # FEC reaches aiortc as (empty) media
+            if len(out) > 12 + 8 or not (out[0] & 0x10):
+                got.setdefault(fec.seq_of(out), out)
+    by_seq = {fec.seq_of(p): p for p in wire.sent}
+    for i in media_at:
+        seq = fec.seq_of(wire.sent[i])
+        assert got[seq] == fec.red_unwrap(by_seq[seq])
+    assert receiver.counts.recovered == len(lost)
+
+
+@pytest.mark.parametrize(
+    ("loss", "on", "share"),
+    [(None, False, 0.0), (0.0, False, 0.0), (0.003, False, 0.0), (0.003, True, 0.115),
+     (0.02, False, 0.2), (0.2, True, fec.MAX_SHARE)],
+    ids=["unknown", "clean", "below on", "above off (on)", "mobile", "most"],
+)  # fmt: skip
+def test_protection_follows_the_loss_with_a_margin_either_way(
+    loss: float | None, on: bool, share: float
+) -> None:
+    assert fec.protection_share(loss, on) == pytest.approx(share)
+
+
+async def test_a_nack_reaches_aiortc_in_its_own_numbers_and_counts_the_loss() -> None:
+    handled: list[Any] = []
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
+    for p in _stream(12, first_seq=100):
+        await sender(p)
+
+    class Sender:
+        _ssrc = 1
+
+        async def _handle_rtcp_packet(self, packet: Any) -> None:
+            handled.append(packet)
+
+    link, repairs = ViewerLink(), []
+    aiortc_sender: Any = Sender()
+    follow_link(aiortc_sender, link, lambda: sender, lambda: repairs.append(1))
+    nack = RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=2, media_ssrc=1, lost=[101, 106, 109])
+    await aiortc_sender._handle_rtcp_packet(nack)
+    await aiortc_sender._handle_rtcp_packet(nack)  # asked again: counted once
+    assert handled[0].lost == [101, 107] and link.nacked == 2 and len(repairs) == 2
+    assert sender.counts.fec_resent == 2  # the FEC packet 106, each time
+
+
+# ---------------------------------------------------------------- a real viewer
+async def _watch(pipeline: VideoPipeline, frames: int) -> tuple[wan_receiver.Received, int]:
+    """An aiortc viewer with the FEC receiver: decodes ``frames`` frames; how many
+    key frames the server had to send meanwhile."""
+    wan_receiver.allow()
+    pc = RTCPeerConnection()
+    transceiver = pc.addTransceiver("video", direction="recvonly")
+    got: asyncio.Queue[Any] = asyncio.Queue()
+    pc.on("track", got.put_nowait)
+    await pc.setLocalDescription(await pc.createOffer())
+    assert "red/90000" in pc.localDescription.sdp and "ulpfec/90000" in pc.localDescription.sdp
+    answer = await pipeline.answer(pc.localDescription.sdp, "offer")
+    assert "red/90000" in answer["sdp"] and "ulpfec/90000" in answer["sdp"]
+    received = wan_receiver.attach(transceiver.receiver.transport)
+    await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+    try:
+        track = await asyncio.wait_for(got.get(), 10)
+        await asyncio.wait_for(track.recv(), 10)
+        keyframes = pipeline.stats()["keyframes_forced"]
+        for _ in range(frames):
+            await asyncio.wait_for(track.recv(), 10)
+        return received, pipeline.stats()["keyframes_forced"] - keyframes
+    finally:
+        await pc.close()
+
+
+async def test_a_viewer_decodes_through_lost_packets_that_only_fec_brings_back() -> None:
+    # Every 25th packet lost for good (its resends too): without FEC each would cost a
+    # key frame; with it, each is rebuilt and the picture goes on. (An FEC packet
+    # covers packets at most 24 apart: two of these are never in the same one.)
+    settings = VideoSettings(bitrate=2_000_000, fec="on", drop_every=25)
+    pipeline = VideoPipeline(camera(**SMALL), settings)
+    pipeline.start()
+    try:
+        received, keyframes = await _watch(pipeline, 60)
+        viewer = pipeline.stats()["viewers"][0]
+    finally:
+        await pipeline.close()
+    assert viewer["fec"]["dropped_on_purpose"] > 0 and viewer["fec"]["fec_packets"] > 0
+    assert received.fec.counts.recovered > 0
+    assert keyframes == 0
+
+
+async def test_on_a_clean_link_auto_sends_no_fec() -> None:
+    pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=2_000_000))
+    pipeline.start()
+    try:
+        received, _ = await _watch(pipeline, 10)
+        viewer = pipeline.stats()["viewers"][0]
+    finally:
+        await pipeline.close()
+    assert viewer["fec"]["fec_packets"] == 0 and viewer["fec"]["share"] == 0.0
+    assert received.fec.counts.red == 0 and viewer["playout_delay_ms"] == 0
+
+
+def test_a_bad_fec_mode_is_refused() -> None:
+    with pytest.raises(ValueError, match="fec must be one of"):
+        VideoPipeline(camera(**SMALL), VideoSettings(fec="sometimes"))
