@@ -285,13 +285,18 @@ def test_a_short_datagrams_message_is_refused(server: tuple[str, int]) -> None:
         b.close()
 
 
-def test_a_link_falls_back_to_tcp_when_no_datagram_comes(
+def test_a_link_keeps_its_forces_on_tcp_and_asks_again_while_no_datagram_comes(
     server: tuple[str, int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A firewall that drops the server's datagrams: the link stops asking and the forces
-    keep coming on TCP (here the datagrams go to a port nobody serves)."""
+    """A firewall that drops the server's datagrams (here they go to a port nobody
+    serves): the forces keep coming on TCP, and the link registers again and again,
+    each try waiting twice as long as the last up to ``DATAGRAM_RETRY_MAX_S`` (short
+    here): never in a tight loop, and no more once closed. (The old link stopped asking
+    after one try, so one lost packet on a lossy link cost it the datagrams for good.)"""
     import telerobot.client.master.link as link_module
 
+    monkeypatch.setattr(link_module, "DATAGRAM_FALLBACK_S", 0.2)
+    monkeypatch.setattr(link_module, "DATAGRAM_RETRY_MAX_S", 0.8)
     _, port = server
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as hole:
         hole.bind(("127.0.0.1", 0))
@@ -302,17 +307,25 @@ def test_a_link_falls_back_to_tcp_when_no_datagram_comes(
                 address = hole.getsockname()
             real_connect(self, address)  # type: ignore[arg-type]
 
-        monkeypatch.setattr(link_module.socket.socket, "connect", misdirected)
-        rec = Recorder()
-        link = PriorityLink("127.0.0.1", port, TOKEN, on_force=rec.force, datagrams=True)
-        monkeypatch.undo()
+        with monkeypatch.context() as patch:
+            patch.setattr(link_module.socket.socket, "connect", misdirected)
+            rec = Recorder()
+            link = PriorityLink("127.0.0.1", port, TOKEN, on_force=rec.force, datagrams=True)
         try:
-            until(lambda: link.datagrams.startswith("tcp: no force datagram"), timeout=5)
+            until(lambda: link.datagram_registrations >= 4, timeout=30, what=lambda: link.datagrams)
+            assert link.datagrams.startswith("asking (try "), link.datagrams
+            assert link._datagram_wait_s == 0.8  # 0.2, 0.4, 0.8, then no longer
             n = len(rec.forces)
-            until(lambda: len(rec.forces) > n + 500)
+            until(lambda: len(rec.forces) > n + 500)  # on TCP meanwhile
             assert link.datagrams_received == 0
+            # Bounded: at most one try per capped wait (a slow machine makes fewer).
+            t0, tries = time.monotonic(), link.datagram_registrations
+            until(lambda: link.datagram_registrations >= tries + 2, timeout=30)
+            assert link.datagram_registrations - tries <= (time.monotonic() - t0) / 0.8 + 1
         finally:
             link.close()
+        reader = link._udp_reader  # (the one that asks: ended, so asks no more)
+        assert reader is not None and not reader.is_alive()
 
 
 def test_datagrams_is_refused_on_the_websocket() -> None:

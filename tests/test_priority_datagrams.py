@@ -1,15 +1,19 @@
 """Forces as datagrams (DATAGRAMS, docs/protocol.md) against an attacker: a datagram
 from a forged source gets nothing sent anywhere, the key is the server's and new at
 every registration, an observer gets no datagrams at all, and what one client is sent
-is bounded by its rate however the sensor bunches its samples.
+is bounded by its rate however the sensor bunches its samples. And a link whose
+registration brings no datagram asks again, unless the server refused.
 
-Real sockets: a real server for the protocol, a channel in this process (its clock
-held still) for the rate bound. A forged source is a UDP socket bound to 127.0.0.2:
+Real sockets: a real server for the protocol, a channel in this process for asking
+again (the first key's datagrams dropped at its UDP send) and for the rate bound (its
+clock held still). A forged source is a UDP socket bound to 127.0.0.2:
 another loopback address, so another source IP, as a spoofed packet on a LAN would be."""
 
 from __future__ import annotations
 
+import contextlib
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -25,6 +29,8 @@ from telerobot.server.realtime.priority import (
     DATAGRAM_BURST_S,
     DATAGRAM_RATE_SLACK,
     DEFAULT_FORCE_RATE_HZ,
+    PriorityChannel,
+    PriorityClient,
 )
 from tests.support import TOKEN, until
 from tests.support.priority import ChannelServer, Recorder
@@ -186,6 +192,110 @@ def test_a_link_registers_again_when_its_forces_come_back_on_tcp(
         until(lambda: link.datagrams_received > n + 500)
     finally:
         link.close()
+
+
+# ---------------------------------------------------------------- asking again
+@contextlib.contextmanager
+def emitting(cs: ChannelServer) -> Iterator[None]:
+    """The fake sensor's samples, ~500 a second from a thread of its own (a sensor's)."""
+    done = threading.Event()
+
+    def run() -> None:
+        while not done.is_set():
+            cs.sensor.emit()
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=run, name="test-sensor", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join(5)
+
+
+@pytest.fixture
+def quick(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The link's tries short (0.3 s, doubling up to 2 s) so a test sees several."""
+    monkeypatch.setattr(link_module, "DATAGRAM_FALLBACK_S", 0.3)
+    monkeypatch.setattr(link_module, "DATAGRAM_RETRY_MAX_S", 2.0)
+
+
+@pytest.mark.usefixtures("quick")
+def test_a_link_asks_again_when_its_first_registration_brings_no_datagram(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """On a lossy link the first registration may bring no datagram (its keep-alives or
+    the datagrams lost, or an outage right then): here every datagram sent for the
+    first key is lost on the way. The link asks again, for a new key, and gets its
+    forces as datagrams. (The old link gave up after one try: forces on TCP for the
+    whole session, whatever the link did next.)"""
+    cs = ChannelServer()
+    keys: list[bytes] = []  # the server's, in the order it gave them
+    lost = [0]
+    register, send = cs.channel.register_datagrams, cs.channel._send_datagram
+
+    def registering(client: PriorityClient, message: bytes) -> bytes:
+        reply = register(client, message)
+        assert client.datagram_key is not None
+        keys.append(client.datagram_key)
+        return reply
+
+    def lossy(client: PriorityClient, message: bytes, addr: Any) -> None:
+        if keys and client.datagram_key == keys[0]:
+            lost[0] += 1  # (the first registration's: lost on the way)
+            return
+        send(client, message, addr)
+
+    monkeypatch.setattr(cs.channel, "register_datagrams", registering)
+    monkeypatch.setattr(cs.channel, "_send_datagram", lossy)
+    rec = Recorder()
+    try:
+        with emitting(cs):
+            link = PriorityLink("127.0.0.1", cs.port, TOKEN, on_force=rec.force, datagrams=True)
+            try:
+                until(
+                    lambda: link.datagrams == "udp" or link.datagrams.startswith("tcp"),
+                    timeout=30,
+                    what=lambda: link.datagrams,
+                )
+                assert link.datagrams == "udp", link.datagrams  # (was "tcp: no force datagram …")
+                n = link.datagrams_received
+                until(lambda: link.datagrams_received > n + 100, timeout=30)
+                assert link.datagram_registrations == len(keys) >= 2, (keys, lost)
+                assert link._datagram_key == keys[-1] != keys[0]
+                assert link.datagrams == "udp"
+            finally:
+                link.close()
+            assert link._udp_reader is not None and not link._udp_reader.is_alive()
+    finally:
+        cs.close()
+
+
+@pytest.mark.usefixtures("quick")
+def test_a_server_that_refuses_datagrams_is_asked_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A refusal (ERROR to the DATAGRAMS: here a server without a UDP port) is for
+    good: the link asks no more, its UDP reader ends, the forces come on TCP."""
+    monkeypatch.setattr(PriorityChannel, "_datagram_socket", lambda self, host: None)
+    cs = ChannelServer()
+    rec = Recorder()
+    try:
+        with emitting(cs):
+            link = PriorityLink("127.0.0.1", cs.port, TOKEN, on_force=rec.force, datagrams=True)
+            try:
+                until(lambda: link.datagrams.startswith("tcp: "), what=lambda: link.datagrams)
+                assert "UDP port" in link.datagrams, link.datagrams
+                reader = link._udp_reader
+                assert reader is not None
+                until(lambda: not reader.is_alive())
+                n = len(rec.forces)
+                until(lambda: len(rec.forces) > n + 200)  # on TCP, over several tries' time
+                assert link.datagram_registrations == 1
+                assert link.datagrams_received == 0
+            finally:
+                link.close()
+    finally:
+        cs.close()
 
 
 # ---------------------------------------------------------------- the rate bound

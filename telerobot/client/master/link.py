@@ -8,9 +8,14 @@ docs/protocol.md), for an operator (the server sends an observer's on TCP only):
 lossy link a lost sample is then just lost, where on TCP it holds every later one back
 by a retransmission (a round trip or more). The server answers with a key of its own,
 new at every registration; a second reader thread takes the datagrams and keeps the
-server's mapping alive with that key. If none arrives within ``DATAGRAM_FALLBACK_S``,
-or the server refuses, the forces stay on TCP (``datagrams`` says which and why); if
-the server goes back to TCP later (the keep-alives lost, or refused because a NAT gave
+server's mapping alive with that key. Until a datagram comes the forces stay on TCP;
+if none arrives within ``DATAGRAM_FALLBACK_S`` of the key, the link registers again
+(a new key), and again, each time waiting twice as long, up to ``DATAGRAM_RETRY_MAX_S``:
+on a lossy link one lost keep-alive, answer or outage must not cost the datagrams for
+the whole session. Only a server that refuses (an ERROR to the DATAGRAMS) keeps the
+forces on TCP for good. ``datagrams`` says which and why ("asking", "asking (try 2)",
+"udp", "tcp: <why>"), ``datagram_registrations`` how many times it asked; if the
+server goes back to TCP later (the keep-alives lost, or refused because a NAT gave
 the socket a new port), the link registers again, for a new key.
 
 **Arms** (docs/protocol.md, "Arms (version 3)"). A server drives one arm or more: the
@@ -49,7 +54,10 @@ ForceCallback = Callable[[ForceSample, float], None]  # sample, receive time (mo
 ArmForceCallback = Callable[[int, ForceSample, float], None]  # arm index, sample, receive time
 DATAGRAM_KEEPALIVE_S = 0.5  # DATAGRAMS to the server this often (it waits 2 s)
 FIRST_SEQ_END = m.FORCE_HEAD.size + 4  # a FORCE's first sample's seq ends here
-DATAGRAM_FALLBACK_S = 2.0  # no force datagram this long after asking: stay on TCP
+# No force datagram this long after the server's key: register again (forces on TCP
+# meanwhile), each try waiting twice the last, up to DATAGRAM_RETRY_MAX_S.
+DATAGRAM_FALLBACK_S = 2.0
+DATAGRAM_RETRY_MAX_S = 12.0
 
 
 def newer(seq: int, last: int) -> bool:
@@ -173,14 +181,21 @@ class PriorityLink:
         self.stale_samples = 0  # older than one already handed over (datagrams reorder)
         self._last_seq: dict[int, int] = {}  # per arm: each sensor numbers its own samples
         self._force_lock = threading.Lock()  # two readers with datagrams
-        # Forces as datagrams: "tcp" (not asked), "asking", "udp", or "tcp: <why>".
+        # Forces as datagrams: "tcp" (not asked), "asking" ("asking (try 2)", … when the
+        # last registration brought no datagram), "udp", or "tcp: <why>" (for good).
         self.datagrams = "tcp"
         self.datagrams_received = 0
+        self.datagram_registrations = 0  # DATAGRAMS sent on TCP (each for a new key)
         self._udp: socket.socket | None = None
         self._udp_reader: threading.Thread | None = None
+        # The registration's state, between the two readers (and the constructor).
+        self._datagram_lock = threading.Lock()
         self._datagram_seq = -1
         self._datagram_key = b""  # the server's (none until it answers)
         self._datagram_asked_at = -DATAGRAM_FALLBACK_S  # time.monotonic()
+        self._datagram_answered_at: float | None = None  # when this try's key came
+        self._datagram_try = 0  # of this round of asking (1: the first DATAGRAMS)
+        self._datagram_wait_s = DATAGRAM_FALLBACK_S  # for this try's first datagram
         # The newest sample that came by UDP, per arm (each sensor numbers its own).
         self._last_datagram_seq: dict[int, int] = {}
         self.thinning = Thinning(0.0)
@@ -353,25 +368,59 @@ class PriorityLink:
         )
         self._udp_reader.start()
 
-    def _register_datagrams(self) -> None:
-        """DATAGRAMS on TCP: the server answers with a new key (the old one is void)."""
-        self._datagram_key = b""
-        self._datagram_asked_at = time.monotonic()
-        self.datagrams = "asking"
-        with self._send_lock:
-            self._datagram_seq = self._next()
+    def _register_datagrams(self, again: bool = False) -> None:
+        """DATAGRAMS on TCP: the server answers with a new key (the old one is void).
+        ``again``: the last try brought no datagram, so the next try of this round,
+        waiting twice as long (up to ``DATAGRAM_RETRY_MAX_S``); else a new round."""
+        with self._datagram_lock:
+            if again:
+                if not self.datagrams.startswith("asking"):
+                    return  # (refused, or a datagram came, meanwhile)
+                self._datagram_try += 1
+                self._datagram_wait_s = min(2 * self._datagram_wait_s, DATAGRAM_RETRY_MAX_S)
+            else:
+                self._datagram_try = 1
+                self._datagram_wait_s = DATAGRAM_FALLBACK_S
+            self._datagram_key = b""
+            self._datagram_answered_at = None
+            self._datagram_asked_at = time.monotonic()
+            tries = self._datagram_try
+            self.datagrams = "asking" if tries == 1 else f"asking (try {tries})"
+            self._datagram_seq = self.next_seq()
+            self.datagram_registrations += 1
             message = m.encode(m.DATAGRAMS, self._datagram_seq, bytes(16), self.thinning.every)
-            self.sock.sendall(m.LENGTH.pack(len(message)) + message)
+        self._send(message)  # (not under the lock: the TCP reader takes it for the answer)
+
+    def _retry_due(self, now: float) -> bool:
+        """Whether this try has had its time: ``_datagram_wait_s`` since the key came
+        (the server learns our address only after it), or since asking while no answer
+        has come (an answer held up on TCP is then void, but the next, waiting longer,
+        gets through)."""
+        if not self.datagrams.startswith("asking"):
+            return False
+        answered = self._datagram_answered_at
+        since = self._datagram_asked_at if answered is None else answered
+        return now - since > self._datagram_wait_s
 
     def _read_datagrams(self, udp: socket.socket) -> None:
         prompt_thread()  # woken per sample: ahead of whatever runs on its core
         said_at = -DATAGRAM_KEEPALIVE_S
         while not self._stopping.is_set() and not self.datagrams.startswith("tcp"):
             now = time.monotonic()
-            if self.datagrams == "asking" and now - self._datagram_asked_at > DATAGRAM_FALLBACK_S:
-                self.datagrams = f"tcp: no force datagram within {DATAGRAM_FALLBACK_S:g} s"
-                log.warning("forces stay on TCP: %s", self.datagrams[5:])
-                return  # no more DATAGRAMS: the server goes back to TCP
+            if self._retry_due(now):
+                if not self._reader.is_alive():
+                    self.datagrams = f"tcp: {self.closed_reason or 'the channel closed'}"
+                    return
+                log.warning(
+                    "no force datagram within %g s (try %d): forces on TCP, asking again",
+                    self._datagram_wait_s,
+                    self._datagram_try,
+                )
+                try:
+                    self._register_datagrams(again=True)
+                except OSError as exc:  # (the channel is gone)
+                    self.datagrams = f"tcp: {exc}"
+                    return
             if now - said_at >= DATAGRAM_KEEPALIVE_S and self._datagram_key:
                 said_at = now
                 every = self.thinning.judge(now) if self.datagrams == "udp" else self.thinning.every
@@ -386,7 +435,12 @@ class PriorityLink:
             if data[:1] == bytes((m.FORCE.type_id,)) and len(data) >= FIRST_SEQ_END:
                 seq = int.from_bytes(data[m.FORCE_HEAD.size : FIRST_SEQ_END], "little")
                 arm = data[1]
-                self.datagrams = "udp"
+                if self.datagrams != "udp" and self._datagram_key:
+                    # (Not while the key is still to come: a datagram of the last
+                    # registration, on its way before it, says nothing of this one.)
+                    with self._datagram_lock:
+                        if self.datagrams.startswith("asking") and self._datagram_key:
+                            self.datagrams = "udp"
                 self.datagrams_received += 1
                 last = self._last_datagram_seq.get(arm)
                 if last is None or newer(seq, last):
@@ -401,8 +455,8 @@ class PriorityLink:
     def _tcp_force(self, message: bytes) -> None:
         """A sample on TCP while the datagrams flow: newer than any datagram, it means
         the server has gone back to TCP (our keep-alives stopped reaching it, or come
-        from a port it does not know: a NAT's new mapping). Register again, at most
-        once per ``DATAGRAM_FALLBACK_S``."""
+        from a port it does not know: a NAT's new mapping). Register again (a new round
+        of tries), at most once per ``DATAGRAM_FALLBACK_S``."""
         last = self._last_datagram_seq.get(message[1]) if len(message) > 1 else None
         if len(message) < FIRST_SEQ_END or last is None:
             return
@@ -460,14 +514,22 @@ class PriorityLink:
             return
         msg, fields, text = m.decode(message)
         if msg is m.ERROR and int(fields["seq"]) == self._datagram_seq:
-            self.datagrams = f"tcp: {text}"  # refused: the UDP reader ends
+            with self._datagram_lock:  # refused: for good, the UDP reader ends
+                self.datagrams = f"tcp: {text}"
             log.warning("forces stay on TCP: %s", text)
         elif msg is m.DATAGRAMS and int(fields["seq"]) == self._datagram_seq and self._udp:
             # Registered, with the server's key: say it by UDP now, from the socket the
-            # forces should come to (the server learns its port from this one).
-            self._datagram_key = bytes(fields["key"])
-            with contextlib.suppress(OSError):
-                self._udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, int(fields["every"])))
+            # forces should come to (the server learns its port from this one; the UDP
+            # reader repeats it every DATAGRAM_KEEPALIVE_S, so one lost is no matter).
+            key = bytes(fields["key"])
+            with self._datagram_lock:
+                current = int(fields["seq"]) == self._datagram_seq  # (else asked again)
+                if current:
+                    self._datagram_key = key
+                    self._datagram_answered_at = now
+            if current:
+                with contextlib.suppress(OSError):
+                    self._udp.send(m.encode(m.DATAGRAMS, 0, key, int(fields["every"])))
         if msg is m.WELCOME:
             self.operator = int(fields["role"]) == 1
             self.joint_count = int(fields["joints"])
