@@ -8,8 +8,11 @@ libwebrtc's (Chromium's) does on a lossy link:
   packet buffer, only once every earlier number has come.
 * **The playout delay** the server stamps on each packet (the playout-delay header
   extension, min = max): a decoded frame is shown at the time the stream's fastest
-  frames would show it (its RTP time on the floor of the transit times seen) plus that
-  delay, or at once if it is later than that, as libwebrtc's VCMTiming renders it.
+  frames would show it (its RTP time on the floor of the transit times seen) plus the
+  current delay, or at once if it is later than that, as libwebrtc's VCMTiming renders
+  it. As there, the current delay moves to the stamped one by at most
+  ``DELAY_CHANGE_PER_S`` of stream time (the picture runs 10 % slow or fast meanwhile,
+  where a jump would stop it for the whole step).
 
 ``install()`` before the peer connection is made (the offer then carries RED, ULPFEC
 and the extension), or ``allow()`` and then ``attach()`` to one peer's transport;
@@ -27,6 +30,7 @@ from telerobot.server.media.rtp_extensions import block
 # delay grew is followed within seconds (libwebrtc's timestamp extrapolator does the
 # same with a filter).
 FLOOR_DRIFT = 0.02
+DELAY_CHANGE_PER_S = 0.1  # libwebrtc's kDelayMaxChangeMsPerS: 100 ms a second
 
 
 class Received:
@@ -88,6 +92,8 @@ class Playout:
     def __init__(self) -> None:
         self._floor: float | None = None
         self._floor_at = 0.0
+        self.delay_s = 0.0  # the current delay
+        self._rtp_s: float | None = None
 
     def show_at(self, now: float, rtp_s: float, delay_s: float) -> float:
         transit = now - rtp_s
@@ -97,4 +103,7 @@ class Playout:
         if floor is None or transit < floor:
             floor = transit
         self._floor, self._floor_at = floor, now
-        return max(now, floor + rtp_s + delay_s)
+        step = 0.0 if self._rtp_s is None else max(0.0, rtp_s - self._rtp_s) * DELAY_CHANGE_PER_S
+        self._rtp_s = rtp_s
+        self.delay_s += max(-step, min(step, delay_s - self.delay_s))
+        return max(now, floor + rtp_s + self.delay_s)

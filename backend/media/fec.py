@@ -57,14 +57,18 @@ SHORT_MASK = 16  # up to this span, the 16-bit mask (L = 0)
 # or two packets: FEC over each alone would double the stream), and at MAX_PROTECTED.
 MIN_GROUP = 4
 GROUP_FRAMES = 2
-MAX_SHARE = 0.5  # at most one FEC packet per two media packets
+MAX_SHARE = 0.35  # at most about one FEC packet per three media packets
 # Protection turns on when the viewer's NACKs show this share of packets lost (bench
 # .netem's `wifi` link, 0.5 % random loss, is just above), and off below OFF_LOSS.
 ON_LOSS = 0.004
 OFF_LOSS = 0.002
-# How many we keep: FEC packets sent (for NACKs), and our numbers against aiortc's
-# (its history is 128 packets; beyond, nothing can be resent anyway).
-SENT_FEC_HISTORY = 256
+# How many we keep: FEC packets sent (for NACKs: about as far back as aiortc's 128
+# media packets), and our numbers against aiortc's. A receiver asks again and again
+# for a gap (bench.wan's viewer up to 10 times, a round trip apart): after a cut link
+# every FEC packet of the gap, resent each time, flooded the link for seconds. Each is
+# resent at most MAX_FEC_RESENDS times.
+SENT_FEC_HISTORY = 64
+MAX_FEC_RESENDS = 2
 SEQ_MAP_SIZE = 1024
 # The receiver keeps this many media packets and FEC packets to recover from.
 RX_MEDIA_KEPT = 512
@@ -214,7 +218,7 @@ def protection_share(loss: float | None, on: bool) -> float:
     of packets lost, smoothed), ``on`` if protection is on now (the hysteresis)."""
     if loss is None or loss < (OFF_LOSS if on else ON_LOSS):
         return 0.0
-    return min(MAX_SHARE, 0.1 + 5.0 * loss)
+    return min(MAX_SHARE, 0.1 + 4.0 * loss)
 
 
 @dataclass
@@ -268,6 +272,7 @@ class FecSender:
         self._to_sent: OrderedDict[int, int] = OrderedDict()  # aiortc's → ours
         self._from_sent: OrderedDict[int, int] = OrderedDict()  # ours → aiortc's
         self._fec_sent: OrderedDict[int, bytes] = OrderedDict()  # ours → the FEC packet
+        self._fec_resends: dict[int, int] = {}  # ours → times resent
         self._dropped: set[int] = set()
         self._group: list[bytes] = []
         self._group_frames = 0
@@ -289,7 +294,9 @@ class FecSender:
     async def resend_fec(self, seqs: list[int]) -> None:
         for s in seqs:
             packet = self._fec_sent.get(s)
-            if packet is not None:
+            resent = self._fec_resends.get(s, 0)
+            if packet is not None and resent < MAX_FEC_RESENDS:
+                self._fec_resends[s] = resent + 1
                 self.counts.fec_resent += 1
                 self.counts.fec_bytes += len(packet)
                 await self._send(packet)
@@ -341,6 +348,10 @@ class FecSender:
                 self.counts.too_long += 1
                 continue
             self._remember(self._fec_sent, ours, packet, SENT_FEC_HISTORY)
+            self._fec_resends.pop(ours, None)
+            if len(self._fec_resends) > SENT_FEC_HISTORY:
+                sent = self._fec_sent
+                self._fec_resends = {k: v for k, v in self._fec_resends.items() if k in sent}
             self.counts.fec_packets += 1
             self.counts.fec_bytes += len(packet)
             await self._send(packet)

@@ -12,7 +12,9 @@ import asyncio
 import contextlib
 import logging
 import secrets
+import statistics
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -106,8 +108,14 @@ EXPIRY_CHECK_S = 1.0  # how often the worker looks for expired peers
 PEER_SECRET_BYTES = 16  # 128 bits, sent back once with the answer
 PACE_MAX_LOSS = 0.05  # a viewer's link losing this much is not paced (_layer_bps)
 NACKED_KEPT = 1024  # media packets a viewer NACKed, remembered to count each once
-# The loss a viewer's NACKs show, smoothed: up at once, down by this share a second.
-LOSS_DECAY = 0.3
+# The loss a viewer's NACKs show: the median of the last LOSS_WINDOWS seconds' (a cut
+# link's burst of NACKs, which FEC cannot help, counts as one second).
+LOSS_WINDOWS = 5
+# FEC adds bytes: on a link whose queue already holds this much (the round trip above
+# the least seen), more would only lengthen it, and every frame, force and command
+# behind it waits longer. Protection pauses there (bench.netem's `bad` link, 2 Mbit/s
+# shared with the forces: with FEC the round trip grew from 0.45 to 1.4 s).
+QUEUED_NO_FEC_S = 0.1
 FEC_MODES = ("auto", "off", "on")
 
 
@@ -154,6 +162,7 @@ class ViewerLink:
     keyframe_covers_through: int | None = None
     nacks_superseded: int = 0
     jitter_s: float | None = None  # the receiver's interarrival jitter
+    rtt_min_s: float | None = None  # the least round trip seen (the link without a queue)
     # Media packets NACKed (each once): the loss before any repair, which receiver
     # reports hide (a resent packet counts as received in them).
     nacked: int = 0
@@ -271,9 +280,11 @@ class Peer:
     pacer: Pacer | None = None  # in front of its transport's RTP, once connected
     fec: ulpfec.FecSender | None = None  # likewise, if RED and ULPFEC were agreed
     playout: AdaptivePlayout = field(default_factory=AdaptivePlayout)
-    loss: float | None = None  # the share of packets its NACKs show lost, smoothed
+    loss: float | None = None  # the share of packets its NACKs show lost (LOSS_WINDOWS)
+    losses: deque[float] = field(default_factory=lambda: deque(maxlen=LOSS_WINDOWS))
     fec_share: float = 0.0  # FEC packets per media packet now
     counted: tuple[int, int] = (0, 0)  # (packets sent, NACKed) when loss was last judged
+    fec_paused: int = 0  # seconds protection paused: the link's queue was building
 
     def owned_by(self, secret: str | None) -> bool:
         return token_matches(secret, self.secret)
@@ -539,12 +550,18 @@ class VideoPipeline:
             if d_sent <= 0:
                 continue
             peer.counted = (sent, nacked)
-            loss = min(1.0, d_nacked / d_sent)
-            was = peer.loss
-            peer.loss = loss if was is None or loss > was else was + LOSS_DECAY * (loss - was)
+            peer.losses.append(min(1.0, d_nacked / d_sent))
+            peer.loss = statistics.median(peer.losses)
+            link = peer.link
+            if link.rtt_s is not None:
+                link.rtt_min_s = min(link.rtt_s, link.rtt_min_s or link.rtt_s)
+            queued = None if link.rtt_s is None else link.rtt_s - (link.rtt_min_s or link.rtt_s)
             mode = self.settings.fec
             if mode == "on":
                 peer.fec_share = ulpfec.MAX_SHARE
+            elif mode == "auto" and queued is not None and queued > QUEUED_NO_FEC_S:
+                peer.fec_share = 0.0
+                peer.fec_paused += 1
             elif mode == "auto":
                 peer.fec_share = ulpfec.protection_share(peer.loss, peer.fec_share > 0)
 
@@ -831,7 +848,12 @@ class VideoPipeline:
                     # it follows, what was sent.
                     "fec": None
                     if p.fec is None
-                    else {"share": p.fec_share, "loss": p.loss, **p.fec.counts.as_dict()},
+                    else {
+                        "share": p.fec_share,
+                        "loss": p.loss,
+                        "paused_s": p.fec_paused,
+                        **p.fec.counts.as_dict(),
+                    },
                     "playout_delay_ms": p.playout.current(now),
                     # The pacer (None: not pacing): its rate now, and how many packets
                     # waited for it, how long in all.

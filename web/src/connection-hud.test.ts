@@ -9,6 +9,7 @@ import {
   ConnectionHud,
   FORCE_AGE_AMBER_MS,
   FORCE_AGE_RED_MS,
+  PLAYOUT_AMBER_MS,
   FREEZE_MS,
   FREEZE_WINDOW_MS,
   FREEZES_RED,
@@ -65,7 +66,7 @@ describe("the connection HUD's rows", () => {
     const v = view();
     expect(v.level).toBe("ok");
     expect(v.reason).toBe("");
-    expect(v.rows.map((r) => r.key)).toEqual(["rtt", "loss", "video", "freezes", "force", "command", "clock"]);
+    expect(v.rows.map((r) => r.key)).toEqual(["rtt", "loss", "video", "freezes", "playout", "force", "command", "clock"]);
     expect(v.rows.every((r) => r.level === "ok")).toBe(true);
     expect(row({}, "rtt").text).toBe("video 0.6 ms · ping 0.4 ms");
     expect(row({}, "video").text).toBe("30 fps · 2400 kbit/s · full 1280×360");
@@ -189,13 +190,34 @@ describe("reading getStats()", () => {
   it("rates over the window: frames, kbit/s, loss", () => {
     const a = readVideoStats(report(), 0);
     const b = readVideoStats(report({ framesDecoded: 140, bytesReceived: 1_000_000, packetsLost: 12, packetsReceived: 1988 }), STATS_WINDOW_MS);
-    expect(videoRates(a, b)).toEqual({ fps: 20, kbps: 2000, lossPercent: 1 });
+    expect(videoRates(a, b)).toEqual({ fps: 20, kbps: 2000, lossPercent: 1, playoutMs: null });
     // framesPerSecond (Chromium's, over the last second) wins when there is one.
     expect(videoRates(a, { ...b, framesPerSecond: 24 }).fps).toBe(24);
     // The first sample: no rates yet; no packets: no loss figure; duplicates are not negative loss.
-    expect(videoRates(undefined, b)).toEqual({ fps: null, kbps: null, lossPercent: null });
+    expect(videoRates(undefined, b)).toEqual({ fps: null, kbps: null, lossPercent: null, playoutMs: null });
     expect(videoRates(a, { ...a, at: 1000 }).lossPercent).toBeNull();
     expect(videoRates(a, { ...b, packetsLost: 0 }).lossPercent).toBe(0);
+  });
+});
+
+describe("the playout delay and FEC", () => {
+  const stats = (over: Record<string, unknown>) => [{ type: "inbound-rtp", kind: "video", ...over }];
+
+  it("is the time each frame of the window spent in the jitter buffer, and FEC's counts", () => {
+    const a = readVideoStats(stats({ jitterBufferDelay: 1.0, jitterBufferEmittedCount: 100, fecPacketsReceived: 10, fecPacketsDiscarded: 2 }), 0);
+    const b = readVideoStats(stats({ jitterBufferDelay: 13.0, jitterBufferEmittedCount: 140, fecPacketsReceived: 30, fecPacketsDiscarded: 5 }), STATS_WINDOW_MS);
+    expect(videoRates(a, b).playoutMs).toBe(300); // 12 s over 40 frames
+    expect(videoRates(a, { ...b, jitterBufferEmittedCount: 100 }).playoutMs).toBeNull(); // no frame: no figure
+    expect(b).toMatchObject({ fecPacketsReceived: 30, fecPacketsDiscarded: 5 });
+  });
+
+  it("is amber while frames are held long enough to lag the picture, and says what FEC did", () => {
+    expect(row({ playoutMs: 0 }, "playout")).toMatchObject({ level: "ok", text: "0.0 ms" });
+    expect(row({ playoutMs: PLAYOUT_AMBER_MS + 80, fecPackets: 120, fecUsed: 30 }, "playout")).toMatchObject({
+      level: "amber",
+      text: `230 ms (> ${PLAYOUT_AMBER_MS} ms) · FEC 120 packets, 30 used`,
+    });
+    expect(row({ playoutMs: null }, "playout")).toMatchObject({ level: "ok", text: "—" });
   });
 });
 

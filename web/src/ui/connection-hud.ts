@@ -1,5 +1,6 @@
 // The connection HUD: over the video, a compact box of the link's figures —
-// round trip, loss, the video's rate, bitrate, layer and freezes, how old the newest
+// round trip, loss, the video's rate, bitrate, layer and freezes, the playout delay and
+// what FEC repaired, how old the newest
 // force sample and the last command are, the clock offset — each row ok, amber or red
 // against a named threshold, the box as bad as its worst row. Three parts: hudView
 // (pure: figures → rows), the readers of RTCPeerConnection.getStats() and of frame
@@ -58,6 +59,11 @@ export const CLOCK_ERROR_AMBER_MS = 25;
 export const CLOCK_ERROR_RED_MS = 100;
 /** No command acknowledged for this long (ms): not driving, the last figure is history. */
 export const COMMAND_IDLE_MS = 5000;
+/** The playout delay (ms): the server holds frames back by this on a lossy link so that
+ * a repaired frame is shown on time (backend/media/playout.py); it adds to the
+ * picture's lag, so above PLAYOUT_AMBER_MS the row is amber (the picture is behind by
+ * more than a slow link's one way). */
+export const PLAYOUT_AMBER_MS = 150;
 /** Loss, bitrate and (without framesPerSecond) the frame rate are taken over this window (ms). */
 export const STATS_WINDOW_MS = 2000;
 
@@ -87,6 +93,12 @@ export interface HudFigures {
    * in s; Chromium's rule: a frame later than 3× the mean interval or mean + 150 ms). */
   decoderFreezes?: number | null;
   decoderFreezeS?: number | null;
+  /** How long the browser held each frame before showing it, over the last
+   * STATS_WINDOW_MS (jitterBufferDelay / jitterBufferEmittedCount; ms). */
+  playoutMs?: number | null;
+  /** FEC packets received, and those used (not discarded), over the peer's life. */
+  fecPackets?: number | null;
+  fecUsed?: number | null;
   linkOpen: boolean;
   /** The clock sync has an estimate (a ping came back). */
   synced: boolean;
@@ -100,7 +112,7 @@ export interface HudFigures {
   commandSeenAgoMs: number | null;
 }
 
-export type HudKey = "rtt" | "loss" | "video" | "freezes" | "force" | "command" | "clock";
+export type HudKey = "rtt" | "loss" | "video" | "freezes" | "playout" | "force" | "command" | "clock";
 
 export interface HudRow {
   key: HudKey;
@@ -179,6 +191,14 @@ function freezesRow(f: HudFigures): HudRow {
   return { key: "freezes", label: "freezes", text: `${f.freezes} in ${window} (longest ${seconds(f.longestFreezeMs)})${decoder}`, level, limits };
 }
 
+function playoutRow(f: HudFigures): HudRow {
+  const limits = `frames held to wait for repairs on a lossy link (0 on a clean one): amber > ${PLAYOUT_AMBER_MS} ms`;
+  const fec = f.fecPackets ? ` · FEC ${f.fecPackets} packets${f.fecUsed != null ? `, ${f.fecUsed} used` : ""}` : "";
+  if (f.playoutMs == null) return { key: "playout", label: "playout", text: `—${fec}`, level: "ok", limits };
+  const level: HudLevel = f.playoutMs > PLAYOUT_AMBER_MS ? "amber" : "ok";
+  return { key: "playout", label: "playout", text: `${ms(f.playoutMs)}${over(level, `${PLAYOUT_AMBER_MS} ms`, "")}${fec}`, level, limits };
+}
+
 function forceRow(f: HudFigures): HudRow {
   const limits = `newest sample's age on the server's clock: amber > ${FORCE_AGE_AMBER_MS} ms, red > ${FORCE_AGE_RED_MS} ms`;
   const row = (text: string, level: HudLevel): HudRow => ({ key: "force", label: "force age", text, level, limits });
@@ -214,7 +234,7 @@ function clockRow(f: HudFigures): HudRow {
 
 /** The HUD's rows for these figures; its level is the worst row's. */
 export function hudView(f: HudFigures): HudView {
-  const rows = [rttRow(f), lossRow(f), videoRow(f), freezesRow(f), forceRow(f), commandRow(f), clockRow(f)];
+  const rows = [rttRow(f), lossRow(f), videoRow(f), freezesRow(f), playoutRow(f), forceRow(f), commandRow(f), clockRow(f)];
   const bad = rows.filter((r) => r.level !== "ok").sort((a, b) => RANK[b.level] - RANK[a.level]);
   return { level: worst(rows.map((r) => r.level)), rows, reason: bad.map((r) => `${r.label}: ${r.text}`).join("; ") };
 }
@@ -233,6 +253,12 @@ export interface VideoStatsSample {
   totalFreezesDuration: number | null;
   frameWidth: number | null;
   frameHeight: number | null;
+  /** Seconds all emitted frames spent in the jitter buffer, and their count. */
+  jitterBufferDelay: number | null;
+  jitterBufferEmittedCount: number | null;
+  fecPacketsReceived: number | null;
+  /** FEC packets not used (Chromium: those that came after the packets they cover). */
+  fecPacketsDiscarded: number | null;
   /** The selected candidate pair's current round trip (s). */
   rttS: number | null;
 }
@@ -259,14 +285,21 @@ export function readVideoStats(report: Iterable<Stat>, at: number): VideoStatsSa
     totalFreezesDuration: v("totalFreezesDuration"),
     frameWidth: v("frameWidth"),
     frameHeight: v("frameHeight"),
+    jitterBufferDelay: v("jitterBufferDelay"),
+    jitterBufferEmittedCount: v("jitterBufferEmittedCount"),
+    fecPacketsReceived: v("fecPacketsReceived"),
+    fecPacketsDiscarded: v("fecPacketsDiscarded"),
     rttS: num(pair?.currentRoundTripTime),
   };
 }
 
 /** Rates between an older and a newer sample of the same stream. */
-export function videoRates(older: VideoStatsSample | undefined, newer: VideoStatsSample): { fps: number | null; kbps: number | null; lossPercent: number | null } {
+export function videoRates(
+  older: VideoStatsSample | undefined,
+  newer: VideoStatsSample,
+): { fps: number | null; kbps: number | null; lossPercent: number | null; playoutMs: number | null } {
   const dt = older ? (newer.at - older.at) / 1000 : 0;
-  const delta = (k: "framesDecoded" | "bytesReceived" | "packetsLost" | "packetsReceived") => {
+  const delta = (k: "framesDecoded" | "bytesReceived" | "packetsLost" | "packetsReceived" | "jitterBufferDelay" | "jitterBufferEmittedCount") => {
     const a = older?.[k];
     const b = newer[k];
     return dt > 0 && a != null && b != null ? b - a : null;
@@ -276,7 +309,10 @@ export function videoRates(older: VideoStatsSample | undefined, newer: VideoStat
   const lost = delta("packetsLost");
   const received = delta("packetsReceived");
   const lostOrNot = lost !== null && received !== null ? Math.max(0, lost) + received : 0; // duplicates make lost go down
+  const held = delta("jitterBufferDelay");
+  const emitted = delta("jitterBufferEmittedCount");
   return {
+    playoutMs: held !== null && emitted ? (1000 * held) / emitted : null,
     fps: newer.framesPerSecond ?? (frames !== null ? frames / dt : null),
     kbps: bytes !== null ? (bytes * 8) / 1000 / dt : null,
     lossPercent: lostOrNot > 0 ? (100 * Math.max(0, lost ?? 0)) / lostOrNot : null,
@@ -380,7 +416,9 @@ export class ConnectionHud implements HudView {
       this.history.push(sample);
       while (this.history.length > 2 && now - (this.history[1]?.at ?? now) >= STATS_WINDOW_MS) this.history.shift();
     }
-    const rates = sample ? videoRates(this.history[0] === sample ? undefined : this.history[0], sample) : { fps: null, kbps: null, lossPercent: null };
+    const rates = sample
+      ? videoRates(this.history[0] === sample ? undefined : this.history[0], sample)
+      : { fps: null, kbps: null, lossPercent: null, playoutMs: null };
     const { link } = this.src;
     if (link.commandLatency.total !== this.commandsSeen) {
       this.commandsSeen = link.commandLatency.total;
@@ -405,6 +443,9 @@ export class ConnectionHud implements HudView {
       longestFreezeMs: freezes.longestMs,
       decoderFreezes: sample?.freezeCount ?? null,
       decoderFreezeS: sample?.totalFreezesDuration ?? null,
+      playoutMs: rates.playoutMs,
+      fecPackets: sample?.fecPacketsReceived ?? null,
+      fecUsed: sample?.fecPacketsReceived != null ? sample.fecPacketsReceived - (sample.fecPacketsDiscarded ?? 0) : null,
       linkOpen: link.open,
       synced,
       offsetMs: link.offset * 1000,
