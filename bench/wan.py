@@ -98,6 +98,7 @@ ROLES = ("viewer", "force", "command")
 # waits for its 512-packet jitter buffer to overflow before it asks for a key frame.
 VIEWERS = ("aiortc", "aiortc-nack-once", "browser")
 NACK_RETRIES = 10  # libwebrtc's kMaxNackRetries
+NACK_LIST_MAX = 1000  # libwebrtc's kMaxNackPackets
 
 
 # ---------------------------------------------------------------- client roles
@@ -132,9 +133,10 @@ def keyframe_skipping_buffer(
     give_up_s: float, reask_s: float = KEYFRAME_REASK_S, clock: Any = time.monotonic
 ) -> Any:
     """aiortc's video jitter buffer, which waits at a missing packet until 512 more have
-    come (seconds), made to give up as libwebrtc does: a gap the NACKs did not fill
-    within ``give_up_s`` is skipped to the next key frame already received (and a key
-    frame is asked for, again every ``reask_s`` until one has come)."""
+    come (seconds), made to go on as libwebrtc does: a key frame received after a gap
+    is decoded at once (libwebrtc's packet buffer holds back delta frames after a
+    missing packet, never a key frame), and a gap the NACKs did not fill within
+    ``give_up_s`` asks for a key frame, again every ``reask_s`` until one has come."""
     from aiortc.jitterbuffer import JitterBuffer
 
     def key_frame_start(packet: Any) -> bool:
@@ -160,12 +162,6 @@ def keyframe_skipping_buffer(
             ]
             if all(p is not None for p in slots):
                 return pli, frame  # a frame still arriving, no gap
-            now = clock()
-            if self.gap_since is None:
-                self.gap_since = now
-                return pli, frame
-            if now - self.gap_since < give_up_s:
-                return pli, frame
             hole = slots.index(None)
             for count in range(hole + 1, len(slots)):
                 p = slots[count]
@@ -174,6 +170,12 @@ def keyframe_skipping_buffer(
                     self.skips += 1
                     self.gap_since, self.asked_at = None, None
                     return pli, self._remove_frame(p.sequence_number)
+            now = clock()
+            if self.gap_since is None:
+                self.gap_since = now
+                return pli, frame
+            if now - self.gap_since < give_up_s:
+                return pli, frame
             ask = self.asked_at is None or now - self.asked_at >= reask_s
             if ask:
                 self.asked_at = now
@@ -190,6 +192,10 @@ def role_viewer(base: str) -> dict[str, Any]:
     from telerobot.drivers.camera import timecode
 
     rx = wan_receiver.install()  # FEC and the playout delay, as libwebrtc's receiver
+    # NACKs for up to 1000 missing packets, as libwebrtc's NackRequester (kMaxNackPackets);
+    # aiortc's own stop 128 behind the newest, so after a cut longer than that (FEC's
+    # packets make it sooner) the oldest were never asked for, nor a key frame.
+    receiver.RTP_HISTORY_SIZE = NACK_LIST_MAX  # type: ignore[attr-defined]
     player = wan_receiver.Playout()
     received = [0]
     packets: list[float] = []  # arrival of every RTP packet (is video still coming?)

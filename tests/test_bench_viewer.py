@@ -1,7 +1,7 @@
-"""bench.wan's aiortc viewer gives up on a gap as libwebrtc does: after the NACKs had
-their chance it skips to the next key frame received, and asks for one if none has
-come, again every 0.2 s while none comes (the server sends key frames only when asked).
-An injected clock; a give-up of 0 s."""
+"""bench.wan's aiortc viewer goes on past a gap as libwebrtc does: a key frame received
+after it is decoded at once; after the NACKs had their chance it asks for one if none
+has come, again every 0.2 s while none comes (the server sends key frames only when
+asked). An injected clock; a give-up of 0 s."""
 
 from __future__ import annotations
 
@@ -40,3 +40,12 @@ def test_a_gap_filled_in_time_is_not_skipped() -> None:
         buffer.add(packet(seq, ts, key=seq == 0))
     _, frame = buffer.add(packet(2, 1))  # the retransmission: frame 1 complete
     assert frame is not None and frame.timestamp == 1 and buffer.skips == 0
+
+
+def test_a_key_frame_after_a_gap_is_taken_at_once() -> None:
+    buffer = keyframe_skipping_buffer(60.0)  # the NACKs would have a minute
+    for seq, ts in [(0, 1), (1, 1), (2, 2)]:
+        buffer.add(packet(seq, ts, key=seq == 0))
+    buffer.add(packet(5, 4, key=True))  # 3 and 4 lost: frame 3 cannot be whole
+    _, frame = buffer.add(packet(6, 5))
+    assert frame is not None and frame.timestamp == 4 and buffer.skips == 1

@@ -146,8 +146,8 @@ async def test_the_receiver_rebuilds_what_the_link_lost() -> None:
 
 @pytest.mark.parametrize(
     ("loss", "on", "share"),
-    [(None, False, 0.0), (0.0, False, 0.0), (0.003, False, 0.0), (0.003, True, 0.115),
-     (0.02, False, 0.2), (0.2, True, fec.MAX_SHARE)],
+    [(None, False, 0.0), (0.0, False, 0.0), (0.003, False, 0.0), (0.003, True, 0.112),
+     (0.02, False, 0.18), (0.2, True, fec.MAX_SHARE)],
     ids=["unknown", "clean", "below on", "above off (on)", "mobile", "most"],
 )  # fmt: skip
 def test_protection_follows_the_loss_with_a_margin_either_way(

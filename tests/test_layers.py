@@ -320,6 +320,8 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
         RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[300, 301, 627])
     )
     assert (asked, link.nacks_unservable) == ([1], 2)  # 300 and 301 are gone
+    # …and 627, which could be, is not resent: the key frame replaces it too
+    assert (len(handled), link.resends_spared) == (1, 1)
     assert link.as_dict()["nacks_unservable"] == 2
     # The receiver asks again for the same gap: the key frame asked for (it goes out
     # after packet 627) replaces those packets, so nothing more is asked.

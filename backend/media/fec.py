@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import struct
+import time
 from collections import OrderedDict
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -261,8 +262,12 @@ class FecSender:
         share: Callable[[], float],
         *,
         drop: Callable[[int], bool] | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self._send = send
+        self._clock = clock
+        self._sent_at: OrderedDict[int, float] = OrderedDict()  # ours → when sent
+        self._asked: OrderedDict[int, None] = OrderedDict()  # ours, NACKed once already
         self.red_pt = red_pt
         self.ulpfec_pt = ulpfec_pt
         self._share = share
@@ -281,8 +286,27 @@ class FecSender:
     def share(self) -> float:
         return self._share()
 
+    def now(self) -> float:
+        return self._clock()
+
     def to_sent(self, theirs: int) -> int | None:
         return self._to_sent.get(theirs)
+
+    def feedback_s(self, lost: list[int]) -> float | None:
+        """How long ago the packet after the newest of ``lost`` left: the receiver saw
+        the gap when that one arrived, so this is the NACK's round trip, the link's
+        queue included (receiver reports stop giving one once the queue holds them
+        longer than a report interval). None if not known."""
+        # Only the numbers asked for the first time: a receiver asks again for a gap a
+        # round trip or more later, which says nothing of the link.
+        fresh = [s for s in lost if s not in self._asked]
+        for s in fresh:
+            self._remember(self._asked, s, None)
+        if not fresh:
+            return None
+        newest = max(fresh, key=lambda s: _seq_delta(s, fresh[0]))
+        at = self._sent_at.get((newest + 1) & 0xFFFF)
+        return None if at is None else self._clock() - at
 
     def nacked(self, seqs: list[int]) -> tuple[list[int], list[int]]:
         """A NACK's numbers (ours) → (aiortc's numbers of the media among them, our
@@ -313,6 +337,7 @@ class FecSender:
         if self._next is None:
             self._next = theirs
         ours = self._take_seq()
+        self._remember(self._sent_at, ours, self._clock())
         self._remember(self._to_sent, theirs, ours)
         self._remember(self._from_sent, ours, theirs)
         packet = with_seq(data, ours)
@@ -342,6 +367,7 @@ class FecSender:
             # in a row is still rebuilt (each in its own FEC packet).
             fec = ulpfec_payload(group[j::count])
             ours = self._take_seq()
+            self._remember(self._sent_at, ours, self._clock())
             header = bytes([last[0], self.red_pt]) + ours.to_bytes(2, "big") + last[4:at]
             packet = header + bytes([self.ulpfec_pt]) + fec
             if len(packet) > RTP_MAX:  # (media longer than MEDIA_PAYLOAD_MAX: unprotected)

@@ -111,11 +111,13 @@ NACKED_KEPT = 1024  # media packets a viewer NACKed, remembered to count each on
 # The loss a viewer's NACKs show: the median of the last LOSS_WINDOWS seconds' (a cut
 # link's burst of NACKs, which FEC cannot help, counts as one second).
 LOSS_WINDOWS = 5
-# FEC adds bytes: on a link whose queue already holds this much (the round trip above
-# the least seen), more would only lengthen it, and every frame, force and command
+# FEC adds bytes: on a link whose queue already holds this much (the NACKs' round trip
+# above their floor), more would only lengthen it, and every frame, force and command
 # behind it waits longer. Protection pauses there (bench.netem's `bad` link, 2 Mbit/s
-# shared with the forces: with FEC the round trip grew from 0.45 to 1.4 s).
+# shared with the forces: with FEC its queue grew to 2 s in one run of two).
 QUEUED_NO_FEC_S = 0.1
+NACK_RTTS_KEPT = 16
+FLOOR_DRIFT = 0.01  # s per s
 FEC_MODES = ("auto", "off", "on")
 
 
@@ -161,8 +163,35 @@ class ViewerLink:
     # `mobile`, each queueing the link for ~250 ms).
     keyframe_covers_through: int | None = None
     nacks_superseded: int = 0
+    # Packets a NACK asked for that were not resent: the key frame it brought (or the
+    # one on its way) replaces them.
+    resends_spared: int = 0
     jitter_s: float | None = None  # the receiver's interarrival jitter
-    rtt_min_s: float | None = None  # the least round trip seen (the link without a queue)
+    # The NACKs' own round trips (fec.FecSender.feedback_s: the queue included), the
+    # newest few, and their floor (the link without a queue), which drifts up by
+    # FLOOR_DRIFT so that a link whose delay grew for good is followed.
+    nack_rtts: deque[float] = field(default_factory=lambda: deque(maxlen=NACK_RTTS_KEPT))
+    nack_rtt_floor_s: float | None = None
+    nack_rtt_floor_at: float = 0.0
+
+    def nack_rtt(self, rtt: float, now: float) -> None:
+        self.nack_rtts.append(rtt)
+        floor = self.nack_rtt_floor_s
+        if floor is not None:
+            floor += (now - self.nack_rtt_floor_at) * FLOOR_DRIFT
+        self.nack_rtt_floor_s = rtt if floor is None else min(floor, rtt)
+        self.nack_rtt_floor_at = now
+
+    def queued_s(self) -> float | None:
+        """How much longer the recent NACKs took than the floor: the link's queue."""
+        if not self.nack_rtts or self.nack_rtt_floor_s is None:
+            return None
+        return statistics.median(self.nack_rtts) - self.nack_rtt_floor_s
+
+    def repair_s(self) -> float | None:
+        """What a repair takes now: the recent NACKs' round trip (else the reports')."""
+        return statistics.median(self.nack_rtts) if self.nack_rtts else self.rtt_s
+
     # Media packets NACKed (each once): the loss before any repair, which receiver
     # reports hide (a resent packet counts as received in them).
     nacked: int = 0
@@ -185,8 +214,11 @@ class ViewerLink:
             "reports": self.reports,
             "nacks_unservable": self.nacks_unservable,
             "nacks_superseded": self.nacks_superseded,
+            "resends_spared": self.resends_spared,
             "jitter_ms": None if self.jitter_s is None else self.jitter_s * 1000,
             "packets_nacked": self.nacked,
+            "nack_rtt_ms": None if not self.nack_rtts else statistics.median(self.nack_rtts) * 1000,
+            "queued_ms": None if (q := self.queued_s()) is None else q * 1000,
         }
 
 
@@ -216,18 +248,63 @@ def follow_link(
     each NACK for media (a repair the viewer waits for)."""
     handle = sender._handle_rtcp_packet
 
+    async def on_nack(packet: Any) -> None:
+        protection = fec()
+        fec_seqs: list[int] = []
+        if protection is not None:
+            rtt = protection.feedback_s(packet.lost)
+            if rtt is not None:
+                link.nack_rtt(rtt, protection.now())
+            media, fec_seqs = protection.nacked(packet.lost)
+            packet = RtcpRtpfbPacket(
+                fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
+            )
+        link.count_nacked(packet.lost)
+        if packet.lost:
+            on_repair()
+        # After a cut or a burst of loss the receiver asks for packets older than the
+        # sender's history: nothing can resend them, and a receiver would wait seconds
+        # for its next periodic key frame (or its own give-up). Send one now (the
+        # fan-out gate shares it and spaces them out), unless the one already asked
+        # for replaces these packets. Either way the key frame replaces every packet
+        # sent before it, so none of those is resent: after a cut, the resends (a
+        # history's worth, FEC's too) took the link for a second and the key frame
+        # waited. The key frame's own packets, and any after it, are.
+        history = getattr(sender, "_RTCRtpSender__rtp_history", None)
+        gone = []
+        if history is not None:
+            gone = [
+                seq
+                for seq in packet.lost
+                if getattr(history.get(seq % RTP_HISTORY_SIZE), "sequence_number", None) != seq
+            ]
+            covered = link.keyframe_covers_through
+            if gone and covered is not None and not any(seq_newer(s, covered) for s in gone):
+                link.nacks_superseded += len(gone)
+            elif gone:
+                link.nacks_unservable += len(gone)
+                link.keyframe_covers_through = newest_sent(history)
+                sender._send_keyframe()
+        covered = link.keyframe_covers_through
+        if covered is not None:
+            media = [s for s in packet.lost if seq_newer(s, covered)]
+            wire = None if protection is None else protection.to_sent(covered)
+            later_fec = [s for s in fec_seqs if wire is None or seq_newer(s, wire)]
+            link.resends_spared += len(packet.lost) - len(media) - len(gone) + len(fec_seqs)
+            link.resends_spared -= len(later_fec)
+            packet = RtcpRtpfbPacket(
+                fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
+            )
+            fec_seqs = later_fec
+        if protection is not None:
+            await protection.resend_fec(fec_seqs)
+        if packet.lost:
+            await handle(packet)
+
     async def on_rtcp(packet: Any) -> None:
         if isinstance(packet, RtcpRtpfbPacket) and packet.fmt == RTCP_RTPFB_NACK:
-            protection = fec()
-            if protection is not None:
-                media, fec_seqs = protection.nacked(packet.lost)
-                await protection.resend_fec(fec_seqs)
-                packet = RtcpRtpfbPacket(
-                    fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
-                )
-            link.count_nacked(packet.lost)
-            if packet.lost:
-                on_repair()
+            await on_nack(packet)
+            return
         await handle(packet)
         if isinstance(packet, RtcpRrPacket | RtcpSrPacket):
             for report in packet.reports:
@@ -242,26 +319,6 @@ def follow_link(
                 bitrate, ssrcs = unpack_remb_fci(packet.fci)
                 if sender._ssrc in ssrcs:
                     link.estimated_bps = bitrate
-        elif isinstance(packet, RtcpRtpfbPacket) and packet.fmt == RTCP_RTPFB_NACK:
-            # After a cut or a burst of loss the receiver asks for packets older than
-            # the sender's history: nothing can resend them, and a receiver would wait
-            # seconds for its next periodic key frame (or its own give-up). Send one now
-            # (the fan-out gate shares it and spaces them out), unless the one already
-            # asked for replaces these packets.
-            history = getattr(sender, "_RTCRtpSender__rtp_history", None)
-            if history is not None:
-                gone = [
-                    seq
-                    for seq in packet.lost
-                    if getattr(history.get(seq % RTP_HISTORY_SIZE), "sequence_number", None) != seq
-                ]
-                covered = link.keyframe_covers_through
-                if gone and covered is not None and not any(seq_newer(s, covered) for s in gone):
-                    link.nacks_superseded += len(gone)
-                elif gone:
-                    link.nacks_unservable += len(gone)
-                    link.keyframe_covers_through = newest_sent(history)
-                    sender._send_keyframe()
 
     sender._handle_rtcp_packet = on_rtcp  # type: ignore[method-assign]
 
@@ -552,10 +609,7 @@ class VideoPipeline:
             peer.counted = (sent, nacked)
             peer.losses.append(min(1.0, d_nacked / d_sent))
             peer.loss = statistics.median(peer.losses)
-            link = peer.link
-            if link.rtt_s is not None:
-                link.rtt_min_s = min(link.rtt_s, link.rtt_min_s or link.rtt_s)
-            queued = None if link.rtt_s is None else link.rtt_s - (link.rtt_min_s or link.rtt_s)
+            queued = peer.link.queued_s()
             mode = self.settings.fec
             if mode == "on":
                 peer.fec_share = ulpfec.MAX_SHARE
@@ -570,10 +624,10 @@ class VideoPipeline:
         jitter) plus the frame interval in which it saw the gap."""
         if not self.settings.adaptive_playout or not self.settings.zero_playout_delay:
             return
-        link = peer.link
-        if link.rtt_s is None:
+        rtt = peer.link.repair_s()
+        if rtt is None:
             return
-        repair = link.rtt_s + 2 * (link.jitter_s or 0.0) + 1.0 / self.settings.fps
+        repair = rtt + 2 * (peer.link.jitter_s or 0.0) + 1.0 / self.settings.fps
         peer.playout.repair(self.clock.now(), repair)
 
     def set_layer(self, peer: Peer, layer: Layer) -> None:

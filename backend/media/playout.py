@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections import deque
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -45,7 +46,8 @@ OFFER_ID = 5  # the id when we offer (aiortc's own video extensions take 1 and 3
 ZERO = b"\x00\x00\x00"  # 12 bits of minimum, 12 of maximum delay, in 10 ms units
 UNIT_MS = 10
 MAX_DELAY_MS = 500  # never held longer (the operator's picture would lag too far)
-HOLD_S = 10.0  # after the last repair the delay holds this long…
+HOLD_S = 10.0  # a repair's need holds this long…
+MAX_REPAIRS_KEPT = 256  # (repairs remembered for that: a burst of NACKs is many)
 SHRINK_MS_PER_S = 50.0  # …then shrinks back this fast
 # A repaired frame this late (two frame intervals at 30 fps) still shows before the
 # picture visibly stops: the delay covers only the rest of a repair.
@@ -107,16 +109,17 @@ def read_element(value: bytes) -> tuple[int, int]:
 
 
 class AdaptivePlayout:
-    """The playout delay for one viewer (ms, a multiple of 10): 0 on a clean link; on
-    a repair asked for, at least what the repair takes less ``TOLERANCE_S``; held
-    ``HOLD_S`` after the last, then shrinking by ``SHRINK_MS_PER_S``. ``now`` is any
-    monotonic clock (s)."""
+    """The playout delay for one viewer (ms, a multiple of 10): 0 on a clean link; the
+    most that the repairs asked for in the last ``HOLD_S`` need (what each takes, less
+    ``TOLERANCE_S``), at once; shrinking by ``SHRINK_MS_PER_S`` towards that when it is
+    less (the picture then catches up, a little faster than real time). ``now`` is
+    any monotonic clock (s)."""
 
     def __init__(self, max_ms: float = MAX_DELAY_MS) -> None:
         self.max_ms = max_ms
         self.delay_ms = 0.0
         self.repairs = 0
-        self._repair_at: float | None = None
+        self._needs: deque[tuple[float, float]] = deque(maxlen=MAX_REPAIRS_KEPT)
         self._at: float | None = None
 
     def repair(self, now: float, repair_s: float) -> None:
@@ -124,16 +127,20 @@ class AdaptivePlayout:
         jitter)."""
         self.repairs += 1
         need = min(self.max_ms, max(0.0, (repair_s - TOLERANCE_S) * 1000))
-        self.delay_ms = max(self.delay_ms, math.ceil(need / UNIT_MS) * UNIT_MS)
-        self._repair_at = now
+        self._needs.append((now, need))
+        self.delay_ms = max(self.delay_ms, need)
 
     def current(self, now: float) -> int:
         """The delay now (call it now and then: the shrinking is by the time since)."""
-        since = None if self._at is None else now - self._at
+        while self._needs and now - self._needs[0][0] > HOLD_S:
+            self._needs.popleft()
+        target = max((need for _, need in self._needs), default=0.0)
+        since = 0.0 if self._at is None else max(0.0, now - self._at)
         self._at = now
-        quiet = self._repair_at is None or now - self._repair_at > HOLD_S
-        if quiet and since is not None and self.delay_ms > 0:
-            self.delay_ms = max(0.0, self.delay_ms - SHRINK_MS_PER_S * since)
+        if target >= self.delay_ms:
+            self.delay_ms = target
+        else:
+            self.delay_ms = max(target, self.delay_ms - SHRINK_MS_PER_S * since)
         return int(math.ceil(self.delay_ms / UNIT_MS) * UNIT_MS)
 
 
