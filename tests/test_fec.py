@@ -237,3 +237,62 @@ async def test_on_a_clean_link_auto_sends_no_fec() -> None:
 def test_a_bad_fec_mode_is_refused() -> None:
     with pytest.raises(ValueError, match="fec must be one of"):
         VideoPipeline(camera(**SMALL), VideoSettings(fec="sometimes"))
+
+
+async def test_a_nack_s_round_trip_is_read_from_the_packet_that_showed_the_gap() -> None:
+    now = [0.0]
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.0, clock=lambda: now[0])
+    for i, p in enumerate(_stream(6, first_seq=10)):
+        now[0] = 0.01 * i
+        await sender(p)
+    now[0] = 0.3
+    # 12 lost: the receiver saw the gap when 13 came (sent at 0.03)
+    assert sender.feedback_s([12]) == pytest.approx(0.27)
+    assert sender.feedback_s([12]) is None  # asked again: says nothing of the link
+    assert sender.feedback_s([15]) is None  # nothing sent after it yet
+
+
+def test_the_link_s_queue_is_the_nacks_round_trip_above_their_floor() -> None:
+    link = ViewerLink()
+    assert link.queued_s() is None and link.repair_s() is None
+    link.rtt_s = 0.25
+    assert link.repair_s() == 0.25  # the reports' round trip until a NACK says more
+    for t, rtt in enumerate([0.26, 0.25, 0.27]):
+        link.nack_rtt(rtt, float(t))
+    # (the floor, 0.25 at 1 s, has drifted up 10 ms by 2 s: a link's delay may grow)
+    assert link.queued_s() == pytest.approx(0.0)
+    for t in range(3, 20):
+        link.nack_rtt(0.6, float(t))  # a queue builds: 0.35 s more
+    assert link.queued_s() == pytest.approx(0.6 - (0.26 + 0.01 * 17))
+    assert link.repair_s() == pytest.approx(0.6)
+
+
+def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() -> None:
+    from collections import deque
+    from types import SimpleNamespace
+
+    from telerobot.server.media import pipeline as media
+
+    pipeline = VideoPipeline(camera(**SMALL), VideoSettings())  # "auto"; not started
+    counts = fec.FecCounts()
+    peer: Any = SimpleNamespace(
+        connected=True, link=ViewerLink(), fec=SimpleNamespace(counts=counts), counted=(0, 0),
+        losses=deque(maxlen=media.LOSS_WINDOWS), loss=None, fec_share=0.0, fec_paused=0,
+    )  # fmt: skip
+    pipeline.peers["p"] = peer
+
+    def second(sent: int, nacked: int) -> float:
+        counts.media_packets += sent
+        peer.link.nacked += nacked
+        pipeline.adapt_protection()
+        return float(peer.fec_share)
+
+    assert second(100, 0) == 0.0  # clean: no FEC
+    second(100, 2)
+    assert second(100, 2) == pytest.approx(fec.protection_share(0.02, False))
+    # A cut (every packet of a second NACKed) is one second of five: the median stays
+    assert second(100, 100) == pytest.approx(fec.protection_share(0.02, True))
+    for t in range(4):  # the NACKs come back later and later: a queue on the link
+        peer.link.nack_rtt(0.25 + 0.1 * t, float(t))
+    assert second(100, 2) == 0.0 and peer.fec_paused == 1

@@ -163,3 +163,41 @@ async def test_the_transport_s_rtcp_passes_unchanged() -> None:
     await wrapper(sr)
     await wrapper(_packet(mid="0"))
     assert sent[0] == sr and _elements(sent[1])[PLAYOUT] == playout.ZERO
+
+
+# ---------------------------------------------------------------- the adaptive delay
+def test_the_element_says_the_delay_in_10_ms_steps() -> None:
+    assert playout.element(0, 0) == playout.ZERO
+    assert playout.read_element(playout.element(250, 250)) == (250, 250)
+    assert playout.read_element(playout.element(241, 241)) == (250, 250)  # rounded up
+    assert playout.read_element(playout.element(300, 100)) == (300, 300)  # max ≥ min
+
+
+def test_the_delay_grows_with_a_repair_holds_while_they_go_on_and_shrinks_back() -> None:
+    p = playout.AdaptivePlayout()
+    assert p.current(0.0) == 0  # a clean link: frames shown at once
+    p.repair(1.0, 0.3)  # a repair that takes 300 ms
+    assert p.current(1.0) == 240  # less the two frame intervals a late frame may be
+    p.repair(5.0, 0.1)  # a shorter one later: the longer one still counts
+    assert p.current(5.0) == 240
+    p.repair(20.0, 0.2)  # 19 s later: only the newer need holds…
+    assert p.current(20.0) == 140
+    assert p.current(30.0) == 140  # held HOLD_S after it…
+    assert p.current(31.0) == 90  # …then shrinking at 50 ms a second
+    assert p.current(40.0) == 0
+    p.repair(41.0, 5.0)  # never beyond MAX_DELAY_MS
+    assert p.current(41.0) == playout.MAX_DELAY_MS
+
+
+async def test_the_stamp_writes_the_delay_it_is_given() -> None:
+    sent: list[bytes] = []
+
+    async def send(data: bytes) -> None:
+        sent.append(data)
+
+    delay = [0]
+    stamp = playout.PlayoutDelayStamp(send, PLAYOUT, lambda: delay[0])
+    await stamp(_packet(mid="0"))
+    delay[0] = 320
+    await stamp(_packet(mid="0"))
+    assert [playout.read_element(_elements(p)[PLAYOUT]) for p in sent] == [(0, 0), (320, 320)]
