@@ -296,3 +296,22 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
     for t in range(4):  # the NACKs come back later and later: a queue on the link
         peer.link.nack_rtt(0.25 + 0.1 * t, float(t))
     assert second(100, 2) == 0.0 and peer.fec_paused == 1
+
+
+async def test_a_frame_longer_than_a_group_gets_its_fec_after_its_last_packet() -> None:
+    # A key frame of the full layer is 60-85 packets. An FEC packet numbered inside it
+    # made Chromium drop the frame (its H.264 frames are the numbers from one
+    # timestamp's first packet to the marker).
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
+    frame = [_rtp(100 + i, 9000, bytes([i]) * 100, marker=i == 69) for i in range(70)]
+    for p in frame:
+        await sender(p)
+    kinds = [fec.red_unwrap(p)[1] & 0x7F for p in wire.sent]
+    assert kinds[:70] == [MEDIA_PT] * 70 and set(kinds[70:]) == {ULPFEC_PT}
+    assert len(kinds) - 70 == sender.counts.fec_packets == 12 + 6  # 48 × 0.25, 22 × 0.25
+    receiver = fec.FecReceiver(RED_PT, ULPFEC_PT)
+    for i, data in enumerate(wire.sent):
+        if i not in (3, 50):  # one lost in each group
+            receiver.receive(data)
+    assert receiver.counts.recovered == 2

@@ -38,8 +38,12 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 # between frames to encode: 273 ms seen on loopback with one core busy elsewhere; each
 # sample stands for seconds). The ping's round trip, the loss, frames arriving, the force
 # age and the clock stay the page's own.
-PIN_CPU = f"{HUD}.pinned = {{ fps: 20, freezes: 0, longestFreezeMs: 0, videoRttMs: 1 }}"
-PIN_RATE = f"{HUD}.pinned = {{ fps: 20, videoRttMs: 1 }}"  # the freezes counted for real
+# (The playout delay is how long the browser held each frame: on a loaded machine its
+# decoder's wait, not the link's.)
+PIN_CPU = (
+    f"{HUD}.pinned = {{ fps: 20, freezes: 0, longestFreezeMs: 0, videoRttMs: 1, playoutMs: 0 }}"
+)
+PIN_RATE = f"{HUD}.pinned = {{ fps: 20, videoRttMs: 1, playoutMs: 0 }}"  # freezes counted
 
 # Each row's text, at whatever level this machine's figures put it.
 FORMATS = {
@@ -47,6 +51,7 @@ FORMATS = {
     "loss": r"^[\d.]+ %( \(> \d+ %\))?$",
     "video": r"^\d+ fps( of 20 \(< [\d.]+\))? · \d+ kbit/s · (full|low) \d+×\d+$",
     "freezes": r"^(none in 10 s|\d+ in 10 s \(longest [\d.]+ s\))( · decoder \d+( \([\d.]+ s\))?)?$",
+    "playout": r"^([\d.]+ ms( \(> \d+ ms\))?|—)( · FEC \d+ packets(, \d+ used)?)?$",
     "force": r"^[\d.]+ ms( \(> \d+ ms\))?$",
     "command": r"^— \(no command yet\)$",
     "clock": r"^[+−][\d.]+ m?s ± [\d.]+ ms( \(> ± \d+ ms\))?$",

@@ -243,6 +243,7 @@ class FecCounts:
             "overhead": self.fec_bytes / total if total else 0.0,
             "fec_resent": self.fec_resent,
             "retransmits": self.retransmits,
+            # (each packet lost on purpose counts again for each resend refused)
             "dropped_on_purpose": self.dropped_on_purpose,
             "too_long": self.too_long,
         }
@@ -280,6 +281,7 @@ class FecSender:
         self._fec_resends: dict[int, int] = {}  # ours → times resent
         self._dropped: set[int] = set()
         self._group: list[bytes] = []
+        self._pending: list[tuple[bytes, bytes]] = []  # FEC made, for the frame's end
         self._group_frames = 0
         self.counts = FecCounts()
 
@@ -355,9 +357,14 @@ class FecSender:
         if full or (
             end_of_frame and (len(self._group) >= MIN_GROUP or self._group_frames >= GROUP_FRAMES)
         ):
-            await self._protect(max(share, 1.0 / MAX_PROTECTED))
+            self._protect(max(share, 1.0 / MAX_PROTECTED))
+        if end_of_frame:
+            await self._send_fec()
 
-    async def _protect(self, share: float) -> None:
+    def _protect(self, share: float) -> None:
+        """FEC for the group so far, sent at its frame's end (``_send_fec``): a key frame
+        is longer than one group, and an FEC packet numbered inside a frame stops
+        Chromium's decoder (its H.264 frames are the numbers between two timestamps)."""
         group, self._group, self._group_frames = self._group, [], 0
         count = min(len(group), max(1, math.ceil(len(group) * share)))
         last = group[-1]
@@ -365,10 +372,14 @@ class FecSender:
         for j in range(count):
             # Interleaved: packet i in FEC i mod count, so a burst of ``count`` losses
             # in a row is still rebuilt (each in its own FEC packet).
-            fec = ulpfec_payload(group[j::count])
+            self._pending.append((last[0:1] + last[4:at], ulpfec_payload(group[j::count])))
+
+    async def _send_fec(self) -> None:
+        pending, self._pending = self._pending, []
+        for head, fec in pending:
             ours = self._take_seq()
             self._remember(self._sent_at, ours, self._clock())
-            header = bytes([last[0], self.red_pt]) + ours.to_bytes(2, "big") + last[4:at]
+            header = head[:1] + bytes([self.red_pt]) + ours.to_bytes(2, "big") + head[1:]
             packet = header + bytes([self.ulpfec_pt]) + fec
             if len(packet) > RTP_MAX:  # (media longer than MEDIA_PAYLOAD_MAX: unprotected)
                 self.counts.too_long += 1
