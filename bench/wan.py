@@ -195,7 +195,7 @@ def role_viewer(base: str) -> dict[str, Any]:
     # NACKs for up to 1000 missing packets, as libwebrtc's NackRequester (kMaxNackPackets);
     # aiortc's own stop 128 behind the newest, so after a cut longer than that (FEC's
     # packets make it sooner) the oldest were never asked for, nor a key frame.
-    receiver.RTP_HISTORY_SIZE = NACK_LIST_MAX  # type: ignore[attr-defined]
+    receiver.RTP_HISTORY_SIZE = int(os.environ.get("BENCH_WAN_NACK_LIST", NACK_LIST_MAX))  # type: ignore[attr-defined]
     player = wan_receiver.Playout()
     received = [0]
     packets: list[float] = []  # arrival of every RTP packet (is video still coming?)

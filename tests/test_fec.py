@@ -279,6 +279,7 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
     peer: Any = SimpleNamespace(
         connected=True, link=ViewerLink(), fec=SimpleNamespace(counts=counts), counted=(0, 0),
         losses=deque(maxlen=media.LOSS_WINDOWS), loss=None, fec_share=0.0, fec_paused=0,
+        fec_paused_until=0.0, queued_seconds=0,
     )  # fmt: skip
     pipeline.peers["p"] = peer
 
@@ -295,7 +296,14 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
     assert second(100, 100) == pytest.approx(fec.protection_share(0.02, True))
     for t in range(4):  # the NACKs come back later and later: a queue on the link
         peer.link.nack_rtt(0.25 + 0.1 * t, float(t))
-    assert second(100, 2) == 0.0 and peer.fec_paused == 1
+    assert second(100, 2) > 0.0  # one second of it could be a cut's backlog…
+    assert second(100, 2) == 0.0 and peer.fec_paused == 1  # …two are a queue
+    for t in range(4, 20):  # the queue drains once the FEC's bytes stop…
+        peer.link.nack_rtt(0.25, float(t))
+    assert peer.link.queued_s() == pytest.approx(0.0, abs=0.05)
+    assert second(100, 2) == 0.0  # …but protection stays paused FEC_PAUSE_S
+    pipeline.clock = SimpleNamespace(now=lambda: 1e9)  # (a clock far later)
+    assert second(100, 2) > 0.0
 
 
 async def test_a_frame_longer_than_a_group_gets_its_fec_after_its_last_packet() -> None:
