@@ -194,7 +194,8 @@ class ServerSettings(BaseSettings):
     video_adaptive_playout: bool = True
     # Forward error correction (RED + ULPFEC, media/fec.py) to viewers that offer it
     # (Chromium does): "auto" follows each viewer's loss (none on a clean link), "on"
-    # protects every viewer at the most (1 FEC packet per 2), "off" never.
+    # protects every viewer at the most (~1 FEC packet per 3 media packets; 1 per 2 for
+    # a still scene's one-packet frames), "off" never (nor offered).
     video_fec: Literal["auto", "on", "off"] = "auto"
     # Tests and demos: every Nth video packet to each viewer is lost for good, its
     # resends too (only FEC can bring it back). 0: none.

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import random
+import time
 from typing import Any
 
 import pytest
@@ -116,8 +117,11 @@ async def test_nacks_and_resends_are_mapped_between_aiortc_s_numbers_and_the_wir
     # aiortc resends its 107: it leaves as the wire's 109, as plain media
     await sender(packets[7])
     assert fec.seq_of(wire.sent[-1]) == 109 and wire.sent[-1][1] & 0x7F == MEDIA_PT
-    await sender.resend_fec(fec_seqs)
-    assert wire.sent[-1] == wire.sent[6] and sender.counts.fec_resent == 1
+    await sender.pad_fec(fec_seqs)  # the FEC packet's number filled with padding
+    pad = wire.sent[-1]
+    assert fec.seq_of(pad) == 106 and pad[0] & 0x20 and pad[1] & 0x7F == MEDIA_PT
+    assert pad[4:12] == wire.sent[5][4:12] and pad[-1] == len(pad) - 12  # all padding
+    assert sender.counts.fec_padded == 1
 
 
 async def test_the_receiver_rebuilds_what_the_link_lost() -> None:
@@ -176,7 +180,7 @@ async def test_a_nack_reaches_aiortc_in_its_own_numbers_and_counts_the_loss() ->
     await aiortc_sender._handle_rtcp_packet(nack)
     await aiortc_sender._handle_rtcp_packet(nack)  # asked again: counted once
     assert handled[0].lost == [101, 107] and link.nacked == 2 and len(repairs) == 2
-    assert sender.counts.fec_resent == 2  # the FEC packet 106, each time
+    assert sender.counts.fec_padded == 2  # the FEC packet 106, each time
 
 
 # ---------------------------------------------------------------- a real viewer
@@ -255,17 +259,19 @@ async def test_a_nack_s_round_trip_is_read_from_the_packet_that_showed_the_gap()
 
 def test_the_link_s_queue_is_the_nacks_round_trip_above_their_floor() -> None:
     link = ViewerLink()
-    assert link.queued_s() is None and link.repair_s() is None
+    assert link.queued_s(0.0) is None and link.repair_s(0.0) is None
     link.rtt_s = 0.25
-    assert link.repair_s() == 0.25  # the reports' round trip until a NACK says more
+    assert link.repair_s(0.0) == 0.25  # the reports' round trip until a NACK says more
     for t, rtt in enumerate([0.26, 0.25, 0.27]):
         link.nack_rtt(rtt, float(t))
     # (the floor, 0.25 at 1 s, has drifted up 10 ms by 2 s: a link's delay may grow)
-    assert link.queued_s() == pytest.approx(0.0)
+    assert link.queued_s(2.0) == pytest.approx(0.0)
     for t in range(3, 20):
         link.nack_rtt(0.6, float(t))  # a queue builds: 0.35 s more
-    assert link.queued_s() == pytest.approx(0.6 - (0.26 + 0.01 * 17))
-    assert link.repair_s() == pytest.approx(0.6)
+    assert link.queued_s(19.0) == pytest.approx(0.6 - (0.26 + 0.01 * 17))
+    assert link.repair_s(19.0) == pytest.approx(0.6)
+    # A clean link sends no NACK: after a while they say nothing of it any more
+    assert link.queued_s(19.0 + 11) is None and link.repair_s(30.0) == 0.25
 
 
 def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() -> None:
@@ -279,7 +285,7 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
     peer: Any = SimpleNamespace(
         connected=True, link=ViewerLink(), fec=SimpleNamespace(counts=counts), counted=(0, 0),
         losses=deque(maxlen=media.LOSS_WINDOWS), loss=None, fec_share=0.0, fec_paused=0,
-        fec_paused_until=0.0, queued_seconds=0,
+        fec_paused_until=0.0, queued_seconds=0, cut_at=None,
     )  # fmt: skip
     pipeline.peers["p"] = peer
 
@@ -294,13 +300,17 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
     assert second(100, 2) == pytest.approx(fec.protection_share(0.02, False))
     # A cut (every packet of a second NACKed) is one second of five: the median stays
     assert second(100, 100) == pytest.approx(fec.protection_share(0.02, True))
+    t0 = time.monotonic()  # (the pipeline's clock)
     for t in range(4):  # the NACKs come back later and later: a queue on the link
-        peer.link.nack_rtt(0.25 + 0.1 * t, float(t))
+        peer.link.nack_rtt(0.25 + 0.1 * t, t0 + t - 4)
+    # Right after a cut that is its backlog (resends, the forces held up): not judged
+    assert second(100, 2) > 0.0 and second(100, 2) > 0.0 and peer.fec_paused == 0
+    peer.cut_at = -1e9  # (the cut long past)
     assert second(100, 2) > 0.0  # one second of it could be a cut's backlog…
     assert second(100, 2) == 0.0 and peer.fec_paused == 1  # …two are a queue
-    for t in range(4, 20):  # the queue drains once the FEC's bytes stop…
-        peer.link.nack_rtt(0.25, float(t))
-    assert peer.link.queued_s() == pytest.approx(0.0, abs=0.05)
+    for _ in range(16):  # the queue drains once the FEC's bytes stop…
+        peer.link.nack_rtt(0.25, time.monotonic())
+    assert peer.link.queued_s(time.monotonic()) == pytest.approx(0.0, abs=0.05)
     assert second(100, 2) == 0.0  # …but protection stays paused FEC_PAUSE_S
     pipeline.clock = SimpleNamespace(now=lambda: 1e9)  # (a clock far later)
     assert second(100, 2) > 0.0

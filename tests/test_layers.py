@@ -343,3 +343,10 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
         RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[65400, 65450])
     )
     assert (asked, link.nacks_superseded) == ([1, 1], 4)  # both sent before 91 (the wrap)
+    # That key frame went out long ago: the same gap asked for again is not covered by
+    # it any more (a 16-bit number far back reads as newer half the time): a new one
+    link.keyframe_covers_at -= 60.0
+    await sender._handle_rtcp_packet(
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[65400])
+    )
+    assert (asked, link.nacks_unservable) == ([1, 1, 1], 4)

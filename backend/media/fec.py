@@ -21,8 +21,9 @@ The parts:
   the wire's: ``to_sent`` for aiortc's retransmissions, ``nacked`` for the receiver's
   NACKs (aiortc resends from its history by its own numbers). An H.264 receiver
   (libwebrtc's packet buffer) will not release a frame while any earlier sequence
-  number is missing, FEC packets included, so a NACKed FEC packet is resent from a
-  history of its own.
+  number is missing, FEC packets included, so a NACKed FEC packet's number is answered
+  with a padding-only packet (``pad_fec``): it fills the number at once, needs no
+  history, and the media packets it covered are NACKed and resent on their own.
 * ``FecReceiver``: the other side, as libwebrtc's UlpfecReceiver: RED unwrapped,
   media kept for a while, a missing packet rebuilt when an FEC packet covers it and
   every other packet it covers is there. bench.wan's viewer and the tests use it.
@@ -63,13 +64,7 @@ MAX_SHARE = 0.35  # at most about one FEC packet per three media packets
 # .netem's `wifi` link, 0.5 % random loss, is just above), and off below OFF_LOSS.
 ON_LOSS = 0.004
 OFF_LOSS = 0.002
-# How many we keep: FEC packets sent (for NACKs: about as far back as aiortc's 128
-# media packets), and our numbers against aiortc's. A receiver asks again and again
-# for a gap (bench.wan's viewer up to 10 times, a round trip apart): after a cut link
-# every FEC packet of the gap, resent each time, flooded the link for seconds. Each is
-# resent at most MAX_FEC_RESENDS times.
-SENT_FEC_HISTORY = 64
-MAX_FEC_RESENDS = 2
+# How many numbers we keep: ours against aiortc's, and which of ours were FEC.
 SEQ_MAP_SIZE = 1024
 # The receiver keeps this many media packets and FEC packets to recover from.
 RX_MEDIA_KEPT = 512
@@ -79,6 +74,7 @@ RX_FEC_KEPT = 64
 # (pylibsrtp: 1356 bytes) and a 1500-byte path; libwebrtc makes the same room.
 MEDIA_PAYLOAD_MAX = 1200
 RTP_MAX = 1356
+PADDING = b"\x00\x00\x00\x04"  # four octets of padding, the last one saying so
 
 Send = Callable[[bytes], Awaitable[None]]
 
@@ -228,11 +224,12 @@ class FecCounts:
     media_bytes: int = 0
     fec_packets: int = 0
     fec_bytes: int = 0
-    fec_resent: int = 0
+    fec_padded: int = 0  # NACKed FEC numbers answered with padding
     retransmits: int = 0
     retransmits_unmapped: int = 0  # aiortc resent a packet we no longer map
     dropped_on_purpose: int = 0  # (``drop``: the tests' injected loss)
     too_long: int = 0  # FEC packets not sent: longer than SRTP takes
+    unreadable: int = 0  # media sent unprotected: a header this could not read
 
     def as_dict(self) -> dict[str, float | int]:
         total = self.media_bytes + self.fec_bytes
@@ -241,7 +238,7 @@ class FecCounts:
             "fec_packets": self.fec_packets,
             "fec_bytes": self.fec_bytes,
             "overhead": self.fec_bytes / total if total else 0.0,
-            "fec_resent": self.fec_resent,
+            "fec_padded": self.fec_padded,
             "retransmits": self.retransmits,
             # (each packet lost on purpose counts again for each resend refused)
             "dropped_on_purpose": self.dropped_on_purpose,
@@ -277,11 +274,11 @@ class FecSender:
         self._last_theirs: int | None = None  # aiortc's newest
         self._to_sent: OrderedDict[int, int] = OrderedDict()  # aiortc's → ours
         self._from_sent: OrderedDict[int, int] = OrderedDict()  # ours → aiortc's
-        self._fec_sent: OrderedDict[int, bytes] = OrderedDict()  # ours → the FEC packet
-        self._fec_resends: dict[int, int] = {}  # ours → times resent
+        # ours → the media's payload type, timestamp and SSRC, for FEC numbers
+        self._fec_numbers: OrderedDict[int, bytes] = OrderedDict()
         self._dropped: set[int] = set()
         self._group: list[bytes] = []
-        self._pending: list[tuple[bytes, bytes]] = []  # FEC made, for the frame's end
+        self._pending: list[tuple[bytes, bytes]] = []  # (header, FEC) for the frame's end
         self._group_frames = 0
         self.counts = FecCounts()
 
@@ -314,18 +311,18 @@ class FecSender:
         """A NACK's numbers (ours) → (aiortc's numbers of the media among them, our
         numbers of the FEC packets among them)."""
         media = [self._from_sent[s] for s in seqs if s in self._from_sent]
-        fec = [s for s in seqs if s in self._fec_sent]
+        fec = [s for s in seqs if s in self._fec_numbers]
         return media, fec
 
-    async def resend_fec(self, seqs: list[int]) -> None:
+    async def pad_fec(self, seqs: list[int]) -> None:
+        """Answer NACKed FEC numbers with padding-only packets (RFC 3550's P bit, the
+        media's payload type, no payload): the receiver counts the number as come."""
         for s in seqs:
-            packet = self._fec_sent.get(s)
-            resent = self._fec_resends.get(s, 0)
-            if packet is not None and resent < MAX_FEC_RESENDS:
-                self._fec_resends[s] = resent + 1
-                self.counts.fec_resent += 1
-                self.counts.fec_bytes += len(packet)
-                await self._send(packet)
+            head = self._fec_numbers.get(s)
+            if head is None:
+                continue
+            self.counts.fec_padded += 1
+            await self._send(bytes([0xA0, head[0]]) + s.to_bytes(2, "big") + head[1:] + PADDING)
 
     async def __call__(self, data: bytes) -> None:
         if is_rtcp(data) or len(data) < 12:
@@ -346,12 +343,20 @@ class FecSender:
         share = self._share()
         self.counts.media_packets += 1
         self.counts.media_bytes += len(packet)
+        end_of_frame = bool(packet[1] & 0x80)
         if share <= 0.0 and not self._group:
             await self._out(packet, packet, ours)
+            if end_of_frame and self._pending:
+                await self._send_fec()
             return
-        await self._out(red_wrap(packet, self.red_pt), packet, ours)
+        try:
+            wrapped = red_wrap(packet, self.red_pt)
+        except ValueError:  # a header this cannot read (two-byte extensions): as it is
+            self.counts.unreadable += 1
+            await self._out(packet, packet, ours)
+            return
+        await self._out(wrapped, packet, ours)
         self._group.append(packet)
-        end_of_frame = bool(packet[1] & 0x80)
         self._group_frames += end_of_frame
         full = len(self._group) >= MAX_PROTECTED
         if full or (
@@ -372,23 +377,19 @@ class FecSender:
         for j in range(count):
             # Interleaved: packet i in FEC i mod count, so a burst of ``count`` losses
             # in a row is still rebuilt (each in its own FEC packet).
-            self._pending.append((last[0:1] + last[4:at], ulpfec_payload(group[j::count])))
+            self._pending.append((last[:at], ulpfec_payload(group[j::count])))
 
     async def _send_fec(self) -> None:
         pending, self._pending = self._pending, []
-        for head, fec in pending:
+        for head, fec in pending:  # (the header of the group's last media packet)
             ours = self._take_seq()
             self._remember(self._sent_at, ours, self._clock())
-            header = head[:1] + bytes([self.red_pt]) + ours.to_bytes(2, "big") + head[1:]
+            header = head[:1] + bytes([self.red_pt]) + ours.to_bytes(2, "big") + head[4:]
             packet = header + bytes([self.ulpfec_pt]) + fec
             if len(packet) > RTP_MAX:  # (media longer than MEDIA_PAYLOAD_MAX: unprotected)
                 self.counts.too_long += 1
                 continue
-            self._remember(self._fec_sent, ours, packet, SENT_FEC_HISTORY)
-            self._fec_resends.pop(ours, None)
-            if len(self._fec_resends) > SENT_FEC_HISTORY:
-                sent = self._fec_sent
-                self._fec_resends = {k: v for k, v in self._fec_resends.items() if k in sent}
+            self._remember(self._fec_numbers, ours, bytes([head[1] & 0x7F]) + head[4:12])
             self.counts.fec_packets += 1
             self.counts.fec_bytes += len(packet)
             await self._send(packet)

@@ -122,7 +122,16 @@ QUEUED_NO_FEC_S = 0.1
 # 0.7-3.8 s with a pause of a second at a time).
 QUEUED_SECONDS = 2
 FEC_PAUSE_S = 15.0
+# A second in which the viewer NACKed this share of the packets was a cut link: the
+# backlog after it (resends, the forces held up) is not a queue of FEC's making, and is
+# not judged for CUT_SETTLE_S (on `mobile` it paused FEC for the rest of a run).
+CUT_LOSS = 0.5
+CUT_SETTLE_S = 5.0
 NACK_RTTS_KEPT = 16
+NACK_RTT_FRESH_S = 10.0  # a NACK's round trip says how the link is for this long
+# A key frame sent for NACKs replaces the packets before it for this long: a receiver
+# asks again for a gap for up to 10 round trips (libwebrtc), a few seconds.
+KEYFRAME_COVERS_S = 5.0
 FLOOR_DRIFT = 0.01  # s per s
 FEC_MODES = ("auto", "off", "on")
 
@@ -168,6 +177,7 @@ class ViewerLink:
     # where each had cost a key frame (every 0.5 s for 4 s after a 1.5 s cut on
     # `mobile`, each queueing the link for ~250 ms).
     keyframe_covers_through: int | None = None
+    keyframe_covers_at: float = 0.0  # (monotonic) when: it holds KEYFRAME_COVERS_S
     nacks_superseded: int = 0
     # Packets a NACK asked for that were not resent: the key frame it brought (or the
     # one on its way) replaces them.
@@ -176,27 +186,37 @@ class ViewerLink:
     # The NACKs' own round trips (fec.FecSender.feedback_s: the queue included), the
     # newest few, and their floor (the link without a queue), which drifts up by
     # FLOOR_DRIFT so that a link whose delay grew for good is followed.
-    nack_rtts: deque[float] = field(default_factory=lambda: deque(maxlen=NACK_RTTS_KEPT))
+    nack_rtts: deque[tuple[float, float]] = field(  # (when, round trip)
+        default_factory=lambda: deque(maxlen=NACK_RTTS_KEPT)
+    )
     nack_rtt_floor_s: float | None = None
     nack_rtt_floor_at: float = 0.0
 
     def nack_rtt(self, rtt: float, now: float) -> None:
-        self.nack_rtts.append(rtt)
+        self.nack_rtts.append((now, rtt))
         floor = self.nack_rtt_floor_s
         if floor is not None:
             floor += (now - self.nack_rtt_floor_at) * FLOOR_DRIFT
         self.nack_rtt_floor_s = rtt if floor is None else min(floor, rtt)
         self.nack_rtt_floor_at = now
 
-    def queued_s(self) -> float | None:
-        """How much longer the recent NACKs took than the floor: the link's queue."""
-        if not self.nack_rtts or self.nack_rtt_floor_s is None:
-            return None
-        return statistics.median(self.nack_rtts) - self.nack_rtt_floor_s
+    def fresh_rtt(self, now: float) -> float | None:
+        """The median round trip of the NACKs of the last NACK_RTT_FRESH_S."""
+        fresh = [rtt for at, rtt in self.nack_rtts if now - at <= NACK_RTT_FRESH_S]
+        return statistics.median(fresh) if fresh else None
 
-    def repair_s(self) -> float | None:
+    def queued_s(self, now: float) -> float | None:
+        """How much longer the recent NACKs took than the floor: the link's queue (None
+        without a recent NACK: a clean link says nothing of its queue)."""
+        rtt = self.fresh_rtt(now)
+        if rtt is None or self.nack_rtt_floor_s is None:
+            return None
+        return rtt - self.nack_rtt_floor_s
+
+    def repair_s(self, now: float) -> float | None:
         """What a repair takes now: the recent NACKs' round trip (else the reports')."""
-        return statistics.median(self.nack_rtts) if self.nack_rtts else self.rtt_s
+        rtt = self.fresh_rtt(now)
+        return self.rtt_s if rtt is None else rtt
 
     # Media packets NACKed (each once): the loss before any repair, which receiver
     # reports hide (a resent packet counts as received in them).
@@ -211,7 +231,8 @@ class ViewerLink:
         while len(self.nacked_recent) > NACKED_KEPT:
             del self.nacked_recent[next(iter(self.nacked_recent))]
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self, now: float | None = None) -> dict[str, Any]:
+        now = time.monotonic() if now is None else now
         return {
             "estimated_kbps": None if self.estimated_bps is None else self.estimated_bps / 1000,
             "loss": self.fraction_lost,
@@ -223,8 +244,8 @@ class ViewerLink:
             "resends_spared": self.resends_spared,
             "jitter_ms": None if self.jitter_s is None else self.jitter_s * 1000,
             "packets_nacked": self.nacked,
-            "nack_rtt_ms": None if not self.nack_rtts else statistics.median(self.nack_rtts) * 1000,
-            "queued_ms": None if (q := self.queued_s()) is None else q * 1000,
+            "nack_rtt_ms": None if (r := self.fresh_rtt(now)) is None else r * 1000,
+            "queued_ms": None if (q := self.queued_s(now)) is None else q * 1000,
         }
 
 
@@ -260,7 +281,7 @@ def follow_link(
         if protection is not None:
             rtt = protection.feedback_s(packet.lost)
             if rtt is not None:
-                link.nack_rtt(rtt, protection.now())
+                link.nack_rtt(rtt, time.monotonic())
             media, fec_seqs = protection.nacked(packet.lost)
             packet = RtcpRtpfbPacket(
                 fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
@@ -277,6 +298,11 @@ def follow_link(
         # history's worth, FEC's too) took the link for a second and the key frame
         # waited. The key frame's own packets, and any after it, are.
         history = getattr(sender, "_RTCRtpSender__rtp_history", None)
+        now = time.monotonic()
+        if now - link.keyframe_covers_at > KEYFRAME_COVERS_S:
+            # The key frame went out long ago (and a 16-bit number compared with one
+            # far back would read as older half the time): forget it
+            link.keyframe_covers_through = None
         gone = []
         if history is not None:
             gone = [
@@ -290,6 +316,7 @@ def follow_link(
             elif gone:
                 link.nacks_unservable += len(gone)
                 link.keyframe_covers_through = newest_sent(history)
+                link.keyframe_covers_at = now
                 sender._send_keyframe()
         covered = link.keyframe_covers_through
         if covered is not None:
@@ -302,10 +329,10 @@ def follow_link(
                 fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
             )
             fec_seqs = later_fec
-        if protection is not None:
-            await protection.resend_fec(fec_seqs)
         if packet.lost:
-            await handle(packet)
+            await handle(packet)  # the media first: the repairs the viewer waits for
+        if protection is not None:
+            await protection.pad_fec(fec_seqs)
 
     async def on_rtcp(packet: Any) -> None:
         if isinstance(packet, RtcpRtpfbPacket) and packet.fmt == RTCP_RTPFB_NACK:
@@ -350,6 +377,7 @@ class Peer:
     fec_paused: int = 0  # seconds protection paused: the link's queue was building
     fec_paused_until: float = 0.0
     queued_seconds: int = 0  # seconds in a row the link was seen queuing
+    cut_at: float | None = None  # when its link was last seen cut
 
     def owned_by(self, secret: str | None) -> bool:
         return token_matches(secret, self.secret)
@@ -616,13 +644,16 @@ class VideoPipeline:
                 continue
             peer.counted = (sent, nacked)
             peer.losses.append(min(1.0, d_nacked / d_sent))
+            if peer.losses[-1] >= CUT_LOSS:
+                peer.cut_at = self.clock.now()
             peer.loss = statistics.median(peer.losses)
-            queued = peer.link.queued_s()
+            queued = peer.link.queued_s(self.clock.now())
             if self.settings.fec == "on":
                 peer.fec_share = ulpfec.MAX_SHARE
             if self.settings.fec != "auto":
                 continue
-            queuing = queued is not None and queued > QUEUED_NO_FEC_S
+            settled = peer.cut_at is None or self.clock.now() - peer.cut_at > CUT_SETTLE_S
+            queuing = settled and queued is not None and queued > QUEUED_NO_FEC_S
             peer.queued_seconds = peer.queued_seconds + 1 if queuing else 0
             if peer.queued_seconds >= QUEUED_SECONDS:
                 peer.fec_paused_until = self.clock.now() + FEC_PAUSE_S
@@ -637,7 +668,7 @@ class VideoPipeline:
         jitter) plus the frame interval in which it saw the gap."""
         if not self.settings.adaptive_playout or not self.settings.zero_playout_delay:
             return
-        rtt = peer.link.repair_s()
+        rtt = peer.link.repair_s(self.clock.now())
         if rtt is None:
             return
         repair = rtt + 2 * (peer.link.jitter_s or 0.0) + 1.0 / self.settings.fps

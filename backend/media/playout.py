@@ -120,6 +120,7 @@ class AdaptivePlayout:
         self.delay_ms = 0.0
         self.repairs = 0
         self._needs: deque[tuple[float, float]] = deque(maxlen=MAX_REPAIRS_KEPT)
+        self._target = 0.0  # the most of ``_needs`` (kept: asked for at every packet)
         self._at: float | None = None
 
     def repair(self, now: float, repair_s: float) -> None:
@@ -128,13 +129,16 @@ class AdaptivePlayout:
         self.repairs += 1
         need = min(self.max_ms, max(0.0, (repair_s - TOLERANCE_S) * 1000))
         self._needs.append((now, need))
+        self._target = max(self._target, need)
         self.delay_ms = max(self.delay_ms, need)
 
     def current(self, now: float) -> int:
         """The delay now (call it now and then: the shrinking is by the time since)."""
-        while self._needs and now - self._needs[0][0] > HOLD_S:
-            self._needs.popleft()
-        target = max((need for _, need in self._needs), default=0.0)
+        if self._needs and now - self._needs[0][0] > HOLD_S:
+            while self._needs and now - self._needs[0][0] > HOLD_S:
+                self._needs.popleft()
+            self._target = max((need for _, need in self._needs), default=0.0)
+        target = self._target
         since = 0.0 if self._at is None else max(0.0, now - self._at)
         self._at = now
         if target >= self.delay_ms:
