@@ -25,6 +25,7 @@ from typing import Any
 
 from telerobot.server.media import fec, playout
 from telerobot.server.media.rtp_extensions import block
+from telerobot.server.telemetry.stats import DriftingFloor
 
 # The transit floor rises this fast (s per s) when no frame is as fast: a link whose
 # delay grew is followed within seconds (libwebrtc's timestamp extrapolator does the
@@ -90,19 +91,12 @@ class Playout:
     """When to show each decoded frame: ``show_at(now, rtp_seconds, delay_s)``."""
 
     def __init__(self) -> None:
-        self._floor: float | None = None
-        self._floor_at = 0.0
+        self._floor = DriftingFloor(FLOOR_DRIFT)
         self.delay_s = 0.0  # the current delay
         self._rtp_s: float | None = None
 
     def show_at(self, now: float, rtp_s: float, delay_s: float) -> float:
-        transit = now - rtp_s
-        floor = self._floor
-        if floor is not None:
-            floor += (now - self._floor_at) * FLOOR_DRIFT
-        if floor is None or transit < floor:
-            floor = transit
-        self._floor, self._floor_at = floor, now
+        floor = self._floor.update(now - rtp_s, now)
         step = 0.0 if self._rtp_s is None else max(0.0, rtp_s - self._rtp_s) * DELAY_CHANGE_PER_S
         self._rtp_s = rtp_s
         self.delay_s += max(-step, min(step, delay_s - self.delay_s))

@@ -296,7 +296,7 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
         return float(peer.fec_share)
 
     assert second(100, 0) == 0.0  # clean: no FEC
-    second(100, 2)
+    assert second(100, 2) == 0.0  # two seconds known: not yet (FEC_AFTER_S)
     assert second(100, 2) == pytest.approx(fec.protection_share(0.02, False))
     # A cut (every packet of a second NACKed) is one second of five: the median stays
     assert second(100, 100) == pytest.approx(fec.protection_share(0.02, True))

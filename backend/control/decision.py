@@ -50,7 +50,7 @@ from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, Rel
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.slave_port import SlavePort
 from telerobot.server.security import token_matches
-from telerobot.server.telemetry.stats import StreamTally
+from telerobot.server.telemetry.stats import DriftingFloor, StreamTally
 
 log = logging.getLogger(__name__)
 
@@ -133,8 +133,7 @@ class Client:
     streaming: bool = False
     # The least (server receive time − client_time) seen: a command's transit time
     # beyond it is how long it waited on the way (a stalled link's backlog).
-    transit_floor: float | None = None
-    transit_floor_at: float = 0.0
+    transit_floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(TRANSIT_DRIFT))
     transit_avg: float | None = None  # the usual transit, on our clock (synced clients)
     source: str = "ws"  # where it joined: ws, priority, rest, task (the recording says)
     # Its client_time is on our clock (it syncs with PING): its commands' age is known.
@@ -982,13 +981,7 @@ class DecisionServer:
         if client_time is None or not math.isfinite(client_time):
             return
         transit = now - client_time
-        floor = client.transit_floor
-        if floor is not None:
-            floor += (now - client.transit_floor_at) * TRANSIT_DRIFT
-        if floor is None or transit < floor:
-            floor = transit
-        client.transit_floor, client.transit_floor_at = floor, now
-        waited = transit - floor
+        waited = transit - client.transit_floor.update(transit, now)
         if waited > self.limits.deadman_timeout_s:
             raise SafetyStop(
                 f"stale command: it waited {waited * 1000:.0f} ms on the way (longer than "

@@ -63,7 +63,7 @@ from telerobot.server.media.playout import AdaptivePlayout, stamp_playout_delay
 from telerobot.server.media.playout import allow as allow_playout_delay
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.security import token_matches
-from telerobot.server.telemetry.stats import InterArrival, StreamStats
+from telerobot.server.telemetry.stats import DriftingFloor, InterArrival, StreamStats
 
 log = logging.getLogger(__name__)
 
@@ -121,6 +121,10 @@ QUEUED_NO_FEC_S = 0.1
 # build again as soon as it resumed (on `bad` the forces' p99 went from ~0.3 s to
 # 0.7-3.8 s with a pause of a second at a time).
 QUEUED_SECONDS = 2
+# A new viewer's FEC waits this many seconds of its link's figures (the queue is judged
+# from its NACKs): on `bad` FEC from the first second, with the first key frames, filled
+# the link's 1000-packet queue (5 s) before the queue could be seen.
+FEC_AFTER_S = 3
 FEC_PAUSE_S = 15.0
 # A second in which the viewer NACKed this share of the packets was a cut link: the
 # backlog after it (resends, the forces held up) is not a queue of FEC's making, and is
@@ -189,16 +193,11 @@ class ViewerLink:
     nack_rtts: deque[tuple[float, float]] = field(  # (when, round trip)
         default_factory=lambda: deque(maxlen=NACK_RTTS_KEPT)
     )
-    nack_rtt_floor_s: float | None = None
-    nack_rtt_floor_at: float = 0.0
+    nack_rtt_floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
 
     def nack_rtt(self, rtt: float, now: float) -> None:
         self.nack_rtts.append((now, rtt))
-        floor = self.nack_rtt_floor_s
-        if floor is not None:
-            floor += (now - self.nack_rtt_floor_at) * FLOOR_DRIFT
-        self.nack_rtt_floor_s = rtt if floor is None else min(floor, rtt)
-        self.nack_rtt_floor_at = now
+        self.nack_rtt_floor.update(rtt, now)
 
     def fresh_rtt(self, now: float) -> float | None:
         """The median round trip of the NACKs of the last NACK_RTT_FRESH_S."""
@@ -209,9 +208,9 @@ class ViewerLink:
         """How much longer the recent NACKs took than the floor: the link's queue (None
         without a recent NACK: a clean link says nothing of its queue)."""
         rtt = self.fresh_rtt(now)
-        if rtt is None or self.nack_rtt_floor_s is None:
+        if rtt is None or self.nack_rtt_floor.value is None:
             return None
-        return rtt - self.nack_rtt_floor_s
+        return rtt - self.nack_rtt_floor.value
 
     def repair_s(self, now: float) -> float | None:
         """What a repair takes now: the recent NACKs' round trip (else the reports')."""
@@ -660,7 +659,7 @@ class VideoPipeline:
             if self.clock.now() < peer.fec_paused_until:
                 peer.fec_share = 0.0
                 peer.fec_paused += 1
-            else:
+            elif len(peer.losses) >= FEC_AFTER_S:
                 peer.fec_share = ulpfec.protection_share(peer.loss, peer.fec_share > 0)
 
     def _repair_asked(self, peer: Peer) -> None:

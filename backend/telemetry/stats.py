@@ -27,6 +27,27 @@ class Summary:
     histogram_counts: list[int]
 
 
+@dataclass
+class DriftingFloor:
+    """The least of a stream of values (a transit time, a round trip) that rises by
+    ``drift`` per second of ``now`` since it was last lowered: a delay that grew for good
+    is followed, a short dip does not stay the floor for ever."""
+
+    drift: float
+    value: float | None = None
+    at: float = 0.0
+
+    def update(self, x: float, now: float) -> float:
+        """The floor with ``x`` seen at ``now``."""
+        floor = self.value
+        if floor is not None:
+            floor += (now - self.at) * self.drift
+        if floor is None or x < floor:
+            floor = x
+        self.value, self.at = floor, now
+        return floor
+
+
 class StreamStats:
     def __init__(self, name: str, unit: str = "ms", capacity: int = 10_000) -> None:
         self.name = name
