@@ -10,10 +10,19 @@ profile the link is measured (bench.netem.measure_link, probes spaced wider than
 jitter), then three client processes run in the client namespace at once:
 
 * **viewer**: an aiortc peer that decodes every frame and reads the capture time from
-  the picture's timecode (drivers/camera/timecode): fps, capture → decoded p50/p99
-  (aiortc releases a frame when the next one's first packet arrives, so this includes
-  up to one frame interval a browser would not wait), frozen share (the time inside
-  gaps of > 200 ms without a new frame, whole gaps counted), the longest gap.
+  the picture's timecode (drivers/camera/timecode), made to receive as libwebrtc's
+  receiver does (bench/wan_receiver.py): RED and ULPFEC undone and lost packets
+  rebuilt, a key frame after a gap decoded at once, NACKs for up to 1000 packets
+  (``BENCH_WAN_NACK_LIST``), each frame shown on the playout delay the server stamps
+  (its time on the fastest frames' schedule plus that delay; the current delay moves
+  100 ms a second, as libwebrtc's). Figures at the frame's *shown* time: fps,
+  capture → shown p50/p99 (``latency_p50_ms``; ``decoded_latency_p50_ms`` before the
+  playout delay; aiortc releases a frame when the next one's first packet arrives, so
+  both include up to one frame interval a browser would not wait), frozen share (the
+  time inside gaps of > 200 ms without a new frame, whole gaps counted), the longest
+  gap, ``playout_delay_ms`` (p50, max over the frames), ``fec_overhead`` (the share of
+  the video's bytes to this viewer that were FEC, from the server's figures),
+  ``fec_recovered`` (packets the viewer rebuilt).
   ``layer_switches`` comes from the per-viewer entries of GET /api/v1/video: a
   switch counter if the server has one, else the changes of the viewer's ``layer``
   polled once a second; ``layer_switches_source`` says which (and 0 if neither).
