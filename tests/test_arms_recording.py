@@ -216,7 +216,9 @@ def test_the_export_is_lerobots_bimanual_so_follower(taught: Taught) -> None:
     for k, arm in enumerate(ARMS):
         joints = np.array(last[f"/arms/{arm}/state"]["joints"])  # at rest at the end
         cols = slice(6 * k, 6 * k + 6)
-        assert state[-1, cols] == pytest.approx(units.to_lerobot(joints), abs=1e-2), arm
+        # (0.1°: the export samples at its frame rate, and an arm READY may still creep by
+        # hundredths of a degree in the last frame's 33 ms; a quiet run saw 0.016°)
+        assert state[-1, cols] == pytest.approx(units.to_lerobot(joints), abs=0.1), arm
         assert action[-1, cols] == pytest.approx(units.to_lerobot(joints), abs=0.2), arm
         assert np.ptp(state[:, cols], axis=0).max() > 1.0, f"{arm}'s joints never moved"
         assert pose[-1, 12 * k : 12 * k + 3] == pytest.approx(taught.end[arm], abs=2e-3)
