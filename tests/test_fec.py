@@ -15,7 +15,7 @@ from aiortc import RTCPeerConnection, RTCSessionDescription
 from aiortc.rtp import RTCP_RTPFB_NACK, RtcpRtpfbPacket
 
 from bench import wan_receiver
-from telerobot.server.media import fec
+from telerobot.server.media import fec, playout
 from telerobot.server.media.pipeline import VideoPipeline, VideoSettings, ViewerLink, follow_link
 from tests.support.video import SMALL, camera
 
@@ -333,3 +333,26 @@ async def test_a_frame_longer_than_a_group_gets_its_fec_after_its_last_packet() 
         if i not in (3, 50):  # one lost in each group
             receiver.receive(data)
     assert receiver.counts.recovered == 2
+
+
+async def test_what_a_viewer_s_nacks_can_grow_is_bounded() -> None:
+    # A viewer (or anyone with a peer) may NACK any number it likes, as often as it likes
+    from telerobot.server.media import pipeline as media
+
+    wire = Wire()
+    sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
+    for p in _stream(12, first_seq=0):
+        await sender(p)
+    link = ViewerLink()
+    for start in range(0, 65536, 512):
+        seqs = list(range(start, start + 512))
+        sender.feedback_s(seqs)
+        link.count_nacked(seqs)
+        link.nack_rtt(0.1, float(start))
+    assert len(sender._asked) == fec.SEQ_MAP_SIZE
+    assert len(link.nacked_recent) == media.NACKED_KEPT and link.nacked == 65536
+    assert len(link.nack_rtts) == media.NACK_RTTS_KEPT
+    delay = playout.AdaptivePlayout()
+    for i in range(1000):
+        delay.repair(float(i) / 1000, 0.3)
+    assert len(delay._needs) == playout.MAX_REPAIRS_KEPT
