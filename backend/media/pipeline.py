@@ -322,8 +322,9 @@ def follow_link(
             media = [s for s in packet.lost if seq_newer(s, covered)]
             wire = None if protection is None else protection.to_sent(covered)
             later_fec = [s for s in fec_seqs if wire is None or seq_newer(s, wire)]
-            link.resends_spared += len(packet.lost) - len(media) - len(gone) + len(fec_seqs)
-            link.resends_spared -= len(later_fec)
+            # What the key frame replaces and could have been resent (not the gone ones)
+            spared_media = len(packet.lost) - len(gone) - len(media)
+            link.resends_spared += spared_media + len(fec_seqs) - len(later_fec)
             packet = RtcpRtpfbPacket(
                 fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
             )
