@@ -43,19 +43,16 @@ test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps lint typech
 LEROBOT_VERSION := 0.6.1
 LEROBOT_VENV ?= $(HOME)/.cache/telerobot/lerobot-$(LEROBOT_VERSION)
 LEROBOT_PY := $(LEROBOT_VENV)/bin/python
-PYTHON312 ?= $(shell command -v python3.12 2>/dev/null || ls -d $(HOME)/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | tail -1)
+# The interpreter is found by tools/find-python312, which runs each candidate: pyenv's
+# `python3.12` shim is on PATH but refuses while 3.12 is not a selected version.
+# PYTHON312=/path/to/python3.12 picks one by hand.
 
 # [feetech]: LeRobot's own SO-101 leader, on Telerobot's emulated servo bus, in the tests
-LEROBOT_SPEC := lerobot[dataset,feetech]==$(LEROBOT_VERSION)
-lerobot-deps: $(LEROBOT_VENV)/.installed-dataset-feetech
-
-$(LEROBOT_VENV)/.installed-dataset-feetech:
-	@test -n "$(PYTHON312)" || { echo "LeRobot needs Python 3.12: install python3.12 (or pyenv install 3.12)"; exit 1; }
-	@echo "installing $(LEROBOT_SPEC) into $(LEROBOT_VENV) (once: torch and all, ~5 GB the first time)"
-	@test -x $(LEROBOT_PY) || $(PYTHON312) -m venv $(LEROBOT_VENV)
-	$(LEROBOT_PY) -m pip install --quiet --upgrade pip
-	$(LEROBOT_PY) -m pip install --quiet '$(LEROBOT_SPEC)' pytest pytest-timeout httpx aiortc setuptools
-	@touch $@
+LEROBOT_SPEC := lerobot[dataset,feetech]==$(LEROBOT_VERSION) pytest pytest-timeout httpx aiortc setuptools
+# Checked on every run (cheap): the stamp holds the spec and the interpreter it was made
+# with, so a changed spec or a venv whose Python no longer runs installs again.
+lerobot-deps:
+	@LEROBOT_VENV='$(LEROBOT_VENV)' LEROBOT_SPEC='$(LEROBOT_SPEC)' PYTHON312='$(PYTHON312)' tools/lerobot-venv
 
 ## make lerobot-test: the LeRobot plugins in LeRobot's own command lines, against a real server
 # The plugins are installed anew from this checkout each time (LeRobot finds plugins by

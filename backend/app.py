@@ -22,6 +22,7 @@ from telerobot.server.api import (
     export,
     force,
     health,
+    policy_tokens,
     recording_review,
     recordings,
     robot,
@@ -127,7 +128,7 @@ def create_app(
     api = APIRouter(prefix="/api/v1")
     for module in (
         health, robot, control, force, telemetry, video, workcell, calibration, viewer, recordings,
-        recording_review, export, tasks,
+        recording_review, export, tasks, policy_tokens,
     ):  # fmt: skip
         api.include_router(module.router)
     app.include_router(api)

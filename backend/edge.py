@@ -29,7 +29,7 @@ from typing import Any
 from fastapi import FastAPI
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from telerobot.server.api.deps import OPERATOR_SCHEME
+from telerobot.server.api.deps import OPERATOR_SCHEME, POLICY_SCHEME
 from telerobot.server.errors import problem
 from telerobot.server.security import bearer, origin_allowed, token_matches
 
@@ -59,20 +59,30 @@ class RouteRule:
     pattern: re.Pattern[str]
     operator_methods: frozenset[str]
     body_limit: int
+    # Of those, the methods a policy token may use too (the lease, moves).
+    policy_methods: frozenset[str] = frozenset()
 
 
 def route_rules(schema: dict[str, Any]) -> list[RouteRule]:
     rules = []
     for path, operations in schema.get("paths", {}).items():
         regex = re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(path))
-        operator = frozenset(
-            method.upper()
-            for method, op in operations.items()
-            if isinstance(op, dict)
-            and any(OPERATOR_SCHEME in requirement for requirement in op.get("security", ()))
-        )
+
+        def needing(scheme: str, operations: dict[str, Any] = operations) -> frozenset[str]:
+            return frozenset(
+                method.upper()
+                for method, op in operations.items()
+                if isinstance(op, dict)
+                and any(scheme in requirement for requirement in op.get("security", ()))
+            )
+
         rules.append(
-            RouteRule(re.compile(f"^{regex}$"), operator, BODY_LIMITS.get(path, DEFAULT_BODY_LIMIT))
+            RouteRule(
+                re.compile(f"^{regex}$"),
+                needing(OPERATOR_SCHEME),
+                BODY_LIMITS.get(path, DEFAULT_BODY_LIMIT),
+                needing(POLICY_SCHEME),
+            )
         )
     return rules
 
@@ -98,12 +108,14 @@ class Edge:
         allowed_hosts: Iterable[str],
         allowed_origins: Iterable[str],
         check_token: Callable[[str | None], bool],
+        check_policy_token: Callable[[str | None], bool] = lambda _: False,
     ) -> None:
         self.app = app
         self.fastapi = fastapi
         self.allowed_hosts = {h.lower() for h in allowed_hosts}
         self.allowed_origins = list(allowed_origins)
         self.check_token = check_token
+        self.check_policy_token = check_policy_token
         self._rules: list[RouteRule] | None = None
 
     # ------------------------------------------------------------ helpers
@@ -182,13 +194,16 @@ class Edge:
         rule = self._rule(scope["path"])
         if rule is not None and scope["method"] in rule.operator_methods:
             token = bearer(headers.get(b"authorization", b"").decode("latin-1"))
-            if not self.check_token(token):
+            policy_may = scope["method"] in rule.policy_methods
+            if not self.check_token(token) and not (policy_may and self.check_policy_token(token)):
                 await self._refuse(
                     scope,
                     send,
                     403,
                     "not_allowed",
-                    "this needs the operator token: send 'Authorization: Bearer <token>'",
+                    "a policy token cannot do this: it needs a person's operator token"
+                    if self.check_policy_token(token)
+                    else "this needs the operator token: send 'Authorization: Bearer <token>'",
                 )
                 return
         limit = rule.body_limit if rule is not None else DEFAULT_BODY_LIMIT
@@ -263,4 +278,11 @@ def install_edge(
         allowed_hosts=list(allowed_hosts),
         allowed_origins=allowed_origins,
         check_token=lambda candidate: token_matches(candidate, token),
+        check_policy_token=lambda candidate: _policy_token_matches(app, candidate),
     )
+
+
+def _policy_token_matches(app: FastAPI, candidate: str | None) -> bool:
+    """Whether ``candidate`` is an issued policy token (none before the services run)."""
+    services = getattr(app.state, "services", None)
+    return services is not None and services.decision.policy_tokens.match(candidate) is not None

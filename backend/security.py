@@ -28,7 +28,7 @@ def state_dir(settings: Settings) -> Path:
     return Path(base) / "telerobot"
 
 
-def _write_private(path: Path, data: bytes) -> None:
+def write_private(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "wb") as f:
@@ -45,8 +45,17 @@ def operator_token(settings: Settings) -> tuple[str, bool]:
         if len(token) >= 16:
             return token, False
     token = secrets.token_hex(16)
-    _write_private(path, token.encode() + b"\n")
+    write_private(path, token.encode() + b"\n")
     return token, True
+
+
+def policy_tokens_path(settings: Settings) -> Path | None:
+    """Where the issued policy tokens' digests are kept between starts: beside the operator
+    token when the server keeps it (none when the token is configured and no state folder
+    is: a test's or a configured server's tokens live as long as it runs)."""
+    if settings.operator_token and settings.state_dir is None:
+        return None
+    return state_dir(settings) / "policy-tokens.json"
 
 
 def token_matches(candidate: str | None, token: str) -> bool:
@@ -176,7 +185,7 @@ def ensure_certificate(settings: Settings) -> tuple[Path, Path]:
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .sign(key, hashes.SHA256())
     )
-    _write_private(
+    write_private(
         key_path,
         key.private_bytes(
             serialization.Encoding.PEM,
@@ -184,5 +193,5 @@ def ensure_certificate(settings: Settings) -> tuple[Path, Path]:
             serialization.NoEncryption(),
         ),
     )
-    _write_private(cert_path, cert.public_bytes(serialization.Encoding.PEM))
+    write_private(cert_path, cert.public_bytes(serialization.Encoding.PEM))
     return cert_path, key_path

@@ -29,6 +29,7 @@ from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import ReleaseTo
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import SafetyLimits
+from telerobot.server.control.policy_tokens import PolicyTokens
 from telerobot.server.devices import (
     ArmDevices,
     build_arms,
@@ -44,7 +45,7 @@ from telerobot.server.realtime.priority import PriorityChannel
 from telerobot.server.realtime.ratelimit import PeerLimits
 from telerobot.server.recording.recorder import Recorder, RecordingEvent, RecordingTaps, transform
 from telerobot.server.recording.video import VideoTap, follow_recorder
-from telerobot.server.security import state_dir
+from telerobot.server.security import policy_tokens_path, state_dir
 from telerobot.server.settings import Settings
 from telerobot.server.tasks.runner import TaskRunner
 from telerobot.server.telemetry.stats import Telemetry
@@ -216,6 +217,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         kinematics=make_kinematics(arms[0].settings),
         clock=clock,
         operator_token=token.value,
+        policy_tokens=PolicyTokens(policy_tokens_path(settings)),
         limits=safety_limits(arms[0].settings),
         force=force,
         arm_name=arms[0].name,

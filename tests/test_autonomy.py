@@ -1,6 +1,7 @@
-"""Supervised autonomy (telerobot/server/control/autonomy.py): a policy drives, an
-operator pauses, takes over and hands back; the e-stop, the force limit and a lapse
-pause it. The DecisionServer on the simulated PUMA in virtual time."""
+"""Supervised autonomy (telerobot/server/control/autonomy.py): a policy drives once a
+person lets it, an operator pauses, takes over and hands back; the e-stop, the force
+limit and a lapse pause it. The DecisionServer on the simulated PUMA in virtual time.
+The rule over generated sequences: tests/test_autonomy_rule.py."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from telerobot.drivers.clock import ManualClock
 from telerobot.server.control.autonomy import AutonomyState, Mode, ReleaseTo, Supervised
 from telerobot.server.control.decision import Client, DecisionServer, NotAllowed, SafetyStop
 from tests.support import TOKEN
-from tests.support.decision import RecordingPuma, make
+from tests.support.decision import RecordingPuma, join_policy, make, policy_let_drive
 
 STEP = np.array([0.01, 0, 0, 0, 0, 0])
 
@@ -31,17 +32,123 @@ async def policy_driving(
     ds, robot = await make(clock)
     said: list[AutonomyState] = []
     ds.events.autonomy_changed.subscribe(said.append)
-    policy = ds.join("act-policy", TOKEN, policy=True)
-    alice = ds.join("alice", TOKEN)
-    await ds.take_lease(policy.id)
+    policy, alice = await policy_let_drive(ds)
     await ds.joint_increment(policy.id, STEP)
     return ds, robot, policy, alice, said
 
 
-async def test_a_policy_needs_the_operator_token(clock: ManualClock) -> None:
+async def test_a_policy_needs_a_policy_token_and_the_operator_token_is_refused(
+    clock: ManualClock,
+) -> None:
     ds, _ = await make(clock)
-    with pytest.raises(NotAllowed, match="operator token"):
+    with pytest.raises(NotAllowed, match="needs a policy token"):
         ds.join("sneaky", None, policy=True)
+    with pytest.raises(NotAllowed, match="operator token cannot join as a policy.*policy-token"):
+        ds.join("act-policy", TOKEN, policy=True)
+    _, secret = ds.policy_tokens.issue("act")
+    with pytest.raises(NotAllowed, match="joins only as a policy"):
+        ds.join("act", secret)  # as a person: refused
+    token = ds.policy_tokens.list()[0]
+    policy = ds.join("act", secret, policy=True)
+    assert policy.policy and policy.policy_token == token.id
+    await ds.revoke_policy_token(token.id)
+    assert ds.known_client(policy.id) is None  # gone with its token
+    with pytest.raises(NotAllowed, match="not valid \\(revoked\\?\\)"):
+        ds.join("act", secret, policy=True)
+
+
+async def test_a_policy_token_can_only_drive(clock: ManualClock) -> None:
+    ds, _, policy, alice, _ = await policy_driving(clock)
+    await ds.estop(None, "e-stop pressed")
+    with pytest.raises(NotAllowed, match="only a person can reset"):
+        await ds.reset(policy.id)
+    for act in (ds.pause, ds.resume_policy):
+        with pytest.raises(NotAllowed, match="only an operator supervises"):
+            await act(policy.id)
+    with pytest.raises(NotAllowed):
+        ds.master_energy(policy.id, 0.0, 0.0)
+    await ds.reset(alice.id)
+    await ds.take_lease(alice.id)
+    with pytest.raises(NotAllowed, match="never takes it from anyone"):
+        await ds.take_lease(policy.id, force=True)
+    other = join_policy(ds, "other-policy")
+    await ds.release_lease(alice.id)  # back to the first policy
+    with pytest.raises(NotAllowed, match="never takes it from anyone"):
+        await ds.take_lease(other.id, force=True)  # nor from another policy
+
+
+async def test_a_policy_taking_control_waits_for_a_person(clock: ManualClock) -> None:
+    ds, robot = await make(clock)
+    policy = join_policy(ds)
+    alice = ds.join("alice", TOKEN)
+    await ds.take_lease(policy.id)
+    assert ds.autonomy.mode is Mode.PAUSED and "waits until a person" in ds.autonomy.cause
+    with pytest.raises(Supervised, match="resumes you"):
+        await ds.joint_increment(policy.id, STEP)
+    assert robot.sent == []
+    await ds.resume_policy(alice.id)
+    await ds.joint_increment(policy.id, STEP)
+    assert len(robot.sent) == 1
+
+
+async def test_path_1_a_hand_back_with_the_estop_latched_stays_paused_after_the_reset(
+    clock: ManualClock,
+) -> None:
+    """The page's own sequence: the dead-man takes over, Escape, let go (the page hands
+    back with the e-stop latched), then the operator resets the e-stop."""
+    ds, robot, policy, alice, _ = await policy_driving(clock)
+    await ds.take_lease(alice.id)
+    await ds.estop(alice.id, "e-stop pressed")
+    await ds.release_lease(alice.id)  # the page's hand-back, 0.6 s after letting go
+    assert ds.lease_holder == policy.id and ds.autonomy.mode is Mode.PAUSED
+    assert "e-stop latched" in ds.autonomy.cause
+    await ds.reset(alice.id)
+    sent = len(robot.sent)
+    await clock.advance(0.05)
+    with pytest.raises(Supervised):
+        await ds.joint_increment(policy.id, STEP)
+    assert len(robot.sent) == sent and ds.autonomy.mode is Mode.PAUSED
+    await ds.resume_policy(alice.id)  # a person's go
+    await ds.joint_increment(policy.id, STEP)
+
+
+async def test_path_2_a_policy_cannot_reset_the_estop_and_retaking_the_lease_stays_paused(
+    clock: ManualClock,
+) -> None:
+    ds, robot, policy, alice, _ = await policy_driving(clock)
+    await ds.estop(None, "e-stop pressed")
+    with pytest.raises(NotAllowed):
+        await ds.reset(policy.id)
+    await ds.reset(alice.id)
+    await ds.release_lease(policy.id)
+    await ds.take_lease(policy.id)
+    sent = len(robot.sent)
+    await clock.advance(0.05)
+    with pytest.raises(Supervised):
+        await ds.joint_increment(policy.id, STEP)
+    assert len(robot.sent) == sent and ds.autonomy.mode is Mode.PAUSED
+
+
+async def test_path_3_a_paused_policy_does_not_unpause_itself(clock: ManualClock) -> None:
+    ds, robot = await make(clock)
+    _, secret = ds.policy_tokens.issue("act-policy")
+    policy = ds.join("act-policy", secret, policy=True)
+    alice = ds.join("alice", TOKEN)
+    await ds.take_lease(policy.id)
+    await ds.resume_policy(alice.id)
+    await ds.pause(alice.id)
+    await ds.release_lease(policy.id)  # release and take again
+    await ds.take_lease(policy.id)
+    await clock.advance(0.05)
+    with pytest.raises(Supervised):
+        await ds.joint_increment(policy.id, STEP)
+    await ds.leave(policy.id)  # or reconnect: a restarted rollout, a crash-looping script
+    again = ds.join("act-policy", secret, policy=True)
+    await ds.take_lease(again.id)
+    await clock.advance(0.05)
+    with pytest.raises(Supervised):
+        await ds.joint_increment(again.id, STEP)
+    assert robot.sent == [] and ds.autonomy.mode is Mode.PAUSED
 
 
 async def test_the_operator_takes_over_without_force_and_the_policy_is_told(
@@ -131,9 +238,9 @@ async def test_the_force_limit_during_autonomy_pauses_it(clock: ManualClock) -> 
 async def test_a_policy_never_takes_control_from_a_person(clock: ManualClock) -> None:
     ds, _ = await make(clock)
     alice = ds.join("alice", TOKEN)
-    policy = ds.join("act-policy", TOKEN, policy=True)
+    policy = join_policy(ds)
     await ds.take_lease(alice.id)
-    with pytest.raises(NotAllowed, match="never takes it from a person"):
+    with pytest.raises(NotAllowed, match="never takes it from anyone"):
         await ds.take_lease(policy.id, force=True)
     assert ds.lease_holder == alice.id and ds.autonomy.mode is Mode.OFF
 
@@ -166,9 +273,7 @@ async def test_every_command_is_reported_with_who_drove_and_the_mode(
     ds, _robot = await make(clock)
     reports = []
     ds.events.command.subscribe(reports.append)
-    policy = ds.join("act-policy", TOKEN, policy=True)
-    alice = ds.join("alice", TOKEN)
-    await ds.take_lease(policy.id)
+    policy, alice = await policy_let_drive(ds)
     await ds.joint_increment(policy.id, STEP)
     await ds.take_lease(alice.id)
     with pytest.raises(Supervised):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import AsyncIterator
 from typing import Annotated
 
 import numpy as np
@@ -10,11 +12,18 @@ from pydantic import BaseModel, Field, field_validator
 
 from telerobot.drivers.base import StopCategory, WorkingFrame
 from telerobot.protocol.names import MAX_NAME, RULE, name_problem
-from telerobot.server.api.deps import ClientDep, DecisionDep, OperatorDep, SettingsDep
+from telerobot.server.api.deps import (
+    ClientDep,
+    DecisionDep,
+    DriverClientDep,
+    DriverDep,
+    OperatorDep,
+    SettingsDep,
+)
 from telerobot.server.api.requests import StrictRequest
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Mode
-from telerobot.server.control.decision import DecisionServer, NotAllowed
+from telerobot.server.control.decision import Client, DecisionServer, NotAllowed
 from telerobot.server.control.limits import full_speed_stop_s, stopping
 from telerobot.server.telemetry.stats import StreamTally
 
@@ -39,8 +48,9 @@ class LeaseRequest(StrictRequest):
     force: bool = Field(False, description="take control even if another client holds it")
     policy: bool = Field(
         False,
-        description="this client is a learned policy: it drives under supervision, and"
-        " any operator takes control from it at will (GET /autonomy)",
+        description="this client is a learned policy (send a policy token, not the operator"
+        " token): it drives under supervision once a person lets it, and any operator takes"
+        " control from it at will (GET /autonomy)",
     )
     idle_timeout_s: float = Field(
         REST_LEASE_IDLE_S,
@@ -256,7 +266,7 @@ async def take_lease(
     body: LeaseRequest,
     decision: DecisionDep,
     settings: SettingsDep,
-    token: OperatorDep,
+    token: DriverDep,
     x_client_id: Annotated[str | None, Header()] = None,
 ) -> LeaseGranted:
     """Take control (the operator token is required). Between absolute moves the lease
@@ -265,6 +275,9 @@ async def take_lease(
     waiting with ``wait`` counts as alive. Release it with ``DELETE /lease`` when done.
     A script run again (the same ``name`` from the same address) takes its earlier
     run's lease while that is idle, without ``force``; anyone else needs ``force``."""
+    issued = decision.policy_tokens.match(token)
+    if x_client_id and issued and decision.client(x_client_id).policy_token != issued.id:
+        raise NotAllowed(f"client {x_client_id!r} did not join with this policy token")
     client = (
         decision.client(x_client_id)
         if x_client_id
@@ -288,7 +301,7 @@ async def take_lease(
 
 
 @router.post("/lease/heartbeat")
-async def heartbeat(client: ClientDep, decision: DecisionDep) -> SafetyView:
+async def heartbeat(client: DriverClientDep, decision: DecisionDep) -> SafetyView:
     """Keep the lease you hold; or, while a task you started holds it, keep yourself
     present as that task's supervisor (a script gone ``rest_client_idle_s`` stops its
     task). Anyone else gets 403."""
@@ -297,7 +310,7 @@ async def heartbeat(client: ClientDep, decision: DecisionDep) -> SafetyView:
 
 
 @router.delete("/lease")
-async def release_lease(client: ClientDep, decision: DecisionDep) -> SafetyView:
+async def release_lease(client: DriverClientDep, decision: DecisionDep) -> SafetyView:
     if decision.lease_holder == client.id:
         await decision.release_lease(client.id)
     await decision.leave(client.id)
@@ -358,17 +371,55 @@ async def autonomy(decision: DecisionDep) -> AutonomyView:
     return _autonomy(decision)
 
 
+@contextlib.asynccontextmanager
+async def _supervisor(
+    request: Request, decision: DecisionServer, x_client_id: str | None, token: str
+) -> AsyncIterator[Client]:
+    """The person acting on the autonomy: the client of ``X-Client-Id`` (one that took
+    the lease, or a connection's), or, without it, a supervisor joined for this request
+    alone: pausing or resuming a policy needs no lease of one's own."""
+    if x_client_id:
+        client = decision.client(x_client_id)
+        if client.policy:
+            raise NotAllowed("only a person supervises a policy (the operator token)")
+        decision.seen(client.id)
+        yield client
+        return
+    host = request.client.host if request.client else ""
+    client = decision.join("rest supervisor", token, source="rest", address=host)
+    try:
+        yield client
+    finally:
+        await decision.leave(client.id)
+
+
 @router.post("/autonomy/pause")
-async def pause_autonomy(client: ClientDep, decision: DecisionDep) -> AutonomyView:
-    """Hold the policy still: its commands are refused until resumed (an operator)."""
-    await decision.pause(client.id)
+async def pause_autonomy(
+    request: Request,
+    decision: DecisionDep,
+    token: OperatorDep,
+    x_client_id: Annotated[str | None, Header()] = None,
+) -> AutonomyView:
+    """Hold the policy still: its commands are refused until a person resumes it (the
+    operator token; ``X-Client-Id`` optional: no lease is needed)."""
+    async with _supervisor(request, decision, x_client_id, token) as client:
+        await decision.pause(client.id)
     return _autonomy(decision)
 
 
 @router.post("/autonomy/resume")
-async def resume_autonomy(client: ClientDep, decision: DecisionDep) -> AutonomyView:
-    """The policy drives again from where the arm is (an operator; the e-stop reset)."""
-    await decision.resume_policy(client.id)
+async def resume_autonomy(
+    request: Request,
+    decision: DecisionDep,
+    token: OperatorDep,
+    x_client_id: Annotated[str | None, Header()] = None,
+) -> AutonomyView:
+    """A person lets the policy drive, from where the arm is: the first time after it took
+    control, and after every stop (the e-stop, once reset; a force stop; a pause; a lapse;
+    the policy reconnecting). The operator token; ``X-Client-Id`` optional: no lease is
+    needed. From a correction, control goes back to the policy."""
+    async with _supervisor(request, decision, x_client_id, token) as client:
+        await decision.resume_policy(client.id)
     return _autonomy(decision)
 
 

@@ -139,12 +139,19 @@ def bearer_token(authorization: Annotated[str | None, Header()] = None) -> str |
     return bearer(authorization)
 
 
-# Declared as a security scheme, so the OpenAPI schema says which operations need the
-# token (``security: [{"OperatorToken": []}]``): the HTTP edge checks it there before
-# a body is read, and /docs offers "Authorize".
+# Declared as security schemes, so the OpenAPI schema says which operations need a
+# token (``security: [{"OperatorToken": []}]``; ``[{"OperatorToken": []}, {"PolicyToken":
+# []}]`` where a policy token is taken too): the HTTP edge checks it there before a body
+# is read, and /docs offers "Authorize".
 OPERATOR_SCHEME = "OperatorToken"
+POLICY_SCHEME = "PolicyToken"
 operator_bearer = HTTPBearer(
     auto_error=False, scheme_name=OPERATOR_SCHEME, description="the operator token"
+)
+policy_bearer = HTTPBearer(
+    auto_error=False,
+    scheme_name=POLICY_SCHEME,
+    description="a policy token (it can only drive, under supervision: docs/lerobot.md)",
 )
 
 
@@ -154,7 +161,25 @@ def require_operator(
 ) -> str:
     token = credentials.credentials.strip() if credentials is not None else None
     if not decision.check_token(token):
+        if decision.policy_tokens.match(token) is not None:
+            raise NotAllowed("a policy token cannot do this: it needs a person's operator token")
         raise NotAllowed("this needs the operator token: send 'Authorization: Bearer <token>'")
+    assert token is not None
+    return token
+
+
+def require_driver(
+    decision: DecisionDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Security(operator_bearer)],
+    _policy: Annotated[HTTPAuthorizationCredentials | None, Security(policy_bearer)],
+) -> str:
+    """The operator token or a policy token (routes a policy may use: the lease, moves)."""
+    token = credentials.credentials.strip() if credentials is not None else None
+    if not decision.check_token(token) and decision.policy_tokens.match(token) is None:
+        raise NotAllowed(
+            "this needs the operator token (or a policy token): send"
+            " 'Authorization: Bearer <token>'"
+        )
     assert token is not None
     return token
 
@@ -167,9 +192,31 @@ def current_client(
     if not x_client_id:
         raise NotAllowed("send the X-Client-Id header you got from POST /api/v1/lease")
     client = decision.client(x_client_id)
+    if client.policy:
+        raise NotAllowed("a policy's client cannot do this: it is a person's")
+    decision.seen(client.id)
+    return client
+
+
+def current_driver(
+    decision: DecisionDep,
+    token: Annotated[str, Depends(require_driver)],
+    x_client_id: Annotated[str | None, Header()] = None,
+) -> Client:
+    """The client of a route a policy may use: with a policy token, only that token's own
+    policy client."""
+    if not x_client_id:
+        raise NotAllowed("send the X-Client-Id header you got from POST /api/v1/lease")
+    client = decision.client(x_client_id)
+    issued = decision.policy_tokens.match(token)
+    if issued is not None and client.policy_token != issued.id:
+        raise NotAllowed(f"client {x_client_id!r} did not join with this policy token")
     decision.seen(client.id)
     return client
 
 
 OperatorDep = Annotated[str, Depends(require_operator)]
+DriverDep = Annotated[str, Depends(require_driver)]
 ClientDep = Annotated[Client, Depends(current_client)]
+# A client on a route a policy may use too (the lease, moves): docs/lerobot.md.
+DriverClientDep = Annotated[Client, Depends(current_driver)]

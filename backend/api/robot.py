@@ -11,7 +11,7 @@ from fastapi import APIRouter, Body, Query, Response
 from pydantic import BaseModel, Field
 
 from telerobot.drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
-from telerobot.server.api.deps import ArmDep, ClientDep, DecisionDep, ServicesDep
+from telerobot.server.api.deps import ArmDep, ClientDep, DecisionDep, DriverClientDep, ServicesDep
 from telerobot.server.api.requests import StrictRequest
 from telerobot.server.control.decision import StillMoving
 from telerobot.server.settings import SINGLE_ARM
@@ -224,7 +224,7 @@ def _need(value: list[float] | None, what: str) -> np.ndarray:
 
 @router.post("/move")
 async def move(
-    body: MoveRequest, arm: ArmDep, decision: DecisionDep, client: ClientDep
+    body: MoveRequest, arm: ArmDep, decision: DecisionDep, client: DriverClientDep
 ) -> MoveResult:
     """A scripted move of the arm (``?arm=``), absolute or incremental, in joint or
     Cartesian space (its own base frame). With ``wait`` it returns when the motion
@@ -272,7 +272,7 @@ async def move(
 async def stop(
     services: ServicesDep,
     decision: DecisionDep,
-    client: ClientDep,
+    client: DriverClientDep,
     arm: Annotated[
         str | None, Query(max_length=32, description="which arm; none: every arm stops")
     ] = None,

@@ -8,16 +8,23 @@ as a state machine with lerobot's DAgger names:
 
 - ``AUTONOMOUS``: the policy holds the lease and its commands are applied.
 - ``PAUSED``: the policy keeps the lease but its commands are refused (said to it,
-  counted); the arm holds still. An operator's pause, or the e-stop or the force limit
-  tripping during autonomy (then only an operator's resume goes on).
+  counted); the arm holds still. Only a person's resume ends it.
 - ``CORRECTING``: an operator took the lease from the policy (no ``force`` needed: a
   person always may); the policy's commands are refused. The operator drives from where
   the arm is: taking the lease stops the arm, and every input moves by increments from
   the measured pose (a master or leader aligns first, as it always does).
 - Handing back (the operator releases, or ``RESUME``): the lease goes back to the policy,
-  ``AUTONOMOUS`` (or ``PAUSED``: ``autonomy_release`` = ``pause``). An operator whose
-  lease lapses while correcting (the dead-man) hands back paused.
+  ``AUTONOMOUS`` (or ``PAUSED``: ``autonomy_release`` = ``pause``).
 - ``OFF``: no policy has held the lease since it joined, or it left.
+
+**The one rule** (``Autonomy.may_drive``): a policy's command moves the arm only if a
+person said go (a resume, or a hand-back) after the last *stop event*. Stop events: the
+e-stop, a force stop, a pause, any lease lapse, and a policy joining, taking the lease
+or leaving. So a policy starts PAUSED (a rollout starts when a person says go), a
+restarted or reconnected policy comes back PAUSED, and a hand-back while the e-stop is
+latched or an arm is force-stopped leaves it PAUSED ("press P to let it drive"). The
+mode is what is shown; the count of stops against the count at the last go is what is
+enforced, so no path that forgets to set the mode can let a policy drive.
 
 Every change is an ``AutonomyState`` on ``events.autonomy_changed``, with its cause: the
 recording logs them (``/autonomy``), the export's ``intervention`` column comes from
@@ -95,6 +102,23 @@ class Autonomy:
         self.changed_at = now
         self._rate_interval: float | None = None
         self._last_command: float | None = None
+        # The rule (module doc): stop events so far, and their count at a person's last go.
+        self.stops = 0
+        self._go_at: int | None = None
+
+    def stopped(self) -> None:
+        """A stop event: whatever a person said before no longer lets the policy drive."""
+        self.stops += 1
+
+    def go(self) -> None:
+        """A person said go (a resume, a hand-back) with nothing stopped."""
+        self._go_at = self.stops
+
+    @property
+    def may_drive(self) -> bool:
+        """Whether the policy's commands are applied: AUTONOMOUS, and a person's go came
+        after the last stop event."""
+        return self.mode is Mode.AUTONOMOUS and self._go_at == self.stops
 
     def state(self) -> AutonomyState:
         return AutonomyState(
@@ -142,9 +166,10 @@ class Autonomy:
         self.refused += 1
         if self.mode is Mode.CORRECTING:
             why = f"{self.operator or 'an operator'} is correcting"
+            then = "you drive again when the operator hands control back"
         else:
             why = f"autonomy is paused ({self.cause})"
+            then = "you drive again when a person resumes you (P on the page, /autonomy/resume)"
         return Supervised(
-            f"{why}: your command was not applied ({self.refused} refused so far);"
-            " you drive again when the operator hands control back"
+            f"{why}: your command was not applied ({self.refused} refused so far); {then}"
         )

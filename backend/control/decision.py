@@ -48,6 +48,8 @@ from telerobot.protocol.names import client_name
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, ReleaseTo
 from telerobot.server.control.limits import SafetyLimits
+from telerobot.server.control.policy_tokens import PREFIX as POLICY_TOKEN_PREFIX
+from telerobot.server.control.policy_tokens import PolicyTokens
 from telerobot.server.control.slave_port import SlavePort
 from telerobot.server.security import token_matches
 from telerobot.server.telemetry.stats import DriftingFloor, StreamTally
@@ -106,8 +108,17 @@ CLIENT_AGE_WINDOW = 4_096
 
 
 class Role(StrEnum):
-    OPERATOR = "operator"
-    OBSERVER = "observer"
+    OPERATOR = "operator"  # a person's client (the operator token): drives, supervises
+    OBSERVER = "observer"  # no token: watches
+    # A learned policy (a policy token, HELLO's POLICY flag): drives while the supervision
+    # lets it (telerobot.server.control.autonomy), nothing else a person may do.
+    POLICY = "policy"
+
+
+ISSUE_POLICY_TOKEN = (
+    "issue a policy token for it (telerobot policy-token new NAME, or POST"
+    " /api/v1/policy-tokens): it can only drive, and only while a person lets it"
+)
 
 
 @dataclass
@@ -152,9 +163,14 @@ class Client:
     # A task's client: the operator it runs for. That operator supervises it, and its
     # heartbeats keep it present while the task holds the lease in its place.
     on_behalf_of: str | None = None
-    # A learned policy (HELLO's POLICY flag): it drives under supervision
-    # (telerobot.server.control.autonomy); an operator takes control from it at will.
-    policy: bool = False
+    # The policy token it joined with (its id: revoking the token ends the client).
+    policy_token: str | None = None
+
+    @property
+    def policy(self) -> bool:
+        """A learned policy: it drives under supervision
+        (telerobot.server.control.autonomy); an operator takes control from it at will."""
+        return self.role is Role.POLICY
 
 
 @dataclass(frozen=True)
@@ -265,6 +281,7 @@ class DecisionServer:
         limits: SafetyLimits | None = None,
         force: ForceSensor | None = None,
         max_clients: int = MAX_CLIENTS,
+        policy_tokens: PolicyTokens | None = None,
         arm_name: str = "arm",
         more_arms: Sequence[ArmGuard] = (),
     ) -> None:
@@ -285,6 +302,7 @@ class DecisionServer:
             raise ValueError("two arms have the same name")
         self.events = DecisionEvents()
         self._token = operator_token
+        self.policy_tokens = policy_tokens or PolicyTokens()
         self._clients: dict[str, Client] = {}
         self._lease: str | None = None
         self._scale = 1.0
@@ -440,9 +458,7 @@ class DecisionServer:
         on_behalf_of: str | None = None,
         policy: bool = False,
     ) -> Client:
-        role = Role.OPERATOR if self.check_token(token) else Role.OBSERVER
-        if policy and role is not Role.OPERATOR:
-            raise NotAllowed("a policy moves the arm: it needs the operator token")
+        role = self._role(token, policy)
         if len(self._clients) >= self.max_clients:
             self._forget_idle(self.clock.now())
         if len(self._clients) >= self.max_clients:
@@ -461,10 +477,49 @@ class DecisionServer:
             resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES) if resumable else None,
             address=address,
             on_behalf_of=on_behalf_of,
-            policy=policy,
         )
+        if role is Role.POLICY:
+            issued = self.policy_tokens.match(token)
+            client.policy_token = issued.id if issued else None
+            # A policy (re)joining is a stop event: it waits for a person's go.
+            self.autonomy.stopped()
         self._clients[client.id] = client
         return client
+
+    def _role(self, token: str | None, policy: bool) -> Role:
+        """Who a token makes a client: the operator token a person (never a policy: a
+        policy gets a token that can only drive), a policy token a policy (only as one)."""
+        if self.check_token(token):
+            if policy:
+                raise NotAllowed(
+                    "the operator token cannot join as a policy (it could reset the e-stop"
+                    f" and resume itself): {ISSUE_POLICY_TOKEN}"
+                )
+            return Role.OPERATOR
+        if self.policy_tokens.match(token) is not None:
+            if not policy:
+                raise NotAllowed(
+                    "a policy token joins only as a policy (HELLO's POLICY flag, or"
+                    " policy: true on POST /lease); a person uses the operator token"
+                )
+            return Role.POLICY
+        if policy:
+            revoked = token is not None and token.startswith(POLICY_TOKEN_PREFIX)
+            raise NotAllowed(
+                "this policy token is not valid (revoked?): " + ISSUE_POLICY_TOKEN
+                if revoked
+                else f"a policy needs a policy token: {ISSUE_POLICY_TOKEN}"
+            )
+        return Role.OBSERVER
+
+    async def revoke_policy_token(self, ident: str) -> list[str]:
+        """The token revoked and every client that joined with it gone (its lease lapses):
+        the ids of those clients (their connections are closed by the caller)."""
+        self.policy_tokens.revoke(ident)
+        gone = [c.id for c in self._clients.values() if c.policy_token == ident]
+        for client_id in gone:
+            await self.leave(client_id)
+        return gone
 
     def resume(self, key: str) -> Client:
         """The client whose resume key this is, now on a new connection (its generation
@@ -497,6 +552,7 @@ class DecisionServer:
 
     async def leave(self, client_id: str) -> None:
         if client_id == self.autonomy.policy_id:
+            self.autonomy.stopped()
             self.autonomy.end()
             self._set_mode(Mode.OFF, "the policy left")
         if self._lease == client_id:
@@ -562,17 +618,21 @@ class DecisionServer:
     async def take_lease(self, client_id: str, *, force: bool = False) -> None:
         client = self.client(client_id)
         client.last_seen = self.clock.now()
-        if client.role is not Role.OPERATOR:
+        if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot take control: connect with the operator token")
         if self._lease == client_id:
             return
         if self._lease is not None:
             holder = self._clients[self._lease]
             again = self._runs_again(client, holder)
-            if client.policy and not holder.policy:
+            if client.policy:
                 raise NotAllowed(
-                    f"{holder.name!r} has control: a policy never takes it from a person;"
-                    " it drives again when the operator hands control back"
+                    f"{holder.name!r} has control: a policy never takes it from anyone;"
+                    + (
+                        " it drives again when the operator hands control back"
+                        if holder.id != self.autonomy.policy_id
+                        else " wait until its lease lapses"
+                    )
                 )
             if holder.policy and not client.policy:
                 force = True  # a person may always take control from a policy
@@ -597,8 +657,13 @@ class DecisionServer:
         client.last_command_at.clear()
         self._changed_lease()
         if client.policy:
+            # A stop event: a policy taking control waits for a person's go (the rule).
+            self.autonomy.stopped()
             self.autonomy.start(client.id, client.name)
-            self._set_mode(Mode.AUTONOMOUS, f"{client.name!r} took control")
+            self._set_mode(
+                Mode.PAUSED,
+                f"{client.name!r} took control; it waits until a person lets it drive",
+            )
         elif taken_from is not None and taken_from.id == self.autonomy.policy_id:
             self._set_mode(Mode.CORRECTING, f"taken over by {client.name!r}", operator=client.name)
 
@@ -660,8 +725,15 @@ class DecisionServer:
 
     async def _hand_to_policy(self, mode: Mode, cause: str, operator: str) -> None:
         """The lease back to the policy, the arm stopped where it is: it drives on from
-        there (``AUTONOMOUS``) or waits for a resume (``PAUSED``)."""
+        there (``AUTONOMOUS``: a person's go, unless the e-stop is latched: then
+        ``PAUSED``) or waits for a resume (``PAUSED``)."""
         policy = self._clients[self.autonomy.policy_id or ""]
+        if mode is Mode.AUTONOMOUS and self._estop:
+            mode, cause = Mode.PAUSED, f"{cause}, the e-stop latched: paused until resumed"
+        elif mode is Mode.AUTONOMOUS:
+            self.autonomy.go()
+        else:
+            self.autonomy.stopped()
         await self._stop_all()
         self._lease, self._halted = policy.id, False
         policy.last_command_at.clear()  # its first increment is allowed 0.1 s of speed
@@ -678,6 +750,7 @@ class DecisionServer:
         if self.autonomy.mode is Mode.CORRECTING:
             await self._hand_to_policy(Mode.PAUSED, f"paused by {client.name!r}", client.name)
             return
+        self.autonomy.stopped()
         await self._stop_all()
         self._set_mode(Mode.PAUSED, f"paused by {client.name!r}", operator=client.name)
 
@@ -691,20 +764,25 @@ class DecisionServer:
         if self._lease != self.autonomy.policy_id:
             await self._hand_to_policy(Mode.AUTONOMOUS, cause, client.name)
         else:
+            self.autonomy.go()
             self._set_mode(Mode.AUTONOMOUS, cause, operator=client.name)
 
     def _check_autonomy(self, client: Client) -> None:
-        """A policy drives only while AUTONOMOUS; otherwise its command is refused,
-        counted and said to it (before the lease check: it is told why)."""
-        if client.id != self.autonomy.policy_id:
+        """A policy drives only while a person lets it (``Autonomy.may_drive``: the one
+        rule); otherwise its command is refused, counted and said to it (before the
+        lease check: it is told why)."""
+        if not client.policy:
             return
+        if client.id != self.autonomy.policy_id:
+            raise NotAllowed("take the control lease before moving the robot")
         self.autonomy.heard_command(self.clock.now())
-        if self.autonomy.mode is not Mode.AUTONOMOUS:
+        if not self.autonomy.may_drive:
             raise self.autonomy.refuse()
 
     async def _lapse(self, why: str) -> None:
         holder = self._lease
         policy = self.autonomy.policy_id
+        self.autonomy.stopped()
         if (
             self.autonomy.mode is Mode.CORRECTING
             and holder is not None
@@ -805,6 +883,7 @@ class DecisionServer:
         """Anyone may stop the arm; it stays stopped until an operator resets it."""
         who = self._clients[client_id].name if client_id in self._clients else "server"
         self._estop, self._estop_reason = True, f"{reason} ({who})"
+        self.autonomy.stopped()
         await self._stop_all()
         self.events.safety_changed.emit(self.state())
         if self.autonomy.mode is Mode.AUTONOMOUS:
@@ -814,7 +893,7 @@ class DecisionServer:
     async def reset(self, client_id: str) -> None:
         client = self.client(client_id)
         if client.role is not Role.OPERATOR:
-            raise NotAllowed("only an operator can reset the e-stop")
+            raise NotAllowed("only a person can reset the e-stop (the operator token)")
         supervising = self._lease == self.autonomy.policy_id and not client.policy
         if self._lease not in (None, client_id) and not supervising:
             raise NotAllowed("only the client in control can reset the e-stop")
@@ -865,6 +944,7 @@ class DecisionServer:
             guard.force_base = guard.robot.pose.rotation @ np.array([fx, fy, fz])
             if not guard.force_limited:
                 guard.force_limited = True
+                self.autonomy.stopped()
                 log.warning(
                     "%s",
                     guard.said(
@@ -918,7 +998,7 @@ class DecisionServer:
     def _authorise(self, client_id: str) -> Client:
         client = self.client(client_id)
         self._heard(client)
-        if client.role is not Role.OPERATOR:
+        if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot move the robot")
         self._check_autonomy(client)
         if self._lease != client_id:

@@ -126,7 +126,7 @@ class Session:
         conn = Connection(
             send,
             client.id,
-            operator=client.role.value == "operator",
+            operator=client.role.value != "observer",  # may drive: a person or a policy
             every_force_sample=every_force_sample,
             direct_forces=direct_forces,
             close_transport=close_transport,

@@ -62,8 +62,9 @@ class HelloFlags(IntEnum):
     # through at once when the link is back, where the old one may wait out TCP's
     # doubling retransmission timeout (0.2, 0.6, 1.4, 3 s after a loss).
     RESUME = 8
-    # This client is a learned policy (needs the operator token): it drives under
-    # supervision, and any operator takes control from it without forcing.
+    # This client is a learned policy (needs a policy token; the operator token is
+    # refused with it): it drives under supervision, only after a person says go, and
+    # any operator takes control from it without forcing.
     POLICY = 16
 
 
@@ -72,7 +73,7 @@ class StateFlags(IntEnum):
     SOMEONE_HAS_CONTROL = 2
     ESTOP = 4
     FORCE_LIMITED = 8
-    OPERATOR = 16  # you joined with the operator token
+    OPERATOR = 16  # you joined with a token that drives (the operator's, or a policy's)
     HALTED = 32  # the dead-man stopped the arm; its holder keeps the lease for a grace period
 
 

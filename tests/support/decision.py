@@ -10,7 +10,7 @@ from telerobot.drivers.robot.puma560.kinematics import (
     tool_transform,
 )
 from telerobot.drivers.robot.puma560.sim import SimPuma
-from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.decision import Client, DecisionServer
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
@@ -50,3 +50,19 @@ async def make(
         limits=limits,
     )
     return ds, robot
+
+
+def join_policy(ds: DecisionServer, name: str = "act-policy") -> Client:
+    """A policy client, joined with a policy token issued for it (the operator token is
+    refused with the POLICY flag)."""
+    _, secret = ds.policy_tokens.issue(name)
+    return ds.join(name, secret, policy=True)
+
+
+async def policy_let_drive(ds: DecisionServer, name: str = "act-policy") -> tuple[Client, Client]:
+    """A policy holding the lease and let drive by "alice", a person: (policy, alice)."""
+    policy = join_policy(ds, name)
+    alice = ds.join("alice", TOKEN)
+    await ds.take_lease(policy.id)
+    await ds.resume_policy(alice.id)  # a person says go: a policy never starts by itself
+    return policy, alice
