@@ -1,8 +1,10 @@
 """A stand-in learned policy for the supervision tests and bench.rollout: a real
-priority-channel client that joins as a policy (HELLO's POLICY flag), takes control and
-sends a small joint increment 30 times a second, back and forth, noting every reply (its
-time on this machine's monotonic clock) and the arm's states (tool position and joints,
-on the server's clock)."""
+priority-channel client that joins as a policy (HELLO's POLICY flag, with a policy token
+it is issued over REST with the operator token it is given), takes control, is let drive
+by a person's resume over REST (``go``: a policy never starts by itself), and sends a
+small joint increment 30 times a second, back and forth, noting every reply (its time on
+this machine's monotonic clock) and the arm's states (tool position and joints, on the
+server's clock)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import httpx
 import numpy as np
 
 from telerobot.client.master.link import PriorityLink, Reply, open_link
@@ -27,11 +30,40 @@ class Answer:
     text: str
 
 
+def issue_policy_token(server: str, operator_token: str, name: str) -> str:
+    """A new policy token's secret, issued by an operator over REST."""
+    r = httpx.post(
+        server.rstrip("/") + "/api/v1/policy-tokens",
+        json={"name": name},
+        headers={"Authorization": f"Bearer {operator_token}"},
+        timeout=30,
+        verify=False,
+    )
+    r.raise_for_status()
+    return str(r.json()["token"])
+
+
+def resume_policy(server: str, operator_token: str) -> dict[str, object]:
+    """A person lets the policy drive (POST /autonomy/resume, no lease of its own)."""
+    r = httpx.post(
+        server.rstrip("/") + "/api/v1/autonomy/resume",
+        headers={"Authorization": f"Bearer {operator_token}", "X-Telerobot-Client": "bench"},
+        timeout=30,
+        verify=False,
+    )
+    r.raise_for_status()
+    return dict(r.json())
+
+
 @dataclass
 class PolicyClient:
+    """``token``: the operator token (the person who issues the policy its own token and
+    lets it drive); ``go``: resume it once it holds control."""
+
     server: str
     token: str
     name: str = "test-policy"
+    go: bool = True
     answers: list[Answer] = field(default_factory=list)
     # (server time, tool position, joints) of every STATE
     states: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
@@ -41,8 +73,9 @@ class PolicyClient:
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self.policy_token = issue_policy_token(self.server, self.token, self.name)
         self.link: PriorityLink = open_link(
-            self.server, self.token, datagrams=False, name=self.name, policy=True
+            self.server, self.policy_token, datagrams=False, name=self.name, policy=True
         )
         self.link.on_reply = self._on_reply
         self.link.on_state = self._on_state
@@ -78,6 +111,8 @@ class PolicyClient:
             if time.monotonic() > deadline:
                 raise AssertionError(f"the policy was not given control: {self.answers[-1:]}")
             time.sleep(0.005)
+        if self.go:
+            resume_policy(self.server, self.token)
         self._thread.start()
         return self
 

@@ -189,11 +189,18 @@ SMALL_ACT: dict[str, Any] = {
 
 
 def make_robot(url: str, token: str, width: int, height: int, name: str = "act-policy") -> Any:
+    """The robot plugin as a policy: ``token`` is the operator's, which issues the policy
+    a policy token of its own (a policy never joins with the operator token). It takes
+    control paused: a person lets it drive (a resume, or an operator's move handed back)."""
     from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
     from lerobot_robot_telerobot.telerobot import Telerobot
 
+    from bench.policy_stub import issue_policy_token
+
+    secret = issue_policy_token(url, token, name)
     config = TelerobotConfig(url=url, token=token, client_name=name, camera_width=width,
-                             camera_height=height, fps=FPS, policy=True)  # fmt: skip
+                             camera_height=height, fps=FPS, policy=True,
+                             policy_token=secret)  # fmt: skip
     return Telerobot(config)
 
 

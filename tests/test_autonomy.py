@@ -43,7 +43,7 @@ async def test_a_policy_needs_a_policy_token_and_the_operator_token_is_refused(
     ds, _ = await make(clock)
     with pytest.raises(NotAllowed, match="needs a policy token"):
         ds.join("sneaky", None, policy=True)
-    with pytest.raises(NotAllowed, match="operator token cannot join as a policy.*policy-token"):
+    with pytest.raises(NotAllowed, match=r"operator token cannot join as a policy.*policy-token"):
         ds.join("act-policy", TOKEN, policy=True)
     _, secret = ds.policy_tokens.issue("act")
     with pytest.raises(NotAllowed, match="joins only as a policy"):

@@ -12,7 +12,7 @@ import httpx
 import numpy as np
 import pytest
 
-from bench.policy_stub import PolicyClient
+from bench.policy_stub import PolicyClient, issue_policy_token
 from telerobot.client.master.bridge import HAND_BACK_S, BridgeSettings, MasterBridge
 from telerobot.client.master.cli import open_link
 from telerobot.drivers.base import FloatArray
@@ -124,7 +124,8 @@ def test_an_estop_during_autonomy_pauses_it_until_an_operator_resumes(server: st
             until(lambda: policy.applied_since(back), timeout=5, what=lambda: "drives again")
             rest.delete("lease", headers=me)
         events = [json.loads(e)["mode"] for e in policy.autonomy]
-        assert events[:3] == ["autonomous", "paused", "correcting"], events
+        # It took control paused, a person let it drive, the e-stop paused it, a person took over.
+        assert events[:4] == ["paused", "autonomous", "paused", "correcting"], events
 
 
 @pytest.mark.parametrize("force", [False, True])
@@ -133,6 +134,10 @@ def test_a_policy_never_takes_control_from_a_person(server: str, force: bool) ->
         me = {"X-Client-Id": rest.post("lease", json={"name": "person"}).json()["client_id"]}
         try:
             r = rest.post("lease", json={"name": "policy", "policy": True, "force": force})
-            assert r.status_code == 403 and "never takes it from a person" in r.text
+            assert r.status_code == 403 and "operator token cannot join as a policy" in r.text
+            policy = {"Authorization": f"Bearer {issue_policy_token(server, TOKEN, 'policy')}"}
+            body = {"name": "policy", "policy": True, "force": force}
+            r = rest.post("lease", json=body, headers=policy)
+            assert r.status_code == 403 and "never takes it from anyone" in r.text
         finally:
             rest.delete("lease", headers=me)

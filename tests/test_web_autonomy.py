@@ -30,6 +30,7 @@ from tests.support.servers import serving
 pytestmark = pytest.mark.browser
 SERVER_ENV = NO_VIDEO
 STEP_LIMIT_M = 0.025  # the server's per-increment limit (0.25 m/s × 0.1 s)
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
 def mode(server: str) -> str:
@@ -142,4 +143,51 @@ def test_the_xr_grip_takes_over_from_a_policy_and_letting_go_hands_back(
         xr_frames_pass(page)
         until(lambda: mode(server) == "autonomous", timeout=10, what=page_said(page, "let go"))
         assert policy.largest_step_m() < STEP_LIMIT_M
+        assert not errors, errors
+
+
+def _estop_reset(server: str) -> None:
+    """The e-stop reset if an earlier test left it latched (REST: take, reset, release)."""
+    if not httpx.get(server + "api/v1/safety").json()["estop"]:
+        return
+    with httpx.Client(base_url=server + "api/v1/", headers=AUTH, timeout=10) as rest:
+        me = {
+            "X-Client-Id": rest.post("lease", json={"name": "tidy", "force": True}).json()[
+                "client_id"
+            ]
+        }
+        rest.post("safety/reset", headers=me).raise_for_status()
+        rest.delete("lease", headers=me)
+
+
+def test_an_estop_during_a_takeover_then_a_reset_from_the_page_leaves_the_policy_paused(
+    browser: Browser, server: str
+) -> None:
+    """Issue 49's path 1, as the page does it: the dead-man takes over, Escape, let go
+    (the page hands back with the e-stop latched), reset from the page: the arm does not
+    move and the page says the policy waits for P."""
+    _estop_reset(server)
+    with PolicyClient(server, TOKEN) as policy:
+        page, errors = open_page(browser, server, video=False)
+        wait(page, "document.getElementById('autonomy').textContent.startsWith('AUTONOMOUS')")
+        page.click("#view")
+        page.keyboard.down("Space")
+        until(lambda: mode(server) == "correcting", timeout=10, what=page_said(page, "dead-man"))
+        page.keyboard.press("Escape")
+        until(lambda: httpx.get(server + "api/v1/safety").json()["estop"], timeout=10)
+        page.keyboard.up("Space")  # the page hands back after HAND_BACK_MS
+        until(lambda: mode(server) == "paused", timeout=10, what=page_said(page, "let go"))
+        wait(page, "!document.getElementById('reset').hidden")
+        page.click("#reset")
+        until(lambda: not httpx.get(server + "api/v1/safety").json()["estop"], timeout=10)
+        reset = time.monotonic()
+        held = target(server)
+        until(lambda: policy.refused_since(reset), timeout=5, what=lambda: "the policy refused")
+        time.sleep(0.5)
+        assert target(server) == held and mode(server) == "paused"
+        assert not policy.applied_since(reset)
+        wait(
+            page,
+            "document.getElementById('autonomy').textContent.includes('press P to let it drive')",
+        )
         assert not errors, errors

@@ -26,7 +26,7 @@ describe("the supervision badge", () => {
 
   it("says who drives, with lerobot's DAgger names, and offers what may be done", () => {
     expect(autonomyView(state("autonomous"), false)).toMatchObject({ badge: "AUTONOMOUS · act-policy · 30 Hz", pause: true, takeLabel: "Take over (T)" });
-    expect(autonomyView(state("paused", { cause: "paused by 'alice'" }), false)).toMatchObject({ badge: "PAUSED · act-policy (paused by 'alice')", resume: true });
+    expect(autonomyView(state("paused", { cause: "paused by 'alice'" }), false)).toMatchObject({ badge: "PAUSED · act-policy — press P to let it drive (paused by 'alice')", resume: true });
     expect(autonomyView(state("correcting", { operator: "alice" }), true)).toMatchObject({ badge: "CORRECTING · alice drives, act-policy waits", handBack: true });
     expect(autonomyView(state("correcting", { operator: "bob" }), false).handBack).toBe(false); // not this page's correction
     expect(autonomyView(null, false).badge).toBe("");

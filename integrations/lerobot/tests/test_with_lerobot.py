@@ -325,8 +325,11 @@ def test_a_supervised_rollouts_corrections_are_lerobots_intervention_column(
         http = httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=60)
         assert http.post("recordings", json={"name": "rollout"}).status_code == 200
         http.post("recordings/active/episodes", json={"task": "reach"})
-        arm = TelerobotArm(ArmOptions(url, TOKEN, name="act-policy", cameras=False, policy=True))
+        secret = http.post("policy-tokens", json={"name": "act-policy"}).json()["token"]
+        arm = TelerobotArm(ArmOptions(url, secret, name="act-policy", cameras=False, policy=True))
         arm.connect()
+        assert http.get("autonomy").json()["mode"] == "paused"  # until a person says go
+        assert http.post("autonomy/resume").json()["mode"] == "autonomous"
         stop = threading.Event()
 
         def policy() -> None:  # a stand-in policy: joint 1 back and forth, 30 Hz
@@ -393,12 +396,14 @@ def test_lerobot_rollout_drives_as_a_supervised_policy_and_the_page_can_take_ove
         http = httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=60)
         seen: list[str] = []
 
+        secret = http.post("policy-tokens", json={"name": "act-policy"}).json()["token"]
+
         def supervise() -> None:
             deadline = time.monotonic() + 120
-            while http.get("autonomy").json()["mode"] != "autonomous":
+            while http.get("autonomy").json()["mode"] != "paused":  # it took control
                 assert time.monotonic() < deadline
                 time.sleep(0.1)
-            seen.append("autonomous")
+            seen.append(http.post("autonomy/resume").json()["mode"])  # a person says go
             start = http.get("robot/state").json()["target_joints"]
             while http.get("robot/state").json()["target_joints"] == start:
                 assert time.monotonic() < deadline
@@ -417,6 +422,7 @@ def test_lerobot_rollout_drives_as_a_supervised_policy_and_the_page_can_take_ove
             [
                 "--robot.type=telerobot",
                 "--robot.policy=true",
+                f"--robot.policy_token={secret}",
                 "--robot.client_name=act-policy",
                 "--robot.camera_width=320",
                 "--robot.camera_height=240",

@@ -26,7 +26,7 @@ import collections
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, cast
 
 import httpx
@@ -52,7 +52,7 @@ REANCHOR_RAD = 0.02
 @dataclass
 class ArmOptions:
     url: str
-    token: str
+    token: str = field(repr=False)  # the operator token, or a policy's (policy=True)
     name: str = "lerobot"
     cameras: bool = True
     width: int = 640  # of one camera: frames of another size are resized to it

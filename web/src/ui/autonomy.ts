@@ -5,7 +5,8 @@
 // where it is and the operator drives from there. H or "Hand back" gives control back
 // to the policy, as does letting go of the dead-man or the grip that took over for
 // HAND_BACK_MS (a quicker re-clutch keeps control); P or "Pause" holds it still (look,
-// think) and P again resumes it.
+// think) and P again resumes it. A policy that took control, or was stopped (the e-stop,
+// the force limit, a pause, a lapse, a reconnect), waits PAUSED until P (or Resume).
 // The server decides; the page shows what it said (EVENT autonomy, GET /autonomy).
 import type { components } from "../api/schema";
 import { LeaseAction } from "../transport/messages";
@@ -61,7 +62,14 @@ export function autonomyView(s: AutonomyState | null, youHaveControl: boolean): 
         takeLabel: "Take over (T)",
       };
     case "paused":
-      return { badge: `PAUSED · ${policy} (${s?.cause ?? ""})`, pause: false, resume: true, handBack: false, takeLabel: "Take over (T)" };
+      // Said plainly: a policy never drives again until a person lets it (the server's rule).
+      return {
+        badge: `PAUSED · ${policy} — press P to let it drive (${s?.cause ?? ""})`,
+        pause: false,
+        resume: true,
+        handBack: false,
+        takeLabel: "Take over (T)",
+      };
     case "correcting":
       return {
         badge: `CORRECTING · ${s?.operator ?? "an operator"} drives, ${policy} waits`,

@@ -1,5 +1,6 @@
 """The robot's settings, as ``--robot.<field>=…`` on LeRobot's command lines."""
 
+import os
 from dataclasses import dataclass, field
 
 from lerobot.robots.config import RobotConfig
@@ -14,7 +15,7 @@ class TelerobotConfig(RobotConfig):
     url: str = field(default_factory=local_url)
     # The operator token: TELEROBOT_OPERATOR_TOKEN, else the one `telerobot serve` keeps
     # on this machine. Commands need it; without it the server refuses control.
-    token: str = field(default_factory=lambda: stored_token() or "")
+    token: str = field(default_factory=lambda: stored_token() or "", repr=False)
     # The name this robot's client holds control by (the page shows it; the Telerobot
     # teleoperator tells an operator's control from it).
     client_name: str = "lerobot"
@@ -29,5 +30,12 @@ class TelerobotConfig(RobotConfig):
     # Take control from whoever holds it (else connecting fails while someone drives).
     take_over: bool = False
     # A learned policy drives this robot (lerobot-rollout): the server supervises it, an
-    # operator at the page takes over at will and hands back (docs/lerobot.md).
+    # operator at the page takes over at will and hands back (docs/lerobot.md). It starts
+    # paused: a person lets it drive (P on the page, POST /api/v1/autonomy/resume).
     policy: bool = False
+    # The credential a policy joins with (TELEROBOT_POLICY_TOKEN): a policy token, which
+    # can only drive, and only while a person lets it. An operator issues it with
+    # `telerobot policy-token new NAME`; the operator token is refused for a policy.
+    policy_token: str = field(
+        default_factory=lambda: os.environ.get("TELEROBOT_POLICY_TOKEN", ""), repr=False
+    )

@@ -30,9 +30,15 @@ class Telerobot(Robot):
     def __init__(self, config: TelerobotConfig) -> None:
         super().__init__(config)
         self.config = config
+        if config.policy and not config.policy_token:
+            raise ValueError(
+                "a policy joins with a policy token: --robot.policy_token=… or"
+                " TELEROBOT_POLICY_TOKEN (an operator issues one: telerobot policy-token new"
+                " NAME); the operator token is refused for a policy"
+            )
         self.options = ArmOptions(
             url=config.url,
-            token=config.token,
+            token=config.policy_token if config.policy else config.token,
             name=config.client_name,
             cameras=config.use_cameras,
             width=config.camera_width,
