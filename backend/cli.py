@@ -11,6 +11,7 @@ import runpy
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 from pydantic import ValidationError
@@ -384,6 +385,62 @@ def _move(args: argparse.Namespace) -> int:
     return 0
 
 
+def _policy_token(args: argparse.Namespace) -> int:
+    """``telerobot policy-token new NAME | list | revoke ID`` over REST, as an operator."""
+    import httpx
+
+    from telerobot.client import local_url, stored_token
+
+    what = f"telerobot policy-token {args.policy_command}"
+    token = args.token or stored_token()
+    if not token:
+        print(
+            f"{what}: no operator token: pass --token, set TELEROBOT_OPERATOR_TOKEN, or run"
+            " it where `telerobot serve` keeps it",
+            file=sys.stderr,
+        )
+        return 2
+    url = (args.url or local_url()).rstrip("/") + "/api/v1/policy-tokens"
+    headers = {"Authorization": f"Bearer {token}", "X-Telerobot-Client": "telerobot"}
+    try:
+        with httpx.Client(headers=headers, timeout=30, verify=False) as http:
+            if args.policy_command == "new":
+                r = http.post(url, json={"name": args.name})
+            elif args.policy_command == "revoke":
+                r = http.delete(f"{url}/{args.id}")
+            else:
+                r = http.get(url)
+    except httpx.HTTPError as exc:
+        print(f"{what}: cannot reach {args.url or local_url()}: {exc}", file=sys.stderr)
+        return 1
+    if r.is_error:
+        try:
+            detail = r.json().get("detail", r.text)
+        except ValueError:
+            detail = r.text
+        print(f"{what}: {detail}", file=sys.stderr)
+        return 1
+    body = r.json()
+    if args.policy_command == "new":
+        print(body["token"])
+        print(
+            f"policy token {body['id']} for {body['name']!r}: shown this once. Give it to the"
+            " policy (TELEROBOT_POLICY_TOKEN, or lerobot's --robot.policy_token); it drives"
+            " only after a person lets it (P on the page). Revoke it with"
+            f" `telerobot policy-token revoke {body['id']}`.",
+            file=sys.stderr,
+        )
+    elif args.policy_command == "revoke":
+        print(f"revoked {body['id']} ({body['name']}); {body['disconnected']} client(s) gone")
+    else:
+        for t in body:
+            when = time.strftime("%Y-%m-%d %H:%M", time.localtime(t["created"]))
+            print(f"{t['id']}  {when}  {t['name']}")
+        if not body:
+            print("no policy tokens issued", file=sys.stderr)
+    return 0
+
+
 def _recording_recover(args: argparse.Namespace) -> int:
     """Copy a torn recording, as far as it is valid, into NAME.recovered.mcap beside
     it (the original is left as it is); a file that is not an MCAP is refused."""
@@ -567,6 +624,26 @@ def main(argv: list[str] | None = None) -> int:
     )
     move.add_argument("--take-over", action="store_true", help="take control from its holder")
     move.set_defaults(func=_move)
+
+    policy_token = sub.add_parser(
+        "policy-token",
+        help="issue, list or revoke a policy token: a credential that can only drive, and"
+        " only while a person lets it (docs/lerobot.md)",
+    )
+    policy_sub = policy_token.add_subparsers(dest="policy_command", required=True)
+    issue = policy_sub.add_parser("new", help="issue one: its secret is printed this once")
+    issue.add_argument("name", help="what the policy is (shown on the page while it drives)")
+    policy_sub.add_parser("list", help="the issued tokens (never their secrets)")
+    revoke = policy_sub.add_parser("revoke", help="revoke one: its clients are gone at once")
+    revoke.add_argument("id", help="the token's id (telerobot policy-token list)")
+    for p in policy_sub.choices.values():
+        p.add_argument("--url", help="the server (default: TELEROBOT_URL or http://localhost:8000)")
+        p.add_argument(
+            "--token",
+            help="operator token (default: TELEROBOT_OPERATOR_TOKEN, else the one the server"
+            " keeps on this machine)",
+        )
+    policy_token.set_defaults(func=_policy_token)
 
     export = sub.add_parser("export", help="export a recording: export lerobot RECORDING DIR")
     export_sub = export.add_subparsers(dest="export_format", required=True)

@@ -339,7 +339,8 @@ export interface paths {
         put?: never;
         /**
          * Pause Autonomy
-         * @description Hold the policy still: its commands are refused until resumed (an operator).
+         * @description Hold the policy still: its commands are refused until a person resumes it (the
+         *     operator token; ``X-Client-Id`` optional: no lease is needed).
          */
         post: operations["pause_autonomy_api_v1_autonomy_pause_post"];
         delete?: never;
@@ -359,7 +360,10 @@ export interface paths {
         put?: never;
         /**
          * Resume Autonomy
-         * @description The policy drives again from where the arm is (an operator; the e-stop reset).
+         * @description A person lets the policy drive, from where the arm is: the first time after it took
+         *     control, and after every stop (the e-stop, once reset; a force stop; a pause; a lapse;
+         *     the policy reconnecting). The operator token; ``X-Client-Id`` optional: no lease is
+         *     needed. From a correction, control goes back to the policy.
          */
         post: operations["resume_autonomy_api_v1_autonomy_resume_post"];
         delete?: never;
@@ -1173,6 +1177,53 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/policy-tokens": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Listed
+         * @description The issued policy tokens (never their secrets).
+         */
+        get: operations["listed_api_v1_policy_tokens_get"];
+        put?: never;
+        /**
+         * Issue
+         * @description A new policy token (the operator token): it joins only as a policy, drives only
+         *     while a person lets it, and reads; it cannot reset the e-stop, pause, resume, take
+         *     control from anyone, change settings or delete recordings.
+         */
+        post: operations["issue_api_v1_policy_tokens_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/policy-tokens/{token_id}": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        post?: never;
+        /**
+         * Revoke
+         * @description Revoke a policy token: it joins no more, and every client that joined with it is
+         *     gone at once (its lease lapses, the arm stops, its connection closes).
+         */
+        delete: operations["revoke_api_v1_policy_tokens__token_id__delete"];
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
 }
 export type webhooks = Record<string, never>;
 export interface components {
@@ -1690,6 +1741,34 @@ export interface components {
             /** Views Used */
             views_used: number;
         };
+        /** IssueRequest */
+        IssueRequest: {
+            /**
+             * Name
+             * @description what the policy is (1–64 characters: letters, digits, spaces and . , : _ - @ # + / ' (no brackets, quotes or control characters))
+             */
+            name: string;
+        };
+        /** IssuedPolicyToken */
+        IssuedPolicyToken: {
+            /**
+             * Id
+             * @description revoke it by this (DELETE /policy-tokens/{id})
+             */
+            id: string;
+            /** Name */
+            name: string;
+            /**
+             * Created
+             * @description Unix time
+             */
+            created: number;
+            /**
+             * Token
+             * @description the secret, shown this once: give it to the policy (--robot.policy_token, or TELEROBOT_POLICY_TOKEN); only its digest is kept
+             */
+            token: string;
+        };
         /** JointOffsets */
         JointOffsets: {
             /**
@@ -1799,7 +1878,7 @@ export interface components {
             force: boolean;
             /**
              * Policy
-             * @description this client is a learned policy: it drives under supervision, and any operator takes control from it at will (GET /autonomy)
+             * @description this client is a learned policy (send a policy token, not the operator token): it drives under supervision once a person lets it, and any operator takes control from it at will (GET /autonomy)
              * @default false
              */
             policy: boolean;
@@ -1922,6 +2001,21 @@ export interface components {
             /** Type */
             type: string;
         };
+        /** PolicyTokenView */
+        PolicyTokenView: {
+            /**
+             * Id
+             * @description revoke it by this (DELETE /policy-tokens/{id})
+             */
+            id: string;
+            /** Name */
+            name: string;
+            /**
+             * Created
+             * @description Unix time
+             */
+            created: number;
+        };
         /** RecordingDetail */
         RecordingDetail: {
             /** File */
@@ -2005,6 +2099,26 @@ export interface components {
              * @description the arm model it was recorded with (the settings' robot_model: puma560, so101); null: not known (recorded before the list said it, or a foreign file). A task repeats only this server's model's recordings
              */
             robot_model?: string | null;
+        };
+        /** RevokedPolicyToken */
+        RevokedPolicyToken: {
+            /**
+             * Id
+             * @description revoke it by this (DELETE /policy-tokens/{id})
+             */
+            id: string;
+            /** Name */
+            name: string;
+            /**
+             * Created
+             * @description Unix time
+             */
+            created: number;
+            /**
+             * Disconnected
+             * @description clients that had joined with it, now gone
+             */
+            disconnected: number;
         };
         /** RobotModel */
         RobotModel: {
@@ -4581,6 +4695,90 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["TaskView"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    listed_api_v1_policy_tokens_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["PolicyTokenView"][];
+                };
+            };
+        };
+    };
+    issue_api_v1_policy_tokens_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["IssueRequest"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            201: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["IssuedPolicyToken"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    revoke_api_v1_policy_tokens__token_id__delete: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                token_id: string;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["RevokedPolicyToken"];
                 };
             };
             /** @description Validation Error */
