@@ -6,7 +6,9 @@ import subprocess
 import time
 
 import httpx
+import pytest
 
+from tests.support import TOKEN
 from tests.support.servers import BIN, telerobot
 
 URL = r"(http://localhost:\d+/)"
@@ -130,3 +132,25 @@ def test_serve_takes_the_3d_views_port_from_its_flag() -> None:
         wait_for=r"3D view: http://\S+:(\d+)/", env={"TELEROBOT_VIEWER": "true"},
     ) as (_, m):  # fmt: skip
         assert int(m.group(1)) == port
+
+
+def test_policy_tokens_from_the_command_line(
+    server: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``telerobot policy-token new NAME``, ``list`` and ``revoke ID`` against a server."""
+    from telerobot.server.cli import main
+
+    where = ["--url", server, "--token", TOKEN]
+    assert main(["policy-token", "new", "act-policy", *where]) == 0
+    out, err = capsys.readouterr()
+    secret = out.strip()
+    assert secret.startswith("tpol_") and "shown this once" in err
+    ident = err.split()[2]
+    assert main(["policy-token", "list", *where]) == 0
+    listed = capsys.readouterr().out
+    assert ident in listed and "act-policy" in listed and secret not in listed
+    assert main(["policy-token", "revoke", ident, *where]) == 0
+    assert "revoked" in capsys.readouterr().out
+    assert main(["policy-token", "revoke", ident, *where]) == 1
+    assert "no policy token" in capsys.readouterr().err
+    assert main(["policy-token", "list", "--url", server, "--token", "wrong-token-000000000"]) == 1
