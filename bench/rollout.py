@@ -52,6 +52,7 @@ LEROBOT_PYTHON = (
 )
 AFTER_S = 0.5  # a handover's jump: the steps this long after it
 MAX_INTERVAL_S = 0.1  # the server's longest interval for one increment's speed limit
+STEPS = ("handover_jump_mm", "handover_jump_rad", "steady_step_mm", "steady_step_rad")
 
 
 def _mode(http: httpx.Client) -> str:
@@ -204,7 +205,8 @@ def with_lerobot(base: str, args: Any) -> dict[str, Any]:
         why = f"no LeRobot venv at {LEROBOT_PYTHON.parent.parent}: make lerobot-deps makes it"
         return {"obs_to_action_ms": None, "policy_note": why}
     cmd = [str(LEROBOT_PYTHON), "-m", "bench.rollout_policy", "--url", base, "--token", TOKEN,
-           "--json", "--episodes", str(args.episodes)]  # fmt: skip
+           "--json", "--episodes", str(args.episodes),
+           "--handovers", str(args.act_handovers)]  # fmt: skip
     if args.policy:  # (at the size of the images it was trained on)
         cmd += ["--policy", str(args.policy)]
     env = {**os.environ, "PYTHONPATH": str(REPO), "HF_HUB_OFFLINE": "1"}
@@ -234,19 +236,30 @@ def main() -> None:
     p.add_argument("--no-page", action="store_true", help="no browser: the master's only")
     p.add_argument("--no-policy", action="store_true", help="no LeRobot policy part")
     p.add_argument("--policy", type=Path, help="a trained policy (bench.rollout_policy --train)")
-    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--episodes", type=int, default=20, help="of each kind (--policy)")
+    p.add_argument("--act-handovers", type=int, default=10, help="with LeRobot's ACT, over REST")
     p.add_argument("--busy-core", action="store_true", help="one core kept busy (stress-ng)")
     args = p.parse_args()
     width, height = _policy_size(args.policy) if args.policy else (640, 480)
     env = {"TELEROBOT_OPERATOR_TOKEN": TOKEN, "TELEROBOT_VIDEO": "true",
            "TELEROBOT_VIDEO_WIDTH": str(width), "TELEROBOT_VIDEO_HEIGHT": str(height),
            "TELEROBOT_SIM_STARTS_AT_HOME": "true"}  # fmt: skip
-    figures: dict[str, Any] = {}
     with busy_core(args.busy_core), serve_for_bench(env=env, ready=True) as (_, base):
-        figures.update(handovers(base, args.handovers, not args.no_page))
-        if not args.no_policy:
-            figures.update(with_lerobot(base, args))
-    emit({**figures, "busy_core": args.busy_core, "machine": machine()}, args.json)
+        figures = handovers(base, args.handovers, not args.no_page)
+        act = {} if args.no_policy else with_lerobot(base, args)
+    emit({**side_by_side(figures, act), "busy_core": args.busy_core, "machine": machine()},
+         args.json)  # fmt: skip
+
+
+def side_by_side(stub: dict[str, Any], act: dict[str, Any]) -> dict[str, Any]:
+    """The stub's figures and the ACT's (bench.rollout_policy's) in one line: the
+    handover and steady steps as ``{"stub", "act"}``."""
+    out, act = dict(stub), dict(act)
+    for key in STEPS:
+        out[key] = {"stub": stub[key], "act": act.pop(key, None)}
+    out["handovers"] = {**stub["handovers"], "act": act.pop("handovers", 0)}
+    out["act_handover_jump_mm_by_kind"] = act.pop("handover_jump_mm_by_kind", None)
+    return {**out, **act}
 
 
 if __name__ == "__main__":

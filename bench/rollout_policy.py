@@ -25,6 +25,7 @@ policy part of bench.rollout, run in LeRobot's own venv (Python 3.12, torch).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import shutil
@@ -49,6 +50,11 @@ START_SPREAD_RAD = 0.35  # each start: home + this much at most on the first thr
 # The trained policy's cameras: small, so it trains on a CPU (a training step took 1.8 s
 # with a 320×240 pair here); rolled out, the plugin resizes the server's frames to it.
 TRAIN_SIZE = (160, 120)  # (the least video the server makes: 120 rows)
+# The start poses' streams: the demonstrations' (training) and the evaluation's held-out
+# starts are drawn from different seeds; --train keeps its starts in STARTS_FILE.
+TRAINING_SEED = 11
+HELD_OUT_SEED = 4904
+STARTS_FILE = "starts.json"
 
 
 # ------------------------------------------------------------ the policy
@@ -248,7 +254,9 @@ class Reach:
         from telerobot.client import Telerobot
 
         self.url, self.token = url, token
-        self.http = httpx.Client(base_url=url + "api/v1/", timeout=30)
+        self.http = httpx.Client(
+            base_url=url + "api/v1/", headers={"Authorization": f"Bearer {token}"}, timeout=30
+        )
         block = next(b for b in self.http.get("workcell").json()["boxes"] if b["name"] == "block")
         self.goal = np.array(block["centre"]) + [0.0, 0.0, block["size"][2] / 2 + 0.03]
         # (made before anything else moves the arm: it starts at home)
@@ -257,16 +265,16 @@ class Reach:
             arm.move_cartesian(self.goal.tolist())  # (keeping the tool's orientation)
             self.goal_joints = np.array(arm.state()["joints"])
         self.place(self.home, name="reach-setup")
-        self.rng = np.random.default_rng(11)
 
-    def start(self) -> np.ndarray:
-        """A start pose the task can be done from: the straight joint path from it to the
-        goal (the demonstrations' path) touches nothing (tried once by a REST move)."""
+    def start(self, rng: np.random.Generator) -> np.ndarray:
+        """The next start pose drawn from ``rng`` the task can be done from: the straight
+        joint path from it to the goal (the demonstrations' path) touches nothing (tried
+        once by a REST move; a draw that fails is skipped)."""
         from telerobot.client.rest import TelerobotError
 
         while True:
             q = self.home.copy()
-            q[:3] += self.rng.uniform(-START_SPREAD_RAD, START_SPREAD_RAD, 3)
+            q[:3] += rng.uniform(-START_SPREAD_RAD, START_SPREAD_RAD, 3)
             try:
                 self.place(q, name="reach-start")
                 self.place(self.goal_joints, name="reach-start")
@@ -274,6 +282,11 @@ class Reach:
                 continue
             if self.distance() < SUCCESS_M / 3:
                 return q
+
+    def starts(self, seed: int, n: int) -> list[np.ndarray]:
+        """The first ``n`` start poses of the stream ``seed`` (as ``start`` draws them)."""
+        rng = np.random.default_rng(seed)
+        return [self.start(rng) for _ in range(n)]
 
     def tool(self) -> np.ndarray:
         return np.array(self.http.get("robot/state").json()["position"])
@@ -294,19 +307,185 @@ class Reach:
             arm.move_joints(q.tolist())
 
 
-def evaluate(
-    robot: Any, policy: Policy, reach: Reach, episodes: int, supervised: bool
+# ------------------------------------------------------------ people and the tool's path
+class Person:
+    """The person supervising, over REST with the operator token: lets the policy drive
+    (a resume) and takes over and hands back (POST /lease, DELETE /lease)."""
+
+    def __init__(self, url: str, token: str, robot: Any) -> None:
+        self.url, self.token = url, token
+        self.http = httpx.Client(
+            base_url=url + "api/v1/", headers={"Authorization": f"Bearer {token}"}, timeout=30
+        )
+        self.now = robot.arm._server_now  # the server's clock
+        self.resumes = 0  # a person's go other than a hand-back
+
+    def mode(self) -> str:
+        return str(self.http.get("autonomy").json()["mode"])
+
+    def let_drive(self) -> None:
+        """The policy drives: if nothing handed it back (it joined, or was stopped), a
+        person resumes it."""
+        from bench.policy_stub import resume_policy
+
+        if self.mode() != "autonomous":
+            resume_policy(self.url, self.token)
+            self.resumes += 1
+        if self.mode() != "autonomous":
+            raise RuntimeError(f"the policy does not drive: {self.http.get('autonomy').json()}")
+
+    def take_over(self) -> tuple[str, float]:
+        """An operator takes control from the policy: its client id, and when it asked
+        (server clock)."""
+        asked = self.now()
+        r = self.http.post("lease", json={"name": "bench-operator"})
+        r.raise_for_status()
+        return str(r.json()["client_id"]), asked
+
+    def hand_back(self, client_id: str) -> float:
+        """The operator releases: control goes back to the policy, AUTONOMOUS (a hand-back
+        is a person's go). When it asked (server clock)."""
+        asked = self.now()
+        self.http.delete("lease", headers={"X-Client-Id": client_id}).raise_for_status()
+        return asked
+
+
+class Track:
+    """Every STATE the policy's link receives: the tool's position and the joints, on the
+    server's clock (the plugin's own handler still gets each)."""
+
+    def __init__(self, robot: Any) -> None:
+        self._lock = threading.Lock()
+        self.t: list[float] = []
+        self.p: list[np.ndarray] = []
+        self.q: list[np.ndarray] = []
+        link = robot.arm.link
+        before = link.on_state
+
+        def on_state(fields: dict[str, Any]) -> None:
+            with self._lock:
+                self.t.append(float(fields["server_time"]))
+                self.p.append(np.array([fields["x"], fields["y"], fields["z"]], float))
+                self.q.append(np.array(fields["joints"], float))
+            if before is not None:
+                before(fields)
+
+        link.on_state = on_state
+
+    def _within(self, since: float, until: float) -> tuple[np.ndarray, np.ndarray]:
+        with self._lock:
+            t = np.array(self.t)
+            keep = (t >= since) & (t <= until)
+            p = np.array(self.p)[keep] if keep.any() else np.zeros((0, 3))
+            q = np.array(self.q)[keep] if keep.any() else np.zeros((0, 6))
+        return p, q
+
+    def largest_steps(self, since: float, until: float) -> tuple[float, float]:
+        """The largest tool move (m) and joint move (rad) between two consecutive STATEs
+        (50 Hz) within [since, until]."""
+        p, q = self._within(since, until)
+        if len(p) < 2:
+            return 0.0, 0.0
+        return (
+            float(np.linalg.norm(np.diff(p, axis=0), axis=1).max()),
+            float(np.abs(np.diff(q, axis=0)).max()),
+        )
+
+    def path_m(self, since: float, until: float) -> float:
+        """The length of the tool's path within [since, until]."""
+        p, _ = self._within(since, until)
+        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+
+
+def hold_still(robot: Any) -> None:
+    """The plugin forgets the policy's last target: the arm stays where it is put until
+    the policy's next action (an episode starts at its start pose, not on its way back to
+    the previous episode's last target)."""
+    robot.arm._targets.target = None
+
+
+# ------------------------------------------------------------ handovers with the ACT
+HANDOVER_TRIAL_S = 4.0  # each trial: the policy drives this long
+TAKE_AT_S = 1.0  # an operator takes over this long into it (a trained policy: mid-reach)
+HOLD_S = 0.5  # holds control this long, then hands back
+AFTER_S = 0.5  # a handover's jump: the steps this long after it (as bench.rollout)
+
+
+def act_handovers(
+    robot: Any,
+    policy: Policy,
+    person: Person,
+    track: Track,
+    n: int,
+    reach: Reach | None,
+    starts: list[np.ndarray],
 ) -> dict[str, Any]:
-    """``episodes`` of the task; with ``supervised``, a scripted supervisor corrects a
-    policy that stopped getting closer (it drives 70 % of the way, then hands back)."""
+    """``n`` trials of the ACT driving through the plugin (absolute joint targets) while
+    an operator takes over over REST, holds control HOLD_S and hands back: the worst tool
+    and joint step between consecutive STATEs within AFTER_S after each takeover and each
+    hand-back, against the largest while control stayed put (the policy's own motion).
+    With ``reach``, each trial starts from the next of ``starts`` (held out)."""
+    after: dict[str, list[tuple[float, float]]] = {"takeover": [], "hand_back": []}
+    steady: list[tuple[float, float]] = []
+    for i in range(n):
+        if reach is not None:
+            hold_still(robot)
+            reach.place(starts[i % len(starts)])
+        person.let_drive()
+        policy.reset()
+        t0 = person.now()
+        driver = threading.Thread(target=run_loop, args=(robot, policy, HANDOVER_TRIAL_S))
+        driver.start()
+        time.sleep(TAKE_AT_S)
+        client, took = person.take_over()
+        time.sleep(HOLD_S)
+        back = person.hand_back(client)
+        driver.join(HANDOVER_TRIAL_S + 30)
+        t1 = person.now()
+        after["takeover"].append(track.largest_steps(took, took + AFTER_S))
+        after["hand_back"].append(track.largest_steps(back, back + AFTER_S))
+        steady.append(track.largest_steps(t0, took))
+        if back + AFTER_S < t1:
+            steady.append(track.largest_steps(back + AFTER_S, t1))
+    worst = {k: (max(s[0] for s in v), max(s[1] for s in v)) for k, v in after.items()}
+    jump = max(w[0] for w in worst.values()), max(w[1] for w in worst.values())
+    still = max(s[0] for s in steady), max(s[1] for s in steady)
+    return {
+        "handover_jump_mm": round(jump[0] * 1000, 3),
+        "handover_jump_rad": round(jump[1], 5),
+        "steady_step_mm": round(still[0] * 1000, 3),
+        "steady_step_rad": round(still[1], 5),
+        "handover_jump_mm_by_kind": {k: round(w[0] * 1000, 3) for k, w in worst.items()},
+        "handovers": n,
+    }
+
+
+# ------------------------------------------------------------ evaluating
+def evaluate(
+    robot: Any,
+    policy: Policy,
+    reach: Reach,
+    person: Person,
+    track: Track,
+    starts: list[np.ndarray],
+    supervised: bool,
+) -> dict[str, Any]:
+    """An episode from each of ``starts``; with ``supervised``, a scripted supervisor
+    corrects a policy that stopped getting closer (it drives 70 % of the way, then hands
+    back), and the tool's path is split between the supervisor's control and the
+    policy's."""
     from telerobot.client.rest import TelerobotError
 
-    successes, interventions, finals = 0, [], []
-    for _ in range(episodes):
-        reach.place(reach.start())
+    successes, interventions, finals, paused = 0, [], [], 0
+    path_m = supervisor_m = 0.0
+    for start in starts:
+        hold_still(robot)
+        reach.place(start)  # (an operator's move, handed back: the policy may drive)
+        person.let_drive()
         policy.reset()
         stop = threading.Event()
         driver = threading.Thread(target=run_loop, args=(robot, policy, EPISODE_S, stop))
+        began = person.now()
         driver.start()
         t0 = time.monotonic()
         best, best_at, corrections = math.inf, t0, 0
@@ -317,24 +496,51 @@ def evaluate(
                 best, best_at = d, now
             if supervised and d > SUCCESS_M and now - best_at > 1.5 and now - t0 > 2.0:
                 q = np.array(reach.http.get("robot/state").json()["joints"])
+                took = person.now()
                 try:
                     reach.place(q + 0.7 * (reach.goal_joints - q), name="supervisor")
                 except TelerobotError as exc:  # said, and the episode goes on
                     print(f"the supervisor's correction failed: {exc}", file=sys.stderr)
+                supervisor_m += track.path_m(took, person.now())
                 corrections += 1
                 best, best_at = reach.distance(), time.monotonic()
             time.sleep(0.1)
         stop.set()
         driver.join(EPISODE_S + 5)
         final = reach.distance()  # where the policy left the tool: held at the goal?
+        path_m += track.path_m(began, person.now())
+        paused += person.mode() != "autonomous"
         finals.append(final)
         successes += final < SUCCESS_M
         interventions.append(corrections)
     return {
-        "success_rate": successes / episodes,
+        "success_rate": round(successes / len(starts), 3),
         "interventions": interventions,
         "final_mm": [round(f * 1000, 1) for f in finals],
+        "ended_paused": paused,
+        "supervisor_path_share": round(supervisor_m / path_m, 3) if path_m else None,
     }
+
+
+def training_starts(policy: Path, reach: Reach, n: int) -> tuple[list[np.ndarray], str]:
+    """The demonstrations' starts: STARTS_FILE beside the policy (--train leaves it), else
+    drawn again from TRAINING_SEED as --train drew them (the same server, the same
+    draws skipped)."""
+    for folder in (policy, *policy.parents[:4]):
+        if (folder / STARTS_FILE).is_file():
+            said = json.loads((folder / STARTS_FILE).read_text())
+            if said["seed"] != TRAINING_SEED:
+                raise ValueError(f"{folder / STARTS_FILE}: seed {said['seed']}")
+            return [np.array(q) for q in said["starts"][:n]], str(folder / STARTS_FILE)
+    return reach.starts(TRAINING_SEED, n), f"drawn again from seed {TRAINING_SEED}"
+
+
+def apart(held_out: list[np.ndarray], training: list[np.ndarray]) -> dict[str, float]:
+    """How far each held-out start is from the nearest training start (the largest joint
+    difference, rad); none may be a training start."""
+    nearest = [min(float(np.abs(h - t).max()) for t in training) for h in held_out]
+    assert min(nearest) > 1e-6, "a held-out start is a training start"
+    return {"min": round(min(nearest), 4), "median": round(float(np.median(nearest)), 4)}
 
 
 # ------------------------------------------------------------ training
@@ -364,8 +570,11 @@ def train(out: Path, demos: int, steps: int, width: int, height: int) -> Path:
             base_url=url + "api/v1/", headers={"Authorization": f"Bearer {token}"}, timeout=600
         )
         http.post("recordings", json={"name": "reach-demos"}).raise_for_status()
+        rng = np.random.default_rng(TRAINING_SEED)
+        starts: list[list[float]] = []
         for i in range(demos):
-            q0 = reach.start()
+            q0 = reach.start(rng)
+            starts.append(q0.tolist())
             reach.place(q0)
             http.post("recordings/active/episodes", json={"task": "reach above the block"})
             arm = TelerobotArm(ArmOptions(url, token, name="demonstrator", cameras=False))
@@ -395,6 +604,8 @@ def train(out: Path, demos: int, steps: int, width: int, height: int) -> Path:
         file = http.post("recordings/active/stop").json()["file"]
         made = http.post(f"recordings/{file}/export/lerobot", json={}).json()
         shutil.copytree(made["path"], dataset)
+    said = {"seed": TRAINING_SEED, "starts": starts}
+    (out / STARTS_FILE).write_text(json.dumps(said))
     print(f"exported {made['frames']} rows to {dataset}", flush=True)
     run = out / "train"
     if run.exists():
@@ -409,7 +620,12 @@ def train(out: Path, demos: int, steps: int, width: int, height: int) -> Path:
     print(" ".join(cmd), flush=True)
     subprocess.run(cmd, check=True, env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"})
     last = run / "checkpoints" / "last" / "pretrained_model"
-    return last
+    policy = out / "pretrained_model"  # the policy, with its demonstrations' starts
+    if policy.exists():
+        shutil.rmtree(policy)
+    shutil.copytree(last, policy)
+    shutil.copy(out / STARTS_FILE, policy / STARTS_FILE)
+    return policy
 
 
 def main() -> None:
@@ -419,7 +635,8 @@ def main() -> None:
     p.add_argument("--json", action="store_true")
     p.add_argument("--policy", type=Path)
     p.add_argument("--seconds", type=float, default=20.0)
-    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--episodes", type=int, default=20, help="of each kind")
+    p.add_argument("--handovers", type=int, default=10, help="takeovers and hand-backs")
     p.add_argument("--width", type=int, default=640, help="of each camera, as the policy sees it")
     p.add_argument("--height", type=int, default=480)
     p.add_argument("--train", type=Path, help="record, export and train into this folder")
@@ -430,10 +647,19 @@ def main() -> None:
         path = train(args.train, args.demos, args.steps, TRAIN_SIZE[0], TRAIN_SIZE[1])
         print(json.dumps({"policy": str(path)}))
         return
+    out: dict[str, Any] = {}
+    reach, held_out, training = None, [], []
     if args.policy:  # its cameras' size, as it was trained
         features = json.loads((args.policy / "config.json").read_text())["input_features"]
         args.height, args.width = features["observation.images.left"]["shape"][1:]
-    out: dict[str, Any] = {"camera": f"{args.width}x{args.height} each, {FPS:g} fps"}
+        # The starts, before the policy joins: the demonstrations' and the held-out ones.
+        reach = Reach(args.url, args.token)
+        training, said = training_starts(args.policy, reach, args.episodes)
+        held_out = reach.starts(HELD_OUT_SEED, args.episodes)
+        out["start_seeds"] = {"training": TRAINING_SEED, "held_out": HELD_OUT_SEED}
+        out["training_starts_from"] = said
+        out["held_out_from_training_rad"] = apart(held_out, training)
+    out["camera"] = f"{args.width}x{args.height} each, {FPS:g} fps"
     robot = make_robot(args.url, args.token, args.width, args.height)
     with tempfile.TemporaryDirectory() as tmp:
         robot.connect()
@@ -442,30 +668,46 @@ def main() -> None:
         )
         try:
             policy = Policy(path, robot)
-            reach = Reach(args.url, args.token) if args.policy else None
+            person = Person(args.url, args.token, robot)
+            track = Track(robot)
             if reach is not None:  # the trained policy at its task
-                reach.place(reach.start())
+                hold_still(robot)
+                reach.place(held_out[0])
+            person.let_drive()  # (it took control paused: a person's go)
             policy.reset()
             steps = run_loop(robot, policy, args.seconds)
             out["obs_to_action_ms"] = p50_p99(obs_to_action(robot, steps))
             out["chunk_ms"] = p50_p99(policy.chunk_ms)
             out["steps"] = len(steps)
             out["policy"] = "trained: " + str(args.policy) if args.policy else "ACT, untrained"
+            out.update(act_handovers(robot, policy, person, track, args.handovers, reach, held_out))
             if reach is not None:
-                free = evaluate(robot, policy, reach, args.episodes, supervised=False)
-                helped = evaluate(robot, policy, reach, args.episodes, supervised=True)
-                out["success_rate"] = {"unsupervised": free["success_rate"],
+                run = functools.partial(evaluate, robot, policy, reach, person, track)
+                free = run(held_out, supervised=False)
+                seen = run(training, supervised=False)
+                helped = run(held_out, supervised=True)
+                out["success_rate"] = {"held_out": free["success_rate"],
+                                       "training_starts": seen["success_rate"],
                                        "supervised": helped["success_rate"]}  # fmt: skip
+                out["supervisor_path_share"] = helped["supervisor_path_share"]
                 out["interventions_per_episode"] = round(float(np.mean(helped["interventions"])), 2)
                 out["final_distance_mm"] = {
-                    "unsupervised": float(np.median(free["final_mm"])),
+                    "held_out": float(np.median(free["final_mm"])),
+                    "training_starts": float(np.median(seen["final_mm"])),
                     "supervised": float(np.median(helped["final_mm"])),
                 }
+                out["ended_paused"] = {"held_out": free["ended_paused"],
+                                       "training_starts": seen["ended_paused"],
+                                       "supervised": helped["ended_paused"]}  # fmt: skip
+                out["episodes"] = {"held_out": len(held_out), "training_starts": len(training),
+                                   "supervised": len(held_out)}  # fmt: skip
                 out["success_within_mm"] = SUCCESS_M * 1000
                 out["episode_s"] = EPISODE_S
             else:
                 out["success_rate"] = None
+                out["supervisor_path_share"] = None
                 out["interventions_per_episode"] = None
+            out["person_resumes"] = person.resumes
         finally:
             robot.disconnect()
     print(json.dumps(out))
