@@ -392,6 +392,7 @@ async function main(): Promise<void> {
     videoInterval,
     forceLimitN: safety.force_limit_n,
     controller: () => controller,
+    policyHolds: () => supervision?.policyHolds ?? false,
     get jointNames() {
       return selectedArm().entry.model.joint_names;
     },

@@ -51,6 +51,11 @@ describe("the header's state model", () => {
     expect(v.banner.text).toContain("whoever has control");
   });
 
+  it("e-stop latched while a policy holds control: its supervisor may reset it", () => {
+    const v = view({ policyHolds: true }, OPERATOR | SOMEONE_HAS_CONTROL | ESTOP);
+    expect(v.reset).toEqual({ visible: true, enabled: true });
+  });
+
   it("force limited: FORCE LIMIT and its banner", () => {
     const v = view({}, YOU_HAVE_CONTROL | FORCE_LIMITED, "MOVING");
     expect(v.badge).toEqual({ text: "FORCE LIMIT", cls: "FORCE_LIMIT" });

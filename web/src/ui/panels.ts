@@ -40,6 +40,8 @@ export interface PanelSources {
   jointNames: readonly string[];
   /** Who has control, by name (the SAFETY events, GET /api/v1/safety); null: not known. */
   controller?: () => string | null;
+  /** A policy holds control: its supervisor (this page) may reset the e-stop. */
+  policyHolds?: () => boolean;
   /** For the Home button (POST /api/v1/robot/initialize) and its errors. */
   api?: Api;
   log?: MessageLog;
@@ -150,6 +152,7 @@ export function updatePanels(src: PanelSources, fresh: Freshness, home: HomeStep
       stateAgeMs: now - Math.max(s ? fresh.stateAt : -Infinity, fresh.openedAt),
       home,
       controller: src.controller?.() ?? null,
+      policyHolds: src.policyHolds?.() ?? false,
     }),
   );
   $("speed-value").textContent = speedText(numberIn("speed"));

@@ -24,6 +24,9 @@ export interface HeaderInput {
   home?: HomeStep;
   /** Who has control, by the name it gave itself (null or absent: not known, or nobody). */
   controller?: string | null;
+  /** A policy holds control (autonomous or paused): an operator supervising it may reset
+   * the e-stop, as the server allows; the policy drives again only when a person says go. */
+  policyHolds?: boolean;
 }
 
 export interface ButtonView {
@@ -80,7 +83,8 @@ export function headerView(i: HeaderInput): HeaderView {
     else badge = { text: i.state?.status ?? "…", cls: i.state?.status ?? "" };
     const other = i.controller ? `${i.controller} has control` : "someone else has control";
     control = mine ? "you have control" : has(StateFlags.SOMEONE_HAS_CONTROL) ? other : "nobody has control";
-    if (estop) banner = { text: mine || !has(StateFlags.SOMEONE_HAS_CONTROL) ? "E-STOP latched: reset it to move again" : "E-STOP latched: whoever has control must reset it", error: false };
+    if (estop && !mine && i.policyHolds) banner = { text: "E-STOP latched: reset it; the policy then waits until you press P", error: false };
+    else if (estop) banner = { text: mine || !has(StateFlags.SOMEONE_HAS_CONTROL) ? "E-STOP latched: reset it to move again" : "E-STOP latched: whoever has control must reset it", error: false };
     else if (halted) banner = { text: "Arm halted: the link stalled (you keep control): keys still held drive again once it is back", error: false };
     else if (forceLimited) banner = { text: "Force limit: back away from the contact", error: false };
   }
@@ -92,7 +96,7 @@ export function headerView(i: HeaderInput): HeaderView {
     control,
     take: i.operator && i.linkOpen && !mine ? { visible: true, enabled: known } : hidden,
     release: mine ? { visible: true, enabled: true } : hidden,
-    reset: estop && i.operator ? { visible: true, enabled: mine || !has(StateFlags.SOMEONE_HAS_CONTROL) } : hidden,
+    reset: estop && i.operator ? { visible: true, enabled: mine || !has(StateFlags.SOMEONE_HAS_CONTROL) || (i.policyHolds ?? false) } : hidden,
     home: mine
       ? { visible: true, enabled: home !== "moving" && !estop, text: home === "confirm" ? "Confirm: move home" : home === "moving" ? "Homing…" : "Home" }
       : { ...hidden, text: "Home" },
