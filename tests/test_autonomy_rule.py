@@ -12,7 +12,7 @@ test's concern), never less.
 
 ``TELEROBOT_RULE_EXAMPLES`` sets how many sequences: 1,000 here (about 12 s; a mutant
 that hands back with the e-stop latched is found within them), 10,000 for the figure
-in docs/PERFORMANCE.md.
+in docs/PERFORMANCE.md (``--timeout=0``: longer than a test's limit).
 """
 
 from __future__ import annotations
