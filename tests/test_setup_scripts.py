@@ -90,7 +90,8 @@ def test_the_venv_stamp_holds_the_spec_and_a_changed_spec_installs_again(tmp_pat
     assert "lerobot[dataset]==0.6.1 pytest" in stamp and "python 3.12.1" in stamp
     calls.unlink()
     out = run([str(VENV)], home, shims, **env)  # the same: nothing to do
-    assert out.returncode == 0 and "pip install" not in (calls.read_text() if calls.exists() else "")
+    assert out.returncode == 0
+    assert "pip install" not in (calls.read_text() if calls.exists() else "")
     out = run([str(VENV)], home, shims, **{**env, "LEROBOT_SPEC": "lerobot[dataset]==0.6.2"})
     assert out.returncode == 0 and "lerobot[dataset]==0.6.2" in calls.read_text()
     assert os.access(python, os.X_OK)
