@@ -188,6 +188,8 @@ async def test_after_a_stall_the_lease_is_kept_and_only_a_fresh_command_moves(
         )
     assert not ds.state().halted  # the link is back
     assert len(robot.sent) == before  # and nothing moved
+    # Counted where a user looks (/safety's stale_commands_dropped), as the age check's.
+    assert a.stale_dropped == 1 and ds.stale_dropped == 1
     fresh = clock.now() - 0.01
     await ds.cartesian_increment(a.id, np.array([0.001, 0, 0]), np.zeros(3), client_time=fresh)
     assert len(robot.sent) == before + 1 and ds.lease_holder == a.id

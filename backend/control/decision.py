@@ -1063,9 +1063,14 @@ class DecisionServer:
         transit = now - client_time
         waited = transit - client.transit_floor.update(transit, now)
         if waited > self.limits.deadman_timeout_s:
+            # Counted with the age check's drops: every command dropped for its age is
+            # in /safety's stale_commands_dropped, whichever check dropped it.
+            client.stale_dropped += 1
+            self.stale_dropped += 1
             raise SafetyStop(
                 f"stale command: it waited {waited * 1000:.0f} ms on the way (longer than "
                 f"the dead-man's {self.limits.deadman_timeout_s * 1000:.0f} ms); dropped"
+                f" ({client.stale_dropped} so far)"
             )
 
     @staticmethod
