@@ -1,17 +1,21 @@
 """What every arm's kinematic model shares, whichever arm it is: the checks every
-command passes, the tool transform, increments in a working frame, and the interface
-the server and the drivers read (``ArmKinematics``).
+command passes, the tool transform, increments in a working frame, the jog solver, and
+the interface the server and the drivers read (``ArmKinematics``).
 
 The PUMA 560 keeps its closed-form model (``telerobot.drivers.robot.puma560.kinematics``); any
 other arm gets a numeric one from its URDF (``telerobot.drivers.robot.models.numeric``). Both
 satisfy ``ArmKinematics``, so nothing above the drivers asks which arm it holds.
+
+Two inverse kinematics: ``ik`` for an absolute pose (anywhere in the workspace, the
+arm's full solver), ``jog`` for a small increment from the current joints (differential
+IK, ``PinocchioKinematics.jog``: one or two Jacobian solves whatever the arm, issue 50).
 """
 
 from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from typing import Protocol
+from typing import ClassVar, Final, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -44,6 +48,11 @@ class ArmKinematics(Protocol):
     def check_joint_limits(self, q: FloatArray) -> None: ...
     def ik(self, T: FloatArray, seed: FloatArray) -> FloatArray:
         """Joints reaching the tool pose ``T`` within the limits, nearest ``seed``."""
+        ...
+
+    def jog(self, T: FloatArray, seed: FloatArray) -> FloatArray:
+        """Joints reaching ``T``, a small increment from ``seed`` (the current joints):
+        what ``ik`` would answer, in a Jacobian solve or two. Refuses as ``ik`` does."""
         ...
 
 
@@ -117,6 +126,18 @@ def apply_increment(
     raise InvalidCommand(f"unknown working frame {frame!r}")
 
 
+def _inv3_damped(M: FloatArray, damping2: float) -> FloatArray:
+    """(M + λ² I)⁻¹ of a symmetric 3×3 ``M``, in closed form: a third of
+    ``numpy.linalg.inv``'s time, which is mostly its overhead at this size."""
+    (a, b, c), (_, e, f), (_, _, i) = M.tolist()
+    a, e, i = a + damping2, e + damping2, i + damping2
+    A, B, C = e * i - f * f, c * f - b * i, b * f - c * e
+    s = 1.0 / (a * A + b * B + c * C)
+    D, E, F = (a * i - c * c) * s, (b * c - a * f) * s, (a * e - b * b) * s
+    A, B, C = A * s, B * s, C * s
+    return np.array(((A, B, C), (B, D, E), (C, E, F)))
+
+
 def joint_limit_faults(
     q: FloatArray, qlim: FloatArray, names: tuple[str, ...], tol: float = 1e-9
 ) -> list[str]:
@@ -129,11 +150,35 @@ def joint_limit_faults(
     ]
 
 
+# The jog solver (``PinocchioKinematics.jog``).
+# Newton steps before an increment goes to the arm's own solver (``_jog_unmet``): a
+# 0.2 mm increment is met in one, the largest one command may ask (20 mm) in three.
+JOG_STEPS: Final = 4
+# Damping λ of the position's least squares (m/rad): a regularisation, not a damping.
+# The position is met (near a singularity by a large joint motion, which the server's
+# joint-step limit refuses, as it refuses ``ik``'s); and the joint motions that leave
+# the tool point where it is, which the orientation is solved in, are computed with the
+# same inverse: a larger λ lets λ²/s² of the position's motions through them.
+JOG_POSITION_DAMPING: Final = 1e-6
+# The orientation comes second, solved in what the position leaves free: a direction
+# in which those joints turn the tool by σ rad/rad is followed exactly (1/σ) if σ is
+# at least ε, and damped below it (σ/ε², least squares with λ² = ε² − σ²), down to
+# nothing for what the position's motions leak through. Near a pose where those joints
+# barely turn the tool (an SO-101's lift, elbow and wrist flex about to line up),
+# undamped least squares swings them by tenths of a radian for a hundredth of a
+# milliradian, and the position's second order with them; damped, the joints stay
+# still and the orientation gives that up. Where they turn it well (the PUMA's wrist
+# away from its singularity, most SO-101 poses) nothing is damped.
+JOG_ORIENTATION_EPSILON: Final = 0.02
+_POSITION_DAMPING2: Final = JOG_POSITION_DAMPING**2
+_ORIENTATION_EPSILON2: Final = JOG_ORIENTATION_EPSILON**2
+
+
 class PinocchioKinematics(ABC):
     """What a kinematic model held as a Pinocchio model with a tool frame does the same
     for every arm: the tool (checked, its inverse kept), FK of the tool and the flange,
-    the joints' origins, the Jacobian, increments in a working frame, the limits. A
-    subclass builds the model (``_build_model``: sets ``model``, ``_data``,
+    the joints' origins, the Jacobian, increments in a working frame, the limits, the
+    jog solver. A subclass builds the model (``_build_model``: sets ``model``, ``_data``,
     ``_flange_id``, ``_tool_id`` for the current ``_tool``) and solves the IK.
 
     Not thread-safe (one Pinocchio ``Data`` per instance): give each thread its own."""
@@ -143,9 +188,26 @@ class PinocchioKinematics(ABC):
     _data: pin.Data
     _flange_id: int
     _tool_id: int
+    # Tolerances a jog's result meets (a subclass's instances may set their own).
+    position_tol_m: float = 1e-6
+    orientation_tol_rad: float = 1e-5
+    # Whether ``ik`` meets the whole pose or refuses it (the PUMA's closed form): then a
+    # jog whose orientation the joints cannot hold goes to ``ik`` too. False: ``ik``
+    # puts the position first and meets the orientation as nearly as the arm can (the
+    # numeric IK), and so does the jog.
+    exact_orientation: ClassVar[bool] = False
+    # Of the last ``jog``: the Newton steps it took (0: the seed was the goal; none
+    # when it went to the arm's solver) and its residual (metres, radians).
+    last_jog_steps: int | None = None
+    last_jog_residual: tuple[float, float] = (0.0, 0.0)
 
     @abstractmethod
     def _build_model(self) -> None: ...
+
+    @abstractmethod
+    def ik(self, T: FloatArray, seed: FloatArray) -> FloatArray:
+        """Joints reaching the tool pose ``T`` within the limits, nearest ``seed``: the
+        arm's full solver, for absolute moves (``jog`` for increments)."""
 
     @property
     def tool(self) -> FloatArray:
@@ -161,6 +223,7 @@ class PinocchioKinematics(ABC):
         self._tool_inv: FloatArray = np.linalg.inv(T).astype(float)
         self._tool_is_identity = bool(np.allclose(T, np.eye(4), atol=0, rtol=0))
         self._build_model()
+        self._prepare_jog()
 
     def fk(self, q: FloatArray) -> FloatArray:
         """Tool pose in the base frame as a 4×4 homogeneous matrix."""
@@ -199,3 +262,124 @@ class PinocchioKinematics(ABC):
 
     def within_limits(self, q: FloatArray, tol: float = 1e-9) -> bool:
         return bool(np.all(q >= self.qlim[:, 0] - tol) and np.all(q <= self.qlim[:, 1] + tol))
+
+    # ------------------------------------------------------------- jog
+    def _prepare_jog(self) -> None:
+        """What every jog reads: the joints that move the tool (an SO-101's gripper does
+        not: its Jacobian columns are masked to zero), the limits."""
+        model = self.model
+        n = len(self.qlim)
+        if model.nq != model.nv or model.nq != n:
+            raise InvalidCommand("the jog solver needs one coordinate per joint")
+        parent = model.frames[self._tool_id].parentJoint
+        chain = {model.joints[j].idx_q for j in model.supports[parent] if j > 0}
+        mask = np.array([float(i in chain) for i in range(n)])
+        self._jog_mask: FloatArray | None = None if mask.all() else mask
+        self._jog_lo = np.ascontiguousarray(self.qlim[:, 0], dtype=float)
+        self._jog_hi = np.ascontiguousarray(self.qlim[:, 1], dtype=float)
+        self._jog_eye = np.eye(n)
+
+    def jog(self, T: FloatArray, seed: FloatArray) -> FloatArray:
+        """Joints within the limits reaching the tool pose ``T``, a small increment
+        from ``seed`` (the current joints): differential inverse kinematics, for
+        Cartesian jogging. Each Newton step is one damped least-squares solve on the
+        tool's 6×n Jacobian (base-aligned axes at the tool point, as ``jacobian``),
+        warm-started at ``seed``: the position first, then the orientation in the
+        freedom the position leaves (its null space). A 0.2 mm increment is met in one
+        step, and a step costs the same for five joints as for six.
+
+        Joint limits: a joint the step would take past a limit is held at it and the
+        step solved again without it, as ``ik`` keeps them.
+
+        An arm with six joints (the PUMA 560) meets the position and the orientation.
+        One with five (the SO-101) meets the position and cannot, from most poses,
+        keep the orientation while the tool moves sideways: the orientation changes by
+        the least rotation the move needs (the two joints the position leaves free
+        turn the tool as near the asked orientation as they can; see
+        ``JOG_ORIENTATION_EPSILON`` for where they barely can), and the next increment
+        starts from the orientation that left. A long sideways jog turns the tool
+        about the axis the wrist lacks; ``last_jog_residual`` says by how much this
+        one missed.
+
+        What the few steps cannot meet (a joint limit holding the position off, a
+        singularity, the edge of the reach; and, where ``exact_orientation``, an
+        orientation the joints cannot hold) goes to the arm's own solver
+        (``_jog_unmet``), which answers or refuses as ``ik`` does: ``UnreachablePose``,
+        ``JointLimitError``. A position short by more than ``position_tol_m`` is never
+        returned."""
+        lo, hi = self._jog_lo, self._jog_hi
+        q: FloatArray = np.minimum(np.maximum(np.asarray(seed, dtype=float), lo), hi)
+        p_goal, R_goal = T[:3, 3], T[:3, :3]
+        tol_p, tol_o, exact = self.position_tol_m, self.orientation_tol_rad, self.exact_orientation
+        J, e_p, e_o = self._jog_error(q, p_goal, R_goal)
+        left = 0.0  # the orientation error the last step's free joints could not remove
+        for step in range(JOG_STEPS + 1):
+            pos, rot = math.sqrt(e_p @ e_p), math.sqrt(e_o @ e_o)
+            if pos <= tol_p and (rot <= tol_o or (not exact and rot <= left + tol_o)):
+                self.last_jog_steps, self.last_jog_residual = step, (pos, rot)
+                return q
+            if step == JOG_STEPS:
+                break
+            q, left = self._jog_step(J, e_p, e_o, q)
+            J, e_p, e_o = self._jog_error(q, p_goal, R_goal)
+        self.last_jog_steps = None
+        return self._jog_unmet(T, seed, q)
+
+    def _jog_error(
+        self, q: FloatArray, p_goal: FloatArray, R_goal: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """At ``q``: the tool's Jacobian (base-aligned, at the tool point) and its
+        position and orientation errors to the goal in the same axes (the rotation
+        vector that takes the tool's orientation to the goal's, in the base frame)."""
+        J: FloatArray = pin.computeFrameJacobian(
+            self.model, self._data, q, self._tool_id, pin.LOCAL_WORLD_ALIGNED
+        )
+        M = self._data.oMf[self._tool_id]  # placed by computeFrameJacobian
+        R = M.rotation
+        e_p: FloatArray = p_goal - M.translation
+        e_o: FloatArray = R @ pin.log3(R.T @ R_goal)
+        return J, e_p, e_o
+
+    def _jog_step(
+        self, J: FloatArray, e_p: FloatArray, e_o: FloatArray, q: FloatArray
+    ) -> tuple[FloatArray, float]:
+        """One Newton step from ``q`` (n,): the joints it reaches and what it leaves of
+        the orientation error (radians).
+
+        The position: the damped pseudo-inverse of the position rows, P = Jpᵀ (Jp Jpᵀ +
+        λ²)⁻¹ (3×3, inverted in closed form), and N = I − P Jp, the joint motions that
+        leave the tool point where it is (n − 3 of them). The orientation: least
+        squares within them, on the SVD of A = Jo N (rank n − 3: met with six joints,
+        as near as the two left allow with five), each direction damped below
+        ``JOG_ORIENTATION_EPSILON``. (A constant damping would follow, for a rotation
+        nothing else makes, the trace of the position's motions N lets through.) A
+        joint the step takes past a limit is held at it (its column zeroed, its share
+        taken off both errors) and the step solved again with the others."""
+        lo, hi, eye = self._jog_lo, self._jog_hi, self._jog_eye
+        # Joints off the tool's chain never move (a copy: J is ours to zero columns of).
+        J = J * self._jog_mask if self._jog_mask is not None else J.copy()
+        for _ in range(q.shape[0] + 1):  # each pass holds one joint more, at least
+            Jp, Jo = J[:3], J[3:]
+            P = Jp.T @ _inv3_damped(Jp @ Jp.T, _POSITION_DAMPING2)
+            d = P @ e_p
+            A = Jo @ (eye - P @ Jp)
+            r = e_o - Jo @ d
+            U, S, Vt = np.linalg.svd(A, full_matrices=False)
+            y = Vt.T @ (S / np.maximum(S * S, _ORIENTATION_EPSILON2) * (U.T @ r))
+            r -= A @ y
+            q_next: FloatArray = q + d + y
+            out = (q_next < lo) | (q_next > hi)
+            if not out.any():
+                return q_next, math.sqrt(r @ r)
+            held = np.where(out, np.minimum(np.maximum(q_next, lo), hi), q)
+            e_p = e_p - Jp @ (held - q)
+            e_o = e_o - Jo @ (held - q)
+            J[:, out] = 0.0
+            q = held  # exactly at the limits: the next pass leaves them there
+        return np.minimum(np.maximum(q_next, lo), hi), math.sqrt(r @ r)  # (never reached)
+
+    def _jog_unmet(self, T: FloatArray, seed: FloatArray, q: FloatArray) -> FloatArray:
+        """An increment the jog's steps did not meet (``q``: where they ended): the
+        arm's own solver answers, or refuses. By default ``ik`` (the PUMA's closed form:
+        a few microseconds)."""
+        return self.ik(T, seed)

@@ -13,6 +13,12 @@ Joint limits are kept by clamping each step.
 
 The result carries its residual (``last_residual``); a pose whose position cannot be
 met within ``position_tol_m`` is refused as unreachable, nothing moved.
+
+That is the solver for absolute poses. A jog (a small increment from the current
+joints) is solved by the differential IK every arm shares
+(``PinocchioKinematics.jog``: one or two Jacobian solves, position first and the
+orientation in what it leaves); what its few steps cannot meet comes back here, to the
+position alone from the current joints (``_jog_unmet``), refused as ``ik`` refuses.
 """
 
 from __future__ import annotations
@@ -119,15 +125,7 @@ class UrdfKinematics(PinocchioKinematics):
         (the current joints). The orientation is met as nearly as the arm can
         (``last_residual``); ``UnreachablePose`` if the position cannot be."""
         target = pin.SE3(T[:3, :3], T[:3, 3])
-        d = target.translation - self._shoulder
-        far = math.sqrt(d @ d) - self._reach
-        if far > self.position_tol_m:  # farther than the arm stretched out: no search
-            self.last_residual, self.last_iterations = (far, math.inf), 0
-            p = np.round(T[:3, 3], 4).tolist()
-            raise UnreachablePose(
-                f"the pose at {p} m is out of the {self._model_base.name}'s reach: "
-                f"{far * 1000:.0f} mm farther than the arm stretched out"
-            )
+        self._check_reach(T)
         q = np.minimum(np.maximum(np.asarray(seed, dtype=float), self._lo), self._hi)
         q, it = self._solve(target, q)
         # A far move can end in a local minimum against a limit: start again from a
@@ -142,6 +140,23 @@ class UrdfKinematics(PinocchioKinematics):
             starts = [q, *self._restarts][:FALLBACK_STARTS]
             q, it = self._retry(target, q, it, starts, self._position_only)
         self.last_iterations = it
+        self._check_met(T)
+        return q
+
+    def _check_reach(self, T: FloatArray) -> None:
+        """``UnreachablePose`` at once for a pose farther than the arm stretched out."""
+        d = T[:3, 3] - self._shoulder
+        far = math.sqrt(d @ d) - self._reach
+        if far > self.position_tol_m:  # farther than the arm stretched out: no search
+            self.last_residual, self.last_iterations = (far, math.inf), 0
+            p = np.round(T[:3, 3], 4).tolist()
+            raise UnreachablePose(
+                f"the pose at {p} m is out of the {self._model_base.name}'s reach: "
+                f"{far * 1000:.0f} mm farther than the arm stretched out"
+            )
+
+    def _check_met(self, T: FloatArray) -> None:
+        """``UnreachablePose`` when the last solve left the position short."""
         pos_err = self.last_residual[0]
         if pos_err > self.position_tol_m:
             p = np.round(T[:3, 3], 4).tolist()
@@ -149,6 +164,18 @@ class UrdfKinematics(PinocchioKinematics):
                 f"the pose at {p} m is out of the {self._model_base.name}'s reach within "
                 f"its joint limits: the nearest it gets is {pos_err * 1000:.2f} mm away"
             )
+
+    def _jog_unmet(self, T: FloatArray, seed: FloatArray, q: FloatArray) -> FloatArray:
+        """An increment the jog's steps did not meet: the position alone from the
+        current joints (a joint at a limit held there, bounded like ``ik``'s fallback),
+        the orientation what it gets; ``UnreachablePose`` as ``ik`` says it if the
+        position is still short. No restarts: what they find is another configuration
+        of the arm, a jump no increment may make (the joint-step limit refuses it)."""
+        self._check_reach(T)
+        target = pin.SE3(T[:3, :3], T[:3, 3])
+        start = np.minimum(np.maximum(np.asarray(seed, dtype=float), self._lo), self._hi)
+        q, self.last_iterations = self._position_only(target, start)
+        self._check_met(T)
         return q
 
     def _retry(

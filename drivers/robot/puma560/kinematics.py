@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Final, Literal
+from typing import ClassVar, Final, Literal
 
 import numpy as np
 import pinocchio as pin
@@ -113,6 +113,9 @@ class Puma560Kinematics(PinocchioKinematics):
     """
 
     joint_names: Final = tuple(f"joint{i}" for i in range(1, 7))
+    # The closed form meets the whole pose or refuses it; so does a jog (an orientation
+    # the joints cannot hold, at the wrist singularity, goes to ``ik``).
+    exact_orientation: ClassVar[bool] = True
 
     def __init__(self, tool: FloatArray | None = None) -> None:
         self.qlim = QLIM.copy()
