@@ -2,29 +2,44 @@
 page and the master arm and takes over (docs/lerobot.md, Supervised rollout).
 
     python -m bench.rollout [--json] [--handovers 20] [--no-page] [--busy-core]
-                            [--policy DIR] [--episodes 20] [--no-policy]
+                            [--policy DIR] [--episodes 20] [--act-handovers 10] [--no-policy]
 
-The last line's keys:
+A policy never drives without a person's go: each policy here joins with a policy token
+and starts paused; the bench, as the person, resumes it (or an operator's move handed
+back lets it drive). The last line's keys:
 
 - ``takeover_ms`` ``{"p50", "p99"}``: an operator's takeover (the page's T key, the
-  master's clutch) → the first command of the policy refused, as the policy's client
-  sees it (both on this machine's clock; the policy sends 30 commands a second, so up to
-  a period of it is waiting for its next command). ``policy_period_ms`` for scale, and
-  ``takeover_told_ms``: the takeover → the server's EVENT telling the policy (the
-  instant from which its commands are refused, no command of its needed).
-- ``handover_jump_mm``, ``handover_jump_rad``: the worst tool and joint step between two
-  consecutive STATEs (20 ms apart) within 0.5 s after a takeover or a release, over
-  ``--handovers`` from the page and as many from the simulated master. For scale:
-  ``steady_step_mm`` / ``steady_step_rad``, the same while control stays put (the
+  master's clutch) → the first command of the stub policy refused, as the policy's
+  client sees it (both on this machine's clock; the policy sends 30 commands a second,
+  so up to a period of it is waiting for its next command). ``policy_period_ms`` for
+  scale, and ``takeover_told_ms``: the takeover → the server's EVENT telling the policy
+  (the instant from which its commands are refused, no command of its needed).
+- ``handover_jump_mm``, ``handover_jump_rad`` ``{"stub", "act"}``: the worst tool and
+  joint step between two consecutive STATEs (20 ms apart) within 0.5 s after a takeover
+  or a hand-back. ``stub``: the stand-in policy (bench/policy_stub.py: joint 1 ±0.002 rad
+  a command) over ``--handovers`` from the page and as many from the simulated master.
+  ``act``: LeRobot's ACT (trained with ``--policy``, else untrained) driving through the
+  robot plugin (absolute joint targets; the plugin re-anchors on the arm after a
+  hand-back) while an operator takes over over REST (POST /lease), holds 0.5 s and hands
+  back (DELETE /lease), ``--act-handovers`` times (``act_handover_jump_mm_by_kind``:
+  after the takeovers and after the hand-backs). For scale: ``steady_step_mm`` /
+  ``steady_step_rad`` ``{"stub", "act"}``, the largest while control stays put (the
   policy's own motion), and ``step_limit_mm`` / ``step_limit_rad``, what the server lets
   one command move (its speed limits over the longest interval it allows, 0.1 s).
 - ``obs_to_action_ms`` ``{"p50", "p99"}``: LeRobot's ACT (untrained unless ``--policy``)
   driving through the robot plugin at 30 Hz with both cameras: the observation's frame
   captured → the server applying the first increment toward the action computed from it
   (bench.rollout_policy, in LeRobot's own venv; ``make lerobot-deps`` makes it).
-- ``success_rate`` ``{"unsupervised", "supervised"}`` and ``interventions_per_episode``:
-  with ``--policy DIR`` (a policy trained by ``python -m bench.rollout_policy --train``),
-  over ``--episodes`` episodes of the reach task each way; null without one.
+- With ``--policy DIR`` (``python -m bench.rollout_policy --train`` makes one), the
+  reach task, ``--episodes`` episodes of each kind (bench.rollout_policy's docstring):
+  ``start_seeds`` ``{"training", "held_out"}`` (the demonstrations' starts and the
+  evaluation's, drawn from different seeds; ``held_out_from_training_rad``: each held-out
+  start's distance to the nearest demonstration start), ``success_rate`` ``{"held_out",
+  "training_starts", "supervised"}`` (the first two unsupervised; supervised on the
+  held-out starts), ``supervisor_path_share`` (the share of the tool's path in the
+  supervised episodes driven while the scripted supervisor held control: a supervised
+  success is partly the supervisor's), ``interventions_per_episode``,
+  ``final_distance_mm`` and ``ended_paused``. Null without ``--policy``.
 """
 
 from __future__ import annotations

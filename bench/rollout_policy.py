@@ -2,24 +2,52 @@
 policy part of bench.rollout, run in LeRobot's own venv (Python 3.12, torch).
 
     <lerobot venv>/bin/python -m bench.rollout_policy --url URL --token TOKEN [--json]
-        [--policy DIR] [--seconds 20] [--episodes 20] [--width 320 --height 240]
+        [--policy DIR] [--seconds 20] [--episodes 20] [--handovers 10]
+        [--width 320 --height 240]
     <lerobot venv>/bin/python -m bench.rollout_policy --train DIR [--demos 30] [--steps 3000]
 
-- Without ``--policy``: a small ACT built from the robot's own features, untrained (the
-  plumbing is measured, not the skill), saved and loaded back the way ``lerobot-rollout``
-  loads one (``PreTrainedConfig.from_pretrained``, ``make_pre_post_processors``).
+``TOKEN`` is the operator's: the policy joins with a policy token it issues (a policy
+never joins with the operator token) and starts paused; the bench, as the person, lets it
+drive (``person_resumes``: the resumes it needed; an operator's move handed back, as every
+placement here is, lets it drive too). The last line's keys:
+
 - ``obs_to_action_ms`` ``{"p50", "p99"}``: at 30 Hz, each step's observation (its frame's
   capture time, the server's clock) → the server applying the first increment toward the
   action computed from it (the plugin's ACK times). ACT computes a chunk of actions at
   once and hands one out per step: most steps take a queued action, one in
-  ``n_action_steps`` runs the network (``chunk_ms``).
-- With ``--policy``, the reach task (``reach.py``): ``success_rate`` ``{"unsupervised",
-  "supervised"}`` over ``--episodes`` each, and ``interventions_per_episode`` (a scripted
-  supervisor takes over when the policy stops getting closer, drives part of the way and
-  hands back).
+  ``n_action_steps`` runs the network (``chunk_ms``). Without ``--policy``: a small ACT
+  built from the robot's own features, untrained (the plumbing is measured, not the
+  skill), saved and loaded back the way ``lerobot-rollout`` loads one
+  (``PreTrainedConfig.from_pretrained``, ``make_pre_post_processors``).
+- ``handover_jump_mm`` / ``handover_jump_rad``: ``--handovers`` trials of the ACT driving
+  (absolute joint targets through the plugin, which re-anchors on the arm when control
+  comes back) while an operator takes over over REST 1 s into the trial (POST /lease),
+  holds control 0.5 s and hands back (DELETE /lease): the worst tool and joint step
+  between two consecutive STATEs (50 Hz) within 0.5 s after each takeover and each
+  hand-back (``handover_jump_mm_by_kind``). ``steady_step_mm`` / ``steady_step_rad``:
+  the largest while control stayed put (the ACT's own motion). With ``--policy``, each
+  trial starts from a held-out start (mid-reach at the takeover).
+- With ``--policy``, the reach task (``Reach``: the tool from a start to 3 cm above the
+  block within 8 s; a success if it ends within 15 mm). The demonstrations' starts are
+  drawn from ``TRAINING_SEED`` (``--train`` keeps them in ``starts.json`` beside the
+  policy; without it they are drawn again), the evaluation's held-out starts from
+  ``HELD_OUT_SEED``: ``start_seeds`` ``{"training", "held_out"}``,
+  ``held_out_from_training_rad`` ``{"min", "median"}`` (each held-out start's largest
+  joint difference to the nearest demonstration start; none is one). ``success_rate``:
+  ``held_out`` and ``training_starts`` (unsupervised, ``--episodes`` each, the first
+  demonstrations' starts), ``supervised`` (the held-out starts again, a scripted
+  supervisor taking over when the policy stopped getting closer for 1.5 s, driving 70 %
+  of the rest and handing back). ``supervisor_path_share``: the tool's path driven while
+  the supervisor held control / the tool's whole path in the supervised episodes (a
+  supervised success is not the policy's alone). ``interventions_per_episode``,
+  ``final_distance_mm`` (medians) and ``ended_paused`` (episodes that ended with the
+  policy paused: stopped by the force limit, say, with nobody there to let it go on).
 - ``--train DIR``: records ``--demos`` scripted demonstrations of the reach task through
   a server it starts, exports them (the LeRobot export), trains a small ACT on the CPU
-  with ``lerobot-train`` and leaves the policy in ``DIR/pretrained_model``.
+  with ``lerobot-train`` and leaves the policy in ``DIR/pretrained_model`` with its
+  ``starts.json``. On a 2-core machine with other work on it, set ``OMP_NUM_THREADS=1``:
+  with another process busy on a core, a step took 4.8–9 s with torch's two threads and
+  1.1–1.8 s with one (docs/PERFORMANCE.md, issue 49).
 """
 
 from __future__ import annotations
@@ -523,15 +551,15 @@ def evaluate(
 
 
 def training_starts(policy: Path, reach: Reach, n: int) -> tuple[list[np.ndarray], str]:
-    """The demonstrations' starts: STARTS_FILE beside the policy (--train leaves it), else
-    drawn again from TRAINING_SEED as --train drew them (the same server, the same
-    draws skipped)."""
+    """The demonstrations' starts: all of STARTS_FILE beside the policy (--train leaves
+    it), else the first ``n`` drawn again from TRAINING_SEED as --train drew them (the
+    same server, the same draws skipped); and where they came from."""
     for folder in (policy, *policy.parents[:4]):
         if (folder / STARTS_FILE).is_file():
             said = json.loads((folder / STARTS_FILE).read_text())
             if said["seed"] != TRAINING_SEED:
                 raise ValueError(f"{folder / STARTS_FILE}: seed {said['seed']}")
-            return [np.array(q) for q in said["starts"][:n]], str(folder / STARTS_FILE)
+            return [np.array(q) for q in said["starts"]], str(folder / STARTS_FILE)
     return reach.starts(TRAINING_SEED, n), f"drawn again from seed {TRAINING_SEED}"
 
 
@@ -659,6 +687,7 @@ def main() -> None:
         out["start_seeds"] = {"training": TRAINING_SEED, "held_out": HELD_OUT_SEED}
         out["training_starts_from"] = said
         out["held_out_from_training_rad"] = apart(held_out, training)
+        training = training[: args.episodes]
     out["camera"] = f"{args.width}x{args.height} each, {FPS:g} fps"
     robot = make_robot(args.url, args.token, args.width, args.height)
     with tempfile.TemporaryDirectory() as tmp:
