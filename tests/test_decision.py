@@ -605,3 +605,44 @@ async def test_a_refused_increment_forgives_what_was_owed(clock: ManualClock) ->
     assert not np.any(port.owed)
     await clock.advance(0.05)
     await ds.cartesian_increment(a.id, np.array([-0.002, 0, 0]), np.zeros(3))  # backing away
+
+
+async def test_an_absolute_moves_ik_runs_off_the_loop_and_an_estop_meanwhile_stops_it(
+    clock: ManualClock,
+) -> None:
+    """The full IK of an absolute move runs on the arm's solver thread: the event loop
+    serves the e-stop while it solves, and the move, checked again before the driver,
+    does not happen."""
+    import threading
+
+    ds, robot = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await ds.take_lease(a.id)
+    guard = ds.arms[0]
+    entered, release = threading.Event(), threading.Event()
+    loop_thread = threading.get_ident()
+    solved_on: list[int] = []
+
+    def slow_ik(model: object, T: np.ndarray) -> np.ndarray:
+        solved_on.append(threading.get_ident())
+        entered.set()
+        assert release.wait(10)
+        return guard.kinematics.ik(T, guard.robot.target_joints)
+
+    T = guard.kinematics.fk(robot.target_joints).copy()
+    T[0, 3] += 0.01
+    real = guard.off_loop
+
+    async def off_loop(fn, *args):  # type: ignore[no-untyped-def]
+        return await real(lambda model: slow_ik(model, T))
+
+    guard.off_loop = off_loop  # type: ignore[method-assign]
+    move = asyncio.create_task(ds.move_pose(a.id, T[:3, 3], T[:3, :3]))
+    while not entered.is_set():
+        await asyncio.sleep(0.001)
+    await ds.estop(None, "e-stop pressed")  # the loop is free while the IK runs
+    release.set()
+    with pytest.raises(SafetyStop, match="e-stop"):
+        await move
+    assert robot.sent == [] and solved_on and solved_on[0] != loop_thread
+    ds.arms[0].close()

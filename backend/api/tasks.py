@@ -234,7 +234,7 @@ async def preview_task(
     plan, refused = None, ""
     if distance > START_TOLERANCE_M or angle > START_TOLERANCE_RAD:
         try:
-            plan = runner.plan_approach(p0, R0, guard=guard)
+            plan = await runner.plan_approach(p0, R0, guard=guard)
         except InvalidCommand as exc:
             refused = str(exc)
     return _path("preview", preview, (distance, angle), plan, refused)

@@ -12,14 +12,20 @@ and a lease lost stop them all.
 from __future__ import annotations
 
 import asyncio
+import copy
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Concatenate, ParamSpec, TypeVar
 
 import numpy as np
 
 from telerobot.drivers.base import FloatArray, ForceSensor, Robot
 from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.server.control.limits import SafetyLimits
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 @dataclass(eq=False)
@@ -39,10 +45,38 @@ class ArmGuard:
     contact_sensor: tuple[float, float, float] = (0.0, 0.0, 0.0)  # and that force
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)  # one command at a time
     unsubscribe: Callable[[], None] | None = None
+    # The full IK (absolute moves, a task's approach) runs on a thread of its own with a
+    # copy of the model (Pinocchio data is per instance): the SO-101's numeric solver
+    # takes milliseconds, which on the event loop every other client's command, the
+    # e-stop and the forces would wait for (docs/architecture.md, "Threads").
+    _solver: ArmKinematics | None = field(default=None, repr=False)
+    _solver_thread: ThreadPoolExecutor | None = field(default=None, repr=False)
 
     @property
     def dof(self) -> int:
         return len(self.kinematics.qlim)
+
+    async def off_loop(
+        self, fn: Callable[Concatenate[ArmKinematics, P], R], *args: P.args, **kwargs: P.kwargs
+    ) -> R:
+        """``fn(model, *args)`` on this arm's solver thread, ``model`` its own copy of the
+        arm's kinematics with the current tool (a calibration may have changed it)."""
+        if self._solver is None or self._solver_thread is None:
+            self._solver = copy.deepcopy(self.kinematics)
+            self._solver_thread = ThreadPoolExecutor(1, thread_name_prefix=f"ik-{self.name}")
+        solver = self._solver
+        solver.tool = self.kinematics.tool
+
+        def run() -> R:
+            return fn(solver, *args, **kwargs)
+
+        return await asyncio.get_running_loop().run_in_executor(self._solver_thread, run)
+
+    def close(self) -> None:
+        """The solver's thread ended (the server stops)."""
+        if self._solver_thread is not None:
+            self._solver_thread.shutdown(wait=False, cancel_futures=True)
+            self._solver_thread = None
 
     def said(self, text: str, arms: int) -> str:
         """``text`` about this arm, named when the server drives more than one."""

@@ -349,6 +349,7 @@ class DecisionServer:
             if guard.unsubscribe is not None:
                 guard.unsubscribe()
                 guard.unsubscribe = None
+            guard.close()
         if self._watchdog is not None:
             self._watchdog.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -1220,7 +1221,10 @@ class DecisionServer:
         self._check_workspace(guard, p)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, p
-        q = guard.kinematics.ik(T, guard.robot.target_joints)
+        # Off the event loop (the SO-101's numeric IK takes milliseconds); whatever
+        # happened meanwhile (an e-stop, control changing hands) is checked again in
+        # _apply before anything moves.
+        q = await guard.off_loop(lambda model: model.ik(T, guard.robot.target_joints))
         return await self._apply(client, guard, q, None, seq, None, 1.0)
 
     @reported("initialize")
@@ -1280,6 +1284,7 @@ class DecisionServer:
                 )
         robot = guard.robot
         async with guard.lock:
+            self._still_authorised(client)
             if robot.status not in (RobotStatus.READY, RobotStatus.MOVING):
                 raise NotReady(
                     guard.said(f"robot is {robot.status}: initialise it first", len(self.arms))
@@ -1303,6 +1308,17 @@ class DecisionServer:
             self.executed_age.record(age * 1000.0)
         self.events.applied.emit(applied)
         return applied
+
+    def _still_authorised(self, client: Client) -> None:
+        """As a command goes to the driver after an await (the solver's thread, another
+        command's move holding the arm's lock): an e-stop, control changing hands or a
+        policy paused meanwhile stops it here, before anything moves."""
+        if self._lease != client.id:
+            raise NotAllowed("control changed hands while this command waited: not applied")
+        if self._estop:
+            raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
+        if client.policy and not self.autonomy.may_drive:
+            raise self.autonomy.refuse()
 
     def _executed_age(self, client: Client) -> StreamTally:
         if client.executed_age is None:

@@ -393,7 +393,7 @@ class TaskRunner:
         angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ rotation)))
         return float(np.linalg.norm(pose.position - position)), angle
 
-    def plan_approach(
+    async def plan_approach(
         self,
         position: FloatArray,
         rotation: FloatArray,
@@ -406,8 +406,8 @@ class TaskRunner:
         joints to the tool pose (a task's first pose), checked
         (``approach.plan_approach``); InvalidCommand if none."""
         guard = guard or self.decision.arms[0]
-        return plan_approach(
-            guard.kinematics,
+        return await guard.off_loop(  # the full IK: off the event loop
+            plan_approach,
             guard.limits,
             guard.robot.target_joints,
             position,
@@ -472,7 +472,7 @@ class TaskRunner:
         for run in away:  # checked before the lease changes hands: a refusal moves nothing
             p0, R0, _ = run.trajectory.at(0.0)
             try:
-                run.approach = self.plan_approach(
+                run.approach = await self.plan_approach(
                     p0,
                     R0,
                     tolerance_m=spec.start_tolerance_m,
