@@ -50,6 +50,7 @@ from telerobot.server.settings import Settings
 from telerobot.server.tasks.runner import TaskRunner
 from telerobot.server.telemetry.stats import Telemetry
 from telerobot.server.viewer3d import ViewedArm, Workcell3DView
+from telerobot.tuning import realtime_summary
 
 log = logging.getLogger("telerobot")
 
@@ -379,6 +380,9 @@ async def start_services(s: Services) -> None:
     s.priority.start()
     for arm in s.arms:
         arm.force.start()
+    # What the 1 kHz threads got, said once at start (docs/running.md, "Realtime").
+    summary = realtime_summary()
+    (log.info if summary.startswith("force threads: realtime") else log.warning)("%s", summary)
     s.recording_taps.start()
     if s.viewer.view is not None:
         s.viewer.view.start()

@@ -18,6 +18,7 @@ class WorkerThread:
         self.name = name
         self.prompt = prompt  # a 1 kHz loop: realtime or short slices (tuning.prompt_thread)
         self.stopping = threading.Event()
+        self._prompted = threading.Event()
         self._thread: threading.Thread | None = None
 
     @property
@@ -28,14 +29,18 @@ class WorkerThread:
         if self.running:
             return
         self.stopping.clear()
+        self._prompted.clear()
         self._thread = threading.Thread(target=self._main, name=self.name, daemon=True)
         self._thread.start()
+        if self.prompt:  # what it got is known when start returns (the server says it)
+            self._prompted.wait(1.0)
 
     def _main(self) -> None:
         if self.prompt:
             from telerobot.tuning import prompt_thread
 
             log.debug("%s runs %s", self.name, prompt_thread())
+            self._prompted.set()
         self.target()
 
     def stop(self, timeout: float = 2.0) -> None:

@@ -10,6 +10,7 @@ import logging
 import os
 import shutil
 import sys
+import threading
 from collections.abc import Iterator
 
 log = logging.getLogger(__name__)
@@ -104,6 +105,17 @@ _SCHED_FIFO = 1
 _SCHED_FLAG_RESET_ON_FORK = 0x01
 
 
+# What each 1 kHz thread got, by thread name (the newest of a name): the server says it at
+# start and in GET /api/v1/health (docs/running.md, "Realtime"). Bounded: one entry a
+# thread name, and the names are the code's.
+_GOT: dict[str, str] = {}
+_GOT_LOCK = threading.Lock()
+ORDINARY = "ordinary"
+# EEVDF's default slice is 0.75 ms × (1 + log2 CPUs) (1.4 ms on 2 cores): a slice below
+# the least default is one a thread asked for and got.
+SHORTEST_DEFAULT_SLICE_NS = 750_000
+
+
 def prompt_thread() -> str:
     """Run the calling thread (a 1 kHz loop, woken per sample) ahead of ordinary threads:
     SCHED_FIFO at ``RT_PRIORITY`` where the system lets it (root, CAP_SYS_NICE or an
@@ -116,9 +128,59 @@ def prompt_thread() -> str:
     result on 2 cores (bench.force_under_video); a realtime thread preempts at once.
     Each wakes for microseconds a millisecond, so the others lose nothing they notice."""
     priority = int(os.environ.get("TELEROBOT_RT_PRIORITY", RT_PRIORITY))
-    if priority > 0 and _set_attr(_SCHED_FIFO, _SCHED_FLAG_RESET_ON_FORK, 0, min(99, priority), 0):
-        return f"realtime (SCHED_FIFO {min(99, priority)})"
-    return "short slices" if short_slice() else "as started"
+    if priority > 0:
+        _set_attr(_SCHED_FIFO, _SCHED_FLAG_RESET_ON_FORK, 0, min(99, priority), 0)
+    got = applied_scheduling()
+    if not got.startswith("realtime"):
+        short_slice()
+        got = applied_scheduling()
+    with _GOT_LOCK:
+        _GOT[threading.current_thread().name] = got
+    return got
+
+
+def applied_scheduling(tid: int | None = None) -> str:
+    """What the kernel applied to a thread of this process (the calling one by
+    default), read back from ``/proc/self/task/<tid>/sched``, not what was asked:
+    ``realtime (SCHED_FIFO n)``, ``short slices (0.1 ms)`` or ``ordinary`` (where the
+    file says neither, or there is none: not Linux)."""
+    tid = threading.get_native_id() if tid is None else tid
+    try:
+        with open(f"/proc/self/task/{tid}/sched") as f:
+            text = f.read()
+    except OSError:
+        return ORDINARY
+    fields = {}
+    for line in text.splitlines():
+        name, sep, value = line.partition(":")
+        if sep:
+            fields[name.strip()] = value.strip()
+    policy, prio = fields.get("policy"), fields.get("prio")
+    if policy == str(_SCHED_FIFO) and prio is not None and prio.lstrip("-").isdigit():
+        return f"realtime (SCHED_FIFO {99 - int(prio)})"  # the kernel's prio: 99 − priority
+    slice_ns = fields.get("se.slice")
+    if slice_ns is not None and slice_ns.isdigit() and int(slice_ns) < SHORTEST_DEFAULT_SLICE_NS:
+        return f"short slices ({int(slice_ns) / 1e6:.1f} ms)"
+    return ORDINARY
+
+
+def scheduling() -> dict[str, str]:
+    """What each 1 kHz thread got (by thread name), as it was read back."""
+    with _GOT_LOCK:
+        return dict(_GOT)
+
+
+def realtime_summary() -> str:
+    """One line for the start: what the force threads got, and where to read more."""
+    got = scheduling()
+    if got and all(v.startswith("realtime") for v in got.values()):
+        return f"force threads: {next(iter(got.values()))}"
+    kinds = sorted(set(got.values()) - {ORDINARY})
+    detail = f" ({', '.join(kinds)})" if kinds else ""
+    return (
+        f"force threads: {ORDINARY}{detail}, not realtime — forces may jitter under video;"
+        " see docs/running.md#realtime"
+    )
 
 
 def _set_slice(ns: int) -> bool:
