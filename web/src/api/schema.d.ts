@@ -1685,6 +1685,23 @@ export interface components {
             status: string;
             /** Version */
             version: string;
+            /**
+             * Realtime
+             * @description every 1 kHz thread (force sensors, the priority channel) runs realtime (SCHED_FIFO); false: ordinary scheduling, forces may jitter under video (docs/running.md, Realtime)
+             */
+            realtime: boolean;
+            /**
+             * Scheduling
+             * @description what each 1 kHz thread got, by name, as the kernel applied it: 'realtime (SCHED_FIFO n)', 'short slices (0.1 ms)' or 'ordinary'
+             */
+            scheduling: {
+                [key: string]: string;
+            };
+            /**
+             * Niceness
+             * @description the server process's niceness (lower: ahead)
+             */
+            niceness: number;
         };
         /** IceConfiguration */
         IceConfiguration: {
