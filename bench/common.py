@@ -34,7 +34,37 @@ def machine() -> dict[str, Any]:
             )
     except OSError:
         pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version()}
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        # Who ran it, and what the last server's 1 kHz threads got (realtime or not):
+        # figures taken with rights say so (docs/running.md, "Realtime").
+        "euid": os.geteuid(),
+        **({"server_scheduling": dict(SERVER_SCHEDULING)} if SERVER_SCHEDULING else {}),
+    }
+
+
+# What the newest server a bench started said of its 1 kHz threads (GET /api/v1/health).
+SERVER_SCHEDULING: dict[str, str] = {}
+UNPRIVILEGED_UID = 65534  # nobody: no rights, no RLIMIT_RTPRIO
+
+
+def as_user(uid: int | None) -> tuple[str, ...]:
+    """The prefix that runs a command as ``uid`` with no rights (util-linux's setpriv;
+    the caller must be root), or nothing for None."""
+    if uid is None:
+        return ()
+    return ("setpriv", f"--reuid={uid}", f"--regid={uid}", "--clear-groups", "--inh-caps=-all")
+
+
+def _note_scheduling(base: str) -> None:
+    import httpx
+
+    with contextlib.suppress(httpx.HTTPError, ValueError, KeyError):
+        got = httpx.get(base + "api/v1/health", timeout=10).json()["scheduling"]
+        SERVER_SCHEDULING.clear()
+        SERVER_SCHEDULING.update(got)
 
 
 def time_per_call_us(fn: Callable[[], object], *, calls: int, repeats: int = 7) -> float:
@@ -121,26 +151,29 @@ def serve_for_bench(
     ready: bool = False,
     exe: Path | None = None,
     cwd: Path | None = None,
+    user: int | None = None,
 ) -> Iterator[tuple[subprocess.Popen[str], str]]:
     """`telerobot serve ARGS` for a benchmark or a test (the one way both start a
     server): this HTTP port (0: any free one, so a running `make run` is never in the
     way), any priority port, a throw-away state folder, no 3D view. With ``ready``, once
-    its robot is READY. Yields the process and its base URL (http://host:port/)."""
+    its robot is READY; with ``user``, as that user with no rights (``as_user``). Yields
+    the process and its base URL (http://host:port/)."""
     import tempfile
 
-    with (
-        tempfile.TemporaryDirectory() as state,
-        telerobot_process(
+    with tempfile.TemporaryDirectory() as state:
+        if user is not None:
+            os.chown(state, user, user)
+        with telerobot_process(
             "serve", "--http-port", str(port), "--priority-port", "0", "--state-dir", state,
             *args, wait_for=SERVED, env={"TELEROBOT_VIEWER": "false", **(env or {})},
-            prefix=prefix, exe=exe, cwd=cwd,
-        ) as (proc, m),
-    ):  # fmt: skip
-        host = "127.0.0.1" if m.group(1) == "localhost" else m.group(1)
-        base = f"http://{host}:{m.group(2)}/"
-        if ready:
-            wait_until_ready(base)
-        yield proc, base
+            prefix=(*prefix, *as_user(user)), exe=exe, cwd=cwd,
+        ) as (proc, m):  # fmt: skip
+            host = "127.0.0.1" if m.group(1) == "localhost" else m.group(1)
+            base = f"http://{host}:{m.group(2)}/"
+            if ready:
+                wait_until_ready(base)
+            _note_scheduling(base)
+            yield proc, base
 
 
 def arm_names(arms: int) -> list[str]:

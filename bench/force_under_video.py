@@ -2,7 +2,14 @@
 saw its force packets go from 0.68 ms mean inter-arrival to 5.4 ms mean and ~20 ms
 worst while a stereo frame was on the wire.
 
-    python -m bench.force_under_video [--json] [--seconds 20] [--busy-core]
+    python -m bench.force_under_video [--json] [--seconds 20] [--busy-core] [--unprivileged]
+
+``--unprivileged`` (issue 51): the loopback run again with the server and the client as
+nobody (``setpriv``, no capabilities: the 1 kHz threads ordinary, in short slices, and no
+raised priority), under ``unprivileged`` {"loopback": {"p99_ms_video", "p99_ms_none",
+"lost", …}, "euid", "force_threads", "p99_ratio_vs_privileged"}. Every run's
+``force_threads`` says what the server's 1 kHz threads got (GET /api/v1/health), and
+``machine.euid`` who ran the bench.
 
 The server runs on the simulation with the stereo camera at 2×1280×720, 30 fps,
 H.264 at a constant 9 Mbit/s (filler data tops a still scene up to the budget, so
@@ -39,6 +46,7 @@ import math
 import multiprocessing
 import os
 import secrets
+import shutil
 import statistics
 import subprocess
 import sys
@@ -50,8 +58,11 @@ import httpx
 import numpy as np
 
 from bench.common import (
+    SERVER_SCHEDULING,
+    UNPRIVILEGED_UID,
     arm_names,
     arms_env,
+    as_user,
     busy_core,
     emit,
     machine,
@@ -232,12 +243,14 @@ def measure(
     arms: int = 1,
     arms_model: str | None = None,
     tcp: bool = False,
+    user: int | None = None,
 ) -> dict[str, Any]:
     """One run: on loopback when ``netns`` is None or False (bench.recording passes
     False), else the server in the pair's server namespace, the client in its client's.
     With ``arms_model``: a server of ``arms`` arms of that model (else the default one);
     with two or more, each arm's stream by itself too (``*_per_arm``). ``tcp``: the
-    forces on the channel's TCP socket (else as datagrams, as the bridge asks)."""
+    forces on the channel's TCP socket (else as datagrams, as the bridge asks). ``user``:
+    the server and the client run as that user, with no rights (``--unprivileged``)."""
     pair = netns or None
     env = {
         "TELEROBOT_VIDEO": "true",
@@ -251,8 +264,8 @@ def measure(
     }
     host = pair.server_addr if pair else "127.0.0.1"
     server_prefix = pair.server_prefix if pair else ()
-    client_prefix = pair.client_prefix if pair else ()
-    with serve_for_bench("--host", host, env=env, prefix=server_prefix) as (_, base):
+    client_prefix = (*(pair.client_prefix if pair else ()), *as_user(user))
+    with serve_for_bench("--host", host, env=env, prefix=server_prefix, user=user) as (_, base):
         out = subprocess.run(
             [*client_prefix, sys.executable, "-m", "bench.force_under_video",
              "--client", base, "--seconds", str(seconds), "--arms", str(arms),
@@ -278,6 +291,7 @@ def measure(
         "lost": quiet["lost"] + busy["lost"] + result["forces_dropped"],
         "samples": quiet["samples"] + busy["samples"],
         "video_mbps": result["video_mbps"],
+        "force_threads": dict(SERVER_SCHEDULING),
         **(
             {
                 "ws_p99_ms_no_video": result["ws"]["no_video"]["p99_ms"],
@@ -291,6 +305,39 @@ def measure(
     if result.get("per_arm"):
         figures.update(per_arm_figures(result, arms))
     return figures
+
+
+def unprivileged(seconds: float, tcp: bool, privileged: dict[str, Any]) -> dict[str, Any]:
+    """The loopback run again with the server and the client as nobody (what a laptop
+    user, a plain service or Docker's default capabilities get: no realtime, no raised
+    priority), beside the privileged run of the same invocation."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        return {"skipped": "needs root (to become nobody) and util-linux's setpriv"}
+    # The server spawns its media worker and the client its viewer: nobody must be able
+    # to start this interpreter itself (a venv whose Python lives under /root cannot).
+    starts_itself = "import subprocess, sys; subprocess.run([sys.executable, '-c', '0'], check=True)"
+    probe = [*as_user(UNPRIVILEGED_UID), sys.executable, "-c", starts_itself]
+    if subprocess.run(probe, capture_output=True, timeout=60).returncode != 0:
+        return {
+            "skipped": f"nobody cannot start {sys.executable} (it lives where a plain user"
+            " cannot reach, e.g. under /root): run the bench from an installation a plain"
+            " user can read"
+        }
+    run = measure(seconds, False, tcp=tcp, user=UNPRIVILEGED_UID)
+    return {
+        "loopback": {
+            "p99_ms_video": run["p99_ms_video"],
+            "p99_ms_none": run["p99_ms_no_video"],
+            "p50_ms_video": run["p50_ms_video"],
+            "max_ms_video": run["max_ms_video"],
+            "lost": run["lost"],
+            "p99_ratio_video_vs_none": run["p99_ratio_video_vs_none"],
+        },
+        "euid": UNPRIVILEGED_UID,
+        "force_threads": run["force_threads"],
+        # Same run: the unprivileged p99 under video over the privileged one's.
+        "p99_ratio_vs_privileged": run["p99_ms_video"] / privileged["p99_ms_video"],
+    }
 
 
 def per_arm_figures(result: dict[str, Any], arms: int) -> dict[str, Any]:
@@ -387,6 +434,12 @@ def main() -> None:
     p.add_argument(
         "--tcp", action="store_true", help="forces on the channel's TCP socket, not datagrams"
     )
+    p.add_argument(
+        "--unprivileged",
+        action="store_true",
+        help="also run the server and the client as nobody (no rights: the forces' threads"
+        " ordinary), on loopback, after the privileged run",
+    )
     p.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.client:
@@ -412,6 +465,8 @@ def main() -> None:
         else:
             figures["netns"] = None
             figures["netns_skipped"] = why_not
+        if args.unprivileged:
+            figures["unprivileged"] = unprivileged(args.seconds, args.tcp, figures["loopback"])
     figures["busy_core"] = args.busy_core
     figures["forces_on"] = "tcp" if args.tcp else "datagrams"
     if arms:
