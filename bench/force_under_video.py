@@ -315,7 +315,7 @@ def unprivileged(seconds: float, tcp: bool, privileged: dict[str, Any]) -> dict[
         return {"skipped": "needs root (to become nobody) and util-linux's setpriv"}
     # The server spawns its media worker and the client its viewer: nobody must be able
     # to start this interpreter itself (a venv whose Python lives under /root cannot).
-    starts_itself = "import subprocess, sys; subprocess.run([sys.executable, '-c', '0'], check=True)"
+    starts_itself = "import subprocess as s, sys; s.run([sys.executable, '-c', '0'], check=True)"
     probe = [*as_user(UNPRIVILEGED_UID), sys.executable, "-c", starts_itself]
     if subprocess.run(probe, capture_output=True, timeout=60).returncode != 0:
         return {
