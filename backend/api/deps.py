@@ -9,6 +9,8 @@ lease too (``X-Client-Id`` from ``POST /api/v1/lease``). The e-stop is open to a
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import AsyncIterator
 from typing import Annotated
 
 from fastapi import Depends, Header, Query, Security
@@ -184,25 +186,38 @@ def require_driver(
     return token
 
 
-def current_client(
+async def current_client(
     decision: DecisionDep,
     _token: Annotated[str, Depends(require_operator)],
     x_client_id: Annotated[str | None, Header()] = None,
-) -> Client:
+) -> AsyncIterator[Client]:
     if not x_client_id:
         raise NotAllowed("send the X-Client-Id header you got from POST /api/v1/lease")
     client = decision.client(x_client_id)
     if client.policy:
         raise NotAllowed("a policy's client cannot do this: it is a person's")
     decision.seen(client.id)
-    return client
+    async with _in_flight(client):
+        yield client
 
 
-def current_driver(
+@contextlib.asynccontextmanager
+async def _in_flight(client: Client) -> AsyncIterator[None]:
+    """A script's request in flight keeps its lease alive, however long it takes (a
+    task's first read of its recording spawns a reader: seconds on a cold machine, past
+    the lease's idle timeout)."""
+    client.busy += 1
+    try:
+        yield
+    finally:
+        client.busy -= 1
+
+
+async def current_driver(
     decision: DecisionDep,
     token: Annotated[str, Depends(require_driver)],
     x_client_id: Annotated[str | None, Header()] = None,
-) -> Client:
+) -> AsyncIterator[Client]:
     """The client of a route a policy may use: with a policy token, only that token's own
     policy client."""
     if not x_client_id:
@@ -212,7 +227,8 @@ def current_driver(
     if issued is not None and client.policy_token != issued.id:
         raise NotAllowed(f"client {x_client_id!r} did not join with this policy token")
     decision.seen(client.id)
-    return client
+    async with _in_flight(client):
+        yield client
 
 
 OperatorDep = Annotated[str, Depends(require_operator)]
