@@ -324,15 +324,25 @@ class Reach:
 
     def place(self, q: np.ndarray, name: str = "reset") -> None:
         """Move the arm to ``q`` as an operator (from a policy: a takeover, handed back);
-        pressed into something (the force limit), it first backs away upward."""
+        pressed into something (the force limit), it first backs away along the contact's
+        force (the server allows only moves that back away)."""
         from telerobot.client import Telerobot
 
         with Telerobot(self.url, self.token, name=name) as arm:
-            for _ in range(3):  # (one relative move may go 20 mm at most)
+            for _ in range(4):  # (one relative move may go 20 mm at most)
                 if not self.http.get("safety").json()["force_limited"]:
                     break
-                arm.move_cartesian([0.0, 0.0, 0.015], relative=True)
+                arm.move_cartesian((0.015 * self.away()).tolist(), relative=True)
             arm.move_joints(q.tolist())
+
+    def away(self) -> np.ndarray:
+        """The direction away from the contact: the force on the tool in the base frame
+        (up when there is too little of it to tell)."""
+        state = self.http.get("robot/state").json()
+        latest = self.http.get("force").json()["latest"]
+        f = np.array(state["rotation"]) @ np.array(latest["values"][:3]) if latest else np.zeros(3)
+        n = float(np.linalg.norm(f))
+        return f / n if n > 1.0 else np.array([0.0, 0.0, 1.0])
 
 
 # ------------------------------------------------------------ people and the tool's path
