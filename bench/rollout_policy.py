@@ -287,9 +287,12 @@ class Reach:
         )
         block = next(b for b in self.http.get("workcell").json()["boxes"] if b["name"] == "block")
         self.goal = np.array(block["centre"]) + [0.0, 0.0, block["size"][2] / 2 + 0.03]
-        # (made before anything else moves the arm: it starts at home)
+        # The model's home pose, wherever the arm is now (bench.rollout's stub and master
+        # moved it first): the starts are drawn around it, the goal keeps its orientation.
+        model = self.http.get("robot/model").json()
+        self.home = np.array(model["named_poses"][model["home_pose"]], float)
+        self.place(self.home, name="reach-setup")
         with Telerobot(url, token, name="reach-setup") as arm:
-            self.home = np.array(arm.state()["joints"])
             arm.move_cartesian(self.goal.tolist())  # (keeping the tool's orientation)
             self.goal_joints = np.array(arm.state()["joints"])
         self.place(self.home, name="reach-setup")
