@@ -638,8 +638,7 @@ async def test_an_absolute_moves_ik_runs_off_the_loop_and_an_estop_meanwhile_sto
 
     guard.off_loop = off_loop  # type: ignore[method-assign]
     move = asyncio.create_task(ds.move_pose(a.id, T[:3, 3], T[:3, :3]))
-    while not entered.is_set():
-        await asyncio.sleep(0.001)
+    assert await asyncio.to_thread(entered.wait, 10)
     await ds.estop(None, "e-stop pressed")  # the loop is free while the IK runs
     release.set()
     with pytest.raises(SafetyStop, match="e-stop"):
