@@ -37,6 +37,25 @@ server of the same model driven the same way in the same run, ``one_arm_server``
 ``p99_ratio_vs_one_arm_server``). The second client receives every force sample of
 every arm throughout (``--batched-forces``: ~10 ms batches).
 
+``--model so101|puma560``: the simulated arm of the first run (default: the PUMA, as
+before).
+
+``--random-directions`` (issue 50, jogging as an operator does): instead, a server of
+``--arms`` (1 or 2) simulated arms of ``--model`` (default so101) and one client on the
+server's clock (SYNCED_CLOCK, as the page) holding the lease sends, at the page's
+``--rate-hz`` (100 Hz) and to every arm each tick, 0.2 mm increments in random unit
+directions, each in the base or the tool frame at random: most of them, on a five-joint
+arm, directions it cannot follow with the orientation kept. ``--seconds`` (20 s) after
+a 1 s warm-up; a second client takes every force sample. Then the old exact increments
+beside them, the same way on a fresh server, one base axis at a time (±0.2 mm back and
+forth along x, y or z, ``--exact-seconds`` each). For each: ``ack_ms`` (send → ACK,
+the client's clock; p50, p99), ``server_ms`` (the server's own receipt → applied,
+``command_processing``; p50, p99, the warm-up in it) and ``stale_dropped`` (commands the
+server dropped as older than ``max_command_age_ms`` when it came to them: a loop that
+fell behind), with the refusals (what and how many) and, with two arms, each arm's
+``ack_ms``. The JSON: ``{"model", "arms", "<model>": {ack_ms, server_ms, stale_dropped,
+…, "exact_increments": {"x": …, "y": …, "z": …}}, "machine"}``.
+
 Thesis reference (§4.7): a 48-byte command took ~0.7 ms client to server (1.1 ms with video).
 """
 
@@ -49,6 +68,7 @@ import secrets
 import tempfile
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -368,6 +388,170 @@ def server_processing(base: str) -> dict[str, float]:
     return {"server_processing_p50_ms": server["p50"], "server_processing_p99_ms": server["p99"]}
 
 
+# ---------------------------------------------------------------- jogging (issue 50)
+JOG_STEP_M = 0.0002  # the page's keyboard increment
+JOG_WARMUP_S = 1.0  # driven first, not in ack_ms (in server_ms: the server's window)
+# (frame, dx, dy, dz) of the increment a tick sends to an arm (its index among the arms)
+Motion = Callable[[int, int], tuple[int, float, float, float]]
+
+
+def random_directions(seed: int = 50) -> Motion:
+    """0.2 mm in a random unit direction, in the base or the tool frame at random."""
+    rng = np.random.default_rng(seed)
+
+    def motion(tick: int, arm: int) -> tuple[int, float, float, float]:
+        v = rng.normal(size=3)
+        dx, dy, dz = (v / np.linalg.norm(v) * JOG_STEP_M).tolist()
+        return int(m.Frame.BASE if rng.random() < 0.5 else m.Frame.TOOL), dx, dy, dz
+
+    return motion
+
+
+def along_axis(axis: int) -> Motion:
+    """±0.2 mm along one base axis, 50 ticks each way (the old bench's back and forth)."""
+
+    def motion(tick: int, arm: int) -> tuple[int, float, float, float]:
+        d = [0.0, 0.0, 0.0]
+        d[axis] = JOG_STEP_M if (tick // 50) % 2 == 0 else -JOG_STEP_M
+        return int(m.Frame.BASE), d[0], d[1], d[2]
+
+    return motion
+
+
+@dataclass
+class JogRun:
+    """What ``drive_jog`` measured: send → ACK (s) by arm name, refusals."""
+
+    latencies: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    limited: int = 0
+    refused: int = 0
+    refusals: dict[str, int] = field(default_factory=dict)  # the ERRORs' texts, counted
+    unanswered: int = 0
+    ping_rtt_ms: float = 0.0
+    force_rate_hz: float = 0.0
+
+
+async def drive_jog(
+    port: int, token: str, motion: Motion, seconds: float, rate_hz: float
+) -> JogRun:
+    """One client on the server's clock holding the lease sends each arm ``motion``'s
+    increment every tick at ``rate_hz`` (back to back, as the page does with two arms)
+    without waiting for the ACKs, which a reader matches by seq; ``JOG_WARMUP_S`` first,
+    not counted. A second client takes every force sample meanwhile."""
+    url = f"ws://127.0.0.1:{port}/ws"
+    forces = await RealtimeClient.connect(url, flags=m.HelloFlags.EVERY_FORCE_SAMPLE)
+    received = [0]
+    drain = asyncio.create_task(drain_forces(forces, received))
+    started = time.monotonic()
+    op = await RealtimeClient.connect(url, token=token, flags=m.HelloFlags.SYNCED_CLOCK)
+    names = list(op.arms) or ["arm"]
+    await op.take_lease()
+    run = JogRun(ping_rtt_ms=await op.sync_clock() * 1000.0)
+    pending: dict[int, tuple[str, float, bool]] = {}  # seq → (arm, send time, counted)
+
+    async def read_acks() -> None:
+        while True:
+            data = await op.ws.recv()
+            if data[0] == m.ACK.type_id:
+                _, ack, _ = m.decode(data)
+                sent = pending.pop(int(ack["seq"]), None)
+                if sent is not None and sent[2]:
+                    run.latencies[sent[0]].append(ack["server_time"] - op.offset - sent[1])
+                    run.limited += ack["result"] == m.Ack.LIMITED
+            elif data[0] == m.ERROR.type_id:
+                _, error, text = m.decode(data)
+                sent = pending.pop(int(error["seq"]), None)
+                if sent is not None and sent[2]:
+                    run.refused += 1
+                    why = str(text).split(":")[0][:80]
+                    run.refusals[why] = run.refusals.get(why, 0) + 1
+
+    reader = asyncio.create_task(read_acks())
+    period = 1.0 / rate_hz
+    warmup = round(JOG_WARMUP_S * rate_hz)
+    ticks = warmup + round(seconds * rate_hz)
+    next_tick = time.monotonic()
+    for tick in range(ticks):
+        for i, name in enumerate(names):
+            frame, dx, dy, dz = motion(tick, i)
+            seq = op.next_seq()
+            sent = time.monotonic()
+            pending[seq] = (name, sent, tick >= warmup)
+            arm = op.arms.get(name, 0)
+            cmd = m.encode(m.CART_INC, seq, sent + op.offset, frame, dx, dy, dz, 0.0, 0.0, 0.0, arm)
+            await op.ws.send(cmd)
+        next_tick += period
+        await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
+    await asyncio.sleep(0.5)  # the last ACKs
+    for task in (reader, drain):
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    run.force_rate_hz = received[0] / (time.monotonic() - started) / len(names)  # per arm
+    await op.close()
+    await forces.close()
+    run.unanswered = sum(1 for _, _, counted in pending.values() if counted)
+    return run
+
+
+def run_jog(
+    model: str, arms: int, motion: Motion, seconds: float, rate_hz: float
+) -> dict[str, Any]:
+    """A fresh server of ``arms`` simulated arms of ``model`` driven by ``motion``: its
+    figures (ack_ms, server_ms, stale_dropped, refusals; per arm with two)."""
+    token = secrets.token_hex(16)
+    env = {"TELEROBOT_OPERATOR_TOKEN": token, **arms_env(arms, model)}
+    with serve_for_bench(env=env, ready=True) as (_, base):
+        port = int(base.rstrip("/").rsplit(":", 1)[1])
+        time.sleep(0.5)
+        run = asyncio.run(drive_jog(port, token, motion, seconds, rate_hz))
+        server = next(
+            s
+            for s in httpx.get(base + "api/v1/telemetry").json()["streams"]
+            if s["name"] == "command_processing"
+        )
+        stale = int(httpx.get(base + "api/v1/safety").json()["stale_commands_dropped"])
+    pooled = [v * 1000.0 for values in run.latencies.values() for v in values]
+    figures: dict[str, Any] = {
+        "ack_ms": p50_p99(pooled),
+        "server_ms": {"p50": round(server["p50"], 3), "p99": round(server["p99"], 3)},
+        "stale_dropped": stale,
+        "n": len(pooled),
+        "max_ack_ms": round(max(pooled), 2) if pooled else None,
+        "server_max_ms": round(server["max"], 3),
+        "limited": run.limited,
+        "refused": run.refused,
+        "refusals": run.refusals,
+        "unanswered": run.unanswered,
+        "ping_rtt_ms": round(run.ping_rtt_ms, 3),
+        "force_rate_hz": round(run.force_rate_hz, 1),
+    }
+    if arms > 1:
+        figures["ack_ms_per_arm"] = {
+            name: p50_p99([v * 1000.0 for v in values]) for name, values in run.latencies.items()
+        }
+    return figures
+
+
+def jog_figures(
+    model: str, arms: int, seconds: float, exact_seconds: float, rate_hz: float
+) -> dict[str, Any]:
+    """Random directions, then the exact increments along x, y and z, each on its own
+    server."""
+    print(f"{arms} × {model}: random directions, {seconds:g} s at {rate_hz:g} Hz per arm")
+    figures = run_jog(model, arms, random_directions(), seconds, rate_hz)
+    emit({k: v for k, v in figures.items() if not isinstance(v, dict)}, False)
+    print(f"  ack_ms {figures['ack_ms']}  server_ms {figures['server_ms']}")
+    exact: dict[str, Any] = {}
+    for axis, name in enumerate("xyz"):
+        exact[name] = run_jog(model, arms, along_axis(axis), exact_seconds, rate_hz)
+        print(
+            f"exact ±0.2 mm along {name}: ack_ms {exact[name]['ack_ms']}  server_ms "
+            f"{exact[name]['server_ms']}  stale_dropped {exact[name]['stale_dropped']}"
+        )
+    return {**figures, "exact_increments": exact}
+
+
 READ_WINDOW_S = 2.0
 
 
@@ -431,9 +615,31 @@ def main() -> None:
         "--block-seconds", type=float, default=1.0, help="one phase: one arm or every arm"
     )
     p.add_argument("--stagger", action="store_true", help="spread the arms' commands over a tick")
+    p.add_argument(
+        "--model",
+        choices=("so101", "puma560"),
+        help="the simulated arm (default: the PUMA; so101 with --random-directions)",
+    )
+    p.add_argument(
+        "--random-directions",
+        action="store_true",
+        help="issue 50: 0.2 mm jogs in random directions and frames to --arms arms",
+    )
+    p.add_argument("--rate-hz", type=float, default=100.0, help="per arm (--random-directions)")
+    p.add_argument("--seconds", type=float, default=20.0, help="random directions, measured")
+    p.add_argument("--exact-seconds", type=float, default=10.0, help="each exact axis, measured")
     args = p.parse_args()
+    if args.random_directions:
+        model = args.model or "so101"
+        jog = jog_figures(model, args.arms, args.seconds, args.exact_seconds, args.rate_hz)
+        if args.json:
+            import json
+
+            print(json.dumps({"model": model, "arms": args.arms, model: jog, "machine": machine()}))
+        return
     period, every = args.period_ms / 1000, not args.batched_forces
-    figures = run_server({"TELEROBOT_HOME_POSE": "qn"}, args.commands, period, every)
+    env = {"TELEROBOT_HOME_POSE": "qn"} if args.model is None else arms_env(1, args.model)
+    figures = run_server(env, args.commands, period, every)
     emit({**figures, "thesis_ms": 0.7}, False)
     result: dict[str, object] = {
         "command_latency": {k: figures[k] for k in ("p50_ms", "p99_ms", "max_ms", "n")},
