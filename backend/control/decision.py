@@ -1144,7 +1144,7 @@ class DecisionServer:
                     )
                 )
             self._check_workspace(guard, T[:3, 3])
-            q = guard.kinematics.ik(T, seed)
+            q = guard.kinematics.jog(T, seed)  # an increment: the differential solver
             applied = await self._apply(client, guard, q, seed, seq, client_time, factor)
         except TelerobotError:
             if port is not None:  # refused (force limit, workspace…): nothing more is owed
