@@ -154,21 +154,20 @@ def joint_limit_faults(
 # Newton steps before an increment goes to the arm's own solver (``_jog_unmet``): a
 # 0.2 mm increment is met in one, the largest one command may ask (20 mm) in three.
 JOG_STEPS: Final = 4
-# Damping λ of the position's least squares (m/rad): a regularisation, not a damping.
-# The position is met (near a singularity by a large joint motion, which the server's
-# joint-step limit refuses, as it refuses ``ik``'s); and the joint motions that leave
-# the tool point where it is, which the orientation is solved in, are computed with the
-# same inverse: a larger λ lets λ²/s² of the position's motions through them.
+# Damping λ of the position's least squares (m/rad): a regularisation, not a damping
+# (it keeps the 3×3 inverse finite with fewer than three joints free). The position is
+# met, near a singularity by a large joint motion, which the server's joint-step limit
+# refuses, as it refuses ``ik``'s.
 JOG_POSITION_DAMPING: Final = 1e-6
-# The orientation comes second, solved in what the position leaves free: a direction
-# in which those joints turn the tool by σ rad/rad is followed exactly (1/σ) if σ is
-# at least ε, and damped below it (σ/ε², least squares with λ² = ε² − σ²), down to
-# nothing for what the position's motions leak through. Near a pose where those joints
-# barely turn the tool (an SO-101's lift, elbow and wrist flex about to line up),
-# undamped least squares swings them by tenths of a radian for a hundredth of a
-# milliradian, and the position's second order with them; damped, the joints stay
-# still and the orientation gives that up. Where they turn it well (the PUMA's wrist
-# away from its singularity, most SO-101 poses) nothing is damped.
+# The orientation comes second, solved in what the position leaves free, by damped
+# least squares with λ = ε iterated once: a direction in which those joints turn the
+# tool by σ rad/rad is followed to a share 1 − (ε²/(σ² + ε²))² of what it asks, all of
+# it where σ ≫ ε (the PUMA's wrist away from its singularity, most SO-101 poses: a
+# 0.5 rad/rad direction is short by 3e-6 of its share), next to nothing where σ ≪ ε.
+# Near a pose where those joints barely turn the tool (an SO-101's lift, elbow and wrist
+# flex about to line up), undamped least squares swings them by tenths of a radian for
+# a hundredth of a milliradian; damped, the joints stay still and the orientation gives
+# that up.
 JOG_ORIENTATION_EPSILON: Final = 0.02
 _POSITION_DAMPING2: Final = JOG_POSITION_DAMPING**2
 _ORIENTATION_EPSILON2: Final = JOG_ORIENTATION_EPSILON**2
@@ -277,16 +276,16 @@ class PinocchioKinematics(ABC):
         self._jog_mask: FloatArray | None = None if mask.all() else mask
         self._jog_lo = np.ascontiguousarray(self.qlim[:, 0], dtype=float)
         self._jog_hi = np.ascontiguousarray(self.qlim[:, 1], dtype=float)
-        self._jog_eye = np.eye(n)
 
     def jog(self, T: FloatArray, seed: FloatArray) -> FloatArray:
         """Joints within the limits reaching the tool pose ``T``, a small increment
         from ``seed`` (the current joints): differential inverse kinematics, for
-        Cartesian jogging. Each Newton step is one damped least-squares solve on the
-        tool's 6×n Jacobian (base-aligned axes at the tool point, as ``jacobian``),
+        Cartesian jogging. Each Newton step is one prioritised least-squares solve on
+        the tool's 6×n Jacobian (base-aligned axes at the tool point, as ``jacobian``),
         warm-started at ``seed``: the position first, then the orientation in the
-        freedom the position leaves (its null space). A 0.2 mm increment is met in one
-        step, and a step costs the same for five joints as for six.
+        freedom the position leaves (its null space), in 3×3 algebra (``_jog_step``).
+        A 0.2 mm increment is met in one step, and a step costs the same for five
+        joints as for six.
 
         Joint limits: a joint the step would take past a limit is held at it and the
         step solved again without it, as ``ik`` keeps them.
@@ -344,39 +343,50 @@ class PinocchioKinematics(ABC):
         self, J: FloatArray, e_p: FloatArray, e_o: FloatArray, q: FloatArray
     ) -> tuple[FloatArray, float]:
         """One Newton step from ``q`` (n,): the joints it reaches and what it leaves of
-        the orientation error (radians).
+        the orientation error (radians), in 3×3 algebra whatever n.
 
-        The position: the damped pseudo-inverse of the position rows, P = Jpᵀ (Jp Jpᵀ +
-        λ²)⁻¹ (3×3, inverted in closed form), and N = I − P Jp, the joint motions that
-        leave the tool point where it is (n − 3 of them). The orientation: least
-        squares within them, on the SVD of A = Jo N (rank n − 3: met with six joints,
-        as near as the two left allow with five), each direction damped below
-        ``JOG_ORIENTATION_EPSILON``. (A constant damping would follow, for a rotation
-        nothing else makes, the trace of the position's motions N lets through.) A
-        joint the step takes past a limit is held at it (its column zeroed, its share
-        taken off both errors) and the step solved again with the others."""
-        lo, hi, eye = self._jog_lo, self._jog_hi, self._jog_eye
-        # Joints off the tool's chain never move (a copy: J is ours to zero columns of).
-        J = J * self._jog_mask if self._jog_mask is not None else J.copy()
+        With the Jacobian's Gram matrix J Jᵀ in blocks W = Jp Jpᵀ, C = Jo Jpᵀ, G = Jo Joᵀ,
+        the prioritised step is dq = Jpᵀ a + Joᵀ z: z the orientation's least squares in
+        the motions that leave the tool point where it is, (S + ε²) z = r with
+        S = G − C W⁻¹ Cᵀ (A Aᵀ for A = Jo (I − Jp⁺ Jp): the Schur complement) and
+        r = e_o − C W⁻¹ e_p (what the position's own step leaves of the orientation
+        error), solved twice (iterated Tikhonov); a = W⁻¹ (e_p − Cᵀ z), which meets the
+        position whatever z is (Jp dq = W a + Cᵀ z = e_p). Six joints: S is invertible
+        and the orientation met; five: S has rank 2 and the orientation is met as near
+        as the two free joints allow, the rotation neither makes left (its z moves no
+        joint: Joᵀ z − Jpᵀ W⁻¹ Cᵀ z = Aᵀ z = 0). The orientation left, r − S z, is
+        ε² × the second solve's change. A joint the step takes past a limit is held at
+        it (its column zeroed, its share taken off both errors) and the step solved
+        again with the others."""
+        lo, hi = self._jog_lo, self._jog_hi
+        # Joints off the tool's chain never move (their columns zeroed: a copy of J).
+        mask = self._jog_mask
+        copied = mask is not None
+        if mask is not None:
+            J = J * mask
         for _ in range(q.shape[0] + 1):  # each pass holds one joint more, at least
-            Jp, Jo = J[:3], J[3:]
-            P = Jp.T @ _inv3_damped(Jp @ Jp.T, _POSITION_DAMPING2)
-            d = P @ e_p
-            A = Jo @ (eye - P @ Jp)
-            r = e_o - Jo @ d
-            U, S, Vt = np.linalg.svd(A, full_matrices=False)
-            y = Vt.T @ (S / np.maximum(S * S, _ORIENTATION_EPSILON2) * (U.T @ r))
-            r -= A @ y
-            q_next: FloatArray = q + d + y
+            K = J @ J.T
+            C = K[3:, :3]
+            Wi = _inv3_damped(K[:3, :3], _POSITION_DAMPING2)
+            CWi = C @ Wi
+            r = e_o - CWi @ e_p
+            Si = _inv3_damped(K[3:, 3:] - CWi @ C.T, _ORIENTATION_EPSILON2)
+            z = Si @ r
+            dz = _ORIENTATION_EPSILON2 * (Si @ z)
+            z += dz
+            a = Wi @ (e_p - C.T @ z)
+            q_next: FloatArray = q + J.T @ np.concatenate((a, z))
             out = (q_next < lo) | (q_next > hi)
             if not out.any():
-                return q_next, math.sqrt(r @ r)
+                return q_next, _ORIENTATION_EPSILON2 * math.sqrt(dz @ dz)
             held = np.where(out, np.minimum(np.maximum(q_next, lo), hi), q)
-            e_p = e_p - Jp @ (held - q)
-            e_o = e_o - Jo @ (held - q)
+            e_p = e_p - J[:3] @ (held - q)
+            e_o = e_o - J[3:] @ (held - q)
+            if not copied:
+                J, copied = J.copy(), True
             J[:, out] = 0.0
             q = held  # exactly at the limits: the next pass leaves them there
-        return np.minimum(np.maximum(q_next, lo), hi), math.sqrt(r @ r)  # (never reached)
+        return np.minimum(np.maximum(q_next, lo), hi), _ORIENTATION_EPSILON2 * math.sqrt(dz @ dz)
 
     def _jog_unmet(self, T: FloatArray, seed: FloatArray, q: FloatArray) -> FloatArray:
         """An increment the jog's steps did not meet (``q``: where they ended): the
