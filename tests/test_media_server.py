@@ -266,7 +266,11 @@ def test_a_flood_of_connects_is_bounded_and_never_reaches_the_control_plane(
     assert len(offered) + len(refused) == 200
     full = [r for r in refused if r.json()["type"].endswith(":relay_full")]
     assert len(full) == relay["refused"] >= 160 - relay["expired"], relay
-    assert all(r.json()["type"].endswith(":relay_unavailable") for r in refused if r not in full)
+    # The rest: expired while Janus made them, or (a core kept busy) not answered by the
+    # niced media worker within its request timeout: refused as media_unavailable. Both
+    # are refusals with their reason; nothing else is.
+    others = {r.json()["type"].rsplit(":", 1)[-1] for r in refused if r not in full}
+    assert others <= {"relay_unavailable", "media_unavailable"}, others
     # The operator was never disturbed: the lease is its own, the arm not halted, and
     # a heartbeat and a command go through now.
     assert http.post("api/v1/lease/heartbeat").status_code == 200

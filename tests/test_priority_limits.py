@@ -329,7 +329,10 @@ def test_forces_go_only_to_clients_that_said_hello(serve: Callable[..., ChannelS
     idle = [RawClient(server.port) for _ in range(8)]
     listener = welcomed(server.port)
     until(lambda: len(server.channel.clients) == 9)
-    assert [c.peer for c in server.channel._subscribers] == [f"127.0.0.1:{listener.port}"]
+    # Its HELLO is handled on the loop after its connection is counted: wait for it.
+    mine = [f"127.0.0.1:{listener.port}"]
+    until(lambda: [c.peer for c in server.channel._subscribers] == mine)
+    assert [c.peer for c in server.channel._subscribers] == mine
     for _ in range(50):
         server.sensor.emit()
     until(lambda: listener.forces == 50)
