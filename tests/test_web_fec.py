@@ -50,15 +50,21 @@ INBOUND = """async () => {
   return found && { ...found, peerId: peer.peerId };
 }"""
 
+RESTARTS = 2  # windows started again after a re-negotiation, at most
+
 # libwebrtc records a receive stream's FEC figures when it closes, if it lived this long.
 HISTOGRAM_MIN_LIFE_S = 12.0
 RECOVERED = "WebRTC.Video.RecoveredMediaPacketsInPercentOfFec"
 
 
-def inbound(page: Page) -> dict[str, Any]:
-    stats: dict[str, Any] | None = page.evaluate(INBOUND)
+def inbound(page: Page, within: float = 0.0) -> dict[str, Any]:
+    """The page's video peer's inbound-rtp stats, waiting up to ``within`` s for them (a
+    peer just re-negotiated has none yet)."""
+    deadline = time.monotonic() + within
+    while (stats := page.evaluate(INBOUND)) is None and time.monotonic() < deadline:
+        page.wait_for_timeout(250)
     assert stats is not None, "the page has no video peer (or it has no inbound-rtp stats)"
-    return stats
+    return dict(stats)
 
 
 def video_stats(server: str) -> dict[str, Any]:
@@ -165,35 +171,46 @@ def test_chromiums_offer_carries_red_and_ulpfec_and_the_server_agrees(
 # group (48), whose FEC packets must wait for the frame's end (they stopped Chromium's
 # decoder when sent inside the frame).
 @pytest.mark.parametrize("layer", ["low", "full"])
+@pytest.mark.timeout(360)  # a window started again after a re-negotiation or two
 def test_chromium_decodes_the_protected_stream_through_loss_for_good(
     browser: Browser, server: str, layer: str
 ) -> None:
     page, errors = open_video(browser, server, layer)
-    opened = time.monotonic()
-    s0 = inbound(page)
-    peer_id = s0["peerId"]
-    v0 = viewer(server, peer_id)
-    forced0 = video_stats(server)["keyframes_forced"]
-    drawn0 = page.evaluate("window.telerobot.view.frames")
-    renegotiations = page.evaluate("window.telerobot.video.renegotiations")
-    recovered0 = fec_recovered_streams(browser, timeout=0)
-
     # Over a window: 10 more packets Chromium never got (their resends are dropped too)
-    # and 100 more frames decoded, on the same peer (a stalled stream is re-negotiated).
-    deadline = time.monotonic() + 90
+    # and 100 more frames decoded, on the same peer. A page whose stream stalled for a
+    # second re-negotiates (a machine too busy to feed it, as a CI runner can be): the
+    # window starts again on the new peer, at most RESTARTS times. FEC that fails stalls
+    # every window, so the test still fails then.
+    restarts: list[str] = []
     while True:
-        s1 = inbound(page)
-        assert s1["peerId"] == peer_id, f"the page re-negotiated its video: {s1}"
-        if (
-            s1["packetsLost"] >= s0["packetsLost"] + 10
-            and s1["framesDecoded"] >= s0["framesDecoded"] + 100
-        ):
+        s0 = inbound(page, within=30.0)
+        opened = time.monotonic()
+        peer_id = s0["peerId"]
+        v0 = viewer(server, peer_id)
+        forced0 = video_stats(server)["keyframes_forced"]
+        drawn0 = page.evaluate("window.telerobot.view.frames")
+        renegotiations = page.evaluate("window.telerobot.video.renegotiations")
+        recovered0 = fec_recovered_streams(browser, timeout=0)
+        deadline = time.monotonic() + 90
+        while True:
+            now: dict[str, Any] | None = page.evaluate(INBOUND)
+            if now is None or now["peerId"] != peer_id:
+                break  # re-negotiated meanwhile
+            s1 = now
+            if (
+                s1["packetsLost"] >= s0["packetsLost"] + 10
+                and s1["framesDecoded"] >= s0["framesDecoded"] + 100
+            ):
+                break
+            assert time.monotonic() < deadline, (
+                f"no 10 packets lost and 100 frames decoded in 90 s: before {s0}\nnow {s1}\n"
+                f"the server: {viewer(server, peer_id)}"
+            )
+            page.wait_for_timeout(500)
+        if now is not None and now["peerId"] == peer_id:
             break
-        assert time.monotonic() < deadline, (
-            f"no 10 packets lost and 100 frames decoded in 90 s: before {s0}\nnow {s1}\n"
-            f"the server: {viewer(server, peer_id)}"
-        )
-        page.wait_for_timeout(500)
+        restarts.append(f"peer {peer_id} re-negotiated after {time.monotonic() - opened:.1f} s")
+        assert len(restarts) <= RESTARTS, f"the page re-negotiated its video each time: {restarts}"
     v1 = viewer(server, peer_id)
     forced1 = video_stats(server)["keyframes_forced"]
     said = f"Chromium before {s0}\nafter {s1}\nthe server before {v0}\nafter {v1}"

@@ -308,6 +308,17 @@ def _record_puma(url: str) -> dict[str, Any]:
         return summary
 
 
+def _until_video_is_recorded(http: httpx.Client, within: float = 60.0) -> None:
+    """Wait until the media worker is encoding for the recording that just started."""
+    deadline = time.monotonic() + within
+    while not (
+        (video := http.get("video").json())["worker_alive"]
+        and video["stats"].get("frames_encoded", 0) > 0
+    ):
+        assert time.monotonic() < deadline, f"no video frame encoded in {within} s: {video}"
+        time.sleep(0.2)
+
+
 def test_a_supervised_rollouts_corrections_are_lerobots_intervention_column(
     tmp_path: Path,
 ) -> None:
@@ -321,9 +332,13 @@ def test_a_supervised_rollouts_corrections_are_lerobots_intervention_column(
 
     fps = 10
     windows: list[float] = []
-    with serving(env={"TELEROBOT_VIDEO_FPS": str(fps)}) as (url, _state):
+    with serving(env={**SMALL_VIDEO, "TELEROBOT_VIDEO_FPS": str(fps)}) as (url, _state):
         http = httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=60)
         assert http.post("recordings", json={"name": "rollout"}).status_code == 200
+        # The export's rows start at the recording's first video frame: on a busy machine
+        # the media worker took over a second to start, and the first correction came
+        # before any row (one run of rows where two corrections were made).
+        _until_video_is_recorded(http)
         http.post("recordings/active/episodes", json={"task": "reach"})
         secret = http.post("policy-tokens", json={"name": "act-policy"}).json()["token"]
         arm = TelerobotArm(ArmOptions(url, secret, name="act-policy", cameras=False, policy=True))
