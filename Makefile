@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: lerobot-deps lerobot-test wheel run test test-slow-machine test-web screenshots lint typecheck unit browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
+.PHONY: lerobot-deps lerobot-test wheel run test test-slow-machine test-web screenshots lint typecheck unit unit-no-browser unit-browser browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
@@ -34,8 +34,17 @@ run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser
-## and LeRobot's tools included)
-test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps lint typecheck web-check web unit lerobot-test
+## and LeRobot's tools included). LeRobot's tests run beside the tests that need no
+## browser (those mostly wait: 1.2 of 2 cores), their output shown when both are done.
+test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps lint typecheck web-check web
+	@log=$$(mktemp -t telerobot-lerobot-test.XXXXXX); \
+	  echo "LeRobot's tests run beside the tests that need no browser; their output follows those"; \
+	  $(MAKE) --no-print-directory lerobot-test >$$log 2>&1 & lerobot=$$!; \
+	  $(MAKE) --no-print-directory unit-no-browser; own=$$?; \
+	  wait $$lerobot; theirs=$$?; \
+	  echo "--- LeRobot's tests (make lerobot-test):"; cat $$log; rm -f $$log; \
+	  test $$own = 0 && test $$theirs = 0
+	@$(MAKE) --no-print-directory unit-browser
 
 # LeRobot needs Python 3.12 and brings torch (~5.4 GB): a venv of its own, installed once
 # and kept between runs and clones (the plugins' tests and LeRobot's reading of our
@@ -102,9 +111,14 @@ typecheck: $(STAMP)
 # and sockets mostly wait: 286 s on two → 233 s on three here, 1.2 cores used), then the
 # browser tests on one, which share one Chromium and take the CPU the page's software
 # rendering needs (two workers are no faster: 389 s against 378; docs/PERFORMANCE.md).
-unit: $(STAMP)
+# Beside the first, `make test` runs LeRobot's tests: 384 s for both against 382 + 138.
+unit: unit-no-browser unit-browser
+
+unit-no-browser: $(STAMP)
 	TELEROBOT_LEROBOT_PYTHON=$$(test -x $(LEROBOT_PY) && echo $(LEROBOT_PY)) \
 	  $(BIN)/python -m pytest -q -m "not browser" -n 3 --dist loadfile
+
+unit-browser: $(STAMP)
 	$(BIN)/python -m pytest -q -m browser
 
 # Debian's Chromium for the Playwright browser tests (never a downloaded browser).

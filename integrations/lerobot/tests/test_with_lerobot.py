@@ -43,51 +43,57 @@ def test_lerobot_discovers_both_plugins_by_their_distribution_names() -> None:
     assert teleop.__module__ == "lerobot_teleoperator_telerobot.config_telerobot"
 
 
-def _drive_as_an_operator(url: str, done: threading.Event) -> None:
-    """A person at the page: once LeRobot's robot holds control and records, takes
-    control over it, moves the first joint there and back, and lets go."""
+def _drive_as_an_operator(url: str, done: threading.Event, stop: threading.Event) -> None:
+    """A person at the page: once LeRobot's robot holds control, takes control over it,
+    moves the first joint there and back, and lets go; again and again until ``stop``,
+    so every episode holds a move however late LeRobot starts writing rows (on a busy
+    machine its first rows came after a single move had ended: a flat action column)."""
     deadline = time.monotonic() + 120
     while httpx.get(url + "api/v1/safety").json()["controller"] != "lerobot":
-        if time.monotonic() > deadline:
+        if time.monotonic() > deadline or stop.is_set():
             return
         time.sleep(0.1)
-    time.sleep(1.0)  # a few rows of the robot's own first
-    with Telerobot(url, TOKEN, name="scripted operator", take_over=True) as person:
-        for step in (0.08, 0.08, -0.08, -0.08, 0.08):  # (a jog's step is at most 0.1 rad)
-            person.move_joints([step, 0, 0, 0, 0, 0], relative=True)
-    done.set()
+    while not stop.is_set() and time.monotonic() < deadline:
+        time.sleep(0.5)  # a few rows of the robot's own between the moves
+        with Telerobot(url, TOKEN, name="scripted operator", take_over=True) as person:
+            for step in (0.08, 0.08, -0.08, -0.08):  # (a jog's step is at most 0.1 rad)
+                person.move_joints([step, 0, 0, 0, 0, 0], relative=True)
+        done.set()
 
 
 def test_lerobot_record_with_the_telerobot_robot_and_teleoperator(tmp_path: Path) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     with serving("--model", "so101", env=SMALL_VIDEO) as (url, _state):
-        done = threading.Event()
-        operator = threading.Thread(target=_drive_as_an_operator, args=(url, done))
+        done, stop = threading.Event(), threading.Event()
+        operator = threading.Thread(target=_drive_as_an_operator, args=(url, done, stop))
         operator.start()
         root = tmp_path / "recorded"
-        said = run_lerobot(
-            "lerobot-record",
-            [
-                "--robot.type=telerobot",
-                "--robot.camera_width=320",
-                "--robot.camera_height=180",
-                "--robot.fps=15",
-                "--teleop.type=telerobot",
-                "--dataset.repo_id=telerobot/record-test",
-                f"--dataset.root={root}",
-                "--dataset.single_task=wave",
-                "--dataset.num_episodes=2",
-                "--dataset.episode_time_s=4",
-                "--dataset.reset_time_s=1",
-                "--dataset.fps=10",
-                "--dataset.push_to_hub=false",
-                "--play_sounds=false",
-            ],
-            url,
-            tmp_path,
-        )
-        operator.join(60)
+        try:
+            said = run_lerobot(
+                "lerobot-record",
+                [
+                    "--robot.type=telerobot",
+                    "--robot.camera_width=320",
+                    "--robot.camera_height=180",
+                    "--robot.fps=15",
+                    "--teleop.type=telerobot",
+                    "--dataset.repo_id=telerobot/record-test",
+                    f"--dataset.root={root}",
+                    "--dataset.single_task=wave",
+                    "--dataset.num_episodes=2",
+                    "--dataset.episode_time_s=4",
+                    "--dataset.reset_time_s=1",
+                    "--dataset.fps=10",
+                    "--dataset.push_to_hub=false",
+                    "--play_sounds=false",
+                ],
+                url,
+                tmp_path,
+            )
+        finally:
+            stop.set()
+            operator.join(60)
         assert done.is_set(), said[-3000:]
     ds = LeRobotDataset("telerobot/record-test", root=root, video_backend="pyav")
     assert ds.num_episodes == 2 and ds.meta.robot_type == "so_follower"
