@@ -192,13 +192,9 @@ def build_viewer(
             settings.host,
             settings.viewer_port,
             workcell,
-            arms[0].robot,
-            arms[0].force,
+            # each arm's own model, not the server's default
+            [ViewedArm(a.robot, make_kinematics(a.settings), a.mount, a.force) for a in arms],
             calibration,
-            make_kinematics(arms[0].settings),  # the arm's model, not the server's default
-            more_arms=[
-                ViewedArm(a.robot, make_kinematics(a.settings), a.mount, a.force) for a in arms[1:]
-            ],
         )
     except (OSError, ImportError) as exc:
         log.error("the 3D view cannot start on port %s: %s", settings.viewer_port, exc)
@@ -214,28 +210,23 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
     robot, force = arms[0].robot, arms[0].force
     # The DecisionServer's own models (same tool): Pinocchio data is per instance.
     decision = DecisionServer(
-        robot,
-        kinematics=make_kinematics(arms[0].settings),
-        clock=clock,
-        operator_token=token.value,
-        policy_tokens=PolicyTokens(policy_tokens_path(settings)),
-        limits=safety_limits(arms[0].settings),
-        force=force,
-        arm_name=arms[0].name,
-        more_arms=[
+        [
             ArmGuard(
                 arm.name,
-                i + 2,
+                i + 1,
                 arm.robot,
                 make_kinematics(arm.settings),
                 safety_limits(arm.settings),
                 arm.force,
                 arm.mount,
             )
-            for i, arm in enumerate(arms[1:])
+            for i, arm in enumerate(arms)
         ],
+        clock=clock,
+        operator_token=token.value,
+        policy_tokens=PolicyTokens(policy_tokens_path(settings)),
+        limits=safety_limits(settings),
     )
-    decision.arms[0].mount = arms[0].mount
     decision.release_to = ReleaseTo(settings.autonomy_release)
     hub = RealtimeHub(
         robot, decision, force, telemetry, clock, state_rate_hz=settings.state_rate_hz

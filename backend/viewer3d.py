@@ -34,8 +34,8 @@ REFRESH_S = 0.05
 
 @dataclass(frozen=True)
 class ViewedArm:
-    """An arm the view draws besides the first: its driver, its own kinematics (read on
-    the event loop), where its base stands in the workcell (4×4) and its force sensor."""
+    """An arm the view draws: its driver, its own kinematics (read on the event loop),
+    where its base stands in the workcell (4×4) and its force sensor."""
 
     robot: Robot
     kinematics: ArmKinematics
@@ -90,23 +90,15 @@ class Workcell3DView:
         host: str,
         port: int,
         workcell: Workcell,
-        robot: Robot,
-        force: ForceSensor | None,
+        arms: Sequence[ViewedArm],
         calibration: CalibrationStore,
-        kinematics: ArmKinematics,
-        more_arms: Sequence[ViewedArm] = (),
     ) -> None:
-        """``robot``, ``force`` and ``kinematics`` are the first arm's (at the workcell's
-        first mount); ``more_arms`` the others, in the server's order."""
+        """``arms`` in the server's order, each at its own mount."""
         import viser  # an optional part of the server: imported when the view is on
 
         self.workcell = workcell
-        self.robot = robot
-        self.force = force
         self.calibration = calibration
-        self.kinematics = kinematics
-        first = workcell.mounts[0] if workcell.mounts else np.eye(4)
-        self.arms = (ViewedArm(robot, kinematics, first, force), *more_arms)
+        self.arms = tuple(arms)
         self.server: Any = viser.ViserServer(host=host, port=port, label="Telerobot", verbose=False)
         self.port: int = self.server.get_port()
         self._task: asyncio.Task[None] | None = None

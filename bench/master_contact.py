@@ -90,6 +90,7 @@ from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.force.sim import SimForceSensor
 from telerobot.drivers.master.sim import SimMaster
 from telerobot.protocol import messages as m
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.devices import (
     build_force_sensor,
@@ -439,13 +440,12 @@ async def stepped_press(
     robot = build_robot(settings, clock)
     sensor = build_force_sensor(settings, robot, workcell)
     assert isinstance(sensor, SimForceSensor)  # sampled here (sample_at), not by its thread
+    limits = safety_limits(settings)
     decision = DecisionServer(
-        robot,
-        kinematics=make_kinematics(settings),
+        [ArmGuard("arm", 1, robot, make_kinematics(settings), limits, sensor)],
         clock=clock,
         operator_token=token,
-        limits=safety_limits(settings),
-        force=sensor,
+        limits=limits,
     )
     hub = RealtimeHub(robot, decision, None, Telemetry(), clock)  # (only to encode STATE)
 

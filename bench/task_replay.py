@@ -40,7 +40,9 @@ from telerobot.drivers.robot.puma560.kinematics import (
 )
 from telerobot.drivers.robot.puma560.sim import SimPuma
 from telerobot.drivers.sim.workcell import Box, Workcell, default_workcell
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.tasks.compliance import ComplianceSettings
 from telerobot.server.tasks.runner import Task, TaskRunner, TaskSpec
 from telerobot.server.tasks.trajectory import ForceReading, StateSample, Trajectory
@@ -91,11 +93,18 @@ class SimCell:
             time_source=self.clock.now,
         )
         self.decision = DecisionServer(
-            self.robot,
-            kinematics=Puma560Kinematics(tool_transform(0.1)),
+            [
+                ArmGuard(
+                    "arm",
+                    1,
+                    self.robot,
+                    Puma560Kinematics(tool_transform(0.1)),
+                    SafetyLimits(),
+                    self.sensor,
+                )
+            ],
             clock=self.clock,
             operator_token=TOKEN,
-            force=self.sensor,
         )
         self.runner = TaskRunner(self.decision, self.sensor, self.clock, operator_token=TOKEN)
         self.forces: list[ForceReading] = []

@@ -35,13 +35,13 @@ async def two_arms(
     left, right = await recording_puma(clock), await recording_puma(clock)
     limits = SafetyLimits()
     ds = DecisionServer(
-        left,
-        kinematics=Puma560Kinematics(tool_transform(0.1)),
+        [
+            ArmGuard("left", 1, left, Puma560Kinematics(tool_transform(0.1)), limits),
+            ArmGuard("right", 2, right, Puma560Kinematics(tool_transform(0.1)), limits),
+        ],
         clock=clock,
         operator_token=TOKEN,
         limits=limits,
-        arm_name="left",
-        more_arms=[ArmGuard("right", 2, right, Puma560Kinematics(tool_transform(0.1)), limits)],
     )
     alice = ds.join("alice", TOKEN)
     await ds.take_lease(alice.id)

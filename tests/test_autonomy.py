@@ -230,7 +230,7 @@ async def test_the_estop_during_autonomy_pauses_it_until_reset_and_resumed(
 
 async def test_the_force_limit_during_autonomy_pauses_it(clock: ManualClock) -> None:
     ds, _robot, _policy, _, said = await policy_driving(clock)
-    ds.on_force(ForceSample(1, clock.now(), (80.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
+    ds.on_force(ForceSample(1, clock.now(), (80.0, 0.0, 0.0, 0.0, 0.0, 0.0)), ds.arms[0])
     await asyncio.sleep(0)
     assert ds.autonomy.mode is Mode.PAUSED and said[-1].cause == "force limit: 80.0 N"
 

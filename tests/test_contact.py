@@ -11,7 +11,9 @@ from telerobot.drivers.force.sim import SimForceSensor
 from telerobot.drivers.robot.puma560.kinematics import Puma560Kinematics, tool_transform
 from telerobot.drivers.robot.puma560.sim import SimPuma
 from telerobot.drivers.sim.workcell import default_workcell
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
 from tests.support.puma import joints_with_tip_at
@@ -34,9 +36,11 @@ async def test_pushing_into_the_table_trips_the_force_limit_and_backing_off_clea
         cell, robot.snapshot, Puma560Kinematics(tool_transform(0.1)), noise_n=0.0
     )
     ds = DecisionServer(
-        robot, kinematics=Puma560Kinematics(tool_transform(0.1)), clock=clock, operator_token=TOKEN
+        [ArmGuard("arm", 1, robot, Puma560Kinematics(tool_transform(0.1)), SafetyLimits())],
+        clock=clock,
+        operator_token=TOKEN,
     )
-    sensor.subscribe(ds.on_force)
+    sensor.subscribe(lambda sample: ds.on_force(sample, ds.arms[0]))
     op = ds.join("operator", TOKEN)
     await ds.take_lease(op.id)
 

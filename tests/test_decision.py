@@ -328,7 +328,7 @@ async def test_force_limit_stops_and_only_retreat_is_allowed(clock: ManualClock)
     # A contact pushing the tool back along base −x (sensor frame = tool frame).
     f_base = np.array([-80.0, 0, 0])
     f_sensor = robot.pose.rotation.T @ f_base
-    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)), ds.arms[0])  # type: ignore[arg-type]
     await asyncio.sleep(0)
     assert ds.state().force_limited
     with pytest.raises(SafetyStop, match="back away"):
@@ -337,7 +337,7 @@ async def test_force_limit_stops_and_only_retreat_is_allowed(clock: ManualClock)
         await ds.joint_increment(a.id, np.array([0.01, 0, 0, 0, 0, 0]))
     await clock.advance(0.05)
     await ds.cartesian_increment(a.id, np.array([-0.002, 0, 0]), np.zeros(3))  # backing away
-    ds.on_force(ForceSample(2, clock.now(), (0.0, 0.0, 10.0, 0.0, 0.0, 0.0)))
+    ds.on_force(ForceSample(2, clock.now(), (0.0, 0.0, 10.0, 0.0, 0.0, 0.0)), ds.arms[0])
     assert not ds.state().force_limited
 
 
@@ -348,7 +348,7 @@ async def test_after_a_contact_approaching_it_again_is_slow_and_leaving_is_not(
     lim = ds.limits
     # A 30 N contact (below the force limit) pushing the tool back along base −x.
     f_sensor = robot.pose.rotation.T @ np.array([-30.0, 0, 0])
-    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)), ds.arms[0])  # type: ignore[arg-type]
     assert not ds.state().force_limited
 
     async def step(dx: float) -> float:
@@ -576,12 +576,12 @@ async def test_a_master_arm_is_owed_what_the_slow_approach_held_back(
     ds, robot, a = await in_control(clock)
     f_sensor = robot.pose.rotation.T @ np.array([-30.0, 0, 0])  # pushes back along −x
     ds.master_energy(a.id, 10.0, 0.0)  # plenty of the operator's energy
-    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)), ds.arms[0])  # type: ignore[arg-type]
     start = robot.kinematics.fk(robot.target_joints)[0, 3]
     moves = [0.005, -0.005] + [0.0] * 10  # then still (the bridge sends zeros while gripped)
     for dx in moves:
         await clock.advance(0.05)
-        ds.on_force(ForceSample(2, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+        ds.on_force(ForceSample(2, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)), ds.arms[0])  # type: ignore[arg-type]
         await ds.cartesian_increment(a.id, np.array([dx, 0, 0]), np.zeros(3))
     end = robot.kinematics.fk(robot.target_joints)[0, 3]
     assert end - start == pytest.approx(0.0, abs=1e-6)
@@ -597,7 +597,7 @@ async def test_a_refused_increment_forgives_what_was_owed(clock: ManualClock) ->
     await ds.cartesian_increment(a.id, np.array([-0.001, 0, 0]), np.zeros(3))  # the stream
     port.owed = np.array([0.008, 0.0, 0.0])  # 8 mm toward the contact, held back before
     f_sensor = robot.pose.rotation.T @ np.array([-80.0, 0, 0])  # past the 60 N limit
-    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+    ds.on_force(ForceSample(1, clock.now(), (*f_sensor.tolist(), 0.0, 0.0, 0.0)), ds.arms[0])  # type: ignore[arg-type]
     await asyncio.sleep(0)
     await clock.advance(0.05)
     with pytest.raises(SafetyStop, match="back away"):  # 8 mm in, 2 mm out: still in

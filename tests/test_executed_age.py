@@ -26,7 +26,9 @@ from telerobot.protocol import messages as m
 from telerobot.server.api.control import command_ages
 from telerobot.server.app import create_app
 from telerobot.server.control import decision as decision_module
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.recording import reader
 from telerobot.server.recording.recorder import Recorder, RecordingTaps
 from telerobot.server.settings import Settings
@@ -92,7 +94,9 @@ async def test_the_ack_time_is_later_than_the_execution_by_the_drivers_own_time(
     await robot.connect()
     await run_with_clock(clock, robot.initialize())
     robot.slow_s = 0.03
-    ds = DecisionServer(robot, kinematics=kin, clock=clock, operator_token=TOKEN)
+    ds = DecisionServer(
+        [ArmGuard("arm", 1, robot, kin, SafetyLimits())], clock=clock, operator_token=TOKEN
+    )
     a = ds.join("alice", TOKEN, synced_clock=True)
     await ds.take_lease(a.id)
     sent = clock.now() - 0.24

@@ -263,15 +263,8 @@ async def test_the_3d_view_draws_every_arm_at_its_mount(tmp_path: Path) -> None:
         "127.0.0.1",
         0,
         workcell,
-        arms[0].robot,
-        arms[0].force,
+        [ViewedArm(a.robot, make_kinematics(a.settings), a.mount, a.force) for a in arms],
         CalibrationStore(tmp_path / "calibration.json"),
-        make_kinematics(arms[0].settings),
-        more_arms=[
-            ViewedArm(
-                arms[1].robot, make_kinematics(arms[1].settings), arms[1].mount, arms[1].force
-            )
-        ],
     )
     try:
         view.refresh()

@@ -19,6 +19,7 @@ from telerobot.drivers.robot.puma560.kinematics import (
     tool_transform,
 )
 from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import SafetyLimits, full_speed_stop_s, stopping
 from tests.support import TOKEN
@@ -37,8 +38,7 @@ async def drive_then_lose_the_link(
     await robot.connect()
     await run_with_clock(clock, robot.initialize(q0))
     ds = DecisionServer(
-        robot,
-        kinematics=Puma560Kinematics(tool_transform(0.1)),
+        [ArmGuard("arm", 1, robot, Puma560Kinematics(tool_transform(0.1)), SafetyLimits())],
         clock=clock,
         operator_token=TOKEN,
     )
@@ -91,7 +91,7 @@ async def test_a_stop_from_speed_ends_within_the_stated_time_and_distance(
     # direction), for the speed the tool reached.
     spec = robot.stop_spec
     stated_time, stated_distance = cartesian_stop(
-        ds.kinematics.jacobian(robot.joints), got["speed_m_s"], spec.decel, spec.vmax
+        ds.arms[0].kinematics.jacobian(robot.joints), got["speed_m_s"], spec.decel, spec.vmax
     )
     assert got["time_s"] <= stated_time + 0.0015
     assert got["distance_m"] <= stated_distance + 1e-4

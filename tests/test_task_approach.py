@@ -21,6 +21,7 @@ from telerobot.drivers.base import InvalidCommand
 from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
 from telerobot.drivers.robot.sim import SimPuma
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer, LimitExceeded
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.devices import make_kinematics
@@ -64,12 +65,12 @@ class Cell:
     def __init__(self, start: np.ndarray, limits: SafetyLimits | None = None) -> None:
         self.clock = ManualClock()
         settings = Settings()
+        limits = limits or SafetyLimits()
         self.robot = SimPuma(
             clock=self.clock, kinematics=make_kinematics(settings), start_joints=start, home=start
         )
         self.decision = DecisionServer(
-            self.robot,
-            kinematics=make_kinematics(settings),
+            [ArmGuard("arm", 1, self.robot, make_kinematics(settings), limits)],
             clock=self.clock,
             operator_token=TOKEN,
             limits=limits,
@@ -139,7 +140,7 @@ async def test_from_where_the_readme_script_left_the_arm_the_approach_turns_join
         assert np.all(steps[:, 0] <= 1e-12)
         # At the approach's pace: the tool's chord per period within 2 cm/s (and the
         # joints within 0.2 rad/s), so 61 mm take about 3 s, not one jump.
-        kin = cell.decision.kinematics
+        kin = cell.decision.arms[0].kinematics
         tool = np.array([kin.fk(q)[:3, 3] for q in approach])
         chords = np.linalg.norm(np.diff(tool, axis=0), axis=1)
         assert chords.max() <= 0.02 * PERIOD * 1.01, chords.max()

@@ -177,24 +177,22 @@ async def cell() -> AsyncIterator[TwoArmCell]:
         robots[name], sensors[name] = await recording_puma(clock), PushedSensor()
     limits = SafetyLimits()
     decision = DecisionServer(
-        robots["left"],
-        kinematics=Puma560Kinematics(tool_transform(0.1)),
+        [
+            ArmGuard(
+                name,
+                i + 1,
+                robots[name],
+                Puma560Kinematics(tool_transform(0.1)),
+                limits,
+                sensors[name],  # type: ignore[arg-type]
+            )
+            for i, name in enumerate(("left", "right"))
+        ],
         clock=clock,
         operator_token=TOKEN,
         limits=limits,
-        force=sensors["left"],  # type: ignore[arg-type]
-        arm_name="left",
-        more_arms=[
-            ArmGuard(
-                "right",
-                2,
-                robots["right"],
-                Puma560Kinematics(tool_transform(0.1)),
-                limits,
-                sensors["right"],  # type: ignore[arg-type]
-            )
-        ],
     )
+
     decision.start()
     runner = TaskRunner(decision, sensors["left"], clock, operator_token=TOKEN)  # type: ignore[arg-type]
     op = decision.join("operator", TOKEN)

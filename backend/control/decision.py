@@ -33,17 +33,15 @@ import pinocchio as pin
 from telerobot.drivers.base import (
     FloatArray,
     ForceSample,
-    ForceSensor,
     InvalidCommand,
     NotReady,
-    Robot,
     RobotStatus,
     TelerobotError,
     WorkingFrame,
 )
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
-from telerobot.drivers.robot.kinematics import ArmKinematics, check_rotation, check_vector
+from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, ReleaseTo
@@ -273,28 +271,24 @@ def reported(
 class DecisionServer:
     def __init__(
         self,
-        robot: Robot,
+        arms: Sequence[ArmGuard],
         *,
-        kinematics: ArmKinematics,
         clock: Clock,
         operator_token: str,
         limits: SafetyLimits | None = None,
-        force: ForceSensor | None = None,
         max_clients: int = MAX_CLIENTS,
         policy_tokens: PolicyTokens | None = None,
-        arm_name: str = "arm",
-        more_arms: Sequence[ArmGuard] = (),
     ) -> None:
-        """``robot`` (with ``kinematics``, ``limits`` and ``force``) is the first arm,
-        named ``arm_name``; ``more_arms`` the others, in order (docs/arms.md). The first
-        arm's limits hold the shared ones: the dead-man, the lease's grace, the age of a
-        command."""
+        """``arms``, in order (docs/arms.md): each with its own driver, model, limits and
+        force sensor; numbered 1…N on the wire by their place here. ``limits`` holds the
+        server's own: the dead-man, the lease's grace, the age of a command."""
         if len(operator_token) < 16:
             raise ValueError("the operator token must have at least 16 characters")
+        if not arms:
+            raise ValueError("a DecisionServer needs at least one arm")
         self.clock = clock
         self.limits = limits or SafetyLimits()
-        first = ArmGuard(arm_name, 1, robot, kinematics, self.limits, force)
-        self.arms: list[ArmGuard] = [first, *more_arms]
+        self.arms: list[ArmGuard] = list(arms)
         for i, guard in enumerate(self.arms):
             guard.index = i + 1
         self._by_name = {guard.name: guard for guard in self.arms}
@@ -377,19 +371,6 @@ class DecisionServer:
         self._scale = float(value)
 
     # ------------------------------------------------------------ arms
-    @property
-    def robot(self) -> Robot:
-        """The first arm's driver (the only one on a one-arm server)."""
-        return self.arms[0].robot
-
-    @property
-    def kinematics(self) -> ArmKinematics:
-        return self.arms[0].kinematics
-
-    @property
-    def force(self) -> ForceSensor | None:
-        return self.arms[0].force
-
     @property
     def arm_names(self) -> list[str]:
         return [guard.name for guard in self.arms]
@@ -921,13 +902,12 @@ class DecisionServer:
         port.master_energy(e_in, e_out)
         return port.given, port.out
 
-    def on_force(self, sample: ForceSample, guard: ArmGuard | None = None) -> None:
-        """Force limit (per arm: ``guard``, the first if None): a contact force above the
+    def on_force(self, sample: ForceSample, guard: ArmGuard) -> None:
+        """Force limit (per arm: ``guard``'s sensor): a contact force above the
         arm's limit stops that arm; only commands that back it away from the contact are
         taken until the force falls below the release level. Any contact (above
         ``contact_force_n``) is remembered: approaching it again is slowed to
         ``contact_speed_m_s`` for ``contact_memory_s``."""
-        guard = guard or self.arms[0]
         lim = guard.limits
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy

@@ -376,20 +376,16 @@ class TaskRunner:
     def active(self) -> Task | None:
         return next((t for t in self._tasks.values() if not t.state.finished), None)
 
-    def distance_to_start(
-        self, trajectory: Trajectory, guard: ArmGuard | None = None
-    ) -> tuple[float, float]:
-        """How far the arm's tool (``guard``'s, else the first arm's) is from the
-        trajectory's first pose (m, rad)."""
+    def distance_to_start(self, trajectory: Trajectory, guard: ArmGuard) -> tuple[float, float]:
+        """How far ``guard``'s arm's tool is from the trajectory's first pose (m, rad)."""
         p0, R0, _ = trajectory.at(0.0)
         return self.distance_to(p0, R0, guard)
 
     def distance_to(
-        self, position: FloatArray, rotation: FloatArray, guard: ArmGuard | None = None
+        self, position: FloatArray, rotation: FloatArray, guard: ArmGuard
     ) -> tuple[float, float]:
-        """How far the arm's tool (``guard``'s, else the first arm's) is from the pose
-        (m, rad)."""
-        pose = (guard.robot if guard is not None else self.decision.robot).pose
+        """How far ``guard``'s arm's tool is from the pose (m, rad)."""
+        pose = guard.robot.pose
         angle = float(np.linalg.norm(pin.log3(pose.rotation.T @ rotation)))
         return float(np.linalg.norm(pose.position - position)), angle
 

@@ -10,6 +10,7 @@ from telerobot.drivers.robot.puma560.kinematics import (
     tool_transform,
 )
 from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import Client, DecisionServer
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
@@ -42,9 +43,9 @@ async def make(
     clock: ManualClock, limits: SafetyLimits | None = None
 ) -> tuple[DecisionServer, RecordingPuma]:
     robot = await recording_puma(clock)
+    limits = limits or SafetyLimits()
     ds = DecisionServer(
-        robot,
-        kinematics=Puma560Kinematics(tool_transform(0.1)),
+        [ArmGuard("arm", 1, robot, Puma560Kinematics(tool_transform(0.1)), limits)],
         clock=clock,
         operator_token=TOKEN,
         limits=limits,

@@ -18,7 +18,9 @@ from telerobot.drivers.robot.puma560.kinematics import (
     tool_transform,
 )
 from telerobot.drivers.robot.puma560.sim import SimPuma
+from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.realtime.hub import RealtimeHub
 from telerobot.server.realtime.priority import PriorityChannel, PriorityClient
 from telerobot.server.telemetry.stats import Telemetry
@@ -54,7 +56,9 @@ async def build_channel(
     clock = MonotonicClock()
     kinematics = Puma560Kinematics(tool_transform(0.1))
     robot = SimPuma(clock=clock, kinematics=kinematics, start_joints=NAMED_POSES["qz"])
-    decision = DecisionServer(robot, kinematics=kinematics, clock=clock, operator_token=TOKEN)
+    decision = DecisionServer(
+        [ArmGuard("arm", 1, robot, kinematics, SafetyLimits())], clock=clock, operator_token=TOKEN
+    )
     hub = RealtimeHub(robot, decision, None, Telemetry(), clock)
     hub.start()
     channel = PriorityChannel("127.0.0.1", 0, hub, decision, sensor, **limits)  # type: ignore[arg-type]
