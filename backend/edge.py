@@ -285,4 +285,7 @@ def install_edge(
 def _policy_token_matches(app: FastAPI, candidate: str | None) -> bool:
     """Whether ``candidate`` is an issued policy token (none before the services run)."""
     services = getattr(app.state, "services", None)
-    return services is not None and services.decision.policy_tokens.match(candidate) is not None
+    return (
+        services is not None
+        and services.decision.clients.policy_tokens.match(candidate) is not None
+    )

@@ -13,7 +13,8 @@ import pytest
 from telerobot.drivers.base import ForceSample
 from telerobot.drivers.clock import ManualClock
 from telerobot.server.control.autonomy import AutonomyState, Mode, ReleaseTo, Supervised
-from telerobot.server.control.decision import Client, DecisionServer, NotAllowed, SafetyStop
+from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.decision import DecisionServer, SafetyStop
 from tests.support import TOKEN
 from tests.support.decision import RecordingPuma, join_policy, make, policy_let_drive
 
@@ -45,14 +46,14 @@ async def test_a_policy_needs_a_policy_token_and_the_operator_token_is_refused(
         ds.join("sneaky", None, policy=True)
     with pytest.raises(NotAllowed, match=r"operator token cannot join as a policy.*policy-token"):
         ds.join("act-policy", TOKEN, policy=True)
-    _, secret = ds.policy_tokens.issue("act")
+    _, secret = ds.clients.policy_tokens.issue("act")
     with pytest.raises(NotAllowed, match="joins only as a policy"):
         ds.join("act", secret)  # as a person: refused
-    token = ds.policy_tokens.list()[0]
+    token = ds.clients.policy_tokens.list()[0]
     policy = ds.join("act", secret, policy=True)
     assert policy.policy and policy.policy_token == token.id
     await ds.revoke_policy_token(token.id)
-    assert ds.known_client(policy.id) is None  # gone with its token
+    assert ds.clients.known(policy.id) is None  # gone with its token
     with pytest.raises(NotAllowed, match="not valid \\(revoked\\?\\)"):
         ds.join("act", secret, policy=True)
 
@@ -131,7 +132,7 @@ async def test_path_2_a_policy_cannot_reset_the_estop_and_retaking_the_lease_sta
 
 async def test_path_3_a_paused_policy_does_not_unpause_itself(clock: ManualClock) -> None:
     ds, robot = await make(clock)
-    _, secret = ds.policy_tokens.issue("act-policy")
+    _, secret = ds.clients.policy_tokens.issue("act-policy")
     policy = ds.join("act-policy", secret, policy=True)
     alice = ds.join("alice", TOKEN)
     await ds.take_lease(policy.id)

@@ -28,7 +28,8 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 from telerobot.drivers.base import ForceSample, TelerobotError
 from telerobot.drivers.clock import ManualClock
 from telerobot.server.control.autonomy import Mode, ReleaseTo
-from telerobot.server.control.decision import Client, DecisionServer, NotAllowed
+from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.decision import DecisionServer
 from tests.support import TOKEN
 from tests.support.decision import RecordingPuma, make
 
@@ -46,7 +47,7 @@ class Supervision(RuleBasedStateMachine):
         self.ds: DecisionServer
         self.robot: RecordingPuma
         self.ds, self.robot = self.run(make(self.clock))
-        _, self.secret = self.ds.policy_tokens.issue("act-policy")
+        _, self.secret = self.ds.clients.policy_tokens.issue("act-policy")
         self.policy: Client | None = None
         self.person: Client = self.ds.join("alice", TOKEN)
         # The model: a person said go since the last stop event.
@@ -216,7 +217,9 @@ class Supervision(RuleBasedStateMachine):
         value = HIGH_N if high else LOW_N
 
         async def sample() -> None:  # on the loop, as the sensor's samples arrive
-            self.ds.on_force(ForceSample(1, self.clock.now(), (value, 0.0, 0.0, 0.0, 0.0, 0.0)))
+            self.ds.on_force(
+                ForceSample(1, self.clock.now(), (value, 0.0, 0.0, 0.0, 0.0, 0.0)), self.ds.arms[0]
+            )
             await asyncio.sleep(0)  # the stop it starts
 
         self.run(sample())

@@ -25,13 +25,8 @@ from telerobot.drivers.robot.puma560.kinematics import (
     Puma560Kinematics,
     tool_transform,
 )
-from telerobot.server.control.decision import (
-    Client,
-    DecisionServer,
-    LimitExceeded,
-    NotAllowed,
-    SafetyStop,
-)
+from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.decision import DecisionServer, LimitExceeded, SafetyStop
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
@@ -592,7 +587,7 @@ async def test_a_refused_increment_forgives_what_was_owed(clock: ManualClock) ->
     # later increment, backing away included: a refusal drops it.
     ds, robot, a = await in_control(clock)
     ds.master_energy(a.id, 10.0, 0.0)
-    port = ds.client(a.id).ports["arm"]
+    port = ds.clients.get(a.id).ports["arm"]
     assert port is not None
     await ds.cartesian_increment(a.id, np.array([-0.001, 0, 0]), np.zeros(3))  # the stream
     port.owed = np.array([0.008, 0.0, 0.0])  # 8 mm toward the contact, held back before

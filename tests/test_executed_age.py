@@ -67,7 +67,7 @@ async def test_a_synced_clients_command_carries_its_age_at_the_driver(clock: Man
         await clock.advance(0.05)
     applied = await pending
     assert applied.age == pytest.approx(0.15) and len(robot.sent) == 2
-    client = ds.client(a)
+    client = ds.clients.get(a)
     assert client.executed_age is not None and client.executed_age.count == 2
     assert client.executed_age.largest == pytest.approx(150.0)
     assert ds.executed_age.count == 2 and ds.executed_age.over == 0
@@ -130,7 +130,7 @@ async def test_a_stale_command_is_refused_and_never_counted_as_executed(
     ds, robot, a = await synced(clock)
     with pytest.raises(SafetyStop, match="stale command"):
         await ds.cartesian_increment(a, STEP, ZERO, client_time=clock.now() - 0.26)
-    assert ds.executed_age.count == 0 and ds.client(a).executed_age is None
+    assert ds.executed_age.count == 0 and ds.clients.get(a).executed_age is None
     assert robot.sent == []
 
 
@@ -156,7 +156,7 @@ async def test_each_clients_figure_and_the_servers_are_bounded(
     ds, _, a = await synced(clock)
     for i in range(6):
         await ds.cartesian_increment(a, STEP, ZERO, client_time=clock.now() - 0.01 * (i + 1))
-    client = ds.client(a).executed_age
+    client = ds.clients.get(a).executed_age
     assert client is not None
     for tally in (client, ds.executed_age):
         assert tally.capacity == 4 and len(tally.values()) == 4 and tally.count == 6

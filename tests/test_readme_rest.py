@@ -177,11 +177,11 @@ def test_refused_lease_requests_leave_no_client_behind(client: TestClient) -> No
     in a loop does not fill the server's table of clients (MAX_CLIENTS)."""
     decision = client.app.state.services.decision  # type: ignore[attr-defined]
     assert client.post("/api/v1/lease", json={"name": "holder"}, headers=AUTH).status_code == 200
-    known = len(decision._clients)
+    known = len(decision.clients)
     for i in range(20):
         r = client.post("/api/v1/lease", json={"name": f"retry {i}"}, headers=AUTH)
         assert r.status_code == 403 and "'holder' has control" in r.json()["detail"]
-    assert len(decision._clients) == known
+    assert len(decision.clients) == known
 
 
 def test_the_master_names_the_server_and_token_as_move_does(server: str, tmp_path: Path) -> None:

@@ -294,7 +294,7 @@ async def test_connections_still_closing_count_against_the_client_cap() -> None:
 
     clock = ManualClock()
     decision, robot = await make(clock)
-    decision.max_clients = 3
+    decision.clients.max_clients = 3
     hub = RealtimeHub(robot, decision, None, Telemetry(), clock)
     never = asyncio.Event()
 

@@ -13,7 +13,8 @@ import pytest
 from telerobot.drivers.base import ForceSample
 from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.force.sampled import SampledForceSensor
-from telerobot.server.control.decision import DecisionServer, NotAllowed, SafetyStop
+from telerobot.server.control.clients import NotAllowed
+from telerobot.server.control.decision import DecisionServer, SafetyStop
 from tests.support import TOKEN, until_async
 from tests.support.decision import make
 
@@ -99,7 +100,7 @@ async def test_a_sample_below_the_limit_changes_nothing() -> None:
 async def test_the_client_table_is_bounded_and_idle_rest_clients_are_forgotten() -> None:
     clock = ManualClock()
     ds, _ = await make(clock)
-    ds.max_clients = 4
+    ds.clients.max_clients = 4
     scripts = [ds.join(f"script {i}", TOKEN, idle_expiry_s=60.0) for i in range(3)]
     watcher = ds.join("ws observer", None)  # a connection: never expires
     refused = None
@@ -115,10 +116,12 @@ async def test_the_client_table_is_bounded_and_idle_rest_clients_are_forgotten()
             await clock.advance(ds.limits.tick_s)
             ds.seen(scripts[0].id)  # the lease holder keeps talking
         late = ds.join("a later script", TOKEN, idle_expiry_s=60.0)
-        assert ds.client(late.id) and ds.client(watcher.id) and ds.client(scripts[0].id)
+        assert (
+            ds.clients.get(late.id) and ds.clients.get(watcher.id) and ds.clients.get(scripts[0].id)
+        )
         for gone in scripts[1:]:
             with pytest.raises(NotAllowed):
-                ds.client(gone.id)
+                ds.clients.get(gone.id)
     finally:
         await ds.stop()
 

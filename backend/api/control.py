@@ -23,7 +23,8 @@ from telerobot.server.api.deps import (
 from telerobot.server.api.requests import StrictRequest
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Mode
-from telerobot.server.control.decision import Client, DecisionServer, NotAllowed
+from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import full_speed_stop_s, stopping
 from telerobot.server.telemetry.stats import StreamTally
 
@@ -221,7 +222,7 @@ def _safety(
     """The safety state (one for every arm) and the limits of the arm named; with
     ``client_id``, that client's executed commands' ages too."""
     guard = decision.arm(arm) if arm else decision.arms[0]
-    asked = decision.known_client(client_id) if client_id else None
+    asked = decision.clients.known(client_id) if client_id else None
     s, lim = decision.state(), guard.limits
     spec = guard.robot.stop_spec
     return SafetyView(
@@ -275,11 +276,11 @@ async def take_lease(
     waiting with ``wait`` counts as alive. Release it with ``DELETE /lease`` when done.
     A script run again (the same ``name`` from the same address) takes its earlier
     run's lease while that is idle, without ``force``; anyone else needs ``force``."""
-    issued = decision.policy_tokens.match(token)
-    if x_client_id and issued and decision.client(x_client_id).policy_token != issued.id:
+    issued = decision.clients.policy_tokens.match(token)
+    if x_client_id and issued and decision.clients.get(x_client_id).policy_token != issued.id:
         raise NotAllowed(f"client {x_client_id!r} did not join with this policy token")
     client = (
-        decision.client(x_client_id)
+        decision.clients.get(x_client_id)
         if x_client_id
         else decision.join(
             body.name,
@@ -379,7 +380,7 @@ async def _supervisor(
     the lease, or a connection's), or, without it, a supervisor joined for this request
     alone: pausing or resuming a policy needs no lease of one's own."""
     if x_client_id:
-        client = decision.client(x_client_id)
+        client = decision.clients.get(x_client_id)
         if client.policy:
             raise NotAllowed("only a person supervises a policy (the operator token)")
         decision.seen(client.id)

@@ -19,7 +19,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from telerobot.drivers.base import ForceSensor, Robot
 from telerobot.drivers.sim.workcell import Workcell
-from telerobot.server.control.decision import Client, DecisionServer, NotAllowed
+from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.decision import DecisionServer
 from telerobot.server.devices import ArmDevices
 from telerobot.server.media.media_server import MediaServerSupervisor
 from telerobot.server.media.supervisor import MediaSupervisor, MediaUnavailable
@@ -162,8 +163,8 @@ def require_operator(
     credentials: Annotated[HTTPAuthorizationCredentials | None, Security(operator_bearer)],
 ) -> str:
     token = credentials.credentials.strip() if credentials is not None else None
-    if not decision.check_token(token):
-        if decision.policy_tokens.match(token) is not None:
+    if not decision.clients.check_token(token):
+        if decision.clients.policy_tokens.match(token) is not None:
             raise NotAllowed("a policy token cannot do this: it needs a person's operator token")
         raise NotAllowed("this needs the operator token: send 'Authorization: Bearer <token>'")
     assert token is not None
@@ -177,7 +178,10 @@ def require_driver(
 ) -> str:
     """The operator token or a policy token (routes a policy may use: the lease, moves)."""
     token = credentials.credentials.strip() if credentials is not None else None
-    if not decision.check_token(token) and decision.policy_tokens.match(token) is None:
+    if (
+        not decision.clients.check_token(token)
+        and decision.clients.policy_tokens.match(token) is None
+    ):
         raise NotAllowed(
             "this needs the operator token (or a policy token): send"
             " 'Authorization: Bearer <token>'"
@@ -193,7 +197,7 @@ async def current_client(
 ) -> AsyncIterator[Client]:
     if not x_client_id:
         raise NotAllowed("send the X-Client-Id header you got from POST /api/v1/lease")
-    client = decision.client(x_client_id)
+    client = decision.clients.get(x_client_id)
     if client.policy:
         raise NotAllowed("a policy's client cannot do this: it is a person's")
     decision.seen(client.id)
@@ -222,8 +226,8 @@ async def current_driver(
     policy client."""
     if not x_client_id:
         raise NotAllowed("send the X-Client-Id header you got from POST /api/v1/lease")
-    client = decision.client(x_client_id)
-    issued = decision.policy_tokens.match(token)
+    client = decision.clients.get(x_client_id)
+    issued = decision.clients.policy_tokens.match(token)
     if issued is not None and client.policy_token != issued.id:
         raise NotAllowed(f"client {x_client_id!r} did not join with this policy token")
     decision.seen(client.id)

@@ -53,14 +53,14 @@ async def issue(body: IssueRequest, decision: DecisionDep, _op: OperatorDep) -> 
     """A new policy token (the operator token): it joins only as a policy, drives only
     while a person lets it, and reads; it cannot reset the e-stop, pause, resume, take
     control from anyone, change settings or delete recordings."""
-    token, secret = decision.policy_tokens.issue(body.name)
+    token, secret = decision.clients.policy_tokens.issue(body.name)
     return IssuedPolicyToken(id=token.id, name=token.name, created=token.created, token=secret)
 
 
 @router.get("/policy-tokens")
 async def listed(decision: DecisionDep, _op: OperatorDep) -> list[PolicyTokenView]:
     """The issued policy tokens (never their secrets)."""
-    return [_view(t) for t in decision.policy_tokens.list()]
+    return [_view(t) for t in decision.clients.policy_tokens.list()]
 
 
 @router.delete("/policy-tokens/{token_id}")
@@ -69,7 +69,7 @@ async def revoke(
 ) -> RevokedPolicyToken:
     """Revoke a policy token: it joins no more, and every client that joined with it is
     gone at once (its lease lapses, the arm stops, its connection closes)."""
-    token = next((t for t in decision.policy_tokens.list() if t.id == token_id), None)
+    token = next((t for t in decision.clients.policy_tokens.list() if t.id == token_id), None)
     gone = await decision.revoke_policy_token(token_id)
     for client_id in gone:
         hub.supersede(client_id)

@@ -44,7 +44,7 @@ class Reader:
 def _reader(request: Request, recorder: RecorderDep, decision: DecisionDep) -> Reader:
     """Who reads, charged one read of its address's budget (429 past it). The token is
     looked at, not required (and not declared: the edge would then demand it)."""
-    privileged = decision.check_token(bearer(request.headers.get("authorization")))
+    privileged = decision.clients.check_token(bearer(request.headers.get("authorization")))
     peer = request.client.host if request.client is not None else ""
     if not privileged:
         recorder.library.budgets.read(peer)

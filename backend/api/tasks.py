@@ -157,7 +157,7 @@ def _caller(request: Request, decision: DecisionDep) -> tuple[bool, str]:
     """Whether the request carries the operator token, and its address (the budget's)."""
     token = bearer(request.headers.get("authorization"))
     address = request.client.host if request.client is not None else "unknown"
-    return decision.check_token(token), address
+    return decision.clients.check_token(token), address
 
 
 async def _paths(body: TaskSource, recorder: Recorder, runner: TaskRunner) -> dict[str, Trajectory]:

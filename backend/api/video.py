@@ -139,7 +139,7 @@ class IceConfiguration(BaseModel):
 
 
 def is_operator(decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]) -> bool:
-    return decision.check_token(token)
+    return decision.clients.check_token(token)
 
 
 OperatorOrNot = Annotated[bool, Depends(is_operator)]

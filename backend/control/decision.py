@@ -21,10 +21,8 @@ import contextlib
 import functools
 import logging
 import math
-import secrets
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any, Concatenate, ParamSpec, TypeVar
 
 import numpy as np
@@ -45,21 +43,19 @@ from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, ReleaseTo
+from telerobot.server.control.clients import (
+    MAX_CLIENTS,
+    Client,
+    ClientTable,
+    NotAllowed,
+    Role,
+)
 from telerobot.server.control.limits import SafetyLimits
-from telerobot.server.control.policy_tokens import PREFIX as POLICY_TOKEN_PREFIX
 from telerobot.server.control.policy_tokens import PolicyTokens
 from telerobot.server.control.slave_port import SlavePort
-from telerobot.server.security import token_matches
-from telerobot.server.telemetry.stats import DriftingFloor, StreamTally
+from telerobot.server.telemetry.stats import StreamTally
 
 log = logging.getLogger(__name__)
-
-
-class NotAllowed(TelerobotError):
-    """The client may not do this (observer, or someone else holds the lease)."""
-
-    code = "not_allowed"
-    http_status = 403
 
 
 class SafetyStop(TelerobotError):
@@ -82,12 +78,6 @@ class StillMoving(TelerobotError):
     http_status = 504
 
 
-MAX_CLIENTS = 512  # joined clients (every /ws, priority or REST-lease client is one)
-RESUME_KEY_BYTES = 24  # a resume key: 192 bits, given once, to the connection that joined
-# A client's clock and ours drift apart (crystals differ by up to ~100 ppm): the transit
-# floor a stale command is measured against rises this much per second, so a drift of
-# its clock behind ours is never taken for a delay.
-TRANSIT_DRIFT = 2e-4
 # A lease holder on a slow link gets its grace lengthened by the time a resume takes
 # to reach us once its link is back: ~5 one-way trips (TCP's handshake, the WebSocket
 # upgrade, HELLO), 6 with a margin, at its commands' usual transit time. On `mobile`
@@ -103,72 +93,6 @@ TRANSIT_SMOOTHING = 0.1  # the usual transit: an exponential average of each com
 # command (only a lease holder has any): 32 kB each, at most MAX_CLIENTS of them.
 EXECUTED_AGE_WINDOW = 10_000
 CLIENT_AGE_WINDOW = 4_096
-
-
-class Role(StrEnum):
-    OPERATOR = "operator"  # a person's client (the operator token): drives, supervises
-    OBSERVER = "observer"  # no token: watches
-    # A learned policy (a policy token, HELLO's POLICY flag): drives while the supervision
-    # lets it (telerobot.server.control.autonomy), nothing else a person may do.
-    POLICY = "policy"
-
-
-ISSUE_POLICY_TOKEN = (
-    "issue a policy token for it (telerobot policy-token new NAME, or POST"
-    " /api/v1/policy-tokens): it can only drive, and only while a person lets it"
-)
-
-
-@dataclass
-class Client:
-    id: str
-    name: str
-    role: Role
-    last_seen: float
-    busy: int = 0  # requests in flight (a REST call waiting for its move counts as alive)
-    # When its last command reached each arm (by name): the speed limit allows an
-    # increment the time since the last one *to that arm*; two arms driven at 100 Hz
-    # each, interleaved, must not have the second arm's increments cut to the gap
-    # between the two (docs/arms.md).
-    last_command_at: dict[str, float] = field(default_factory=dict)
-    # A client with no connection of its own (a REST script's lease) is forgotten after
-    # this long without a request, unless it holds the lease: a script that crashes
-    # without DELETE /lease must not fill the table for good. None: while connected.
-    idle_expiry_s: float | None = None
-    # A scripted lease (REST): between bounded absolute moves it is kept this long
-    # without a request, like a person pausing. Streamed increments (any client) always
-    # get the fast dead-man: ``streaming`` says the last command was one.
-    lease_idle_s: float | None = None
-    streaming: bool = False
-    # The least (server receive time − client_time) seen: a command's transit time
-    # beyond it is how long it waited on the way (a stalled link's backlog).
-    transit_floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(TRANSIT_DRIFT))
-    transit_avg: float | None = None  # the usual transit, on our clock (synced clients)
-    source: str = "ws"  # where it joined: ws, priority, rest, task (the recording says)
-    # Its client_time is on our clock (it syncs with PING): its commands' age is known.
-    synced_clock: bool = False
-    stale_dropped: int = 0  # its commands dropped as too old
-    # Its executed commands' ages (ms) as they went to the driver; None until the first.
-    executed_age: StreamTally | None = field(default=None, repr=False)
-    # The secret that lets this client's session continue on a new connection (HELLO's
-    # RESUME flag); None: not resumable. Its generation counts the connections so far.
-    resume_key: str | None = field(default=None, repr=False)
-    generation: int = 0
-    # A master arm's side of the two-port passivity, made by its first ENERGY message.
-    # Keyed by the arm it drives (a master per arm: two leaders, two haptic masters).
-    ports: dict[str, SlavePort] = field(default_factory=dict, repr=False)
-    address: str = ""  # the host it joined from (a script's: who may take its idle lease again)
-    # A task's client: the operator it runs for. That operator supervises it, and its
-    # heartbeats keep it present while the task holds the lease in its place.
-    on_behalf_of: str | None = None
-    # The policy token it joined with (its id: revoking the token ends the client).
-    policy_token: str | None = None
-
-    @property
-    def policy(self) -> bool:
-        """A learned policy: it drives under supervision
-        (telerobot.server.control.autonomy); an operator takes control from it at will."""
-        return self.role is Role.POLICY
 
 
 @dataclass(frozen=True)
@@ -282,8 +206,6 @@ class DecisionServer:
         """``arms``, in order (docs/arms.md): each with its own driver, model, limits and
         force sensor; numbered 1…N on the wire by their place here. ``limits`` holds the
         server's own: the dead-man, the lease's grace, the age of a command."""
-        if len(operator_token) < 16:
-            raise ValueError("the operator token must have at least 16 characters")
         if not arms:
             raise ValueError("a DecisionServer needs at least one arm")
         self.clock = clock
@@ -295,9 +217,7 @@ class DecisionServer:
         if len(self._by_name) != len(self.arms):
             raise ValueError("two arms have the same name")
         self.events = DecisionEvents()
-        self._token = operator_token
-        self.policy_tokens = policy_tokens or PolicyTokens()
-        self._clients: dict[str, Client] = {}
+        self.clients = ClientTable(clock, operator_token, policy_tokens, max_clients)
         self._lease: str | None = None
         self._scale = 1.0
         self.frame = WorkingFrame.BASE
@@ -315,7 +235,6 @@ class DecisionServer:
         self._last_tick: float | None = None
         self._deferred = False  # the last tick left its verdict to this one
         self._last_sweep = clock.now()
-        self.max_clients = max_clients
         self._watchdog: asyncio.Task[None] | None = None
         self.autonomy = Autonomy(clock.now())
         self.release_to = ReleaseTo.AUTONOMOUS  # where an operator's release leaves a policy
@@ -409,7 +328,7 @@ class DecisionServer:
             await guard.robot.stop()
 
     def state(self) -> SafetyState:
-        holder = self._clients.get(self._lease) if self._lease else None
+        holder = self.clients.known(self._lease)
         limited = tuple(guard.name for guard in self.arms if guard.force_limited)
         return SafetyState(
             self._estop,
@@ -423,9 +342,6 @@ class DecisionServer:
         )
 
     # ------------------------------------------------------------ clients
-    def check_token(self, token: str | None) -> bool:
-        return token_matches(token, self._token)
-
     def join(
         self,
         name: str,
@@ -440,65 +356,30 @@ class DecisionServer:
         on_behalf_of: str | None = None,
         policy: bool = False,
     ) -> Client:
-        role = self._role(token, policy)
-        if len(self._clients) >= self.max_clients:
-            self._forget_idle(self.clock.now())
-        if len(self._clients) >= self.max_clients:
-            raise NotAllowed(
-                f"this server already has {self.max_clients} clients: try again when one leaves"
-            )
-        client = Client(
-            secrets.token_hex(8),
-            name[:64],
-            role,
-            self.clock.now(),
+        """A new client (``ClientTable.add``); a policy joining is a stop event: it
+        waits for a person's go."""
+        client = self.clients.add(
+            name,
+            token,
+            keep=self._lease,
             idle_expiry_s=idle_expiry_s,
             lease_idle_s=lease_idle_s,
             source=source,
             synced_clock=synced_clock,
-            resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES) if resumable else None,
+            resumable=resumable,
             address=address,
             on_behalf_of=on_behalf_of,
+            policy=policy,
         )
-        if role is Role.POLICY:
-            issued = self.policy_tokens.match(token)
-            client.policy_token = issued.id if issued else None
-            # A policy (re)joining is a stop event: it waits for a person's go.
+        if client.policy:
             self.autonomy.stopped()
-        self._clients[client.id] = client
         return client
-
-    def _role(self, token: str | None, policy: bool) -> Role:
-        """Who a token makes a client: the operator token a person (never a policy: a
-        policy gets a token that can only drive), a policy token a policy (only as one)."""
-        if self.check_token(token):
-            if policy:
-                raise NotAllowed(
-                    "the operator token cannot join as a policy (it could reset the e-stop"
-                    f" and resume itself): {ISSUE_POLICY_TOKEN}"
-                )
-            return Role.OPERATOR
-        if self.policy_tokens.match(token) is not None:
-            if not policy:
-                raise NotAllowed(
-                    "a policy token joins only as a policy (HELLO's POLICY flag, or"
-                    " policy: true on POST /lease); a person uses the operator token"
-                )
-            return Role.POLICY
-        if policy:
-            revoked = token is not None and token.startswith(POLICY_TOKEN_PREFIX)
-            raise NotAllowed(
-                "this policy token is not valid (revoked?): " + ISSUE_POLICY_TOKEN
-                if revoked
-                else f"a policy needs a policy token: {ISSUE_POLICY_TOKEN}"
-            )
-        return Role.OBSERVER
 
     async def revoke_policy_token(self, ident: str) -> list[str]:
         """The token revoked and every client that joined with it gone (its lease lapses):
         the ids of those clients (their connections are closed by the caller)."""
-        self.policy_tokens.revoke(ident)
-        gone = [c.id for c in self._clients.values() if c.policy_token == ident]
+        self.clients.policy_tokens.revoke(ident)
+        gone = self.clients.joined_with(ident)
         for client_id in gone:
             await self.leave(client_id)
         return gone
@@ -507,30 +388,11 @@ class DecisionServer:
         """The client whose resume key this is, now on a new connection (its generation
         moves on: the old connection's session is superseded). Heard now: a lease kept
         through the dead-man's grace stays, with the arm halted until a fresh command."""
-        found = None
-        for client in self._clients.values():  # bounded by max_clients; no early exit
-            if client.resume_key is not None and token_matches(key, client.resume_key):
-                found = client
-        if found is None:
-            raise NotAllowed(
-                "no session to resume with this key: it has ended (its connection closed"
-                " or the server restarted); connect afresh"
-            )
-        found.generation += 1
+        found = self.clients.resumable(key)
         self.resumed_sessions += 1
         self._heard(found)
         log.info("%s resumed its session on a new connection", found.name)
         return found
-
-    def _forget_idle(self, now: float) -> None:
-        for client in list(self._clients.values()):
-            if (
-                client.idle_expiry_s is not None
-                and client.id != self._lease
-                and client.busy == 0
-                and now - client.last_seen > client.idle_expiry_s
-            ):
-                del self._clients[client.id]
 
     async def leave(self, client_id: str) -> None:
         if client_id == self.autonomy.policy_id:
@@ -539,31 +401,21 @@ class DecisionServer:
             self._set_mode(Mode.OFF, "the policy left")
         if self._lease == client_id:
             await self._lapse("controller disconnected")
-        self._clients.pop(client_id, None)
-
-    def client(self, client_id: str) -> Client:
-        try:
-            return self._clients[client_id]
-        except KeyError:
-            raise NotAllowed(f"unknown client {client_id!r}: join first") from None
-
-    def known_client(self, client_id: str) -> Client | None:
-        """The client by this id, if one is joined (a read that must not fail)."""
-        return self._clients.get(client_id)
+        self.clients.remove(client_id)
 
     def rename(self, client_id: str, name: str) -> None:
         """The name ``client_id`` goes by from now on (a NAME message: a client with no
         URL to name itself in, such as the master bridge on the priority channel). A
         name against the rule (telerobot/protocol/names.py) is refused and the old one
         kept; a holder's new name is said at once (the SAFETY event, ``/safety``)."""
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         client.name = client_name(name)
         if self._lease == client_id:
             self.events.safety_changed.emit(self.state())
 
     def seen(self, client_id: str) -> None:
         """A heartbeat: any message from a client counts as one."""
-        self._heard(self.client(client_id))
+        self._heard(self.clients.get(client_id))
 
     def heartbeat(self, client_id: str) -> None:
         """A script's sign of life (``POST /lease/heartbeat``). It keeps the lease its
@@ -571,7 +423,7 @@ class DecisionServer:
         supervises that task) stays present by it, so a script's keep-alive goes on
         while its task runs: its presence, not the lease, is what the task's guard
         checks. Anyone else is told the lease is not theirs."""
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         self._heard(client)
         if self._lease == client_id or self.supervises_holder(client_id):
             return
@@ -579,7 +431,7 @@ class DecisionServer:
 
     def supervises_holder(self, client_id: str) -> bool:
         """Whether the lease is held by a task running for ``client_id``."""
-        holder = self._clients.get(self._lease) if self._lease else None
+        holder = self.clients.known(self._lease)
         return holder is not None and holder.on_behalf_of == client_id
 
     def _heard(self, client: Client) -> None:
@@ -598,14 +450,14 @@ class DecisionServer:
 
     @reported("lease", action="take")
     async def take_lease(self, client_id: str, *, force: bool = False) -> None:
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         client.last_seen = self.clock.now()
         if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot take control: connect with the operator token")
         if self._lease == client_id:
             return
         if self._lease is not None:
-            holder = self._clients[self._lease]
+            holder = self.clients.get(self._lease)
             again = self._runs_again(client, holder)
             if client.policy:
                 raise NotAllowed(
@@ -633,7 +485,7 @@ class DecisionServer:
             )
         else:
             self._lease_note = f"taken by {client.name!r}"
-        taken_from = self._clients.get(self._lease) if self._lease else None
+        taken_from = self.clients.known(self._lease)
         self._lease = client_id
         self._halted = False
         client.last_command_at.clear()
@@ -679,7 +531,7 @@ class DecisionServer:
         if self._lease != client_id:
             raise NotAllowed("you do not hold the lease")
         if self.autonomy.mode is Mode.CORRECTING and client_id != self.autonomy.policy_id:
-            name = self._clients[client_id].name
+            name = self.clients.get(client_id).name
             paused = self.release_to is ReleaseTo.PAUSE
             await self._hand_to_policy(
                 Mode.PAUSED if paused else Mode.AUTONOMOUS,
@@ -697,11 +549,11 @@ class DecisionServer:
 
     def _supervisor(self, client_id: str) -> Client:
         """An operator (a person's client, not the policy) acting on the autonomy."""
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         self._heard(client)
         if client.role is not Role.OPERATOR or client.policy:
             raise NotAllowed("only an operator supervises a policy")
-        if self.autonomy.policy_id not in self._clients:
+        if self.autonomy.policy_id not in self.clients:
             raise NotAllowed("no policy is connected to supervise")
         return client
 
@@ -709,7 +561,7 @@ class DecisionServer:
         """The lease back to the policy, the arm stopped where it is: it drives on from
         there (``AUTONOMOUS``: a person's go, unless the e-stop is latched: then
         ``PAUSED``) or waits for a resume (``PAUSED``)."""
-        policy = self._clients[self.autonomy.policy_id or ""]
+        policy = self.clients.get(self.autonomy.policy_id or "")
         if mode is Mode.AUTONOMOUS and self._estop:
             mode, cause = Mode.PAUSED, f"{cause}, the e-stop latched: paused until resumed"
         elif mode is Mode.AUTONOMOUS:
@@ -769,9 +621,10 @@ class DecisionServer:
             self.autonomy.mode is Mode.CORRECTING
             and holder is not None
             and holder != policy
-            and policy in self._clients
+            and policy in self.clients
         ):
-            name = self._clients[holder].name if holder in self._clients else "the operator"
+            known = self.clients.known(holder)
+            name = known.name if known is not None else "the operator"
             await self._hand_to_policy(Mode.PAUSED, f"{name}'s control lapsed: {why}", name)
             return
         if holder is not None and holder == policy:
@@ -820,10 +673,10 @@ class DecisionServer:
         self._last_tick = now
         if now - self._last_sweep >= 1.0:
             self._last_sweep = now
-            self._forget_idle(now)
+            self.clients.forget_idle(now, self._lease)
         if self._lease is None:
             return
-        holder = self._clients.get(self._lease)
+        holder = self.clients.known(self._lease)
         if holder is None:
             await self._lapse("controller gone")
             return
@@ -863,7 +716,8 @@ class DecisionServer:
         self, client_id: str | None, reason: str = "e-stop pressed", *, source: str = "server"
     ) -> None:
         """Anyone may stop the arm; it stays stopped until an operator resets it."""
-        who = self._clients[client_id].name if client_id in self._clients else "server"
+        known = self.clients.known(client_id)
+        who = known.name if known is not None else "server"
         self._estop, self._estop_reason = True, f"{reason} ({who})"
         self.autonomy.stopped()
         await self._stop_all()
@@ -873,7 +727,7 @@ class DecisionServer:
 
     @reported("reset")
     async def reset(self, client_id: str) -> None:
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("only a person can reset the e-stop (the operator token)")
         supervising = self._lease == self.autonomy.policy_id and not client.policy
@@ -890,7 +744,7 @@ class DecisionServer:
         surroundings gave back into the link, and what the arm put into them). From
         the first, this client's increments keep to the master's energy
         (``telerobot.server.control.slave_port``)."""
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("only an operator's master arm sends its energy")
         if not (math.isfinite(e_in) and math.isfinite(e_out) and e_in >= 0 and e_out >= 0):
@@ -911,7 +765,7 @@ class DecisionServer:
         lim = guard.limits
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
-        holder = self._clients.get(self._lease) if self._lease is not None else None
+        holder = self.clients.known(self._lease)
         port = holder.ports.get(guard.name) if holder is not None and holder.ports else None
         if port is not None:
             # Its books are kept on the measured tool (one FK a sample, for a master only).
@@ -953,7 +807,7 @@ class DecisionServer:
         error: TelerobotError | None,
         result: object,
     ) -> None:
-        client = self._clients.get(client_id) if client_id is not None else None
+        client = self.clients.known(client_id)
         source = str(kwargs.pop("source", "server"))
         if args:
             kwargs["args"] = list(args)
@@ -977,7 +831,7 @@ class DecisionServer:
         )
 
     def _authorise(self, client_id: str) -> Client:
-        client = self.client(client_id)
+        client = self.clients.get(client_id)
         self._heard(client)
         if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot move the robot")

@@ -18,13 +18,8 @@ import numpy as np
 
 from telerobot.drivers.base import TelerobotError, WorkingFrame
 from telerobot.protocol import messages as m
-from telerobot.server.control.decision import (
-    RESUME_KEY_BYTES,
-    Applied,
-    Client,
-    DecisionServer,
-    NotAllowed,
-)
+from telerobot.server.control.clients import RESUME_KEY_BYTES, Client, NotAllowed
+from telerobot.server.control.decision import Applied, DecisionServer
 from telerobot.server.realtime.hub import Connection, RealtimeHub
 
 FRAMES: dict[int, WorkingFrame] = {
@@ -91,7 +86,7 @@ class Session:
         fields = check_hello(hello)
         token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
         flags = int(fields["flags"])
-        if hub.open_connections >= decision.max_clients:
+        if hub.open_connections >= decision.clients.max_clients:
             raise NotAllowed(
                 f"this server already has {hub.open_connections} connections"
                 f" ({len(hub.superseded)} of them closing): try again in a few seconds"

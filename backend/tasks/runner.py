@@ -78,7 +78,8 @@ from telerobot.drivers.base import (
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.decision import DecisionServer, NotAllowed, Role, SafetyStop
+from telerobot.server.control.clients import NotAllowed, Role
+from telerobot.server.control.decision import DecisionServer, SafetyStop
 from telerobot.server.recording.schemas import SINGLE_ARM
 from telerobot.server.tasks.approach import ApproachPlan, approach_step, plan_approach
 from telerobot.server.tasks.compliance import Admittance, ComplianceSettings
@@ -432,7 +433,7 @@ class TaskRunner:
         """Start ``spec`` for the operator ``supervisor_id``, who must hold the lease:
         the task takes it over for its run and hands it back at the end."""
         decision = self.decision
-        supervisor = decision.client(supervisor_id)
+        supervisor = decision.clients.get(supervisor_id)
         if supervisor.role is not Role.OPERATOR:
             raise NotAllowed("observers cannot start tasks: connect with the operator token")
         if decision.lease_holder != supervisor_id:
@@ -539,7 +540,7 @@ class TaskRunner:
             self._tasks.popitem(last=False)
 
     def _check_supervisor(self, task: Task, client_id: str) -> None:
-        client = self.decision.client(client_id)
+        client = self.decision.clients.get(client_id)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("observers cannot change a task: connect with the operator token")
 
@@ -627,7 +628,7 @@ class TaskRunner:
                 f"{guard.name} ({guard.limits.force_limit_n:g} N)" for guard in limited
             )
         try:
-            decision.client(task.supervisor_id)
+            decision.clients.get(task.supervisor_id)
         except NotAllowed:
             return (
                 f"the supervising operator {task.supervisor_name!r} disconnected (a page:"
@@ -862,7 +863,7 @@ class TaskRunner:
                 await run.guard.robot.stop()
             # Hand the lease back to the operator who started the task, if still here.
             try:
-                decision.client(task.supervisor_id)
+                decision.clients.get(task.supervisor_id)
                 await decision.take_lease(task.supervisor_id, force=True)
             except TelerobotError:
                 await decision.release_lease(task.client_id)

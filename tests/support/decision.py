@@ -11,7 +11,8 @@ from telerobot.drivers.robot.puma560.kinematics import (
 )
 from telerobot.drivers.robot.puma560.sim import SimPuma
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.decision import Client, DecisionServer
+from telerobot.server.control.clients import Client
+from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
@@ -56,7 +57,7 @@ async def make(
 def join_policy(ds: DecisionServer, name: str = "act-policy") -> Client:
     """A policy client, joined with a policy token issued for it (the operator token is
     refused with the POLICY flag)."""
-    _, secret = ds.policy_tokens.issue(name)
+    _, secret = ds.clients.policy_tokens.issue(name)
     return ds.join(name, secret, policy=True)
 
 
