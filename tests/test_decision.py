@@ -144,7 +144,7 @@ async def test_a_slow_links_lease_grace_covers_the_reconnection(clock: ManualClo
         ds.seen(a.id)
         t_quiet = clock.now()  # the last heartbeat
         await clock.advance(0.02)
-    grace = ds.lease_grace(a)
+    grace = ds.lease.grace(a)
     assert grace == pytest.approx(ds.limits.lease_grace_s + 6 * 0.12, abs=1e-6)
     await clock.advance(ds.limits.deadman_timeout_s + ds.limits.lease_grace_s + 0.3)
     assert ds.lease_holder == a.id and ds.state().halted  # past the plain grace: kept
@@ -156,10 +156,10 @@ async def test_a_slow_links_lease_grace_covers_the_reconnection(clock: ManualClo
     )
     ticker.cancel()
     a.transit_avg = 0.9  # a backlog of seconds: the extension stops at 1 s
-    assert ds.lease_grace(a) == ds.limits.lease_grace_s + 1.0
+    assert ds.lease.grace(a) == ds.limits.lease_grace_s + 1.0
     b = ds.join("bob", TOKEN)  # its client_time is not on our clock: its transit says
     b.transit_avg = 0.2  # nothing of the link (the clocks' offset is in it)
-    assert ds.lease_grace(b) == ds.limits.lease_grace_s
+    assert ds.lease.grace(b) == ds.limits.lease_grace_s
 
 
 async def test_after_a_stall_the_lease_is_kept_and_only_a_fresh_command_moves(

@@ -50,6 +50,7 @@ from telerobot.server.control.clients import (
     NotAllowed,
     Role,
 )
+from telerobot.server.control.lease import Lease
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.policy_tokens import PolicyTokens
 from telerobot.server.control.slave_port import SlavePort
@@ -78,14 +79,6 @@ class StillMoving(TelerobotError):
     http_status = 504
 
 
-# A lease holder on a slow link gets its grace lengthened by the time a resume takes
-# to reach us once its link is back: ~5 one-way trips (TCP's handshake, the WebSocket
-# upgrade, HELLO), 6 with a margin, at its commands' usual transit time. On `mobile`
-# (one-way ~120 ms) a 1.5 s cut plus a reconnection ran past a fixed 2 s; the arm is
-# stopped all along, so only who may take control over waits longer. Bounded, so a
-# cut of the grace plus a second still releases the lease on any link.
-RECONNECT_ONE_WAYS = 6
-MAX_GRACE_EXTENSION_S = 1.0
 TRANSIT_SMOOTHING = 0.1  # the usual transit: an exponential average of each command's
 # Every executed command's age (synced clients: our clock − its client_time, where it
 # goes to the driver), in ms: the last this many over all clients, and per client (a
@@ -218,23 +211,17 @@ class DecisionServer:
             raise ValueError("two arms have the same name")
         self.events = DecisionEvents()
         self.clients = ClientTable(clock, operator_token, policy_tokens, max_clients)
-        self._lease: str | None = None
+        self.lease = Lease(self.clients, clock, self.limits)
         self._scale = 1.0
         self.frame = WorkingFrame.BASE
         self._estop = False
         self._estop_reason = ""
-        self._halted = False  # the dead-man stopped the arm; the lease is in its grace
-        self._lease_note = ""
         self.stale_dropped = 0  # commands dropped as older than max_command_age_s
         # Every executed command's age at the driver (ms), synced clients only.
         self.executed_age = StreamTally(
             "executed_age", capacity=EXECUTED_AGE_WINDOW, limit=self.limits.max_command_age_s * 1000
         )
-        self.deadman_halts = 0  # arms stopped by the dead-man with the lease kept
         self.resumed_sessions = 0  # sessions continued on a new connection
-        self._last_tick: float | None = None
-        self._deferred = False  # the last tick left its verdict to this one
-        self._last_sweep = clock.now()
         self._watchdog: asyncio.Task[None] | None = None
         self.autonomy = Autonomy(clock.now())
         self.release_to = ReleaseTo.AUTONOMOUS  # where an operator's release leaves a policy
@@ -328,16 +315,16 @@ class DecisionServer:
             await guard.robot.stop()
 
     def state(self) -> SafetyState:
-        holder = self.clients.known(self._lease)
+        holder = self.clients.known(self.lease.holder)
         limited = tuple(guard.name for guard in self.arms if guard.force_limited)
         return SafetyState(
             self._estop,
             self._estop_reason,
             bool(limited),
-            self._lease,
+            self.lease.holder,
             holder.name if holder else None,
-            halted=self._halted,
-            lease_note=self._lease_note,
+            halted=self.lease.halted,
+            lease_note=self.lease.note,
             force_limited_arms=limited,
         )
 
@@ -361,7 +348,7 @@ class DecisionServer:
         client = self.clients.add(
             name,
             token,
-            keep=self._lease,
+            keep=self.lease.holder,
             idle_expiry_s=idle_expiry_s,
             lease_idle_s=lease_idle_s,
             source=source,
@@ -399,7 +386,7 @@ class DecisionServer:
             self.autonomy.stopped()
             self.autonomy.end()
             self._set_mode(Mode.OFF, "the policy left")
-        if self._lease == client_id:
+        if self.lease.holder == client_id:
             await self._lapse("controller disconnected")
         self.clients.remove(client_id)
 
@@ -410,7 +397,7 @@ class DecisionServer:
         kept; a holder's new name is said at once (the SAFETY event, ``/safety``)."""
         client = self.clients.get(client_id)
         client.name = client_name(name)
-        if self._lease == client_id:
+        if self.lease.holder == client_id:
             self.events.safety_changed.emit(self.state())
 
     def seen(self, client_id: str) -> None:
@@ -425,28 +412,27 @@ class DecisionServer:
         checks. Anyone else is told the lease is not theirs."""
         client = self.clients.get(client_id)
         self._heard(client)
-        if self._lease == client_id or self.supervises_holder(client_id):
+        if self.lease.holder == client_id or self.supervises_holder(client_id):
             return
         raise NotAllowed("you do not hold the lease (it may have lapsed: take it again)")
 
     def supervises_holder(self, client_id: str) -> bool:
         """Whether the lease is held by a task running for ``client_id``."""
-        holder = self.clients.known(self._lease)
+        holder = self.clients.known(self.lease.holder)
         return holder is not None and holder.on_behalf_of == client_id
 
     def _heard(self, client: Client) -> None:
-        client.last_seen = self.clock.now()
-        if self._halted and client.id == self._lease:
-            # The link is back: the arm stays where the dead-man stopped it until a
-            # fresh command moves it (a backlog's stale ones are refused: _check_fresh).
-            self._halted = False
-            client.last_command_at.clear()
-            log.info("dead-man: %s is back; the lease was kept", client.name)
+        if self.lease.heard(client):
             self.events.safety_changed.emit(self.state())
 
     @property
     def lease_holder(self) -> str | None:
-        return self._lease
+        return self.lease.holder
+
+    @property
+    def deadman_halts(self) -> int:
+        """Arms stopped by the dead-man with the lease kept (GET /safety)."""
+        return self.lease.halts
 
     @reported("lease", action="take")
     async def take_lease(self, client_id: str, *, force: bool = False) -> None:
@@ -454,11 +440,11 @@ class DecisionServer:
         client.last_seen = self.clock.now()
         if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot take control: connect with the operator token")
-        if self._lease == client_id:
+        if self.lease.holder == client_id:
             return
-        if self._lease is not None:
-            holder = self.clients.get(self._lease)
-            again = self._runs_again(client, holder)
+        if self.lease.holder is not None:
+            holder = self.clients.get(self.lease.holder)
+            again = Lease.runs_again(client, holder)
             if client.policy:
                 raise NotAllowed(
                     f"{holder.name!r} has control: a policy never takes it from anyone;"
@@ -472,23 +458,21 @@ class DecisionServer:
                 force = True  # a person may always take control from a policy
             if not force and not again:
                 raise NotAllowed(
-                    f"{holder.name!r} has control{self._lapses_in(holder)}; take it over"
+                    f"{holder.name!r} has control{self.lease.lapses_in(holder)}; take it over"
                     " explicitly (force) if you must"
                 )
             log.warning("%s takes control from %s", client.name, holder.name)
             await self._stop_all()
-            self._lease_note = (
+            note = (
                 f"taken again by {client.name!r} from {client.address} (the same script, "
                 "run again while its earlier run's lease was idle)"
                 if again and not force
                 else f"taken over by {client.name!r}"
             )
         else:
-            self._lease_note = f"taken by {client.name!r}"
-        taken_from = self.clients.known(self._lease)
-        self._lease = client_id
-        self._halted = False
-        client.last_command_at.clear()
+            note = f"taken by {client.name!r}"
+        taken_from = self.clients.known(self.lease.holder)
+        self.lease.give(client, note)
         self._changed_lease()
         if client.policy:
             # A stop event: a policy taking control waits for a person's go (the rule).
@@ -501,34 +485,9 @@ class DecisionServer:
         elif taken_from is not None and taken_from.id == self.autonomy.policy_id:
             self._set_mode(Mode.CORRECTING, f"taken over by {client.name!r}", operator=client.name)
 
-    @staticmethod
-    def _runs_again(client: Client, holder: Client) -> bool:
-        """A script run again takes its earlier run's lease without ``force``: the holder
-        is a script's lease (no connection of its own) with the same name, taken from
-        the same address, with no request in flight. A script that ended without
-        releasing its lease (a crash, Ctrl-C, a shell block run twice) would otherwise
-        be refused by itself until the lease's idle timeout. Anyone else still needs
-        ``force``."""
-        return (
-            holder.id != client.id
-            and holder.source == client.source == "rest"
-            and holder.idle_expiry_s is not None
-            and holder.name == client.name
-            and holder.address != ""
-            and holder.address == client.address
-            and holder.busy == 0
-        )
-
-    def _lapses_in(self, holder: Client) -> str:
-        """When an idle script's lease lapses by itself, said in a refusal."""
-        if holder.lease_idle_s is None or holder.streaming or holder.busy:
-            return ""
-        left = holder.lease_idle_s - (self.clock.now() - holder.last_seen)
-        return f" (a script's lease: it lapses in {max(left, 0.0):.1f} s without a request)"
-
     @reported("lease", action="release")
     async def release_lease(self, client_id: str) -> None:
-        if self._lease != client_id:
+        if self.lease.holder != client_id:
             raise NotAllowed("you do not hold the lease")
         if self.autonomy.mode is Mode.CORRECTING and client_id != self.autonomy.policy_id:
             name = self.clients.get(client_id).name
@@ -569,10 +528,8 @@ class DecisionServer:
         else:
             self.autonomy.stopped()
         await self._stop_all()
-        self._lease, self._halted = policy.id, False
-        policy.last_command_at.clear()  # its first increment is allowed 0.1 s of speed
+        self.lease.give(policy, cause)  # its first increment is allowed 0.1 s of speed
         policy.last_seen = self.clock.now()
-        self._lease_note = cause
         self._changed_lease()
         self._set_mode(mode, cause, operator=operator)
 
@@ -595,7 +552,7 @@ class DecisionServer:
         if self._estop:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         cause = f"resumed by {client.name!r}"
-        if self._lease != self.autonomy.policy_id:
+        if self.lease.holder != self.autonomy.policy_id:
             await self._hand_to_policy(Mode.AUTONOMOUS, cause, client.name)
         else:
             self.autonomy.go()
@@ -614,7 +571,7 @@ class DecisionServer:
             raise self.autonomy.refuse()
 
     async def _lapse(self, why: str) -> None:
-        holder = self._lease
+        holder = self.lease.holder
         policy = self.autonomy.policy_id
         self.autonomy.stopped()
         if (
@@ -630,85 +587,25 @@ class DecisionServer:
         if holder is not None and holder == policy:
             self._set_mode(Mode.OFF, f"the policy lost control: {why}")
         log.info("lease lapses: %s", why)
-        self._lease = None
-        self._halted = False
-        self._lease_note = why
+        self.lease.drop(why)
         await self._stop_all()
         self._changed_lease()
 
     def _changed_lease(self) -> None:
-        self.events.lease_changed.emit(self._lease)
+        self.events.lease_changed.emit(self.lease.holder)
         self.events.safety_changed.emit(self.state())
 
-    def lease_grace(self, client: Client) -> float:
-        """How long past the dead-man's stop ``client`` keeps the lease: the setting,
-        plus the time a resume takes on its link (``RECONNECT_ONE_WAYS`` of its usual
-        transit, known for a client on our clock), at most ``MAX_GRACE_EXTENSION_S``."""
-        extra = 0.0
-        if client.synced_clock and client.transit_avg is not None:
-            extra = min(MAX_GRACE_EXTENSION_S, RECONNECT_ONE_WAYS * max(0.0, client.transit_avg))
-        return self.limits.lease_grace_s + extra
-
-    def deadman_limit(self, client: Client) -> float:
-        """How long ``client`` may be silent holding the lease: the dead-man's limit,
-        or a scripted lease's idle timeout while its arm is not being jogged."""
-        if client.lease_idle_s is None or client.streaming:
-            return self.limits.deadman_timeout_s
-        return client.lease_idle_s
-
     async def tick(self) -> None:
-        """Dead-man: a lease holder silent for ``deadman_timeout_s`` has its arm
-        stopped at once; silent ``lease_grace_s`` longer, it loses the lease (a short
-        stall of a busy machine costs a stop, not control). A scripted lease idle past
-        its own timeout loses it at once. Called every ``tick_s``.
-
-        A tick that comes late says the *server* stalled (its event loop busy, or the
-        machine's CPU taken elsewhere), not that the client went quiet: the client's
-        heartbeats may be sitting unread in the socket. Such a tick leaves its verdict
-        to the next one, after the loop has read what arrived. Never twice in a row: a
-        loop that is always late still stops the arm, one tick later at most."""
-        now = self.clock.now()
-        gap = now - (self._last_tick if self._last_tick is not None else now)
-        late = gap > 2 * self.limits.tick_s
-        self._last_tick = now
-        if now - self._last_sweep >= 1.0:
-            self._last_sweep = now
-            self.clients.forget_idle(now, self._lease)
-        if self._lease is None:
+        """The dead-man's check (``Lease.judge``), every ``tick_s``: a silent holder's
+        arms stopped, or the lease taken from it."""
+        verdict = self.lease.judge()
+        if verdict is None:
             return
-        holder = self.clients.known(self._lease)
-        if holder is None:
-            await self._lapse("controller gone")
+        if verdict.lapse:
+            await self._lapse(verdict.why)
             return
-        silent = now - holder.last_seen
-        limit = self.deadman_limit(holder)
-        if holder.busy > 0 or silent <= limit:
-            self._deferred = False
-        elif late and not self._deferred:
-            self._deferred = True
-            log.info("dead-man verdict deferred: this server stalled for %.0f ms", gap * 1000)
-        else:
-            self._deferred = False
-            scripted = limit != self.limits.deadman_timeout_s
-            grace = self.lease_grace(holder)
-            if scripted or silent > limit + grace:
-                await self._lapse(
-                    f"dead-man: no heartbeat from {holder.name!r} for {silent * 1000:.0f} ms"
-                    f" (the limit is {limit * 1000:.0f} ms"
-                    + ("" if scripted else f", then {grace:.2g} s of grace")
-                    + ")"
-                )
-            elif not self._halted:
-                self._halted = True
-                self.deadman_halts += 1
-                log.info(
-                    "dead-man: arm stopped, %s silent for %.0f ms; lease kept %.2g s",
-                    holder.name,
-                    silent * 1000,
-                    grace,
-                )
-                await self._stop_all()
-                self.events.safety_changed.emit(self.state())
+        await self._stop_all()
+        self.events.safety_changed.emit(self.state())
 
     # ------------------------------------------------------------ safety
     @reported("estop")
@@ -730,8 +627,8 @@ class DecisionServer:
         client = self.clients.get(client_id)
         if client.role is not Role.OPERATOR:
             raise NotAllowed("only a person can reset the e-stop (the operator token)")
-        supervising = self._lease == self.autonomy.policy_id and not client.policy
-        if self._lease not in (None, client_id) and not supervising:
+        supervising = self.lease.holder == self.autonomy.policy_id and not client.policy
+        if self.lease.holder not in (None, client_id) and not supervising:
             raise NotAllowed("only the client in control can reset the e-stop")
         self._estop, self._estop_reason = False, ""
         self.events.safety_changed.emit(self.state())
@@ -765,7 +662,7 @@ class DecisionServer:
         lim = guard.limits
         fx, fy, fz = sample.values[:3]
         magnitude = math.sqrt(fx * fx + fy * fy + fz * fz)  # 1 kHz: plain floats, no numpy
-        holder = self.clients.known(self._lease)
+        holder = self.clients.known(self.lease.holder)
         port = holder.ports.get(guard.name) if holder is not None and holder.ports else None
         if port is not None:
             # Its books are kept on the measured tool (one FK a sample, for a master only).
@@ -821,7 +718,7 @@ class DecisionServer:
                 kwargs,
                 error,
                 result.target if isinstance(result, Applied) else None,
-                self._lease,
+                self.lease.holder,
                 "policy"
                 if client is not None and client.policy
                 else ("operator" if client is not None else "server"),
@@ -836,7 +733,7 @@ class DecisionServer:
         if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot move the robot")
         self._check_autonomy(client)
-        if self._lease != client_id:
+        if self.lease.holder != client_id:
             raise NotAllowed("take the control lease before moving the robot")
         if self._estop:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
@@ -1147,7 +1044,7 @@ class DecisionServer:
         """As a command goes to the driver after an await (the solver's thread, another
         command's move holding the arm's lock): an e-stop, control changing hands or a
         policy paused meanwhile stops it here, before anything moves."""
-        if self._lease != client.id:
+        if self.lease.holder != client.id:
             raise NotAllowed("control changed hands while this command waited: not applied")
         if self._estop:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
