@@ -227,7 +227,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         policy_tokens=PolicyTokens(policy_tokens_path(settings)),
         limits=safety_limits(settings),
     )
-    decision.release_to = ReleaseTo(settings.autonomy_release)
+    decision.supervision.release_to = ReleaseTo(settings.autonomy_release)
     hub = RealtimeHub(
         robot, decision, force, telemetry, clock, state_rate_hz=settings.state_rate_hz
     )

@@ -174,7 +174,7 @@ async def test_the_operator_takes_over_without_force_and_the_policy_is_told(
 
 async def test_release_can_leave_the_policy_paused(clock: ManualClock) -> None:
     ds, _, policy, alice, _ = await policy_driving(clock)
-    ds.release_to = ReleaseTo.PAUSE
+    ds.supervision.release_to = ReleaseTo.PAUSE
     await ds.take_lease(alice.id)
     await ds.release_lease(alice.id)
     assert ds.lease_holder == policy.id and ds.autonomy.mode is Mode.PAUSED

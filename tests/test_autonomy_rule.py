@@ -90,7 +90,7 @@ class Supervision(RuleBasedStateMachine):
     def begin(self, start: str, release_to: ReleaseTo) -> None:
         """Most sequences start where a policy is supervised: the states worth exploring
         (a random walk from nothing seldom gets there and on)."""
-        self.ds.release_to = release_to
+        self.ds.supervision.release_to = release_to
         if start == "nobody":
             return
         self.policy_joins()
@@ -175,7 +175,7 @@ class Supervision(RuleBasedStateMachine):
         if not self.attempt(self.ds.release_lease(self.person.id)):
             return
         if correcting and self.ds.lease_holder != before:
-            if estop or self.ds.release_to is ReleaseTo.PAUSE:
+            if estop or self.ds.supervision.release_to is ReleaseTo.PAUSE:
                 self.stop_event()  # handed back, but paused
             else:
                 self.go = True

@@ -33,10 +33,18 @@ them, the page shows them.
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
 from telerobot.drivers.base import TelerobotError
+from telerobot.drivers.clock import Clock
+from telerobot.drivers.events import Event
+from telerobot.server.control.clients import Client, ClientTable, NotAllowed, Role
+from telerobot.server.control.lease import Lease
+
+log = logging.getLogger(__name__)
 
 
 class Mode(StrEnum):
@@ -88,8 +96,8 @@ class AutonomyState:
 
 
 class Autonomy:
-    """The mode and its counters. The DecisionServer moves it (it owns the lease);
-    this keeps what was decided and says it."""
+    """The mode and its counters. ``Supervision`` moves it over the lease; this keeps
+    what was decided and says it."""
 
     def __init__(self, now: float) -> None:
         self.mode = Mode.OFF
@@ -173,3 +181,154 @@ class Autonomy:
         return Supervised(
             f"{why}: your command was not applied ({self.refused} refused so far); {then}"
         )
+
+
+class Supervision:
+    """A person's supervision of a policy, over the lease: the mode as control changes
+    hands (a policy taking the lease, a person taking over, a hand-back, a lapse, a
+    pause or resume) and the hand-back itself. The DecisionServer authorises and
+    reports each command, and says when a stop event happens; what it means for the
+    policy is decided here."""
+
+    def __init__(
+        self,
+        autonomy: Autonomy,
+        clients: ClientTable,
+        lease: Lease,
+        clock: Clock,
+        *,
+        changed: Event[AutonomyState],
+        stop_all: Callable[[], Awaitable[None]],
+        lease_changed: Callable[[], None],
+        estopped: Callable[[], bool],
+    ) -> None:
+        self.autonomy = autonomy
+        self.clients = clients
+        self.lease = lease
+        self.clock = clock
+        self._changed = changed
+        self._stop_all = stop_all
+        self._lease_changed = lease_changed
+        self._estopped = estopped
+        self.release_to = ReleaseTo.AUTONOMOUS  # where an operator's release leaves a policy
+
+    def set_mode(self, mode: Mode, cause: str, *, operator: str | None = None) -> None:
+        if self.autonomy.set(mode, cause, self.clock.now(), operator=operator):
+            log.info("autonomy %s: %s", mode.value.upper(), cause)
+            self._changed.emit(self.autonomy.state())
+
+    def paused_by_stop(self, cause: str) -> None:
+        """A safety stop (the e-stop, a force stop) pauses a policy that was driving
+        (the stop event itself is counted where it happens)."""
+        if self.autonomy.mode is Mode.AUTONOMOUS:
+            self.set_mode(Mode.PAUSED, cause)
+
+    def check_supervisor(self, client: Client) -> None:
+        """An operator (a person's client, not the policy) acting on the autonomy."""
+        if client.role is not Role.OPERATOR or client.policy:
+            raise NotAllowed("only an operator supervises a policy")
+        if self.autonomy.policy_id not in self.clients:
+            raise NotAllowed("no policy is connected to supervise")
+
+    def check(self, client: Client) -> None:
+        """A policy drives only while a person lets it (``Autonomy.may_drive``: the one
+        rule); otherwise its command is refused, counted and said to it (before the
+        lease check: it is told why)."""
+        if not client.policy:
+            return
+        if client.id != self.autonomy.policy_id:
+            raise NotAllowed("take the control lease before moving the robot")
+        self.autonomy.heard_command(self.clock.now())
+        if not self.autonomy.may_drive:
+            raise self.autonomy.refuse()
+
+    async def hand_to_policy(self, mode: Mode, cause: str, operator: str) -> None:
+        """The lease back to the policy, the arm stopped where it is: it drives on from
+        there (``AUTONOMOUS``: a person's go, unless the e-stop is latched: then
+        ``PAUSED``) or waits for a resume (``PAUSED``)."""
+        policy = self.clients.get(self.autonomy.policy_id or "")
+        if mode is Mode.AUTONOMOUS and self._estopped():
+            mode, cause = Mode.PAUSED, f"{cause}, the e-stop latched: paused until resumed"
+        elif mode is Mode.AUTONOMOUS:
+            self.autonomy.go()
+        else:
+            self.autonomy.stopped()
+        await self._stop_all()
+        self.lease.give(policy, cause)  # its first increment is allowed 0.1 s of speed
+        policy.last_seen = self.clock.now()
+        self._lease_changed()
+        self.set_mode(mode, cause, operator=operator)
+
+    def taken(self, client: Client, taken_from: Client | None) -> None:
+        """``client`` took the lease (from ``taken_from``): a policy waits for a
+        person's go (a stop event); a person taking it from the policy corrects."""
+        if client.policy:
+            self.autonomy.stopped()
+            self.autonomy.start(client.id, client.name)
+            self.set_mode(
+                Mode.PAUSED,
+                f"{client.name!r} took control; it waits until a person lets it drive",
+            )
+        elif taken_from is not None and taken_from.id == self.autonomy.policy_id:
+            self.set_mode(Mode.CORRECTING, f"taken over by {client.name!r}", operator=client.name)
+
+    async def released(self, client: Client) -> bool:
+        """An operator correcting a policy let go: control goes back to the policy
+        (``release_to``); False if this release is not a hand-back."""
+        if self.autonomy.mode is not Mode.CORRECTING or client.id == self.autonomy.policy_id:
+            return False
+        paused = self.release_to is ReleaseTo.PAUSE
+        await self.hand_to_policy(
+            Mode.PAUSED if paused else Mode.AUTONOMOUS,
+            f"handed back by {client.name!r}" + (" (paused: autonomy_release)" if paused else ""),
+            client.name,
+        )
+        return True
+
+    async def lapsing(self, why: str) -> bool:
+        """The lease is lapsing (a stop event): a correcting operator's goes back to the
+        policy, paused (True: handled); the policy's own ends autonomy (False: the lease
+        is dropped by the caller)."""
+        holder = self.lease.holder
+        policy = self.autonomy.policy_id
+        self.autonomy.stopped()
+        if (
+            self.autonomy.mode is Mode.CORRECTING
+            and holder is not None
+            and holder != policy
+            and policy in self.clients
+        ):
+            known = self.clients.known(holder)
+            name = known.name if known is not None else "the operator"
+            await self.hand_to_policy(Mode.PAUSED, f"{name}'s control lapsed: {why}", name)
+            return True
+        if holder is not None and holder == policy:
+            self.set_mode(Mode.OFF, f"the policy lost control: {why}")
+        return False
+
+    def left(self, client_id: str) -> None:
+        """A client left: the policy's leaving ends autonomy (a stop event)."""
+        if client_id == self.autonomy.policy_id:
+            self.autonomy.stopped()
+            self.autonomy.end()
+            self.set_mode(Mode.OFF, "the policy left")
+
+    async def pause(self, client: Client) -> None:
+        """Hold the policy still (look, think): its commands are refused until resumed.
+        From a correction, control goes back to the policy, paused."""
+        if self.autonomy.mode is Mode.CORRECTING:
+            await self.hand_to_policy(Mode.PAUSED, f"paused by {client.name!r}", client.name)
+            return
+        self.autonomy.stopped()
+        await self._stop_all()
+        self.set_mode(Mode.PAUSED, f"paused by {client.name!r}", operator=client.name)
+
+    async def resume(self, client: Client) -> None:
+        """The policy drives again, from where the arm is (from a correction: handed
+        back). The caller has refused it while the e-stop is latched."""
+        cause = f"resumed by {client.name!r}"
+        if self.lease.holder != self.autonomy.policy_id:
+            await self.hand_to_policy(Mode.AUTONOMOUS, cause, client.name)
+        else:
+            self.autonomy.go()
+            self.set_mode(Mode.AUTONOMOUS, cause, operator=client.name)

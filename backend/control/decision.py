@@ -42,7 +42,7 @@ from telerobot.drivers.events import Event
 from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.autonomy import Autonomy, AutonomyState, Mode, ReleaseTo
+from telerobot.server.control.autonomy import Autonomy, AutonomyState, Supervision
 from telerobot.server.control.clients import (
     MAX_CLIENTS,
     Client,
@@ -224,7 +224,16 @@ class DecisionServer:
         self.resumed_sessions = 0  # sessions continued on a new connection
         self._watchdog: asyncio.Task[None] | None = None
         self.autonomy = Autonomy(clock.now())
-        self.release_to = ReleaseTo.AUTONOMOUS  # where an operator's release leaves a policy
+        self.supervision = Supervision(
+            self.autonomy,
+            self.clients,
+            self.lease,
+            clock,
+            changed=self.events.autonomy_changed,
+            stop_all=self._stop_all,
+            lease_changed=self._changed_lease,
+            estopped=lambda: self._estop,
+        )
 
     # ------------------------------------------------------------ its own loop
     def start(self) -> None:
@@ -382,10 +391,7 @@ class DecisionServer:
         return found
 
     async def leave(self, client_id: str) -> None:
-        if client_id == self.autonomy.policy_id:
-            self.autonomy.stopped()
-            self.autonomy.end()
-            self._set_mode(Mode.OFF, "the policy left")
+        self.supervision.left(client_id)
         if self.lease.holder == client_id:
             await self._lapse("controller disconnected")
         self.clients.remove(client_id)
@@ -474,118 +480,40 @@ class DecisionServer:
         taken_from = self.clients.known(self.lease.holder)
         self.lease.give(client, note)
         self._changed_lease()
-        if client.policy:
-            # A stop event: a policy taking control waits for a person's go (the rule).
-            self.autonomy.stopped()
-            self.autonomy.start(client.id, client.name)
-            self._set_mode(
-                Mode.PAUSED,
-                f"{client.name!r} took control; it waits until a person lets it drive",
-            )
-        elif taken_from is not None and taken_from.id == self.autonomy.policy_id:
-            self._set_mode(Mode.CORRECTING, f"taken over by {client.name!r}", operator=client.name)
+        self.supervision.taken(client, taken_from)
 
     @reported("lease", action="release")
     async def release_lease(self, client_id: str) -> None:
         if self.lease.holder != client_id:
             raise NotAllowed("you do not hold the lease")
-        if self.autonomy.mode is Mode.CORRECTING and client_id != self.autonomy.policy_id:
-            name = self.clients.get(client_id).name
-            paused = self.release_to is ReleaseTo.PAUSE
-            await self._hand_to_policy(
-                Mode.PAUSED if paused else Mode.AUTONOMOUS,
-                f"handed back by {name!r}" + (" (paused: autonomy_release)" if paused else ""),
-                name,
-            )
-            return
-        await self._lapse("released")
+        if not await self.supervision.released(self.clients.get(client_id)):
+            await self._lapse("released")
 
     # ------------------------------------------------------------ supervised autonomy
-    def _set_mode(self, mode: Mode, cause: str, *, operator: str | None = None) -> None:
-        if self.autonomy.set(mode, cause, self.clock.now(), operator=operator):
-            log.info("autonomy %s: %s", mode.value.upper(), cause)
-            self.events.autonomy_changed.emit(self.autonomy.state())
-
     def _supervisor(self, client_id: str) -> Client:
         """An operator (a person's client, not the policy) acting on the autonomy."""
         client = self.clients.get(client_id)
         self._heard(client)
-        if client.role is not Role.OPERATOR or client.policy:
-            raise NotAllowed("only an operator supervises a policy")
-        if self.autonomy.policy_id not in self.clients:
-            raise NotAllowed("no policy is connected to supervise")
+        self.supervision.check_supervisor(client)
         return client
-
-    async def _hand_to_policy(self, mode: Mode, cause: str, operator: str) -> None:
-        """The lease back to the policy, the arm stopped where it is: it drives on from
-        there (``AUTONOMOUS``: a person's go, unless the e-stop is latched: then
-        ``PAUSED``) or waits for a resume (``PAUSED``)."""
-        policy = self.clients.get(self.autonomy.policy_id or "")
-        if mode is Mode.AUTONOMOUS and self._estop:
-            mode, cause = Mode.PAUSED, f"{cause}, the e-stop latched: paused until resumed"
-        elif mode is Mode.AUTONOMOUS:
-            self.autonomy.go()
-        else:
-            self.autonomy.stopped()
-        await self._stop_all()
-        self.lease.give(policy, cause)  # its first increment is allowed 0.1 s of speed
-        policy.last_seen = self.clock.now()
-        self._changed_lease()
-        self._set_mode(mode, cause, operator=operator)
 
     @reported("autonomy", action="pause")
     async def pause(self, client_id: str) -> None:
-        """Hold the policy still (look, think): its commands are refused until resumed.
-        From a correction, control goes back to the policy, paused."""
-        client = self._supervisor(client_id)
-        if self.autonomy.mode is Mode.CORRECTING:
-            await self._hand_to_policy(Mode.PAUSED, f"paused by {client.name!r}", client.name)
-            return
-        self.autonomy.stopped()
-        await self._stop_all()
-        self._set_mode(Mode.PAUSED, f"paused by {client.name!r}", operator=client.name)
+        """Hold the policy still (``Supervision.pause``)."""
+        await self.supervision.pause(self._supervisor(client_id))
 
     @reported("autonomy", action="resume")
     async def resume_policy(self, client_id: str) -> None:
-        """The policy drives again, from where the arm is (from a correction: handed back)."""
+        """The policy drives again (``Supervision.resume``); refused while the e-stop is
+        latched."""
         client = self._supervisor(client_id)
         if self._estop:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
-        cause = f"resumed by {client.name!r}"
-        if self.lease.holder != self.autonomy.policy_id:
-            await self._hand_to_policy(Mode.AUTONOMOUS, cause, client.name)
-        else:
-            self.autonomy.go()
-            self._set_mode(Mode.AUTONOMOUS, cause, operator=client.name)
-
-    def _check_autonomy(self, client: Client) -> None:
-        """A policy drives only while a person lets it (``Autonomy.may_drive``: the one
-        rule); otherwise its command is refused, counted and said to it (before the
-        lease check: it is told why)."""
-        if not client.policy:
-            return
-        if client.id != self.autonomy.policy_id:
-            raise NotAllowed("take the control lease before moving the robot")
-        self.autonomy.heard_command(self.clock.now())
-        if not self.autonomy.may_drive:
-            raise self.autonomy.refuse()
+        await self.supervision.resume(client)
 
     async def _lapse(self, why: str) -> None:
-        holder = self.lease.holder
-        policy = self.autonomy.policy_id
-        self.autonomy.stopped()
-        if (
-            self.autonomy.mode is Mode.CORRECTING
-            and holder is not None
-            and holder != policy
-            and policy in self.clients
-        ):
-            known = self.clients.known(holder)
-            name = known.name if known is not None else "the operator"
-            await self._hand_to_policy(Mode.PAUSED, f"{name}'s control lapsed: {why}", name)
+        if await self.supervision.lapsing(why):
             return
-        if holder is not None and holder == policy:
-            self._set_mode(Mode.OFF, f"the policy lost control: {why}")
         log.info("lease lapses: %s", why)
         self.lease.drop(why)
         await self._stop_all()
@@ -619,8 +547,7 @@ class DecisionServer:
         self.autonomy.stopped()
         await self._stop_all()
         self.events.safety_changed.emit(self.state())
-        if self.autonomy.mode is Mode.AUTONOMOUS:
-            self._set_mode(Mode.PAUSED, f"e-stop: {self._estop_reason}")
+        self.supervision.paused_by_stop(f"e-stop: {self._estop_reason}")
 
     @reported("reset")
     async def reset(self, client_id: str) -> None:
@@ -686,11 +613,9 @@ class DecisionServer:
                 )
                 asyncio.get_running_loop().create_task(guard.robot.stop())
                 self.events.safety_changed.emit(self.state())
-                if self.autonomy.mode is Mode.AUTONOMOUS:
-                    self._set_mode(
-                        Mode.PAUSED,
-                        guard.said(f"force limit: {magnitude:.1f} N", len(self.arms)),
-                    )
+                self.supervision.paused_by_stop(
+                    guard.said(f"force limit: {magnitude:.1f} N", len(self.arms))
+                )
         elif guard.force_limited and magnitude < lim.force_limit_n * lim.force_release_ratio:
             guard.force_limited = False
             self.events.safety_changed.emit(self.state())
@@ -732,7 +657,7 @@ class DecisionServer:
         self._heard(client)
         if client.role is Role.OBSERVER:
             raise NotAllowed("observers cannot move the robot")
-        self._check_autonomy(client)
+        self.supervision.check(client)
         if self.lease.holder != client_id:
             raise NotAllowed("take the control lease before moving the robot")
         if self._estop:
