@@ -18,7 +18,8 @@ from telerobot.drivers.robot.puma560.kinematics import (
 from telerobot.drivers.sim.workcell import default_workcell, facing_mounts, mount_transform
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.clients import Client
-from telerobot.server.control.decision import DecisionServer, SafetyState, SafetyStop
+from telerobot.server.control.decision import DecisionServer, SafetyState
+from telerobot.server.control.errors import SafetyStop
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.settings import load_settings, parse_arms
 from tests.support import TOKEN

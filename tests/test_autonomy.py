@@ -13,8 +13,9 @@ import pytest
 from telerobot.drivers.base import ForceSample
 from telerobot.drivers.clock import ManualClock
 from telerobot.server.control.autonomy import AutonomyState, Mode, ReleaseTo, Supervised
-from telerobot.server.control.clients import Client, NotAllowed
-from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.clients import Client
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import NotAllowed, SafetyStop
 from tests.support import TOKEN
 from tests.support.decision import RecordingPuma, join_policy, make, policy_let_drive
 

@@ -28,8 +28,9 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 from telerobot.drivers.base import ForceSample, TelerobotError
 from telerobot.drivers.clock import ManualClock
 from telerobot.server.control.autonomy import Mode, ReleaseTo
-from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.clients import Client
 from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import NotAllowed
 from tests.support import TOKEN
 from tests.support.decision import RecordingPuma, make
 

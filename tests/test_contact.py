@@ -12,7 +12,8 @@ from telerobot.drivers.robot.puma560.kinematics import Puma560Kinematics, tool_t
 from telerobot.drivers.robot.puma560.sim import SimPuma
 from telerobot.drivers.sim.workcell import default_workcell
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import SafetyStop
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock

@@ -25,8 +25,9 @@ from telerobot.drivers.robot.puma560.kinematics import (
     Puma560Kinematics,
     tool_transform,
 )
-from telerobot.server.control.clients import Client, NotAllowed
-from telerobot.server.control.decision import DecisionServer, LimitExceeded, SafetyStop
+from telerobot.server.control.clients import Client
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import LimitExceeded, NotAllowed, SafetyStop
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
@@ -184,7 +185,7 @@ async def test_after_a_stall_the_lease_is_kept_and_only_a_fresh_command_moves(
     assert not ds.state().halted  # the link is back
     assert len(robot.sent) == before  # and nothing moved
     # Counted where a user looks (/safety's stale_commands_dropped), as the age check's.
-    assert a.stale_dropped == 1 and ds.stale_dropped == 1
+    assert a.stale_dropped == 1 and ds.ages.stale_dropped == 1
     fresh = clock.now() - 0.01
     await ds.cartesian_increment(a.id, np.array([0.001, 0, 0]), np.zeros(3), client_time=fresh)
     assert len(robot.sent) == before + 1 and ds.lease_holder == a.id
@@ -214,7 +215,7 @@ async def test_a_synced_clients_command_older_than_the_age_limit_is_dropped_and_
     with pytest.raises(SafetyStop, match="stale command"):
         await ds.joint_increment(a.id, np.full(6, 1e-4), client_time=clock.now() - 1.0)
     assert len(robot.sent) == moved
-    assert a.stale_dropped == 2 and ds.stale_dropped == 2
+    assert a.stale_dropped == 2 and ds.ages.stale_dropped == 2
     # A synced client's time must be a time: NaN, no motion.
     with pytest.raises(InvalidCommand, match="send time"):
         await ds.cartesian_increment(a.id, dX, rv, client_time=math.nan)
@@ -229,7 +230,7 @@ async def test_a_synced_clients_command_older_than_the_age_limit_is_dropped_and_
     await ds.take_lease(b.id, force=True)
     await clock.advance(0.02)
     await ds.cartesian_increment(b.id, dX, rv, client_time=-1000.0)
-    assert len(robot.sent) == moved + 1 and ds.stale_dropped == 2
+    assert len(robot.sent) == moved + 1 and ds.ages.stale_dropped == 2
 
 
 async def test_a_clients_clock_drifting_behind_is_not_taken_for_stale_commands(

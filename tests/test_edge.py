@@ -380,8 +380,7 @@ def test_every_error_class_says_its_http_status_and_code_once() -> None:
         NotReady,
         TelerobotError,
     )
-    from telerobot.server.control.clients import NotAllowed
-    from telerobot.server.control.decision import StillMoving
+    from telerobot.server.control.errors import NotAllowed, StillMoving
     from telerobot.server.errors import http_status
     from telerobot.server.media.pipeline import NotYourPeer, ViewerLimitReached
     from telerobot.server.media.supervisor import MediaRequestFailed

@@ -25,9 +25,10 @@ from telerobot.drivers.robot.puma560.kinematics import (
 from telerobot.protocol import messages as m
 from telerobot.server.api.control import command_ages
 from telerobot.server.app import create_app
-from telerobot.server.control import decision as decision_module
+from telerobot.server.control import freshness
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import SafetyStop
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.recording import reader
 from telerobot.server.recording.recorder import Recorder, RecordingTaps
@@ -70,7 +71,7 @@ async def test_a_synced_clients_command_carries_its_age_at_the_driver(clock: Man
     client = ds.clients.get(a)
     assert client.executed_age is not None and client.executed_age.count == 2
     assert client.executed_age.largest == pytest.approx(150.0)
-    assert ds.executed_age.count == 2 and ds.executed_age.over == 0
+    assert ds.ages.executed_ms.count == 2 and ds.ages.executed_ms.over == 0
 
 
 class SlowDriver(RecordingPuma):
@@ -105,7 +106,7 @@ async def test_the_ack_time_is_later_than_the_execution_by_the_drivers_own_time(
     )
     assert applied.age == pytest.approx(0.24)
     assert applied.applied_at - sent == pytest.approx(0.27)
-    assert ds.executed_age.over == 0 and ds.executed_age.largest == pytest.approx(240.0)
+    assert ds.ages.executed_ms.over == 0 and ds.ages.executed_ms.largest == pytest.approx(240.0)
 
 
 async def test_no_age_for_a_client_off_our_clock_or_a_command_without_a_send_time(
@@ -120,8 +121,8 @@ async def test_no_age_for_a_client_off_our_clock_or_a_command_without_a_send_tim
     await ds.take_lease(s.id, force=True)
     applied = await ds.cartesian_increment(s.id, STEP, ZERO)  # REST: no send time
     assert applied.age is None and s.executed_age is None
-    assert ds.executed_age.count == 0 and len(robot.sent) == 2
-    assert command_ages(ds.executed_age).max is None
+    assert ds.ages.executed_ms.count == 0 and len(robot.sent) == 2
+    assert command_ages(ds.ages.executed_ms).max is None
 
 
 async def test_a_stale_command_is_refused_and_never_counted_as_executed(
@@ -130,7 +131,7 @@ async def test_a_stale_command_is_refused_and_never_counted_as_executed(
     ds, robot, a = await synced(clock)
     with pytest.raises(SafetyStop, match="stale command"):
         await ds.cartesian_increment(a, STEP, ZERO, client_time=clock.now() - 0.26)
-    assert ds.executed_age.count == 0 and ds.clients.get(a).executed_age is None
+    assert ds.ages.executed_ms.count == 0 and ds.clients.get(a).executed_age is None
     assert robot.sent == []
 
 
@@ -151,14 +152,14 @@ async def test_each_clients_figure_and_the_servers_are_bounded(
 ) -> None:
     """Six commands against windows of four (the settings' EXECUTED_AGE_WINDOW and
     CLIENT_AGE_WINDOW, made small): each keeps four, counts six."""
-    monkeypatch.setattr(decision_module, "EXECUTED_AGE_WINDOW", 4)
-    monkeypatch.setattr(decision_module, "CLIENT_AGE_WINDOW", 4)
+    monkeypatch.setattr(freshness, "EXECUTED_AGE_WINDOW", 4)
+    monkeypatch.setattr(freshness, "CLIENT_AGE_WINDOW", 4)
     ds, _, a = await synced(clock)
     for i in range(6):
         await ds.cartesian_increment(a, STEP, ZERO, client_time=clock.now() - 0.01 * (i + 1))
     client = ds.clients.get(a).executed_age
     assert client is not None
-    for tally in (client, ds.executed_age):
+    for tally in (client, ds.ages.executed_ms):
         assert tally.capacity == 4 and len(tally.values()) == 4 and tally.count == 6
         assert tally.values().tolist() == pytest.approx([30.0, 40.0, 50.0, 60.0])
 

@@ -13,8 +13,8 @@ import pytest
 from telerobot.drivers.base import ForceSample
 from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.force.sampled import SampledForceSensor
-from telerobot.server.control.clients import NotAllowed
-from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import NotAllowed, SafetyStop
 from tests.support import TOKEN, until_async
 from tests.support.decision import make
 

@@ -18,7 +18,7 @@ from bench.task_replay import TOKEN as CELL_TOKEN
 from bench.task_replay import SimCell, push_start
 from telerobot.client import Telerobot
 from telerobot.drivers.sim.workcell import default_workcell
-from telerobot.server.control.clients import NotAllowed
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.tasks.runner import TaskSpec, TaskState
 from telerobot.server.tasks.trajectory import StateSample, Trajectory
 from tests.support import TOKEN

@@ -22,7 +22,8 @@ from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.robot.puma560.kinematics import NAMED_POSES
 from telerobot.drivers.robot.sim import SimPuma
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.decision import DecisionServer, LimitExceeded
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import LimitExceeded
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.devices import make_kinematics
 from telerobot.server.settings import Settings

@@ -22,8 +22,7 @@ from bench.task_replay import (
 )
 from telerobot.drivers.base import InvalidCommand
 from telerobot.drivers.sim.workcell import Box, default_workcell
-from telerobot.server.control.clients import NotAllowed
-from telerobot.server.control.decision import SafetyStop
+from telerobot.server.control.errors import NotAllowed, SafetyStop
 from telerobot.server.tasks.compliance import Admittance, ComplianceSettings
 from telerobot.server.tasks.runner import TaskSpec, TaskState
 from telerobot.server.tasks.trajectory import (

@@ -23,8 +23,9 @@ from telerobot.server.api.deps import (
 from telerobot.server.api.requests import StrictRequest
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Mode
-from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.clients import Client
 from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.control.limits import full_speed_stop_s, stopping
 from telerobot.server.telemetry.stats import StreamTally
 
@@ -246,8 +247,8 @@ def _safety(
         deadman_timeout_s=lim.deadman_timeout_s,
         lease_grace_s=lim.lease_grace_s,
         max_command_age_ms=lim.max_command_age_s * 1000,
-        stale_commands_dropped=decision.stale_dropped,
-        executed_age_ms=command_ages(decision.executed_age),
+        stale_commands_dropped=decision.ages.stale_dropped,
+        executed_age_ms=command_ages(decision.ages.executed_ms),
         executed_age_ms_client=command_ages(asked.executed_age) if asked is not None else None,
         deadman_halts=decision.deadman_halts,
         resumed_sessions=decision.resumed_sessions,

@@ -19,8 +19,9 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from telerobot.drivers.base import ForceSensor, Robot
 from telerobot.drivers.sim.workcell import Workcell
-from telerobot.server.control.clients import Client, NotAllowed
+from telerobot.server.control.clients import Client
 from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.devices import ArmDevices
 from telerobot.server.media.media_server import MediaServerSupervisor
 from telerobot.server.media.supervisor import MediaSupervisor, MediaUnavailable

@@ -13,7 +13,7 @@ from pydantic import BaseModel, Field
 from telerobot.drivers.base import DeviceError, InvalidCommand, Robot, RobotStatus, WorkingFrame
 from telerobot.server.api.deps import ArmDep, ClientDep, DecisionDep, DriverClientDep, ServicesDep
 from telerobot.server.api.requests import StrictRequest
-from telerobot.server.control.decision import StillMoving
+from telerobot.server.control.errors import StillMoving
 from telerobot.server.settings import SINGLE_ARM
 
 router = APIRouter(prefix="/robot", tags=["robot"])

@@ -41,7 +41,8 @@ from enum import StrEnum
 from telerobot.drivers.base import TelerobotError
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
-from telerobot.server.control.clients import Client, ClientTable, NotAllowed, Role
+from telerobot.server.control.clients import Client, ClientTable, Role
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.control.lease import Lease
 
 log = logging.getLogger(__name__)

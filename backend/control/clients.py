@@ -11,21 +11,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from telerobot.drivers.base import TelerobotError
 from telerobot.drivers.clock import Clock
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.control.policy_tokens import PREFIX as POLICY_TOKEN_PREFIX
 from telerobot.server.control.policy_tokens import PolicyTokens
 from telerobot.server.control.slave_port import SlavePort
 from telerobot.server.security import token_matches
 from telerobot.server.telemetry.stats import DriftingFloor, StreamTally
-
-
-class NotAllowed(TelerobotError):
-    """The client may not do this (observer, or someone else holds the lease)."""
-
-    code = "not_allowed"
-    http_status = 403
-
 
 MAX_CLIENTS = 512  # joined clients (every /ws, priority or REST-lease client is one)
 RESUME_KEY_BYTES = 24  # a resume key: 192 bits, given once, to the connection that joined

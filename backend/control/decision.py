@@ -43,49 +43,15 @@ from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Supervision
-from telerobot.server.control.clients import (
-    MAX_CLIENTS,
-    Client,
-    ClientTable,
-    NotAllowed,
-    Role,
-)
+from telerobot.server.control.clients import MAX_CLIENTS, Client, ClientTable, Role
+from telerobot.server.control.errors import LimitExceeded, NotAllowed, SafetyStop
+from telerobot.server.control.freshness import CommandAges
 from telerobot.server.control.lease import Lease
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.policy_tokens import PolicyTokens
 from telerobot.server.control.slave_port import SlavePort
-from telerobot.server.telemetry.stats import StreamTally
 
 log = logging.getLogger(__name__)
-
-
-class SafetyStop(TelerobotError):
-    """Motion is stopped by the e-stop or the force limit; nothing moved."""
-
-    code = "safety_stop"
-    http_status = 409
-
-
-class LimitExceeded(InvalidCommand):
-    """The command would break a safety limit (workspace, step, singularity); nothing moved."""
-
-    code = "limit_exceeded"
-
-
-class StillMoving(TelerobotError):
-    """A scripted move did not end within the time its caller would wait; it goes on."""
-
-    code = "still_moving"
-    http_status = 504
-
-
-TRANSIT_SMOOTHING = 0.1  # the usual transit: an exponential average of each command's
-# Every executed command's age (synced clients: our clock − its client_time, where it
-# goes to the driver), in ms: the last this many over all clients, and per client (a
-# bench's own figures: 4096 is 80 s at 50 Hz). A client's is made by its first such
-# command (only a lease holder has any): 32 kB each, at most MAX_CLIENTS of them.
-EXECUTED_AGE_WINDOW = 10_000
-CLIENT_AGE_WINDOW = 4_096
 
 
 @dataclass(frozen=True)
@@ -216,11 +182,7 @@ class DecisionServer:
         self.frame = WorkingFrame.BASE
         self._estop = False
         self._estop_reason = ""
-        self.stale_dropped = 0  # commands dropped as older than max_command_age_s
-        # Every executed command's age at the driver (ms), synced clients only.
-        self.executed_age = StreamTally(
-            "executed_age", capacity=EXECUTED_AGE_WINDOW, limit=self.limits.max_command_age_s * 1000
-        )
+        self.ages = CommandAges(clock, self.limits)
         self.resumed_sessions = 0  # sessions continued on a new connection
         self._watchdog: asyncio.Task[None] | None = None
         self.autonomy = Autonomy(clock.now())
@@ -683,53 +645,6 @@ class DecisionServer:
         contact = guard.robot.pose.rotation @ np.array(guard.contact_sensor)
         return float(moved @ contact) < 0.0
 
-    def _check_age(self, client: Client, client_time: float | None, now: float) -> float | None:
-        """A synced client's command older than ``max_command_age_s`` is dropped; its
-        age otherwise (None: not on our clock, or no send time)."""
-        if not client.synced_clock or client_time is None:
-            return None
-        age, limit = now - client_time, self.limits.max_command_age_s
-        if age > limit:
-            client.stale_dropped += 1
-            self.stale_dropped += 1
-            raise SafetyStop(
-                f"stale command: sent {age * 1000:.0f} ms ago, older than the "
-                f"{limit * 1000:.0f} ms limit; dropped ({client.stale_dropped} so far)"
-            )
-        return age
-
-    def _check_fresh(self, client: Client, client_time: float | None) -> None:
-        """Refuse an increment that waited on the way longer than the dead-man's limit
-        (sent before a stall, read after it): motion resumes only on fresh commands.
-        Its wait is its transit time (our clock at receipt − its own clock) beyond the
-        least transit seen from this client, which drifts up by ``TRANSIT_DRIFT``.
-        A client on our clock also has every command's age checked against
-        ``max_command_age_s``: older ones are dropped and counted."""
-        now = self.clock.now()
-        # None: a REST call made on behalf of this client (the page's Home button), which
-        # carries no send time; it is judged when it arrives, like any REST move.
-        if client.synced_clock and client_time is not None:
-            if not math.isfinite(client_time):
-                raise InvalidCommand("a command without a valid send time (client_time)")
-            age = now - client_time
-            avg = client.transit_avg
-            client.transit_avg = age if avg is None else avg + TRANSIT_SMOOTHING * (age - avg)
-            self._check_age(client, client_time, now)
-        if client_time is None or not math.isfinite(client_time):
-            return
-        transit = now - client_time
-        waited = transit - client.transit_floor.update(transit, now)
-        if waited > self.limits.deadman_timeout_s:
-            # Counted with the age check's drops: every command dropped for its age is
-            # in /safety's stale_commands_dropped, whichever check dropped it.
-            client.stale_dropped += 1
-            self.stale_dropped += 1
-            raise SafetyStop(
-                f"stale command: it waited {waited * 1000:.0f} ms on the way (longer than "
-                f"the dead-man's {self.limits.deadman_timeout_s * 1000:.0f} ms); dropped"
-                f" ({client.stale_dropped} so far)"
-            )
-
     @staticmethod
     def _interval(client: Client, guard: ArmGuard, now: float) -> float:
         """Time the speed limit allows for this increment: since the client's last
@@ -757,7 +672,7 @@ class DecisionServer:
         client = self._authorise(client_id)
         guard = self.arm(arm)
         client.streaming = True
-        self._check_fresh(client, client_time)
+        self.ages.check_fresh(client, client_time)
         dX = check_vector("position increment", dX, 3) * self._scale
         rv = check_vector("rotation increment", rotvec, 3) * self._scale
         with np.errstate(over="ignore"):  # 1e300 is refused below, not a warning
@@ -823,7 +738,7 @@ class DecisionServer:
         client = self._authorise(client_id)
         guard = self.arm(arm)
         client.streaming = True
-        self._check_fresh(client, client_time)
+        self.ages.check_fresh(client, client_time)
         dq = check_vector("joint increment", dq, guard.dof)
         lim = guard.limits
         biggest = float(np.max(np.abs(dq)))
@@ -952,7 +867,7 @@ class DecisionServer:
             # driver's call (no await): the age it measures is the command's age at
             # execution (Applied.age). applied_at, taken after the call, is later by
             # the driver's own time.
-            age = self._check_age(client, client_time, self.clock.now())
+            age = self.ages.check_age(client, client_time, self.clock.now())
             target = await robot.move_joints(q, relative=False)
             now = self.clock.now()
         client.last_command_at[guard.name] = now
@@ -960,8 +875,7 @@ class DecisionServer:
             client.id, seq, client_time, now, scale < 1.0, target, scale, guard.name, age=age
         )
         if age is not None:
-            self._executed_age(client).record(age * 1000.0)
-            self.executed_age.record(age * 1000.0)
+            self.ages.executed(client, age)
         self.events.applied.emit(applied)
         return applied
 
@@ -975,12 +889,3 @@ class DecisionServer:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         if client.policy and not self.autonomy.may_drive:
             raise self.autonomy.refuse()
-
-    def _executed_age(self, client: Client) -> StreamTally:
-        if client.executed_age is None:
-            client.executed_age = StreamTally(
-                "executed_age",
-                capacity=CLIENT_AGE_WINDOW,
-                limit=self.limits.max_command_age_s * 1000,
-            )
-        return client.executed_age

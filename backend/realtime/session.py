@@ -18,8 +18,9 @@ import numpy as np
 
 from telerobot.drivers.base import TelerobotError, WorkingFrame
 from telerobot.protocol import messages as m
-from telerobot.server.control.clients import RESUME_KEY_BYTES, Client, NotAllowed
+from telerobot.server.control.clients import RESUME_KEY_BYTES, Client
 from telerobot.server.control.decision import Applied, DecisionServer
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.realtime.hub import Connection, RealtimeHub
 
 FRAMES: dict[int, WorkingFrame] = {

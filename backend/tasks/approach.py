@@ -28,7 +28,7 @@ import pinocchio as pin
 
 from telerobot.drivers.base import FloatArray, InvalidCommand, TelerobotError
 from telerobot.drivers.robot.kinematics import ArmKinematics
-from telerobot.server.control.decision import LimitExceeded
+from telerobot.server.control.errors import LimitExceeded
 from telerobot.server.control.limits import SafetyLimits
 
 # The tool's positions along the approach given for its ghost: one per degree of the

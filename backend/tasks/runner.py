@@ -78,8 +78,9 @@ from telerobot.drivers.base import (
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.server.control.arm_guard import ArmGuard
-from telerobot.server.control.clients import NotAllowed, Role
-from telerobot.server.control.decision import DecisionServer, SafetyStop
+from telerobot.server.control.clients import Role
+from telerobot.server.control.decision import DecisionServer
+from telerobot.server.control.errors import NotAllowed, SafetyStop
 from telerobot.server.recording.schemas import SINGLE_ARM
 from telerobot.server.tasks.approach import ApproachPlan, approach_step, plan_approach
 from telerobot.server.tasks.compliance import Admittance, ComplianceSettings
