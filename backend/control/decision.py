@@ -41,7 +41,7 @@ from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
-from telerobot.server.control.arm_guard import ArmGuard
+from telerobot.server.control.arm_guard import ArmGuard, Felt
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Supervision
 from telerobot.server.control.clients import MAX_CLIENTS, Client, ClientTable, Role
 from telerobot.server.control.errors import LimitExceeded, NotAllowed, SafetyStop
@@ -172,6 +172,7 @@ class DecisionServer:
         self.arms: list[ArmGuard] = list(arms)
         for i, guard in enumerate(self.arms):
             guard.index = i + 1
+            guard.named = len(self.arms) > 1
         self._by_name = {guard.name: guard for guard in self.arms}
         if len(self._by_name) != len(self.arms):
             raise ValueError("two arms have the same name")
@@ -557,29 +558,17 @@ class DecisionServer:
             # Its books are kept on the measured tool (one FK a sample, for a master only).
             pose = guard.robot.pose
             port.add_sample(pose.rotation @ np.array([fx, fy, fz]), pose.position)
-        if magnitude > lim.contact_force_n:
-            # Kept in the sensor frame: rotated only when a command asks (100 Hz, not 1 kHz).
-            guard.contact_sensor = (fx, fy, fz)
-            guard.contact_at = self.clock.now()
-        if magnitude > lim.force_limit_n:
-            guard.force_base = guard.robot.pose.rotation @ np.array([fx, fy, fz])
-            if not guard.force_limited:
-                guard.force_limited = True
-                self.autonomy.stopped()
-                log.warning(
-                    "%s",
-                    guard.said(
-                        f"force limit: {magnitude:.1f} N > {lim.force_limit_n:.1f} N, stopping",
-                        len(self.arms),
-                    ),
-                )
-                asyncio.get_running_loop().create_task(guard.robot.stop())
-                self.events.safety_changed.emit(self.state())
-                self.supervision.paused_by_stop(
-                    guard.said(f"force limit: {magnitude:.1f} N", len(self.arms))
-                )
-        elif guard.force_limited and magnitude < lim.force_limit_n * lim.force_release_ratio:
-            guard.force_limited = False
+        felt = guard.felt(fx, fy, fz, magnitude, self.clock.now())
+        if felt is Felt.LIMITED:
+            self.autonomy.stopped()
+            log.warning(
+                "%s",
+                guard.said(f"force limit: {magnitude:.1f} N > {lim.force_limit_n:.1f} N, stopping"),
+            )
+            asyncio.get_running_loop().create_task(guard.robot.stop())
+            self.events.safety_changed.emit(self.state())
+            self.supervision.paused_by_stop(guard.said(f"force limit: {magnitude:.1f} N"))
+        elif felt is Felt.RELEASED:
             self.events.safety_changed.emit(self.state())
 
     def _report(
@@ -625,25 +614,6 @@ class DecisionServer:
         if self._estop:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         return client
-
-    @staticmethod
-    def _approaches_last_contact(
-        guard: ArmGuard,
-        T0: FloatArray,
-        dX: FloatArray,
-        rv: FloatArray,
-        frame: WorkingFrame,
-        now: float,
-    ) -> bool:
-        """Whether the increment (``dX``, ``rv`` in ``frame`` from ``T0``) heads back into
-        a surface the tool pressed on (above ``contact_force_n``) within the last
-        ``contact_memory_s``: the contact force pushes the tool away from the surface,
-        so moving against it approaches. With no recent contact nothing is computed."""
-        if guard.contact_at is None or now - guard.contact_at >= guard.limits.contact_memory_s:
-            return False
-        moved = guard.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
-        contact = guard.robot.pose.rotation @ np.array(guard.contact_sensor)
-        return float(moved @ contact) < 0.0
 
     @staticmethod
     def _interval(client: Client, guard: ArmGuard, now: float) -> float:
@@ -699,7 +669,7 @@ class DecisionServer:
             seed = guard.robot.target_joints
             T0 = guard.kinematics.fk(seed).copy()
             speed = lim.max_speed_m_s
-            if self._approaches_last_contact(guard, T0, dX, rv, frame, now):
+            if guard.approaches_last_contact(T0, dX, rv, frame, now):
                 speed = min(speed, lim.contact_speed_m_s)
             factor = min(1.0, speed * dt / step if step else 1.0)
             factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
@@ -710,11 +680,10 @@ class DecisionServer:
             if guard.force_limited and float((T[:3, 3] - T0[:3, 3]) @ guard.force_base) <= 0.0:
                 raise SafetyStop(
                     guard.said(
-                        "force limit: only moves that back away from the contact are allowed",
-                        len(self.arms),
+                        "force limit: only moves that back away from the contact are allowed"
                     )
                 )
-            self._check_workspace(guard, T[:3, 3])
+            guard.check_workspace(T[:3, 3])
             q = guard.kinematics.jog(T, seed)  # an increment: the differential solver
             applied = await self._apply(client, guard, q, seed, seq, client_time, factor)
         except TelerobotError:
@@ -747,7 +716,7 @@ class DecisionServer:
                 f"joint increment of {math.degrees(biggest):.1f}° exceeds the per-command limit of "
                 f"{math.degrees(lim.max_joint_step_rad):.1f}°"
             )
-        self._check_force_limited(guard)
+        guard.check_not_force_limited()
         now = self.clock.now()
         allowed = lim.max_joint_speed_rad_s * self._interval(client, guard, now)
         factor = min(1.0, allowed / biggest) if biggest > 0 else 1.0
@@ -755,7 +724,7 @@ class DecisionServer:
         seed = guard.robot.target_joints
         q = seed + dq
         guard.kinematics.check_joint_limits(q)
-        self._check_workspace(guard, guard.kinematics.fk(q)[:3, 3])
+        guard.check_workspace(guard.kinematics.fk(q)[:3, 3])
         return await self._apply(client, guard, q, seed, seq, client_time, factor)
 
     @reported("move_joints")
@@ -768,9 +737,9 @@ class DecisionServer:
         guard = self.arm(arm)
         client.streaming = False  # a bounded move, not jogging: a scripted lease may idle
         q = check_vector("joints", q, guard.dof)
-        self._check_force_limited(guard)
+        guard.check_not_force_limited()
         guard.kinematics.check_joint_limits(q)
-        self._check_workspace(guard, guard.kinematics.fk(q)[:3, 3])
+        guard.check_workspace(guard.kinematics.fk(q)[:3, 3])
         return await self._apply(client, guard, q, None, seq, None, 1.0)
 
     @reported("move_pose")
@@ -788,8 +757,8 @@ class DecisionServer:
         client.streaming = False
         p = check_vector("position", position, 3)
         R = check_rotation("orientation", rotation)
-        self._check_force_limited(guard)
-        self._check_workspace(guard, p)
+        guard.check_not_force_limited()
+        guard.check_workspace(p)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, p
         # Off the event loop (the SO-101's numeric IK takes milliseconds); whatever
@@ -808,32 +777,9 @@ class DecisionServer:
         if q is not None:
             q = check_vector("joints", q, guard.dof)
             guard.kinematics.check_joint_limits(q)
-            self._check_workspace(guard, guard.kinematics.fk(q)[:3, 3])
+            guard.check_workspace(guard.kinematics.fk(q)[:3, 3])
         await guard.robot.connect()
         await guard.robot.initialize(q)
-
-    def _check_force_limited(self, guard: ArmGuard) -> None:
-        if guard.force_limited:
-            raise SafetyStop(
-                guard.said("force limit: back away with a Cartesian move first", len(self.arms))
-            )
-
-    @staticmethod
-    def _joint_name(guard: ArmGuard, i: int) -> str:
-        name = guard.kinematics.joint_names[i]
-        return f"joint {i + 1}" if name == f"joint{i + 1}" else f"joint {i + 1} ({name})"
-
-    def _check_workspace(self, guard: ArmGuard, p: FloatArray) -> None:
-        lim = guard.limits
-        if not lim.in_workspace(p):
-            lo, hi = lim.workspace_min, lim.workspace_max
-            box = ", ".join(f"{a} {lo[i]:.2f}…{hi[i]:.2f}" for i, a in enumerate("xyz"))
-            raise LimitExceeded(
-                guard.said(
-                    f"target {np.round(p, 3).tolist()} m is outside the workspace ({box} m)",
-                    len(self.arms),
-                )
-            )
 
     async def _apply(
         self,
@@ -850,7 +796,7 @@ class DecisionServer:
             worst = max(range(len(jump)), key=jump.__getitem__)
             if jump[worst] > guard.limits.max_joint_step_rad:
                 raise LimitExceeded(
-                    f"too close to a singularity: {self._joint_name(guard, worst)} would turn "
+                    f"too close to a singularity: {guard.joint_label(worst)} would turn "
                     f"{math.degrees(jump[worst]):.1f}° for this small move"
                 )
         robot = guard.robot
@@ -858,7 +804,7 @@ class DecisionServer:
             self._still_authorised(client)
             if robot.status not in (RobotStatus.READY, RobotStatus.MOVING):
                 raise NotReady(
-                    guard.said(f"robot is {robot.status}: initialise it first", len(self.arms))
+                    guard.said(f"robot is {robot.status}: initialise it first")
                     + (f" ({robot.status_message})" if robot.status is RobotStatus.ERROR else "")
                 )
             # Again as it goes to the driver: the IK and a wait for the lock (another

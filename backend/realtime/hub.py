@@ -287,7 +287,7 @@ class RealtimeHub:
         if not routine:
             text = f"{change.new.value}: {change.message}"
             if guard is not None:
-                text = guard.said(text, len(self.decision.arms))
+                text = guard.said(text)
             self.broadcast_event(m.EventKind.STATUS, text)
 
     def _on_autonomy(self, state: AutonomyState) -> None:
