@@ -21,7 +21,7 @@ import numpy as np
 
 from telerobot.calibration.model import CalibrationError
 from telerobot.calibration.store import CalibrationStore
-from telerobot.drivers.base import DeviceError, ForceSensor, Robot, TelerobotError
+from telerobot.drivers.base import DeviceError, Robot, TelerobotError
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.drivers.sim.workcell import Workcell
@@ -144,8 +144,6 @@ class Services:
     calibration: CalibrationRecord
     intrinsics: Intrinsics
     alignments: Alignments
-    robot: Robot  # the first arm's (the only one's on a one-arm server)
-    force: ForceSensor
     decision: DecisionServer
     hub: RealtimeHub
     priority: PriorityChannel
@@ -156,7 +154,7 @@ class Services:
     recorder: Recorder
     recording_taps: RecordingTaps
     task_runner: TaskRunner  # supervisory tasks: taught motions repeated under guards
-    # Every arm, the first included (docs/arms.md): names, drivers, sensors, mounts.
+    # Every arm (docs/arms.md): names, drivers, sensors, mounts.
     arms: list[ArmDevices] = field(default_factory=list)
     ws_limits: PeerLimits = field(default_factory=PeerLimits)  # per address, on /ws
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
@@ -207,7 +205,6 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
     telemetry = Telemetry()
     workcell = build_workcell(settings)
     arms = build_arms(settings, clock, workcell)
-    robot, force = arms[0].robot, arms[0].force
     # The DecisionServer's own models (same tool): Pinocchio data is per instance.
     decision = DecisionServer(
         [
@@ -228,11 +225,9 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         limits=safety_limits(settings),
     )
     decision.supervision.release_to = ReleaseTo(settings.autonomy_release)
-    hub = RealtimeHub(
-        robot, decision, force, telemetry, clock, state_rate_hz=settings.state_rate_hz
-    )
+    hub = RealtimeHub(decision, telemetry, clock, state_rate_hz=settings.state_rate_hz)
     try:
-        priority = PriorityChannel(settings.host, settings.priority_port, hub, decision, force)
+        priority = PriorityChannel(settings.host, settings.priority_port, hub, decision)
     except OSError as exc:
         raise DeviceError(
             f"the priority channel cannot listen on {settings.host}:{settings.priority_port}"
@@ -262,7 +257,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
     media = MediaSupervisor(media_settings, [a.robot for a in arms]) if settings.video else None
     if media is not None:  # the video as sent, while a recording runs
         follow_recorder(VideoTap(media), recorder)
-    task_runner = TaskRunner(decision, force, clock, operator_token=token.value)
+    task_runner = TaskRunner(decision, clock, operator_token=token.value)
     return Services(
         settings=settings,
         clock=clock,
@@ -272,8 +267,6 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         calibration=calibration,
         intrinsics=Intrinsics(),
         alignments=Alignments(),
-        robot=robot,
-        force=force,
         decision=decision,
         hub=hub,
         priority=priority,
@@ -281,7 +274,6 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         media_server=media_server,
         observer_feed=ObserverFeed(
             hub,
-            force,
             media_settings.media_server_host or "127.0.0.1",
             media_settings.media_server_data_port,
         )
@@ -291,9 +283,7 @@ def build_services(settings: Settings, clock: Clock, token: OperatorToken) -> Se
         recorder=recorder,
         recording_taps=RecordingTaps(
             recorder,
-            robot=robot,
             decision=decision,
-            force=force,
             clock=clock,
             state_period=1.0 / settings.state_rate_hz,
             tasks=task_runner.events.changed,

@@ -447,7 +447,7 @@ async def stepped_press(
         operator_token=token,
         limits=limits,
     )
-    hub = RealtimeHub(robot, decision, None, Telemetry(), clock)  # (only to encode STATE)
+    hub = RealtimeHub(decision, Telemetry(), clock)  # (only to encode STATE)
 
     async def until_done(work: Awaitable[Any]) -> None:
         task = asyncio.ensure_future(work)

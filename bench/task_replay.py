@@ -106,7 +106,7 @@ class SimCell:
             clock=self.clock,
             operator_token=TOKEN,
         )
-        self.runner = TaskRunner(self.decision, self.sensor, self.clock, operator_token=TOKEN)
+        self.runner = TaskRunner(self.decision, self.clock, operator_token=TOKEN)
         self.forces: list[ForceReading] = []
         self.sensor.subscribe(
             lambda s: self.forces.append(ForceReading(s.time, np.array(s.values)))

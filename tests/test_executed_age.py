@@ -227,9 +227,9 @@ def test_safety_reports_every_executed_commands_age_and_one_clients_own(
 async def test_the_recordings_commands_carry_each_executed_commands_age(
     clock: ManualClock, tmp_path: Path
 ) -> None:
-    ds, robot, a = await synced(clock)
+    ds, _robot, a = await synced(clock)
     rec = Recorder(tmp_path, clock)
-    taps = RecordingTaps(rec, robot=robot, decision=ds, force=None, clock=clock, state_period=1.0)
+    taps = RecordingTaps(rec, decision=ds, clock=clock, state_period=1.0)
     path = rec.start("ages")
     taps.start()
     await ds.cartesian_increment(a, STEP, ZERO, client_time=clock.now() - 0.08)

@@ -189,7 +189,7 @@ def test_the_priority_channel_gets_each_sample_before_the_subscribers_that_wake_
     settings = Settings(state_dir=tmp_path, http_port=0, priority_port=0, video=False)
     with TestClient(create_app(settings)) as c:
         services: Services = c.app.state.services  # type: ignore[attr-defined]
-        force = services.force
+        force = services.arms[0].force
         assert isinstance(force, SimForceSensor)
         # (the channel's own is a partial naming the arm: its bound method inside)
         order = [getattr(getattr(cb, "func", cb), "__self__", None) for cb in force._subscribers]

@@ -445,7 +445,7 @@ def test_the_observer_feed_thins_the_forces_and_keeps_the_newest_within_its_boun
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
         rx.bind(("127.0.0.1", 0))
         rx.settimeout(2)
-        feed = ObserverFeed(Hub(), None, "127.0.0.1", rx.getsockname()[1])  # type: ignore[arg-type]
+        feed = ObserverFeed(Hub(), "127.0.0.1", rx.getsockname()[1])  # type: ignore[arg-type]
         for seq in range(1000):  # a second of samples before the tick
             feed._on_force(ForceSample(seq, seq / 1000, (0.0,) * 6))
         feed.tick()

@@ -293,9 +293,9 @@ async def test_connections_still_closing_count_against_the_client_cap() -> None:
     from tests.support.decision import make
 
     clock = ManualClock()
-    decision, robot = await make(clock)
+    decision, _ = await make(clock)
     decision.clients.max_clients = 3
-    hub = RealtimeHub(robot, decision, None, Telemetry(), clock)
+    hub = RealtimeHub(decision, Telemetry(), clock)
     never = asyncio.Event()
 
     async def send(_: bytes) -> None:

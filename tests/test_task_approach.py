@@ -76,7 +76,7 @@ class Cell:
             operator_token=TOKEN,
             limits=limits,
         )
-        self.runner = TaskRunner(self.decision, None, self.clock, operator_token=TOKEN)
+        self.runner = TaskRunner(self.decision, self.clock, operator_token=TOKEN)
         self.op_id = ""
 
     async def __aenter__(self) -> Cell:

@@ -194,7 +194,7 @@ async def cell() -> AsyncIterator[TwoArmCell]:
     )
 
     decision.start()
-    runner = TaskRunner(decision, sensors["left"], clock, operator_token=TOKEN)  # type: ignore[arg-type]
+    runner = TaskRunner(decision, clock, operator_token=TOKEN)
     op = decision.join("operator", TOKEN)
     await decision.take_lease(op.id)
     yield TwoArmCell(clock, decision, runner, robots, sensors, op.id)

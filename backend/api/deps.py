@@ -17,7 +17,7 @@ from fastapi import Depends, Header, Query, Security
 from fastapi.requests import HTTPConnection
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from telerobot.drivers.base import ForceSensor, Robot
+from telerobot.drivers.base import ForceSensor
 from telerobot.drivers.sim.workcell import Workcell
 from telerobot.server.control.clients import Client
 from telerobot.server.control.decision import DecisionServer
@@ -44,10 +44,6 @@ ServicesDep = Annotated[Services, Depends(get_services)]
 
 def _settings(s: ServicesDep) -> Settings:
     return s.settings
-
-
-def _robot(s: ServicesDep) -> Robot:
-    return s.robot
 
 
 def _arm(
@@ -120,7 +116,6 @@ def _media_server(s: ServicesDep) -> MediaServerSupervisor | None:
 
 
 SettingsDep = Annotated[Settings, Depends(_settings)]
-RobotDep = Annotated[Robot, Depends(_robot)]
 # The arm a call names with ``?arm=`` (the only one if it names none; refused if the
 # server has more): docs/arms.md.
 ArmDep = Annotated[ArmDevices, Depends(_arm)]

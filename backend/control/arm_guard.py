@@ -148,11 +148,6 @@ class ArmGuard:
         return float(moved @ contact) < 0.0
 
 
-def arm_sensors(
-    arms: Sequence[ArmGuard], first: ForceSensor | None
-) -> list[tuple[int, ForceSensor]]:
-    """Every arm's force sensor with the arm's wire index, the first arm's being
-    ``first`` (the one a transport was given: a test's may differ from the arm's own);
-    arms with no sensor left out."""
-    sensors = [(1, first), *((guard.index, guard.force) for guard in arms[1:])]
-    return [(index, sensor) for index, sensor in sensors if sensor is not None]
+def arm_sensors(arms: Sequence[ArmGuard]) -> list[tuple[int, ForceSensor]]:
+    """Every arm's force sensor with the arm's wire index; arms with no sensor left out."""
+    return [(guard.index, guard.force) for guard in arms if guard.force is not None]

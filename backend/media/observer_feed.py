@@ -21,7 +21,7 @@ import logging
 import socket
 from collections import deque
 
-from telerobot.drivers.base import ForceSample, ForceSensor
+from telerobot.drivers.base import ForceSample
 from telerobot.protocol import messages as m
 from telerobot.server.control.arm_guard import arm_sensors
 from telerobot.server.realtime.hub import RealtimeHub
@@ -37,14 +37,13 @@ class ObserverFeed:
     def __init__(
         self,
         hub: RealtimeHub,
-        force: ForceSensor | None,
         host: str,
         port: int,
         *,
         rate_hz: float = RATE_HZ,
         force_every: int = FORCE_EVERY,
     ) -> None:
-        self.hub, self.force = hub, force
+        self.hub = hub
         self.to = (host, port)
         self.period = 1.0 / rate_hz
         self.force_every = force_every
@@ -67,7 +66,7 @@ class ObserverFeed:
             self._samples[arm].append(sample)
 
     def start(self) -> None:
-        for index, sensor in arm_sensors(self.hub.decision.arms, self.force):
+        for index, sensor in arm_sensors(self.hub.decision.arms):
             self._unsubscribe.append(sensor.subscribe(functools.partial(self._on_force, arm=index)))
         self._task = asyncio.create_task(self._run(), name="observer-feed")
 

@@ -26,7 +26,7 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
-from telerobot.drivers.base import ForceSample, ForceSensor, Robot, RobotStatus, StatusChanged
+from telerobot.drivers.base import ForceSample, RobotStatus, StatusChanged
 from telerobot.drivers.clock import Clock
 from telerobot.protocol import messages as m
 from telerobot.server.control.arm_guard import ArmGuard, arm_sensors
@@ -165,17 +165,13 @@ class Connection:
 class RealtimeHub:
     def __init__(
         self,
-        robot: Robot,
         decision: DecisionServer,
-        force: ForceSensor | None,
         telemetry: Telemetry,
         clock: Clock,
         *,
         state_rate_hz: float = 50.0,
     ) -> None:
-        self.robot = robot
         self.decision = decision
-        self.force = force
         self.telemetry = telemetry
         self.clock = clock
         self.state_period = 1.0 / state_rate_hz
@@ -199,7 +195,7 @@ class RealtimeHub:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         loop = asyncio.get_running_loop()
-        for index, sensor in arm_sensors(self.decision.arms, self.force):
+        for index, sensor in arm_sensors(self.decision.arms):
 
             def from_sensor_thread(sample: ForceSample, arm: int = index) -> None:
                 loop.call_soon_threadsafe(self._on_force, sample, arm)

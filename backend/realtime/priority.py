@@ -70,7 +70,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
-from telerobot.drivers.base import ForceSample, ForceSensor, TelerobotError
+from telerobot.drivers.base import ForceSample, TelerobotError
 from telerobot.protocol import messages as m
 from telerobot.protocol.netprio import mark_high_priority
 from telerobot.server.control.arm_guard import arm_sensors
@@ -248,7 +248,6 @@ class PriorityChannel:
         port: int,
         hub: RealtimeHub,
         decision: DecisionServer,
-        force: ForceSensor | None,
         *,
         max_connections: int = MAX_CONNECTIONS,
         max_pending: int = MAX_PENDING,
@@ -261,7 +260,6 @@ class PriorityChannel:
     ) -> None:
         self.hub = hub
         self.decision = decision
-        self.force = force
         self.max_connections = connection_cap(max_connections)
         self.max_pending = max(1, min(max_pending, self.max_connections))
         self.hello_timeout_s = hello_timeout_s
@@ -348,8 +346,8 @@ class PriorityChannel:
         self._selector.register(self._wake_r, selectors.EVENT_READ, _WAKE)
         if self._udp is not None:
             self._selector.register(self._udp, selectors.EVENT_READ, _DATAGRAM)
-        # Every arm's sensor (the first's is ``force``), each FORCE naming its arm.
-        for index, sensor in arm_sensors(self.decision.arms, self.force):
+        # Every arm's sensor, each FORCE naming its arm.
+        for index, sensor in arm_sensors(self.decision.arms):
             # First: the other subscribers wake the event loop (call_soon_threadsafe),
             # whose thread then takes the GIL from this one, and under video a loop
             # thread put off the CPU while holding it made the datagram wait with it
@@ -549,7 +547,7 @@ class PriorityChannel:
         (sized for one, it dropped half of two arms' samples as over the rate)."""
         rate_hz = sum(
             float(getattr(sensor, "rate_hz", None) or DEFAULT_FORCE_RATE_HZ)
-            for _, sensor in arm_sensors(self.decision.arms, self.force)
+            for _, sensor in arm_sensors(self.decision.arms)
         ) or float(DEFAULT_FORCE_RATE_HZ)
         rate = DATAGRAM_RATE_SLACK * rate_hz / every
         if bucket is not None and bucket.rate == rate:

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from telerobot.drivers.base import ForceSample, ForceSensor, InvalidCommand, Robot, TelerobotError
+from telerobot.drivers.base import ForceSample, ForceSensor, InvalidCommand, TelerobotError
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
 from telerobot.server.control.arm_guard import ArmGuard
@@ -590,24 +590,20 @@ class RecordingTaps:
     and forces go to its own channels (``/arms/<name>/state``, ``/arms/<name>/force``),
     ``/tf`` places each arm's base and tool (``<name>/base``, ``<name>/tool``) in the
     workcell's ``base``, and ``/arms`` says the arms once as a recording starts
-    (docs/recording.md). One arm: ``robot`` and ``force``, on the channels as before."""
+    (docs/recording.md). One arm: on the channels as before (``/robot/state``, ``/force``)."""
 
     def __init__(
         self,
         recorder: Recorder,
         *,
-        robot: Robot,
         decision: DecisionServer,
-        force: ForceSensor | None,
         clock: Clock,
         state_period: float,
         tasks: Event[Any] | None = None,
     ) -> None:
         self.recorder = recorder
         self.tasks = tasks  # the task runner's changes: what a task did is recorded too
-        self.robot = robot
         self.decision = decision
-        self.force = force
         self.clock = clock
         self.state_period = state_period
         self._unsubscribe: list[Callable[[], None]] = []
@@ -624,7 +620,7 @@ class RecordingTaps:
         arms = self.arms
         sensors: list[tuple[ForceSensor | None, str, str | None]] = [
             (g.force, ch.arm_topic(g.name, ch.ARM_FORCE), g.name) for g in arms
-        ] or [(self.force, ch.FORCE, None)]
+        ] or [(self.decision.arms[0].force, ch.FORCE, None)]  # the only arm
         for sensor, topic, arm in sensors:
             if sensor is not None:
                 self._unsubscribe.append(sensor.subscribe(self._force_tap(topic, arm)))
@@ -711,13 +707,14 @@ class RecordingTaps:
         if self.arms:
             self._log_arm_states()
             return
-        pose = self.robot.pose
+        robot = self.decision.arms[0].robot  # the only arm
+        pose = robot.pose
         rec.log(
             ch.ROBOT_STATE,
             {
-                "status": str(self.robot.status),
-                "joints": self.robot.joints.tolist(),
-                "target_joints": self.robot.target_joints.tolist(),
+                "status": str(robot.status),
+                "joints": robot.joints.tolist(),
+                "target_joints": robot.target_joints.tolist(),
                 "position": pose.position.tolist(),
                 "rotation": pose.rotation.ravel().tolist(),
             },

@@ -341,7 +341,6 @@ class TaskRunner:
     def __init__(
         self,
         decision: DecisionServer,
-        force: ForceSensor | None,
         clock: Clock,
         *,
         operator_token: str,
@@ -349,7 +348,6 @@ class TaskRunner:
         settle_s: float = 1.0,
     ) -> None:
         self.decision = decision
-        self.force = force  # the only arm's (a multi-arm task's arms: each its guard's)
         self.clock = clock
         self.period_s = period_s
         self.settle_s = settle_s  # after the path's end, how long the arm may take to arrive
@@ -418,11 +416,12 @@ class TaskRunner:
 
     # ------------------------------------------------------------ control
     def _runs(self, spec: TaskSpec) -> builtins.list[ArmRun]:
-        """Each arm's part of ``spec``: the only arm's (with this runner's sensor), or
-        each named arm's (with its own)."""
+        """Each arm's part of ``spec``: the only arm's, or each named arm's (each with its
+        own force sensor)."""
         decision = self.decision
         if not spec.arm_paths:
-            return [ArmRun(decision.arm(None), spec.trajectory, self.force, named=False)]
+            only = decision.arm(None)
+            return [ArmRun(only, spec.trajectory, only.force, named=False)]
         named = len(decision.arms) > 1
         runs = []
         for name, trajectory in spec.arm_paths:

@@ -57,11 +57,13 @@ async def build_channel(
     kinematics = Puma560Kinematics(tool_transform(0.1))
     robot = SimPuma(clock=clock, kinematics=kinematics, start_joints=NAMED_POSES["qz"])
     decision = DecisionServer(
-        [ArmGuard("arm", 1, robot, kinematics, SafetyLimits())], clock=clock, operator_token=TOKEN
+        [ArmGuard("arm", 1, robot, kinematics, SafetyLimits(), sensor)],  # type: ignore[arg-type]
+        clock=clock,
+        operator_token=TOKEN,
     )
-    hub = RealtimeHub(robot, decision, None, Telemetry(), clock)
+    hub = RealtimeHub(decision, Telemetry(), clock)
     hub.start()
-    channel = PriorityChannel("127.0.0.1", 0, hub, decision, sensor, **limits)  # type: ignore[arg-type]
+    channel = PriorityChannel("127.0.0.1", 0, hub, decision, **limits)
     channel.start()
     return channel, hub
 
