@@ -106,7 +106,8 @@ import httpx
 import numpy as np
 import psutil
 
-from bench.common import emit, machine, parser, serve_for_bench
+from bench.common import emit, machine, parser
+from harness.servers import serve_for_bench
 from telerobot.protocol import messages as m
 from telerobot.tuning import raise_thread_priority, thread_priority_raised
 

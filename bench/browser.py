@@ -45,7 +45,8 @@ import numpy as np
 import psutil
 from playwright.sync_api import sync_playwright
 
-from bench.common import busy_core, emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, parser
+from harness.servers import serve_for_bench
 
 # Frame pacing stays on: without vsync and with the frame-rate limit off, headless
 # Chromium composites as fast as it can and its software GPU takes both cores.

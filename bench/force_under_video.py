@@ -57,20 +57,10 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
-from bench.common import (
-    SERVER_SCHEDULING,
-    UNPRIVILEGED_UID,
-    arm_names,
-    arms_env,
-    as_user,
-    busy_core,
-    emit,
-    machine,
-    open_viewer,
-    parser,
-    serve_for_bench,
-)
+from bench.common import arm_names, arms_env, busy_core, emit, machine, parser
 from bench.netem import NetemPair, netns_available
+from harness.aiortc_viewers import open_viewer
+from harness.servers import SERVER_SCHEDULING, UNPRIVILEGED_UID, as_user, serve_for_bench
 from telerobot.protocol import messages as m
 
 RATE_MBIT = 100

@@ -42,8 +42,9 @@ import numpy as np
 from playwright.sync_api import sync_playwright
 
 from bench.browser import ARGS, yield_software_gpu
-from bench.common import busy_core, emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, parser
 from bench.wsclient import RealtimeClient
+from harness.servers import serve_for_bench
 from telerobot.protocol import messages as m
 
 DRIVE_FLIP_S = 2.0

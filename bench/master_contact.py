@@ -81,7 +81,8 @@ from typing import Any
 import httpx
 import numpy as np
 
-from bench.common import busy_core, emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, parser
+from harness.servers import serve_for_bench
 from telerobot.client.master.bridge import BridgeSettings, MasterBridge
 from telerobot.client.master.cli import CPU_PRIORITY, open_link
 from telerobot.client.master.link import Reply

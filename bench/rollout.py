@@ -55,8 +55,9 @@ from typing import Any
 import httpx
 import numpy as np
 
-from bench.common import busy_core, emit, machine, p50_p99, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, p50_p99, parser
 from bench.policy_stub import RATE_HZ, PolicyClient
+from harness.servers import serve_for_bench
 
 TOKEN = "bench-rollout-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

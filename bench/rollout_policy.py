@@ -588,7 +588,7 @@ def apart(held_out: list[np.ndarray], training: list[np.ndarray]) -> dict[str, f
 def train(out: Path, demos: int, steps: int, width: int, height: int) -> Path:
     """Demonstrations of the reach task through a server started here, exported, and a
     small ACT trained on them with lerobot-train: ``out/pretrained_model``."""
-    from bench.common import serve_for_bench
+    from harness.servers import serve_for_bench
     from telerobot.client.lerobot.arm import ArmOptions, TelerobotArm
 
     try:

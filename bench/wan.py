@@ -86,7 +86,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.common import machine, parser, serve_for_bench
+from bench.common import machine, parser
 from bench.netem import (
     PROFILES,
     REPO,
@@ -95,6 +95,7 @@ from bench.netem import (
     measure_link,
     probe_interval_s,
 )
+from harness.servers import serve_for_bench
 from telerobot.protocol import messages as m
 
 FREEZE_S = 0.2  # no new frame for longer than this: frozen
@@ -197,7 +198,7 @@ def role_viewer(base: str) -> dict[str, Any]:
     import aiortc.rtcrtpreceiver as receiver
 
     from bench import wan_receiver
-    from bench.common import open_viewer
+    from harness.aiortc_viewers import open_viewer
     from telerobot.drivers.camera import timecode
 
     rx = wan_receiver.install()  # FEC and the playout delay, as libwebrtc's receiver

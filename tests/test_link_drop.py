@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.common import serve_for_bench
 from bench.netem import NetemPair, emulator_available
+from harness.servers import serve_for_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 
