@@ -447,7 +447,7 @@ async def _resume_pileup(t: Target, seconds: float) -> dict[str, Any]:
     import websockets
     from websockets.protocol import State
 
-    from bench.wsclient import RealtimeClient
+    from harness.wsclient import RealtimeClient
 
     end = time.monotonic() + seconds
     url = f"ws://{t.host}:{t.http_port}/ws"
@@ -597,7 +597,7 @@ async def _operate(host: str, port: int, seconds: float, ids: Any) -> dict[str, 
     """Join with the token on the server's clock, take the lease, hand the bench the
     client id (it resets the e-stop as this client) and send a cartesian increment
     every OPERATOR_PERIOD_S; count what the server answered."""
-    from bench.wsclient import RealtimeClient, open_socket
+    from harness.wsclient import RealtimeClient, open_socket
 
     client = await RealtimeClient.hello(
         await open_socket(f"ws://{host}:{port}/ws"), TOKEN, m.HelloFlags.SYNCED_CLOCK
@@ -880,7 +880,7 @@ def _priority_welcomed(host: str, port: int) -> bool:
 def make_recordings(folder: Path) -> str:
     """RECORDINGS small ones for the listing (see the module's docstring) and the long
     one; returns the long one's file name."""
-    from bench.recordings import build, build_listed, listed_episodes
+    from harness.recordings import build, build_listed, listed_episodes
 
     for i in range(RECORDINGS):
         episodes: list[dict[str, Any]] = []

@@ -76,8 +76,8 @@ import httpx
 import numpy as np
 
 from bench.common import arms_env, emit, machine, p50_p99, parser, percentiles_ms
-from bench.wsclient import RealtimeClient
 from harness.servers import serve_for_bench, telerobot_process
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 

@@ -26,8 +26,8 @@ import time
 import numpy as np
 
 from bench.common import emit, machine, parser
-from bench.wsclient import RealtimeClient
 from harness.servers import serve_for_bench
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 

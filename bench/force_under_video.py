@@ -110,7 +110,7 @@ async def _view(base: str, seconds: float) -> float:
 def ws_listener(base: str, seconds: float, out: Any) -> None:
     """For comparison: the same force samples over /ws (the server's event loop), one
     FORCE message per sample, in a process of its own. Returns (seq, time, received)."""
-    from bench.wsclient import RealtimeClient
+    from harness.wsclient import RealtimeClient
 
     async def listen() -> list[tuple[int, float, float]]:
         url = base.replace("http", "ws", 1) + "ws"

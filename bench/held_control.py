@@ -25,7 +25,7 @@ past which it stops the heartbeats) and its long tasks (``main_long_tasks``,
 held throughout, then D, turned every ``DRIVE_FLIP_S`` (back and forth, within reach);
 ``drive_mm_per_s`` is the tool's path (``/robot/state`` every 0.2 s) over the run, the
 figure to compare quiet and busy: what the operator still gets done.
-``--python-client``: no browser; a Python client (bench.wsclient) takes the lease and
+``--python-client``: no browser; a Python client (harness.wsclient) takes the lease and
 sends a HEARTBEAT every 50 ms, as the page's worker does: the server's share of the
 halts.
 """
@@ -43,8 +43,8 @@ from playwright.sync_api import sync_playwright
 
 from bench.browser import ARGS, yield_software_gpu
 from bench.common import busy_core, emit, machine, parser
-from bench.wsclient import RealtimeClient
 from harness.servers import serve_for_bench
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 DRIVE_FLIP_S = 2.0

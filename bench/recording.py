@@ -116,7 +116,7 @@ async def commands_at_100_hz(port: int, token: str, seconds: float) -> dict[str,
     """100 Hz small jogs from one operator, every answer read (a refusal under load,
     e.g. a stale command, is counted, not fatal: this phase counts the recorder's
     losses, bench.command_latency measures latency above)."""
-    from bench.wsclient import RealtimeClient
+    from harness.wsclient import RealtimeClient
     from telerobot.protocol import messages as m
 
     op = await RealtimeClient.connect(f"ws://127.0.0.1:{port}/ws", token=token)

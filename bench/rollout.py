@@ -16,7 +16,7 @@ back lets it drive). The last line's keys:
   (the instant from which its commands are refused, no command of its needed).
 - ``handover_jump_mm``, ``handover_jump_rad`` ``{"stub", "act"}``: the worst tool and
   joint step between two consecutive STATEs (20 ms apart) within 0.5 s after a takeover
-  or a hand-back. ``stub``: the stand-in policy (bench/policy_stub.py: joint 1 ±0.002 rad
+  or a hand-back. ``stub``: the stand-in policy (harness/policy_stub.py: joint 1 ±0.002 rad
   a command) over ``--handovers`` from the page and as many from the simulated master.
   ``act``: LeRobot's ACT (trained with ``--policy``, else untrained) driving through the
   robot plugin (absolute joint targets; the plugin re-anchors on the arm after a
@@ -56,7 +56,7 @@ import httpx
 import numpy as np
 
 from bench.common import busy_core, emit, machine, p50_p99, parser
-from bench.policy_stub import RATE_HZ, PolicyClient
+from harness.policy_stub import RATE_HZ, PolicyClient
 from harness.servers import serve_for_bench
 
 TOKEN = "bench-rollout-token-0123456789abcdef"

@@ -229,7 +229,7 @@ def make_robot(url: str, token: str, width: int, height: int, name: str = "act-p
     from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
     from lerobot_robot_telerobot.telerobot import Telerobot
 
-    from bench.policy_stub import issue_policy_token
+    from harness.policy_stub import issue_policy_token
 
     secret = issue_policy_token(url, token, name)
     config = TelerobotConfig(url=url, token=token, client_name=name, camera_width=width,
@@ -367,7 +367,7 @@ class Person:
     def let_drive(self) -> None:
         """The policy drives: if nothing handed it back (it joined, or was stopped), a
         person resumes it."""
-        from bench.policy_stub import resume_policy
+        from harness.policy_stub import resume_policy
 
         if self.mode() != "autonomous":
             resume_policy(self.url, self.token)

@@ -52,8 +52,8 @@ import httpx
 import numpy as np
 
 from bench.common import emit, machine, parser
-from bench.wsclient import RealtimeClient
 from harness.servers import serve_for_bench
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 PERIOD_S = 0.01  # one command every 10 ms

@@ -419,7 +419,7 @@ def role_force(base: str, token: str) -> dict[str, Any]:
 
 
 def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
-    from bench.wsclient import RealtimeClient, StallResumer
+    from harness.wsclient import RealtimeClient, StallResumer
 
     synced = getattr(m.HelloFlags, "SYNCED_CLOCK", None)
 

@@ -33,7 +33,7 @@ CLIENT = textwrap.dedent(
     import asyncio, contextlib, json, sys
     import httpx
     from telerobot.protocol import messages as m
-    from bench.wsclient import RealtimeClient, StallResumer
+    from harness.wsclient import RealtimeClient, StallResumer
 
     base, token = sys.argv[1], sys.argv[2]
     url = base.replace("http", "ws") + "ws"
