@@ -32,7 +32,7 @@ server's figures are then the usual keys; the JSON adds ``p99_ms_per_arm_under_v
 medians over the rounds) and ``lost_per_arm``, each by link, and ``arms`` (the details).
 
 Links: loopback; and, when run as root, a veth pair between two network namespaces
-(bench.netem's NetemPair on its ``lan`` profile: no delay, no loss), the server's side
+(harness.netem's NetemPair on its ``lan`` profile: no delay, no loss), the server's side
 shaped to 100 Mbit/s by HTB with DSCP EF (the priority channel's mark) in its own class
 ahead of the rest, as a DiffServ-aware router would.
 """
@@ -58,8 +58,8 @@ import httpx
 import numpy as np
 
 from bench.common import arm_names, arms_env, busy_core, emit, machine, parser
-from bench.netem import NetemPair, netns_available
 from harness.aiortc_viewers import open_viewer
+from harness.netem import NetemPair, netns_available
 from harness.servers import SERVER_SCHEDULING, UNPRIVILEGED_UID, as_user, serve_for_bench
 from telerobot.protocol import messages as m
 

@@ -16,7 +16,7 @@ block's push is rendered on the device at 1/20.
     python -m bench.master_contact [--json] [--rtts 0,50,100,200,400,700] [--seconds 12.5]
         [--busy-core]   # stress-ng --cpu 1 meanwhile: a machine also doing something else
     python -m bench.master_contact --contact-rule   # the slow approach after a contact
-    python -m bench.master_contact --links wan,mobile  # through bench.netem's link instead
+    python -m bench.master_contact --links wan,mobile  # through harness.netem's link instead
 
 With ``--links`` the delay is a real (emulated) link's instead of the injected one: the
 server in the pair's server namespace, the bridge in the client's (its forces as UDP
@@ -548,9 +548,9 @@ def force_figures(samples: list[tuple[float, float]]) -> dict[str, Any]:
 
 
 def over_links(args: Any) -> dict[str, Any]:
-    """The same press with the server behind an emulated link (bench.netem): the bridge
+    """The same press with the server behind an emulated link (harness.netem): the bridge
     runs in the client's namespace, its forces come as datagrams, no injected delay."""
-    from bench.netem import REPO, NetemPair, emulator_available
+    from harness.netem import REPO, NetemPair, emulator_available
 
     why = emulator_available()
     if why is not None:
@@ -707,7 +707,7 @@ def main() -> None:
         "--virtual", action="store_true", help="only the sweep in virtual time (stepped_press)"
     )
     p.add_argument(
-        "--links", help="instead of injected delays: these bench.netem profiles, e.g. wan,mobile"
+        "--links", help="instead of injected delays: these harness.netem profiles, e.g. wan,mobile"
     )
     p.add_argument("--role", choices=("press",), help=argparse.SUPPRESS)
     p.add_argument("--base", help=argparse.SUPPRESS)

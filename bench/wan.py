@@ -1,12 +1,12 @@
 """Video, forces and commands over emulated links: each of
-bench.netem's profiles (lan, wifi, wan, mobile, bad) with the server in the pair's
+harness.netem's profiles (lan, wifi, wan, mobile, bad) with the server in the pair's
 server namespace and the clients in its client namespace.
 
     python -m bench.wan [--json] [--seconds 15] [--profiles mobile,bad] [--viewer browser]
 
 One ``telerobot serve`` (simulation, stereo video at 2×640×360 by default, the
 server's own bitrate setting unless ``--video-bitrate``) for all profiles; for each
-profile the link is measured (bench.netem.measure_link, probes spaced wider than the
+profile the link is measured (harness.netem.measure_link, probes spaced wider than the
 jitter), then three client processes run in the client namespace at once:
 
 * **viewer**: an aiortc peer that decodes every frame and reads the capture time from
@@ -87,7 +87,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import machine, parser
-from bench.netem import (
+from harness.netem import (
     PROFILES,
     REPO,
     NetemPair,

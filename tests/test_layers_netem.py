@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.netem import NetemPair, emulator_available
+from harness.netem import NetemPair, emulator_available
 from harness.servers import serve_for_bench
 
 ROOT = Path(__file__).resolve().parents[1]

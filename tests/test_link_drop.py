@@ -1,6 +1,6 @@
 """The lease across a real dropped link: the server in one network
 namespace, an operator's client in another, the link between them cut by the shared
-emulator (bench/netem.py). The client holds control with heartbeats on the `wan`
+emulator (harness/netem.py). The client holds control with heartbeats on the `wan`
 profile and, like the page (realtime.ts), resumes its session on a new connection when
 its link stalls. A 1.5 s drop keeps control once the link is back (with the arm halted
 on the silence), a 3 s one loses it with the dead-man's reason. Without the resume a
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.netem import NetemPair, emulator_available
+from harness.netem import NetemPair, emulator_available
 from harness.servers import serve_for_bench
 
 ROOT = Path(__file__).resolve().parents[1]
