@@ -113,7 +113,7 @@ class Handovers:
 def from_the_page(base: str, http: httpx.Client, log: Handovers, n: int) -> None:
     from playwright.sync_api import sync_playwright
 
-    from bench.browser import ARGS, yield_browser_session
+    from harness.chromium import ARGS, yield_browser_session
 
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)

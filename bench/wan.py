@@ -286,7 +286,7 @@ def role_browser(base: str) -> dict[str, Any]:
     an observer: no token), in this (the client's) namespace."""
     from playwright.sync_api import sync_playwright
 
-    from bench.browser import ARGS, yield_software_gpu
+    from harness.chromium import ARGS, yield_software_gpu
 
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
