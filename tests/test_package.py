@@ -54,6 +54,18 @@ def test_nothing_imports_the_folders_by_their_own_names() -> None:
     assert found == []
 
 
+def test_the_harness_imports_neither_the_benches_nor_the_tests() -> None:
+    # harness/ is what tests/ and bench/ share: it leans on the product only, so either
+    # imports it without pulling in the other.
+    imports = re.compile(r"^\s*(from|import)\s+(bench|tests)\b", re.M)
+    found = [
+        str(path.relative_to(ROOT))
+        for path in (ROOT / "harness").rglob("*.py")
+        if imports.search(path.read_text())
+    ]
+    assert found == []
+
+
 def test_drivers_know_no_http() -> None:
     # Their errors carry a code; the server maps them to statuses (server/errors.py).
     found = [
