@@ -106,7 +106,8 @@ import httpx
 import numpy as np
 import psutil
 
-from bench.common import emit, machine, parser, serve_for_bench
+from bench.common import emit, machine, parser
+from harness.servers import serve_for_bench
 from telerobot.protocol import messages as m
 from telerobot.tuning import raise_thread_priority, thread_priority_raised
 
@@ -446,7 +447,7 @@ async def _resume_pileup(t: Target, seconds: float) -> dict[str, Any]:
     import websockets
     from websockets.protocol import State
 
-    from bench.wsclient import RealtimeClient
+    from harness.wsclient import RealtimeClient
 
     end = time.monotonic() + seconds
     url = f"ws://{t.host}:{t.http_port}/ws"
@@ -596,7 +597,7 @@ async def _operate(host: str, port: int, seconds: float, ids: Any) -> dict[str, 
     """Join with the token on the server's clock, take the lease, hand the bench the
     client id (it resets the e-stop as this client) and send a cartesian increment
     every OPERATOR_PERIOD_S; count what the server answered."""
-    from bench.wsclient import RealtimeClient, open_socket
+    from harness.wsclient import RealtimeClient, open_socket
 
     client = await RealtimeClient.hello(
         await open_socket(f"ws://{host}:{port}/ws"), TOKEN, m.HelloFlags.SYNCED_CLOCK
@@ -879,7 +880,7 @@ def _priority_welcomed(host: str, port: int) -> bool:
 def make_recordings(folder: Path) -> str:
     """RECORDINGS small ones for the listing (see the module's docstring) and the long
     one; returns the long one's file name."""
-    from bench.recordings import build, build_listed, listed_episodes
+    from harness.recordings import build, build_listed, listed_episodes
 
     for i in range(RECORDINGS):
         episodes: list[dict[str, Any]] = []

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import emit, machine, parser
+from harness.work_area import work_area
 from telerobot.calibration.affine import fit_affine
 from telerobot.calibration.charuco import calibrate_intrinsics, fit_charuco
 from telerobot.calibration.dlt import fit_dlt
@@ -32,17 +33,6 @@ from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, rende
 from telerobot.drivers.sim.workcell import PinholeCamera, default_workcell
 
 DISTANCES = (1.5, 2.5, 4.0)
-
-
-def work_area() -> np.ndarray:
-    return np.array(
-        [
-            [x, y, z]
-            for x in np.linspace(0.45, 0.95, 6)
-            for y in np.linspace(-0.45, 0.35, 6)
-            for z in np.linspace(0.42, 0.75, 4)
-        ]
-    )
 
 
 def fit(method: str, cam: PinholeCamera, fiducials: np.ndarray) -> CameraModel:

@@ -75,17 +75,9 @@ from typing import Any
 import httpx
 import numpy as np
 
-from bench.common import (
-    arms_env,
-    emit,
-    machine,
-    p50_p99,
-    parser,
-    percentiles_ms,
-    serve_for_bench,
-    telerobot_process,
-)
-from bench.wsclient import RealtimeClient
+from bench.common import arms_env, emit, machine, p50_p99, parser, percentiles_ms
+from harness.servers import serve_for_bench, telerobot_process
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import emit, machine, parser
-from bench.recordings import Episode, build
+from harness.recordings import Episode, build
 
 # Run in the child: one export, then its figures as one JSON line on stdout.
 _CHILD = """

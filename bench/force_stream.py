@@ -25,8 +25,9 @@ import time
 
 import numpy as np
 
-from bench.common import emit, machine, parser, serve_for_bench
-from bench.wsclient import RealtimeClient
+from bench.common import emit, machine, parser
+from harness.servers import serve_for_bench
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 

@@ -32,7 +32,7 @@ server's figures are then the usual keys; the JSON adds ``p99_ms_per_arm_under_v
 medians over the rounds) and ``lost_per_arm``, each by link, and ``arms`` (the details).
 
 Links: loopback; and, when run as root, a veth pair between two network namespaces
-(bench.netem's NetemPair on its ``lan`` profile: no delay, no loss), the server's side
+(harness.netem's NetemPair on its ``lan`` profile: no delay, no loss), the server's side
 shaped to 100 Mbit/s by HTB with DSCP EF (the priority channel's mark) in its own class
 ahead of the rest, as a DiffServ-aware router would.
 """
@@ -57,20 +57,10 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
-from bench.common import (
-    SERVER_SCHEDULING,
-    UNPRIVILEGED_UID,
-    arm_names,
-    arms_env,
-    as_user,
-    busy_core,
-    emit,
-    machine,
-    open_viewer,
-    parser,
-    serve_for_bench,
-)
-from bench.netem import NetemPair, netns_available
+from bench.common import arm_names, arms_env, busy_core, emit, machine, parser
+from harness.aiortc_viewers import open_viewer
+from harness.netem import NetemPair, netns_available
+from harness.servers import SERVER_SCHEDULING, UNPRIVILEGED_UID, as_user, serve_for_bench
 from telerobot.protocol import messages as m
 
 RATE_MBIT = 100
@@ -120,7 +110,7 @@ async def _view(base: str, seconds: float) -> float:
 def ws_listener(base: str, seconds: float, out: Any) -> None:
     """For comparison: the same force samples over /ws (the server's event loop), one
     FORCE message per sample, in a process of its own. Returns (seq, time, received)."""
-    from bench.wsclient import RealtimeClient
+    from harness.wsclient import RealtimeClient
 
     async def listen() -> list[tuple[int, float, float]]:
         url = base.replace("http", "ws", 1) + "ws"

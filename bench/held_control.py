@@ -7,7 +7,7 @@ stalls were (on a busy 2-core machine the page went HALTED every ~2 s).
 
 ``--busy-core`` keeps one core busy (Debian's stress-ng) for the run, as
 ``make test-slow-machine`` does. Chromium's software GPU process is niced as the test
-suite does (``bench.browser.yield_software_gpu``) unless ``--no-yield-gpu`` (a user's
+suite does (``harness.chromium.yield_software_gpu``) unless ``--no-yield-gpu`` (a user's
 browser is not). Figures: ``deadman_halts_per_min`` (the server's count with the lease
 kept), ``lease_lost`` (control lost and taken again by the bench), the worker's own
 heartbeat timer lateness sampled every 0.2 s (``timer_late_ms_max``, ``_p50``: the
@@ -25,7 +25,7 @@ past which it stops the heartbeats) and its long tasks (``main_long_tasks``,
 held throughout, then D, turned every ``DRIVE_FLIP_S`` (back and forth, within reach);
 ``drive_mm_per_s`` is the tool's path (``/robot/state`` every 0.2 s) over the run, the
 figure to compare quiet and busy: what the operator still gets done.
-``--python-client``: no browser; a Python client (bench.wsclient) takes the lease and
+``--python-client``: no browser; a Python client (harness.wsclient) takes the lease and
 sends a HEARTBEAT every 50 ms, as the page's worker does: the server's share of the
 halts.
 """
@@ -41,9 +41,10 @@ import httpx
 import numpy as np
 from playwright.sync_api import sync_playwright
 
-from bench.browser import ARGS, yield_software_gpu
-from bench.common import busy_core, emit, machine, parser, serve_for_bench
-from bench.wsclient import RealtimeClient
+from bench.common import busy_core, emit, machine, parser
+from harness.chromium import ARGS, yield_software_gpu
+from harness.servers import serve_for_bench
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 
 DRIVE_FLIP_S = 2.0

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.common import busy_core, emit, machine, parser, serve_for_bench
+from bench.common import busy_core, emit, machine, parser
+from harness.servers import serve_for_bench
 
 TOKEN = "bench-lerobot-token-0123456789abcdef"
 

@@ -32,7 +32,8 @@ from typing import Any
 import httpx
 
 from bench import command_latency, force_under_video
-from bench.common import emit, machine, parser, serve_for_bench
+from bench.common import emit, machine, parser
+from harness.servers import serve_for_bench
 
 VIDEO_ENV = {
     "TELEROBOT_VIDEO": "true",
@@ -103,7 +104,7 @@ def alternated(measure: Any, rounds: int) -> tuple[float, float, list[float], li
 
 
 async def _viewer_for(base: str, seconds: float) -> None:
-    from bench.common import open_viewer
+    from harness.aiortc_viewers import open_viewer
 
     with contextlib.suppress(Exception):
         pc, _track = await open_viewer(base)
@@ -115,7 +116,7 @@ async def commands_at_100_hz(port: int, token: str, seconds: float) -> dict[str,
     """100 Hz small jogs from one operator, every answer read (a refusal under load,
     e.g. a stale command, is counted, not fatal: this phase counts the recorder's
     losses, bench.command_latency measures latency above)."""
-    from bench.wsclient import RealtimeClient
+    from harness.wsclient import RealtimeClient
     from telerobot.protocol import messages as m
 
     op = await RealtimeClient.connect(f"ws://127.0.0.1:{port}/ws", token=token)

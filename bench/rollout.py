@@ -16,7 +16,7 @@ back lets it drive). The last line's keys:
   (the instant from which its commands are refused, no command of its needed).
 - ``handover_jump_mm``, ``handover_jump_rad`` ``{"stub", "act"}``: the worst tool and
   joint step between two consecutive STATEs (20 ms apart) within 0.5 s after a takeover
-  or a hand-back. ``stub``: the stand-in policy (bench/policy_stub.py: joint 1 ±0.002 rad
+  or a hand-back. ``stub``: the stand-in policy (harness/policy_stub.py: joint 1 ±0.002 rad
   a command) over ``--handovers`` from the page and as many from the simulated master.
   ``act``: LeRobot's ACT (trained with ``--policy``, else untrained) driving through the
   robot plugin (absolute joint targets; the plugin re-anchors on the arm after a
@@ -55,8 +55,9 @@ from typing import Any
 import httpx
 import numpy as np
 
-from bench.common import busy_core, emit, machine, p50_p99, parser, serve_for_bench
-from bench.policy_stub import RATE_HZ, PolicyClient
+from bench.common import busy_core, emit, machine, p50_p99, parser
+from harness.policy_stub import RATE_HZ, PolicyClient
+from harness.servers import serve_for_bench
 
 TOKEN = "bench-rollout-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -112,7 +113,7 @@ class Handovers:
 def from_the_page(base: str, http: httpx.Client, log: Handovers, n: int) -> None:
     from playwright.sync_api import sync_playwright
 
-    from bench.browser import ARGS, yield_browser_session
+    from harness.chromium import ARGS, yield_browser_session
 
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)

@@ -69,9 +69,15 @@ import httpx
 import numpy as np
 
 from bench.common import p50_p99
+from harness.lerobot_policy import (
+    FPS,
+    SMALL_ACT,
+    build_untrained,
+    make_robot,
+    policy_observation_features,
+)
 
 REPO = Path(__file__).resolve().parents[1]
-FPS = 30.0
 SUCCESS_M = 0.015  # the tool this near the goal at the episode's end: a success
 EPISODE_S = 8.0
 START_SPREAD_RAD = 0.35  # each start: home + this much at most on the first three joints
@@ -158,84 +164,6 @@ class Policy:
             elif key.startswith("observation.images."):
                 frame[key] = observation[key.removeprefix("observation.images.")]
         return frame
-
-
-def policy_observation_features(robot: Any) -> dict[str, Any]:
-    """What the policy sees: the joints (``.pos``) and the cameras, as lerobot-rollout
-    passes them (it leaves out other floats, the forces among them)."""
-    return {
-        k: v
-        for k, v in robot.observation_features.items()
-        if not (v is float and not k.endswith(".pos"))
-    }
-
-
-def build_untrained(path: Path, robot: Any, around: dict[str, Any] | None = None) -> Path:
-    """A small ACT for this robot's features, untrained, no downloaded weights. With
-    ``around`` (an observation), its normalisation is centred there (1° spread), so its
-    untrained actions stay near that pose rather than near every joint's zero."""
-    from lerobot.configs import FeatureType
-    from lerobot.policies import make_pre_post_processors
-    from lerobot.policies.act.configuration_act import ACTConfig
-    from lerobot.policies.act.modeling_act import ACTPolicy
-    from lerobot.utils.feature_utils import (
-        combine_feature_dicts,
-        dataset_to_policy_features,
-        hw_to_dataset_features,
-    )
-
-    features = dataset_to_policy_features(
-        combine_feature_dicts(
-            hw_to_dataset_features(robot.action_features, "action"),
-            hw_to_dataset_features(policy_observation_features(robot), "observation"),
-        )
-    )
-    cfg = ACTConfig(
-        input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
-        output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
-        device="cpu",
-        pretrained_backbone_weights=None,
-        **SMALL_ACT,
-    )
-    stats = None
-    if around is not None:
-        pos = np.array([float(around[k]) for k in robot.action_features], np.float32)
-        spread = {"mean": pos, "std": np.ones_like(pos)}
-        stats = {"observation.state": spread, "action": spread}
-    pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
-    ACTPolicy(cfg).save_pretrained(str(path))
-    pre.save_pretrained(str(path))
-    post.save_pretrained(str(path))
-    return path
-
-
-SMALL_ACT: dict[str, Any] = {
-    "dim_model": 128,
-    "n_heads": 4,
-    "dim_feedforward": 512,
-    "n_encoder_layers": 2,
-    "n_decoder_layers": 1,
-    "n_vae_encoder_layers": 2,
-    "latent_dim": 16,
-    "chunk_size": 30,
-    "n_action_steps": 15,
-}
-
-
-def make_robot(url: str, token: str, width: int, height: int, name: str = "act-policy") -> Any:
-    """The robot plugin as a policy: ``token`` is the operator's, which issues the policy
-    a policy token of its own (a policy never joins with the operator token). It takes
-    control paused: a person lets it drive (a resume, or an operator's move handed back)."""
-    from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
-    from lerobot_robot_telerobot.telerobot import Telerobot
-
-    from bench.policy_stub import issue_policy_token
-
-    secret = issue_policy_token(url, token, name)
-    config = TelerobotConfig(url=url, token=token, client_name=name, camera_width=width,
-                             camera_height=height, fps=FPS, policy=True,
-                             policy_token=secret)  # fmt: skip
-    return Telerobot(config)
 
 
 # ------------------------------------------------------------ the loop
@@ -367,7 +295,7 @@ class Person:
     def let_drive(self) -> None:
         """The policy drives: if nothing handed it back (it joined, or was stopped), a
         person resumes it."""
-        from bench.policy_stub import resume_policy
+        from harness.policy_stub import resume_policy
 
         if self.mode() != "autonomous":
             resume_policy(self.url, self.token)
@@ -588,7 +516,7 @@ def apart(held_out: list[np.ndarray], training: list[np.ndarray]) -> dict[str, f
 def train(out: Path, demos: int, steps: int, width: int, height: int) -> Path:
     """Demonstrations of the reach task through a server started here, exported, and a
     small ACT trained on them with lerobot-train: ``out/pretrained_model``."""
-    from bench.common import serve_for_bench
+    from harness.servers import serve_for_bench
     from telerobot.client.lerobot.arm import ArmOptions, TelerobotArm
 
     try:

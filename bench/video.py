@@ -29,7 +29,9 @@ import httpx
 import numpy as np
 import psutil
 
-from bench.common import emit, machine, open_viewer, parser, serve_for_bench
+from bench.common import emit, machine, parser
+from harness.aiortc_viewers import open_viewer
+from harness.servers import serve_for_bench
 
 WIDTH, HEIGHT, FPS = 1280, 720, 30.0
 

@@ -79,7 +79,9 @@ import httpx
 # No stubs installed for psutil (bench/ is outside the project's mypy files).
 import psutil  # type: ignore[import-untyped]
 
-from bench.common import answer_server_offer, machine, parser, percentiles_ms, serve_for_bench
+from bench.common import machine, parser, percentiles_ms
+from harness.aiortc_viewers import answer_server_offer
+from harness.servers import serve_for_bench
 
 REPO = Path(__file__).resolve().parents[1]
 PATHS = ("direct", "relay")

@@ -1,17 +1,17 @@
 """Video, forces and commands over emulated links: each of
-bench.netem's profiles (lan, wifi, wan, mobile, bad) with the server in the pair's
+harness.netem's profiles (lan, wifi, wan, mobile, bad) with the server in the pair's
 server namespace and the clients in its client namespace.
 
     python -m bench.wan [--json] [--seconds 15] [--profiles mobile,bad] [--viewer browser]
 
 One ``telerobot serve`` (simulation, stereo video at 2×640×360 by default, the
 server's own bitrate setting unless ``--video-bitrate``) for all profiles; for each
-profile the link is measured (bench.netem.measure_link, probes spaced wider than the
+profile the link is measured (harness.netem.measure_link, probes spaced wider than the
 jitter), then three client processes run in the client namespace at once:
 
 * **viewer**: an aiortc peer that decodes every frame and reads the capture time from
   the picture's timecode (drivers/camera/timecode), made to receive as libwebrtc's
-  receiver does (bench/wan_receiver.py): RED and ULPFEC undone and lost packets
+  receiver does (harness/wan_receiver.py): RED and ULPFEC undone and lost packets
   rebuilt, a key frame after a gap decoded at once, NACKs for up to 1000 packets
   (``BENCH_WAN_NACK_LIST``), each frame shown on the playout delay the server stamps
   (its time on the fastest frames' schedule plus that delay; the current delay moves
@@ -86,8 +86,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.common import machine, parser, serve_for_bench
-from bench.netem import (
+from bench.common import machine, parser
+from harness.netem import (
     PROFILES,
     REPO,
     NetemPair,
@@ -95,6 +95,7 @@ from bench.netem import (
     measure_link,
     probe_interval_s,
 )
+from harness.servers import serve_for_bench
 from telerobot.protocol import messages as m
 
 FREEZE_S = 0.2  # no new frame for longer than this: frozen
@@ -132,72 +133,11 @@ def _get_json(base: str, path: str) -> Any:
         return {"error": repr(exc)}
 
 
-# While it waits for a key frame, libwebrtc's receiver asks again this often (its
-# max_wait_for_keyframe): the server sends key frames only when asked, so a lost
-# request must not leave the picture frozen.
-KEYFRAME_REASK_S = 0.2
-
-
-def keyframe_skipping_buffer(
-    give_up_s: float, reask_s: float = KEYFRAME_REASK_S, clock: Any = time.monotonic
-) -> Any:
-    """aiortc's video jitter buffer, which waits at a missing packet until 512 more have
-    come (seconds), made to go on as libwebrtc does: a key frame received after a gap
-    is decoded at once (libwebrtc's packet buffer holds back delta frames after a
-    missing packet, never a key frame), and a gap the NACKs did not fill within
-    ``give_up_s`` asks for a key frame, again every ``reask_s`` until one has come."""
-    from aiortc.jitterbuffer import JitterBuffer
-
-    def key_frame_start(packet: Any) -> bool:
-        data = getattr(packet, "_data", b"")  # depayloaded: Annex B
-        return len(data) > 4 and data[:4] == b"\x00\x00\x00\x01" and data[4] & 0x1F in (5, 7)
-
-    class Skipping(JitterBuffer):  # type: ignore[misc]
-        def __init__(self) -> None:
-            super().__init__(capacity=512, is_video=True)
-            self.gap_since: float | None = None
-            self.asked_at: float | None = None
-            self.skips = 0
-
-        def add(self, packet: Any) -> tuple[bool, Any]:
-            pli, frame = super().add(packet)
-            if frame is not None or self._origin is None:
-                self.gap_since, self.asked_at = None, None
-                return pli, frame
-            newest = (packet.sequence_number - self._origin) % 65536
-            slots = [
-                self._packets[(self._origin + i) % self._capacity]
-                for i in range(min(newest, self._capacity - 1) + 1)
-            ]
-            if all(p is not None for p in slots):
-                return pli, frame  # a frame still arriving, no gap
-            hole = slots.index(None)
-            for count in range(hole + 1, len(slots)):
-                p = slots[count]
-                if p is not None and key_frame_start(p):
-                    self.remove(count)
-                    self.skips += 1
-                    self.gap_since, self.asked_at = None, None
-                    return pli, self._remove_frame(p.sequence_number)
-            now = clock()
-            if self.gap_since is None:
-                self.gap_since = now
-                return pli, frame
-            if now - self.gap_since < give_up_s:
-                return pli, frame
-            ask = self.asked_at is None or now - self.asked_at >= reask_s
-            if ask:
-                self.asked_at = now
-            return pli or ask, frame
-
-    return Skipping()
-
-
 def role_viewer(base: str) -> dict[str, Any]:
     import aiortc.rtcrtpreceiver as receiver
 
-    from bench import wan_receiver
-    from bench.common import open_viewer
+    from harness import wan_receiver
+    from harness.aiortc_viewers import open_viewer
     from telerobot.drivers.camera import timecode
 
     rx = wan_receiver.install()  # FEC and the playout delay, as libwebrtc's receiver
@@ -292,7 +232,7 @@ def role_viewer(base: str) -> dict[str, Any]:
         if renack_s > 0:
             tasks.append(asyncio.create_task(renack(pc)))
             # Given up after the retries a round trip apart would have had their chance.
-            buffer = keyframe_skipping_buffer(3 * renack_s)
+            buffer = wan_receiver.keyframe_skipping_buffer(3 * renack_s)
             pc.getTransceivers()[0].receiver._RTCRtpReceiver__jitter_buffer = buffer
         await stop.wait()
         for t in tasks:
@@ -346,7 +286,7 @@ def role_browser(base: str) -> dict[str, Any]:
     an observer: no token), in this (the client's) namespace."""
     from playwright.sync_api import sync_playwright
 
-    from bench.browser import ARGS, yield_software_gpu
+    from harness.chromium import ARGS, yield_software_gpu
 
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
@@ -418,7 +358,7 @@ def role_force(base: str, token: str) -> dict[str, Any]:
 
 
 def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
-    from bench.wsclient import RealtimeClient, StallResumer
+    from harness.wsclient import RealtimeClient, StallResumer
 
     synced = getattr(m.HelloFlags, "SYNCED_CLOCK", None)
 

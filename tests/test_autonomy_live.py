@@ -12,7 +12,7 @@ import httpx
 import numpy as np
 import pytest
 
-from bench.policy_stub import PolicyClient, issue_policy_token
+from harness.policy_stub import PolicyClient, issue_policy_token
 from telerobot.client.master.bridge import HAND_BACK_S, BridgeSettings, MasterBridge
 from telerobot.client.master.cli import open_link
 from telerobot.drivers.base import FloatArray

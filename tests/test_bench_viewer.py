@@ -1,13 +1,13 @@
-"""bench.wan's aiortc viewer goes on past a gap as libwebrtc does: a key frame received
-after it is decoded at once; after the NACKs had their chance it asks for one if none
-has come, again every 0.2 s while none comes (the server sends key frames only when
-asked). An injected clock; a give-up of 0 s."""
+"""bench.wan's aiortc viewer (its receiver: harness/wan_receiver.py) goes on past a gap
+as libwebrtc does: a key frame received after it is decoded at once; after the NACKs
+had their chance it asks for one if none has come, again every 0.2 s while none comes
+(the server sends key frames only when asked). An injected clock; a give-up of 0 s."""
 
 from __future__ import annotations
 
 from aiortc.rtp import RtpPacket
 
-from bench.wan import keyframe_skipping_buffer
+from harness.wan_receiver import keyframe_skipping_buffer
 
 
 def packet(seq: int, timestamp: int, key: bool = False) -> RtpPacket:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from bench.ar_registration import work_area
+from harness.work_area import work_area
 from telerobot.calibration.affine import fit_affine
 from telerobot.calibration.charuco import calibrate_intrinsics, fit_charuco, stereo_pose
 from telerobot.calibration.dlt import fit_dlt

@@ -17,7 +17,7 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
-from bench.common import telerobot_process
+from harness.servers import telerobot_process
 from telerobot.protocol import messages as m
 from telerobot.server.accesslog import MAX_ADDRESSES, REFUSALS_PER_WINDOW, RefusalLogLimit
 from telerobot.server.app import create_app

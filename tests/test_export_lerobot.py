@@ -17,8 +17,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from bench import recordings
-from bench.recordings import Episode, force_at, joints_at, read_code, target_at
+from harness import recordings
+from harness.recordings import Episode, force_at, joints_at, read_code, target_at
 from telerobot.drivers.robot.models import load_model
 from telerobot.server.api import export as export_api
 from telerobot.server.recording.lerobot import ExportError, export_lerobot

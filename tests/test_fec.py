@@ -14,7 +14,7 @@ import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 from aiortc.rtp import RTCP_RTPFB_NACK, RtcpRtpfbPacket
 
-from bench import wan_receiver
+from harness import wan_receiver
 from telerobot.server.media import fec, playout
 from telerobot.server.media.pipeline import VideoPipeline, VideoSettings, ViewerLink, follow_link
 from tests.support.video import SMALL, camera

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.common import serve_for_bench
-from bench.netem import NetemPair, emulator_available
+from harness.netem import NetemPair, emulator_available
+from harness.servers import serve_for_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 SECONDS = 25.0
@@ -30,7 +30,7 @@ VIEWER = textwrap.dedent(
     """
     import asyncio, json, sys, time
     import httpx
-    from bench.common import open_viewer
+    from harness.aiortc_viewers import open_viewer
 
     base, seconds, ask = sys.argv[1], float(sys.argv[2]), sys.argv[3] == "ask"
 

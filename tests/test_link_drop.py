@@ -1,6 +1,6 @@
 """The lease across a real dropped link: the server in one network
 namespace, an operator's client in another, the link between them cut by the shared
-emulator (bench/netem.py). The client holds control with heartbeats on the `wan`
+emulator (harness/netem.py). The client holds control with heartbeats on the `wan`
 profile and, like the page (realtime.ts), resumes its session on a new connection when
 its link stalls. A 1.5 s drop keeps control once the link is back (with the arm halted
 on the silence), a 3 s one loses it with the dead-man's reason. Without the resume a
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.common import serve_for_bench
-from bench.netem import NetemPair, emulator_available
+from harness.netem import NetemPair, emulator_available
+from harness.servers import serve_for_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ CLIENT = textwrap.dedent(
     import asyncio, contextlib, json, sys
     import httpx
     from telerobot.protocol import messages as m
-    from bench.wsclient import RealtimeClient, StallResumer
+    from harness.wsclient import RealtimeClient, StallResumer
 
     base, token = sys.argv[1], sys.argv[2]
     url = base.replace("http", "ws") + "ws"

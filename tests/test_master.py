@@ -236,7 +236,7 @@ def test_a_gentle_press_at_a_200_ms_round_trip_never_trips_the_force_limit() -> 
     # still the contact is, and the figures at other round trips, are
     # bench.master_contact's (a late loop changes them; the two-port keeps the arm's
     # energy to the operator's whatever the timing, so no trip).
-    from bench.master_contact import one_run
+    from harness.master_press import one_run
 
     r = one_run(rtt_s=0.2, passivity="passivity", seconds=6.0, press_m=0.002,
                 hand_stiffness=400.0, stiffness=5.0e4)  # fmt: skip

@@ -19,7 +19,7 @@ from typing import Any
 import httpx
 import pytest
 
-from bench.common import answer_server_offer, open_server_offer_viewer
+from harness.aiortc_viewers import answer_server_offer, open_server_offer_viewer
 from telerobot.drivers.camera import timecode
 from tests.support.servers import serving
 

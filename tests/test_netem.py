@@ -1,4 +1,4 @@
-"""The shared link emulator (bench/netem.py), measured with real processes and
+"""The shared link emulator (harness/netem.py), measured with real processes and
 sockets between its two network namespaces: a profile's delay is one-way (a round trip
 takes twice it), its loss is what the probes lose, its rate caps a UDP flood, an outage
 drops everything for its length and the link comes back, and nothing is left behind.
@@ -20,7 +20,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from bench.netem import (
+from harness.netem import (
     PROFILES,
     LinkMeasurement,
     NetemPair,

@@ -46,11 +46,23 @@ def test_nothing_imports_the_folders_by_their_own_names() -> None:
     named = re.compile(r"[\"'](-m\s+)?(backend|drivers|calibration)\.(?!json|html)[a-z_]")
     found = []
     for folder in ("backend", "drivers", "calibration", "telerobot/client", "telerobot/protocol",
-                   "bench", "tests"):  # fmt: skip
+                   "bench", "harness", "tests"):  # fmt: skip
         for path in (ROOT / folder).rglob("*.py"):
             text = path.read_text()
             if path.name != "test_package.py" and (old.search(text) or named.search(text)):
                 found.append(str(path.relative_to(ROOT)))
+    assert found == []
+
+
+def test_the_harness_imports_neither_the_benches_nor_the_tests() -> None:
+    # harness/ is what tests/ and bench/ share: it leans on the product only, so either
+    # imports it without pulling in the other.
+    imports = re.compile(r"^\s*(from|import)\s+(bench|tests)\b", re.M)
+    found = [
+        str(path.relative_to(ROOT))
+        for path in (ROOT / "harness").rglob("*.py")
+        if imports.search(path.read_text())
+    ]
     assert found == []
 
 

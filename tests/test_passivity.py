@@ -195,7 +195,7 @@ def test_jitter_keeps_the_order() -> None:
     assert 0.04 < float(np.median(np.array(dues) - np.arange(2000) * DT)) < 0.15
 
 
-# The whole loop at 200 and 700 ms round trips, in virtual time (bench.master_contact's
+# The whole loop at 200 and 700 ms round trips, in virtual time (harness.master_press's
 # stepped_press: the server's simulated arm, 5·10⁴ N/m block, force sensor and
 # DecisionServer with its slow approach after a contact, the bridge with its injected
 # delay and passivity controller, the simulated master and hand, all on one stepped
@@ -206,7 +206,7 @@ PRESS = {"seconds": 7.0, "press_m": 0.002, "hand_stiffness": 400.0, "stiffness":
 
 @pytest.fixture(scope="module")
 def presses() -> dict[tuple[int, str], dict[str, Any]]:
-    from bench.master_contact import stepped_run
+    from harness.master_press import stepped_run
 
     runs = {
         (rtt, mode): stepped_run(rtt_s=rtt / 1000, passivity=mode, **PRESS)

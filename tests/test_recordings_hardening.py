@@ -23,7 +23,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from bench.recordings import build
+from harness.recordings import build
 from telerobot.drivers.clock import MonotonicClock
 from telerobot.server.app import create_app
 from telerobot.server.errors import REFUSAL_DELAY_S

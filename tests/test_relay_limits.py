@@ -18,7 +18,7 @@ from typing import Any
 import httpx
 import pytest
 
-from bench.common import answer_server_offer
+from harness.aiortc_viewers import answer_server_offer
 from tests.support import until
 from tests.support.servers import serving
 

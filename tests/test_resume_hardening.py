@@ -23,7 +23,7 @@ import psutil
 import pytest
 import websockets
 
-from bench.wsclient import RealtimeClient
+from harness.wsclient import RealtimeClient
 from telerobot.protocol import messages as m
 from telerobot.server.realtime.hub import RESUME_BURST
 from tests.support import until_async

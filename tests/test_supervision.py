@@ -14,8 +14,8 @@ from collections.abc import Iterator
 import httpx
 import pytest
 
-from bench.task_replay import TOKEN as CELL_TOKEN
-from bench.task_replay import SimCell, push_start
+from harness.sim_cell import TOKEN as CELL_TOKEN
+from harness.sim_cell import SimCell, push_start
 from telerobot.client import Telerobot
 from telerobot.drivers.sim.workcell import default_workcell
 from telerobot.server.control.errors import NotAllowed

@@ -1,6 +1,6 @@
 """Repeating a taught motion: the trajectory, the admittance law,
 and the TaskRunner on the simulation through a real DecisionServer, in virtual time
-(the force sensor sampled every millisecond; bench/task_replay.SimCell)."""
+(the force sensor sampled every millisecond; harness/sim_cell.SimCell)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from bench.task_replay import (
+from harness.sim_cell import (
     COMPLIANCE,
     DOWN,
     SimCell,

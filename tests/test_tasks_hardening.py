@@ -21,7 +21,7 @@ import pytest
 from fastapi.testclient import TestClient
 from mcap.writer import CompressionType, Writer
 
-from bench.task_replay import DOWN, SimCell, push_start
+from harness.sim_cell import DOWN, SimCell, push_start
 from telerobot.drivers.base import InvalidCommand
 from telerobot.drivers.sim.workcell import default_workcell
 from telerobot.server.recording.readjobs import JOB_NICE

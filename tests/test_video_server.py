@@ -10,7 +10,8 @@ import time
 import httpx
 import pytest
 
-from bench.common import open_viewer, serve_for_bench
+from harness.aiortc_viewers import open_viewer
+from harness.servers import serve_for_bench
 from telerobot.drivers.camera import timecode
 from tests.support import TOKEN
 from tests.support.servers import serving

@@ -13,7 +13,7 @@ import httpx
 import pytest
 from playwright.sync_api import Browser, Page
 
-from bench.policy_stub import PolicyClient
+from harness.policy_stub import PolicyClient
 from tests.support import TOKEN, until
 from tests.support.browser import (
     DRIVE_S,

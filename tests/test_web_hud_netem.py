@@ -1,5 +1,5 @@
 """The connection HUD behind an emulated link: Debian's Chromium runs
-in the client namespace of bench.netem's pair, the server in the other, and the link's
+in the client namespace of harness.netem's pair, the server in the other, and the link's
 profile changes under the open page. On `lan` its link rows (round trip, loss) are
 green; on `mobile` (80 ± 30 ms each way) the round trip turns amber and says so; on
 `bad` (150 ± 50 ms, 5 % lost, 2 Mbit/s) the box is red with the round trip named as a
@@ -15,7 +15,7 @@ from collections.abc import Iterator
 import pytest
 from playwright.sync_api import Browser, Playwright
 
-from bench.netem import NetemPair, emulator_available
+from harness.netem import NetemPair, emulator_available
 from tests.support.browser import ENV, chromium, chromium_or_fail, open_page
 from tests.support.hud import HUD, hud_when, row_is, row_of
 from tests.support.servers import serving

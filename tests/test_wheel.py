@@ -2,7 +2,7 @@
 checkout and installed into a fresh environment outside it, ``telerobot serve`` runs the
 simulation and serves the operator page with its assets, the REST API and video to an
 aiortc viewer; ``telerobot move`` and the Python client drive the arm through it. One
-top-level package in it, neither ``bench`` nor ``tests``.
+top-level package in it, neither ``bench``, ``harness`` nor ``tests``.
 
 The fresh environment takes the wheel's dependencies from this one (a ``.pth`` line
 naming its site-packages) instead of downloading ~500 MB again each run; the wheel
@@ -22,7 +22,7 @@ import httpx
 import numpy as np
 import pytest
 
-from bench.common import open_viewer
+from harness.aiortc_viewers import open_viewer
 from tests.support import TOKEN
 from tests.support.servers import serving
 
@@ -79,7 +79,7 @@ def test_the_wheel_holds_one_package_and_the_built_page(wheel: Path) -> None:
         assert f"telerobot/{part}/__init__.py" in names
     assert "telerobot/server/web/index.html" in names
     assert any(re.fullmatch(r"telerobot/server/web/assets/main-.*\.js", n) for n in names)
-    assert not any(n.startswith(("bench/", "tests/", "telerobot/bench")) for n in names)
+    assert not any(n.startswith(("bench/", "harness/", "tests/", "telerobot/bench")) for n in names)
 
 
 def test_the_installed_wheel_serves_the_page_the_api_and_video_and_moves_the_arm(

@@ -8,8 +8,9 @@
   tests/conftest.py) and the operator page's helpers.
 - ``clock``: ``run_with_clock``, virtual time for async work.
 
-Test modules import from here and from the product, never from each other; bench/
-imports nothing from tests/.
+Test modules import from here, from harness/ (what the benchmarks share with the
+tests: server starters, the link emulator, clients) and from the product, never from
+each other; neither harness/ nor bench/ imports anything from tests/.
 """
 
 from tests.support.waiting import until, until_async

@@ -17,7 +17,7 @@ import pytest
 from playwright.sync_api import Browser, Page, Playwright
 
 # The same Chromium flags as the browser benchmark, and its software GPU at nice 10.
-from bench.browser import ARGS, yield_software_gpu
+from harness.chromium import ARGS, yield_software_gpu
 from tests.support import TOKEN
 
 CHROMIUM = Path("/usr/bin/chromium")  # Debian's: never a downloaded browser

@@ -1,5 +1,5 @@
 """Real ``telerobot`` processes for end-to-end tests: ``serving`` is the one way a test
-starts a server (bench.common.serve_for_bench underneath, as the benchmarks do), and
+starts a server (harness.servers.serve_for_bench underneath, as the benchmarks do), and
 its URL is always ``http://127.0.0.1:PORT/``."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from bench.common import serve_for_bench, telerobot_process
+from harness.servers import serve_for_bench, telerobot_process
 from tests.support import TOKEN
 
 BIN = Path(sys.executable).parent / "telerobot"

@@ -405,7 +405,7 @@ def test_lerobot_rollout_drives_as_a_supervised_policy_and_the_page_can_take_ove
     plugin as a policy. The supervision is the server's: an operator takes over mid-run
     (the policy's actions are then not applied; send_action gives back the server's
     target), hands back, and the rollout runs on to its end."""
-    from bench.rollout_policy import build_untrained, make_robot
+    from harness.lerobot_policy import build_untrained, make_robot
 
     with serving(env={"TELEROBOT_VIDEO": "true", **SMALL_VIDEO}) as (url, _state):
         robot = make_robot(url, TOKEN, 320, 240, name="rollout-setup")

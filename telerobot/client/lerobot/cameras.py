@@ -1,5 +1,5 @@
 """The server's stereo video as two cameras, ``left`` and ``right``, for the LeRobot robot
-plugin: a WebRTC peer (aiortc, as ``bench.common.open_viewer``) in a thread of its own
+plugin: a WebRTC peer (aiortc, as ``harness.aiortc_viewers.open_viewer``) in a thread of its own
 that keeps the newest decoded frame, split into its two eyes, with the time it was
 captured on the server's clock.
 

@@ -14,13 +14,18 @@ libwebrtc's (Chromium's) does on a lossy link:
   ``DELAY_CHANGE_PER_S`` of stream time (the picture runs 10 % slow or fast meanwhile,
   where a jump would stop it for the whole step).
 
+* **A gap skipped** (``keyframe_skipping_buffer``): a key frame received after a
+  missing packet is decoded at once, and a gap the NACKs did not fill asks for one.
+
 ``install()`` before the peer connection is made (the offer then carries RED, ULPFEC
 and the extension), or ``allow()`` and then ``attach()`` to one peer's transport;
-``Playout.show_at`` per decoded frame.
+``Playout.show_at`` per decoded frame; ``keyframe_skipping_buffer()`` in place of the
+receiver's jitter buffer.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from telerobot.server.media import fec, playout
@@ -101,3 +106,64 @@ class Playout:
         self._rtp_s = rtp_s
         self.delay_s += max(-step, min(step, delay_s - self.delay_s))
         return max(now, floor + rtp_s + self.delay_s)
+
+
+# While it waits for a key frame, libwebrtc's receiver asks again this often (its
+# max_wait_for_keyframe): the server sends key frames only when asked, so a lost
+# request must not leave the picture frozen.
+KEYFRAME_REASK_S = 0.2
+
+
+def keyframe_skipping_buffer(
+    give_up_s: float, reask_s: float = KEYFRAME_REASK_S, clock: Any = time.monotonic
+) -> Any:
+    """aiortc's video jitter buffer, which waits at a missing packet until 512 more have
+    come (seconds), made to go on as libwebrtc does: a key frame received after a gap
+    is decoded at once (libwebrtc's packet buffer holds back delta frames after a
+    missing packet, never a key frame), and a gap the NACKs did not fill within
+    ``give_up_s`` asks for a key frame, again every ``reask_s`` until one has come."""
+    from aiortc.jitterbuffer import JitterBuffer
+
+    def key_frame_start(packet: Any) -> bool:
+        data = getattr(packet, "_data", b"")  # depayloaded: Annex B
+        return len(data) > 4 and data[:4] == b"\x00\x00\x00\x01" and data[4] & 0x1F in (5, 7)
+
+    class Skipping(JitterBuffer):  # type: ignore[misc]
+        def __init__(self) -> None:
+            super().__init__(capacity=512, is_video=True)
+            self.gap_since: float | None = None
+            self.asked_at: float | None = None
+            self.skips = 0
+
+        def add(self, packet: Any) -> tuple[bool, Any]:
+            pli, frame = super().add(packet)
+            if frame is not None or self._origin is None:
+                self.gap_since, self.asked_at = None, None
+                return pli, frame
+            newest = (packet.sequence_number - self._origin) % 65536
+            slots = [
+                self._packets[(self._origin + i) % self._capacity]
+                for i in range(min(newest, self._capacity - 1) + 1)
+            ]
+            if all(p is not None for p in slots):
+                return pli, frame  # a frame still arriving, no gap
+            hole = slots.index(None)
+            for count in range(hole + 1, len(slots)):
+                p = slots[count]
+                if p is not None and key_frame_start(p):
+                    self.remove(count)
+                    self.skips += 1
+                    self.gap_since, self.asked_at = None, None
+                    return pli, self._remove_frame(p.sequence_number)
+            now = clock()
+            if self.gap_since is None:
+                self.gap_since = now
+                return pli, frame
+            if now - self.gap_since < give_up_s:
+                return pli, frame
+            ask = self.asked_at is None or now - self.asked_at >= reask_s
+            if ask:
+                self.asked_at = now
+            return pli or ask, frame
+
+    return Skipping()

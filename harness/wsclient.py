@@ -1,5 +1,5 @@
-"""A minimal client of the binary protocol, for the benchmarks: hello, lease, clock
-sync, commands, force reception."""
+"""A minimal client of the binary protocol, for the benchmarks and the tests: hello, lease,
+clock sync, commands, force reception."""
 
 from __future__ import annotations
 
