@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -64,6 +64,9 @@ from telerobot.server.media.playout import allow as allow_playout_delay
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.security import token_matches
 from telerobot.server.telemetry.stats import DriftingFloor, InterArrival, StreamStats
+
+if TYPE_CHECKING:
+    from telerobot.server.settings import Settings
 
 log = logging.getLogger(__name__)
 
@@ -140,25 +143,51 @@ FLOOR_DRIFT = 0.01  # s per s
 FEC_MODES = ("auto", "off", "on")
 
 
+def _declared(name: str) -> Any:
+    """A video setting's default as the server's ``Settings`` declares it (rule 20: a
+    setting is declared once; imported late, the settings import this package)."""
+    from telerobot.server.settings import Settings
+
+    return Settings.model_fields[name].default
+
+
+def _default(name: str) -> Any:
+    return field(default_factory=lambda: _declared(name))
+
+
 @dataclass(frozen=True)
 class VideoSettings:
-    fps: float = 30.0
-    bitrate: int = 8_000_000
-    keyframe_interval: float = 0.0  # s between periodic keyframes; 0: only when asked
-    cbr: bool = False  # H.264 at constant bitrate (filler data), not "up to"
-    low_scale: float = LOW_SCALE  # the low layer's size, of each side
+    """What the pipeline needs of the settings (``of``), each default the ``Settings``
+    field's (backend/settings.py, where each is explained)."""
+
+    fps: float = _default("video_fps")
+    bitrate: int = _default("video_bitrate")
+    keyframe_interval: float = _default("keyframe_interval_s")  # 0: only when asked
+    cbr: bool = _default("video_cbr")
+    low_scale: float = LOW_SCALE  # the low layer's size, of each side (not a setting)
     low_bitrate: int = LOW_BITRATE
-    pacing: bool = False  # each viewer's packets paced (backend/media/pacer.py)
-    zero_playout_delay: bool = True  # frames shown when decoded (backend/media/playout.py)
-    # …unless the viewer's link loses packets: then held by what a repair takes.
-    adaptive_playout: bool = True
-    # RED + ULPFEC (backend/media/fec.py): "auto" follows each viewer's loss, "on"
-    # protects every viewer at the most, "off" never (not even offered).
-    fec: str = "auto"
-    # Tests and demos: every Nth media packet to each viewer is lost for good (its
-    # resends too), so only FEC brings it back. 0: none.
-    drop_every: int = 0
+    pacing: bool = _default("video_pacing")  # backend/media/pacer.py
+    zero_playout_delay: bool = _default("video_zero_playout_delay")  # media/playout.py
+    adaptive_playout: bool = _default("video_adaptive_playout")
+    fec: str = _default("video_fec")  # RED + ULPFEC (backend/media/fec.py)
+    drop_every: int = _default("video_drop_every")  # tests and demos: lost for good
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
+
+    @classmethod
+    def of(cls, settings: Settings) -> VideoSettings:
+        """The server's settings for the video."""
+        return cls(
+            fps=settings.video_fps,
+            bitrate=settings.video_bitrate,
+            keyframe_interval=settings.keyframe_interval_s,
+            cbr=settings.video_cbr,
+            pacing=settings.video_pacing,
+            zero_playout_delay=settings.video_zero_playout_delay,
+            adaptive_playout=settings.video_adaptive_playout,
+            fec=settings.video_fec,
+            drop_every=settings.video_drop_every,
+            ice=settings.ice_config,
+        )
 
 
 @dataclass

@@ -132,18 +132,7 @@ async def _serve(
     camera = build_arms_camera(settings, [shared_arm_probe(arm) for arm in arms])
     pipeline = VideoPipeline(
         camera,
-        VideoSettings(
-            fps=settings.video_fps,
-            bitrate=settings.video_bitrate,
-            keyframe_interval=settings.keyframe_interval_s,
-            cbr=settings.video_cbr,
-            pacing=settings.video_pacing,
-            zero_playout_delay=settings.video_zero_playout_delay,
-            adaptive_playout=settings.video_adaptive_playout,
-            fec=settings.video_fec,
-            drop_every=settings.video_drop_every,
-            ice=settings.ice_config,
-        ),
+        VideoSettings.of(settings),
         max_viewers=settings.video_max_viewers,
     )
     pipeline.start()

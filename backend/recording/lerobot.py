@@ -808,7 +808,12 @@ def export_lerobot(
     """Write the recording's episodes into ``out_dir`` (which must not exist or be
     empty) as a LeRobot v3.0 dataset; see the module's docstring for the rules. An
     ``fps`` above the recorded video's rate is refused unless ``allow_repeated_frames``;
-    ``progress`` is called with the fraction done (0 … 1), each percent once."""
+    ``progress`` is called with the fraction done (0 … 1), each percent once.
+
+    The steps, each a function below: read the recording; choose the rate; place each
+    episode's rows on the dataset's grid; say the features; fill the columns; judge
+    each row's ages; write the videos, the data, the stats, the episodes, the tasks and
+    the info (LeRobot's files), and ours beside them."""
     t_start = time.perf_counter()
     report = _Reporter(progress)
     report(0.0)
@@ -823,53 +828,11 @@ def export_lerobot(
     has_video = len(rec.video_t) > 0
     rate = video_rate(rec.video_t)
     warnings: list[str] = []
-    if fps is None and rec.configured_fps is not None:
-        # The rate the server was asked for, whatever the load did to the video (LeRobot
-        # cannot merge datasets of different fps): rows whose frame is then older than a
-        # row period are flagged (telerobot.age_ms) and counted, not hidden.
-        fps = max(1, round(rec.configured_fps))
-        if rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
-            warnings.append(
-                f"the recorded video ran at {rate:.1f} fps, below the {fps} fps configured: "
-                "rows whose frame is more than a row period old are flagged"
-            )
-    elif fps is None:
-        fps = default_fps(rate)
-    elif rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
-        too_fast = (
-            f"the recorded video ran at {rate:.1f} fps: {fps} rows a second would show each "
-            f"of its frames on about {fps / rate:.1f} rows"
-        )
-        if not allow_repeated_frames:
-            raise ExportError(
-                f"{too_fast}; export at {default_fps(rate)} fps or fewer (the default), or "
-                f"allow repeated frames ({ALLOW_REPEATS})"
-            )
-        warnings.append(f"{too_fast} (allowed)")
+    fps = _choose_fps(rec, fps, rate, allow_repeated_frames, warnings)
     whole = not rec.episodes and not rec.skipped
-    episodes = rec.episodes or [(rec.state_t[0], rec.state_t[-1], WHOLE_RECORDING_TASK)]
-    skipped = list(rec.skipped)
-
-    # The rows of each episode on the dataset's grid, kept where there is video.
-    rows: list[Array] = []
-    kept: list[tuple[float, float, str]] = []
-    for start, end, task in episodes:
-        lo, hi = start, end
-        if has_video:
-            half = 0.5 / fps
-            lo, hi = max(lo, rec.video_t[0] - half), min(hi, rec.video_t[-1] + half)
-        n = math.floor((hi - lo) * fps + 1e-9) + 1 if hi >= lo else 0
-        if n < 2:
-            skipped.append(f"'{task}' ({start:.3f}–{end:.3f} s): under two frames of data")
-            continue
-        # Rows start on the episode's first grid point inside the video.
-        first = start + math.ceil((lo - start) * fps - 1e-9) / fps
-        n = math.floor((hi - first) * fps + 1e-9) + 1
-        rows.append(first + np.arange(n) / fps)
-        kept.append((first, end, task))
+    rows, kept, skipped = _episode_rows(rec, fps, has_video)
     if not kept:
         raise ExportError(f"{recording_path.name}: no episode has data to export")
-
     tasks: list[str] = []
     for _, _, task in kept:
         if task not in tasks:
@@ -878,85 +841,11 @@ def export_lerobot(
     out.mkdir(parents=True, exist_ok=True)
     layout = _Layout.of(rec)
     state_period = _state_period(rec)
-    features: dict[str, dict[str, Any]] = {
-        "observation.state": _feature(
-            [len(layout.joint_names)],
-            layout.joint_names,
-            f"joints ({layout.units_text}, LeRobot's units): the last {layout.state_topic} "
-            "at or before the row time",
-        ),
-        "observation.tool_pose": _feature(
-            [len(layout.pose_names)],
-            layout.pose_names,
-            f"tool position (m) and row-major rotation in {layout.pose_frame}: the last "
-            f"{layout.state_topic} at or before the row time",
-        ),
-        "observation.force": _feature(
-            [len(layout.force_names)],
-            layout.force_names,
-            f"force (N) and torque (N·m), {layout.force_frame}: the mean of the "
-            f"{layout.force_topic} samples in (t - 1/fps, t], else the last before",
-        ),
-        "action": _feature(
-            [len(layout.joint_names)],
-            layout.joint_names,
-            f"commanded target joints ({layout.units_text}): the last accepted /commands "
-            f"target{layout.each_named} at or before the row time (before any: the state's "
-            "target)",
-        ),
-        "telerobot.age_ms": _feature(
-            [3],
-            AGE_NAMES,
-            "how old the row's state, force and frame are (ms; force −1: none recorded"
-            f"{OLDEST_ARM if rec.multi else ''}); "
-            f"flagged stale above {1000 * STALE_STATE_PERIODS * state_period:.0f} ms "
-            "(state) and one row period (force, frame)",
-        ),
-    }
+    features = _features(rec, layout, state_period)
+    columns, index_cols = _columns(rec, rows, kept, tasks, fps)
+    total = sum(len(t) for t in rows)
 
-    # Per-episode columns.
-    columns: dict[str, list[Any]] = {k: [] for k in features}
-    index_cols: dict[str, list[npt.NDArray[Any]]] = {
-        "timestamp": [],
-        "frame_index": [],
-        "episode_index": [],
-        "index": [],
-        "task_index": [],
-    }
-    # lerobot-rollout's DAgger column: true on the rows an operator drove, taking over
-    # from the policy (CORRECTING). Only for recordings of a policy under supervision.
-    supervised = any(mode != "off" for _, mode in rec.autonomy)
-    if supervised:
-        index_cols["intervention"] = []
-    total = 0
-    for e, (t, (_, _, task)) in enumerate(zip(rows, kept, strict=True)):
-        n = len(t)
-        if supervised:
-            index_cols["intervention"].append(_corrected(rec.autonomy, t))
-        state, pose, force, action = [], [], [], []
-        for arm in rec.arms:  # (side by side, in the columns' order)
-            units = arm.units
-            state.append(units.to_lerobot(_held(arm.state_t, arm.joints, t)))
-            pose.append(_held(arm.state_t, arm.pose, t))
-            force.append(_interval_mean(arm.force_t, arm.force, t, 1.0 / fps))
-            fallback = _held(arm.state_t, arm.targets, t)
-            target = _held(arm.command_t, arm.command_target, t, before=fallback)
-            action.append(units.to_lerobot(target))
-        columns["observation.state"].append(np.hstack(state))
-        columns["observation.tool_pose"].append(np.hstack(pose))
-        columns["observation.force"].append(np.hstack(force))
-        columns["action"].append(np.hstack(action))
-        index_cols["timestamp"].append((np.arange(n) / fps).astype(np.float32))
-        index_cols["frame_index"].append(np.arange(n, dtype=np.int64))
-        index_cols["episode_index"].append(np.full(n, e, np.int64))
-        index_cols["index"].append(np.arange(total, total + n, dtype=np.int64))
-        index_cols["task_index"].append(np.full(n, tasks.index(task), np.int64))
-        total += n
-
-    # Videos: decode the side-by-side stream once, write each half's rows in order.
-    codec_name: str | None = None
-    video_info: dict[str, Any] = {}
-    histograms = {c: [_ImageHistogram() for _ in kept] for c in CAMERAS}
+    # Which recorded frame each row shows, and how old each row's parts are.
     source = [
         _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
         for t in rows
@@ -965,22 +854,17 @@ def export_lerobot(
     columns["telerobot.age_ms"] = [
         _ages(rec, t, src if has_video else None) for t, src in zip(rows, source, strict=True)
     ]
-    ages = np.concatenate(columns["telerobot.age_ms"])
-    bounds = np.array([STALE_STATE_PERIODS * state_period, 1.0 / fps, 1.0 / fps]) * 1000 + 1e-3
-    stale: dict[str, int] = {}
-    for i, name in enumerate(AGE_NAMES):
-        stale[name] = int(np.count_nonzero(ages[:, i] > bounds[i]))
-        if stale[name]:
-            warnings.append(
-                f"{stale[name]} of {total} rows have a {name} older than {bounds[i]:.0f} ms "
-                "(flagged in telerobot.age_ms)"
-            )
+    stale = _flag_stale(columns["telerobot.age_ms"], state_period, fps, total, warnings)
     if repeated > REPEAT_TOLERANCE * total:
         warnings.append(
             f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
             f"recorded frame as the row before: {_rate_text(rate)}, unevenly or slower "
             "than the rows"
         )
+
+    # Videos: decode the side-by-side stream once, write each half's rows in order.
+    codec_name: str | None = None
+    histograms = {c: [_ImageHistogram() for _ in kept] for c in CAMERAS}
     if has_video:
         codec_name, video_info = _write_videos(out, rec, source, fps, histograms, report)
         for cam in CAMERAS:
@@ -998,75 +882,11 @@ def export_lerobot(
         dtype = {"timestamp": "float32", "intervention": "bool"}.get(key, "int64")
         features[key] = {"dtype": dtype, "shape": [1], "names": None}
 
-    # data/chunk-000/file-000.parquet
-    table = pa.table(
-        {
-            **{k: _vector_column(np.concatenate(v)) for k, v in columns.items()},
-            **{k: pa.array(np.concatenate(v)) for k, v in index_cols.items()},
-        }
-    )
-    data_path = out / DATA_PATH.format(chunk_index=0, file_index=0)
-    data_path.parent.mkdir(parents=True, exist_ok=True)
-    pq.write_table(table, data_path, compression="snappy")
-
-    # Stats, per episode and over the dataset.
-    stat_keys = [*columns, *index_cols]
-    episode_stats: list[dict[str, dict[str, Any]]] = []
-    for e in range(len(kept)):
-        s: dict[str, dict[str, Any]] = {}
-        for k in columns:
-            s[k] = _stats(columns[k][e], axis=0, keepdims=False)
-        for k in index_cols:
-            s[k] = _stats(index_cols[k][e], axis=0, keepdims=True)
-        for cam in CAMERAS if has_video else ():
-            s[f"observation.images.{cam}"] = histograms[cam][e].stats()
-        episode_stats.append(s)
-    dataset_stats: dict[str, dict[str, Any]] = {}
-    for k in columns:
-        dataset_stats[k] = _stats(np.concatenate(columns[k]), axis=0, keepdims=False)
-    for k in index_cols:
-        dataset_stats[k] = _stats(np.concatenate(index_cols[k]), axis=0, keepdims=True)
-    for cam in CAMERAS if has_video else ():
-        dataset_stats[f"observation.images.{cam}"] = _ImageHistogram.sum(histograms[cam]).stats()
-    (out / "meta").mkdir(exist_ok=True)
-    (out / "meta" / "stats.json").write_text(
-        json.dumps({k: _tolist(v) for k, v in dataset_stats.items()}, indent=4)
-    )
-
-    # meta/episodes/chunk-000/file-000.parquet
-    lengths = [len(t) for t in rows]
-    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
-    ep_cols: dict[str, Any] = {
-        "episode_index": pa.array(range(len(kept)), pa.int64()),
-        "tasks": pa.array([[task] for _, _, task in kept], pa.list_(pa.string())),
-        "length": pa.array(lengths, pa.int64()),
-        "data/chunk_index": pa.array([0] * len(kept), pa.int64()),
-        "data/file_index": pa.array([0] * len(kept), pa.int64()),
-        "dataset_from_index": pa.array(starts[:-1].tolist(), pa.int64()),
-        "dataset_to_index": pa.array(starts[1:].tolist(), pa.int64()),
-    }
-    for cam in CAMERAS if has_video else ():
-        key = f"observation.images.{cam}"
-        ep_cols[f"videos/{key}/chunk_index"] = pa.array([0] * len(kept), pa.int64())
-        ep_cols[f"videos/{key}/file_index"] = pa.array([0] * len(kept), pa.int64())
-        ep_cols[f"videos/{key}/from_timestamp"] = pa.array(
-            (starts[:-1] / fps).tolist(), pa.float64()
-        )
-        ep_cols[f"videos/{key}/to_timestamp"] = pa.array((starts[1:] / fps).tolist(), pa.float64())
-    stat_features = [*stat_keys, *(f"observation.images.{c}" for c in CAMERAS if has_video)]
-    for k in stat_features:
-        for stat in episode_stats[0][k]:
-            ep_cols[f"stats/{k}/{stat}"] = pa.array(
-                [np.asarray(s[k][stat], np.float64).tolist() for s in episode_stats]
-            )
-    ep_cols["meta/episodes/chunk_index"] = pa.array([0] * len(kept), pa.int64())
-    ep_cols["meta/episodes/file_index"] = pa.array([0] * len(kept), pa.int64())
-    episodes_path = out / EPISODES_PATH.format(chunk_index=0, file_index=0)
-    episodes_path.parent.mkdir(parents=True, exist_ok=True)
-    pq.write_table(pa.table(ep_cols), episodes_path, compression="snappy")
-
+    _write_data(out, columns, index_cols)
+    cameras = CAMERAS if has_video else ()
+    episode_stats = _write_stats(out, columns, index_cols, histograms, len(kept), cameras)
+    _write_episodes(out, rows, kept, fps, cameras, episode_stats)
     pq.write_table(_tasks_table(tasks), out / "meta" / "tasks.parquet")
-
     info = {
         "codebase_version": CODEBASE_VERSION,
         "robot_type": layout.robot_type,
@@ -1118,6 +938,266 @@ def export_lerobot(
         warnings=warnings,
         stale_rows=stale,
     )
+
+
+def _choose_fps(
+    rec: _Recording,
+    fps: int | None,
+    rate: float | None,
+    allow_repeated_frames: bool,
+    warnings: list[str],
+) -> int:
+    """The dataset's rate: as asked; else the rate the server was configured for; else
+    the recorded video's. Faster than the video is refused unless repeats are allowed."""
+    if fps is None and rec.configured_fps is not None:
+        # The rate the server was asked for, whatever the load did to the video (LeRobot
+        # cannot merge datasets of different fps): rows whose frame is then older than a
+        # row period are flagged (telerobot.age_ms) and counted, not hidden.
+        fps = max(1, round(rec.configured_fps))
+        if rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
+            warnings.append(
+                f"the recorded video ran at {rate:.1f} fps, below the {fps} fps configured: "
+                "rows whose frame is more than a row period old are flagged"
+            )
+    elif fps is None:
+        fps = default_fps(rate)
+    elif rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
+        too_fast = (
+            f"the recorded video ran at {rate:.1f} fps: {fps} rows a second would show each "
+            f"of its frames on about {fps / rate:.1f} rows"
+        )
+        if not allow_repeated_frames:
+            raise ExportError(
+                f"{too_fast}; export at {default_fps(rate)} fps or fewer (the default), or "
+                f"allow repeated frames ({ALLOW_REPEATS})"
+            )
+        warnings.append(f"{too_fast} (allowed)")
+    return fps
+
+
+def _episode_rows(
+    rec: _Recording, fps: int, has_video: bool
+) -> tuple[list[Array], list[tuple[float, float, str]], list[str]]:
+    """Each episode's row times on the dataset's grid, kept where there is video; the
+    episodes kept (first row, end, task); and those skipped, said why."""
+    episodes = rec.episodes or [(rec.state_t[0], rec.state_t[-1], WHOLE_RECORDING_TASK)]
+    skipped = list(rec.skipped)
+    rows: list[Array] = []
+    kept: list[tuple[float, float, str]] = []
+    for start, end, task in episodes:
+        lo, hi = start, end
+        if has_video:
+            half = 0.5 / fps
+            lo, hi = max(lo, rec.video_t[0] - half), min(hi, rec.video_t[-1] + half)
+        n = math.floor((hi - lo) * fps + 1e-9) + 1 if hi >= lo else 0
+        if n < 2:
+            skipped.append(f"'{task}' ({start:.3f}–{end:.3f} s): under two frames of data")
+            continue
+        # Rows start on the episode's first grid point inside the video.
+        first = start + math.ceil((lo - start) * fps - 1e-9) / fps
+        n = math.floor((hi - first) * fps + 1e-9) + 1
+        rows.append(first + np.arange(n) / fps)
+        kept.append((first, end, task))
+    return rows, kept, skipped
+
+
+def _features(rec: _Recording, layout: _Layout, state_period: float) -> dict[str, dict[str, Any]]:
+    """The dataset's numeric features, each described as it is filled."""
+    return {
+        "observation.state": _feature(
+            [len(layout.joint_names)],
+            layout.joint_names,
+            f"joints ({layout.units_text}, LeRobot's units): the last {layout.state_topic} "
+            "at or before the row time",
+        ),
+        "observation.tool_pose": _feature(
+            [len(layout.pose_names)],
+            layout.pose_names,
+            f"tool position (m) and row-major rotation in {layout.pose_frame}: the last "
+            f"{layout.state_topic} at or before the row time",
+        ),
+        "observation.force": _feature(
+            [len(layout.force_names)],
+            layout.force_names,
+            f"force (N) and torque (N·m), {layout.force_frame}: the mean of the "
+            f"{layout.force_topic} samples in (t - 1/fps, t], else the last before",
+        ),
+        "action": _feature(
+            [len(layout.joint_names)],
+            layout.joint_names,
+            f"commanded target joints ({layout.units_text}): the last accepted /commands "
+            f"target{layout.each_named} at or before the row time (before any: the state's "
+            "target)",
+        ),
+        "telerobot.age_ms": _feature(
+            [3],
+            AGE_NAMES,
+            "how old the row's state, force and frame are (ms; force −1: none recorded"
+            f"{OLDEST_ARM if rec.multi else ''}); "
+            f"flagged stale above {1000 * STALE_STATE_PERIODS * state_period:.0f} ms "
+            "(state) and one row period (force, frame)",
+        ),
+    }
+
+
+def _columns(
+    rec: _Recording,
+    rows: list[Array],
+    kept: list[tuple[float, float, str]],
+    tasks: list[str],
+    fps: int,
+) -> tuple[dict[str, list[Any]], dict[str, list[npt.NDArray[Any]]]]:
+    """Each episode's values of every feature (the arms side by side, in the columns'
+    order) and of LeRobot's index columns; the ages are filled by the caller."""
+    columns: dict[str, list[Any]] = {
+        k: [] for k in ("observation.state", "observation.tool_pose", "observation.force")
+    }
+    columns["action"] = []
+    columns["telerobot.age_ms"] = []
+    index_cols: dict[str, list[npt.NDArray[Any]]] = {
+        "timestamp": [],
+        "frame_index": [],
+        "episode_index": [],
+        "index": [],
+        "task_index": [],
+    }
+    # lerobot-rollout's DAgger column: true on the rows an operator drove, taking over
+    # from the policy (CORRECTING). Only for recordings of a policy under supervision.
+    supervised = any(mode != "off" for _, mode in rec.autonomy)
+    if supervised:
+        index_cols["intervention"] = []
+    total = 0
+    for e, (t, (_, _, task)) in enumerate(zip(rows, kept, strict=True)):
+        n = len(t)
+        if supervised:
+            index_cols["intervention"].append(_corrected(rec.autonomy, t))
+        state, pose, force, action = [], [], [], []
+        for arm in rec.arms:
+            units = arm.units
+            state.append(units.to_lerobot(_held(arm.state_t, arm.joints, t)))
+            pose.append(_held(arm.state_t, arm.pose, t))
+            force.append(_interval_mean(arm.force_t, arm.force, t, 1.0 / fps))
+            fallback = _held(arm.state_t, arm.targets, t)
+            target = _held(arm.command_t, arm.command_target, t, before=fallback)
+            action.append(units.to_lerobot(target))
+        columns["observation.state"].append(np.hstack(state))
+        columns["observation.tool_pose"].append(np.hstack(pose))
+        columns["observation.force"].append(np.hstack(force))
+        columns["action"].append(np.hstack(action))
+        index_cols["timestamp"].append((np.arange(n) / fps).astype(np.float32))
+        index_cols["frame_index"].append(np.arange(n, dtype=np.int64))
+        index_cols["episode_index"].append(np.full(n, e, np.int64))
+        index_cols["index"].append(np.arange(total, total + n, dtype=np.int64))
+        index_cols["task_index"].append(np.full(n, tasks.index(task), np.int64))
+        total += n
+    return columns, index_cols
+
+
+def _flag_stale(
+    ages_by_episode: list[Array], state_period: float, fps: int, total: int, warnings: list[str]
+) -> dict[str, int]:
+    """How many rows have a state, force or frame older than its bound (said in
+    ``warnings``); the rows themselves carry their ages (telerobot.age_ms)."""
+    ages = np.concatenate(ages_by_episode)
+    bounds = np.array([STALE_STATE_PERIODS * state_period, 1.0 / fps, 1.0 / fps]) * 1000 + 1e-3
+    stale: dict[str, int] = {}
+    for i, name in enumerate(AGE_NAMES):
+        stale[name] = int(np.count_nonzero(ages[:, i] > bounds[i]))
+        if stale[name]:
+            warnings.append(
+                f"{stale[name]} of {total} rows have a {name} older than {bounds[i]:.0f} ms "
+                "(flagged in telerobot.age_ms)"
+            )
+    return stale
+
+
+def _write_data(
+    out: Path, columns: dict[str, list[Any]], index_cols: dict[str, list[npt.NDArray[Any]]]
+) -> None:
+    """data/chunk-000/file-000.parquet: every row."""
+    table = pa.table(
+        {
+            **{k: _vector_column(np.concatenate(v)) for k, v in columns.items()},
+            **{k: pa.array(np.concatenate(v)) for k, v in index_cols.items()},
+        }
+    )
+    data_path = out / DATA_PATH.format(chunk_index=0, file_index=0)
+    data_path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(table, data_path, compression="snappy")
+
+
+def _write_stats(
+    out: Path,
+    columns: dict[str, list[Any]],
+    index_cols: dict[str, list[npt.NDArray[Any]]],
+    histograms: dict[str, list[_ImageHistogram]],
+    episodes: int,
+    cameras: tuple[str, ...],
+) -> list[dict[str, dict[str, Any]]]:
+    """meta/stats.json (over the dataset); returns each episode's stats (for the
+    episodes' table)."""
+    episode_stats: list[dict[str, dict[str, Any]]] = []
+    for e in range(episodes):
+        s: dict[str, dict[str, Any]] = {}
+        for k in columns:
+            s[k] = _stats(columns[k][e], axis=0, keepdims=False)
+        for k in index_cols:
+            s[k] = _stats(index_cols[k][e], axis=0, keepdims=True)
+        for cam in cameras:
+            s[f"observation.images.{cam}"] = histograms[cam][e].stats()
+        episode_stats.append(s)
+    dataset_stats: dict[str, dict[str, Any]] = {}
+    for k in columns:
+        dataset_stats[k] = _stats(np.concatenate(columns[k]), axis=0, keepdims=False)
+    for k in index_cols:
+        dataset_stats[k] = _stats(np.concatenate(index_cols[k]), axis=0, keepdims=True)
+    for cam in cameras:
+        dataset_stats[f"observation.images.{cam}"] = _ImageHistogram.sum(histograms[cam]).stats()
+    (out / "meta").mkdir(exist_ok=True)
+    (out / "meta" / "stats.json").write_text(
+        json.dumps({k: _tolist(v) for k, v in dataset_stats.items()}, indent=4)
+    )
+    return episode_stats
+
+
+def _write_episodes(
+    out: Path,
+    rows: list[Array],
+    kept: list[tuple[float, float, str]],
+    fps: int,
+    cameras: tuple[str, ...],
+    episode_stats: list[dict[str, dict[str, Any]]],
+) -> None:
+    """meta/episodes/chunk-000/file-000.parquet: each episode's rows, videos and stats."""
+    lengths = [len(t) for t in rows]
+    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
+    ep_cols: dict[str, Any] = {
+        "episode_index": pa.array(range(len(kept)), pa.int64()),
+        "tasks": pa.array([[task] for _, _, task in kept], pa.list_(pa.string())),
+        "length": pa.array(lengths, pa.int64()),
+        "data/chunk_index": pa.array([0] * len(kept), pa.int64()),
+        "data/file_index": pa.array([0] * len(kept), pa.int64()),
+        "dataset_from_index": pa.array(starts[:-1].tolist(), pa.int64()),
+        "dataset_to_index": pa.array(starts[1:].tolist(), pa.int64()),
+    }
+    for cam in cameras:
+        key = f"observation.images.{cam}"
+        ep_cols[f"videos/{key}/chunk_index"] = pa.array([0] * len(kept), pa.int64())
+        ep_cols[f"videos/{key}/file_index"] = pa.array([0] * len(kept), pa.int64())
+        ep_cols[f"videos/{key}/from_timestamp"] = pa.array(
+            (starts[:-1] / fps).tolist(), pa.float64()
+        )
+        ep_cols[f"videos/{key}/to_timestamp"] = pa.array((starts[1:] / fps).tolist(), pa.float64())
+    for k in episode_stats[0]:
+        for stat in episode_stats[0][k]:
+            ep_cols[f"stats/{k}/{stat}"] = pa.array(
+                [np.asarray(s[k][stat], np.float64).tolist() for s in episode_stats]
+            )
+    ep_cols["meta/episodes/chunk_index"] = pa.array([0] * len(kept), pa.int64())
+    ep_cols["meta/episodes/file_index"] = pa.array([0] * len(kept), pa.int64())
+    episodes_path = out / EPISODES_PATH.format(chunk_index=0, file_index=0)
+    episodes_path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.table(ep_cols), episodes_path, compression="snappy")
 
 
 def _eyes(frame: av.VideoFrame) -> tuple[av.VideoFrame, av.VideoFrame]:
