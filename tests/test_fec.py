@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import random
-import time
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -15,8 +15,9 @@ from aiortc import RTCPeerConnection, RTCSessionDescription
 from aiortc.rtp import RTCP_RTPFB_NACK, RtcpRtpfbPacket
 
 from harness import wan_receiver
-from telerobot.server.media import fec, playout
-from telerobot.server.media.pipeline import VideoPipeline, VideoSettings, ViewerLink, follow_link
+from telerobot.server.media import fec, playout, viewer_link
+from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
+from telerobot.server.media.viewer_link import Protection, ViewerLink, follow_link
 from tests.support.video import SMALL, camera
 
 MEDIA_PT, RED_PT, ULPFEC_PT = 102, 121, 122
@@ -275,45 +276,56 @@ def test_the_link_s_queue_is_the_nacks_round_trip_above_their_floor() -> None:
 
 
 def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() -> None:
-    from collections import deque
-    from types import SimpleNamespace
+    """The per-viewer policy alone, on a made-up clock: a second at a time."""
+    link, protection = ViewerLink(), Protection()
+    sent = 0
+    now = 1000.0
 
-    from telerobot.server.media import pipeline as media
-
-    pipeline = VideoPipeline(camera(**SMALL), VideoSettings())  # "auto"; not started
-    counts = fec.FecCounts()
-    peer: Any = SimpleNamespace(
-        connected=True, link=ViewerLink(), fec=SimpleNamespace(counts=counts), counted=(0, 0),
-        losses=deque(maxlen=media.LOSS_WINDOWS), loss=None, fec_share=0.0, fec_paused=0,
-        fec_paused_until=0.0, queued_seconds=0, cut_at=None,
-    )  # fmt: skip
-    pipeline.peers["p"] = peer
-
-    def second(sent: int, nacked: int) -> float:
-        counts.media_packets += sent
-        peer.link.nacked += nacked
-        pipeline.adapt_protection()
-        return float(peer.fec_share)
+    def second(packets: int, nacked: int, mode: str = "auto") -> float:
+        nonlocal sent, now
+        sent += packets
+        link.nacked += nacked
+        now += 1.0
+        protection.judge(sent, link, mode, now)
+        return protection.fec_share
 
     assert second(100, 0) == 0.0  # clean: no FEC
     assert second(100, 2) == 0.0  # two seconds known: not yet (FEC_AFTER_S)
     assert second(100, 2) == pytest.approx(fec.protection_share(0.02, False))
     # A cut (every packet of a second NACKed) is one second of five: the median stays
     assert second(100, 100) == pytest.approx(fec.protection_share(0.02, True))
-    t0 = time.monotonic()  # (the pipeline's clock)
     for t in range(4):  # the NACKs come back later and later: a queue on the link
-        peer.link.nack_rtt(0.25 + 0.1 * t, t0 + t - 4)
+        link.nack_rtt(0.25 + 0.1 * t, now + t - 4)
     # Right after a cut that is its backlog (resends, the forces held up): not judged
-    assert second(100, 2) > 0.0 and second(100, 2) > 0.0 and peer.fec_paused == 0
-    peer.cut_at = -1e9  # (the cut long past)
+    assert second(100, 2) > 0.0 and second(100, 2) > 0.0 and protection.fec_paused == 0
+    protection.cut_at = -1e9  # (the cut long past)
     assert second(100, 2) > 0.0  # one second of it could be a cut's backlog…
-    assert second(100, 2) == 0.0 and peer.fec_paused == 1  # …two are a queue
+    assert second(100, 2) == 0.0 and protection.fec_paused == 1  # …two are a queue
     for _ in range(16):  # the queue drains once the FEC's bytes stop…
-        peer.link.nack_rtt(0.25, time.monotonic())
-    assert peer.link.queued_s(time.monotonic()) == pytest.approx(0.0, abs=0.05)
+        link.nack_rtt(0.25, now)
+    assert link.queued_s(now) == pytest.approx(0.0, abs=0.05)
     assert second(100, 2) == 0.0  # …but protection stays paused FEC_PAUSE_S
-    pipeline.clock = SimpleNamespace(now=lambda: 1e9)  # (a clock far later)
+    now += viewer_link.FEC_PAUSE_S
     assert second(100, 2) > 0.0
+    assert second(0, 0) > 0.0  # nothing sent this second: nothing judged
+    assert second(100, 0, mode="on") == fec.MAX_SHARE  # "on": the most, whatever the loss
+
+
+def test_the_pipeline_judges_each_connected_viewer_on_its_clock() -> None:
+    pipeline = VideoPipeline(camera(**SMALL), VideoSettings())  # "auto"; not started
+    counts = fec.FecCounts()
+    peer: Any = SimpleNamespace(
+        connected=True, link=ViewerLink(), fec=SimpleNamespace(counts=counts),
+        protection=Protection(),
+    )  # fmt: skip
+    idle: Any = SimpleNamespace(connected=False, protection=Protection())
+    pipeline.peers.update({"p": peer, "idle": idle})
+    for _ in range(4):
+        counts.media_packets += 100
+        peer.link.nacked += 2
+        pipeline.adapt_protection()
+    assert peer.protection.fec_share == pytest.approx(fec.protection_share(0.02, False))
+    assert idle.protection.counted == (0, 0)  # a viewer still connecting: not judged
 
 
 async def test_a_frame_longer_than_a_group_gets_its_fec_after_its_last_packet() -> None:
@@ -337,8 +349,6 @@ async def test_a_frame_longer_than_a_group_gets_its_fec_after_its_last_packet() 
 
 async def test_what_a_viewer_s_nacks_can_grow_is_bounded() -> None:
     # A viewer (or anyone with a peer) may NACK any number it likes, as often as it likes
-    from telerobot.server.media import pipeline as media
-
     wire = Wire()
     sender = fec.FecSender(wire, RED_PT, ULPFEC_PT, lambda: 0.25)
     for p in _stream(12, first_seq=0):
@@ -350,8 +360,8 @@ async def test_what_a_viewer_s_nacks_can_grow_is_bounded() -> None:
         link.count_nacked(seqs)
         link.nack_rtt(0.1, float(start))
     assert len(sender._asked) == fec.SEQ_MAP_SIZE
-    assert len(link.nacked_recent) == media.NACKED_KEPT and link.nacked == 65536
-    assert len(link.nack_rtts) == media.NACK_RTTS_KEPT
+    assert len(link.nacked_recent) == viewer_link.NACKED_KEPT and link.nacked == 65536
+    assert len(link.nack_rtts) == viewer_link.NACK_RTTS_KEPT
     delay = playout.AdaptivePlayout()
     for i in range(1000):
         delay.repair(float(i) / 1000, 0.3)

@@ -298,7 +298,7 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
 
     from aiortc.rtp import RTCP_RTPFB_NACK, RTP_HISTORY_SIZE, RtcpRtpfbPacket
 
-    from telerobot.server.media.pipeline import ViewerLink, follow_link
+    from telerobot.server.media.viewer_link import ViewerLink, follow_link
 
     asked: list[int] = []
     handled: list[object] = []
@@ -322,7 +322,7 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
     assert (asked, link.nacks_unservable) == ([1], 2)  # 300 and 301 are gone
     # …and 627, which could be, is not resent: the key frame replaces it too
     assert (len(handled), link.resends_spared) == (1, 1)
-    assert link.as_dict()["nacks_unservable"] == 2
+    assert link.as_dict(0.0)["nacks_unservable"] == 2
     # The receiver asks again for the same gap: the key frame asked for (it goes out
     # after packet 627) replaces those packets, so nothing more is asked.
     await sender._handle_rtcp_packet(

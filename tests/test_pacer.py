@@ -151,7 +151,8 @@ def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
     from types import SimpleNamespace
 
     from telerobot.server.media.layers import RateMeter
-    from telerobot.server.media.pipeline import PACE_MAX_LOSS, VideoPipeline, ViewerLink
+    from telerobot.server.media.pipeline import PACE_MAX_LOSS, VideoPipeline
+    from telerobot.server.media.viewer_link import ViewerLink
 
     meter = RateMeter()
     for i in range(21):
