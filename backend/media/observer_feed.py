@@ -50,7 +50,7 @@ class ObserverFeed:
         # Filled by the sensor's thread (deque appends are atomic), emptied each tick;
         # bounded: a stalled loop keeps the newest.
         # Per arm (its index on the wire): every arm's STATE and FORCE go out, each
-        # naming its arm; the first arm's sensor is ``force``.
+        # naming its arm.
         self._samples: dict[int, deque[ForceSample]] = {
             g.index: deque(maxlen=MAX_BATCH) for g in hub.decision.arms
         }

@@ -394,14 +394,12 @@ class TaskRunner:
         position: FloatArray,
         rotation: FloatArray,
         *,
+        guard: ArmGuard,
         tolerance_m: float = START_TOLERANCE_M,
         tolerance_rad: float = START_TOLERANCE_RAD,
-        guard: ArmGuard | None = None,
     ) -> ApproachPlan:
-        """The joint move from the arm's (``guard``'s, else the first arm's) commanded
-        joints to the tool pose (a task's first pose), checked
-        (``approach.plan_approach``); InvalidCommand if none."""
-        guard = guard or self.decision.arms[0]
+        """The joint move from ``guard``'s arm's commanded joints to the tool pose (a
+        task's first pose), checked (``approach.plan_approach``); InvalidCommand if none."""
         return await guard.off_loop(  # the full IK: off the event loop
             plan_approach,
             guard.limits,
