@@ -10,6 +10,7 @@ import secrets
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import TypedDict, Unpack
 
 from telerobot.drivers.clock import Clock
 from telerobot.server.control.errors import NotAllowed
@@ -93,6 +94,23 @@ class Client:
         return self.role is Role.POLICY
 
 
+class Joining(TypedDict, total=False):
+    """How a client joins (each optional): ``idle_expiry_s`` (a client with no connection
+    of its own, forgotten after this long idle), ``lease_idle_s`` (a scripted lease's
+    idle timeout), ``source`` (ws, priority, rest, task), ``synced_clock`` (its
+    client_time is on our clock), ``resumable`` (it gets a resume key), ``address``,
+    ``on_behalf_of`` (a task's operator), ``policy`` (it joins as a policy)."""
+
+    idle_expiry_s: float | None
+    lease_idle_s: float | None
+    source: str
+    synced_clock: bool
+    resumable: bool
+    address: str
+    on_behalf_of: str | None
+    policy: bool
+
+
 class ClientTable:
     """Every joined client by id, at most ``max_clients`` (rule 18: a client that
     would pass the bound is refused before anything is made for it)."""
@@ -129,23 +147,11 @@ class ClientTable:
         return token_matches(token, self._token)
 
     def add(
-        self,
-        name: str,
-        token: str | None,
-        *,
-        keep: str | None = None,
-        idle_expiry_s: float | None = None,
-        lease_idle_s: float | None = None,
-        source: str = "ws",
-        synced_clock: bool = False,
-        resumable: bool = False,
-        address: str = "",
-        on_behalf_of: str | None = None,
-        policy: bool = False,
+        self, name: str, token: str | None, *, keep: str | None = None, **how: Unpack[Joining]
     ) -> Client:
         """A new client, its role from ``token``; with the table full, idle scripts'
         clients are forgotten first (never ``keep``: the lease holder)."""
-        role = self.role(token, policy)
+        role = self.role(token, how.get("policy", False))
         if len(self._clients) >= self.max_clients:
             self.forget_idle(self.clock.now(), keep)
         if len(self._clients) >= self.max_clients:
@@ -157,13 +163,15 @@ class ClientTable:
             name[:64],
             role,
             self.clock.now(),
-            idle_expiry_s=idle_expiry_s,
-            lease_idle_s=lease_idle_s,
-            source=source,
-            synced_clock=synced_clock,
-            resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES) if resumable else None,
-            address=address,
-            on_behalf_of=on_behalf_of,
+            idle_expiry_s=how.get("idle_expiry_s"),
+            lease_idle_s=how.get("lease_idle_s"),
+            source=how.get("source", "ws"),
+            synced_clock=how.get("synced_clock", False),
+            resume_key=secrets.token_urlsafe(RESUME_KEY_BYTES)
+            if how.get("resumable", False)
+            else None,
+            address=how.get("address", ""),
+            on_behalf_of=how.get("on_behalf_of"),
         )
         if role is Role.POLICY:
             issued = self.policy_tokens.match(token)

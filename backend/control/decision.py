@@ -23,7 +23,7 @@ import logging
 import math
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Concatenate, ParamSpec, TypeVar
+from typing import Any, Concatenate, ParamSpec, TypeVar, Unpack
 
 import numpy as np
 import pinocchio as pin
@@ -43,7 +43,7 @@ from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
 from telerobot.server.control.arm_guard import ArmGuard, Felt
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Supervision
-from telerobot.server.control.clients import MAX_CLIENTS, Client, ClientTable, Role
+from telerobot.server.control.clients import MAX_CLIENTS, Client, ClientTable, Joining, Role
 from telerobot.server.control.errors import LimitExceeded, NotAllowed, SafetyStop
 from telerobot.server.control.freshness import CommandAges
 from telerobot.server.control.lease import Lease
@@ -301,35 +301,10 @@ class DecisionServer:
         )
 
     # ------------------------------------------------------------ clients
-    def join(
-        self,
-        name: str,
-        token: str | None,
-        *,
-        idle_expiry_s: float | None = None,
-        lease_idle_s: float | None = None,
-        source: str = "ws",
-        synced_clock: bool = False,
-        resumable: bool = False,
-        address: str = "",
-        on_behalf_of: str | None = None,
-        policy: bool = False,
-    ) -> Client:
-        """A new client (``ClientTable.add``); a policy joining is a stop event: it
-        waits for a person's go."""
-        client = self.clients.add(
-            name,
-            token,
-            keep=self.lease.holder,
-            idle_expiry_s=idle_expiry_s,
-            lease_idle_s=lease_idle_s,
-            source=source,
-            synced_clock=synced_clock,
-            resumable=resumable,
-            address=address,
-            on_behalf_of=on_behalf_of,
-            policy=policy,
-        )
+    def join(self, name: str, token: str | None, **how: Unpack[Joining]) -> Client:
+        """A new client (``ClientTable.add``, ``Joining``); a policy joining is a stop
+        event: it waits for a person's go."""
+        client = self.clients.add(name, token, keep=self.lease.holder, **how)
         if client.policy:
             self.autonomy.stopped()
         return client
