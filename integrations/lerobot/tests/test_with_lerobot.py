@@ -214,6 +214,16 @@ def _record_an_episode(url: str) -> Path:
         return Path(r.json()["path"])
 
 
+def _closest_pass(path: np.ndarray, pose: np.ndarray) -> float:
+    """How close (the largest joint's difference, degrees) a path sampled now and then
+    came to ``pose``: at its readings, or on the straight line between two of them."""
+    p0, step = path[:-1], np.diff(path, axis=0)
+    along = ((pose - p0) * step).sum(axis=1) / np.maximum((step * step).sum(axis=1), 1e-12)
+    between = p0 + np.clip(along, 0.0, 1.0)[:, None] * step
+    at = np.abs(path - pose).max(axis=1).min()
+    return float(min(at, np.abs(between - pose).max(axis=1).min()))
+
+
 def test_lerobot_replay_drives_the_arm_through_a_recorded_episode(tmp_path: Path) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -254,9 +264,11 @@ def test_lerobot_replay_drives_the_arm_through_a_recorded_episode(tmp_path: Path
             stop.set()
             watcher.join()
     # The arm passed near every pose of the episode (the SO-101's LeRobot degrees are
-    # 360/4095 per step: 0.02 % from the model's), the gripper in % of its range aside.
+    # 360/4095 per step: 0.02 % from the model's), the gripper in % of its range aside:
+    # between two of the watcher's readings, 50 ms apart, the arm went on moving (on a
+    # busy machine a pose it passed between them was 3.0001° from both).
     went = np.array(path)[:, :5] * 4096 / 4095
-    worst = max(float(np.min(np.abs(went - a[:5]).max(axis=1))) for a in actions)
+    worst = max(_closest_pass(went, a[:5]) for a in actions)
     assert worst < 3.0, (worst, said[-1500:])
     assert np.abs(went[-1] - actions[-1][:5]).max() < 3.0
     assert "clipped" not in said
