@@ -34,10 +34,21 @@ run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser
-## and LeRobot's tools included). LeRobot's tests run beside the tests that need no
-## browser (those mostly wait: 1.2 of 2 cores), their output shown when both are done.
+## and LeRobot's tools included). With a core to spare LeRobot's tests run beside the
+## tests that need no browser (those mostly wait: 1.2 of 2 cores), their output shown
+## when both are done; on a busy machine one after the other. LEROBOT_BESIDE=yes|no decides.
+LEROBOT_BESIDE ?= auto
 test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps lint typecheck web-check web
-	@log=$$(mktemp -t telerobot-lerobot-test.XXXXXX); \
+	@beside='$(LEROBOT_BESIDE)'; \
+	  if [ "$$beside" = auto ]; then \
+	    idle=$$(tools/idle-cores); \
+	    beside=$$(awk -v i="$$idle" 'BEGIN { print (i >= 1.5 ? "yes" : "no") }'); \
+	    echo "$$idle cores idle: LeRobot's tests run $$( [ $$beside = yes ] && echo beside the others || echo after them)"; \
+	  fi; \
+	  if [ "$$beside" != yes ]; then \
+	    $(MAKE) --no-print-directory unit-no-browser lerobot-test; exit $$?; \
+	  fi; \
+	  log=$$(mktemp -t telerobot-lerobot-test.XXXXXX); \
 	  echo "LeRobot's tests run beside the tests that need no browser; their output follows those"; \
 	  $(MAKE) --no-print-directory lerobot-test >$$log 2>&1 & lerobot=$$!; \
 	  $(MAKE) --no-print-directory unit-no-browser; own=$$?; \
@@ -111,7 +122,9 @@ typecheck: $(STAMP)
 # and sockets mostly wait: 286 s on two → 233 s on three here, 1.2 cores used), then the
 # browser tests on one, which share one Chromium and take the CPU the page's software
 # rendering needs (two workers are no faster: 389 s against 378; docs/PERFORMANCE.md).
-# Beside the first, `make test` runs LeRobot's tests: 384 s for both against 382 + 138.
+# Beside the first, `make test` runs LeRobot's tests when 1.5 cores are idle
+# (tools/idle-cores): quiet, 384 s for both against 382 + 138; with a core busy they
+# slowed each other (594 s for the first alone) and are run one after the other.
 unit: unit-no-browser unit-browser
 
 unit-no-browser: $(STAMP)
