@@ -309,11 +309,10 @@ def _record_puma(url: str) -> dict[str, Any]:
     """A PUMA recording with video made through the REST API, exported: the export's
     summary (its ``path``, ``fps``, ``repeated_frames``, ``stale_rows``…)."""
     with httpx.Client(base_url=url + "api/v1/", headers=AUTH, timeout=120) as http:
-        deadline = time.monotonic() + 60
-        while not http.get("video").json()["worker_alive"]:
-            assert time.monotonic() < deadline, "the media worker never started"
-            time.sleep(0.2)
         assert http.post("recordings", json={"name": "puma"}).status_code == 200
+        # The rows start at the recording's first frame: a worker alive but not yet
+        # encoding (a busy machine) had the whole move pass before it (no video at all).
+        _until_video_is_recorded(http)
         http.post("recordings/active/episodes", json={"task": "reach"})
         with Telerobot(url, TOKEN, name="recorder") as arm:
             q = arm.state()["joints"]
