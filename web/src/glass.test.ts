@@ -1,15 +1,18 @@
 import { afterEach, describe, expect, it, vi } from "vitest";
-import { measureGlass, readFrames, timecodeStrip } from "./view/glass";
+import { STUCK_MS, measureGlass, readFrames, timecodeStrip } from "./view/glass";
 import { Rolling } from "./stats";
 
 /** A MediaStreamTrackProcessor whose stream holds `queued` frames and ends when its
  * track is stopped (as Chromium's does), recording what happened to each frame. */
-function fakeProcessor(queued: number) {
+function fakeProcessor(queued: number, copyMs = 0) {
   const log: string[] = [];
   const frames = Array.from({ length: queued }, (_, i) => ({
     format: "I420",
     allocationSize: () => 1024,
-    copyTo: async (buffer: Uint8Array) => [{ offset: 0, stride: buffer.length }],
+    copyTo: async (buffer: Uint8Array) => {
+      if (copyMs) await new Promise((r) => setTimeout(r, copyMs));
+      return [{ offset: 0, stride: buffer.length }];
+    },
     close: () => log.push(`closed ${i}`),
   }));
   let ended = false;
@@ -51,7 +54,18 @@ describe("the glass-to-glass meter (on the page's thread: no Worker here)", () =
     meter.stop();
     await vi.advanceTimersByTimeAsync(0);
     expect(log).toEqual(["track stopped", "closed 0", "closed 1", "closed 2"]);
-    await vi.advanceTimersByTimeAsync(1000); // the late cancel finds nothing left
+    await vi.advanceTimersByTimeAsync(STUCK_MS); // the late cancel finds nothing left
+    expect(log.at(-1)).toBe("cancelled with 0 unread");
+  });
+
+  it("gives a reader slowed by a busy machine the time to close its queue before cancelling", async () => {
+    vi.useFakeTimers();
+    const { track, log } = fakeProcessor(4, 600); // 2.4 s to read what is queued
+    const meter = measureGlass(track, { bestRtt: Infinity, offset: 0 }, new Rolling(10));
+    meter.stop();
+    await vi.advanceTimersByTimeAsync(3000);
+    expect(log).toEqual(["track stopped", "closed 0", "closed 1", "closed 2", "closed 3"]);
+    await vi.advanceTimersByTimeAsync(STUCK_MS);
     expect(log.at(-1)).toBe("cancelled with 0 unread");
   });
 });

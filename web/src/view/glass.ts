@@ -66,7 +66,9 @@ function measureInWorker(worker: Worker, clock: ServerClock, glass: Rolling, ful
     stop() {
       clearInterval(timer);
       tell({ op: "stop" }); // it stops the track, closes what is queued, then says so
-      setTimeout(() => worker.terminate(), 2000);
+      // (and is terminated then); terminated here only if it never does, after its
+      // reader's own deadline: ending a worker drops the frames it still holds.
+      setTimeout(() => worker.terminate(), STUCK_MS + 2000);
     },
   };
 }
@@ -82,12 +84,17 @@ function measureHere(track: MediaStreamTrack, clock: ServerClock, glass: Rolling
 /** Stopping the track ends the stream after the frames already queued, which the reader
  * still takes and closes. Cancelling the stream instead would drop them unclosed, to the
  * garbage collector, which Chromium reports on the console as an error ("A VideoFrame
- * was garbage collected without being closed": seen when a peer was re-negotiated). A
- * reader still not done a second later is cancelled. */
+ * was garbage collected without being closed": seen when a peer was re-negotiated). Only
+ * a reader still not done after STUCK_MS is cancelled: on a busy machine a reader a second
+ * behind is slow, not stuck, and cancelling it at 1 s still dropped its queue (seen in a
+ * WebXR test with other work on both cores). */
 export function stopReading(track: MediaStreamTrack, reader: ReadableStreamDefaultReader<VideoFrame>): void {
   track.stop();
-  setTimeout(() => void reader.cancel().catch(() => undefined), 1000);
+  setTimeout(() => void reader.cancel().catch(() => undefined), STUCK_MS);
 }
+
+/** How long a stopped meter may take to read and close the frames it still holds. */
+export const STUCK_MS = 10_000;
 
 /** Where the timecode's blocks are read in a picture `scale` times the size it was drawn
  * at (drivers/camera/timecode.py: 32 blocks of 16 px at (8, 8); the server's low video
