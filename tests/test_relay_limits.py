@@ -196,3 +196,19 @@ async def test_viewers_per_address_are_bounded_with_the_reason(server: str) -> N
                 await close(http, peer)
             for pc in pcs:
                 await pc.close()
+
+
+def test_the_relays_limits_are_the_settings_declared_once() -> None:
+    """Every limit the relay applies is read from its ``media_server_*`` setting (no
+    second default in backend/media/relay.py to drift from the first)."""
+    from dataclasses import fields
+
+    from telerobot.server.media.relay import RelayLimits
+    from telerobot.server.settings import Settings
+
+    names = [f.name for f in fields(RelayLimits)]
+    given = {
+        f"media_server_{n}": Settings.model_fields[f"media_server_{n}"].default * 2 for n in names
+    }
+    limits = RelayLimits.of(Settings(**given))
+    assert {n: getattr(limits, n) for n in names} == {n: given[f"media_server_{n}"] for n in names}

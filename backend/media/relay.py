@@ -30,7 +30,7 @@ import logging
 import secrets
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 
@@ -40,25 +40,16 @@ from telerobot.server.media.janus import MOUNTPOINT, RtpFeed
 from telerobot.server.realtime.ratelimit import PeerLimits
 from telerobot.server.security import token_matches
 
+if TYPE_CHECKING:
+    from telerobot.server.settings import Settings
+
 log = logging.getLogger(__name__)
 
 RELAY_PREFIX = "relay-"  # the peer ids of viewers through the media server
-MAX_RELAY_VIEWERS = 500
-MAX_RELAY_PENDING = 100  # offered, not yet answered
-RELAY_PENDING_EXPIRY_S = 20.0
-# A watching viewer whose page has not said it is alive for this long is dropped: Janus
-# 1.1.2 does not notice a viewer that vanished without closing (a laptop shut, a crash;
-# not within 75 s here, ICE keep-alive checks on), and would send it video for good.
-RELAY_VIEWER_TIMEOUT_S = 45.0
 REPORT_INTERVAL_S = 1.0  # RTCP sender reports to the mountpoint (and the address latch)
 OFFER_TIMEOUT_S = 10.0
 POLL_RETRIES = 3  # failed long polls in a row before a session is given up
-# Per address. A page makes one offer when it opens and one per renegotiation (after
-# backoff); a few a second is a page reloading in a loop, more is a flood.
-RELAY_OFFERS_PER_ADDRESS_PER_S = 5.0
-OFFER_BURST_S = 4.0  # the burst: this many seconds' worth of offers, at least 1
-MAX_RELAY_PENDING_PER_ADDRESS = 4  # a few pages (or tabs) of one machine connecting
-MAX_RELAY_VIEWERS_PER_ADDRESS = 16  # watching, from one address
+OFFER_BURST_S = 4.0  # the burst of offers per address: this many seconds' worth, at least 1
 HTTP_CONNECTIONS = 64  # to Janus's HTTP API, shared by every session's requests
 
 
@@ -102,6 +93,37 @@ class RelaySession:
         return token_matches(secret, self.secret)
 
 
+@dataclass(frozen=True)
+class RelayLimits:
+    """How many observers the media server takes, and how fast: read from the server's
+    settings (``media_server_*``, where each is declared once with its default and why)."""
+
+    max_viewers: int
+    max_pending: int  # offered, not yet answered
+    pending_expiry_s: float
+    # A watching viewer whose page has not said it is alive for this long is dropped:
+    # Janus 1.1.2 does not notice a viewer that vanished without closing (a laptop shut, a
+    # crash; not within 75 s here, ICE keep-alive checks on), and would send it video.
+    viewer_timeout_s: float
+    # Per address. A page makes one offer when it opens and one per renegotiation (after
+    # backoff); a few a second is a page reloading in a loop, more is a flood.
+    offers_per_address_per_s: float
+    max_pending_per_address: int  # a few pages (or tabs) of one machine connecting
+    max_viewers_per_address: int  # watching, from one address
+
+    @classmethod
+    def of(cls, settings: Settings) -> RelayLimits:
+        return cls(
+            max_viewers=settings.media_server_max_viewers,
+            max_pending=settings.media_server_max_pending,
+            pending_expiry_s=settings.media_server_pending_expiry_s,
+            viewer_timeout_s=settings.media_server_viewer_timeout_s,
+            offers_per_address_per_s=settings.media_server_offers_per_address_per_s,
+            max_pending_per_address=settings.media_server_max_pending_per_address,
+            max_viewers_per_address=settings.media_server_max_viewers_per_address,
+        )
+
+
 class JanusRelay:
     """Observers' peers on Janus, and the RTP feed they watch."""
 
@@ -114,29 +136,19 @@ class JanusRelay:
         start_feed: Any,
         stop_feed: Any,
         *,
+        limits: RelayLimits,
         api_secret: str | None = None,
         host: str = "127.0.0.1",
         mountpoint: int = MOUNTPOINT,
-        max_viewers: int = MAX_RELAY_VIEWERS,
-        max_pending: int = MAX_RELAY_PENDING,
-        pending_expiry_s: float = RELAY_PENDING_EXPIRY_S,
-        viewer_timeout_s: float = RELAY_VIEWER_TIMEOUT_S,
-        offers_per_address_per_s: float = RELAY_OFFERS_PER_ADDRESS_PER_S,
-        max_pending_per_address: int = MAX_RELAY_PENDING_PER_ADDRESS,
-        max_viewers_per_address: int = MAX_RELAY_VIEWERS_PER_ADDRESS,
     ) -> None:
         self.api = api.rstrip("/")
         self._secret = {"apisecret": api_secret} if api_secret else {}
         self.mountpoint = mountpoint
-        self.max_viewers, self.max_pending = max_viewers, max_pending
-        self.pending_expiry_s = pending_expiry_s
-        self.viewer_timeout_s = viewer_timeout_s
-        self.max_pending_per_address = max_pending_per_address
-        self.max_viewers_per_address = max_viewers_per_address
+        self.limits = limits
         # Offers a second per address: the /ws table's kind (bounded, oldest dropped).
         self.offer_limits = PeerLimits(
-            connections_per_s=offers_per_address_per_s,
-            connection_burst=max(1.0, offers_per_address_per_s * OFFER_BURST_S),
+            connections_per_s=limits.offers_per_address_per_s,
+            connection_burst=max(1.0, limits.offers_per_address_per_s * OFFER_BURST_S),
         )
         self.feed = RtpFeed(rtp_port, host=host, rtcp_port=rtcp_port)
         self._request_keyframe = request_keyframe
@@ -150,7 +162,7 @@ class JanusRelay:
         # their own (one each), so they never keep a new viewer's requests waiting.
         self.polls = httpx.AsyncClient(
             timeout=httpx.Timeout(OFFER_TIMEOUT_S, read=40.0),
-            limits=httpx.Limits(max_connections=max_viewers, max_keepalive_connections=64),
+            limits=httpx.Limits(max_connections=limits.max_viewers, max_keepalive_connections=64),
         )
         self._n = 0
         self._tasks: list[asyncio.Task[None]] = []
@@ -207,10 +219,10 @@ class JanusRelay:
             await asyncio.sleep(1.0)
             now = time.monotonic()
             for s in list(self.sessions.values()):
-                if not s.started and now - s.created > self.pending_expiry_s:
+                if not s.started and now - s.created > self.limits.pending_expiry_s:
                     self.expired += 1
                     await self._destroy(s)
-                elif s.started and now - s.seen > self.viewer_timeout_s:
+                elif s.started and now - s.seen > self.limits.viewer_timeout_s:
                     self.silent += 1
                     await self._destroy(s)
 
@@ -264,16 +276,16 @@ class JanusRelay:
             )
         mine = [s for s in self.sessions.values() if s.address == address]
         waiting = sum(1 for s in mine if not s.started)
-        if waiting >= self.max_pending_per_address:
+        if waiting >= self.limits.max_pending_per_address:
             self.refused_per_address += 1
             raise RelayBusy(
                 f"{address or 'your address'} has {waiting} offers not yet answered, the"
                 f" most one address may have: answer them (POST /api/v1/webrtc/answer) or"
                 f" close them (DELETE /api/v1/webrtc/{{peer_id}}); unanswered ones expire"
-                f" after {self.pending_expiry_s:g} s"
+                f" after {self.limits.pending_expiry_s:g} s"
             )
         watching = len(mine) - waiting
-        if watching >= self.max_viewers_per_address:
+        if watching >= self.limits.max_viewers_per_address:
             self.refused_per_address += 1
             raise RelayBusy(
                 f"{address or 'your address'} already has {watching} viewers watching"
@@ -286,11 +298,12 @@ class JanusRelay:
         with the peer's id and secret (for ``accept`` and ``close``)."""
         self._check_address(address)
         pending = sum(1 for s in self.sessions.values() if not s.started)
-        if len(self.sessions) >= self.max_viewers or pending >= self.max_pending:
+        if len(self.sessions) >= self.limits.max_viewers or pending >= self.limits.max_pending:
             self.refused += 1
             raise RelayFull(
                 f"the media server has {len(self.sessions)} viewers ({pending} connecting):"
-                f" the limit is {self.max_viewers} ({self.max_pending} connecting); try later"
+                f" the limit is {self.limits.max_viewers}"
+                f" ({self.limits.max_pending} connecting); try later"
             )
         # Counted from now, before the first request to Janus: connects arriving at once
         # all see each other.
@@ -381,7 +394,7 @@ class JanusRelay:
         s.started, s.seen = True, time.monotonic()
 
     def alive(self, peer_id: str, secret: str | None) -> None:
-        """Its page is still there (every ~15 s; see ``RELAY_VIEWER_TIMEOUT_S``)."""
+        """Its page is still there (every ~15 s; see ``RelayLimits.viewer_timeout_s``)."""
         self._own(peer_id, secret).seen = time.monotonic()
 
     async def close_viewer(self, peer_id: str, secret: str | None, operator: bool = False) -> None:
@@ -415,19 +428,19 @@ class JanusRelay:
         return {
             "viewers": sum(1 for s in self.sessions.values() if s.started),
             "pending": sum(1 for s in self.sessions.values() if not s.started),
-            "max_viewers": self.max_viewers,
-            "max_pending": self.max_pending,
+            "max_viewers": self.limits.max_viewers,
+            "max_pending": self.limits.max_pending,
             "feeding": self.feeding,
             "rtp_packets": self.feed.packets,
             "key_frame_requests": self.plis,
             "refused": self.refused,
             "refused_per_address": self.refused_per_address,
-            "max_pending_per_address": self.max_pending_per_address,
-            "max_viewers_per_address": self.max_viewers_per_address,
+            "max_pending_per_address": self.limits.max_pending_per_address,
+            "max_viewers_per_address": self.limits.max_viewers_per_address,
             "expired": self.expired,
             "pending_peak": self.pending_peak,
             "ended_by_media_server": self.ended,
             "dropped_silent": self.silent,
-            "viewer_timeout_s": self.viewer_timeout_s,
+            "viewer_timeout_s": self.limits.viewer_timeout_s,
             "errors": self.errors,
         }

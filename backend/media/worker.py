@@ -138,7 +138,7 @@ async def _serve(
     pipeline.start()
     relay = None
     if settings.media_server == "janus":  # observers through the media server
-        from telerobot.server.media.relay import JanusRelay
+        from telerobot.server.media.relay import JanusRelay, RelayLimits
 
         assert settings.media_server_url is not None  # resolved by the server
 
@@ -153,16 +153,10 @@ async def _serve(
             pipeline.broadcaster.request_keyframe,
             start_feed=start_feed,
             stop_feed=lambda: pipeline.stop_tap("relay"),
+            limits=RelayLimits.of(settings),
             api_secret=settings.media_server_api_secret,
             host=settings.media_server_host or "127.0.0.1",
             mountpoint=settings.media_server_mountpoint,
-            max_viewers=settings.media_server_max_viewers,
-            max_pending=settings.media_server_max_pending,
-            pending_expiry_s=settings.media_server_pending_expiry_s,
-            viewer_timeout_s=settings.media_server_viewer_timeout_s,
-            offers_per_address_per_s=settings.media_server_offers_per_address_per_s,
-            max_pending_per_address=settings.media_server_max_pending_per_address,
-            max_viewers_per_address=settings.media_server_max_viewers_per_address,
         )
         relay.start()
     tap = (
