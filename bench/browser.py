@@ -49,12 +49,12 @@ from harness.servers import serve_for_bench
 
 # The page's decoder's counts for its video, from getStats (inbound-rtp, video).
 DECODER = """async () => {
-  const pc = window.telerobot.video.peer && window.telerobot.video.peer.pc;
+  const stats = await window.telerobot.video.stats();
   const out = { received: 0, decoded: 0, dropped: 0, width: 0, jitterDelay: 0, jitterEmitted: 0,
     decodeTime: 0, processingDelay: 0, assemblyTime: 0, assembled: 0 };
   out.renegotiations = window.telerobot.video.renegotiations;
-  if (!pc) return out;
-  (await pc.getStats()).forEach((r) => {
+  if (!stats) return out;
+  stats.forEach((r) => {
     if (r.type === "inbound-rtp" && r.kind === "video") {
       out.received = r.framesReceived || 0;
       out.decoded = r.framesDecoded || 0;

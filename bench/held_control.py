@@ -129,11 +129,7 @@ def main() -> None:
             yield_software_gpu()
         # Every alert the page shows, as it shows it (a halt's is gone within ~100 ms
         # once heartbeats come: polling would miss most).
-        page.evaluate(
-            """() => { window.__alerts = []; const w = window.telerobot.control;
-              const shown = w.onChange; w.onChange = (a, s) => {
-                window.__alerts.push(a ? a.text : null); if (shown) shown(a, s); }; }"""
-        )
+        page.evaluate("window.telerobot.control.recordAlerts()")
         # The page's main thread, as the worker sees it: its own 100 ms timer's gaps (the
         # check-ins are sent from such a timer) and its long tasks.
         page.evaluate(
@@ -185,7 +181,7 @@ def main() -> None:
         if args.drive:
             page.keyboard.up(key)
             page.keyboard.up("Space")
-        for alert in page.evaluate("window.__alerts"):
+        for alert in page.evaluate("window.telerobot.control.alerts"):
             if alert and alert.startswith("ARM HALTED"):
                 said["busy" if "too busy" in alert else "network"] += 1
         halts = httpx.get(base + "api/v1/safety").json()["deadman_halts"] - halts0

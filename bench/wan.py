@@ -271,12 +271,9 @@ PAGE_PROBE = """
     video.requestVideoFrameCallback(tick);
   };
   video.requestVideoFrameCallback(tick);
-  const glass = window.telerobot.glass;
-  const add = glass.add.bind(glass);
-  glass.add = (v) => {
+  window.telerobot.glass.listen((v) => {
     if (ages.length < 100000) ages.push([performance.now(), v]);
-    add(v);
-  };
+  });
 })()
 """
 

@@ -287,9 +287,7 @@ def test_webxr_each_eye_sees_its_camera_the_grip_drives_the_arm_and_contact_puls
     page, errors = open_page(browser, server, xr=True)
     take_control(page)
     page.click("#xr")
-    wait(
-        page, "window.telerobot.view.renderer.xr.isPresenting && window.telerobot.view.xrFrames > 5"
-    )
+    wait(page, "window.telerobot.view.xrPresenting && window.telerobot.view.xrFrames > 5")
     left, right = page.evaluate(EYES)
     assert left["width"] > 300 and right["width"] > 300, (left, right)  # a quad in each eye
     assert left["white"] == 0 and right["white"] == 0, (left, right)  # the timecode cropped

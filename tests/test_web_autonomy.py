@@ -119,9 +119,9 @@ def test_the_xr_grip_takes_over_from_a_policy_and_letting_go_hands_back(
         page, errors = open_page(browser, server, xr=True)
         wait(page, "document.getElementById('autonomy').textContent.startsWith('AUTONOMOUS')")
         page.click("#xr")
-        wait(page, "window.telerobot.view.renderer.xr.isPresenting")
+        wait(page, "window.telerobot.view.xrPresenting")
         # In the headset, where the header is not seen, a line above the picture says it.
-        wait(page, "window.telerobot.view.xrBadge.visible")
+        wait(page, "window.telerobot.view.xrBadgeVisible")
         hand = "window.__xr.controllers.right"
         # iwer marks every space as emulated; a tracked controller is not (the page
         # ignores a hand whose position is only estimated).

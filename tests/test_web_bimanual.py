@@ -87,10 +87,7 @@ def test_both_arms_are_drawn_each_ball_and_ghost_where_its_mount_puts_it(
     assert np.hypot(*np.subtract(balls[0]["left"], balls[1]["left"])) > 20  # two places
     # Both rings in the view's program, each shown; each arm's ghost in both eyes (base,
     # the five joints that carry the tool, the tool).
-    shown = page.evaluate(
-        "[window.telerobot.view.material.defines.BALLS,"
-        " Array.from(window.telerobot.view.material.uniforms.showBall.value)]"
-    )
+    shown = page.evaluate("[window.telerobot.view.ballSlots, window.telerobot.view.ballsShown]")
     assert shown == [2, [1, 1, 0, 0]], shown
     chains = page.evaluate("window.telerobot.arms.map((a) => a.ghost.pixels.map((c) => c.length))")
     assert chains == [[7, 7], [7, 7]], chains
@@ -149,9 +146,7 @@ def test_each_xr_controller_drives_its_own_arm_with_its_own_grip(
     page, errors = open_page(browser, server, xr=True, video=False)
     take_control(page)
     page.click("#xr")
-    wait(
-        page, "window.telerobot.view.renderer.xr.isPresenting && window.telerobot.view.xrFrames > 5"
-    )
+    wait(page, "window.telerobot.view.xrPresenting && window.telerobot.view.xrFrames > 5")
     for hand in ARMS:
         # iwer marks every space as emulated (estimated); a tracked controller is not,
         # and the page ignores one whose position is only estimated.

@@ -49,7 +49,7 @@ def test_a_lost_lease_is_said_over_the_video_with_a_sound_and_held_keys_stop(
     wait(page, "document.getElementById('control-alert').hidden === false")
     assert "CONTROL LOST" in alert_text(page)
     assert "taken over by 'script'" in alert_text(page)
-    assert page.evaluate("window.telerobot.alarm.played") >= 1
+    assert page.evaluate("window.telerobot.control.played") >= 1
     # The alert is over the video, where the operator looks.
     alert, view = (
         page.locator("#control-alert").bounding_box(),
@@ -88,13 +88,13 @@ def test_a_stalled_page_halts_the_arm_but_keeps_control_and_a_long_stall_loses_i
 ) -> None:
     page, errors = open_page(browser, server, video=False)
     take_control(page)
-    played = page.evaluate("window.telerobot.alarm.played")
+    played = page.evaluate("window.telerobot.control.played")
     # The page's thread hangs for 1.4 s: its worker stops the heartbeat after 1 s (a
     # hung page), the server's dead-man stops the arm 0.18 s later, the lease is kept.
     page.evaluate(
         "(() => { const t = performance.now() + 1400; while (performance.now() < t); })()"
     )
-    wait(page, f"window.telerobot.alarm.played > {played}")
+    wait(page, f"window.telerobot.control.played > {played}")
     wait(page, "(window.telerobot.state.flags & 32) === 0")  # the link is back: not halted
     lost = httpx.get(server + "api/v1/safety").json()["lease_note"]
     assert page.evaluate("(window.telerobot.state.flags & 1) !== 0"), f"control lost: {lost}"
@@ -123,7 +123,7 @@ def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
     with serving(ENV, port=port) as base:
         page, errors = open_page(browser, base)
         page.evaluate("window.__same_page = true")
-        old_peer = page.evaluate("window.telerobot.video.peer.peerId")
+        old_peer = page.evaluate("window.telerobot.video.peerId")
         take_control(page)
     # The server is gone: the page says control was lost and the picture is stale.
     wait(page, "document.getElementById('control-alert-text').textContent.includes('dropped')")
@@ -136,7 +136,7 @@ def test_after_a_server_restart_video_state_and_the_confirmed_lease_come_back(
         assert page.evaluate("window.__same_page") is True
         wait(
             page,
-            f"window.telerobot.video.peer && window.telerobot.video.peer.peerId !== '{old_peer}'",
+            f"window.telerobot.video.peerId && window.telerobot.video.peerId !== '{old_peer}'",
             timeout=40_000,
         )
         frames = page.evaluate("window.telerobot.view.frames")

@@ -30,15 +30,9 @@ SERVER_ENV = NO_VIDEO  # the worker's stall is the point here, not the picture
 STALL_MS = 400  # past the server's 150 ms dead-man, well inside the lease's grace
 
 # Every alert the page shows, in order (the halt's is gone once the arm drives again).
-RECORD_ALERTS = """() => {
-  const watch = window.telerobot.control;
-  window.__alerts = watch.alert ? [watch.alert.text] : [];  // the one shown, if any
-  const shown = watch.onChange;
-  watch.onChange = (alert, sound) => {
-    window.__alerts.push(alert ? alert.text : null);
-    if (shown) shown(alert, sound);
-  };
-}"""
+# (the one shown now first, if any; null: the alert cleared).
+RECORD_ALERTS = "window.telerobot.control.recordAlerts()"
+ALERTS = "window.telerobot.control.alerts"
 
 
 def stall_the_worker(page: Page, ms: int) -> None:
@@ -73,7 +67,7 @@ def test_a_halt_from_a_busy_computer_is_said_so_and_held_keys_drive_on(
         # with the halt alert still shown, if one is: a page that missed the moment
         # the arm moved again sees one long halt, said again only if its cause changes.)
         before = page.evaluate(
-            """() => window.__alerts.length
+            f"""() => {ALERTS}.length
                  - (window.telerobot.control.alert?.level === 'halted' ? 1 : 0)"""
         )
         stall_the_worker(page, STALL_MS)
@@ -93,8 +87,8 @@ def test_a_halt_from_a_busy_computer_is_said_so_and_held_keys_drive_on(
         page.keyboard.up("Space")
     # The lease was kept through the halt.
     assert page.evaluate("(window.telerobot.state.flags & 1) !== 0")
-    alerts = [a for a in page.evaluate("window.__alerts") if a]
-    halted = [a for a in page.evaluate("window.__alerts")[before:] if a and "HALTED" in a]
+    alerts = [a for a in page.evaluate(ALERTS) if a]
+    halted = [a for a in page.evaluate(ALERTS)[before:] if a and "HALTED" in a]
     assert halted, alerts
     assert any("this computer is too busy" in a for a in halted), halted
     assert not any(a.startswith("CONTROL LOST") for a in alerts), alerts
@@ -119,15 +113,12 @@ def test_a_page_on_a_server_with_no_video_makes_no_peers_and_draws_its_view_seld
         timeout=30,
         what="the page to learn that the server has no video",
     )
-    assert page.evaluate("window.telerobot.video.peer") is None
+    assert page.evaluate("window.telerobot.video.peerId") is None
     assert page.evaluate("window.telerobot.video.renegotiations") == 0
-    overlay_on_cpu = page.evaluate(
-        "window.telerobot.view.overlay.canvas.getContext('2d')"
-        ".getContextAttributes().willReadFrequently"
-    )
+    overlay_on_cpu = page.evaluate("window.telerobot.view.overlayOnCpu")
     assert overlay_on_cpu is True
     until(
-        lambda: page.evaluate("window.telerobot.panels !== undefined"),
+        lambda: page.evaluate("window.telerobot !== undefined"),
         what="the panels to be drawn",
     )
     page.wait_for_timeout(500)  # (the panels draw their plots a few times a second)

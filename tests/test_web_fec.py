@@ -43,11 +43,12 @@ MAX_SHARE = 0.35  # backend/media/fec.py: the share "on" sends
 
 # The page's video peer's inbound-rtp stats, with the peer's id (null: no peer now).
 INBOUND = """async () => {
-  const peer = window.telerobot.video.peer;
-  if (!peer) return null;
+  const video = window.telerobot.video;
+  const peerId = video.peerId, stats = await video.stats();
+  if (!stats) return null;
   let found = null;
-  (await peer.pc.getStats()).forEach((s) => { if (s.type === "inbound-rtp" && s.kind === "video") found = s; });
-  return found && { ...found, peerId: peer.peerId };
+  stats.forEach((s) => { if (s.type === "inbound-rtp" && s.kind === "video") found = s; });
+  return found && { ...found, peerId };
 }"""
 
 RESTARTS = 2  # windows started again after a re-negotiation, at most
@@ -90,8 +91,7 @@ def rtpmaps(sdp: str) -> dict[int, str]:
 def descriptions(page: Page) -> tuple[str, str]:
     """The SDP the page's video peer offered and the server's answer."""
     offer, answer = page.evaluate(
-        "[window.telerobot.video.peer.pc.localDescription.sdp,"
-        " window.telerobot.video.peer.pc.remoteDescription.sdp]"
+        "[window.telerobot.video.sdp.local, window.telerobot.video.sdp.remote]"
     )
     return offer, answer
 
@@ -134,7 +134,7 @@ def test_without_fec_the_server_answers_no_red_nor_ulpfec(browser: Browser) -> N
         assert {"red/90000", "ulpfec/90000"} <= set(rtpmaps(offer).values()), offer
         answered = set(rtpmaps(answer).values())
         assert "red/90000" not in answered and "ulpfec/90000" not in answered, answer
-        peer_id = page.evaluate("window.telerobot.video.peer.peerId")
+        peer_id = page.evaluate("window.telerobot.video.peerId")
         v = viewer(server, peer_id)
         assert v["fec"] is None, v
         assert errors == []
@@ -158,7 +158,7 @@ def test_chromiums_offer_carries_red_and_ulpfec_and_the_server_agrees(
     assert m_line is not None, answer
     assert answered[int(m_line.group(1).split()[0])] == "h264/90000", answer
     # The server protects this viewer: FEC packets sent at the share "on" gives.
-    peer_id = page.evaluate("window.telerobot.video.peer.peerId")
+    peer_id = page.evaluate("window.telerobot.video.peerId")
     v = viewer(server, peer_id)
     assert v["fec"] is not None, v
     assert v["fec"]["share"] == pytest.approx(MAX_SHARE), v
@@ -235,7 +235,7 @@ def test_chromium_decodes_the_protected_stream_through_loss_for_good(
     # Chromium's own count: this stream (closed once it lived long enough for libwebrtc
     # to record it) had ULPFEC rebuild packets.
     page.wait_for_timeout(max(0.0, HISTOGRAM_MIN_LIFE_S - (time.monotonic() - opened)) * 1000)
-    page.evaluate("window.telerobot.video.peer.pc.close()")
+    page.evaluate("window.telerobot.video.closePeer()")
     recovered1 = fec_recovered_streams(browser, more_than=recovered0)
     assert recovered1 > recovered0, (
         f"{RECOVERED}: no new sample above 0 in chrome://histograms; {said}"

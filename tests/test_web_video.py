@@ -118,7 +118,7 @@ def test_a_stalled_stream_shows_stale_dims_and_recovers_by_itself(
     # It re-negotiates by itself: a new peer, frames again, no longer stale, not dimmed.
     wait(
         page,
-        f"window.telerobot.video.peer && window.telerobot.video.peer.peerId !== '{old_peer}'",
+        f"window.telerobot.video.peerId && window.telerobot.video.peerId !== '{old_peer}'",
         timeout=20_000,
     )
     f0 = page.evaluate("window.telerobot.view.frames")
@@ -152,7 +152,7 @@ def test_the_view_fills_the_stage_goes_fullscreen_hides_the_timecode_and_rings_t
     page.evaluate("window.telerobot.setMode('side-by-side')")
     wait(
         page,
-        "window.telerobot.view.canvas.width === 2 * window.telerobot.view.video.videoWidth / 2",
+        "window.telerobot.view.canvas.width === 2 * window.telerobot.view.videoSize.width / 2",
     )
     v, s = box(page, "#view"), box(page, "#stage")
     assert fills(page), (v, s)
@@ -184,7 +184,7 @@ def test_the_view_fills_the_stage_goes_fullscreen_hides_the_timecode_and_rings_t
     # The timecode rows are not shown: the canvas is the eye's height less them, and its
     # top rows over the timecode's place (left eye, x 4…524) have no black guard in them.
     eye_w, eye_h = page.evaluate(
-        "[window.telerobot.view.video.videoWidth / 2, window.telerobot.view.video.videoHeight]"
+        "[window.telerobot.view.videoSize.width / 2, window.telerobot.view.videoSize.height]"
     )
     assert h == eye_h - TIMECODE_ROWS
     top = pixels(page, 0, 0, 530, 24)

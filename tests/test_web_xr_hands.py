@@ -51,13 +51,13 @@ MAGENTA = """(points) => {
 # The ghost's joints in canvas pixels of the side-by-side view: each camera's pixel, the
 # right eye's half to the right (moved by the alignment shift), less the cropped rows.
 GHOST_POINTS = """() => {
-  const t = window.telerobot, u = t.view.material.uniforms;
-  const W = u.eye.value.x, crop = u.cropTop.value, shift = u.shift.value;
+  const t = window.telerobot, at = t.view.layout;
+  const W = at.eyeWidth, crop = at.cropTop, shift = { x: at.shift[0], y: at.shift[1] };
   const pts = [];
   t.ghost.pixels.forEach((chain, e) => chain.forEach((p) => {
     if (!p) return;
     const x = p[0] + e * (W + shift.x), y = p[1] - crop + e * shift.y;
-    if (x >= e * W + 6 && x < (e + 1) * W - 6 && y >= 6 && y < u.outSize.value.y - 6) pts.push([x, y, e]);
+    if (x >= e * W + 6 && x < (e + 1) * W - 6 && y >= 6 && y < at.outHeight - 6) pts.push([x, y, e]);
   }));
   return pts;
 }"""
@@ -107,9 +107,7 @@ def test_a_pinching_hand_in_the_emulated_runtime_moves_the_arm(
     page.evaluate("window.__xr.primaryInputMode = 'hand'")  # no controllers: two hands
     take_control(page)
     page.click("#xr")
-    wait(
-        page, "window.telerobot.view.renderer.xr.isPresenting && window.telerobot.view.xrFrames > 5"
-    )
+    wait(page, "window.telerobot.view.xrPresenting && window.telerobot.view.xrFrames > 5")
     sources = page.evaluate(
         "window.__xr.activeSession.inputSources.length === 2"
         " && Array.from(window.__xr.activeSession.inputSources).every((s) => !!s.hand)"

@@ -246,7 +246,7 @@ def drop_video_peer(page: Page, server: str) -> str:
     page's), as a crashed or restarted media worker would: no new frame arrives.
     Returns the closed peer's id."""
     peer = page.evaluate(
-        "({ id: window.telerobot.video.peer.peerId, secret: window.telerobot.video.peer.secret })"
+        "({ id: window.telerobot.video.peerId, secret: window.telerobot.video.peerSecret })"
     )
     r = httpx.delete(
         server + f"api/v1/webrtc/{peer['id']}",

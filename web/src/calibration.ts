@@ -40,46 +40,8 @@ async function main(): Promise<void> {
   }
   fillFiducials(state.fiducials);
 
-  // ---- clicking the fiducials (the loupe follows the pointer; keys nudge or undo)
-  for (const cam of CAMERAS) {
-    const canvas = images.canvases[cam];
-    canvas.onmousemove = (e) => {
-      if (images.frozen[cam]) drawLoupe($<HTMLCanvasElement>("loupe"), canvas, ...toPixel(canvas, e));
-    };
-    canvas.onclick = (e) => {
-      if (!images.frozen[cam]) return;
-      if (!clicks.add(cam, toPixel(canvas, e), needed())) return log.add(`all ${needed()} fiducials of the ${cam} image are clicked`);
-      images.draw(cam);
-      prompt();
-    };
-  }
-  window.addEventListener("keydown", (e) => {
-    if ((e.target as HTMLElement).tagName === "INPUT") return;
-    const cam = clicks.key(e.key);
-    if (!cam) return;
-    e.preventDefault();
-    images.draw(cam);
-    prompt();
-  });
-  for (const radio of document.querySelectorAll<HTMLInputElement>("input[name=method]")) radio.onchange = prompt;
-
-  // ---- video → live images → frozen images
-  // Each new frame is drawn on the images until they are frozen.
-  let drawingLive = false;
-  const showLive = () => {
-    drawingLive = !images.ready;
-    if (!drawingLive) return;
-    images.live();
-    video.requestVideoFrameCallback(showLive);
-  };
-  connectVideo(api, (stream) => {
-    video.srcObject = stream;
-    void video.play();
-    if (!drawingLive) video.requestVideoFrameCallback(showLive); // one chain, whatever the reconnects
-    drawingLive = true;
-    $("prompt").textContent = "Freeze the images when the scene is still.";
-  }, "full").catch((e: Error) => log.add(`video: ${e.message}`, true)); // clicks are in full-size pixels
-  $("freeze").onclick = () => (images.freeze() ? prompt() : log.add("no video yet", true));
+  setupClicking(images, clicks, needed, prompt);
+  setupLiveImages(video, images, prompt);
 
   // ---- compute, ChArUco, reset
   $("compute").onclick = async () => {
@@ -123,6 +85,52 @@ async function main(): Promise<void> {
   showState();
   prompt();
   Object.assign(window, { calibration: { clicks: clicks.byCamera, frozen: images.frozen, get state() { return state; } } });
+}
+
+/** Clicking the fiducials on the frozen images (the loupe follows the pointer; keys
+ * nudge or undo the last click); `prompt` says what is next. */
+function setupClicking(images: FrozenImages, clicks: Clicks, needed: () => number, prompt: () => void): void {
+  for (const cam of CAMERAS) {
+    const canvas = images.canvases[cam];
+    canvas.onmousemove = (e) => {
+      if (images.frozen[cam]) drawLoupe($<HTMLCanvasElement>("loupe"), canvas, ...toPixel(canvas, e));
+    };
+    canvas.onclick = (e) => {
+      if (!images.frozen[cam]) return;
+      if (!clicks.add(cam, toPixel(canvas, e), needed())) return log.add(`all ${needed()} fiducials of the ${cam} image are clicked`);
+      images.draw(cam);
+      prompt();
+    };
+  }
+  window.addEventListener("keydown", (e) => {
+    if ((e.target as HTMLElement).tagName === "INPUT") return;
+    const cam = clicks.key(e.key);
+    if (!cam) return;
+    e.preventDefault();
+    images.draw(cam);
+    prompt();
+  });
+  for (const radio of document.querySelectorAll<HTMLInputElement>("input[name=method]")) radio.onchange = prompt;
+}
+
+/** Video → live images → frozen images: each new frame is drawn on the images until
+ * they are frozen. */
+function setupLiveImages(video: HTMLVideoElement, images: FrozenImages, prompt: () => void): void {
+  let drawingLive = false;
+  const showLive = () => {
+    drawingLive = !images.ready;
+    if (!drawingLive) return;
+    images.live();
+    video.requestVideoFrameCallback(showLive);
+  };
+  connectVideo(api, (stream) => {
+    video.srcObject = stream;
+    void video.play();
+    if (!drawingLive) video.requestVideoFrameCallback(showLive); // one chain, whatever the reconnects
+    drawingLive = true;
+    $("prompt").textContent = "Freeze the images when the scene is still.";
+  }, "full").catch((e: Error) => log.add(`video: ${e.message}`, true)); // clicks are in full-size pixels
+  $("freeze").onclick = () => (images.freeze() ? prompt() : log.add("no video yet", true));
 }
 
 main().catch((e: Error) => {

@@ -377,6 +377,36 @@ export class StereoView {
     for (let k = balls; k < MAX_BALLS; k++) for (const m of this.all()) (m.uniforms.showBall!.value as number[])[k] = 0;
   }
 
+  /** What the view draws now, as a test reads it (wiring/test-view.ts): the AR balls its
+   * programs draw and which are shown, whether a headset shows it (and the supervision
+   * line there), and whether the overlay is drawn for CPU reads (no GPU read-back). */
+  get drawn(): {
+    ballSlots: number;
+    ballsShown: number[];
+    xrPresenting: boolean;
+    xrBadgeVisible: boolean;
+    overlayOnCpu: boolean;
+    /** Where camera pixels land on the canvas: each eye's width, the rows cropped, the
+     * right eye's alignment shift, and the canvas's height. */
+    layout: { eyeWidth: number; cropTop: number; shift: [number, number]; outHeight: number };
+  } {
+    const u = this.material.uniforms;
+    const shift = u.shift!.value as THREE.Vector2;
+    return {
+      layout: {
+        eyeWidth: (u.eye!.value as THREE.Vector2).x,
+        cropTop: Number(u.cropTop!.value),
+        shift: [shift.x, shift.y],
+        outHeight: (u.outSize!.value as THREE.Vector2).y,
+      },
+      ballSlots: Number(this.material.defines.BALLS),
+      ballsShown: Array.from(this.material.uniforms.showBall!.value as number[]),
+      xrPresenting: this.renderer.xr.isPresenting,
+      xrBadgeVisible: this.xrBadge.visible,
+      overlayOnCpu: this.overlay.canvas.getContext("2d")?.getContextAttributes().willReadFrequently === true,
+    };
+  }
+
   setMode(mode: ViewMode): void {
     this.mode = mode;
     this.render();
