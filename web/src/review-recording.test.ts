@@ -1,7 +1,9 @@
-// The review page's recording as its parts play it (review/recording.ts).
+// The review page's recording as its parts play it (review/recording.ts) and what the
+// tests are shown of it (review/test-view.ts).
 import { describe, expect, it } from "vitest";
 import { PUMA } from "./puma.fixture";
 import { armStatesAt, camerasAt, hasVideo, shapeRecording } from "./review/recording";
+import { recordingTestView } from "./review/test-view";
 
 const P = [
   [800, 0, 320, 0],
@@ -60,7 +62,7 @@ describe("the recording as the review plays it", () => {
     expect(camerasAt(r, 6)[0]?.P).toEqual(Q);
     expect(camerasAt({ calibrations: [] }, 1)).toEqual([]);
   });
-  it("shapes a two-arm recording each arm on its own", () => {
+  it("shapes a two-arm recording each arm on its own, and tells the tests so", () => {
     const r = shapeRecording(
       "two.mcap",
       {
@@ -78,5 +80,14 @@ describe("the recording as the review plays it", () => {
     expect(r.several).toBe(true);
     expect(r.armForces.map((f) => f.length)).toEqual([0, 1]);
     expect(armStatesAt(r, 0.5).map((s) => s?.position)).toEqual([[0, 0, 0], [1, 0, 0]]);
+    expect(recordingTestView(r)).toEqual({
+      duration: 3,
+      videoStart: null,
+      states: 3,
+      arms: [
+        { name: "left", states: 2, forces: 0 },
+        { name: "right", states: 1, forces: 1 },
+      ],
+    });
   });
 });
