@@ -4,7 +4,7 @@
 // /arms/<name>/force). A one-arm recording has none of these: its one arm, "arm", is on
 // /robot/state and /force. Each arm's pose is in its own base frame and the cameras'
 // calibration in the workcell's, so an arm is drawn through P · its mount. Pure: the
-// page (review.ts) draws what these return.
+// page draws what these return (review/overlay.ts, force-plot.ts, joints-readout.ts).
 import type { Projection } from "../ar/projection";
 
 /** The one arm's name (a one-arm recording's). */

@@ -1,7 +1,8 @@
 // What the review page marks on its timeline besides the plots: the
 // recording's episodes (task, ✓/✗, notes) as spans and its safety events (e-stop, its
 // reset, force-limit trips, dead-man halts, the lease changing hands) as ticks, and who
-// sent each command, named once. Pure: the page (review.ts) draws what these return.
+// sent each command, named once. Pure: the page draws what these
+// return (review/marks-strip.ts, command-log.ts).
 import { episodeText } from "../ui/recording";
 import { formatTime } from "./timeline";
 
