@@ -358,8 +358,8 @@ describe("the arms after a new session", () => {
     const I = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1];
     const entry = (name: string, index: number): ServerArmEntry => ({ name, index, mount: I, model: SO101 });
     const cameras = [{ name: "left", P: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 2]] }];
-    const one: ServerArm = { model: SO101, cameras, arms: [entry("arm", 1)] };
-    const two: ServerArm = { model: SO101, cameras, arms: [entry("left", 1), entry("right", 2)] };
+    const one: ServerArm = { cameras, arms: [entry("arm", 1)] };
+    const two: ServerArm = { cameras, arms: [entry("left", 1), entry("right", 2)] };
     const applied: ServerArm[] = [];
     const said: string[] = [];
     const r = new ServerArmReloader(one, () => Promise.resolve(two), (a) => applied.push(a), { add: (t) => said.push(t) }, () => Promise.resolve());

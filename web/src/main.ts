@@ -63,7 +63,7 @@ async function main(): Promise<void> {
   const drawing = setupArmDrawing(ctx, inputs.loop, inputs.selected);
   const controls = setupPageControls(ctx, { link: realtime.link, control: realtime.control, inputs, drawing, ...viewControls });
   startFrames(ctx, inputs, drawing);
-  const tasks = setupTasks(ctx, realtime.link, inputs.loop, { model: served[0]!.model, cameras: cell.cameras, arms: served });
+  const tasks = setupTasks(ctx, realtime.link, inputs.loop, { cameras: cell.cameras, arms: served });
   setupPanels(ctx, realtime, videoHandle, inputs);
   const telerobot = pageTestView({ ctx, realtime, video: videoHandle, inputs, drawing, controls, tasks, setMode: viewControls.setMode });
   Object.assign(window, { telerobot });

@@ -16,8 +16,11 @@ const CAMERAS = [
   { name: "left", P },
   { name: "right", P: P.map((row, i) => (i === 0 ? [row[0]!, row[1]!, row[2]!, row[3]! - 40] : row)) as Projection },
 ];
-const pumaServer: ServerArm = { model: PUMA, cameras: CAMERAS };
-const so101Server: ServerArm = { model: SO101, cameras: CAMERAS };
+const IDENTITY = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1];
+/** A one-arm server's arms (GET /robot/arms): "arm", at the origin. */
+const oneArm = (model: typeof PUMA) => [{ name: "arm", index: 1, mount: IDENTITY, model }];
+const pumaServer: ServerArm = { cameras: CAMERAS, arms: oneArm(PUMA) };
+const so101Server: ServerArm = { cameras: CAMERAS, arms: oneArm(SO101) };
 
 function reloader(start: ServerArm, answers: (ServerArm | Error)[]) {
   const applied: ServerArm[] = [];
@@ -36,14 +39,14 @@ describe("the arm the page draws, after a new session", () => {
     const { r, applied, log } = reloader(pumaServer, [so101Server]);
     expect(await r.reload()).toBe(true);
     expect(applied).toEqual([so101Server]);
-    expect(r.current.model.joint_names).toEqual(SO101.joint_names); // the panels' labels
+    expect(r.current.arms[0]!.model.joint_names).toEqual(SO101.joint_names); // the panels' labels
     expect(log[0]![0]).toContain("now drives the SO-101 (so101), not the PUMA 560 (puma560)");
   });
 
   it("and back again (SO-101 → PUMA)", async () => {
     const { r, applied } = reloader(so101Server, [pumaServer]);
     expect(await r.reload()).toBe(true);
-    expect(applied.map((a) => a.model.model)).toEqual(["puma560"]);
+    expect(applied.map((a) => a.arms[0]!.model.model)).toEqual(["puma560"]);
   });
 
   it("is left alone when the server's arm is the same (a reconnect to the same server)", async () => {
@@ -54,7 +57,7 @@ describe("the arm the page draws, after a new session", () => {
   });
 
   it("follows other cameras with the same arm (a calibration made meanwhile)", async () => {
-    const moved: ServerArm = { model: PUMA, cameras: [CAMERAS[0]!, { name: "right", P: CAMERAS[0]!.P }] };
+    const moved: ServerArm = { cameras: [CAMERAS[0]!, { name: "right", P: CAMERAS[0]!.P }], arms: oneArm(PUMA) };
     expect(sameArm(pumaServer, moved)).toBe(false);
     const { r, applied } = reloader(pumaServer, [moved]);
     expect(await r.reload()).toBe(true);
@@ -83,7 +86,7 @@ describe("the arm the page draws, after a new session", () => {
     expect(await second).toBe(true);
     release(pumaServer); // the first session's answer, late
     expect(await first).toBe(false);
-    expect(applied.map((a) => a.model.model)).toEqual(["so101"]);
+    expect(applied.map((a) => a.arms[0]!.model.model)).toEqual(["so101"]);
   });
 });
 

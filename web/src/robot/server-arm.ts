@@ -1,22 +1,19 @@
-// The arm the page draws — the joint labels, the ghost, the AR ball, the axis marker and
-// the predicted pose — comes from the server's model (GET /api/v1/robot/model) and its
-// cameras (GET /api/v1/calibration). Both are read at start-up and again at each new
+// The arms the page draws — the joint labels, the ghost, the AR ball, the axis marker and
+// the predicted pose — come from the server's arms, each with its model and mount
+// (GET /api/v1/robot/arms, robot/arms.ts), and its cameras (GET /api/v1/calibration). Both are read at start-up and again at each new
 // session on the realtime link: a server restarted with another model (the PUMA, then
 // `--model so101`) must not leave the old arm drawn over the new one's video.
-// With two arms or more, every arm's model and mount (GET /api/v1/robot/arms) too.
 import type { Schema } from "../api";
 import type { CameraCalibration } from "../ar/ball";
 import type { ServerArmEntry } from "./arms";
 
 export type RobotModel = Schema<"RobotModel">;
 
-/** What the page draws the arm from. */
+/** What the page draws the arms from. */
 export interface ServerArm {
-  /** The (first) arm's model. */
-  model: RobotModel;
   cameras: CameraCalibration[];
-  /** Every arm the server drives, in order (the first's model is `model`). */
-  arms?: ServerArmEntry[];
+  /** Every arm the server drives, in order (one on most servers). */
+  arms: ServerArmEntry[];
 }
 
 /** Tries to read the arm again after a new session (one a second, then it waits for the
@@ -27,7 +24,7 @@ export const RELOAD_RETRY_MS = 1000;
 /** Equal when every figure the page draws from is (the model's joints, tool and names;
  * each camera's name and projection). */
 export function sameArm(a: ServerArm, b: ServerArm): boolean {
-  const key = (s: ServerArm) => JSON.stringify([s.model, s.cameras.map((c) => [c.name, c.P]), (s.arms ?? []).map((a) => [a.name, a.index, a.mount, a.model])]);
+  const key = (s: ServerArm) => JSON.stringify([s.cameras.map((c) => [c.name, c.P]), s.arms.map((a) => [a.name, a.index, a.mount, a.model])]);
   return key(a) === key(b);
 }
 
@@ -71,15 +68,16 @@ export class ServerArmReloader {
     const was = this.current;
     this.current = next;
     this.apply(next, was);
-    const names = (a: ServerArm) => (a.arms ?? []).map((x) => x.name).join(", ");
-    if (names(next) !== names(was) && (next.arms?.length ?? 1) + (was.arms?.length ?? 1) > 2) {
-      this.log.add(`the server now drives ${next.arms?.length ?? 1} arm(s) (${names(next)}), not ${was.arms?.length ?? 1} (${names(was)}): the page draws and drives them`);
+    const names = (a: ServerArm) => a.arms.map((x) => x.name).join(", ");
+    const [now, before] = [next.arms[0]?.model, was.arms[0]?.model];
+    if ((names(next) !== names(was) && next.arms.length + was.arms.length > 2) || !now || !before) {
+      this.log.add(`the server now drives ${next.arms.length} arm(s) (${names(next)}), not ${was.arms.length} (${names(was)}): the page draws and drives them`);
       return true;
     }
     this.log.add(
-      next.model.model === was.model.model
-        ? `the server's arm or cameras changed (${named(next.model)}): the page draws them as they are now`
-        : `the server now drives the ${named(next.model)}, not the ${named(was.model)}: the page draws the new arm`,
+      now.model === before.model
+        ? `the server's arm or cameras changed (${named(now)}): the page draws them as they are now`
+        : `the server now drives the ${named(now)}, not the ${named(before)}: the page draws the new arm`,
     );
     return true;
   }

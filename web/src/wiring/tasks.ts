@@ -34,13 +34,13 @@ export function setupTasks(ctx: PageContext, link: RealtimeLink, loop: InputLoop
   void tasks.load();
   const readArm = async (): Promise<ServerArm> => {
     const [entries, c] = await Promise.all([readServerArms(api), api.request("get", "/api/v1/calibration")]);
-    return { model: entries[0]!.model, cameras: c.cameras, arms: entries };
+    return { cameras: c.cameras, arms: entries };
   };
   const reloader = new ServerArmReloader(
     served,
     readArm,
     (next) => {
-      arms.replace(next.arms ?? [], next.cameras);
+      arms.replace(next.arms, next.cameras);
       view.setBallCount(arms.list.length);
       loop.setArms(driveArms(arms.list)); // the axis marker follows (onArmChange)
       view.overlayChanged();
