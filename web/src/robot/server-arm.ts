@@ -1,8 +1,9 @@
 // The arms the page draws — the joint labels, the ghost, the AR ball, the axis marker and
 // the predicted pose — come from the server's arms, each with its model and mount
-// (GET /api/v1/robot/arms, robot/arms.ts), and its cameras (GET /api/v1/calibration). Both are read at start-up and again at each new
-// session on the realtime link: a server restarted with another model (the PUMA, then
-// `--model so101`) must not leave the old arm drawn over the new one's video.
+// (GET /api/v1/robot/arms, robot/arms.ts), and its cameras (GET /api/v1/calibration).
+// Both are read at start-up and again at each new session on the realtime link: a server
+// restarted with another model (the PUMA, then `--model so101`) must not leave the old
+// arm drawn over the new one's video.
 import type { Schema } from "../api";
 import type { CameraCalibration } from "../ar/ball";
 import type { ServerArmEntry } from "./arms";
