@@ -34,7 +34,9 @@ from telerobot.server.settings import Settings
 from telerobot.tuning import yield_cpu
 
 if TYPE_CHECKING:
+    from telerobot.server.media.pipeline import VideoPipeline
     from telerobot.server.media.relay import JanusRelay
+    from telerobot.server.media.tap import PacketPipe
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +128,6 @@ async def _serve(
     video: multiprocessing.connection.Connection | None = None,
 ) -> None:
     from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
-    from telerobot.server.media.relay import RELAY_PREFIX
     from telerobot.server.media.tap import PacketPipe
 
     camera = build_arms_camera(settings, [shared_arm_probe(arm) for arm in arms])
@@ -136,34 +137,13 @@ async def _serve(
         max_viewers=settings.video_max_viewers,
     )
     pipeline.start()
-    relay = None
-    if settings.media_server == "janus":  # observers through the media server
-        from telerobot.server.media.relay import JanusRelay, RelayLimits
-
-        assert settings.media_server_url is not None  # resolved by the server
-
-        def start_feed() -> None:
-            assert relay is not None
-            pipeline.start_tap(relay.send, "relay")
-
-        relay = JanusRelay(
-            settings.media_server_url,
-            settings.media_server_rtp_port,
-            settings.media_server_rtcp_port or None,
-            pipeline.broadcaster.request_keyframe,
-            start_feed=start_feed,
-            stop_feed=lambda: pipeline.stop_tap("relay"),
-            limits=RelayLimits.of(settings),
-            api_secret=settings.media_server_api_secret,
-            host=settings.media_server_host or "127.0.0.1",
-            mountpoint=settings.media_server_mountpoint,
-        )
-        relay.start()
+    relay = _start_relay(settings, pipeline)
     tap = (
         PacketPipe(video.send_bytes, pipeline.broadcaster.request_keyframe)
         if video is not None
         else None
     )
+    served = _Served(pipeline, camera, relay, tap)
     loop = asyncio.get_running_loop()
     requests: asyncio.Queue[rpc.Envelope] = asyncio.Queue()
 
@@ -177,8 +157,75 @@ async def _serve(
     loop.add_reader(conn.fileno(), readable)
     conn.send(rpc.Ready(time.monotonic()))
 
-    async def serve(req: rpc.MediaRequest) -> dict[str, Any]:
+    async def handle(envelope: rpc.Envelope) -> None:
+        try:
+            reply = rpc.Reply(envelope.id, True, await served.serve(envelope.request))
+        except TelerobotError as exc:
+            reply = rpc.Reply(envelope.id, False, code=exc.code, error=str(exc))
+        except Exception as exc:  # a bug must not take the worker down with it
+            log.exception("media request failed")
+            reply = rpc.Reply(
+                envelope.id, False, code="media_error", error=f"{type(exc).__name__}: {exc}"
+            )
+        with contextlib.suppress(OSError):
+            conn.send(reply)
+
+    tasks: set[asyncio.Task[None]] = set()
+    while True:
+        envelope = await requests.get()
+        if isinstance(envelope.request, rpc.Shutdown):
+            break
+        task = asyncio.create_task(handle(envelope))
+        tasks.add(task)
+        task.add_done_callback(tasks.discard)
+    if relay is not None:
+        await relay.shutdown()
+    await pipeline.close()
+
+
+def _start_relay(settings: Settings, pipeline: VideoPipeline) -> JanusRelay | None:
+    """Observers through the media server (``--media-server janus``), fed the pipeline's
+    packets while any watch; None without one."""
+    if settings.media_server != "janus":
+        return None
+    from telerobot.server.media.relay import JanusRelay, RelayLimits
+
+    assert settings.media_server_url is not None  # resolved by the server
+
+    def start_feed() -> None:
+        pipeline.start_tap(relay.send, "relay")
+
+    relay = JanusRelay(
+        settings.media_server_url,
+        settings.media_server_rtp_port,
+        settings.media_server_rtcp_port or None,
+        pipeline.broadcaster.request_keyframe,
+        start_feed=start_feed,
+        stop_feed=lambda: pipeline.stop_tap("relay"),
+        limits=RelayLimits.of(settings),
+        api_secret=settings.media_server_api_secret,
+        host=settings.media_server_host or "127.0.0.1",
+        mountpoint=settings.media_server_mountpoint,
+    )
+    relay.start()
+    return relay
+
+
+@dataclasses.dataclass
+class _Served:
+    """What the worker answers the server's requests about: the pipeline, its camera, the
+    relay to the media server (None: none) and the recording's pipe (None: none)."""
+
+    pipeline: VideoPipeline
+    camera: Any
+    relay: JanusRelay | None
+    tap: PacketPipe | None
+
+    async def serve(self, req: rpc.MediaRequest) -> dict[str, Any]:
         """One request's answer (its reply's fields); a ``TelerobotError`` refuses it."""
+        from telerobot.server.media.relay import RELAY_PREFIX
+
+        pipeline, relay, tap = self.pipeline, self.relay, self.tap
         match req:
             case rpc.Answer(sdp, kind, layer):
                 return await pipeline.answer(sdp, kind, layer)
@@ -218,37 +265,12 @@ async def _serve(
                     pipeline.stop_tap()
                 return {"sent": tap.sent, "dropped": tap.dropped}
             case rpc.Board(view):
-                camera.show_board(view)
+                self.camera.show_board(view)
             case rpc.Shutdown():
-                pass  # handled by the loop below
+                pass  # handled by the worker's loop
             case _:
                 assert_never(req)
         return {}
-
-    async def handle(envelope: rpc.Envelope) -> None:
-        try:
-            reply = rpc.Reply(envelope.id, True, await serve(envelope.request))
-        except TelerobotError as exc:
-            reply = rpc.Reply(envelope.id, False, code=exc.code, error=str(exc))
-        except Exception as exc:  # a bug must not take the worker down with it
-            log.exception("media request failed")
-            reply = rpc.Reply(
-                envelope.id, False, code="media_error", error=f"{type(exc).__name__}: {exc}"
-            )
-        with contextlib.suppress(OSError):
-            conn.send(reply)
-
-    tasks: set[asyncio.Task[None]] = set()
-    while True:
-        envelope = await requests.get()
-        if isinstance(envelope.request, rpc.Shutdown):
-            break
-        task = asyncio.create_task(handle(envelope))
-        tasks.add(task)
-        task.add_done_callback(tasks.discard)
-    if relay is not None:
-        await relay.shutdown()
-    await pipeline.close()
 
 
 async def serve_relay(
