@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: lerobot-deps lerobot-test wheel run test test-slow-machine test-web screenshots lint typecheck unit unit-no-browser unit-browser browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
+.PHONY: lerobot-deps lerobot-test wheel run test checks test-slow-machine test-web screenshots lint typecheck unit unit-no-browser unit-browser browser-deps turn-deps media-server-deps slow-machine-deps web web-check bench clean types
 
 WEB_SOURCES := $(shell find web/src -type f 2>/dev/null) web/index.html web/calibration.html web/review.html web/vite.config.ts web/tsconfig.json
 
@@ -34,28 +34,32 @@ run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser
-## and LeRobot's tools included). With a core to spare LeRobot's tests run beside the
-## tests that need no browser (those mostly wait: 1.2 of 2 cores), their output shown
-## when both are done; on a busy machine one after the other. LEROBOT_BESIDE=yes|no decides.
+## and LeRobot's tools included). With a core to spare the checks (lint, mypy, the page's
+## lint, types and vitest) and LeRobot's tests run beside the tests that need no browser
+## (those mostly wait: 1.2 of 2 cores), their output shown when both are done; on a busy
+## machine one after the other, the checks first. LEROBOT_BESIDE=yes|no decides.
 LEROBOT_BESIDE ?= auto
-test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps lint typecheck web-check web
+test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps web
 	@beside='$(LEROBOT_BESIDE)'; \
 	  if [ "$$beside" = auto ]; then \
 	    idle=$$(tools/idle-cores); \
 	    beside=$$(awk -v i="$$idle" 'BEGIN { print (i >= 1.5 ? "yes" : "no") }'); \
-	    echo "$$idle cores idle: LeRobot's tests run $$( [ $$beside = yes ] && echo beside the others || echo after them)"; \
+	    echo "$$idle cores idle: the checks and LeRobot's tests run $$( [ $$beside = yes ] && echo beside the others || echo before and after them)"; \
 	  fi; \
 	  if [ "$$beside" != yes ]; then \
-	    $(MAKE) --no-print-directory unit-no-browser lerobot-test; exit $$?; \
+	    $(MAKE) --no-print-directory checks unit-no-browser lerobot-test; exit $$?; \
 	  fi; \
-	  log=$$(mktemp -t telerobot-lerobot-test.XXXXXX); \
-	  echo "LeRobot's tests run beside the tests that need no browser; their output follows those"; \
-	  $(MAKE) --no-print-directory lerobot-test >$$log 2>&1 & lerobot=$$!; \
+	  log=$$(mktemp -t telerobot-beside.XXXXXX); \
+	  echo "The checks and LeRobot's tests run beside the tests that need no browser; their output follows those"; \
+	  $(MAKE) --no-print-directory checks lerobot-test >$$log 2>&1 & beside=$$!; \
 	  $(MAKE) --no-print-directory unit-no-browser; own=$$?; \
-	  wait $$lerobot; theirs=$$?; \
-	  echo "--- LeRobot's tests (make lerobot-test):"; cat $$log; rm -f $$log; \
+	  wait $$beside; theirs=$$?; \
+	  echo "--- the checks and LeRobot's tests (make checks lerobot-test):"; cat $$log; rm -f $$log; \
 	  test $$own = 0 && test $$theirs = 0
 	@$(MAKE) --no-print-directory unit-browser
+
+## make checks: lint, type-check, and the page's lint, types and unit tests (vitest)
+checks: lint typecheck web-check
 
 # LeRobot needs Python 3.12 and brings torch (~5.4 GB): a venv of its own, installed once
 # and kept between runs and clones (the plugins' tests and LeRobot's reading of our
