@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any, ClassVar, TypeVar
 
@@ -125,13 +126,11 @@ def _wire(cls: type[_W]) -> type[_W]:
     return cls
 
 
-_message = dataclasses.dataclass(frozen=True, slots=True)
-
 # ------------------------------------------------------------ client → server
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class HelloMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.HELLO
     version: int
@@ -140,7 +139,7 @@ class HelloMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class CartIncMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.CART_INC
     seq: int
@@ -156,7 +155,7 @@ class CartIncMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class JointIncMessage(_WithJoints):
     SPEC: ClassVar[m.Message] = m.JOINT_INC
     seq: int
@@ -166,7 +165,7 @@ class JointIncMessage(_WithJoints):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class HeartbeatMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.HEARTBEAT
     seq: int
@@ -174,7 +173,7 @@ class HeartbeatMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class EstopMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.ESTOP
     seq: int
@@ -182,7 +181,7 @@ class EstopMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class PingMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.PING
     seq: int
@@ -190,7 +189,7 @@ class PingMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class LeaseMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.LEASE
     seq: int
@@ -198,14 +197,14 @@ class LeaseMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class ResetMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.RESET
     seq: int
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class DatagramsMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.DATAGRAMS
     seq: int
@@ -214,7 +213,7 @@ class DatagramsMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class NameMessage(_WithText):
     SPEC: ClassVar[m.Message] = m.NAME
     seq: int
@@ -222,7 +221,7 @@ class NameMessage(_WithText):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class EnergyMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.ENERGY
     seq: int
@@ -235,7 +234,7 @@ class EnergyMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class WelcomeMessage(_WithText):
     SPEC: ClassVar[m.Message] = m.WELCOME
     version: int
@@ -247,7 +246,7 @@ class WelcomeMessage(_WithText):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class StateMessage(_WithJoints):
     SPEC: ClassVar[m.Message] = m.STATE
     seq: int
@@ -271,7 +270,7 @@ class StateMessage(_WithJoints):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class ForceMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.FORCE
     arm: int
@@ -282,7 +281,7 @@ class ForceMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class EventMessage(_WithText):
     SPEC: ClassVar[m.Message] = m.EVENT
     kind: int  # EventKind
@@ -291,7 +290,7 @@ class EventMessage(_WithText):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class ErrorMessage(_WithText):
     SPEC: ClassVar[m.Message] = m.ERROR
     seq: int
@@ -300,7 +299,7 @@ class ErrorMessage(_WithText):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class AckMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.ACK
     seq: int
@@ -310,7 +309,7 @@ class AckMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class PongMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.PONG
     seq: int
@@ -320,7 +319,7 @@ class PongMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class PortEnergyMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.PORT_ENERGY
     seq: int
@@ -329,7 +328,7 @@ class PortEnergyMessage(_Wire):
 
 
 @_wire
-@_message
+@dataclass(frozen=True, slots=True)
 class ArmMessage(_WithText):
     SPEC: ClassVar[m.Message] = m.ARM
     index: int
