@@ -4,7 +4,10 @@ Little-endian, no padding. Byte 0 is the message type; the rest is a fixed layou
 given as a ``struct`` format, except where a message ends in UTF-8 text or a counted
 array. docs/protocol.md describes the same table (a test keeps them in step), and
 the TypeScript client's types are generated from ``MESSAGES``
-(``backend/realtime/typescript.py``; a test keeps them in step too).
+(``backend/realtime/typescript.py``; a test keeps them in step too). Python code
+builds and reads them as the frozen dataclasses of ``typed.py`` (checked against this
+table at import); ``encode``/``decode`` below are the positional form tests use, and
+both go through ``pack``/``unpack``.
 
 Client → server types are 0x01–0x7F, server → client 0x81–0xFF.
 """
