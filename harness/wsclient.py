@@ -13,6 +13,7 @@ import websockets
 
 from telerobot.protocol import messages as m
 from telerobot.protocol.clock import ClockSync
+from telerobot.protocol.typed import HelloMessage, LeaseMessage, PingMessage
 
 
 async def open_socket(url: str) -> Any:
@@ -36,7 +37,9 @@ class RealtimeClient:
     async def hello(cls, ws: Any, token: str = "", flags: int = 0) -> RealtimeClient:
         """Say HELLO on an open WebSocket and wait for the WELCOME."""
         client = cls(ws)
-        await ws.send(m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode()))
+        await ws.send(
+            HelloMessage(version=m.PROTOCOL_VERSION, flags=flags, token=token.encode()).encode()
+        )
         _, fields, text = await client.expect_message(m.WELCOME)
         client.client_id, _, client.resume_key = text.partition(" ")
         for _ in range(int(fields["arms"])):  # an ARM for each arm follows at once
@@ -79,7 +82,7 @@ class RealtimeClient:
                     )
 
     async def take_lease(self) -> None:
-        await self.ws.send(m.encode(m.LEASE, self.next_seq(), m.LeaseAction.TAKE))
+        await self.ws.send(LeaseMessage(seq=self.next_seq(), action=m.LeaseAction.TAKE).encode())
         await self.expect(m.ACK)
 
     async def sync_clock(self, rounds: int = 50) -> float:
@@ -87,7 +90,7 @@ class RealtimeClient:
         clock = ClockSync()
         for _ in range(rounds):
             t0 = time.monotonic()
-            await self.ws.send(m.encode(m.PING, self.next_seq(), t0))
+            await self.ws.send(PingMessage(seq=self.next_seq(), t0=t0).encode())
             pong = await self.expect(m.PONG)
             clock.pong(t0, pong["t1"], pong["t2"], time.monotonic())
         self.offset = clock.offset

@@ -20,7 +20,7 @@ def test_the_client_side_imports_nothing_of_the_server() -> None:
         "import sys, telerobot.client, telerobot.client.master.cli, telerobot.client.master.link,"
         " telerobot.client.master.bridge, telerobot.client.master.joints,"
         " telerobot.client.lerobot.arm, telerobot.client.lerobot.operator,"
-        " telerobot.protocol.messages\n"
+        " telerobot.protocol.messages, telerobot.protocol.typed\n"
         f"print(sorted(n for n in sys.modules if n.split('.')[0] in {SERVER_ONLY!r}"
         f" or n.startswith({SERVER_ONLY!r})))"
     )

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from telerobot.drivers.base import ForceSample, RobotStatus, StatusChanged
 from telerobot.drivers.clock import Clock
 from telerobot.protocol import messages as m
+from telerobot.protocol.typed import EventMessage, StateMessage
 from telerobot.server.control.arm_guard import ArmGuard, arm_sensors
 from telerobot.server.control.autonomy import AutonomyState, Mode
 from telerobot.server.control.decision import DecisionServer, SafetyState
@@ -271,7 +272,7 @@ class RealtimeHub:
             conn.add_force(sample, arm)
 
     def broadcast_event(self, kind: m.EventKind, text: str) -> None:
-        data = m.encode(m.EVENT, kind, self.clock.now(), text=text)
+        data = EventMessage(kind=kind, server_time=self.clock.now(), text=text).encode()
         for conn in self.connections.values():
             conn.reply(data)
 
@@ -296,7 +297,8 @@ class RealtimeHub:
         if state.mode is Mode.OFF:
             return None
         text = json.dumps(state.as_dict())
-        return m.encode(m.EVENT, m.EventKind.AUTONOMY, self.clock.now(), text=text)
+        event = EventMessage(kind=m.EventKind.AUTONOMY, server_time=self.clock.now(), text=text)
+        return event.encode()
 
     def _on_safety(self, state: SafetyState) -> None:
         parts = [f"control: {state.lease_holder_name or 'nobody'}"]
@@ -350,17 +352,21 @@ class RealtimeHub:
             flags |= m.StateFlags.HALTED
         if operator:
             flags |= m.StateFlags.OPERATOR
-        return m.encode(
-            m.STATE,
-            self._state_seq,
-            self.clock.now(),
-            STATUS_INDEX[robot.status],
-            flags,
-            *pose.position.tolist(),
-            *pose.rotation.ravel().tolist(),
-            guard.index,
-            joints=q.tolist(),
-        )
+        x, y, z = pose.position.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = pose.rotation.tolist()
+        state = StateMessage(
+            seq=self._state_seq,
+            server_time=self.clock.now(),
+            status=STATUS_INDEX[robot.status],
+            flags=flags,
+            x=x, y=y, z=z,
+            r00=r00, r01=r01, r02=r02,
+            r10=r10, r11=r11, r12=r12,
+            r20=r20, r21=r21, r22=r22,
+            arm=guard.index,
+            joints=tuple(q.tolist()),
+        )  # fmt: skip
+        return state.encode()
 
     async def _broadcast_state(self) -> None:
         while True:

@@ -73,6 +73,7 @@ from typing import Any
 from telerobot.drivers.base import ForceSample, TelerobotError
 from telerobot.protocol import messages as m
 from telerobot.protocol.netprio import mark_high_priority
+from telerobot.protocol.typed import DatagramsMessage, parse
 from telerobot.server.control.arm_guard import arm_sensors
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.realtime.hub import RealtimeHub
@@ -557,8 +558,10 @@ class PriorityChannel:
     def register_datagrams(self, client: PriorityClient, message: bytes) -> bytes:
         """DATAGRAMS on the client's TCP socket (on the event loop): the reply, with a
         new key (the old one, and the address learnt with it, no longer count)."""
-        _, fields, _ = m.decode(message)
-        seq, every = int(fields["seq"]), int(fields["every"])
+        asked = parse(message)
+        if not isinstance(asked, DatagramsMessage):  # (``_serve`` sends only those here)
+            raise m.MalformedMessage(f"{asked.SPEC.name} is not DATAGRAMS")
+        seq, every = asked.seq, asked.every
         if not 1 <= every <= MAX_EVERY:
             return error(seq, "invalid_command", f"every must be 1 to {MAX_EVERY}")
         if self._udp is None:
@@ -581,7 +584,7 @@ class PriorityChannel:
         if old is not None:
             self._datagram_keys.pop(old, None)
         self._datagram_keys[key] = client
-        return m.encode(m.DATAGRAMS, seq, key, every)
+        return DatagramsMessage(seq=seq, key=key, every=every).encode()
 
     def _forget_datagrams(self, client: PriorityClient) -> None:
         if client.datagram_key is not None:

@@ -12,12 +12,37 @@ from __future__ import annotations
 
 import secrets
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import assert_never
 
 import numpy as np
 
 from telerobot.drivers.base import TelerobotError, WorkingFrame
 from telerobot.protocol import messages as m
+from telerobot.protocol.typed import (
+    AckMessage,
+    AnyMessage,
+    ArmMessage,
+    CartIncMessage,
+    DatagramsMessage,
+    EnergyMessage,
+    ErrorMessage,
+    EstopMessage,
+    EventMessage,
+    ForceMessage,
+    HeartbeatMessage,
+    HelloMessage,
+    JointIncMessage,
+    LeaseMessage,
+    NameMessage,
+    PingMessage,
+    PongMessage,
+    PortEnergyMessage,
+    ResetMessage,
+    StateMessage,
+    WelcomeMessage,
+    parse,
+    seq_of,
+)
 from telerobot.server.control.clients import RESUME_KEY_BYTES, Client
 from telerobot.server.control.decision import Applied, DecisionServer
 from telerobot.server.control.errors import NotAllowed
@@ -30,24 +55,29 @@ FRAMES: dict[int, WorkingFrame] = {
 }
 
 
-def check_hello(data: bytes) -> dict[str, Any]:
-    """The first message's fields, if it is a HELLO this server speaks."""
-    msg, fields, _ = m.decode(data)
-    if msg is not m.HELLO:
-        raise m.MalformedMessage(f"the first message must be HELLO, got {msg.name}")
-    version = int(fields["version"])
-    if version != m.PROTOCOL_VERSION:
+def check_hello(data: bytes) -> HelloMessage:
+    """The first message, if it is a HELLO this server speaks."""
+    hello = parse(data)
+    if not isinstance(hello, HelloMessage):
+        raise m.MalformedMessage(f"the first message must be HELLO, got {hello.SPEC.name}")
+    if hello.version != m.PROTOCOL_VERSION:
         raise m.MalformedMessage(
-            f"protocol version {version} is not spoken here: this server speaks"
+            f"protocol version {hello.version} is not spoken here: this server speaks"
             f" {m.PROTOCOL_VERSION} (update the client)"
         )
-    return dict(fields)
+    return hello
 
 
 def error(seq: int, code: str, text: str) -> bytes:
-    return m.encode(
-        m.ERROR, seq, m.ERROR_CODES.get(code, m.ERROR_CODES["telerobot_error"]), text=text
-    )
+    code_number = m.ERROR_CODES.get(code, m.ERROR_CODES["telerobot_error"])
+    return ErrorMessage(seq=seq, code=code_number, text=text).encode()
+
+
+def applied_now(seq: int, hub: RealtimeHub) -> bytes:
+    """The ACK of a command carried out at once (nothing scaled it)."""
+    return AckMessage(
+        seq=seq, result=m.Ack.APPLIED, server_time=hub.clock.now(), scale=1.0
+    ).encode()
 
 
 class Session:
@@ -84,9 +114,9 @@ class Session:
         """``every_force_sample`` None: as the HELLO's flags ask. ``address``: the
         peer's IP (resumes are limited per address); ``close_transport``: closes this
         connection's socket, called when a resume supersedes it."""
-        fields = check_hello(hello)
-        token = bytes(fields["token"]).rstrip(b"\0").decode("ascii", "replace")
-        flags = int(fields["flags"])
+        checked = check_hello(hello)
+        token = checked.token.rstrip(b"\0").decode("ascii", "replace")
+        flags = checked.flags
         if hub.open_connections >= decision.clients.max_clients:
             raise NotAllowed(
                 f"this server already has {hub.open_connections} connections"
@@ -143,17 +173,17 @@ class Session:
         """WELCOME, then an ARM for each arm (first on the wire, in this order)."""
         key = self.client.resume_key
         arms = self.decision.arms
+        welcome = WelcomeMessage(
+            version=m.PROTOCOL_VERSION,
+            role=int(self.conn.operator),
+            server_time=self.hub.clock.now(),
+            joints=arms[0].dof,
+            arms=len(arms),
+            text=self.client.id if key is None else f"{self.client.id} {key}",
+        )
         return [
-            m.encode(
-                m.WELCOME,
-                m.PROTOCOL_VERSION,
-                int(self.conn.operator),
-                self.hub.clock.now(),
-                arms[0].dof,
-                len(arms),
-                text=self.client.id if key is None else f"{self.client.id} {key}",
-            ),
-            *(m.encode(m.ARM, guard.index, guard.dof, text=guard.name) for guard in arms),
+            welcome.encode(),
+            *(ArmMessage(index=g.index, joints=g.dof, text=g.name).encode() for g in arms),
         ]
 
     def attach(self) -> None:
@@ -186,7 +216,10 @@ class Session:
 
 def acknowledge(conn: Connection, hub: RealtimeHub, applied: Applied, received: float) -> None:
     result = m.Ack.LIMITED if applied.limited else m.Ack.APPLIED
-    conn.reply(m.encode(m.ACK, applied.seq, result, applied.applied_at, applied.scale))
+    ack = AckMessage(
+        seq=applied.seq, result=result, server_time=applied.applied_at, scale=applied.scale
+    )
+    conn.reply(ack.encode())
     hub.command_processing.record((applied.applied_at - received) * 1000.0)
 
 
@@ -202,77 +235,99 @@ async def handle(
     has been queued for the client either way something went wrong)."""
     seq = 0
     try:
-        msg, f, text = m.decode(data)
-        seq = int(f.get("seq", 0))
-        if msg is m.CART_INC:
-            frame = FRAMES.get(int(f["frame"]))
-            if frame is None:
-                raise m.MalformedMessage(f"unknown frame {f['frame']}", "invalid_command", seq)
-            applied = await decision.cartesian_increment(
-                client_id,
-                np.array([f["dx"], f["dy"], f["dz"]], dtype=float),
-                np.array([f["rx"], f["ry"], f["rz"]], dtype=float),
-                frame=frame,
-                seq=seq,
-                client_time=float(f["client_time"]),
-                arm=decision.arm_at(int(f["arm"])).name,
-            )
-            acknowledge(conn, hub, applied, received)
-        elif msg is m.JOINT_INC:
-            dq = np.array(f["joints"], dtype=float)  # the DecisionServer checks the count
-            applied = await decision.joint_increment(
-                client_id,
-                dq,
-                seq=seq,
-                client_time=float(f["client_time"]),
-                arm=decision.arm_at(int(f["arm"])).name,
-            )
-            acknowledge(conn, hub, applied, received)
-        elif msg is m.HEARTBEAT:
-            pass  # `seen` above is the heartbeat
-        elif msg is m.ESTOP:
-            await decision.estop(client_id)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
-        elif msg is m.RESET:
-            await decision.reset(client_id)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
-        elif msg is m.PING:
-            conn.reply(m.encode(m.PONG, seq, f["t0"], received, hub.clock.now()))
-        elif msg is m.LEASE:
-            action = int(f["action"])
-            if action == m.LeaseAction.RELEASE:
-                await decision.release_lease(client_id)
-            elif action in (m.LeaseAction.TAKE, m.LeaseAction.TAKE_OVER):
-                await decision.take_lease(client_id, force=action == m.LeaseAction.TAKE_OVER)
-            elif action == m.LeaseAction.PAUSE:
-                await decision.pause(client_id)
-            elif action == m.LeaseAction.RESUME:
-                await decision.resume_policy(client_id)
-            else:
-                raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", seq)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
-        elif msg is m.ENERGY:
-            given, out = decision.master_energy(
-                client_id,
-                float(f["e_in"]),
-                float(f["e_out"]),
-                arm=decision.arm_at(int(f["arm"])).name,
-            )
-            conn.reply(m.encode(m.PORT_ENERGY, seq, given, out))
-        elif msg is m.NAME:
-            decision.rename(client_id, text)
-            conn.reply(m.encode(m.ACK, seq, m.Ack.APPLIED, hub.clock.now(), 1.0))
-        elif msg is m.DATAGRAMS:
-            raise m.MalformedMessage(
-                "DATAGRAMS is for the priority channel (forces over UDP), not this one",
-                "invalid_command",
-                seq,
-            )
-        else:
-            raise m.MalformedMessage(f"{msg.name} is not a client message", "unknown_type", seq)
+        msg = parse(data)
+        seq = seq_of(msg)
+        await carry_out(msg, received, client_id, conn, decision, hub)
     except m.MalformedMessage as exc:
         conn.reply(error(exc.seq or seq, exc.code, str(exc)))
         return False
     except TelerobotError as exc:
         conn.reply(error(seq, exc.code, str(exc)))
     return True
+
+
+async def carry_out(
+    msg: AnyMessage,
+    received: float,
+    client_id: str,
+    conn: Connection,
+    decision: DecisionServer,
+    hub: RealtimeHub,
+) -> None:
+    """One parsed message: every kind has its case (mypy checks it, ``assert_never``)."""
+    match msg:
+        case CartIncMessage():
+            frame = FRAMES.get(msg.frame)
+            if frame is None:
+                raise m.MalformedMessage(f"unknown frame {msg.frame}", "invalid_command", msg.seq)
+            applied = await decision.cartesian_increment(
+                client_id,
+                np.array([msg.dx, msg.dy, msg.dz], dtype=float),
+                np.array([msg.rx, msg.ry, msg.rz], dtype=float),
+                frame=frame,
+                seq=msg.seq,
+                client_time=msg.client_time,
+                arm=decision.arm_at(msg.arm).name,
+            )
+            acknowledge(conn, hub, applied, received)
+        case JointIncMessage():
+            applied = await decision.joint_increment(
+                client_id,
+                np.array(msg.joints, dtype=float),  # the DecisionServer checks the count
+                seq=msg.seq,
+                client_time=msg.client_time,
+                arm=decision.arm_at(msg.arm).name,
+            )
+            acknowledge(conn, hub, applied, received)
+        case HeartbeatMessage():
+            pass  # `seen` (Session.receive) is the heartbeat
+        case EstopMessage():
+            await decision.estop(client_id)
+            conn.reply(applied_now(msg.seq, hub))
+        case ResetMessage():
+            await decision.reset(client_id)
+            conn.reply(applied_now(msg.seq, hub))
+        case PingMessage():
+            pong = PongMessage(seq=msg.seq, t0=msg.t0, t1=received, t2=hub.clock.now())
+            conn.reply(pong.encode())
+        case LeaseMessage():
+            await lease(msg, client_id, decision)
+            conn.reply(applied_now(msg.seq, hub))
+        case EnergyMessage():
+            given, out = decision.master_energy(
+                client_id, msg.e_in, msg.e_out, arm=decision.arm_at(msg.arm).name
+            )
+            conn.reply(PortEnergyMessage(seq=msg.seq, e_in=given, e_out=out).encode())
+        case NameMessage():
+            decision.rename(client_id, msg.text)
+            conn.reply(applied_now(msg.seq, hub))
+        case DatagramsMessage():
+            raise m.MalformedMessage(
+                "DATAGRAMS is for the priority channel (forces over UDP), not this one",
+                "invalid_command",
+                msg.seq,
+            )
+        case (
+            HelloMessage() | WelcomeMessage() | StateMessage() | ForceMessage() | EventMessage()
+            | ErrorMessage() | AckMessage() | PongMessage() | PortEnergyMessage() | ArmMessage()
+        ):  # fmt: skip
+            # (HELLO only opens a session: a second one is as out of place as these)
+            raise m.MalformedMessage(
+                f"{msg.SPEC.name} is not a client message", "unknown_type", seq_of(msg)
+            )
+        case _:
+            assert_never(msg)
+
+
+async def lease(msg: LeaseMessage, client_id: str, decision: DecisionServer) -> None:
+    action = msg.action
+    if action == m.LeaseAction.RELEASE:
+        await decision.release_lease(client_id)
+    elif action in (m.LeaseAction.TAKE, m.LeaseAction.TAKE_OVER):
+        await decision.take_lease(client_id, force=action == m.LeaseAction.TAKE_OVER)
+    elif action == m.LeaseAction.PAUSE:
+        await decision.pause(client_id)
+    elif action == m.LeaseAction.RESUME:
+        await decision.resume_policy(client_id)
+    else:
+        raise m.MalformedMessage(f"unknown lease action {action}", "invalid_command", msg.seq)

@@ -4,7 +4,10 @@ Little-endian, no padding. Byte 0 is the message type; the rest is a fixed layou
 given as a ``struct`` format, except where a message ends in UTF-8 text or a counted
 array. docs/protocol.md describes the same table (a test keeps them in step), and
 the TypeScript client's types are generated from ``MESSAGES``
-(``backend/realtime/typescript.py``; a test keeps them in step too).
+(``backend/realtime/typescript.py``; a test keeps them in step too). Python code
+builds and reads them as the frozen dataclasses of ``typed.py`` (checked against this
+table at import); ``encode``/``decode`` below are the positional form tests use, and
+both go through ``pack``/``unpack``.
 
 Client → server types are 0x01–0x7F, server → client 0x81–0xFF.
 """
@@ -16,6 +19,7 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from functools import cached_property
 from typing import Any, Final
 
 # 2: joints as a tail, their count in WELCOME. 3: a server drives one arm or more (each
@@ -104,7 +108,7 @@ class Message:
     # index, added in version 3 at the end, is 0 (the only arm) unless named.
     defaults: tuple[object, ...] = ()
 
-    @property
+    @cached_property  # compiled once: every encode and decode on the 1 kHz paths uses it
     def struct(self) -> struct.Struct:
         return struct.Struct("<B" + self.fmt)
 
@@ -318,12 +322,17 @@ class MalformedMessage(ValueError):
 MAX_JOINTS: Final = 16
 
 
-def encode(msg: Message, *values: object, text: str = "", joints: Sequence[float] = ()) -> bytes:
-    """``values`` in field order; the last ones may be left out where ``msg.defaults``
-    has them (a one-arm sender need not name its arm)."""
-    missing = len(msg.fields) - len(values)
-    if 0 < missing <= len(msg.defaults):
-        values = (*values, *msg.defaults[len(msg.defaults) - missing :])
+# A message's tail as ``unpack`` returns it: its text, its joints, or its force samples
+# (None for a message without one).
+ForceSampleTuple = tuple[int, float, tuple[float, ...]]
+Tail = str | tuple[float, ...] | tuple[ForceSampleTuple, ...] | None
+
+
+def pack(
+    msg: Message, values: Sequence[object], text: str = "", joints: Sequence[float] = ()
+) -> bytes:
+    """``values``: every field of ``msg``, in order (the codec both ``encode`` and the
+    dataclasses of ``typed.py`` use, so their bytes cannot differ)."""
     body = msg.struct.pack(msg.type_id, *values)
     if msg.tail == "text":
         return body + text.encode("utf-8")
@@ -332,10 +341,20 @@ def encode(msg: Message, *values: object, text: str = "", joints: Sequence[float
     return body
 
 
+def encode(msg: Message, *values: object, text: str = "", joints: Sequence[float] = ()) -> bytes:
+    """``values`` in field order; the last ones may be left out where ``msg.defaults``
+    has them (a one-arm sender need not name its arm). The typed messages
+    (``telerobot.protocol.typed``) are the product code's way; tests and benches use this."""
+    missing = len(msg.fields) - len(values)
+    if 0 < missing <= len(msg.defaults):
+        values = (*values, *msg.defaults[len(msg.defaults) - missing :])
+    return pack(msg, values, text, joints)
+
+
 FORCE_HEAD: Final = struct.Struct("<BBH")  # type, arm, count
 
 
-def encode_force(samples: Sequence[tuple[int, float, tuple[float, ...]]], arm: int = 1) -> bytes:
+def encode_force(samples: Sequence[ForceSampleTuple], arm: int = 1) -> bytes:
     out = bytearray(FORCE_HEAD.pack(FORCE.type_id, arm, len(samples)))
     for seq, t, values in samples:
         out += FORCE_SAMPLE.pack(seq & 0xFFFFFFFF, t, *values)
@@ -349,7 +368,7 @@ def force_arm(data: bytes) -> int:
     return data[1]
 
 
-def decode_force(data: bytes) -> list[tuple[int, float, tuple[float, ...]]]:
+def decode_force(data: bytes) -> list[ForceSampleTuple]:
     if len(data) < FORCE_HEAD.size or data[0] != FORCE.type_id:
         raise MalformedMessage("not a FORCE message")
     _, _, count = FORCE_HEAD.unpack_from(data)
@@ -366,8 +385,38 @@ def decode_force(data: bytes) -> list[tuple[int, float, tuple[float, ...]]]:
     ]
 
 
-def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
-    """Parse one message: its definition, its fields by name, and its text tail.
+def _wrong_size(msg: Message, data: bytes) -> MalformedMessage:
+    seq = struct.unpack_from("<I", data, 1)[0] if len(data) >= 5 and "seq" in msg.fields[:1] else 0
+    wanted = f"{msg.size} + 8 × joints (≤ {MAX_JOINTS})" if msg.tail == "joints" else str(msg.size)
+    return MalformedMessage(f"{msg.name} must be {wanted} bytes, got {len(data)}", seq=seq)
+
+
+def _check_finite(msg: Message, values: tuple[Any, ...], joints: tuple[float, ...]) -> None:
+    """NaN and infinity are refused in every number (a command carrying one must not move
+    anything), with the seq so the client knows which command it was."""
+    # The common case in one pass of C (this runs for every message on the 1 kHz paths);
+    # bytes fields (a HELLO's token) are not numbers, so those messages take the loop.
+    if all(map(math.isfinite, joints)) and ("s" not in msg.fmt and all(map(math.isfinite, values))):
+        return
+    for name, v in zip(msg.fields, values, strict=True):
+        if isinstance(v, float) and not math.isfinite(v):
+            raise MalformedMessage(
+                f"{msg.name}.{name} is {v}", "invalid_command", _seq(msg, values)
+            )
+    if not all(map(math.isfinite, joints)):
+        raise MalformedMessage(
+            f"{msg.name}.joints has NaN or infinity", "invalid_command", _seq(msg, values)
+        )
+
+
+def _seq(msg: Message, values: tuple[Any, ...]) -> int:
+    return int(values[msg.fields.index("seq")]) if "seq" in msg.fields else 0
+
+
+def unpack(data: bytes) -> tuple[Message, tuple[Any, ...], Tail]:
+    """Parse and check one message: its definition, its field values in order, and its
+    tail (None without one). Both ``decode`` and ``typed.parse`` are this, so they
+    refuse the same bytes the same way.
 
     Raises ``MalformedMessage`` (with the seq when it can be read) for an empty frame,
     an unknown type, a wrong size, or a NaN/infinite number.
@@ -378,8 +427,8 @@ def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
     if msg is None:
         raise MalformedMessage(f"unknown message type 0x{data[0]:02x}", "unknown_type")
     if msg.tail == "samples":
-        decode_force(data)
-        return msg, {"arm": data[1]}, ""
+        samples = tuple(decode_force(data))  # (checks the size first)
+        return msg, (data[1],), samples
     size = msg.size
     extra = len(data) - size
     if extra < 0 or (
@@ -387,31 +436,31 @@ def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
         if msg.tail == ""
         else msg.tail == "joints" and (extra % 8 != 0 or extra > 8 * MAX_JOINTS)
     ):
-        seq = (
-            struct.unpack_from("<I", data, 1)[0]
-            if len(data) >= 5 and "seq" in msg.fields[:1]
-            else 0
-        )
-        wanted = f"{size} + 8 × joints (≤ {MAX_JOINTS})" if msg.tail == "joints" else str(size)
-        raise MalformedMessage(f"{msg.name} must be {wanted} bytes, got {len(data)}", seq=seq)
+        raise _wrong_size(msg, data)
     values = msg.struct.unpack_from(data)[1:]
-    fields: dict[str, Any] = dict(zip(msg.fields, values, strict=True))
+    joints: tuple[float, ...] = (
+        struct.unpack_from(f"<{extra // 8}d", data, size) if msg.tail == "joints" else ()
+    )
+    _check_finite(msg, values, joints)
     if msg.tail == "joints":
-        fields["joints"] = struct.unpack_from(f"<{extra // 8}d", data, size)
-    for name, v in fields.items():
-        if msg.tail == "joints" and name == "joints" and not all(math.isfinite(x) for x in v):
-            seq = fields.get("seq", 0)
-            raise MalformedMessage(f"{msg.name}.joints has NaN or infinity", "invalid_command", seq)
-        if isinstance(v, float) and not math.isfinite(v):
-            seq = fields.get("seq", 0)
-            raise MalformedMessage(
-                f"{msg.name}.{name} is {v}", "invalid_command", seq if isinstance(seq, int) else 0
-            )
+        return msg, values, joints
+    if msg.tail != "text":
+        return msg, values, None
     try:
-        text = data[size:].decode("utf-8") if msg.tail == "text" else ""
+        return msg, values, data[size:].decode("utf-8")
     except UnicodeDecodeError:
         raise MalformedMessage(f"{msg.name} text is not UTF-8") from None
-    return msg, fields, text
+
+
+def decode(data: bytes) -> tuple[Message, dict[str, Any], str]:
+    """Parse one message: its definition, its fields by name (a JOINT_INC's or STATE's
+    joints as ``joints``; a FORCE's only its arm: ``decode_force`` has its samples), and
+    its text tail. The errors are ``unpack``'s."""
+    msg, values, tail = unpack(data)
+    fields: dict[str, Any] = dict(zip(msg.fields, values, strict=True))
+    if msg.tail == "joints":
+        fields["joints"] = tail
+    return msg, fields, tail if isinstance(tail, str) else ""
 
 
 def markdown_table() -> str:

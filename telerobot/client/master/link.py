@@ -46,6 +46,25 @@ from telerobot.drivers.base import DeviceError, ForceSample, InvalidCommand, Tel
 from telerobot.protocol import messages as m
 from telerobot.protocol.clock import ClockSync
 from telerobot.protocol.netprio import mark_high_priority
+from telerobot.protocol.typed import (
+    ArmMessage,
+    CartIncMessage,
+    DatagramsMessage,
+    EnergyMessage,
+    ErrorMessage,
+    EstopMessage,
+    EventMessage,
+    HeartbeatMessage,
+    HelloMessage,
+    JointIncMessage,
+    LeaseMessage,
+    NameMessage,
+    PingMessage,
+    PongMessage,
+    StateMessage,
+    WelcomeMessage,
+    parse,
+)
 from telerobot.tuning import prompt_thread
 
 log = logging.getLogger(__name__)
@@ -217,7 +236,8 @@ class PriorityLink:
         self._welcome = threading.Event()
         self._pings: dict[int, float] = {}
         flags = m.HelloFlags.POLICY if policy else 0
-        self._send(m.encode(m.HELLO, m.PROTOCOL_VERSION, flags, token.encode("ascii")))
+        hello = HelloMessage(version=m.PROTOCOL_VERSION, flags=flags, token=token.encode("ascii"))
+        self._send(hello.encode())
         self._reader = threading.Thread(target=self._read, name="priority-link", daemon=True)
         self._reader.start()
         if not self._welcome.wait(timeout_s):
@@ -243,12 +263,12 @@ class PriorityLink:
     def rename(self, name: str) -> int:
         """Go by ``name`` (NAME: answered by ACK, or by ERROR saying why)."""
         seq = self._next()
-        self._send(m.encode(m.NAME, seq, text=name))
+        self._send(NameMessage(seq=seq, text=name).encode())
         return seq
 
     def lease(self, action: m.LeaseAction) -> int:
         seq = self._next()
-        self._send(m.encode(m.LEASE, seq, int(action)))
+        self._send(LeaseMessage(seq=seq, action=int(action)).encode())
         return seq
 
     def cartesian(self, dX: tuple[float, float, float], rotvec: tuple[float, float, float],
@@ -256,7 +276,12 @@ class PriorityLink:
         """A Cartesian increment for ``arm`` (index or name; 0: the only arm)."""
         index = self.arm_index(arm)
         seq = self._next()
-        self._send(m.encode(m.CART_INC, seq, time.monotonic(), int(frame), *dX, *rotvec, index))
+        (dx, dy, dz), (rx, ry, rz) = dX, rotvec
+        command = CartIncMessage(
+            seq=seq, client_time=time.monotonic(), frame=int(frame),
+            dx=dx, dy=dy, dz=dz, rx=rx, ry=ry, rz=rz, arm=index,
+        )  # fmt: skip
+        self._send(command.encode())
         return seq
 
     def energy(self, e_in: float, e_out: float, arm: int | str = 0) -> int:
@@ -264,7 +289,7 @@ class PriorityLink:
         so far); answered by PORT_ENERGY."""
         index = self.arm_index(arm)
         seq = self._next()
-        self._send(m.encode(m.ENERGY, seq, e_in, e_out, index))
+        self._send(EnergyMessage(seq=seq, e_in=e_in, e_out=e_out, arm=index).encode())
         return seq
 
     def next_seq(self) -> int:
@@ -277,7 +302,10 @@ class PriorityLink:
         joint of that arm; returns its seq."""
         index = self.arm_index(arm)
         seq = self.next_seq() if seq is None else seq
-        self._send(m.encode(m.JOINT_INC, seq, time.monotonic(), index, joints=dq))
+        command = JointIncMessage(
+            seq=seq, client_time=time.monotonic(), arm=index, joints=tuple(dq)
+        )
+        self._send(command.encode())
         return seq
 
     # ------------------------------------------------------------ arms
@@ -317,16 +345,16 @@ class PriorityLink:
         )
 
     def heartbeat(self) -> None:
-        self._send(m.encode(m.HEARTBEAT, self._next(), time.monotonic()))
+        self._send(HeartbeatMessage(seq=self._next(), client_time=time.monotonic()).encode())
 
     def estop(self) -> None:
-        self._send(m.encode(m.ESTOP, self._next(), time.monotonic()))
+        self._send(EstopMessage(seq=self._next(), client_time=time.monotonic()).encode())
 
     def ping(self) -> None:
         seq = self._next()
         t0 = time.monotonic()
         self._pings[seq] = t0
-        self._send(m.encode(m.PING, seq, t0))
+        self._send(PingMessage(seq=seq, t0=t0).encode())
 
     def send_raw(self, message: bytes) -> None:
         """One framed message as it is (for tests of the server's checks)."""
@@ -388,7 +416,10 @@ class PriorityLink:
             self.datagrams = "asking" if tries == 1 else f"asking (try {tries})"
             self._datagram_seq = self.next_seq()
             self.datagram_registrations += 1
-            message = m.encode(m.DATAGRAMS, self._datagram_seq, bytes(16), self.thinning.every)
+            asking = DatagramsMessage(
+                seq=self._datagram_seq, key=bytes(16), every=self.thinning.every
+            )
+            message = asking.encode()
         self._send(message)  # (not under the lock: the TCP reader takes it for the answer)
 
     def _retry_due(self, now: float) -> bool:
@@ -425,7 +456,7 @@ class PriorityLink:
                 said_at = now
                 every = self.thinning.judge(now) if self.datagrams == "udp" else self.thinning.every
                 with contextlib.suppress(OSError):
-                    udp.send(m.encode(m.DATAGRAMS, 0, self._datagram_key, every))
+                    udp.send(DatagramsMessage(seq=0, key=self._datagram_key, every=every).encode())
             try:
                 data = udp.recv(2048)
             except TimeoutError:
@@ -512,53 +543,61 @@ class PriorityLink:
                 self._tcp_force(message)
             self._forces(message, now)
             return
-        msg, fields, text = m.decode(message)
-        if msg is m.ERROR and int(fields["seq"]) == self._datagram_seq:
+        msg = parse(message)
+        if isinstance(msg, ErrorMessage | DatagramsMessage) and msg.seq == self._datagram_seq:
+            self._datagrams_answered(msg, now)
+        match msg:
+            case WelcomeMessage():
+                self.operator = msg.role == 1
+                self.joint_count = msg.joints
+                self.client_id = msg.text
+                self._arms_said = msg.arms
+                self.arms = ()
+                if self._arms_said == 0:  # (no arm: nothing follows)
+                    self._welcome.set()
+            case ArmMessage():  # the constructor returns once every arm is in
+                self.arms = (*self.arms, LinkArm(msg.index, msg.text, msg.joints))
+                if len(self.arms) >= self._arms_said:
+                    self._welcome.set()
+            case StateMessage():  # (not a reply: on_state only)
+                fields = msg.as_dict()
+                self.states[msg.arm] = fields
+                if self.on_state is not None:
+                    self.on_state(fields)
+                return
+            case EventMessage(kind=m.EventKind.AUTONOMY):
+                with contextlib.suppress(ValueError, TypeError, KeyError):
+                    self.autonomy = str(json.loads(msg.text)["mode"])
+            case PongMessage():
+                t0 = self._pings.pop(msg.seq, None)
+                if t0 is not None:
+                    self.clock.pong(t0, msg.t1, msg.t2, now)
+            case ErrorMessage() if not self._welcome.is_set():
+                self.closed_reason = msg.text
+            case _:
+                pass  # (the others are for on_reply alone)
+        if self.on_reply is not None:
+            self.on_reply(Reply(msg.SPEC.name, msg.as_dict(), getattr(msg, "text", "")))
+
+    def _datagrams_answered(self, msg: ErrorMessage | DatagramsMessage, now: float) -> None:
+        """The server's answer to our DATAGRAMS (the current one: its seq)."""
+        if isinstance(msg, ErrorMessage):
             with self._datagram_lock:  # refused: for good, the UDP reader ends
-                self.datagrams = f"tcp: {text}"
-            log.warning("forces stay on TCP: %s", text)
-        elif msg is m.DATAGRAMS and int(fields["seq"]) == self._datagram_seq and self._udp:
+                self.datagrams = f"tcp: {msg.text}"
+            log.warning("forces stay on TCP: %s", msg.text)
+        elif self._udp:
             # Registered, with the server's key: say it by UDP now, from the socket the
             # forces should come to (the server learns its port from this one; the UDP
             # reader repeats it every DATAGRAM_KEEPALIVE_S, so one lost is no matter).
-            key = bytes(fields["key"])
             with self._datagram_lock:
-                current = int(fields["seq"]) == self._datagram_seq  # (else asked again)
+                current = msg.seq == self._datagram_seq  # (else asked again)
                 if current:
-                    self._datagram_key = key
+                    self._datagram_key = msg.key
                     self._datagram_answered_at = now
             if current:
                 with contextlib.suppress(OSError):
-                    self._udp.send(m.encode(m.DATAGRAMS, 0, key, int(fields["every"])))
-        if msg is m.WELCOME:
-            self.operator = int(fields["role"]) == 1
-            self.joint_count = int(fields["joints"])
-            self.client_id = text
-            self._arms_said = int(fields["arms"])
-            self.arms = ()
-            if self._arms_said == 0:  # (no arm: nothing follows)
-                self._welcome.set()
-        elif msg is m.ARM:  # the constructor returns once every arm is in
-            arm = LinkArm(int(fields["index"]), text, int(fields["joints"]))
-            self.arms = (*self.arms, arm)
-            if len(self.arms) >= self._arms_said:
-                self._welcome.set()
-        elif msg is m.STATE:
-            self.states[int(fields["arm"])] = fields
-            if self.on_state is not None:
-                self.on_state(fields)
-            return
-        elif msg is m.EVENT and int(fields["kind"]) == m.EventKind.AUTONOMY:
-            with contextlib.suppress(ValueError, TypeError, KeyError):
-                self.autonomy = str(json.loads(text)["mode"])
-        elif msg is m.PONG:
-            t0 = self._pings.pop(int(fields["seq"]), None)
-            if t0 is not None:
-                self.clock.pong(t0, float(fields["t1"]), float(fields["t2"]), now)
-        elif msg is m.ERROR and not self._welcome.is_set():
-            self.closed_reason = text
-        if self.on_reply is not None:
-            self.on_reply(Reply(msg.name, fields, text))
+                    answer = DatagramsMessage(seq=0, key=msg.key, every=msg.every)
+                    self._udp.send(answer.encode())
 
 
 def open_link(
