@@ -108,7 +108,9 @@ def test_the_arm_reads_moves_clips_and_gives_way_to_an_operator(so101: str) -> N
         assert units is not None and units.names == SO101.joint_names
         obs = arm.observation()
         assert obs["left"].shape == obs["right"].shape == (180, 320, 3)
-        assert {f"force.{n}" for n in ("fx", "fy", "fz", "tx", "ty", "tz")} <= set(obs)
+        # The joints and the cameras, as LeRobot's so_follower: the forces beside them.
+        assert set(obs) == {*units.feature_names, "left", "right"}
+        assert set(arm.force) == {"fx", "fy", "fz", "tx", "ty", "tz"}
         here = units.to_lerobot(_state(so101)["joints"])
         got = [obs[k] for k in units.feature_names]
         np.testing.assert_allclose(got, here, atol=0.5)  # the arm at rest: degrees
@@ -176,3 +178,17 @@ def test_a_picture_without_a_timecode_is_dated_by_its_arrival() -> None:
     image = np.zeros((64, 640, 3), np.uint8)
     timecode.draw(image, 1000.0)
     assert capture_time(timecode.read(image), 1300.0) is None
+
+
+def test_a_server_with_two_arms_is_refused_naming_them_and_what_to_use() -> None:
+    """The LeRobot robot drives one arm (LeRobot's so_follower): on a two-arm server it
+    refuses at once with the server's reason (its arms' names) and the way to a two-arm
+    dataset, instead of driving one of them unsaid."""
+    from telerobot.client.lerobot.arm import describe_arm
+
+    with serving({"TELEROBOT_ARMS": "left=so101:sim,right=so101:sim"}) as base:
+        with pytest.raises(ConnectionError) as refused:
+            describe_arm(base)
+    said = str(refused.value)
+    assert "left" in said and "right" in said, said
+    assert "telerobot export lerobot" in said, said

@@ -97,8 +97,8 @@ def test_lerobot_record_with_the_telerobot_robot_and_teleoperator(tmp_path: Path
         assert done.is_set(), said[-3000:]
     ds = LeRobotDataset("telerobot/record-test", root=root, video_backend="pyav")
     assert ds.num_episodes == 2 and ds.meta.robot_type == "so_follower"
-    names = ds.meta.features["observation.state"]["names"]
-    assert names[:6] == [
+    # Shaped as LeRobot's own SO-101 datasets: the six joints, nothing else, as the state.
+    assert ds.meta.features["observation.state"]["names"] == [
         "shoulder_pan.pos",
         "shoulder_lift.pos",
         "elbow_flex.pos",
@@ -106,12 +106,55 @@ def test_lerobot_record_with_the_telerobot_robot_and_teleoperator(tmp_path: Path
         "wrist_roll.pos",
         "gripper.pos",
     ]
-    assert names[6:] == [f"force.{n}" for n in ("fx", "fy", "fz", "tx", "ty", "tz")]
     for i in range(len(ds)):
         item = ds[i]
         assert tuple(item["observation.images.left"].shape) == (3, 180, 320)
     pans = np.array([float(ds[i]["action"][0]) for i in range(len(ds))])
     assert pans.max() - pans.min() > 5.0, pans  # the operator's move, in degrees
+
+
+def _features_as_lerobot_record_builds_them(robot: object) -> dict[str, dict]:
+    """The dataset features ``lerobot-record`` builds for ``robot`` (LeRobot 0.6.1's own
+    code, its default processors)."""
+    from lerobot.datasets import aggregate_pipeline_dataset_features, create_initial_features
+    from lerobot.processor import make_default_processors
+    from lerobot.utils.feature_utils import combine_feature_dicts
+
+    teleop, _, observation = make_default_processors()
+    return combine_feature_dicts(
+        aggregate_pipeline_dataset_features(
+            pipeline=teleop, initial_features=create_initial_features(action=robot.action_features)
+        ),
+        aggregate_pipeline_dataset_features(
+            pipeline=observation,
+            initial_features=create_initial_features(observation=robot.observation_features),
+        ),
+    )
+
+
+CAMERAS = ("left", "right")  # the server's stereo pair, as the plugin names it
+
+
+def test_the_plugins_dataset_features_are_lerobots_so_follower_s() -> None:
+    """The features ``lerobot-record`` builds for the plugin on an SO-101 server are those
+    it builds for LeRobot's own ``so_follower`` with two cameras named as ours (built, not
+    connected): the same state, action and images, names and shapes."""
+    from lerobot.cameras.opencv import OpenCVCameraConfig
+    from lerobot.robots.so_follower import SOFollower, SOFollowerRobotConfig
+    from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
+    from lerobot_robot_telerobot.telerobot import Telerobot as TelerobotRobot
+
+    size = {"width": 320, "height": 180, "fps": 15}
+    cameras = {eye: OpenCVCameraConfig(index_or_path=i, **size) for i, eye in enumerate(CAMERAS)}
+    theirs = SOFollower(SOFollowerRobotConfig(port="/dev/null", cameras=cameras))
+    with serving("--model", "so101") as (url, _state):
+        ours = TelerobotRobot(
+            TelerobotConfig(url=url, token=TOKEN, camera_width=320, camera_height=180)
+        )
+        assert ours.robot_type == "so_follower"
+        assert _features_as_lerobot_record_builds_them(ours) == (
+            _features_as_lerobot_record_builds_them(theirs)
+        )
 
 
 SO_LEADER_MOTORS = [

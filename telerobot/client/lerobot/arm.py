@@ -210,6 +210,14 @@ class TelerobotArm:
     def _on_force(self, sample: ForceSample, _received: float) -> None:
         self._force = sample
 
+    @property
+    def force(self) -> dict[str, float]:
+        """The newest force sample (N, N·m; zeros before the first), for a caller that
+        wants it beside the observation (it is not a LeRobot feature: see
+        ``observation_features``)."""
+        values = self._force.values if self._force is not None else (0.0,) * 6
+        return {n: float(v) for n, v in zip(FORCE_NAMES, values, strict=True)}
+
     def _newest_joints(self) -> FloatArray | None:
         with self._lock:
             return self._states[-1][1].copy() if self._states else None
@@ -259,8 +267,6 @@ class TelerobotArm:
             joints = newest
         values = units.to_lerobot(joints)
         out: dict[str, Any] = dict(zip(units.feature_names, map(float, values), strict=True))
-        force = self._force.values if self._force is not None else (0.0,) * 6
-        out.update({f"force.{n}": float(v) for n, v in zip(FORCE_NAMES, force, strict=True)})
         if frame is not None:
             out["left"], out["right"] = frame.left, frame.right
         return out
@@ -301,10 +307,30 @@ def describe_arm(url: str) -> JointUnits:
     base = url if url.endswith("/") else url + "/"
     try:
         r = httpx.get(base + "api/v1/robot/model", timeout=10, verify=False)
-        r.raise_for_status()
-        return JointUnits.from_described(r.json())
-    except (httpx.HTTPError, ValueError, KeyError) as exc:
+    except httpx.HTTPError as exc:
         raise ConnectionError(f"cannot ask {base} for its arm: {exc}") from None
+    if r.status_code != 200:
+        # E.g. a server with two arms or more, which names them: the plugin drives one
+        # arm (LeRobot's so_follower); both arms' demonstrations are `telerobot export lerobot`
+        # (bi_so_follower-shaped, docs/lerobot.md).
+        detail = _detail(r)
+        raise ConnectionError(
+            f"cannot ask {base} for its arm ({r.status_code}): {detail}; the Telerobot robot"
+            " drives a server with one arm (a two-arm session's LeRobot dataset is"
+            " `telerobot export lerobot`)"
+        )
+    try:
+        return JointUnits.from_described(r.json())
+    except (ValueError, KeyError) as exc:
+        raise ConnectionError(f"{base} described its arm in a way not understood: {exc}") from None
+
+
+def _detail(r: httpx.Response) -> str:
+    """What the server said of a refusal (its problem detail), else its status line."""
+    try:
+        return str(r.json().get("detail") or r.reason_phrase)
+    except ValueError:
+        return r.reason_phrase
 
 
 def server_target(options: ArmOptions, units: JointUnits) -> dict[str, float]:
@@ -321,8 +347,13 @@ def server_target(options: ArmOptions, units: JointUnits) -> dict[str, float]:
 
 
 def observation_features(joint_keys: list[str], options: ArmOptions) -> dict[str, Any]:
+    """The joints and the cameras, as LeRobot's own robot of the same arm reports them
+    (the SO-101's ``so_follower``). Nothing else: ``lerobot-record`` puts every number a
+    robot reports into ``observation.state`` (LeRobot 0.6.1's
+    ``aggregate_pipeline_dataset_features``), and forces there made a 12-value state no
+    SO-101 policy or tool takes. The forces are in the session's recording and in
+    Telerobot's export, as ``observation.force`` (docs/lerobot.md)."""
     out: dict[str, Any] = {k: float for k in joint_keys}
-    out.update({f"force.{n}": float for n in FORCE_NAMES})
     if options.cameras:
         for cam in CAMERAS:
             out[cam] = (options.height, options.width, 3)
