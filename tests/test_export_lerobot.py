@@ -465,7 +465,7 @@ def test_the_rows_follow_the_videos_real_rate_not_its_typical_spacing(tmp_path: 
     assert info["fps"] == 10
     assert "ran at 10.0" in info["features"]["observation.images.left"]["description"]
     ours = json.loads((tmp_path / "ds/meta/telerobot_export.json").read_text())
-    assert ours["recorded_video_fps"] == pytest.approx(rate) and ours["fps"] == 10
+    assert ours["video_fps"] == pytest.approx(rate) and ours["fps"] == 10
     seen = _repeats_seen(tmp_path / "ds")
     assert summary.repeated_frames == seen == ours["repeated_frames"]
     assert ours["warnings"] == summary.warnings

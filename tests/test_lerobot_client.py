@@ -186,9 +186,9 @@ def test_a_server_with_two_arms_is_refused_naming_them_and_what_to_use() -> None
     dataset, instead of driving one of them unsaid."""
     from telerobot.client.lerobot.arm import describe_arm
 
-    with serving({"TELEROBOT_ARMS": "left=so101:sim,right=so101:sim"}) as base:
-        with pytest.raises(ConnectionError) as refused:
-            describe_arm(base)
+    two_arms = {"TELEROBOT_ARMS": "left=so101:sim,right=so101:sim"}
+    with serving(two_arms) as base, pytest.raises(ConnectionError) as refused:
+        describe_arm(base)
     said = str(refused.value)
     assert "left" in said and "right" in said, said
     assert "telerobot export lerobot" in said, said

@@ -907,7 +907,7 @@ def export_lerobot(
     source_info = {
         "recording": recording_path.name,
         "fps": fps,
-        "recorded_video_fps": rate,
+        "video_fps": rate,  # as docs/recording.md, the answer and the command name it
         "repeated_frames": repeated,
         "stale_rows": stale,
         "units": {
