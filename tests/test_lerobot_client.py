@@ -192,3 +192,17 @@ def test_a_server_with_two_arms_is_refused_naming_them_and_what_to_use() -> None
     said = str(refused.value)
     assert "left" in said and "right" in said, said
     assert "telerobot export lerobot" in said, said
+
+
+def test_a_joint_at_its_limit_read_back_from_float32_is_not_a_clip() -> None:
+    """A dataset stores joints as float32: a joint recorded at its limit reads back a hair
+    beyond it. That is held at the limit unsaid; a target truly beyond is still said."""
+    units = SO101_UNITS
+    at_limits = np.array([hi for _, hi in units.limits])
+    stored = units.to_lerobot(at_limits).astype(np.float32)
+    back, moved = units.clip(units.from_lerobot(stored))
+    assert moved == []
+    np.testing.assert_allclose(back, at_limits, atol=1e-6)
+    beyond = at_limits.copy()
+    beyond[0] += 0.01
+    assert units.clip(beyond)[1] == [units.names[0]]

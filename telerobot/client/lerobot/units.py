@@ -35,6 +35,9 @@ ROBOT_TYPES = {"so101": "so_follower"}
 DEGREE_SCALE = {"so101": 4096 / 4095}
 
 FloatArray = npt.NDArray[np.float64]
+# Farther than a float32 round trip of a joint in LeRobot's units could move it (its
+# degrees, or 0–100 for a gripper, at float32's 2^-24 relative precision): a real clip.
+ROUND_TRIP_RAD = 1e-5
 
 
 def robot_type(model: str) -> str:
@@ -107,9 +110,16 @@ class JointUnits:
         return out
 
     def clip(self, q: FloatArray) -> tuple[FloatArray, list[str]]:
-        """``q`` (rad) inside the limits, and the names of the joints it moved."""
+        """``q`` (rad) inside the limits, and the names of the joints it moved by more
+        than a float32 round trip does: a dataset stores joints as float32, and a joint
+        recorded at its limit reads back up to ~1e-7 of it beyond (no target worth a
+        warning)."""
         lo = np.array([a for a, _ in self.limits])
         hi = np.array([b for _, b in self.limits])
         clipped = np.clip(q, lo, hi)
-        moved = [n for n, a, b in zip(self.names, q, clipped, strict=True) if a != b]
+        moved = [
+            n
+            for n, a, b in zip(self.names, q, clipped, strict=True)
+            if abs(a - b) > ROUND_TRIP_RAD
+        ]
         return clipped, moved
