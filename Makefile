@@ -71,12 +71,19 @@ LEROBOT_PY := $(LEROBOT_VENV)/bin/python
 # `python3.12` shim is on PATH but refuses while 3.12 is not a selected version.
 # PYTHON312=/path/to/python3.12 picks one by hand.
 
+# torchcodec (LeRobot's video decoder) loads FFmpeg's shared libraries (4 to 8): Debian
+# 12's are FFmpeg 5.1's; without them LeRobot prints a long traceback at every start.
+FFMPEG_LIBS := libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4
 # [feetech]: LeRobot's own SO-101 leader, on Telerobot's emulated servo bus, in the tests
 LEROBOT_SPEC := lerobot[dataset,feetech]==$(LEROBOT_VERSION) pytest pytest-timeout httpx aiortc setuptools
 # Checked on every run (cheap): the stamp holds the spec and the interpreter it was made
 # with, so a changed spec or a venv whose Python no longer runs installs again.
 lerobot-deps:
 	@LEROBOT_VENV='$(LEROBOT_VENV)' LEROBOT_SPEC='$(LEROBOT_SPEC)' PYTHON312='$(PYTHON312)' tools/lerobot-venv
+	@ldconfig -p | grep -q 'libavdevice\.so\.59 ' || { \
+	  echo "installing Debian's FFmpeg libraries for LeRobot's video decoder (torchcodec)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(FFMPEG_LIBS) >/dev/null \
+	  || { echo "as root: apt-get install $(FFMPEG_LIBS)"; exit 1; }; }
 
 ## make lerobot-test: the LeRobot plugins in LeRobot's own command lines, against a real server
 # The plugins are installed anew from this checkout each time (LeRobot finds plugins by

@@ -519,3 +519,19 @@ def test_lerobot_rollout_drives_as_a_supervised_policy_and_the_page_can_take_ove
         said[-3000:],
     )
     assert state["mode"] == "off" and state["interventions"] == 1, state  # it left, one takeover
+
+
+def test_lerobots_video_decoder_loads_with_no_traceback() -> None:
+    """torchcodec, LeRobot's video decoder, finds FFmpeg's shared libraries (`make
+    lerobot-deps` installs Debian's): without them every LeRobot command starts with a
+    long traceback (docs/lerobot.md)."""
+    import subprocess
+    import sys
+
+    said = subprocess.run(
+        [sys.executable, "-c", "from torchcodec.decoders import VideoDecoder"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert said.returncode == 0 and "Traceback" not in said.stderr, said.stderr[-2000:]
