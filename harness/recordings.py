@@ -105,13 +105,15 @@ def build(
     command_every: float = 0.25,
     settings: dict[str, Any] | None = None,
     autonomy: list[tuple[float, str]] | None = None,
+    video_from: float = 0.0,
 ) -> Built:
     """Write a recording of ``duration`` seconds: state at ``state_hz``, force at
     ``force_hz``, an accepted ``move_joints`` every ``command_every`` s (and a refused one
     between, which must not count), the episodes' start/label/end events, and video at
     ``video_fps`` (capture times jittered by up to ``jitter`` of a frame), and the
     server's ``settings`` first if given (as a recording starts with them), and the
-    supervised autonomy's changes ``(t, mode)`` if given."""
+    supervised autonomy's changes ``(t, mode)`` if given. The video starts ``video_from``
+    s into the recording (a worker that came up late)."""
     if episodes is None:
         episodes = [Episode(0.5, 1.7, "pick the block"), Episode(2.2, 3.6, "place the block")]
     rng = np.random.default_rng(7)
@@ -223,9 +225,10 @@ def build(
     enc.options = {"preset": "ultrafast", "tune": "zerolatency", "annexb": "1", "crf": "18"}
     enc.gop_size = 30
     enc.max_b_frames = 0
-    n_frames = int(duration * video_fps)
+    n_frames = int((duration - video_from) * video_fps)
     for i in range(n_frames):
-        t = i / video_fps + (rng.uniform(-jitter, jitter) / video_fps if jitter else 0.0)
+        t = video_from + i / video_fps
+        t += rng.uniform(-jitter, jitter) / video_fps if jitter else 0.0
         t = max(0.0, t)
         frame_times.append(t)
         frame = av.VideoFrame.from_ndarray(code_image(i % 2**BITS, width, height), format="rgb24")

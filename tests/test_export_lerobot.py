@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from fractions import Fraction
 from pathlib import Path
@@ -66,6 +67,7 @@ def test_the_export_leaves_no_thread_in_a_realtime_class(
 
 def test_layout_and_info(exported: tuple[Any, Any, Path]) -> None:
     built, summary, root = exported
+    assert summary.episodes_cut == []  # the video covers every episode
     info = json.loads((root / "meta/info.json").read_text())
     assert info["codebase_version"] == "v3.0"
     assert info["robot_type"] == "puma560"
@@ -253,6 +255,37 @@ def test_refuses_a_folder_in_use(tmp_path: Path) -> None:
         export_lerobot(built.path, tmp_path / "ds")
 
 
+def test_an_episode_the_video_came_late_for_is_exported_shorter_and_said(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The media worker came up 1 s into the recording: the first episode (0.5–1.7 s)
+    is exported from the video's first frame, 0.475 s shorter, and that is said: in the
+    summary (the REST answer), the warnings (the command's output) and
+    telerobot_export.json. A video that starts after an episode ends leaves it out,
+    said the same way. The second episode, covered whole, is not listed."""
+    from telerobot.server.cli import main
+
+    built = recordings.build(tmp_path / "late.mcap", duration=4.0, video_from=1.0)
+    summary = export_lerobot(built.path, tmp_path / "ds")
+    (cut,) = summary.episodes_cut
+    assert cut["episode"] == 0 and cut["task"] == "pick the block" and not cut["left_out"]
+    assert cut["lost_start_s"] == pytest.approx(0.5 - 0.5 / built.video_fps, abs=1e-3)
+    assert cut["lost_end_s"] == 0.0
+    assert summary.episodes == 2
+    assert any(
+        "episode 0 'pick the block'" in w and "0.47 s shorter" in w for w in summary.warnings
+    )
+    ours = json.loads((tmp_path / "ds/meta/telerobot_export.json").read_text())
+    assert ours["episodes_cut"] == summary.episodes_cut
+
+    later = recordings.build(tmp_path / "later.mcap", duration=4.0, video_from=2.0)
+    assert main(["export", "lerobot", str(later.path), str(tmp_path / "ds2")]) == 0
+    said = capsys.readouterr().out
+    assert re.search(r"warning: episode 0 'pick the block' \([\d.]+–[\d.]+ s\): left out", said)
+    ours = json.loads((tmp_path / "ds2/meta/telerobot_export.json").read_text())
+    assert [c["left_out"] for c in ours["episodes_cut"]] == [True]
+
+
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from telerobot.server.cli import main
 
@@ -290,6 +323,7 @@ def test_rest_endpoint(tmp_path: Path) -> None:
     out = Path(body["path"])
     assert out.parent == tmp_path / "exports"
     assert body["episodes"] == 2 and body["fps"] == 10
+    assert body["episodes_cut"] == []  # the video covers both episodes
     assert json.loads((out / "meta/info.json").read_text())["total_frames"] == body["frames"]
 
 

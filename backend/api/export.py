@@ -117,6 +117,16 @@ class LeRobotExportRequest(BaseModel):
     )
 
 
+class EpisodeCutView(BaseModel):
+    episode: int = Field(description="its number among the recording's episodes, from 0")
+    task: str
+    start_s: float
+    end_s: float
+    lost_start_s: float = Field(description="seconds of it before the video's first frame")
+    lost_end_s: float = Field(description="seconds of it after the video's last frame")
+    left_out: bool = Field(description="under two frames of it had video: not exported")
+
+
 class LeRobotExport(BaseModel):
     path: str = Field(description="the dataset's folder on the server")
     episodes: int
@@ -136,6 +146,10 @@ class LeRobotExport(BaseModel):
     stale_rows: dict[str, int] = Field(
         description="rows whose state, force or frame was older than its bound "
         "(`telerobot.age_ms` in the dataset)"
+    )
+    episodes_cut: list[EpisodeCutView] = Field(
+        description="episodes the recorded video did not cover whole: exported shorter "
+        "(seconds lost at each end) or left out; each also said in `warnings`"
     )
 
 

@@ -205,6 +205,8 @@ class ExportSummary:
     warnings: list[str] = field(default_factory=list)  # what the dataset should be read with
     # Rows whose state, force or frame was older than its bound (telerobot.age_ms).
     stale_rows: dict[str, int] = field(default_factory=dict)
+    # Episodes the video did not cover whole (EpisodeCut, as dicts): shorter or left out.
+    episodes_cut: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -830,7 +832,8 @@ def export_lerobot(
     warnings: list[str] = []
     fps = _choose_fps(rec, fps, rate, allow_repeated_frames, warnings)
     whole = not rec.episodes and not rec.skipped
-    rows, kept, skipped = _episode_rows(rec, fps, has_video)
+    rows, kept, skipped, cuts = _episode_rows(rec, fps, has_video)
+    warnings.extend(cut.text for cut in cuts)
     if not kept:
         raise ExportError(f"{recording_path.name}: no episode has data to export")
     tasks: list[str] = []
@@ -910,6 +913,7 @@ def export_lerobot(
         "video_fps": rate,  # as docs/recording.md, the answer and the command name it
         "repeated_frames": repeated,
         "stale_rows": stale,
+        "episodes_cut": [asdict(cut) for cut in cuts],
         "units": {
             "observation.state": layout.units_text,
             "action": layout.units_text,
@@ -937,6 +941,7 @@ def export_lerobot(
         repeated_frames=repeated,
         warnings=warnings,
         stale_rows=stale,
+        episodes_cut=[asdict(cut) for cut in cuts],
     )
 
 
@@ -975,21 +980,50 @@ def _choose_fps(
     return fps
 
 
+@dataclass(frozen=True)
+class EpisodeCut:
+    """An episode the video did not cover whole: exported shorter, or left out, never
+    unsaid (the command's output, the REST answer, ``meta/telerobot_export.json``)."""
+
+    episode: int  # its number among the recording's episodes, from 0
+    task: str
+    start_s: float  # the episode's span on the recording's clock
+    end_s: float
+    lost_start_s: float  # seconds of it before the video's first frame
+    lost_end_s: float  # after its last
+    left_out: bool  # under two frames of it had video: not exported
+
+    @property
+    def text(self) -> str:
+        lost = self.lost_start_s + self.lost_end_s
+        what = "left out" if self.left_out else f"{lost:.2f} s shorter"
+        return (
+            f"episode {self.episode} '{self.task}' ({self.start_s:.3f}–{self.end_s:.3f} s):"
+            f" {what}: the recorded video covers it from {self.lost_start_s:.2f} s after its"
+            f" start to {self.lost_end_s:.2f} s before its end"
+        )
+
+
 def _episode_rows(
     rec: _Recording, fps: int, has_video: bool
-) -> tuple[list[Array], list[tuple[float, float, str]], list[str]]:
+) -> tuple[list[Array], list[tuple[float, float, str]], list[str], list[EpisodeCut]]:
     """Each episode's row times on the dataset's grid, kept where there is video; the
-    episodes kept (first row, end, task); and those skipped, said why."""
+    episodes kept (first row, end, task); those skipped, said why; and those the video
+    did not cover whole (more than a row period lost at either end)."""
     episodes = rec.episodes or [(rec.state_t[0], rec.state_t[-1], WHOLE_RECORDING_TASK)]
     skipped = list(rec.skipped)
     rows: list[Array] = []
     kept: list[tuple[float, float, str]] = []
-    for start, end, task in episodes:
+    cuts: list[EpisodeCut] = []
+    for number, (start, end, task) in enumerate(episodes):
         lo, hi = start, end
         if has_video:
             half = 0.5 / fps
             lo, hi = max(lo, rec.video_t[0] - half), min(hi, rec.video_t[-1] + half)
         n = math.floor((hi - lo) * fps + 1e-9) + 1 if hi >= lo else 0
+        lost = (max(0.0, min(lo, end) - start), max(0.0, end - max(hi, start)))
+        if n < 2 or max(lost) > 1.0 / fps:
+            cuts.append(EpisodeCut(number, task, start, end, *lost, left_out=n < 2))
         if n < 2:
             skipped.append(f"'{task}' ({start:.3f}–{end:.3f} s): under two frames of data")
             continue
@@ -998,7 +1032,7 @@ def _episode_rows(
         n = math.floor((hi - first) * fps + 1e-9) + 1
         rows.append(first + np.arange(n) / fps)
         kept.append((first, end, task))
-    return rows, kept, skipped
+    return rows, kept, skipped, cuts
 
 
 def _features(rec: _Recording, layout: _Layout, state_period: float) -> dict[str, dict[str, Any]]:

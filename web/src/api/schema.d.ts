@@ -1588,6 +1588,35 @@ export interface components {
             /** Notes */
             notes: string;
         };
+        /** EpisodeCutView */
+        EpisodeCutView: {
+            /**
+             * Episode
+             * @description its number among the recording's episodes, from 0
+             */
+            episode: number;
+            /** Task */
+            task: string;
+            /** Start S */
+            start_s: number;
+            /** End S */
+            end_s: number;
+            /**
+             * Lost Start S
+             * @description seconds of it before the video's first frame
+             */
+            lost_start_s: number;
+            /**
+             * Lost End S
+             * @description seconds of it after the video's last frame
+             */
+            lost_end_s: number;
+            /**
+             * Left Out
+             * @description under two frames of it had video: not exported
+             */
+            left_out: boolean;
+        };
         /** EpisodeEnd */
         EpisodeEnd: {
             /** Success */
@@ -1841,6 +1870,11 @@ export interface components {
             stale_rows: {
                 [key: string]: number;
             };
+            /**
+             * Episodes Cut
+             * @description episodes the recorded video did not cover whole: exported shorter (seconds lost at each end) or left out; each also said in `warnings`
+             */
+            episodes_cut: components["schemas"]["EpisodeCutView"][];
         };
         /** LeRobotExportProgress */
         LeRobotExportProgress: {
