@@ -101,7 +101,7 @@ from av.video.reformatter import VideoReformatter
 from telerobot.client.lerobot.units import JointUnits, robot_type
 from telerobot.drivers.base import DriverUnavailable, TelerobotError
 from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
-from telerobot.server.recording import schemas as ch
+from telerobot.server.recording.arms import RecordedArm, recorded_arms, recorded_settings
 from telerobot.server.recording.reader import decode, read, read_raw
 
 CODEBASE_VERSION = "v3.0"
@@ -347,28 +347,21 @@ class _Recording:
         return self.arms[0].state_t
 
 
-def _settings(path: Path) -> dict[str, Any]:
-    """The recording's ``/settings`` (its first message), {} if it has none."""
-    for _topic, _log_ns, m in read(path, ["/settings"]):
-        return m
-    return {}
-
-
-def _arms_recorded(path: Path, settings: dict[str, Any]) -> list[tuple[str, RobotModel]]:
-    """The arms the recording's settings name, each with its model, in the order its
-    columns take: LeRobot's bimanual arms left before right, else as the settings list
-    them; one arm (recordings from before robot models: a PUMA) when they name none."""
-    named = ch.recorded_arms(settings)
+def _arms_recorded(path: Path, settings: dict[str, Any]) -> list[tuple[RecordedArm, RobotModel]]:
+    """The arms the recording's settings name (arms.py), each with its model, in the
+    order its columns take: LeRobot's bimanual arms left before right, else as the
+    settings list them; one arm (recordings from before robot models: a PUMA) when they
+    name none."""
     arms = []
-    for name, model_name in named:
+    for arm in recorded_arms(settings):
         try:
-            arms.append((name, load_model(model_name or DEFAULT_MODEL)))
+            arms.append((arm, load_model(arm.model or DEFAULT_MODEL)))
         except DriverUnavailable as exc:
             raise ExportError(
                 f"{path.name} is of a robot this version does not know: {exc}"
             ) from None
-    if _bimanual_so([(name, model.name) for name, model in arms]):
-        arms.sort(key=lambda a: BIMANUAL_ARMS.index(a[0]))
+    if _bimanual_so([(arm.name, model.name) for arm, model in arms]):
+        arms.sort(key=lambda a: BIMANUAL_ARMS.index(a[0].name))
     return arms
 
 
@@ -378,15 +371,12 @@ def _load(path: Path) -> _Recording:
     forces for an hour would take about a gigabyte). A multi-arm recording's arms each
     from their own channels (``/arms/<name>/state``, ``/arms/<name>/force``) and the
     commands that named them."""
-    recorded_settings = _settings(path)
-    multi = bool(recorded_settings.get("arms"))
-    arms = _arms_recorded(path, recorded_settings)
-    series = {name: _Packed() for name, _ in arms}
-    state_topics = {ch.ROBOT_STATE: arms[0][0]}
-    force_topics = {ch.FORCE: arms[0][0]}
-    if multi:
-        state_topics = {ch.arm_topic(name, ch.ARM_STATE): name for name, _ in arms}
-        force_topics = {ch.arm_topic(name, ch.ARM_FORCE): name for name, _ in arms}
+    settings = recorded_settings(path)
+    arms = _arms_recorded(path, settings)
+    multi = arms[0][0].named  # each arm on its own channels
+    series = {arm.name: _Packed() for arm, _ in arms}
+    state_topics = {arm.state_topic: arm.name for arm, _ in arms}
+    force_topics = {arm.force_topic: arm.name for arm, _ in arms}
     topics = [
         *state_topics,
         *force_topics,
@@ -395,7 +385,7 @@ def _load(path: Path) -> _Recording:
         AUTONOMY_TOPIC,
         VIDEO_TOPIC,
     ]
-    only = arms[0][0]
+    only = arms[0][0].name
     events: list[dict[str, Any]] = []
     autonomy: list[tuple[float, str]] = []
     video_wall = array("d")
@@ -442,16 +432,16 @@ def _load(path: Path) -> _Recording:
     order = np.argsort(video_t, kind="stable")  # (capture order is the stream's order)
     if not np.all(order == np.arange(len(order))):
         video_t = np.maximum.accumulate(video_t)
-    episodes, skipped = _episodes(events, max(series[name].state_t[-1] for name, _ in arms))
+    episodes, skipped = _episodes(events, max(series[arm.name].state_t[-1] for arm, _ in arms))
     return _Recording(
         path=path,
-        arms=[series[name].arm(name, model) for name, model in arms],
+        arms=[series[arm.name].arm(arm.name, model) for arm, model in arms],
         episodes=episodes,
         video_t=video_t,
         skipped=skipped,
         multi=multi,
-        configured_fps=_positive(recorded_settings.get("video_fps")),
-        state_rate_hz=_positive(recorded_settings.get("state_rate_hz")),
+        configured_fps=_positive(settings.get("video_fps")),
+        state_rate_hz=_positive(settings.get("state_rate_hz")),
         autonomy=sorted(autonomy, key=lambda x: x[0]),
     )
 
