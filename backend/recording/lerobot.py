@@ -835,38 +835,16 @@ def export_lerobot(
     columns, index_cols = _columns(rec, rows, kept, tasks, fps)
     total = sum(len(t) for t in rows)
 
-    # Which recorded frame each row shows, and how old each row's parts are.
-    source = [
-        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
-        for t in rows
-    ]
-    repeated = _repeats(source) if has_video else 0
-    columns["telerobot.age_ms"] = [
-        _ages(rec, t, src if has_video else None) for t, src in zip(rows, source, strict=True)
-    ]
-    stale = _flag_stale(columns["telerobot.age_ms"], state_period, fps, total, warnings)
-    if repeated > REPEAT_TOLERANCE * total:
-        warnings.append(
-            f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
-            f"recorded frame as the row before: {_rate_text(rate)}, unevenly or slower "
-            "than the rows"
-        )
+    source, repeated, stale = _row_sources(
+        rec, rows, columns, state_period, fps, has_video, rate, warnings
+    )
 
     # Videos: decode the side-by-side stream once, write each half's rows in order.
     codec_name: str | None = None
     histograms = {c: [_ImageHistogram() for _ in kept] for c in CAMERAS}
     if has_video:
         codec_name, video_info = _write_videos(out, rec, source, fps, histograms, report)
-        for cam in CAMERAS:
-            features[f"observation.images.{cam}"] = {
-                "dtype": "video",
-                "shape": [video_info["video.height"], video_info["video.width"], 3],
-                "names": ["height", "width", "channels"],
-                "info": video_info,
-                "description": f"the {cam} camera: the recorded frame captured nearest to "
-                f"the row time ({_rate_text(rate)}; {repeated} rows repeat the frame "
-                "before them)",
-            }
+        features.update(_video_features(video_info, rate, repeated))
     report(1.0 - FINISH_SHARE)
     for key in index_cols:
         dtype = {"timestamp": "float32", "intervention": "bool"}.get(key, "int64")
@@ -877,38 +855,9 @@ def export_lerobot(
     episode_stats = _write_stats(out, columns, index_cols, histograms, len(kept), cameras)
     _write_episodes(out, rows, kept, fps, cameras, episode_stats)
     pq.write_table(_tasks_table(tasks), out / "meta" / "tasks.parquet")
-    info = {
-        "codebase_version": CODEBASE_VERSION,
-        "robot_type": layout.robot_type,
-        "total_episodes": len(kept),
-        "total_frames": total,
-        "total_tasks": len(tasks),
-        "chunks_size": CHUNKS_SIZE,
-        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
-        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
-        "fps": fps,
-        "splits": {"train": f"0:{len(kept)}"},
-        "data_path": DATA_PATH,
-        "video_path": VIDEO_PATH if has_video else None,
-        "features": features,
-    }
-    (out / "meta" / "info.json").write_text(json.dumps(info, indent=4, ensure_ascii=False))
+    _write_info(out, layout, len(kept), total, tasks, fps, has_video, features)
     # Ours, beside lerobot's files (which it reads by name): where the rows came from.
-    source_info = {
-        "recording": recording_path.name,
-        "fps": fps,
-        "recorded_video_fps": rate,
-        "repeated_frames": repeated,
-        "stale_rows": stale,
-        "units": {
-            "observation.state": layout.units_text,
-            "action": layout.units_text,
-            "observation.tool_pose": "m, rotation matrix",
-            "observation.force": "N, N·m",
-        },
-        "warnings": warnings,
-    }
-    (out / EXPORT_INFO_PATH).write_text(json.dumps(source_info, indent=4, ensure_ascii=False))
+    _write_source_info(out, recording_path, fps, rate, repeated, stale, layout, warnings)
 
     recorded = float(rec.state_t[-1] - rec.state_t[0])
     report(1.0)
@@ -928,6 +877,115 @@ def export_lerobot(
         warnings=warnings,
         stale_rows=stale,
     )
+
+
+def _row_sources(
+    rec: _Recording,
+    rows: list[Array],
+    columns: dict[str, Any],
+    state_period: float,
+    fps: int,
+    has_video: bool,
+    rate: float | None,
+    warnings: list[str],
+) -> tuple[list[npt.NDArray[np.int64]], int, dict[str, int]]:
+    """Which recorded frame each row shows, and how old each row's parts are (the
+    column ``telerobot.age_ms``): each episode's rows' frames, how many rows repeat the
+    frame before them, and the stale rows (``_flag_stale``); either said in
+    ``warnings`` when too many."""
+    total = sum(len(t) for t in rows)
+    source = [
+        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
+        for t in rows
+    ]
+    repeated = _repeats(source) if has_video else 0
+    columns["telerobot.age_ms"] = [
+        _ages(rec, t, src if has_video else None) for t, src in zip(rows, source, strict=True)
+    ]
+    stale = _flag_stale(columns["telerobot.age_ms"], state_period, fps, total, warnings)
+    if repeated > REPEAT_TOLERANCE * total:
+        warnings.append(
+            f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
+            f"recorded frame as the row before: {_rate_text(rate)}, unevenly or slower "
+            "than the rows"
+        )
+    return source, repeated, stale
+
+
+def _video_features(
+    video_info: dict[str, Any], rate: float | None, repeated: int
+) -> dict[str, dict[str, Any]]:
+    """Each camera's feature: its video, and how its frames were chosen."""
+    return {
+        f"observation.images.{cam}": {
+            "dtype": "video",
+            "shape": [video_info["video.height"], video_info["video.width"], 3],
+            "names": ["height", "width", "channels"],
+            "info": video_info,
+            "description": f"the {cam} camera: the recorded frame captured nearest to "
+            f"the row time ({_rate_text(rate)}; {repeated} rows repeat the frame "
+            "before them)",
+        }
+        for cam in CAMERAS
+    }
+
+
+def _write_info(
+    out: Path,
+    layout: _Layout,
+    episodes: int,
+    total: int,
+    tasks: list[str],
+    fps: int,
+    has_video: bool,
+    features: dict[str, Any],
+) -> None:
+    """LeRobot's ``meta/info.json``: the dataset's shape, its paths and features."""
+    info = {
+        "codebase_version": CODEBASE_VERSION,
+        "robot_type": layout.robot_type,
+        "total_episodes": episodes,
+        "total_frames": total,
+        "total_tasks": len(tasks),
+        "chunks_size": CHUNKS_SIZE,
+        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
+        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+        "fps": fps,
+        "splits": {"train": f"0:{episodes}"},
+        "data_path": DATA_PATH,
+        "video_path": VIDEO_PATH if has_video else None,
+        "features": features,
+    }
+    (out / "meta" / "info.json").write_text(json.dumps(info, indent=4, ensure_ascii=False))
+
+
+def _write_source_info(
+    out: Path,
+    recording_path: Path,
+    fps: int,
+    rate: float | None,
+    repeated: int,
+    stale: dict[str, int],
+    layout: _Layout,
+    warnings: list[str],
+) -> None:
+    """Ours (``EXPORT_INFO_PATH``): the recording the rows came from, their units, and
+    what the export warned of."""
+    source_info = {
+        "recording": recording_path.name,
+        "fps": fps,
+        "recorded_video_fps": rate,
+        "repeated_frames": repeated,
+        "stale_rows": stale,
+        "units": {
+            "observation.state": layout.units_text,
+            "action": layout.units_text,
+            "observation.tool_pose": "m, rotation matrix",
+            "observation.force": "N, N·m",
+        },
+        "warnings": warnings,
+    }
+    (out / EXPORT_INFO_PATH).write_text(json.dumps(source_info, indent=4, ensure_ascii=False))
 
 
 def _choose_fps(
@@ -1249,20 +1307,7 @@ def _write_videos(
         while row < len(wanted) and wanted[row] == index:
             if not containers:
                 height, width = frame.height, frame.width // 2
-                for cam in CAMERAS:
-                    path = out / VIDEO_PATH.format(
-                        video_key=f"observation.images.{cam}", chunk_index=0, file_index=0
-                    )
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    container = av.open(str(path), "w")
-                    stream = cast(
-                        av.video.stream.VideoStream,
-                        container.add_stream(name, rate=fps, options=options),
-                    )
-                    stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
-                    stream.codec_context.gop_size = GOP
-                    stream.codec_context.time_base = Fraction(1, fps)
-                    containers[cam], streams[cam] = container, stream
+                _open_videos(out, containers, streams, name, options, fps, width, height)
             for side, cam in enumerate(CAMERAS):
                 eye = eyes[side]  # (the encoder takes its own reference: its pts is kept)
                 eye.pts = row
@@ -1307,7 +1352,42 @@ def _write_videos(
         for container in containers.values():
             container.close()
         _no_realtime_threads()
-    info = {
+    return name, _video_info(name, info_extra, fps, width, height)
+
+
+def _open_videos(
+    out: Path,
+    containers: dict[str, Any],
+    streams: dict[str, Any],
+    name: str,
+    options: dict[str, str],
+    fps: int,
+    width: int,
+    height: int,
+) -> None:
+    """Each camera's mp4 opened for writing with encoder ``name`` (into ``containers``
+    and ``streams`` as each opens: the caller closes whatever was opened)."""
+    for cam in CAMERAS:
+        path = out / VIDEO_PATH.format(
+            video_key=f"observation.images.{cam}", chunk_index=0, file_index=0
+        )
+        path.parent.mkdir(parents=True, exist_ok=True)
+        container = av.open(str(path), "w")
+        stream = cast(
+            av.video.stream.VideoStream,
+            container.add_stream(name, rate=fps, options=options),
+        )
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.codec_context.gop_size = GOP
+        stream.codec_context.time_base = Fraction(1, fps)
+        containers[cam], streams[cam] = container, stream
+
+
+def _video_info(
+    name: str, info_extra: dict[str, Any], fps: int, width: int, height: int
+) -> dict[str, Any]:
+    """LeRobot's description of each camera's video (``features``' ``info``)."""
+    return {
         "video.height": height,
         "video.width": width,
         "video.codec": "av1" if name == "libsvtav1" else "h264",
@@ -1322,4 +1402,3 @@ def _write_videos(
         "has_audio": False,
         "is_depth_map": False,
     }
-    return name, info
