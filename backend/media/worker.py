@@ -34,7 +34,9 @@ from telerobot.server.settings import Settings
 from telerobot.tuning import yield_cpu
 
 if TYPE_CHECKING:
+    from telerobot.server.media.pipeline import VideoPipeline
     from telerobot.server.media.relay import JanusRelay
+    from telerobot.server.media.tap import PacketPipe
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +128,6 @@ async def _serve(
     video: multiprocessing.connection.Connection | None = None,
 ) -> None:
     from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
-    from telerobot.server.media.relay import RELAY_PREFIX
     from telerobot.server.media.tap import PacketPipe
 
     camera = build_arms_camera(settings, [shared_arm_probe(arm) for arm in arms])
@@ -136,35 +137,7 @@ async def _serve(
         max_viewers=settings.video_max_viewers,
     )
     pipeline.start()
-    relay = None
-    if settings.media_server == "janus":  # observers through the media server
-        from telerobot.server.media.relay import JanusRelay
-
-        assert settings.media_server_url is not None  # resolved by the server
-
-        def start_feed() -> None:
-            assert relay is not None
-            pipeline.encoding.start_tap(relay.send, "relay")
-
-        relay = JanusRelay(
-            settings.media_server_url,
-            settings.media_server_rtp_port,
-            settings.media_server_rtcp_port or None,
-            pipeline.encoding.broadcaster.request_keyframe,
-            start_feed=start_feed,
-            stop_feed=lambda: pipeline.encoding.stop_tap("relay"),
-            api_secret=settings.media_server_api_secret,
-            host=settings.media_server_host or "127.0.0.1",
-            mountpoint=settings.media_server_mountpoint,
-            max_viewers=settings.media_server_max_viewers,
-            max_pending=settings.media_server_max_pending,
-            pending_expiry_s=settings.media_server_pending_expiry_s,
-            viewer_timeout_s=settings.media_server_viewer_timeout_s,
-            offers_per_address_per_s=settings.media_server_offers_per_address_per_s,
-            max_pending_per_address=settings.media_server_max_pending_per_address,
-            max_viewers_per_address=settings.media_server_max_viewers_per_address,
-        )
-        relay.start()
+    relay = _janus_relay(settings, pipeline) if settings.media_server == "janus" else None
     tap = (
         PacketPipe(video.send_bytes, pipeline.encoding.broadcaster.request_keyframe)
         if video is not None
@@ -183,57 +156,10 @@ async def _serve(
     loop.add_reader(conn.fileno(), readable)
     conn.send(rpc.Ready(time.monotonic()))
 
-    async def serve(req: rpc.MediaRequest) -> dict[str, Any]:
-        """One request's answer (its reply's fields); a ``TelerobotError`` refuses it."""
-        match req:
-            case rpc.Answer(sdp, kind, layer):
-                return await pipeline.answer(sdp, kind, layer)
-            case rpc.Offer(layer):
-                return await pipeline.offer(layer)
-            case rpc.Accept(peer_id, sdp, kind, secret):
-                return await pipeline.accept(peer_id, sdp, kind, secret)
-            case rpc.ClosePeer(peer_id, secret, operator):
-                # The server checked the operator token; anyone else shows the secret.
-                if operator:
-                    await pipeline.close_peer(peer_id)
-                else:
-                    await pipeline.close_own_peer(peer_id, secret)
-            case rpc.ClaimViewer(peer_id, secret, viewer):
-                if relay is not None and peer_id.startswith(RELAY_PREFIX):
-                    relay.claim_viewer(peer_id, secret, viewer)
-                else:
-                    pipeline.claim_viewer(peer_id, secret, viewer)
-            case rpc.Stats(peer_ids):
-                stats = pipeline.stats(peer_ids=peer_ids)
-                if relay is not None:
-                    stats["relay"] = relay.stats()
-                return {"stats": stats}
-            case rpc.RelayOffer() | rpc.RelayAccept() | rpc.RelayAlive() | rpc.RelayClose():
-                if relay is None:
-                    raise NoMediaServer("this server has no media server (--media-server)")
-                return await serve_relay(relay, req)
-            case rpc.Keyframe():
-                pipeline.encoding.broadcaster.request_keyframe()  # shared and rate-limited like any
-            case rpc.Record(on):
-                if tap is None:
-                    raise TelerobotError("this media worker has no pipe for the recording")
-                if on:
-                    tap.restart()
-                    pipeline.encoding.start_tap(tap.push)
-                else:
-                    pipeline.encoding.stop_tap()
-                return {"sent": tap.sent, "dropped": tap.dropped}
-            case rpc.Board(view):
-                camera.show_board(view)
-            case rpc.Shutdown():
-                pass  # handled by the loop below
-            case _:
-                assert_never(req)
-        return {}
-
     async def handle(envelope: rpc.Envelope) -> None:
         try:
-            reply = rpc.Reply(envelope.id, True, await serve(envelope.request))
+            answer = await serve_request(envelope.request, pipeline, relay, tap, camera)
+            reply = rpc.Reply(envelope.id, True, answer)
         except TelerobotError as exc:
             reply = rpc.Reply(envelope.id, False, code=exc.code, error=str(exc))
         except Exception as exc:  # a bug must not take the worker down with it
@@ -255,6 +181,96 @@ async def _serve(
     if relay is not None:
         await relay.shutdown()
     await pipeline.close()
+
+
+def _janus_relay(settings: Settings, pipeline: VideoPipeline) -> JanusRelay:
+    """Observers through the media server: the relay, started, fed from a tap on the
+    pipeline's full H.264 while anyone watches through it."""
+    from telerobot.server.media.relay import JanusRelay
+
+    assert settings.media_server_url is not None  # resolved by the server
+
+    def start_feed() -> None:
+        assert relay is not None
+        pipeline.encoding.start_tap(relay.send, "relay")
+
+    relay = JanusRelay(
+        settings.media_server_url,
+        settings.media_server_rtp_port,
+        settings.media_server_rtcp_port or None,
+        pipeline.encoding.broadcaster.request_keyframe,
+        start_feed=start_feed,
+        stop_feed=lambda: pipeline.encoding.stop_tap("relay"),
+        api_secret=settings.media_server_api_secret,
+        host=settings.media_server_host or "127.0.0.1",
+        mountpoint=settings.media_server_mountpoint,
+        max_viewers=settings.media_server_max_viewers,
+        max_pending=settings.media_server_max_pending,
+        pending_expiry_s=settings.media_server_pending_expiry_s,
+        viewer_timeout_s=settings.media_server_viewer_timeout_s,
+        offers_per_address_per_s=settings.media_server_offers_per_address_per_s,
+        max_pending_per_address=settings.media_server_max_pending_per_address,
+        max_viewers_per_address=settings.media_server_max_viewers_per_address,
+    )
+    relay.start()
+    return relay
+
+
+async def serve_request(
+    req: rpc.MediaRequest,
+    pipeline: VideoPipeline,
+    relay: JanusRelay | None,
+    tap: PacketPipe | None,
+    camera: StereoCamera,
+) -> dict[str, Any]:
+    """One request's answer (its reply's fields); a ``TelerobotError`` refuses it."""
+    from telerobot.server.media.relay import RELAY_PREFIX
+
+    match req:
+        case rpc.Answer(sdp, kind, layer):
+            return await pipeline.answer(sdp, kind, layer)
+        case rpc.Offer(layer):
+            return await pipeline.offer(layer)
+        case rpc.Accept(peer_id, sdp, kind, secret):
+            return await pipeline.accept(peer_id, sdp, kind, secret)
+        case rpc.ClosePeer(peer_id, secret, operator):
+            # The server checked the operator token; anyone else shows the secret.
+            if operator:
+                await pipeline.close_peer(peer_id)
+            else:
+                await pipeline.close_own_peer(peer_id, secret)
+        case rpc.ClaimViewer(peer_id, secret, viewer):
+            if relay is not None and peer_id.startswith(RELAY_PREFIX):
+                relay.claim_viewer(peer_id, secret, viewer)
+            else:
+                pipeline.claim_viewer(peer_id, secret, viewer)
+        case rpc.Stats(peer_ids):
+            stats = pipeline.stats(peer_ids=peer_ids)
+            if relay is not None:
+                stats["relay"] = relay.stats()
+            return {"stats": stats}
+        case rpc.RelayOffer() | rpc.RelayAccept() | rpc.RelayAlive() | rpc.RelayClose():
+            if relay is None:
+                raise NoMediaServer("this server has no media server (--media-server)")
+            return await serve_relay(relay, req)
+        case rpc.Keyframe():
+            pipeline.encoding.broadcaster.request_keyframe()  # shared and rate-limited like any
+        case rpc.Record(on):
+            if tap is None:
+                raise TelerobotError("this media worker has no pipe for the recording")
+            if on:
+                tap.restart()
+                pipeline.encoding.start_tap(tap.push)
+            else:
+                pipeline.encoding.stop_tap()
+            return {"sent": tap.sent, "dropped": tap.dropped}
+        case rpc.Board(view):
+            camera.show_board(view)
+        case rpc.Shutdown():
+            pass  # handled by _serve's loop
+        case _:
+            assert_never(req)
+    return {}
 
 
 async def serve_relay(
