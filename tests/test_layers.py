@@ -259,7 +259,7 @@ async def test_viewers_on_two_layers_get_two_sizes_from_two_shared_encoders() ->
         # is bench.video's).
         assert all(0 <= age < 30.0 for *_, age in full_frames + low_frames)
         stats = pipeline.stats(peer_ids=True)
-        assert set(pipeline.encoders) == {("H264", "full"), ("H264", "low")}
+        assert set(pipeline.encoding.encoders) == {("H264", "full"), ("H264", "low")}
         layers = {v["peer_id"]: v["layer"] for v in stats["viewers"]}
         assert layers == {ida: "full", idb: "low"}
         assert stats["layers"]["low"]["width"] == cam.width // 2
@@ -284,7 +284,7 @@ async def test_the_low_layer_is_not_encoded_while_nobody_takes_it() -> None:
     try:
         pc, track, _ = await _viewer(pipeline, "auto")
         await _frames(track, 5, SMALL["width"])
-        assert set(pipeline.encoders) == {("H264", "full")}  # never made
+        assert set(pipeline.encoding.encoders) == {("H264", "full")}  # never made
         assert pipeline.stats()["layers"]["low"]["kbps"] is None
         await pc.close()
     finally:

@@ -158,7 +158,7 @@ def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
     for i in range(21):
         meter.add(40_000, i * 0.1)  # 400 kbit/s
     pipeline = SimpleNamespace(
-        layer_rate={"full": meter},
+        encoding=SimpleNamespace(layer_rate={"full": meter}),
         _layer_of=lambda peer: "full",
         clock=SimpleNamespace(now=lambda: 2.0),
     )

@@ -134,13 +134,13 @@ async def test_the_pipeline_encodes_for_the_tap_with_nobody_watching() -> None:
     got: list[EncodedFrame] = []
     try:
         await asyncio.sleep(0.2)
-        assert pipeline.frames_encoded == 0  # no viewer, no recording: nothing encoded
-        pipeline.start_tap(got.append)
+        assert pipeline.encoding.frames_encoded == 0  # no viewer, no recording: nothing encoded
+        pipeline.encoding.start_tap(got.append)
         deadline = time.monotonic() + 30
         while len(got) < 10:
             assert time.monotonic() < deadline, "the tap got no packets"
             await asyncio.sleep(0.05)
-        pipeline.stop_tap()
+        pipeline.encoding.stop_tap()
         n = len(got)
         await asyncio.sleep(0.3)
         assert len(got) == n  # the tap is off: no more packets, and no viewer: no encoding

@@ -195,7 +195,7 @@ async def test_sync_reads_are_paced_at_the_period_and_flat_out_without_it(link: 
     await arm.disconnect()
     # Flat out: one read after the other, the poller never waits between them.
     flat_out = arm_on(link, poll_period_s=0.0)
-    flat_out._wake = wake = _CountingEvent()
+    flat_out._goals.wake = wake = _CountingEvent()
     await flat_out.connect()
     await until(lambda: flat_out.reads >= 301)
     await flat_out.disconnect()
@@ -269,7 +269,7 @@ async def test_goals_waiting_for_the_bus_are_replaced_by_newer_ones(link: BusLin
     with bus.lock:  # the bus busy (a read in flight): goals wait, the newest kept
         await arm.move_joints(first, relative=False)
         await arm.move_joints(second, relative=False)  # taken at once, not waiting
-        assert arm._goal_out is not None
+        assert arm._goals.out is not None
         written = len(arm.goal_to_bus_s)
     await arm.wait_idle(timeout=5)
     assert len(arm.goal_to_bus_s) == written + 1  # one goal went out, the second
@@ -611,12 +611,12 @@ async def test_a_stop_is_not_overtaken_by_a_goal_still_waiting_for_the_bus(link:
     far_steps = TRUE_CAL.to_steps(far)[0]
     assert abs(link.servo(1).u16(Register.GOAL_POSITION) - far_steps) > 100
     # The rule itself, without the race: a brake drops the goal waiting in the slot.
-    with arm._goal_lock:
-        arm._goal_out = (b"not sent", time.monotonic())
+    with arm._goals.lock:
+        arm._goals.out = (b"not sent", time.monotonic())
     reading = arm._latest
     assert reading is not None
     arm._brake(bus, reading.servos)
-    assert arm._goal_out is None
+    assert arm._goals.out is None
     await arm.disconnect()
 
 

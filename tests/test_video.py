@@ -207,7 +207,7 @@ async def test_a_webrtc_peer_receives_frames_and_decodes_the_timecode() -> None:
     # never ahead of it and not from another time base (a sanity bound, not a latency:
     # capture → decoded is bench.video's latency_p50_ms/_p99_ms).
     assert all(0 <= x < SANE_AGE_S for x in latencies)
-    assert pipeline.frames_encoded >= 20 and pipeline.stats()["encode_ms_p50"] > 0
+    assert pipeline.encoding.frames_encoded >= 20 and pipeline.stats()["encode_ms_p50"] > 0
 
 
 async def test_a_viewer_without_h264_gets_vp8_from_a_second_encoder() -> None:
@@ -218,8 +218,8 @@ async def test_a_viewer_without_h264_gets_vp8_from_a_second_encoder() -> None:
     finally:
         await pipeline.close()
     assert all(0 <= x < SANE_AGE_S for x in latencies)
-    assert set(pipeline.encoders) == {("H264", "full"), ("VP8", "full")}
-    assert pipeline.frames_encoded == 0  # no H.264 viewer
+    assert set(pipeline.encoding.encoders) == {("H264", "full"), ("VP8", "full")}
+    assert pipeline.encoding.frames_encoded == 0  # no H.264 viewer
 
 
 async def test_two_viewers_share_one_encoder() -> None:
@@ -231,8 +231,8 @@ async def test_two_viewers_share_one_encoder() -> None:
     finally:
         await pipeline.close()
     # Two viewers, one encode per captured frame: never twice the captured count.
-    captured = pipeline.capture_interarrival.count + 1
-    assert pipeline.frames_encoded <= captured + 1
+    captured = pipeline.encoding.capture_interarrival.count + 1
+    assert pipeline.encoding.frames_encoded <= captured + 1
     assert stats["frames_encoded"] >= 15
 
 

@@ -89,7 +89,7 @@ async def test_peers_that_never_connect_expire_on_the_injected_clock() -> None:
         assert set(pipeline.peers) == {second}
         await clock.advance(PENDING_EXPIRY_S / 2)
         assert pipeline.peers == {} and pipeline.viewers == 0  # their tracks are gone too
-        assert pipeline.stats()["keyframes_forced"] == 0 and pipeline.frames_encoded == 0
+        assert pipeline.stats()["keyframes_forced"] == 0 and pipeline.encoding.frames_encoded == 0
     finally:
         await pipeline.close()
 

@@ -24,7 +24,7 @@ from typing import Concatenate, ParamSpec, TypeVar
 import numpy as np
 import pinocchio as pin
 
-from telerobot.drivers.base import FloatArray, ForceSensor, Robot, WorkingFrame
+from telerobot.drivers.base import FloatArray, ForceSensor, InvalidCommand, Robot, WorkingFrame
 from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.server.control.errors import LimitExceeded, SafetyStop
 from telerobot.server.control.limits import SafetyLimits
@@ -146,6 +146,55 @@ class ArmGuard:
         moved = self.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)[:3, 3] - T0[:3, 3]
         contact = self.robot.pose.rotation @ np.array(self.contact_sensor)
         return float(moved @ contact) < 0.0
+
+
+class Arms(list[ArmGuard]):
+    """A server's arms in order, numbered 1…N on the wire by their place and named in
+    what is said when there is more than one; found by name or by wire index. A list,
+    as every consumer takes it (``decision.arms``)."""
+
+    def __init__(self, arms: Sequence[ArmGuard]) -> None:
+        super().__init__(arms)
+        if not self:
+            raise ValueError("a DecisionServer needs at least one arm")
+        for i, guard in enumerate(self):
+            guard.index = i + 1
+            guard.named = len(self) > 1
+        self._by_name = {guard.name: guard for guard in self}
+        if len(self._by_name) != len(self):
+            raise ValueError("two arms have the same name")
+
+    @property
+    def names(self) -> list[str]:
+        return [guard.name for guard in self]
+
+    def named(self, name: str | None) -> ArmGuard:
+        """The arm called ``name``; None: the only arm, refused on a server with more
+        (a one-arm client must not drive whichever arm happens to be first)."""
+        if name is None or name == "":
+            if len(self) == 1:
+                return self[0]
+            raise InvalidCommand(
+                f"this server drives {len(self)} arms ({', '.join(self.names)}):"
+                " name the arm (REST: ?arm=NAME; the protocol: its index, from ARM)"
+            )
+        guard = self._by_name.get(name)
+        if guard is None:
+            raise InvalidCommand(
+                f"no arm named {name[:40]!r}: this server drives {', '.join(self.names)}"
+            )
+        return guard
+
+    def at(self, index: int) -> ArmGuard:
+        """The arm by its index on the wire: 1…N, or 0 for the only one."""
+        if index == 0:
+            return self.named(None)
+        if not 1 <= index <= len(self):
+            raise InvalidCommand(
+                f"no arm {index}: this server drives {len(self)}"
+                f" ({', '.join(f'{g.index} {g.name}' for g in self)})"
+            )
+        return self[index - 1]
 
 
 def arm_sensors(arms: Sequence[ArmGuard]) -> list[tuple[int, ForceSensor]]:

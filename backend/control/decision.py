@@ -10,23 +10,26 @@ injected clock.
 
 Safety owns its loop (docs/architecture.md, rule 15): ``start()`` subscribes to the force
 sensor itself and runs the dead-man watchdog (``tick()`` every ``tick_s``) as its own
-task, so the force limit and the dead-man act whatever transports (``/ws``, the
-priority channel, REST) are running, or none.
+task (``safety_loop.py``), so the force limit and the dead-man act whatever transports
+(``/ws``, the priority channel, REST) are running, or none.
+
+Here: who may command (clients, lease, e-stop, a policy's supervision) and the way to
+the driver. Beside it: a command's geometry on one arm (``motion.py``: scale, steps,
+speeds, frame, force guard, workspace, IK), the arms by name and index
+(``arm_guard.py``, ``Arms``), who may take the lease (``lease.py``) and what is said of
+each command (``reports.py``).
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import functools
 import logging
 import math
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Concatenate, ParamSpec, TypeVar, Unpack
+from typing import Unpack
 
 import numpy as np
-import pinocchio as pin
 
 from telerobot.drivers.base import (
     FloatArray,
@@ -39,37 +42,23 @@ from telerobot.drivers.base import (
 )
 from telerobot.drivers.clock import Clock
 from telerobot.drivers.events import Event
-from telerobot.drivers.robot.kinematics import check_rotation, check_vector
 from telerobot.protocol.names import client_name
-from telerobot.server.control.arm_guard import ArmGuard, Felt
+from telerobot.server.control import motion
+from telerobot.server.control.arm_guard import ArmGuard, Arms, Felt
 from telerobot.server.control.autonomy import Autonomy, AutonomyState, Supervision
 from telerobot.server.control.clients import MAX_CLIENTS, Client, ClientTable, Joining, Role
-from telerobot.server.control.errors import LimitExceeded, NotAllowed, SafetyStop
+from telerobot.server.control.errors import NotAllowed, SafetyStop
 from telerobot.server.control.freshness import CommandAges
 from telerobot.server.control.lease import Lease
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.control.policy_tokens import PolicyTokens
+from telerobot.server.control.reports import Applied as Applied
+from telerobot.server.control.reports import CommandReport as CommandReport
+from telerobot.server.control.reports import reported
+from telerobot.server.control.safety_loop import SafetyLoop
 from telerobot.server.control.slave_port import SlavePort
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Applied:
-    """A command that reached the driver."""
-
-    client_id: str
-    seq: int
-    client_time: float | None  # the client's own clock, as sent
-    applied_at: float  # server clock as the driver's call returned (the ACK's server_time)
-    limited: bool  # the speed limit scaled it down
-    target: FloatArray
-    scale: float = 1.0  # the share of the increment applied (below 1 when limited)
-    arm: str = "arm"  # which arm (its name)
-    # Its age as it went to the driver: our clock − client_time, taken by the last age
-    # check, the driver's call next with no await between (s). None: its client is not
-    # on our clock, or it carries no send time (REST, tasks).
-    age: float | None = None
 
 
 @dataclass(frozen=True)
@@ -86,27 +75,6 @@ class SafetyState:
     force_limited_arms: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True)
-class CommandReport:
-    """One command as the DecisionServer decided it (the recording's ``/commands``):
-    ``args`` as received (arrays as they came), ``error`` None if it was accepted."""
-
-    t: float  # server clock when decided
-    kind: str
-    client_id: str | None
-    client: str
-    source: str
-    args: dict[str, Any]
-    error: TelerobotError | None
-    target: FloatArray | None  # what reached the driver
-    lease_holder: str | None
-    # Who drives: "policy" (a learned policy's client), "operator" (anyone else, a
-    # task included) or "server"; and the autonomy mode it was decided in.
-    role: str = "operator"
-    autonomy: str = "off"
-    age: float | None = None  # an executed command's age at the driver (Applied.age), s
-
-
 @dataclass
 class DecisionEvents:
     lease_changed: Event[str | None] = field(default_factory=lambda: Event("lease_changed"))
@@ -116,39 +84,6 @@ class DecisionEvents:
     autonomy_changed: Event[AutonomyState] = field(
         default_factory=lambda: Event("autonomy_changed")
     )
-
-
-P = ParamSpec("P")
-R = TypeVar("R")
-
-
-def reported(
-    kind: str, **extra: str
-) -> Callable[
-    [Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]]],
-    Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]],
-]:
-    """Every command, accepted or refused, is reported once on ``events.command``
-    (the one hook the recorder listens to); the command itself is unchanged."""
-
-    def wrap(
-        method: Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]],
-    ) -> Callable[Concatenate[DecisionServer, Any, P], Awaitable[R]]:
-        @functools.wraps(method)
-        async def run(
-            self: DecisionServer, client_id: Any, /, *args: P.args, **kwargs: P.kwargs
-        ) -> R:
-            try:
-                result = await method(self, client_id, *args, **kwargs)
-            except TelerobotError as exc:
-                self._report(kind, client_id, args, {**extra, **kwargs}, exc, None)
-                raise
-            self._report(kind, client_id, args, {**extra, **kwargs}, None, result)
-            return result
-
-        return run
-
-    return wrap
 
 
 class DecisionServer:
@@ -165,17 +100,9 @@ class DecisionServer:
         """``arms``, in order (docs/arms.md): each with its own driver, model, limits and
         force sensor; numbered 1…N on the wire by their place here. ``limits`` holds the
         server's own: the dead-man, the lease's grace, the age of a command."""
-        if not arms:
-            raise ValueError("a DecisionServer needs at least one arm")
+        self.arms = Arms(arms)
         self.clock = clock
         self.limits = limits or SafetyLimits()
-        self.arms: list[ArmGuard] = list(arms)
-        for i, guard in enumerate(self.arms):
-            guard.index = i + 1
-            guard.named = len(self.arms) > 1
-        self._by_name = {guard.name: guard for guard in self.arms}
-        if len(self._by_name) != len(self.arms):
-            raise ValueError("two arms have the same name")
         self.events = DecisionEvents()
         self.clients = ClientTable(clock, operator_token, policy_tokens, max_clients)
         self.lease = Lease(self.clients, clock, self.limits)
@@ -185,7 +112,7 @@ class DecisionServer:
         self._estop_reason = ""
         self.ages = CommandAges(clock, self.limits)
         self.resumed_sessions = 0  # sessions continued on a new connection
-        self._watchdog: asyncio.Task[None] | None = None
+        self._safety_loop = SafetyLoop(self.arms, clock, self.limits, self.on_force, self.tick)
         self.autonomy = Autonomy(clock.now())
         self.supervision = Supervision(
             self.autonomy,
@@ -200,41 +127,14 @@ class DecisionServer:
 
     # ------------------------------------------------------------ its own loop
     def start(self) -> None:
-        """Subscribe to the force sensor and start the dead-man watchdog (on the
-        running event loop). Force samples arrive on the sensor's thread and are
-        judged on the loop, in order, like every command."""
-        loop = asyncio.get_running_loop()
-        for guard in self.arms:
-            if guard.force is None or guard.unsubscribe is not None:
-                continue
-
-            def from_sensor_thread(sample: ForceSample, guard: ArmGuard = guard) -> None:
-                with contextlib.suppress(RuntimeError):  # the loop is closing
-                    loop.call_soon_threadsafe(self.on_force, sample, guard)
-
-            guard.unsubscribe = guard.force.subscribe(from_sensor_thread)
-        if self._watchdog is None:
-            self._watchdog = loop.create_task(self._run_watchdog(), name="dead-man")
+        """Subscribe to the force sensors and start the dead-man watchdog, on the
+        running event loop (``SafetyLoop``)."""
+        self._safety_loop.start()
 
     async def stop(self) -> None:
         for guard in self.arms:
-            if guard.unsubscribe is not None:
-                guard.unsubscribe()
-                guard.unsubscribe = None
-            guard.close()
-        if self._watchdog is not None:
-            self._watchdog.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._watchdog
-            self._watchdog = None
-
-    async def _run_watchdog(self) -> None:
-        while True:
-            await self.clock.sleep(self.limits.tick_s)
-            try:
-                await self.tick()
-            except Exception:  # a failing check must not end the watchdog
-                log.exception("dead-man check failed")
+            guard.close()  # its solver's thread
+        await self._safety_loop.stop()
 
     # ------------------------------------------------------------ settings
     @property
@@ -251,35 +151,15 @@ class DecisionServer:
     # ------------------------------------------------------------ arms
     @property
     def arm_names(self) -> list[str]:
-        return [guard.name for guard in self.arms]
+        return self.arms.names
 
     def arm(self, name: str | None = None) -> ArmGuard:
-        """The arm called ``name``; None: the only arm, refused on a server with more
-        (a one-arm client must not drive whichever arm happens to be first)."""
-        if name is None or name == "":
-            if len(self.arms) == 1:
-                return self.arms[0]
-            raise InvalidCommand(
-                f"this server drives {len(self.arms)} arms ({', '.join(self.arm_names)}):"
-                " name the arm (REST: ?arm=NAME; the protocol: its index, from ARM)"
-            )
-        guard = self._by_name.get(name)
-        if guard is None:
-            raise InvalidCommand(
-                f"no arm named {name[:40]!r}: this server drives {', '.join(self.arm_names)}"
-            )
-        return guard
+        """The arm called ``name``; None: the only arm (``Arms.named``)."""
+        return self.arms.named(name)
 
     def arm_at(self, index: int) -> ArmGuard:
         """The arm by its index on the wire: 1…N, or 0 for the only one."""
-        if index == 0:
-            return self.arm(None)
-        if not 1 <= index <= len(self.arms):
-            raise InvalidCommand(
-                f"no arm {index}: this server drives {len(self.arms)}"
-                f" ({', '.join(f'{g.index} {g.name}' for g in self.arms)})"
-            )
-        return self.arms[index - 1]
+        return self.arms.at(index)
 
     async def _stop_all(self) -> None:
         """Every arm stopped (the e-stop, the dead-man, a lease lost or changing hands)."""
@@ -388,31 +268,11 @@ class DecisionServer:
             return
         if self.lease.holder is not None:
             holder = self.clients.get(self.lease.holder)
-            again = Lease.runs_again(client, holder)
-            if client.policy:
-                raise NotAllowed(
-                    f"{holder.name!r} has control: a policy never takes it from anyone;"
-                    + (
-                        " it drives again when the operator hands control back"
-                        if holder.id != self.autonomy.policy_id
-                        else " wait until its lease lapses"
-                    )
-                )
-            if holder.policy and not client.policy:
-                force = True  # a person may always take control from a policy
-            if not force and not again:
-                raise NotAllowed(
-                    f"{holder.name!r} has control{self.lease.lapses_in(holder)}; take it over"
-                    " explicitly (force) if you must"
-                )
+            note = self.lease.takeover(
+                client, holder, force=force, policy_id=self.autonomy.policy_id
+            )
             log.warning("%s takes control from %s", client.name, holder.name)
             await self._stop_all()
-            note = (
-                f"taken again by {client.name!r} from {client.address} (the same script, "
-                "run again while its earlier run's lease was idle)"
-                if again and not force
-                else f"taken over by {client.name!r}"
-            )
         else:
             note = f"taken by {client.name!r}"
         taken_from = self.clients.known(self.lease.holder)
@@ -546,38 +406,6 @@ class DecisionServer:
         elif felt is Felt.RELEASED:
             self.events.safety_changed.emit(self.state())
 
-    def _report(
-        self,
-        kind: str,
-        client_id: str | None,
-        args: tuple[Any, ...],
-        kwargs: dict[str, Any],
-        error: TelerobotError | None,
-        result: object,
-    ) -> None:
-        client = self.clients.known(client_id)
-        source = str(kwargs.pop("source", "server"))
-        if args:
-            kwargs["args"] = list(args)
-        self.events.command.emit(
-            CommandReport(
-                self.clock.now(),
-                kind,
-                client_id,
-                client.name if client else "server",
-                client.source if client else source,
-                kwargs,
-                error,
-                result.target if isinstance(result, Applied) else None,
-                self.lease.holder,
-                "policy"
-                if client is not None and client.policy
-                else ("operator" if client is not None else "server"),
-                self.autonomy.mode.value,
-                result.age if isinstance(result, Applied) else None,
-            )
-        )
-
     def _authorise(self, client_id: str) -> Client:
         client = self.clients.get(client_id)
         self._heard(client)
@@ -590,16 +418,9 @@ class DecisionServer:
             raise SafetyStop(f"e-stop is latched ({self._estop_reason}): reset it first")
         return client
 
-    @staticmethod
-    def _interval(client: Client, guard: ArmGuard, now: float) -> float:
-        """Time the speed limit allows for this increment: since the client's last
-        command to this arm, within [1 ms, 100 ms] so a pause does not bank a big jump."""
-        last = client.last_command_at.get(guard.name)
-        if last is None:
-            return 0.1
-        return min(max(now - last, 0.001), 0.1)
-
     # ------------------------------------------------------------ commands
+    # Each: who may (_authorise), the arm, its age, then its geometry on that arm
+    # (motion.py), then _apply. Every refusal is reported (``reported``).
     @reported("cartesian_increment")
     async def cartesian_increment(
         self,
@@ -618,19 +439,9 @@ class DecisionServer:
         guard = self.arm(arm)
         client.streaming = True
         self.ages.check_fresh(client, client_time)
-        dX = check_vector("position increment", dX, 3) * self._scale
-        rv = check_vector("rotation increment", rotvec, 3) * self._scale
-        with np.errstate(over="ignore"):  # 1e300 is refused below, not a warning
-            step, angle = float(np.linalg.norm(dX)), float(np.linalg.norm(rv))
-        lim = guard.limits
-        if step > lim.max_step_m or angle > lim.max_step_rad:
-            raise LimitExceeded(
-                f"increment of {step * 1000:.1f} mm / {math.degrees(angle):.1f}° (after scale "
-                f"{self._scale:g}) exceeds the per-command limit of "
-                f"{lim.max_step_m * 1000:.0f} mm / {math.degrees(lim.max_step_rad):.1f}°"
-            )
+        dX, rv, step, angle = motion.scaled_increment(guard, dX, rotvec, self._scale)
         now = self.clock.now()
-        dt = self._interval(client, guard, now)
+        dt = motion.interval(client.last_command_at.get(guard.name), now)
         frame = frame or self.frame
         # A master arm's port (it sends ENERGY): what the arm still owes its motion
         # comes with this increment, and the part into a contact keeps to its energy.
@@ -641,25 +452,9 @@ class DecisionServer:
             wanted = dX = dX + port.owed_for(now)
             step = float(np.linalg.norm(dX))
         try:
-            seed = guard.robot.target_joints
-            T0 = guard.kinematics.fk(seed).copy()
-            speed = lim.max_speed_m_s
-            if guard.approaches_last_contact(T0, dX, rv, frame, now):
-                speed = min(speed, lim.contact_speed_m_s)
-            factor = min(1.0, speed * dt / step if step else 1.0)
-            factor = min(factor, lim.max_angular_speed_rad_s * dt / angle if angle else 1.0)
-            dX, rv = dX * factor, rv * factor
-            if port is not None:
-                dX = port.allow(dX, T0[:3, 3])
-            T = guard.kinematics.apply_increment(T0, dX, pin.exp3(rv), frame)
-            if guard.force_limited and float((T[:3, 3] - T0[:3, 3]) @ guard.force_base) <= 0.0:
-                raise SafetyStop(
-                    guard.said(
-                        "force limit: only moves that back away from the contact are allowed"
-                    )
-                )
-            guard.check_workspace(T[:3, 3])
-            q = guard.kinematics.jog(T, seed)  # an increment: the differential solver
+            q, seed, dX, factor = motion.cartesian_target(
+                guard, dX, rv, step, angle, frame=frame, dt=dt, now=now, port=port
+            )
             applied = await self._apply(client, guard, q, seed, seq, client_time, factor)
         except TelerobotError:
             if port is not None:  # refused (force limit, workspace…): nothing more is owed
@@ -683,23 +478,8 @@ class DecisionServer:
         guard = self.arm(arm)
         client.streaming = True
         self.ages.check_fresh(client, client_time)
-        dq = check_vector("joint increment", dq, guard.dof)
-        lim = guard.limits
-        biggest = float(np.max(np.abs(dq)))
-        if biggest > lim.max_joint_step_rad:
-            raise LimitExceeded(
-                f"joint increment of {math.degrees(biggest):.1f}° exceeds the per-command limit of "
-                f"{math.degrees(lim.max_joint_step_rad):.1f}°"
-            )
-        guard.check_not_force_limited()
-        now = self.clock.now()
-        allowed = lim.max_joint_speed_rad_s * self._interval(client, guard, now)
-        factor = min(1.0, allowed / biggest) if biggest > 0 else 1.0
-        dq = dq * factor
-        seed = guard.robot.target_joints
-        q = seed + dq
-        guard.kinematics.check_joint_limits(q)
-        guard.check_workspace(guard.kinematics.fk(q)[:3, 3])
+        dt = motion.interval(client.last_command_at.get(guard.name), self.clock.now())
+        q, seed, factor = motion.joint_step_target(guard, dq, dt)
         return await self._apply(client, guard, q, seed, seq, client_time, factor)
 
     @reported("move_joints")
@@ -711,10 +491,7 @@ class DecisionServer:
         client = self._authorise(client_id)
         guard = self.arm(arm)
         client.streaming = False  # a bounded move, not jogging: a scripted lease may idle
-        q = check_vector("joints", q, guard.dof)
-        guard.check_not_force_limited()
-        guard.kinematics.check_joint_limits(q)
-        guard.check_workspace(guard.kinematics.fk(q)[:3, 3])
+        q = motion.joints_target(guard, q)
         return await self._apply(client, guard, q, None, seq, None, 1.0)
 
     @reported("move_pose")
@@ -730,12 +507,7 @@ class DecisionServer:
         client = self._authorise(client_id)
         guard = self.arm(arm)
         client.streaming = False
-        p = check_vector("position", position, 3)
-        R = check_rotation("orientation", rotation)
-        guard.check_not_force_limited()
-        guard.check_workspace(p)
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R, p
+        T = motion.pose_target(guard, position, rotation)
         # Off the event loop (the SO-101's numeric IK takes milliseconds); whatever
         # happened meanwhile (an e-stop, control changing hands) is checked again in
         # _apply before anything moves.
@@ -750,9 +522,7 @@ class DecisionServer:
         self._authorise(client_id)
         guard = self.arm(arm)
         if q is not None:
-            q = check_vector("joints", q, guard.dof)
-            guard.kinematics.check_joint_limits(q)
-            guard.check_workspace(guard.kinematics.fk(q)[:3, 3])
+            q = motion.joints_target(guard, q, force_stop=False)
         await guard.robot.connect()
         await guard.robot.initialize(q)
 
@@ -767,13 +537,7 @@ class DecisionServer:
         scale: float,
     ) -> Applied:
         if seed is not None:
-            jump = [abs(a - b) for a, b in zip(q.tolist(), seed.tolist(), strict=True)]
-            worst = max(range(len(jump)), key=jump.__getitem__)
-            if jump[worst] > guard.limits.max_joint_step_rad:
-                raise LimitExceeded(
-                    f"too close to a singularity: {guard.joint_label(worst)} would turn "
-                    f"{math.degrees(jump[worst]):.1f}° for this small move"
-                )
+            motion.check_joint_jump(guard, q, seed)
         robot = guard.robot
         async with guard.lock:
             self._still_authorised(client)

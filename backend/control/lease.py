@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 from telerobot.drivers.clock import Clock
 from telerobot.server.control.clients import Client, ClientTable
+from telerobot.server.control.errors import NotAllowed
 from telerobot.server.control.limits import SafetyLimits
 
 log = logging.getLogger(__name__)
@@ -102,6 +103,37 @@ class Lease:
             and holder.address != ""
             and holder.address == client.address
             and holder.busy == 0
+        )
+
+    def takeover(
+        self, client: Client, holder: Client, *, force: bool, policy_id: str | None
+    ) -> str:
+        """Whether ``client`` may take the lease ``holder`` has (``policy_id``: the
+        supervised policy's client, if any): why it changes hands, said in the lease's
+        note, or NotAllowed. A policy never takes it; a person always may from a
+        policy; anyone else takes it only with ``force``, or as a script run again."""
+        again = self.runs_again(client, holder)
+        if client.policy:
+            raise NotAllowed(
+                f"{holder.name!r} has control: a policy never takes it from anyone;"
+                + (
+                    " it drives again when the operator hands control back"
+                    if holder.id != policy_id
+                    else " wait until its lease lapses"
+                )
+            )
+        if holder.policy and not client.policy:
+            force = True  # a person may always take control from a policy
+        if not force and not again:
+            raise NotAllowed(
+                f"{holder.name!r} has control{self.lapses_in(holder)}; take it over"
+                " explicitly (force) if you must"
+            )
+        return (
+            f"taken again by {client.name!r} from {client.address} (the same script, "
+            "run again while its earlier run's lease was idle)"
+            if again and not force
+            else f"taken over by {client.name!r}"
         )
 
     def lapses_in(self, holder: Client) -> str:

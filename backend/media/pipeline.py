@@ -1,4 +1,6 @@
-"""Camera → one encoder → every WebRTC peer, plus the peers themselves.
+"""Camera → one encoder → every WebRTC peer, plus the peers themselves. Capture and
+encoding are ``Encoding`` (encoding.py); here are the peers: signalling, their limits,
+their links (layer, FEC, playout delay, pacing) and the figures of both.
 
 Runs inside the media worker process (``backend/media/worker.py``) so that capture,
 encoding and packetising can never stall the server's event loop; tests also run it
@@ -13,13 +15,9 @@ import contextlib
 import logging
 import secrets
 import time
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import cv2
-import numpy as np
 from aiortc import (
     RTCConfiguration,
     RTCIceServer,
@@ -29,22 +27,21 @@ from aiortc import (
     RTCSessionDescription,
 )
 
-from telerobot.drivers.base import CameraStatus, StereoCamera, StereoFrame, TelerobotError
+from telerobot.drivers.base import StereoCamera, TelerobotError
 from telerobot.drivers.clock import Clock, MonotonicClock
 from telerobot.protocol.netprio import mark_peer_low_priority
 from telerobot.server.media import fec as ulpfec
-from telerobot.server.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
-from telerobot.server.media.fanout import Broadcaster, SharedVideoTrack
+from telerobot.server.media.encoding import IDLE_POLL_S as IDLE_POLL_S
+from telerobot.server.media.encoding import Encoding
+from telerobot.server.media.encoding import no_signal_frame as no_signal_frame
+from telerobot.server.media.fanout import SharedVideoTrack
 from telerobot.server.media.ice import IceConfig, parse_url
 from telerobot.server.media.layers import (
-    LAYERS,
     LOW_BITRATE,
     LOW_SCALE,
     Layer,
     LayerChoice,
     LayerMode,
-    RateMeter,
-    low_size,
 )
 from telerobot.server.media.pacer import Pacer, pace_peer
 from telerobot.server.media.playout import AdaptivePlayout, stamp_playout_delay
@@ -52,7 +49,6 @@ from telerobot.server.media.playout import allow as allow_playout_delay
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.media.viewer_link import Protection, ViewerLink, follow_link
 from telerobot.server.security import token_matches
-from telerobot.server.telemetry.stats import InterArrival, StreamStats
 
 if TYPE_CHECKING:
     from telerobot.server.settings import Settings
@@ -169,27 +165,6 @@ class Peer:
         return token_matches(secret, self.secret)
 
 
-IDLE_POLL_S = 0.05  # with no viewer, how often the pipeline looks for one
-
-
-def no_signal_frame(width: int, height: int, message: str, seq: int, t: float) -> StereoFrame:
-    """What viewers see while a camera is down: grey with the reason, in both eyes."""
-    eye = np.full((height, width, 3), 40, np.uint8)
-    for i, text in enumerate(("NO SIGNAL", message[:60])):
-        scale = 3.0 if i == 0 else 1.2
-        (tw, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 3)
-        cv2.putText(
-            eye,
-            text,
-            ((width - tw) // 2, height // 2 + i * 80),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            scale,
-            (230, 230, 230),
-            3,
-        )
-    return StereoFrame(seq, t, np.concatenate([eye, eye], axis=1))
-
-
 # The name in the TURN credentials the server's own peers mint ("<expiry>:telerobot-server"
 # in the TURN server's log; a page's are "…:telerobot-viewer").
 SERVER_TURN_NAME = "telerobot-server"
@@ -233,76 +208,20 @@ class VideoPipeline:
         self.max_viewers = max_viewers
         self.max_pending = max_pending
         self.pending_expiry_s = pending_expiry_s
-        # One encoder per codec and layer in use (H.264 full; VP8 only while a viewer
-        # needs it; the low layer only while a viewer takes it), each shared by all of
-        # its viewers.
-        self.encoders: dict[tuple[str, Layer], PacketEncoder] = {}
-        self.broadcasters: dict[tuple[str, Layer], Broadcaster] = {}
-        self.encoder = self._encoder("H264")
-        self.layer_rate = {layer: RateMeter() for layer in LAYERS}  # H.264 bits/s sent
+        self.encoding = Encoding(camera, self.settings, self.clock)
         self.peers: dict[str, Peer] = {}
-        self._grab = ThreadPoolExecutor(1, thread_name_prefix="video-grab")
-        self._encode = ThreadPoolExecutor(1, thread_name_prefix="video-encode")
         self._tasks: list[asyncio.Task[None]] = []
         self._closing: set[asyncio.Task[None]] = set()  # expired peers' connections
-        self.capture_interarrival = InterArrival("video_capture")
-        self.encode_ms = StreamStats("video_encode", "ms")
-        self.frame_bytes = StreamStats("video_frame_bytes", "B")
-        self.keyframe_bytes = StreamStats("video_keyframe_bytes", "B", capacity=100)
-        self.frames_encoded = 0
-        self._no_signal_seq = 0
-        # Taps on the full layer's H.264, by name: the recording's (backend/recording/
-        # video.py) while one runs, the media server's feed (backend/media/relay.py) while
-        # someone watches through it. Each gets every packet the viewers get, the same
-        # bytes (no second encode); while any is set the pipeline captures and encodes
-        # H.264 even with no direct viewer.
-        self.taps: dict[str, Callable[[EncodedFrame], None]] = {}
-
-    def layer_size(self, layer: Layer) -> tuple[int, int]:
-        """One eye's size in ``layer``."""
-        if layer == "full":
-            return self.camera.width, self.camera.height
-        return low_size(self.camera.width, self.camera.height, self.settings.low_scale)
-
-    def _encoder(self, codec: str, layer: Layer = "full") -> PacketEncoder:
-        key = (codec, layer)
-        if key not in self.encoders:
-            s = self.settings
-            width, height = self.layer_size(layer)
-            enc = ENCODERS[codec](
-                2 * width,
-                height,
-                s.fps,
-                s.bitrate if layer == "full" else min(s.bitrate, s.low_bitrate),
-                s.keyframe_interval,
-                cbr=s.cbr,
-            )
-            self.encoders[key] = enc
-            self.broadcasters[key] = Broadcaster(enc.request_keyframe, self.clock.now)
-        return self.encoders[key]
-
-    def start_tap(self, tap: Callable[[EncodedFrame], None], name: str = "recording") -> None:
-        """Hand every H.264 packet to ``tap`` from now on, and ask for a keyframe (shared
-        and rate-limited like a viewer's) so it can start on one."""
-        self.taps[name] = tap
-        self.broadcaster.request_keyframe()
-
-    def stop_tap(self, name: str = "recording") -> None:
-        self.taps.pop(name, None)
-
-    @property
-    def broadcaster(self) -> Broadcaster:
-        return self.broadcasters[("H264", "full")]
 
     @property
     def viewers(self) -> int:
-        return sum(b.viewers for b in self.broadcasters.values())
+        return self.encoding.viewers
 
-    # ------------------------------------------------------------ capture → encode
+    # ------------------------------------------------------------ its tasks
     def start(self) -> None:
         self.camera.start()
         self._tasks = [
-            asyncio.create_task(self._run(), name="video-pipeline"),
+            asyncio.create_task(self.encoding.run(), name="video-pipeline"),
             asyncio.create_task(self._expire_loop(), name="video-peer-expiry"),
         ]
 
@@ -315,81 +234,7 @@ class VideoPipeline:
             *(p.pc.close() for p in self.peers.values()), *self._closing, return_exceptions=True
         )
         self.peers.clear()
-        await asyncio.get_running_loop().run_in_executor(self._grab, self.camera.stop)
-        self._grab.shutdown(wait=False)
-        self._encode.shutdown(wait=False)
-
-    async def _run(self) -> None:
-        loop = asyncio.get_running_loop()
-        seq = 0
-        while True:
-            if self.viewers == 0 and not self.taps:
-                # Nobody to send to and nothing recorded: pull no frames, so a camera that
-                # renders on demand (the simulated one) does not take ~10 % of a core from
-                # the force stream.
-                await asyncio.sleep(IDLE_POLL_S)
-                continue
-            # Recording: every frame, oldest first (a skipped one would be missing from
-            # the dataset); only live viewers: the newest.
-            every = bool(self.taps)
-            frame = await loop.run_in_executor(self._grab, self.camera.next_frame, seq, 0.5, every)
-            if frame is None:
-                # No frame for 0.5 s: show viewers why, twice a second, until it is back.
-                self._no_signal_seq += 1
-                frame = no_signal_frame(
-                    self.camera.width,
-                    self.camera.height,
-                    self.camera.status_message,
-                    -self._no_signal_seq,
-                    time.monotonic(),
-                )
-            else:
-                seq = frame.seq
-                self.capture_interarrival.tick(frame.time)
-            await self._encode_and_publish(loop, frame)
-
-    async def _encode_and_publish(
-        self, loop: asyncio.AbstractEventLoop, frame: StereoFrame
-    ) -> None:
-        """Encode ``frame`` in every layer someone takes, then hand all of it out at
-        once: a viewer moving between layers on this frame's keyframe finds the other
-        layer's copy of the same frame still queued (and drops it), never already sent
-        (two pictures with one RTP timestamp)."""
-        out: list[tuple[tuple[str, Layer], list[EncodedFrame]]] = []
-        small: StereoFrame | None = None
-        for key, broadcaster in list(self.broadcasters.items()):
-            layer = key[1]
-            tapped = bool(self.taps) and key == ("H264", "full")
-            if broadcaster.sending == 0 and not tapped:
-                continue  # nobody on this layer, nothing recorded: no encoding
-            if layer == "low" and small is None:
-                small = await loop.run_in_executor(self._encode, self._shrink, frame)
-            source = small if layer == "low" and small is not None else frame
-            out.append(
-                (key, await loop.run_in_executor(self._encode, self.encoders[key].encode, source))
-            )
-        now = self.clock.now()
-        for key, encoded_frames in out:
-            for encoded in encoded_frames:
-                if key[0] == "H264":
-                    self.layer_rate[key[1]].add(encoded.size * 8, now)
-                if key == ("H264", "full"):
-                    self._record(encoded)
-                    for tap in list(self.taps.values()):
-                        tap(encoded)  # must not block: a bounded hand-over
-                self.broadcasters[key].publish(encoded)
-
-    def _shrink(self, frame: StereoFrame) -> StereoFrame:
-        width, height = self.layer_size("low")
-        small = cv2.resize(frame.sbs, (2 * width, height), interpolation=cv2.INTER_AREA)
-        return StereoFrame(frame.seq, frame.time, small, frame.skew)
-
-    def _record(self, e: EncodedFrame) -> None:
-        self.frames_encoded += 1
-        self.encode_ms.record(e.encode_ms)
-        self.frame_bytes.record(e.size)
-        if e.keyframe:
-            self.keyframe_bytes.record(e.size)
+        await self.encoding.close()
 
     # ------------------------------------------------------------ peers and their limits
     @property
@@ -407,7 +252,7 @@ class VideoPipeline:
         """Each connected viewer on "auto" gets the layer its link carries (called about
         once a second; the decision and its hysteresis are ``LayerChoice``'s)."""
         now = self.clock.now()
-        full_bps = self.layer_rate["full"].bps(now)
+        full_bps = self.encoding.layer_rate["full"].bps(now)
         for peer in self.peers.values():
             if not peer.connected or peer.mode != "auto":
                 continue
@@ -438,9 +283,9 @@ class VideoPipeline:
 
     def set_layer(self, peer: Peer, layer: Layer) -> None:
         """Move ``peer`` to ``layer`` (from that layer's next keyframe, asked for now)."""
-        codec = next(c for c, b in self.broadcasters.items() if b is peer.track.source)[0]
-        self._encoder(codec, layer)
-        peer.track.move_to(self.broadcasters[(codec, layer)])
+        codec = next(c for c, b in self.encoding.broadcasters.items() if b is peer.track.source)[0]
+        self.encoding.encoder_for(codec, layer)
+        peer.track.move_to(self.encoding.broadcasters[(codec, layer)])
 
     def expire_pending(self) -> list[str]:
         """Drop the peers that have not connected within ``pending_expiry_s``: they
@@ -491,8 +336,8 @@ class VideoPipeline:
     def _new_peer(self, codec: str = "H264", mode: LayerMode = "auto") -> tuple[str, Peer]:
         pc = RTCPeerConnection(_ice(self.settings.ice))
         layer: Layer = "low" if mode == "low" else "full"
-        self._encoder(codec, layer)
-        track = self.broadcasters[(codec, layer)].new_track()
+        self.encoding.encoder_for(codec, layer)
+        track = self.encoding.broadcasters[(codec, layer)].new_track()
         transceiver = pc.addTransceiver(track, direction="sendonly")
         wanted = f"video/{codec}"
         caps = RTCRtpSender.getCapabilities("video").codecs
@@ -652,41 +497,9 @@ class VideoPipeline:
     # ------------------------------------------------------------ telemetry
     def stats(self, peer_ids: bool = False) -> dict[str, Any]:
         """Figures for everyone; the peers' ids only if ``peer_ids`` (the operator's)."""
-        cap = self.capture_interarrival.summary()
-        enc = self.encode_ms.summary()
-        size = self.frame_bytes.summary()
-        keys = self.keyframe_bytes.values()
         now = self.clock.now()
         return {
-            "camera": {
-                "name": self.camera.name,
-                "status": self.camera.status.value,
-                "message": self.camera.status_message,
-            },
-            "capture_fps": 1000.0 / cap.mean if cap.count and cap.mean > 0 else None,
-            "encode_ms_p50": enc.p50 if enc.count else None,
-            "encode_ms_p99": enc.p99 if enc.count else None,
-            "bytes_per_frame_mean": size.mean if size.count else None,
-            "keyframe_bytes_last": keys[-10:].tolist(),
-            "frames_encoded": self.frames_encoded,
-            "codecs": {
-                codec: sum(b.viewers for (c, _), b in self.broadcasters.items() if c == codec)
-                for codec, _ in self.broadcasters
-            },
-            "layers": {
-                layer: {
-                    "width": self.layer_size(layer)[0],
-                    "height": self.layer_size(layer)[1],
-                    "viewers": sum(
-                        b.viewers for (_, x), b in self.broadcasters.items() if x == layer
-                    ),
-                    "kbps": None
-                    if (bps := self.layer_rate[layer].bps(now)) is None
-                    else bps / 1000,
-                }
-                for layer in LAYERS
-            },
-            "keyframes_forced": sum(b.keyframes.forced for b in self.broadcasters.values()),
+            **self.encoding.stats(now),
             "viewer_count": len(self.peers),
             "pending": self.pending,
             "max_viewers": self.max_viewers,
@@ -730,7 +543,7 @@ class VideoPipeline:
                 }
                 for pid, p in self.peers.items()
             ],
-            "camera_running": self.camera.status is CameraStatus.RUNNING,
+            "camera_running": self.encoding.camera_running,
         }
 
     def _layer_bps(self, peer: Peer) -> float | None:
@@ -744,12 +557,12 @@ class VideoPipeline:
         if lost is not None and lost >= PACE_MAX_LOSS:
             return None
         try:
-            return self.layer_rate[self._layer_of(peer)].bps(self.clock.now())
+            return self.encoding.layer_rate[self._layer_of(peer)].bps(self.clock.now())
         except StopIteration:  # (between two layers)
             return None
 
     def _layer_of(self, peer: Peer) -> Layer:
-        return next(x for (_, x), b in self.broadcasters.items() if b is peer.track.source)
+        return next(x for (_, x), b in self.encoding.broadcasters.items() if b is peer.track.source)
 
 
 def _packets_sent(peer: Peer) -> int:

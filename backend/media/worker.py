@@ -139,7 +139,7 @@ async def _serve(
     pipeline.start()
     relay = _start_relay(settings, pipeline)
     tap = (
-        PacketPipe(video.send_bytes, pipeline.broadcaster.request_keyframe)
+        PacketPipe(video.send_bytes, pipeline.encoding.broadcaster.request_keyframe)
         if video is not None
         else None
     )
@@ -193,15 +193,15 @@ def _start_relay(settings: Settings, pipeline: VideoPipeline) -> JanusRelay | No
     assert settings.media_server_url is not None  # resolved by the server
 
     def start_feed() -> None:
-        pipeline.start_tap(relay.send, "relay")
+        pipeline.encoding.start_tap(relay.send, "relay")
 
     relay = JanusRelay(
         settings.media_server_url,
         settings.media_server_rtp_port,
         settings.media_server_rtcp_port or None,
-        pipeline.broadcaster.request_keyframe,
+        pipeline.encoding.broadcaster.request_keyframe,
         start_feed=start_feed,
-        stop_feed=lambda: pipeline.stop_tap("relay"),
+        stop_feed=lambda: pipeline.encoding.stop_tap("relay"),
         limits=RelayLimits.of(settings),
         api_secret=settings.media_server_api_secret,
         host=settings.media_server_host or "127.0.0.1",
@@ -254,15 +254,15 @@ class _Served:
                     raise NoMediaServer("this server has no media server (--media-server)")
                 return await serve_relay(relay, req)
             case rpc.Keyframe():
-                pipeline.broadcaster.request_keyframe()  # shared and rate-limited like any
+                pipeline.encoding.broadcaster.request_keyframe()  # shared and rate-limited like any
             case rpc.Record(on):
                 if tap is None:
                     raise TelerobotError("this media worker has no pipe for the recording")
                 if on:
                     tap.restart()
-                    pipeline.start_tap(tap.push)
+                    pipeline.encoding.start_tap(tap.push)
                 else:
-                    pipeline.stop_tap()
+                    pipeline.encoding.stop_tap()
                 return {"sent": tap.sent, "dropped": tap.dropped}
             case rpc.Board(view):
                 self.camera.show_board(view)

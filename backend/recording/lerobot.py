@@ -101,7 +101,7 @@ from av.video.reformatter import VideoReformatter
 from telerobot.client.lerobot.units import JointUnits, robot_type
 from telerobot.drivers.base import DriverUnavailable, TelerobotError
 from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
-from telerobot.server.recording import schemas as ch
+from telerobot.server.recording.arms import RecordedArm, recorded_arms, recorded_settings
 from telerobot.server.recording.reader import decode, read, read_raw
 
 CODEBASE_VERSION = "v3.0"
@@ -349,28 +349,21 @@ class _Recording:
         return self.arms[0].state_t
 
 
-def _settings(path: Path) -> dict[str, Any]:
-    """The recording's ``/settings`` (its first message), {} if it has none."""
-    for _topic, _log_ns, m in read(path, ["/settings"]):
-        return m
-    return {}
-
-
-def _arms_recorded(path: Path, settings: dict[str, Any]) -> list[tuple[str, RobotModel]]:
-    """The arms the recording's settings name, each with its model, in the order its
-    columns take: LeRobot's bimanual arms left before right, else as the settings list
-    them; one arm (recordings from before robot models: a PUMA) when they name none."""
-    named = ch.recorded_arms(settings)
+def _arms_recorded(path: Path, settings: dict[str, Any]) -> list[tuple[RecordedArm, RobotModel]]:
+    """The arms the recording's settings name (arms.py), each with its model, in the
+    order its columns take: LeRobot's bimanual arms left before right, else as the
+    settings list them; one arm (recordings from before robot models: a PUMA) when they
+    name none."""
     arms = []
-    for name, model_name in named:
+    for arm in recorded_arms(settings):
         try:
-            arms.append((name, load_model(model_name or DEFAULT_MODEL)))
+            arms.append((arm, load_model(arm.model or DEFAULT_MODEL)))
         except DriverUnavailable as exc:
             raise ExportError(
                 f"{path.name} is of a robot this version does not know: {exc}"
             ) from None
-    if _bimanual_so([(name, model.name) for name, model in arms]):
-        arms.sort(key=lambda a: BIMANUAL_ARMS.index(a[0]))
+    if _bimanual_so([(arm.name, model.name) for arm, model in arms]):
+        arms.sort(key=lambda a: BIMANUAL_ARMS.index(a[0].name))
     return arms
 
 
@@ -380,15 +373,12 @@ def _load(path: Path) -> _Recording:
     forces for an hour would take about a gigabyte). A multi-arm recording's arms each
     from their own channels (``/arms/<name>/state``, ``/arms/<name>/force``) and the
     commands that named them."""
-    recorded_settings = _settings(path)
-    multi = bool(recorded_settings.get("arms"))
-    arms = _arms_recorded(path, recorded_settings)
-    series = {name: _Packed() for name, _ in arms}
-    state_topics = {ch.ROBOT_STATE: arms[0][0]}
-    force_topics = {ch.FORCE: arms[0][0]}
-    if multi:
-        state_topics = {ch.arm_topic(name, ch.ARM_STATE): name for name, _ in arms}
-        force_topics = {ch.arm_topic(name, ch.ARM_FORCE): name for name, _ in arms}
+    settings = recorded_settings(path)
+    arms = _arms_recorded(path, settings)
+    multi = arms[0][0].named  # each arm on its own channels
+    series = {arm.name: _Packed() for arm, _ in arms}
+    state_topics = {arm.state_topic: arm.name for arm, _ in arms}
+    force_topics = {arm.force_topic: arm.name for arm, _ in arms}
     topics = [
         *state_topics,
         *force_topics,
@@ -397,7 +387,7 @@ def _load(path: Path) -> _Recording:
         AUTONOMY_TOPIC,
         VIDEO_TOPIC,
     ]
-    only = arms[0][0]
+    only = arms[0][0].name
     events: list[dict[str, Any]] = []
     autonomy: list[tuple[float, str]] = []
     video_wall = array("d")
@@ -444,16 +434,16 @@ def _load(path: Path) -> _Recording:
     order = np.argsort(video_t, kind="stable")  # (capture order is the stream's order)
     if not np.all(order == np.arange(len(order))):
         video_t = np.maximum.accumulate(video_t)
-    episodes, skipped = _episodes(events, max(series[name].state_t[-1] for name, _ in arms))
+    episodes, skipped = _episodes(events, max(series[arm.name].state_t[-1] for arm, _ in arms))
     return _Recording(
         path=path,
-        arms=[series[name].arm(name, model) for name, model in arms],
+        arms=[series[arm.name].arm(arm.name, model) for arm, model in arms],
         episodes=episodes,
         video_t=video_t,
         skipped=skipped,
         multi=multi,
-        configured_fps=_positive(recorded_settings.get("video_fps")),
-        state_rate_hz=_positive(recorded_settings.get("state_rate_hz")),
+        configured_fps=_positive(settings.get("video_fps")),
+        state_rate_hz=_positive(settings.get("state_rate_hz")),
         autonomy=sorted(autonomy, key=lambda x: x[0]),
     )
 
@@ -848,38 +838,16 @@ def export_lerobot(
     columns, index_cols = _columns(rec, rows, kept, tasks, fps)
     total = sum(len(t) for t in rows)
 
-    # Which recorded frame each row shows, and how old each row's parts are.
-    source = [
-        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
-        for t in rows
-    ]
-    repeated = _repeats(source) if has_video else 0
-    columns["telerobot.age_ms"] = [
-        _ages(rec, t, src if has_video else None) for t, src in zip(rows, source, strict=True)
-    ]
-    stale = _flag_stale(columns["telerobot.age_ms"], state_period, fps, total, warnings)
-    if repeated > REPEAT_TOLERANCE * total:
-        warnings.append(
-            f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
-            f"recorded frame as the row before: {_rate_text(rate)}, unevenly or slower "
-            "than the rows"
-        )
+    source, repeated, stale = _row_sources(
+        rec, rows, columns, state_period, fps, has_video, rate, warnings
+    )
 
     # Videos: decode the side-by-side stream once, write each half's rows in order.
     codec_name: str | None = None
     histograms = {c: [_ImageHistogram() for _ in kept] for c in CAMERAS}
     if has_video:
         codec_name, video_info = _write_videos(out, rec, source, fps, histograms, report)
-        for cam in CAMERAS:
-            features[f"observation.images.{cam}"] = {
-                "dtype": "video",
-                "shape": [video_info["video.height"], video_info["video.width"], 3],
-                "names": ["height", "width", "channels"],
-                "info": video_info,
-                "description": f"the {cam} camera: the recorded frame captured nearest to "
-                f"the row time ({_rate_text(rate)}; {repeated} rows repeat the frame "
-                "before them)",
-            }
+        features.update(_video_features(video_info, rate, repeated))
     report(1.0 - FINISH_SHARE)
     for key in index_cols:
         dtype = {"timestamp": "float32", "intervention": "bool"}.get(key, "int64")
@@ -890,39 +858,9 @@ def export_lerobot(
     episode_stats = _write_stats(out, columns, index_cols, histograms, len(kept), cameras)
     _write_episodes(out, rows, kept, fps, cameras, episode_stats)
     pq.write_table(_tasks_table(tasks), out / "meta" / "tasks.parquet")
-    info = {
-        "codebase_version": CODEBASE_VERSION,
-        "robot_type": layout.robot_type,
-        "total_episodes": len(kept),
-        "total_frames": total,
-        "total_tasks": len(tasks),
-        "chunks_size": CHUNKS_SIZE,
-        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
-        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
-        "fps": fps,
-        "splits": {"train": f"0:{len(kept)}"},
-        "data_path": DATA_PATH,
-        "video_path": VIDEO_PATH if has_video else None,
-        "features": features,
-    }
-    (out / "meta" / "info.json").write_text(json.dumps(info, indent=4, ensure_ascii=False))
+    _write_info(out, layout, len(kept), total, tasks, fps, has_video, features)
     # Ours, beside lerobot's files (which it reads by name): where the rows came from.
-    source_info = {
-        "recording": recording_path.name,
-        "fps": fps,
-        "video_fps": rate,  # as docs/recording.md, the answer and the command name it
-        "repeated_frames": repeated,
-        "stale_rows": stale,
-        "episodes_cut": [asdict(cut) for cut in cuts],
-        "units": {
-            "observation.state": layout.units_text,
-            "action": layout.units_text,
-            "observation.tool_pose": "m, rotation matrix",
-            "observation.force": "N, N·m",
-        },
-        "warnings": warnings,
-    }
-    (out / EXPORT_INFO_PATH).write_text(json.dumps(source_info, indent=4, ensure_ascii=False))
+    _write_source_info(out, recording_path, fps, rate, repeated, stale, cuts, layout, warnings)
 
     recorded = float(rec.state_t[-1] - rec.state_t[0])
     report(1.0)
@@ -943,6 +881,117 @@ def export_lerobot(
         stale_rows=stale,
         episodes_cut=[asdict(cut) for cut in cuts],
     )
+
+
+def _row_sources(
+    rec: _Recording,
+    rows: list[Array],
+    columns: dict[str, Any],
+    state_period: float,
+    fps: int,
+    has_video: bool,
+    rate: float | None,
+    warnings: list[str],
+) -> tuple[list[npt.NDArray[np.int64]], int, dict[str, int]]:
+    """Which recorded frame each row shows, and how old each row's parts are (the
+    column ``telerobot.age_ms``): each episode's rows' frames, how many rows repeat the
+    frame before them, and the stale rows (``_flag_stale``); either said in
+    ``warnings`` when too many."""
+    total = sum(len(t) for t in rows)
+    source = [
+        _nearest(rec.video_t, t) if len(rec.video_t) > 1 else np.zeros(len(t), np.int64)
+        for t in rows
+    ]
+    repeated = _repeats(source) if has_video else 0
+    columns["telerobot.age_ms"] = [
+        _ages(rec, t, src if has_video else None) for t, src in zip(rows, source, strict=True)
+    ]
+    stale = _flag_stale(columns["telerobot.age_ms"], state_period, fps, total, warnings)
+    if repeated > REPEAT_TOLERANCE * total:
+        warnings.append(
+            f"{repeated} of {total} rows ({100 * repeated / total:.0f} %) show the same "
+            f"recorded frame as the row before: {_rate_text(rate)}, unevenly or slower "
+            "than the rows"
+        )
+    return source, repeated, stale
+
+
+def _video_features(
+    video_info: dict[str, Any], rate: float | None, repeated: int
+) -> dict[str, dict[str, Any]]:
+    """Each camera's feature: its video, and how its frames were chosen."""
+    return {
+        f"observation.images.{cam}": {
+            "dtype": "video",
+            "shape": [video_info["video.height"], video_info["video.width"], 3],
+            "names": ["height", "width", "channels"],
+            "info": video_info,
+            "description": f"the {cam} camera: the recorded frame captured nearest to "
+            f"the row time ({_rate_text(rate)}; {repeated} rows repeat the frame "
+            "before them)",
+        }
+        for cam in CAMERAS
+    }
+
+
+def _write_info(
+    out: Path,
+    layout: _Layout,
+    episodes: int,
+    total: int,
+    tasks: list[str],
+    fps: int,
+    has_video: bool,
+    features: dict[str, Any],
+) -> None:
+    """LeRobot's ``meta/info.json``: the dataset's shape, its paths and features."""
+    info = {
+        "codebase_version": CODEBASE_VERSION,
+        "robot_type": layout.robot_type,
+        "total_episodes": episodes,
+        "total_frames": total,
+        "total_tasks": len(tasks),
+        "chunks_size": CHUNKS_SIZE,
+        "data_files_size_in_mb": DATA_FILES_SIZE_IN_MB,
+        "video_files_size_in_mb": VIDEO_FILES_SIZE_IN_MB,
+        "fps": fps,
+        "splits": {"train": f"0:{episodes}"},
+        "data_path": DATA_PATH,
+        "video_path": VIDEO_PATH if has_video else None,
+        "features": features,
+    }
+    (out / "meta" / "info.json").write_text(json.dumps(info, indent=4, ensure_ascii=False))
+
+
+def _write_source_info(
+    out: Path,
+    recording_path: Path,
+    fps: int,
+    rate: float | None,
+    repeated: int,
+    stale: dict[str, int],
+    cuts: list[EpisodeCut],
+    layout: _Layout,
+    warnings: list[str],
+) -> None:
+    """Ours (``EXPORT_INFO_PATH``): the recording the rows came from, their units, and
+    what the export warned of (the episodes the video cut short among it)."""
+    source_info = {
+        "recording": recording_path.name,
+        "fps": fps,
+        "video_fps": rate,  # as docs/recording.md, the answer and the command name it
+        "repeated_frames": repeated,
+        "stale_rows": stale,
+        "episodes_cut": [asdict(cut) for cut in cuts],
+        "units": {
+            "observation.state": layout.units_text,
+            "action": layout.units_text,
+            "observation.tool_pose": "m, rotation matrix",
+            "observation.force": "N, N·m",
+        },
+        "warnings": warnings,
+    }
+    (out / EXPORT_INFO_PATH).write_text(json.dumps(source_info, indent=4, ensure_ascii=False))
 
 
 def _choose_fps(
@@ -1293,20 +1342,7 @@ def _write_videos(
         while row < len(wanted) and wanted[row] == index:
             if not containers:
                 height, width = frame.height, frame.width // 2
-                for cam in CAMERAS:
-                    path = out / VIDEO_PATH.format(
-                        video_key=f"observation.images.{cam}", chunk_index=0, file_index=0
-                    )
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    container = av.open(str(path), "w")
-                    stream = cast(
-                        av.video.stream.VideoStream,
-                        container.add_stream(name, rate=fps, options=options),
-                    )
-                    stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
-                    stream.codec_context.gop_size = GOP
-                    stream.codec_context.time_base = Fraction(1, fps)
-                    containers[cam], streams[cam] = container, stream
+                _open_videos(out, containers, streams, name, options, fps, width, height)
             for side, cam in enumerate(CAMERAS):
                 eye = eyes[side]  # (the encoder takes its own reference: its pts is kept)
                 eye.pts = row
@@ -1351,7 +1387,42 @@ def _write_videos(
         for container in containers.values():
             container.close()
         _no_realtime_threads()
-    info = {
+    return name, _video_info(name, info_extra, fps, width, height)
+
+
+def _open_videos(
+    out: Path,
+    containers: dict[str, Any],
+    streams: dict[str, Any],
+    name: str,
+    options: dict[str, str],
+    fps: int,
+    width: int,
+    height: int,
+) -> None:
+    """Each camera's mp4 opened for writing with encoder ``name`` (into ``containers``
+    and ``streams`` as each opens: the caller closes whatever was opened)."""
+    for cam in CAMERAS:
+        path = out / VIDEO_PATH.format(
+            video_key=f"observation.images.{cam}", chunk_index=0, file_index=0
+        )
+        path.parent.mkdir(parents=True, exist_ok=True)
+        container = av.open(str(path), "w")
+        stream = cast(
+            av.video.stream.VideoStream,
+            container.add_stream(name, rate=fps, options=options),
+        )
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.codec_context.gop_size = GOP
+        stream.codec_context.time_base = Fraction(1, fps)
+        containers[cam], streams[cam] = container, stream
+
+
+def _video_info(
+    name: str, info_extra: dict[str, Any], fps: int, width: int, height: int
+) -> dict[str, Any]:
+    """LeRobot's description of each camera's video (``features``' ``info``)."""
+    return {
         "video.height": height,
         "video.width": width,
         "video.codec": "av1" if name == "libsvtav1" else "h264",
@@ -1366,4 +1437,3 @@ def _write_videos(
         "has_audio": False,
         "is_depth_map": False,
     }
-    return name, info

@@ -52,6 +52,7 @@ from telerobot.drivers.events import Event
 from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import CommandReport, DecisionServer, SafetyState
 from telerobot.server.recording import schemas as ch
+from telerobot.server.recording.arms import recorded_arms
 from telerobot.server.recording.library import RecordingLibrary
 from telerobot.server.recording.library import RecordingNotFound as RecordingNotFound
 from telerobot.server.recording.writer import CHUNK_BYTES, describe, serve_file
@@ -126,7 +127,7 @@ def recorded_model(settings: dict[str, Any]) -> str:
     """The arm model a recording's settings say it was made with, for its list entry:
     the model's name (``so101``), of several arms each different one joined by ``+``
     (``so101+puma560``), "" if not said."""
-    models = list(dict.fromkeys(model for _, model in ch.recorded_arms(settings) if model))
+    models = list(dict.fromkeys(arm.model for arm in recorded_arms(settings) if arm.model))
     return "+".join(models)
 
 

@@ -14,7 +14,6 @@ one-arm recording has none of these: its channels are as they always were.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 ROBOT_STATE = "/robot/state"
@@ -209,18 +208,3 @@ def schema_of(topic: str) -> tuple[str, dict[str, Any]]:
         return f"telerobot.{topic.strip('/')}", {}
     name, schema = CHANNELS[ROBOT_STATE if arm[1] == ARM_STATE else FORCE]
     return name, {**schema, "properties": {**schema["properties"], "arm": _str}}
-
-
-def recorded_arms(settings: Mapping[str, Any]) -> list[tuple[str, str]]:
-    """The arms a recording's ``/settings`` names, in order, each with its model:
-    ``[("left", "so101"), ("right", "so101")]``; one arm, ``("arm", robot_model)``, when
-    they name none. (An arm's own ``robot_model``, else the server's.)"""
-    default = str(settings.get("robot_model") or "")
-    arms = settings.get("arms")
-    if not isinstance(arms, Mapping) or not arms:
-        return [(SINGLE_ARM, default)]
-    out = []
-    for name, own in arms.items():
-        model = own.get("robot_model") if isinstance(own, Mapping) else None
-        out.append((str(name), str(model or default)))
-    return out

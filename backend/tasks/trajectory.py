@@ -50,14 +50,13 @@ import numpy as np
 import pinocchio as pin
 
 from telerobot.drivers.base import FloatArray, InvalidCommand
+from telerobot.server.recording.arms import arm_channel, recorded_arms
 from telerobot.server.recording.schemas import (
     ARM_STATE,
     FORCE,
     ROBOT_STATE,
     SETTINGS,
     SINGLE_ARM,
-    arm_of,
-    recorded_arms,
 )
 
 DEFAULT_DT_S = 0.02  # resampled every 20 ms (the state rate)
@@ -75,7 +74,7 @@ MAX_ARMS = 16  # arms read from one recording (a server drives at most 8)
 
 def read_topic(topic: str) -> bool:
     """Whether a task's read takes this channel's messages."""
-    return topic in TOPICS or arm_of(topic) is not None
+    return topic in TOPICS or arm_channel(topic) is not None
 
 
 class AnotherArm(InvalidCommand):
@@ -571,11 +570,7 @@ class _Span:
     def add(self, topic: str, m: Mapping[str, Any]) -> bool:
         """Take one message; True once the span is over (nothing later belongs to it)."""
         try:
-            if topic == ROBOT_STATE:
-                return self._state(topic, SINGLE_ARM, m)
-            if topic == FORCE:
-                return self._force(topic, SINGLE_ARM, m)
-            arm = arm_of(topic)
+            arm = arm_channel(topic)
             if arm is not None:
                 if arm[1] == ARM_STATE:
                     return self._state(topic, arm[0], m)
@@ -597,9 +592,10 @@ class _Span:
         if not isinstance(m, Mapping):
             return
         recorded = recorded_arms(m)
-        self.named = [name for name, _ in recorded]
+        self.named = [arm.name for arm in recorded]
         if self.arm_models is not None:
-            check_arms(recorded, self.arm_models, self.source or "the recording")
+            pairs = [(arm.name, arm.model) for arm in recorded]
+            check_arms(pairs, self.arm_models, self.source or "the recording")
 
     def _arm(self, name: str) -> _ArmSpan:
         arm = self.arms.get(name)

@@ -29,6 +29,10 @@ handshake), and when the whole bus falls silent at once while the arm initialise
 (connected again, then initialised again). One servo that stops answering is a fault
 of that servo: no retry.
 
+What is said to the servos and made of their answers (the block read and its faults,
+the goal packet, the brake, the handshake, the configuration) is ``servos.py``; the
+goal waiting for the poller, ``goal_slot.py``.
+
 ``stop()`` is a controlled stop, category 2: each servo's goal becomes where it can
 stop from its present speed at its Acceleration setting, so it brakes without turning
 back, and the servos keep torque and hold the arm there. ``disconnect()`` leaves the
@@ -43,9 +47,8 @@ import logging
 import math
 import threading
 import time
-from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Self
 
@@ -70,14 +73,25 @@ from telerobot.drivers.motors.feetech.bus import (
     FeetechPort,
     MissCounter,
     NoAnswer,
-    identify_servos,
     open_bus,
 )
-from telerobot.drivers.motors.feetech.protocol import ErrorBit, Register
+from telerobot.drivers.motors.feetech.protocol import Register
 from telerobot.drivers.robot.arm import ArmConfig, ModelArm
 from telerobot.drivers.robot.kinematics import ArmKinematics
 from telerobot.drivers.robot.models import load_model
 from telerobot.drivers.robot.so101.calibration import SERVO_IDS, STEPS_PER_RADIAN, So101Calibration
+from telerobot.drivers.robot.so101.goal_slot import GoalSlot
+from telerobot.drivers.robot.so101.servos import (
+    GOAL_LENGTH,
+    ServoStatus,
+    brake_goals,
+    goal_packet,
+    handshake,
+    hold_here,
+    read_block,
+    read_u16,
+    torque_off_for_setup,
+)
 from telerobot.drivers.robot.so101.settings import (  # re-exported
     CALIBRATION_FILE,
     So101Settings,
@@ -87,26 +101,9 @@ from telerobot.drivers.robot.so101.settings import (  # re-exported
 log = logging.getLogger(__name__)
 
 MODEL_NAME = "so101"
-# One read of all six: Present_Position, Present_Velocity, Present_Load (2 bytes
-# each), Present_Voltage, Present_Temperature (1 byte each), from address 56.
-BLOCK_ADDRESS = Register.PRESENT_POSITION
-BLOCK_LENGTH = 8
-# Written per servo with each goal: Acceleration, Goal_Position, Goal_Time, Goal_Velocity.
-GOAL_ADDRESS = Register.ACCELERATION
-GOAL_LENGTH = 7
 ARRIVED_STEPS = 6  # within this of the goal (0.5°), at rest: arrived
 SETTLE_READS = 10  # at rest this many reads in a row, not at the goal: blocked, done
-GOAL_DELAYS_KEPT = 10_000
 MIN_SPEED_STEPS = 20  # Goal_Velocity 0 would mean "as fast as it can"
-FAULTS = ErrorBit.VOLTAGE | ErrorBit.ANGLE_SENSOR | ErrorBit.OVERHEAT | ErrorBit.OVERCURRENT
-FAULTS |= ErrorBit.OVERLOAD
-ADVICE: Mapping[ErrorBit, str] = {
-    ErrorBit.OVERLOAD: "free what blocks it or lighten its load",
-    ErrorBit.OVERHEAT: "let it cool down",
-    ErrorBit.OVERCURRENT: "free what blocks it and check its wiring",
-    ErrorBit.VOLTAGE: "check the power supply (the STS3215 takes 6-12.6 V)",
-    ErrorBit.ANGLE_SENSOR: "the servo's position sensor failed: replace the servo",
-}
 
 
 @dataclass(frozen=True)
@@ -137,20 +134,6 @@ class So101Config(ArmConfig):
             calibration_path=default_calibration_path(settings) if path is None else path,
             reply_timeout=own.so101_reply_timeout,
         )
-
-
-@dataclass(frozen=True)
-class ServoStatus:
-    """One servo as last read (what the server shows per joint)."""
-
-    id: int
-    position_steps: int
-    velocity_steps: int  # steps/s
-    load_percent: float  # of the servo's maximum torque, signed
-    voltage_v: float
-    temperature_c: float
-    errors: tuple[str, ...]  # the error bits of its last reply, in words
-    missed_reads: int  # reads in a row it did not answer
 
 
 @dataclass(frozen=True)
@@ -210,13 +193,9 @@ class So101Arm(ModelArm):
         self._bus: FeetechPort | None = None
         self._poller: threading.Thread | None = None
         self._poller_stop = threading.Event()
-        # A goal for the poller to put on the bus between two reads (the bus is half
-        # duplex: one transaction at a time), newest wins; ``_wake`` cuts its wait short.
-        self._goal_lock = threading.Lock()
-        self._goal_out: tuple[bytes, float] | None = None  # packet, when taken
-        # Time from a goal taken to it on the bus (s), the newest few thousand.
-        self.goal_to_bus_s: deque[float] = deque(maxlen=GOAL_DELAYS_KEPT)
-        self._wake = threading.Event()
+        # A goal for the poller to put on the bus between two reads (goal_slot.py).
+        self._goals = GoalSlot()
+        self.goal_to_bus_s = self._goals.to_bus_s  # how long goals waited for the bus
         self._loop: asyncio.AbstractEventLoop | None = None
         self._latest: _Reading | None = None
         self._handover_pending = threading.Event()
@@ -281,6 +260,11 @@ class So101Arm(ModelArm):
     def ids(self) -> tuple[int, ...]:
         return self._cal.ids
 
+    @property
+    def _top_speed(self) -> int:
+        """The servos' Goal_Velocity of a stop or a hold: the model's fastest joint."""
+        return round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
+
     # ------------------------------------------------------------ state
     def _measured_raw(self) -> FloatArray:
         return self._raw.copy()
@@ -300,21 +284,10 @@ class So101Arm(ModelArm):
 
     def diagnostics(self) -> dict[str, Any]:
         """Each servo's state, the read rate and how long goals wait for the bus."""
-        delays = np.array(self.goal_to_bus_s) * 1000.0
-        waits = (
-            {}
-            if len(delays) == 0
-            else {
-                "p50": float(np.percentile(delays, 50)),
-                "p99": float(np.percentile(delays, 99)),
-                "max": float(delays.max()),
-                "n": len(delays),
-            }
-        )
         return {
             "servos": {name: asdict(s) for name, s in self.servo_status().items()},
             "read_rate_hz": self.read_rate_hz(),
-            "goal_to_bus_ms": waits,
+            "goal_to_bus_ms": self._goals.waits_ms(),
             "counters": self.counters,
         }
 
@@ -373,7 +346,7 @@ class So101Arm(ModelArm):
             open_bus, self.port_name, self.baudrate, self.reply_timeout
         )
         self._bus = bus
-        await asyncio.to_thread(self._handshake, bus)
+        await asyncio.to_thread(handshake, bus, self._cal, self.port_name)
         self._loop = asyncio.get_running_loop()
         self._faulted.clear()
         self._fault = None
@@ -393,30 +366,9 @@ class So101Arm(ModelArm):
         )
         self._poller.start()
 
-    def _handshake(self, bus: FeetechPort) -> None:
-        """The servos identified, then the homing offsets checked (blocking: a thread)."""
-        cal = self._cal
-        identify_servos(bus, cal, self.port_name)
-        for joint in cal.joints:
-            if joint.homing_offset is not None:
-                offset = self._read_u16(bus, joint.id, Register.HOMING_OFFSET)
-                held = ft.decode_signed(offset, ft.SIGN_BITS[Register.HOMING_OFFSET])
-                if held != joint.homing_offset:
-                    raise DeviceError(
-                        f"{cal.label(joint.id)} holds Homing_Offset {held}, but the "
-                        f"calibration was recorded with {joint.homing_offset}: "
-                        "record the calibration again"
-                    )
-
-    def _read_u16(self, bus: FeetechPort, servo_id: int, address: int) -> int:
-        reply = bus.transact(ft.read(servo_id, address, 2), [servo_id])
-        if servo_id not in reply or len(reply[servo_id].params) != 2:
-            raise NoAnswer(f"{self._cal.label(servo_id)} did not answer a read of {address}")
-        return ft.u16(reply[servo_id].params)
-
     async def _close(self) -> None:
         self._poller_stop.set()
-        self._wake.set()
+        self._goals.wake.set()
         if self._poller is not None:
             await asyncio.to_thread(self._poller.join, 2.0)
             self._poller = None
@@ -431,53 +383,8 @@ class So101Arm(ModelArm):
     # ------------------------------------------------------------ the poller thread
     def _read_once(self, bus: FeetechPort, misses: MissCounter, seq: int) -> _Reading:
         """One sync read of every servo (blocking); faults stop the arm here."""
-        cal = self._cal
-        ids = list(cal.ids)
-        replies = bus.transact(ft.sync_read(BLOCK_ADDRESS, BLOCK_LENGTH, ids), ids)
-        lost = misses.update([i for i, p in replies.items() if len(p.params) == BLOCK_LENGTH])
         previous = {} if self._latest is None else self._latest.servos
-        servos: dict[int, ServoStatus] = {}
-        faults: list[str] = []
-        for i in ids:
-            p = replies.get(i)
-            if p is None or len(p.params) != BLOCK_LENGTH:
-                old = previous.get(i) or ServoStatus(i, 0, 0, 0.0, 0.0, 0.0, (), 0)
-                servos[i] = replace(old, missed_reads=misses.missed[i])
-                continue
-            d = p.params
-            s = ServoStatus(
-                id=i,
-                position_steps=ft.decode_signed(ft.u16(d, 0), 15),
-                velocity_steps=ft.decode_signed(ft.u16(d, 2), 15),
-                load_percent=ft.decode_signed(ft.u16(d, 4), 10) / 10.0,
-                voltage_v=d[6] / 10.0,
-                temperature_c=float(d[7]),
-                errors=tuple(ft.error_names(p.code)),
-                missed_reads=0,
-            )
-            servos[i] = s
-            bad = ErrorBit(p.code & FAULTS)
-            if bad:
-                advice = "; ".join(text for bit, text in ADVICE.items() if bad & bit)
-                faults.append(
-                    f"{cal.label(i)} reports {' and '.join(ft.error_names(bad))} "
-                    f"({s.temperature_c:.0f} °C, {s.voltage_v:.1f} V, load {s.load_percent:.0f} %)"
-                    f": {advice}"
-                )
-        fault_type = DeviceError
-        if lost and len(lost) == len(ids):  # the bus fell silent, not one servo
-            fault_type = NoAnswer
-            faults.append(
-                f"all {len(ids)} servos stopped answering on {self.port_name!r} "
-                f"({misses.missed[lost[0]]} reads in a row): the bus fell silent (its "
-                "adapter, its cable, the servos' power, or an emulator kept off the CPU)"
-            )
-        elif lost:
-            faults += [
-                f"{cal.label(i)} stopped answering on {self.port_name!r} "
-                f"({misses.missed[i]} reads in a row): check its cable and power"
-                for i in lost
-            ]
+        servos, faults, fault_type = read_block(bus, self._cal, misses, previous, self.port_name)
         fault: TelerobotError | None = None
         if faults and not self._faulted.is_set():
             held = (
@@ -503,10 +410,10 @@ class So101Arm(ModelArm):
         next_at = time.monotonic()
         try:
             while not self._poller_stop.is_set():
-                self._write_goal(bus)  # a goal goes out first, at once
+                self._goals.write(bus, self._faulted)  # a goal goes out first, at once
                 if time.monotonic() < next_at:
-                    self._wake.wait(next_at - time.monotonic())
-                    self._wake.clear()
+                    self._goals.wake.wait(next_at - time.monotonic())
+                    self._goals.wake.clear()
                     continue
                 try:
                     reading = self._read_once(bus, misses, seq)
@@ -532,17 +439,6 @@ class So101Arm(ModelArm):
         self._latest = _Reading(seq, self.clock.now(), {}, exc)
         self._hand_over()
 
-    def _write_goal(self, bus: FeetechPort) -> None:
-        # Under the goal lock, taken and written as one: a brake (which takes the lock
-        # too) is never overtaken by a goal taken before it.
-        with self._goal_lock:
-            out, self._goal_out = self._goal_out, None
-            if out is None or self._faulted.is_set():
-                return
-            packet, taken = out
-            bus.transact(packet, [])  # a failure stops the poller: the arm faults
-        self.goal_to_bus_s.append(time.monotonic() - taken)
-
     def _hand_over(self) -> None:
         """Wake the event loop for the newest reading (once, however many came)."""
         if self._handover_pending.is_set() or self._loop is None:
@@ -551,42 +447,13 @@ class So101Arm(ModelArm):
         with contextlib.suppress(RuntimeError):  # the loop closed: nobody is listening
             self._loop.call_soon_threadsafe(self._on_reading)
 
-    def _brake_goals(self, servos: Mapping[int, ServoStatus]) -> dict[int, int]:
-        """Where each servo stops from its present speed at its acceleration."""
-        a = self.acceleration_register * 100.0
-        return {
-            i: int(
-                min(
-                    ft.STEPS_PER_TURN - 1,
-                    max(
-                        0,
-                        round(
-                            s.position_steps
-                            + math.copysign(s.velocity_steps**2 / (2 * a), s.velocity_steps)
-                        ),
-                    ),
-                )
-            )
-            for i, s in servos.items()
-        }
-
-    def _goal_packet(self, goals: Mapping[int, int], speeds: Mapping[int, int]) -> bytes:
-        data = {
-            i: bytes([self.acceleration_register])
-            + ft.le16(ft.encode_signed(goal, 15))
-            + ft.le16(0)
-            + ft.le16(speeds[i])
-            for i, goal in goals.items()
-        }
-        return ft.sync_write(GOAL_ADDRESS, GOAL_LENGTH, data)
-
     def _brake(self, bus: FeetechPort, servos: Mapping[int, ServoStatus]) -> dict[int, int]:
         """Stop where the servos can: any goal still waiting is dropped, not sent after."""
-        goals = self._brake_goals(servos)
-        top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
-        with self._goal_lock:
-            self._goal_out = None
-            bus.transact(self._goal_packet(goals, dict.fromkeys(goals, top)), [])
+        goals = brake_goals(servos, self.acceleration_register)
+        packet = goal_packet(
+            goals, dict.fromkeys(goals, self._top_speed), self.acceleration_register
+        )
+        self._goals.brake(bus, packet)
         return goals
 
     # ------------------------------------------------------------ on the event loop
@@ -630,13 +497,8 @@ class So101Arm(ModelArm):
         if arrived or self._at_rest_reads >= SETTLE_READS:
             if not arrived:  # held short (blocked): the goal must not stay live
                 here = {i: reading.servos[i].position_steps for i in cal.ids}
-                top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
-                with self._goal_lock:
-                    self._goal_out = (
-                        self._goal_packet(here, dict.fromkeys(here, top)),
-                        time.monotonic(),
-                    )
-                self._wake.set()
+                speeds = dict.fromkeys(here, self._top_speed)
+                self._goals.put(goal_packet(here, speeds, self.acceleration_register))
             self._goal_steps = None
             self._motion_finished()
 
@@ -677,33 +539,16 @@ class So101Arm(ModelArm):
         await asyncio.to_thread(self._configure, bus)
 
     def _configure(self, bus: FeetechPort) -> None:
-        """Return delay 0 (EPROM, written only if it differs), acceleration and goal =
-        present position, then torque on: the arm holds where it is."""
+        """Return delay 0, acceleration and goal = present position (as last read),
+        then torque on: the arm holds where it is (``servos.py``)."""
         cal = self._cal
-        ids = list(cal.ids)
-        bus.transact(ft.sync_write(Register.TORQUE_ENABLE, 1, dict.fromkeys(ids, b"\x00")), [])
-        for i in ids:
-            reply = bus.transact(ft.read(i, Register.RETURN_DELAY_TIME, 1), [i])
-            if i not in reply:
-                raise NoAnswer(f"{cal.label(i)} did not answer while being configured")
-            if reply[i].params != b"\x00":
-                self._write_checked(bus, i, Register.LOCK, b"\x00")
-                self._write_checked(bus, i, Register.RETURN_DELAY_TIME, b"\x00")
+        torque_off_for_setup(bus, cal)
         reading = self._latest
         assert reading is not None  # connect read the arm once
-        here = {i: reading.servos[i].position_steps for i in ids}
-        top = round(float(np.max(self.model.vmax)) * STEPS_PER_RADIAN)
-        bus.transact(self._goal_packet(here, dict.fromkeys(ids, top)), [])
-        on = dict.fromkeys(ids, b"\x01")
-        bus.transact(ft.sync_write(Register.TORQUE_ENABLE, 1, on), [])
-        bus.transact(ft.sync_write(Register.LOCK, 1, on), [])
+        here = {i: reading.servos[i].position_steps for i in cal.ids}
+        hold_here(bus, cal, here, self._top_speed, self.acceleration_register)
         self._faulted.clear()
         self._fault = None
-
-    def _write_checked(self, bus: FeetechPort, servo_id: int, address: int, data: bytes) -> None:
-        reply = bus.transact(ft.write(servo_id, address, data), [servo_id])
-        if servo_id not in reply:
-            raise NoAnswer(f"{self._cal.label(servo_id)} did not confirm a write to {address}")
 
     async def release(self) -> None:
         """Torque off on every servo, so a person can move the arm (to calibrate it)."""
@@ -719,7 +564,7 @@ class So101Arm(ModelArm):
         """Each joint's servo's Homing_Offset (recorded with a calibration)."""
         bus = self._require_bus()
         raw = [
-            await asyncio.to_thread(self._read_u16, bus, i, Register.HOMING_OFFSET)
+            await asyncio.to_thread(read_u16, bus, self._cal, i, Register.HOMING_OFFSET)
             for i in self.ids
         ]
         return [ft.decode_signed(r, ft.SIGN_BITS[Register.HOMING_OFFSET]) for r in raw]
@@ -748,9 +593,10 @@ class So101Arm(ModelArm):
         vmax = self.model.vmax
         scale = 1.0 if longest < 1e-9 else float(np.min(vmax / np.maximum(distance, 1e-9)))
         speeds = cal.speeds_to_steps(np.minimum(vmax, distance * scale))
-        packet = self._goal_packet(
+        packet = goal_packet(
             dict(zip(cal.ids, goals, strict=True)),
             {i: max(MIN_SPEED_STEPS, s) for i, s in zip(cal.ids, speeds, strict=True)},
+            self.acceleration_register,
         )
         await self._put_on_bus(bus, packet)
         self._goal_steps = goals
@@ -767,9 +613,7 @@ class So101Arm(ModelArm):
         poller = self._poller
         if poller is None or not poller.is_alive():
             raise DeviceError("the SO-101's bus reader is not running: reconnect the arm")
-        with self._goal_lock:
-            self._goal_out = (packet, time.monotonic())
-        self._wake.set()
+        self._goals.put(packet)
 
     async def _halt(self) -> None:
         bus = self._require_bus()
