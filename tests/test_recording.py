@@ -188,3 +188,45 @@ def test_the_list_shows_only_the_newest_recordings(tmp_path: Path) -> None:
         "20260101-000200-r2.mcap",
     ]
     assert not any(e["complete"] for e in listing)  # unreadable files are listed, not trusted
+
+
+FRAME = {"frame_id": "stereo", "format": "h264", "data": b"\0\0\0\1\x65"}
+
+
+async def test_an_episode_opened_before_the_first_frame_starts_with_it(tmp_path: Path) -> None:
+    """A recording with video: an episode opened before its first video frame waits for
+    it and starts with it (the export then has no seconds without a picture to cut);
+    once the video flows, episodes open at once; without any frame in `wait_s` the
+    episode starts anyway."""
+    clock = MonotonicClock()
+    rec = Recorder(tmp_path, clock)
+    rec.expects_video = True
+    rec.start("video late")
+    opening = asyncio.create_task(rec.episode_start_with_video("pick"))
+    await asyncio.sleep(0.3)
+    assert not opening.done()  # no picture yet
+    framed = clock.now()
+    rec.log("/video/stereo", FRAME)
+    episode = await asyncio.wait_for(opening, 10)
+    assert episode.started >= framed
+    rec.episode_end(True)
+    t0 = clock.now()
+    await rec.episode_start_with_video("place", wait_s=60)  # the video flows: at once
+    assert clock.now() - t0 < 30  # (a margin any machine keeps: it waits 60 s if wrong)
+    await rec.stop()
+
+    rec.start("no video comes")
+    t0 = clock.now()
+    await rec.episode_start_with_video("pick", wait_s=0.2)
+    assert clock.now() - t0 >= 0.2  # it waited, then started without a picture
+    await rec.stop()
+
+
+async def test_without_video_expected_an_episode_opens_at_once(tmp_path: Path) -> None:
+    clock = MonotonicClock()
+    rec = Recorder(tmp_path, clock)  # no video tap follows it (a server without video)
+    rec.start("no video")
+    t0 = clock.now()
+    await rec.episode_start_with_video("pick", wait_s=60)
+    assert clock.now() - t0 < 30  # (it would wait 60 s if it waited)
+    await rec.stop()

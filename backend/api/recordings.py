@@ -190,7 +190,7 @@ async def stop_recording(recorder: RecorderDep, _op: OperatorDep) -> RecordingEn
 
 @router.post("/active/episodes")
 async def start_episode(body: EpisodeStart, recorder: RecorderDep, _op: OperatorDep) -> Episode:
-    return Episode(**vars(recorder.episode_start(body.task)))
+    return Episode(**vars(await recorder.episode_start_with_video(body.task)))
 
 
 @router.post("/active/episodes/end")

@@ -69,6 +69,10 @@ CLOSE_TIMEOUT_S = 60.0  # the writer's index and summary (a long recording: seco
 MAX_BYTES = 4 * 1024**3  # a recording's file stops here (the setting recording_max_bytes)
 MIN_FREE_BYTES = 256 * 1024**2  # …and below this much free space (recording_min_free_bytes)
 SPACE_CHECK_S = 0.5  # the writer's progress and the disk's free space are checked this often
+# An episode opened before the recording's first video frame waits for it this long at
+# most (the worker's tap starts on a key frame it asks for: 1–3 s here, more under load),
+# so the episode starts with a picture and the export need not cut it.
+FIRST_FRAME_WAIT_S = 20.0
 
 
 class RecordingError(TelerobotError):
@@ -121,6 +125,8 @@ class _Active:
     counts: dict[str, int] = field(default_factory=dict)  # per topic, from the writer
     metadata: dict[str, str] | None = None  # as written at close
     robot_model: str = ""  # the arm model recorded (its /settings'), "" if not known
+    # Set when the first /video/stereo message is queued (a decodable key frame).
+    first_frame: threading.Event = field(default_factory=threading.Event)
 
 
 def recorded_model(settings: dict[str, Any]) -> str:
@@ -184,6 +190,9 @@ class Recorder:
         self._active: _Active | None = None
         self._drop_lock = threading.Lock()
         self._loop: asyncio.AbstractEventLoop | None = None
+        # A video tap follows the recordings (recording/video.py's follow_recorder):
+        # their first frame is worth an episode's waiting for.
+        self.expects_video = False
 
     # ------------------------------------------------------------ the hot path
     def log(self, topic: str, payload: dict[str, Any] | bytes, t: float | None = None) -> None:
@@ -192,6 +201,8 @@ class Recorder:
         active = self._active
         if active is None or active.failed is not None or active.stopping:
             return
+        if topic == ch.VIDEO and not active.first_frame.is_set():
+            active.first_frame.set()
         try:
             active.queue.put_nowait(
                 (topic, self.wall_ns(), self.clock.now() if t is None else t, payload)
@@ -307,6 +318,20 @@ class Recorder:
         active.episodes.append(ep)
         self._log_episode("start", ep)
         return ep
+
+    async def episode_start_with_video(
+        self, task: str = "", wait_s: float = FIRST_FRAME_WAIT_S
+    ) -> EpisodeInfo:
+        """``episode_start``, once the recording has its first video frame (at most
+        ``wait_s`` later): an episode opened as the recording starts would otherwise begin
+        seconds before its picture, and the export would start it there. Without video
+        (none expected, or none within ``wait_s``) it starts at once, as before."""
+        active = self._need()
+        if self.expects_video and not active.first_frame.is_set():
+            got = await asyncio.to_thread(active.first_frame.wait, wait_s)
+            if not got:
+                log.warning("an episode started without video: none came in %.0f s", wait_s)
+        return self.episode_start(task)
 
     def episode_end(self, success: bool | None = None, notes: str | None = None) -> EpisodeInfo:
         active = self._need()

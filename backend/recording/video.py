@@ -200,6 +200,8 @@ class _Events(Protocol):
 
 
 class _Recorder(Protocol):
+    expects_video: bool
+
     @property
     def events(self) -> _Events: ...
 
@@ -210,6 +212,7 @@ def follow_recorder(tap: VideoTap, recorder: _Recorder) -> Callable[[], None]:
     """Start the tap when a recording starts and stop it when it stops (in order, on
     the event loop that emits them). Returns the unsubscribe."""
     last: list[asyncio.Task[Any]] = []
+    recorder.expects_video = True  # an episode waits for the recording's first frame
 
     async def after(previous: asyncio.Task[Any] | None, start: bool) -> None:
         if previous is not None:
