@@ -372,6 +372,12 @@ def test_a_recording_from_the_real_server_exports(tmp_path: Path) -> None:
         root = tmp_path / "ds"  # (the server's state folder goes with it)
         shutil.copytree(body["path"], root)
     assert body["tasks"] == ["reach", "retreat"]
+    # The first episode waited for the recording's first frame: none starts before its
+    # picture. (An end the video missed, on a machine too busy to deliver the last
+    # frames before the stop, is reported, never silent.)
+    assert [c["lost_start_s"] for c in body["episodes_cut"]] == [0.0] * len(body["episodes_cut"])
+    for cut in body["episodes_cut"]:
+        assert any(f"episode {cut['episode']} " in w for w in body["warnings"]), body
     info = json.loads((root / "meta/info.json").read_text())
     eps = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert len(eps) == 2

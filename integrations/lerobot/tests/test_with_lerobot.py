@@ -331,6 +331,9 @@ def test_lerobot_reads_a_puma_export_made_with_video(tmp_path: Path) -> None:
     # Before that, a row of 13 had a late frame in 2 of 22 runs with a core busy.
     assert made["stale_rows"] == {"state": 0, "force": 0, "frame": 0}, made
     assert made["repeated_frames"] == 0 and made["video_fps"] == pytest.approx(15, rel=1e-3)
+    # The episode started with the recording's first frame (the server waits for it):
+    # nothing of it cut; a cut would be listed and said, never silent.
+    assert made["episodes_cut"] == [], made
     ds = LeRobotDataset("telerobot/puma", root=root, video_backend="pyav")
     info = ds.meta.info
     assert info.robot_type == "puma560" and ds.num_episodes == 1
