@@ -154,6 +154,19 @@ def test_the_arm_reads_moves_clips_and_gives_way_to_an_operator(so101: str) -> N
             time.sleep(0.3)
             assert _state(so101)["target_joints"][0] == pytest.approx(pan_before)
             assert returned == pytest.approx(operator.action(), abs=1e-6)
+            time.sleep(1.2)  # past the take-back's spacing: it still takes nothing held
+            arm.send(target)
+            time.sleep(0.3)
+            assert not arm.mirror.has_control and operator.intervening()
+
+        # The operator lets go: the lease is free, and the arm takes it back at its next
+        # actions (lerobot-record goes on recording LeRobot's actions, not nobody's).
+        def sent_and_holds() -> bool:
+            arm.send(target)
+            return arm.mirror.has_control
+
+        until(sent_and_holds, timeout=15, what="the arm taking the free lease back")
+        until(lambda: not operator.intervening(), timeout=10, what="the arm driving again")
     finally:
         operator.disconnect()
         arm.disconnect()

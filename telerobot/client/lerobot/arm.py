@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,6 +38,7 @@ from telerobot.client.lerobot.units import FloatArray, JointUnits
 from telerobot.client.master.joints import JointMirror, MirrorSettings
 from telerobot.client.master.link import PriorityLink, open_link
 from telerobot.drivers.base import ForceSample, JointLeader, TelerobotError
+from telerobot.protocol import messages as m
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +49,7 @@ POSE_FIELDS = ("x", "y", "z", "r00", "r01", "r02", "r10", "r11", "r12", "r20", "
 STATES_KEPT = 250  # 5 s of STATEs at 50 Hz: the frame's capture time is within them
 CONNECT_S = 10.0
 REANCHOR_RAD = 0.02
+TAKE_BACK_S = 1.0  # a free lease is asked for again at most this often
 
 
 @dataclass
@@ -112,6 +115,7 @@ class TelerobotArm:
         self.last_capture_time: float | None = None  # the newest observation's frame (server clock)
         self.repeated_frames = 0
         self._said_not_in_control = False
+        self._asked_back = -math.inf  # when the free lease was last asked for (monotonic)
 
     # ------------------------------------------------------------ connecting
     @property
@@ -271,6 +275,21 @@ class TelerobotArm:
             out["left"], out["right"] = frame.left, frame.right
         return out
 
+    def _take_back_if_free(self, mirror: JointMirror) -> None:
+        """The robot held the lease until an operator took over; once they let it go (the
+        lease free), take it back, as a supervised policy is handed back: the recording
+        goes on being driven by LeRobot's actions. Never from someone holding it, and
+        never a policy's (the server hands control back to a policy: docs/lerobot.md).
+        Asked at most once every TAKE_BACK_S."""
+        if self.options.policy or not _nobody_holds(mirror):
+            return
+        now = time.monotonic()
+        if now - self._asked_back < TAKE_BACK_S:
+            return
+        self._asked_back = now
+        log.info("%s takes control back: nobody holds it", self.options.name)
+        mirror.link.lease(m.LeaseAction.TAKE)
+
     def send(self, action: dict[str, Any]) -> dict[str, float]:
         """The target in LeRobot's units (every joint's ``.pos``); returns the target as
         applied (clipped to the limits), in the same units."""
@@ -291,7 +310,9 @@ class TelerobotArm:
         if not mirror.has_control:
             # Someone else drives (the operator took over, LeRobot's teleoperator being the
             # Telerobot one): the server applies their commands; sending this one too would
-            # apply it twice. What was applied is the server's target.
+            # apply it twice. What was applied is the server's target. Once they let go,
+            # the lease is taken back.
+            self._take_back_if_free(mirror)
             if not self._said_not_in_control:
                 log.info("%s does not hold control: its actions are not sent", self.options.name)
                 self._said_not_in_control = True
@@ -300,6 +321,10 @@ class TelerobotArm:
         targets.target = q
         applied = units.to_lerobot(q)
         return {k: float(v) for k, v in zip(units.feature_names, applied, strict=True)}
+
+
+def _nobody_holds(mirror: JointMirror) -> bool:
+    return not mirror.flags & m.StateFlags.SOMEONE_HAS_CONTROL
 
 
 def describe_arm(url: str) -> JointUnits:

@@ -118,8 +118,6 @@ class JointUnits:
         hi = np.array([b for _, b in self.limits])
         clipped = np.clip(q, lo, hi)
         moved = [
-            n
-            for n, a, b in zip(self.names, q, clipped, strict=True)
-            if abs(a - b) > ROUND_TRIP_RAD
+            n for n, a, b in zip(self.names, q, clipped, strict=True) if abs(a - b) > ROUND_TRIP_RAD
         ]
         return clipped, moved
