@@ -219,3 +219,32 @@ def test_a_joint_at_its_limit_read_back_from_float32_is_not_a_clip() -> None:
     beyond = at_limits.copy()
     beyond[0] += 0.01
     assert units.clip(beyond)[1] == [units.names[0]]
+
+
+def test_a_first_action_far_from_the_arm_is_reached_before_send_returns() -> None:
+    """A replay's (or a rollout's) first action, far from where the arm is, is reached
+    before ``send`` returns: lerobot-replay times each frame after the last returns, so
+    its clock starts with the arm at the episode's first pose. The actions that follow
+    (within a second) return at once, the arm following them."""
+    with serving({}, "--model", "so101") as so101:  # its own arm: at rest, in free space
+        _replays_first_action(so101)
+
+
+def _replays_first_action(so101: str) -> None:
+    arm = TelerobotArm(ArmOptions(url=so101, token=TOKEN, name="replayer", cameras=False))
+    arm.connect()
+    try:
+        units = arm.units
+        assert units is not None
+        here = arm.observation()
+        far = dict(here, **{"shoulder_pan.pos": here["shoulder_pan.pos"] + 30.0})  # 0.52 rad
+        arm.send(far)
+        reached = units.from_lerobot([arm.observation()[k] for k in units.feature_names])
+        wanted = units.from_lerobot([far[k] for k in units.feature_names])
+        assert np.abs(reached - wanted).max() < 0.02  # there when send returned
+        back = dict(far, **{"shoulder_pan.pos": here["shoulder_pan.pos"]})
+        arm.send(back)  # the next frame: not waited for
+        pan = arm.observation()["shoulder_pan.pos"]
+        assert abs(pan - back["shoulder_pan.pos"]) > 20.0  # still on its way
+    finally:
+        arm.disconnect()

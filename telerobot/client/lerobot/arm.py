@@ -50,6 +50,10 @@ STATES_KEPT = 250  # 5 s of STATEs at 50 Hz: the frame's capture time is within 
 CONNECT_S = 10.0
 REANCHOR_RAD = 0.02
 TAKE_BACK_S = 1.0  # a free lease is asked for again at most this often
+# An action after this long without one starts a new run (a replay, a rollout): if it is
+# farther than APPROACH_RAD from the arm, the arm goes there before send returns.
+IDLE_S = 1.0
+APPROACH_RAD = 0.05
 
 
 @dataclass
@@ -116,6 +120,7 @@ class TelerobotArm:
         self.repeated_frames = 0
         self._said_not_in_control = False
         self._asked_back = -math.inf  # when the free lease was last asked for (monotonic)
+        self._last_sent = -math.inf  # when the last action was sent (monotonic)
 
     # ------------------------------------------------------------ connecting
     @property
@@ -192,6 +197,23 @@ class TelerobotArm:
         if link is not None:
             link.close()
         self.mirror = self.link = self.receiver = None
+
+    def _approach(self, mirror: JointMirror, target: FloatArray) -> None:
+        """Wait while the arm goes to ``target`` if it is more than APPROACH_RAD away: as
+        long as the way takes at the arm's speed, twice, plus SETTLE_S at most."""
+        here = self._newest_joints()
+        if here is None:
+            return
+        way = float(np.abs(here - target).max())
+        if way < APPROACH_RAD:
+            return
+        log.info("%s goes to its first target (%.2f rad away) first", self.options.name, way)
+        deadline = time.monotonic() + 2 * way / self.options.max_speed_rad_s + SETTLE_S
+        while time.monotonic() < deadline and mirror.has_control:
+            here = self._newest_joints()
+            if here is not None and np.abs(here - target).max() < SETTLED_RAD:
+                return
+            time.sleep(0.02)
 
     def _settle(self, mirror: JointMirror, target: FloatArray | None) -> None:
         """Let the arm reach the last target before the lease goes (a replay's last
@@ -318,7 +340,15 @@ class TelerobotArm:
                 self._said_not_in_control = True
             return server_target(self.options, units)
         self._said_not_in_control = False
+        first = targets.target is None or time.monotonic() - self._last_sent > IDLE_S
         targets.target = q
+        self._last_sent = time.monotonic()
+        if first:
+            # The first action (of a replay, a rollout) may be far from where the arm is:
+            # it is reached first, at the arm's speed, before the caller's clock runs on
+            # (lerobot-replay times each frame after the last returns); else the frames
+            # after it are targets the arm is still far behind.
+            self._approach(mirror, q)
         applied = units.to_lerobot(q)
         return {k: float(v) for k, v in zip(units.feature_names, applied, strict=True)}
 
