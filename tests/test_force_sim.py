@@ -191,9 +191,9 @@ def test_the_priority_channel_gets_each_sample_before_the_subscribers_that_wake_
         services: Services = c.app.state.services  # type: ignore[attr-defined]
         force = services.arms[0].force
         assert isinstance(force, SimForceSensor)
-        # (the channel's own is a partial naming the arm: its bound method inside)
+        # (the channel's own is a partial naming the arm: its fan-out's bound method inside)
         order = [getattr(getattr(cb, "func", cb), "__self__", None) for cb in force._subscribers]
-        assert order[0] is services.priority and len(order) >= 3
+        assert order[0] is services.priority.fanout and len(order) >= 3
         s = sensor_for(Arm(NAMED_POSES["qn"]))
         got: list[str] = []
         s.subscribe(lambda _: got.append("later"))

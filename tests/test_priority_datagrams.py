@@ -22,15 +22,15 @@ import httpx
 import pytest
 
 import telerobot.client.master.link as link_module
-import telerobot.server.realtime.priority as priority_module
+import telerobot.server.realtime.priority_fanout as fanout_module
 from telerobot.client.master.link import PriorityLink, Reply
 from telerobot.protocol import messages as m
-from telerobot.server.realtime.priority import (
+from telerobot.server.realtime.priority_connection import PriorityClient
+from telerobot.server.realtime.priority_datagrams import (
     DATAGRAM_BURST_S,
     DATAGRAM_RATE_SLACK,
     DEFAULT_FORCE_RATE_HZ,
-    PriorityChannel,
-    PriorityClient,
+    ForceDatagrams,
 )
 from tests.support import TOKEN, until
 from tests.support.priority import ChannelServer, Recorder
@@ -233,7 +233,7 @@ def test_a_link_asks_again_when_its_first_registration_brings_no_datagram(
     cs = ChannelServer()
     keys: list[bytes] = []  # the server's, in the order it gave them
     lost = [0]
-    register, send = cs.channel.register_datagrams, cs.channel._send_datagram
+    register, send = cs.channel.datagrams.register, cs.channel.datagrams.send
 
     def registering(client: PriorityClient, message: bytes) -> bytes:
         reply = register(client, message)
@@ -247,8 +247,8 @@ def test_a_link_asks_again_when_its_first_registration_brings_no_datagram(
             return
         send(client, message, addr)
 
-    monkeypatch.setattr(cs.channel, "register_datagrams", registering)
-    monkeypatch.setattr(cs.channel, "_send_datagram", lossy)
+    monkeypatch.setattr(cs.channel.datagrams, "register", registering)
+    monkeypatch.setattr(cs.channel.datagrams, "send", lossy)
     rec = Recorder()
     try:
         with emitting(cs):
@@ -276,7 +276,7 @@ def test_a_link_asks_again_when_its_first_registration_brings_no_datagram(
 def test_a_server_that_refuses_datagrams_is_asked_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """A refusal (ERROR to the DATAGRAMS: here a server without a UDP port) is for
     good: the link asks no more, its UDP reader ends, the forces come on TCP."""
-    monkeypatch.setattr(PriorityChannel, "_datagram_socket", lambda self, host: None)
+    monkeypatch.setattr(ForceDatagrams, "_socket", lambda self, host, port: None)
     cs = ChannelServer()
     rec = Recorder()
     try:
@@ -300,8 +300,9 @@ def test_a_server_that_refuses_datagrams_is_asked_once(monkeypatch: pytest.Monke
 
 # ---------------------------------------------------------------- the rate bound
 class FrozenTime:
-    """``time`` for the channel's module with its clock held still: its token buckets
-    then refill not at all, however slow this machine is."""
+    """``time`` for the fan-out's module (priority_fanout.py: the sensor's thread reads
+    the time there) with its clock held still: the token buckets then refill not at
+    all, however slow this machine is."""
 
     def __init__(self) -> None:
         self.now = time.monotonic()
@@ -330,25 +331,25 @@ def test_a_burst_of_samples_sends_no_more_than_the_rate_allows(
         client = cs.client(link.sock.getsockname()[1])
         udp.send(m.encode(m.DATAGRAMS, 0, key, every))
         until(lambda: client.datagram_addr is not None)
-        monkeypatch.setattr(priority_module, "time", FrozenTime())
+        monkeypatch.setattr(fanout_module, "time", FrozenTime())
         for _ in range(2000):
             cs.sensor.emit()
         rate = DATAGRAM_RATE_SLACK * DEFAULT_FORCE_RATE_HZ / every  # (the sensor has no rate_hz)
         burst = int(max(2.0, rate * DATAGRAM_BURST_S))
         got = len(received(udp, 0.5))
-        assert got == cs.channel.datagrams_sent == burst, (got, cs.channel.datagrams_sent)
-        assert cs.channel.datagrams_over_rate == 2000 // every - burst
+        assert got == cs.channel.datagrams.sent == burst, (got, cs.channel.datagrams.sent)
+        assert cs.channel.datagrams.over_rate == 2000 // every - burst
         # At the sensor's pace (or slower) nothing is held back.
         monkeypatch.undo()
         time.sleep(0.5)  # (the bucket fills)
         udp.send(m.encode(m.DATAGRAMS, 0, key, every))  # (the keep-alive: 2 s have passed)
         until(lambda: time.monotonic() - client.datagram_heard < 1.0)
-        before = cs.channel.datagrams_sent
+        before = cs.channel.datagrams.sent
         for _ in range(20 * every):
             cs.sensor.emit()
             time.sleep(0.001)
         assert len(received(udp, 0.5)) == 20
-        assert cs.channel.datagrams_sent == before + 20
+        assert cs.channel.datagrams.sent == before + 20
     finally:
         link.close()
         udp.close()

@@ -25,7 +25,7 @@ from typing import Any, TypeVar
 import pytest
 
 from telerobot.protocol import messages as m
-from telerobot.server.realtime.priority import (
+from telerobot.server.realtime.priority_connection import (
     MAX_QUEUED_FORCES,
     MAX_QUEUED_REPLIES,
     MAX_RX_BYTES,
@@ -176,7 +176,7 @@ def test_a_first_message_too_long_for_hello_is_refused(serve: Callable[..., Chan
     client.sock.sendall(struct.pack("<H", 60000) + b"\0" * 100)
     assert client.ended.wait(5)
     assert client.errors()[0][0] == MALFORMED and "60000 bytes" in client.errors()[0][1]
-    assert server.channel.oversized == 1
+    assert server.channel.reader.oversized == 1
 
 
 def test_a_message_too_long_after_hello_is_refused(serve: Callable[..., ChannelServer]) -> None:
@@ -185,7 +185,7 @@ def test_a_message_too_long_after_hello_is_refused(serve: Callable[..., ChannelS
     client.sock.sendall(struct.pack("<H", 101) + b"\x06" * 101)
     assert client.ended.wait(5)
     assert client.errors() == [(MALFORMED, "a message of 101 bytes: at most 100")]
-    assert server.channel.oversized == 1
+    assert server.channel.reader.oversized == 1
 
 
 # ------------------------------------------------------------------ floods
@@ -197,21 +197,21 @@ def test_a_flood_of_small_frames_is_cut_off_with_bounded_queues(
     server = serve(max_inbox=16, max_messages_per_s=100, max_burst=500)
     channel = server.channel
     high = {"inbox": 0, "rx": 0}
-    parse = channel._parse
+    parse = channel.reader.parse
 
     def watched(client: PriorityClient, now: float) -> None:
         high["rx"] = max(high["rx"], len(client.rx))
         parse(client, now)
         high["inbox"] = max(high["inbox"], len(client.inbox))
 
-    channel._parse = watched  # type: ignore[method-assign]
+    channel.reader.parse = watched  # type: ignore[method-assign]
     attacker = welcomed(server.port)  # an observer: no token
     flood = b"\x01\x00\x04" * 20_000  # 3-byte frames (a HEARTBEAT too short to be one)
     with contextlib.suppress(OSError):  # the server closes while the flood is still coming
         for _ in range(100):
             attacker.sock.sendall(flood)
     assert attacker.ended.wait(5)
-    assert channel.rate_limited == 1
+    assert channel.reader.rate_limited == 1
     assert attacker.errors()[-1] == (
         LIMIT_EXCEEDED,
         "more than 100 messages a second (bursts of 500): closing",
@@ -231,13 +231,13 @@ def test_a_client_faster_than_the_loop_is_read_no_faster_than_it_is_served(
     client = welcomed(server.port)
     side = server.client(client.port)
     high = [0]
-    parse = server.channel._parse
+    parse = server.channel.reader.parse
 
     def watched(c: PriorityClient, now: float) -> None:
         parse(c, now)
         high[0] = max(high[0], len(c.inbox))
 
-    server.channel._parse = watched  # type: ignore[method-assign]
+    server.channel.reader.parse = watched  # type: ignore[method-assign]
     client.send(*(ping(seq) for seq in range(1, 3001)))
     until(lambda: len(client.named("PONG")) == 3000)
     assert [int(f["seq"]) for _, f, _ in client.named("PONG")] == list(range(1, 3001))
@@ -331,8 +331,8 @@ def test_forces_go_only_to_clients_that_said_hello(serve: Callable[..., ChannelS
     until(lambda: len(server.channel.clients) == 9)
     # Its HELLO is handled on the loop after its connection is counted: wait for it.
     mine = [f"127.0.0.1:{listener.port}"]
-    until(lambda: [c.peer for c in server.channel._subscribers] == mine)
-    assert [c.peer for c in server.channel._subscribers] == mine
+    until(lambda: [c.peer for c in server.channel.fanout.subscribers] == mine)
+    assert [c.peer for c in server.channel.fanout.subscribers] == mine
     for _ in range(50):
         server.sensor.emit()
     until(lambda: listener.forces == 50)

@@ -22,7 +22,8 @@ from telerobot.server.control.arm_guard import ArmGuard
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.realtime.hub import RealtimeHub
-from telerobot.server.realtime.priority import PriorityChannel, PriorityClient
+from telerobot.server.realtime.priority import PriorityChannel
+from telerobot.server.realtime.priority_connection import PriorityClient
 from telerobot.server.telemetry.stats import Telemetry
 from tests.support import TOKEN, until
 
