@@ -383,11 +383,12 @@ def test_a_recording_from_the_real_server_exports(tmp_path: Path) -> None:
     assert len(eps) == 2
     # ~1.5 s each: as long as the server took between the two requests, however long a
     # busy machine took to answer them, give or take a frame at either end.
-    # (An end the video missed is reported with its seconds: counted back in.)
+    # (An end the video missed by more than a row is reported with its seconds: counted
+    # back in; by up to a row it is not, hence a third frame of give.)
     lost = {c["episode"]: c["lost_start_s"] + c["lost_end_s"] for c in body["episodes_cut"]}
     for n, (ep, (least, most)) in enumerate(zip(eps, spans, strict=True)):
         length_s = ep["length"] / info["fps"] + lost.get(n, 0.0)
-        assert least - 2 / info["fps"] <= length_s <= most + 2 / info["fps"], (ep, spans, lost)
+        assert least - 3 / info["fps"] <= length_s <= most + 2 / info["fps"], (ep, spans, lost)
     assert body["video_codec"] is not None, "the recording has no /video/stereo"
     times, images = _frames(root / "videos/observation.images.left/chunk-000/file-000.mp4")
     assert len(times) == info["total_frames"]
