@@ -279,7 +279,10 @@ class TelerobotArm:
         if self.receiver is not None:
             if not self.receiver.alive:
                 raise ConnectionError(f"the video ended: {self.receiver.error or 'closed'}")
-            frame = self.receiver.newer_than(self._frame_seq, wait_s(self.options.fps))
+            # The newest frame there is, as LeRobot's own robots read their cameras
+            # (``read_latest``): waiting for a newer one (up to 1.5 frame periods) cost
+            # lerobot-record its rate on a busy machine. Only the first is waited for.
+            frame = self.receiver.latest() or self.receiver.newer_than(-1, wait_s(self.options.fps))
         if frame is not None:
             if frame.seq == self._frame_seq:
                 self.repeated_frames += 1

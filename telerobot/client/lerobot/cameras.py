@@ -198,5 +198,5 @@ class StereoReceiver:
 
 
 def wait_s(fps: float) -> float:
-    """How long ``get_observation`` waits for a new frame: one and a half frames."""
+    """How long ``get_observation`` waits for the first frame: one and a half frames."""
     return 1.5 / fps if fps > 0 else 0.05
