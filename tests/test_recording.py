@@ -230,3 +230,30 @@ async def test_without_video_expected_an_episode_opens_at_once(tmp_path: Path) -
     await rec.episode_start_with_video("pick", wait_s=60)
     assert clock.now() - t0 < 30  # (it would wait 60 s if it waited)
     await rec.stop()
+
+
+def _frame_at(wall_s: float) -> dict[str, object]:
+    sec = int(wall_s)
+    return {**FRAME, "timestamp": {"sec": sec, "nsec": int((wall_s - sec) * 1e9)}}
+
+
+async def test_stopping_waits_for_the_frames_captured_before_the_stop(tmp_path: Path) -> None:
+    """Frames reach the recorder ~0.1 s after their capture: a stop right after an
+    episode's end waits (2 s at most) for the frame captured at the stop, so the
+    episode's last moments have their picture and the export does not cut its end."""
+    rec = Recorder(tmp_path, MonotonicClock())
+    rec.expects_video = True
+    path = rec.start("tail")
+    rec.log("/video/stereo", _frame_at(time.time() - 1.0))  # the video flows, behind
+    stopping = asyncio.create_task(rec.stop())
+    await asyncio.sleep(0.3)
+    assert not stopping.done()  # the frame of the stop's moment is not in yet
+    rec.log("/video/stereo", _frame_at(time.time()))
+    await asyncio.wait_for(stopping, 30)
+    assert len(list(reader.read(path, ["/video/stereo"]))) == 2  # both kept
+
+    path = rec.start("no more frames")
+    rec.log("/video/stereo", _frame_at(time.time() - 1.0))
+    t0 = time.monotonic()
+    await rec.stop()  # none comes: it stops after its wait
+    assert time.monotonic() - t0 >= 1.9

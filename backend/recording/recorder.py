@@ -73,6 +73,10 @@ SPACE_CHECK_S = 0.5  # the writer's progress and the disk's free space are check
 # most (the worker's tap starts on a key frame it asks for: 1–3 s here, more under load),
 # so the episode starts with a picture and the export need not cut it.
 FIRST_FRAME_WAIT_S = 20.0
+# Stopping waits this long at most for the video frames captured before the stop (they
+# come ~0.1 s behind, through the worker's encoder and pipe): else an episode ended just
+# before the stop lost its last frames, and the export cut its end.
+LAST_FRAME_WAIT_S = 2.0
 
 
 class RecordingError(TelerobotError):
@@ -127,6 +131,7 @@ class _Active:
     robot_model: str = ""  # the arm model recorded (its /settings'), "" if not known
     # Set when the first /video/stereo message is queued (a decodable key frame).
     first_frame: threading.Event = field(default_factory=threading.Event)
+    last_frame_wall: float = 0.0  # the capture time (wall, s) of the newest frame queued
 
 
 def recorded_model(settings: dict[str, Any]) -> str:
@@ -201,7 +206,9 @@ class Recorder:
         active = self._active
         if active is None or active.failed is not None or active.stopping:
             return
-        if topic == ch.VIDEO and not active.first_frame.is_set():
+        if topic == ch.VIDEO and isinstance(payload, dict):
+            stamp = payload.get("timestamp") or {}
+            active.last_frame_wall = stamp.get("sec", 0) + stamp.get("nsec", 0) / 1e9
             active.first_frame.set()
         try:
             active.queue.put_nowait(
@@ -289,6 +296,7 @@ class Recorder:
         if active is None:
             raise RecordingError("nothing is being recorded")
         if not active.stopping:
+            await self._until_frames_before_now(active)
             active.reason = reason
             active.stopping = True
             with contextlib.suppress(queue.Full):
@@ -296,6 +304,19 @@ class Recorder:
         await asyncio.to_thread(active.done.wait)
         self._ended(active)
         return active.path
+
+    async def _until_frames_before_now(self, active: _Active) -> None:
+        """The frames captured until now, which reach the recorder ~0.1 s later, are in
+        the recording before it closes (LAST_FRAME_WAIT_S at most; only while its video
+        flows)."""
+        if not (self.expects_video and active.first_frame.is_set()):
+            return
+        now = self.wall_ns() / 1e9
+        deadline = time.monotonic() + LAST_FRAME_WAIT_S
+        while active.last_frame_wall < now and time.monotonic() < deadline:
+            if active.failed is not None:
+                return
+            await asyncio.sleep(0.02)
 
     def _ended(self, active: _Active) -> None:
         """On the event loop, once the writer is done (stopped, or failed on its own)."""
