@@ -206,3 +206,17 @@ def test_nan_is_refused_with_the_commands_seq() -> None:
 def test_seq_of_a_message_without_one_is_zero() -> None:
     assert typed.seq_of(typed.AckMessage(seq=3, result=0, server_time=0.0, scale=1.0)) == 3
     assert typed.seq_of(typed.EventMessage(kind=1, server_time=0.0)) == 0
+
+
+def test_no_credential_is_in_a_messages_repr() -> None:
+    """The operator token (HELLO), a datagram key (DATAGRAMS) and a resume key (WELCOME's
+    text) never show in a repr: a message logged or put in an error says no secret."""
+    from telerobot.protocol.typed import DatagramsMessage, HelloMessage, WelcomeMessage
+
+    secret = "s3cret-credential-0123456789"
+    said = [
+        repr(HelloMessage(version=3, flags=0, token=secret.encode())),
+        repr(DatagramsMessage(seq=1, key=secret[:16].encode(), every=1)),
+        repr(WelcomeMessage(version=3, role=1, server_time=0.0, joints=6, text=f"c1 {secret}")),
+    ]
+    assert not any(secret[:16] in s for s in said), said

@@ -135,7 +135,8 @@ class HelloMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.HELLO
     version: int
     flags: int  # HelloFlags
-    token: bytes  # 64 bytes on the wire, zero-padded by struct
+    # 64 bytes on the wire, zero-padded by struct; a credential: never in a repr
+    token: bytes = dataclasses.field(repr=False)
 
 
 @_wire
@@ -208,7 +209,7 @@ class ResetMessage(_Wire):
 class DatagramsMessage(_Wire):
     SPEC: ClassVar[m.Message] = m.DATAGRAMS
     seq: int
-    key: bytes  # 16 bytes
+    key: bytes = dataclasses.field(repr=False)  # 16 bytes; a credential: never in a repr
     every: int
 
 
@@ -242,7 +243,8 @@ class WelcomeMessage(_WithText):
     server_time: float
     joints: int
     arms: int = 1
-    text: str = ""
+    # "<client id> <resume key>" when asked for (RESUMABLE): a credential, never in a repr
+    text: str = dataclasses.field(default="", repr=False)
 
 
 @_wire
