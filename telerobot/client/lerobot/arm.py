@@ -208,19 +208,18 @@ class TelerobotArm:
         if way < APPROACH_RAD:
             return
         log.info("%s goes to its first target (%.2f rad away) first", self.options.name, way)
-        deadline = time.monotonic() + 2 * way / self.options.max_speed_rad_s + SETTLE_S
-        while time.monotonic() < deadline and mirror.has_control:
-            here = self._newest_joints()
-            if here is not None and np.abs(here - target).max() < SETTLED_RAD:
-                return
-            time.sleep(0.02)
+        self._until_at(mirror, target, 2 * way / self.options.max_speed_rad_s + SETTLE_S)
 
     def _settle(self, mirror: JointMirror, target: FloatArray | None) -> None:
         """Let the arm reach the last target before the lease goes (a replay's last
         pose), for at most SETTLE_S."""
-        if target is None:
-            return
-        deadline = time.monotonic() + SETTLE_S
+        if target is not None:
+            self._until_at(mirror, target, SETTLE_S)
+
+    def _until_at(self, mirror: JointMirror, target: FloatArray, within_s: float) -> None:
+        """Wait until the arm is within SETTLED_RAD of ``target``, ``within_s`` at most,
+        and only while this client holds control (else it is not going there)."""
+        deadline = time.monotonic() + within_s
         while time.monotonic() < deadline and mirror.has_control:
             here = self._newest_joints()
             if here is not None and np.abs(here - target).max() < SETTLED_RAD:

@@ -76,6 +76,15 @@ export function setupOverlay({ recording }: ReviewContext, picture: Picture): Ov
   };
 }
 
+/** A circle's outline at `at` (camera pixels). */
+function ring(context: CanvasRenderingContext2D, at: NonNullable<Pixel>, radius: number, colour: string, width: number): void {
+  context.strokeStyle = colour;
+  context.lineWidth = width;
+  context.beginPath();
+  context.arc(at[0], at[1], radius, 0, 2 * Math.PI);
+  context.stroke();
+}
+
 /** One arm in one eye: the ghost arm and the ball where the gripper was commanded to be,
  * a thin white ring where it actually was, and (several arms) its name by the ball. */
 function drawArm(context: CanvasRenderingContext2D, chain: readonly Pixel[], tool: Pixel, actual: Pixel, name: string | null): void {
@@ -88,21 +97,8 @@ function drawArm(context: CanvasRenderingContext2D, chain: readonly Pixel[], too
     tracePolyline(context, chain);
     context.stroke();
   }
-  if (tool) {
-    context.strokeStyle = "#0f0";
-    context.lineWidth = 3;
-    context.beginPath();
-    context.arc(tool[0], tool[1], 12, 0, 2 * Math.PI);
-    context.stroke();
-  }
-  // Where it actually was: a thin white ring.
-  if (actual) {
-    context.strokeStyle = "#fff";
-    context.lineWidth = 1;
-    context.beginPath();
-    context.arc(actual[0], actual[1], 6, 0, 2 * Math.PI);
-    context.stroke();
-  }
+  if (tool) ring(context, tool, 12, "#0f0", 3);
+  if (actual) ring(context, actual, 6, "#fff", 1); // where it actually was: a thin white ring
   if (name !== null && tool) {
     context.fillStyle = "#fff";
     context.fillText(name, tool[0] + 14, tool[1] - 14);
