@@ -137,11 +137,17 @@ def place_tool_above_the_block(base: str, height: float) -> float:
 def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) -> None:
     top = place_tool_above_the_block(server, 0.02)
 
-    def hand(t: float) -> tuple[FloatArray, bool]:
-        # Still and not gripping for 0.5 s; then grip and push down 2 cm/s for 3 s.
-        if t < 0.5:
+    # Still and not gripping until the test has seen nothing move; then grip and push
+    # down 2 cm/s for 3 s. The grip starts on the test's word, not at a fixed time
+    # after the device opened: on a busy machine taking control can outlast any such
+    # time, and the arm would move before the check that it has not.
+    grip_from: list[float] = []
+
+    def hand(_t: float) -> tuple[FloatArray, bool]:
+        if not grip_from:
             return np.zeros(3), False
-        return np.array([0.0, 0.0, -0.02 * min(t - 0.5, 3.0)]), True
+        gripped_s = time.monotonic() - grip_from[0]
+        return np.array([0.0, 0.0, -0.02 * min(gripped_s, 3.0)]), True
 
     device = SimMaster(hand)
     link = open_link(server, TOKEN)
@@ -158,6 +164,7 @@ def test_the_bridge_pushes_the_gripper_into_the_block_and_feels_it(server: str) 
         assert httpx.get(server + "api/v1/robot/state").json()["target_joints"] == pytest.approx(
             start["target_joints"], abs=1e-5
         )
+        grip_from.append(time.monotonic())
         heights, limited = [], []
         deadline = time.monotonic() + 6
         with httpx.Client(base_url=server + "api/v1/") as http:
