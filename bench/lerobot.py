@@ -61,7 +61,7 @@ def measure(seconds: float, fps: float, width: int, height: int) -> dict[str, An
         arm = TelerobotArm(options)
         arm.connect()
         try:
-            units = arm.units
+            units = arm.only.units
             assert units is not None
             start = arm.observation()
             home = np.array([start[k] for k in units.feature_names])

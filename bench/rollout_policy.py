@@ -183,7 +183,7 @@ def run_loop(
         action = policy(observation)
         sent = arm._server_now()
         robot.send_action(action)
-        if capture is not None and arm.mirror is not None and arm.mirror.has_control:
+        if capture is not None and arm.has_control:
             steps.append((capture, sent))
         next_step += period
         time.sleep(max(0.0, next_step - time.perf_counter()))
@@ -192,7 +192,7 @@ def run_loop(
 
 def obs_to_action(robot: Any, steps: list[tuple[float, float]]) -> list[float]:
     """Each step's capture → the first increment the server applied after it was sent."""
-    applied = np.array(list(robot.arm.mirror.applied_at))
+    applied = np.array(list(robot.arm.only.mirror.applied_at))
     out = []
     for capture, sent in steps:
         later = applied[applied > sent]
@@ -549,7 +549,7 @@ def train(out: Path, demos: int, steps: int, width: int, height: int) -> Path:
             arm = TelerobotArm(ArmOptions(url, token, name="demonstrator", cameras=False))
             arm.connect()
             try:
-                units = arm.units
+                units = arm.only.units
                 assert units is not None
                 move_s = 2.5
                 t0 = time.perf_counter()

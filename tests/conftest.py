@@ -3,7 +3,9 @@ tests/support/, which test modules import; they import nothing from each other).
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 import time
 from collections.abc import Iterator
@@ -18,7 +20,12 @@ from tests.support import TOKEN
 def pytest_configure() -> None:
     # Tokens and certificates that servers under test create go to a throw-away
     # folder, never into the developer's ~/.config (subprocesses inherit this).
-    os.environ.setdefault("TELEROBOT_STATE_DIR", tempfile.mkdtemp(prefix="telerobot-test-state-"))
+    if "TELEROBOT_STATE_DIR" not in os.environ:
+        state = tempfile.mkdtemp(prefix="telerobot-test-state-")
+        os.environ["TELEROBOT_STATE_DIR"] = state
+        # …removed when this process ends (each xdist worker made its own; a run left
+        # one per worker in /tmp before)
+        atexit.register(shutil.rmtree, state, ignore_errors=True)
     # Servers under test run without the media worker unless a test turns it on
     # (it renders and encodes 2×1280×720 at 30 fps: the video tests say so explicitly).
     os.environ.setdefault("TELEROBOT_VIDEO", "false")

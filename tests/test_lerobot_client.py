@@ -5,6 +5,7 @@ LeRobot's own tools: integrations/lerobot/tests)."""
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 
@@ -25,6 +26,7 @@ from tests.support.servers import serving
 
 SO101 = load_model("so101")
 SO101_UNITS = JointUnits.of("so101", SO101.joint_names, SO101.qlim)
+FORCES = ("fx", "fy", "fz", "tx", "ty", "tz")
 
 
 def lerobot_degrees(steps: float, range_min: float, range_max: float) -> float:
@@ -104,7 +106,7 @@ def test_the_arm_reads_moves_clips_and_gives_way_to_an_operator(so101: str) -> N
     operator = TelerobotOperator(OperatorOptions(so101, TOKEN, robot_client_name="lerobot test"))
     operator.connect()
     try:
-        units = arm.units
+        units = arm.only.units
         assert units is not None and units.names == SO101.joint_names
         obs = arm.observation()
         assert obs["left"].shape == obs["right"].shape == (180, 320, 3)
@@ -147,7 +149,7 @@ def test_the_arm_reads_moves_clips_and_gives_way_to_an_operator(so101: str) -> N
         # is the server's target, and the operator is intervening.
         with Telerobot(so101, TOKEN, name="operator", take_over=True) as person:
             until(lambda: operator.intervening(), timeout=10, what="the operator's control")
-            until(lambda: not arm.mirror.has_control, timeout=10, what="the lease taken")
+            until(lambda: not arm.has_control, timeout=10, what="the lease taken")
             person.move_joints([0.0] * 6)
             pan_before = _state(so101)["target_joints"][0]
             returned = arm.send(dict(target, **{"shoulder_pan.pos": 40.0}))
@@ -157,13 +159,13 @@ def test_the_arm_reads_moves_clips_and_gives_way_to_an_operator(so101: str) -> N
             time.sleep(1.2)  # past the take-back's spacing: it still takes nothing held
             arm.send(target)
             time.sleep(0.3)
-            assert not arm.mirror.has_control and operator.intervening()
+            assert not arm.has_control and operator.intervening()
 
         # The operator lets go: the lease is free, and the arm takes it back at its next
         # actions (lerobot-record goes on recording LeRobot's actions, not nobody's).
         def sent_and_holds() -> bool:
             arm.send(target)
-            return arm.mirror.has_control
+            return arm.has_control
 
         until(sent_and_holds, timeout=15, what="the arm taking the free lease back")
         until(lambda: not operator.intervening(), timeout=10, what="the arm driving again")
@@ -193,18 +195,60 @@ def test_a_picture_without_a_timecode_is_dated_by_its_arrival() -> None:
     assert capture_time(timecode.read(image), 1300.0) is None
 
 
-def test_a_server_with_two_arms_is_refused_naming_them_and_what_to_use() -> None:
-    """The LeRobot robot drives one arm (LeRobot's so_follower): on a two-arm server it
-    refuses at once with the server's reason (its arms' names) and the way to a two-arm
-    dataset, instead of driving one of them unsaid."""
-    from telerobot.client.lerobot.arm import describe_arm
+def test_a_server_with_two_arms_is_one_robot_of_both_left_first() -> None:
+    """A two-arm server is one robot of both, as LeRobot's bimanual robots are: every
+    key prefixed with its arm's name, two SO-101s named left and right in
+    ``bi_so_follower``'s order (left first) though the server lists right first; each
+    arm moves by its own keys alone. The teleoperator, which reads one arm, refuses
+    naming the arms."""
+    from telerobot.client.lerobot.arm import describe_arm, robot_type
 
-    two_arms = {"TELEROBOT_ARMS": "left=so101:sim,right=so101:sim"}
-    with serving(two_arms) as base, pytest.raises(ConnectionError) as refused:
-        describe_arm(base)
-    said = str(refused.value)
-    assert "left" in said and "right" in said, said
-    assert "telerobot export lerobot" in said, said
+    two_arms = {"TELEROBOT_ARMS": "right=so101:sim,left=so101:sim"}
+    with serving(two_arms) as base:
+        with pytest.raises(ConnectionError) as refused:
+            describe_arm(base)
+        assert "left" in str(refused.value) and "right" in str(refused.value)
+        arm = TelerobotArm(ArmOptions(url=base, token=TOKEN, name="bimanual", cameras=False))
+        arm.connect()
+        try:
+            assert [p.name for p in arm.parts] == ["left", "right"]
+            assert robot_type(arm.parts) == "bi_so_follower"
+            keys = [f"{side}_{j}.pos" for side in ("left", "right") for j in SO101.joint_names]
+            assert arm.keys == keys
+            with pytest.raises(ValueError, match="2 arms"):
+                arm.only  # noqa: B018 (a one-arm caller is told)
+            here = arm.observation()
+            assert list(here) == keys
+            assert set(arm.force) == {f"{s}_{f}" for s in ("left", "right") for f in FORCES}
+            moved = dict(here, **{"right_shoulder_pan.pos": here["right_shoulder_pan.pos"] + 10})
+            applied = arm.send(moved)  # far from the arm: reached before send returns
+            assert applied == pytest.approx(moved, abs=1e-6)
+            now = arm.observation()
+            assert now["right_shoulder_pan.pos"] == pytest.approx(
+                moved["right_shoulder_pan.pos"], abs=1.0
+            )
+            left = [k for k in keys if k.startswith("left_")]
+            assert [now[k] for k in left] == pytest.approx([here[k] for k in left], abs=0.1)
+            with pytest.raises(ValueError, match=r"right_gripper\.pos"):
+                arm.send({k: v for k, v in moved.items() if k != "right_gripper.pos"})
+        finally:
+            arm.disconnect()
+
+
+def test_at_connect_the_robot_says_the_rate_its_frames_can_keep(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Read at 30 fps from a server whose cameras give 10, the robot says so at connect,
+    with the rate to record at (else lerobot-record's frames repeat unsaid)."""
+    slow = {**VIDEO, "TELEROBOT_VIDEO_FPS": "10"}
+    with serving(slow, "--model", "so101") as base:
+        arm = TelerobotArm(ArmOptions(url=base, token=TOKEN, width=160, height=90, fps=30))
+        with caplog.at_level(logging.WARNING, logger="telerobot.client.lerobot.arm"):
+            arm.connect()
+        arm.disconnect()
+    said = [r.getMessage() for r in caplog.records if "--dataset.fps=" in r.getMessage()]
+    assert len(said) == 1 and "(the server's cameras: 10 fps)" in said[0], caplog.text
+    assert arm.video_rate_hz is not None and arm.video_rate_hz <= 11
 
 
 def test_a_joint_at_its_limit_read_back_from_float32_is_not_a_clip() -> None:
@@ -234,7 +278,7 @@ def _replays_first_action(so101: str) -> None:
     arm = TelerobotArm(ArmOptions(url=so101, token=TOKEN, name="replayer", cameras=False))
     arm.connect()
     try:
-        units = arm.units
+        units = arm.only.units
         assert units is not None
         here = arm.observation()
         far = dict(here, **{"shoulder_pan.pos": here["shoulder_pan.pos"] + 30.0})  # 0.52 rad

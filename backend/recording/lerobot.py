@@ -98,7 +98,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from av.video.reformatter import VideoReformatter
 
-from telerobot.client.lerobot.units import JointUnits, robot_type
+from telerobot.client.lerobot.units import (
+    JointUnits,
+    column_order,
+    dataset_robot_type,
+)
 from telerobot.drivers.base import DriverUnavailable, TelerobotError
 from telerobot.drivers.robot.models import DEFAULT_MODEL, RobotModel, load_model
 from telerobot.server.recording.arms import RecordedArm, recorded_arms, recorded_settings
@@ -153,30 +157,6 @@ def joint_feature_names(model: RobotModel) -> list[str]:
 
 POSE_NAMES = ["x", "y", "z", *(f"r{r}{c}" for r in range(1, 4) for c in range(1, 4))]
 FORCE_NAMES = ["fx", "fy", "fz", "tx", "ty", "tz"]
-# LeRobot's two SO-101 followers as one robot (lerobot/robots/bi_so_follower): its
-# robot_type, and its arms' names, which prefix each motor's key (left_shoulder_pan.pos).
-BIMANUAL_SO = "bi_so_follower"
-BIMANUAL_ARMS = ("left", "right")
-
-
-def _bimanual_so(arms: list[tuple[str, str]]) -> bool:
-    """Two SO-101s named left and right: LeRobot's bimanual SO follower."""
-    return sorted(name for name, _ in arms) == list(BIMANUAL_ARMS) and all(
-        model == "so101" for _, model in arms
-    )
-
-
-def dataset_robot_type(arms: list[tuple[str, str]]) -> str:
-    """The dataset's ``robot_type`` for the arms recorded (``(name, model)``, in column
-    order): one arm's as LeRobot names it (``so_follower``); two SO-101s named left and
-    right, LeRobot's bimanual ``bi_so_follower``; other arms, theirs joined by ``+``."""
-    if len(arms) == 1:
-        return robot_type(arms[0][1])
-    if _bimanual_so(arms):
-        return BIMANUAL_SO
-    return "+".join(robot_type(model) for _, model in arms)
-
-
 Array = npt.NDArray[np.float64]
 
 
@@ -362,9 +342,7 @@ def _arms_recorded(path: Path, settings: dict[str, Any]) -> list[tuple[RecordedA
             raise ExportError(
                 f"{path.name} is of a robot this version does not know: {exc}"
             ) from None
-    if _bimanual_so([(arm.name, model.name) for arm, model in arms]):
-        arms.sort(key=lambda a: BIMANUAL_ARMS.index(a[0].name))
-    return arms
+    return [arms[i] for i in column_order([(arm.name, model.name) for arm, model in arms])]
 
 
 def _load(path: Path) -> _Recording:

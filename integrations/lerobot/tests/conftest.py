@@ -71,7 +71,8 @@ def serving(*args: str, env: dict[str, str] | None = None) -> Iterator[tuple[str
                 if time.monotonic() > deadline:
                     raise RuntimeError("telerobot serve did not start:\n" + "".join(seen))
             threading.Thread(target=lambda: [None for _ in proc.stdout or []], daemon=True).start()
-            while httpx.get(url + "api/v1/robot/state").json()["status"] != "READY":
+            # (every arm's: a server may drive two)
+            while any(a["status"] != "READY" for a in httpx.get(url + "api/v1/robot/arms").json()):
                 assert time.monotonic() < deadline, "the arm never became READY"
                 time.sleep(0.1)
             yield url, Path(state)

@@ -157,6 +157,37 @@ def test_the_plugins_dataset_features_are_lerobots_so_follower_s() -> None:
         )
 
 
+def test_on_two_arms_the_plugins_features_are_lerobots_bi_so_follower_s() -> None:
+    """On a server with two SO-101s named left and right (listed right first), the
+    features ``lerobot-record`` builds for the plugin are those it builds for LeRobot's
+    own ``bi_so_follower`` with the stereo pair as its top-level cameras: twelve joints,
+    left's first, and the same action."""
+    from lerobot.cameras.opencv import OpenCVCameraConfig
+    from lerobot.robots.bi_so_follower import BiSOFollower, BiSOFollowerConfig
+    from lerobot.robots.so_follower import SOFollowerConfig
+    from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
+    from lerobot_robot_telerobot.telerobot import Telerobot as TelerobotRobot
+
+    size = {"width": 320, "height": 180, "fps": 15}
+    cameras = {eye: OpenCVCameraConfig(index_or_path=i, **size) for i, eye in enumerate(CAMERAS)}
+    theirs = BiSOFollower(
+        BiSOFollowerConfig(
+            left_arm_config=SOFollowerConfig(port="/dev/null"),
+            right_arm_config=SOFollowerConfig(port="/dev/null"),
+            cameras=cameras,
+        )
+    )
+    two_arms = {"TELEROBOT_ARMS": "right=so101:sim,left=so101:sim"}
+    with serving(env=two_arms) as (url, _state):
+        ours = TelerobotRobot(
+            TelerobotConfig(url=url, token=TOKEN, camera_width=320, camera_height=180)
+        )
+        assert ours.robot_type == "bi_so_follower"
+        assert _features_as_lerobot_record_builds_them(ours) == (
+            _features_as_lerobot_record_builds_them(theirs)
+        )
+
+
 SO_LEADER_MOTORS = [
     "shoulder_pan",
     "shoulder_lift",

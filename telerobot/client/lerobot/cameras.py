@@ -76,6 +76,7 @@ class StereoReceiver:
         self.received = 0
         self.decoded_size: tuple[int, int] | None = None  # one eye as it arrives (w, h)
         self.server_height = 0  # of one eye as the server's cameras capture it
+        self.server_fps = 0.0  # the rate the server's cameras capture at (0: not said)
 
     # ------------------------------------------------------------ running
     def start(self) -> None:
@@ -124,7 +125,9 @@ class StereoReceiver:
             headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
             async with httpx.AsyncClient(base_url=self.url, timeout=self.timeout_s) as http:
                 with contextlib.suppress(httpx.HTTPError, ValueError, KeyError):
-                    self.server_height = int((await http.get("api/v1/video")).json()["height"])
+                    video = (await http.get("api/v1/video")).json()
+                    self.server_height = int(video["height"])
+                    self.server_fps = float(video["fps"])
                 offer = {"sdp": pc.localDescription.sdp, "type": "offer"}
                 r = await http.post("api/v1/webrtc/offer", json=offer, headers=headers)
                 if r.status_code != 200:

@@ -44,6 +44,40 @@ def robot_type(model: str) -> str:
     return ROBOT_TYPES.get(model, model)
 
 
+# LeRobot's two SO-101 followers as one robot (lerobot/robots/bi_so_follower): its
+# robot_type, and its arms' names, which prefix each motor's key (left_shoulder_pan.pos).
+BIMANUAL_SO = "bi_so_follower"
+BIMANUAL_ARMS = ("left", "right")
+
+
+def is_bimanual_so(arms: Sequence[tuple[str, str]]) -> bool:
+    """Two SO-101s named left and right (``(name, model)``): LeRobot's bimanual SO
+    follower."""
+    return sorted(name for name, _ in arms) == list(BIMANUAL_ARMS) and all(
+        model == "so101" for _, model in arms
+    )
+
+
+def dataset_robot_type(arms: Sequence[tuple[str, str]]) -> str:
+    """The dataset's ``robot_type`` for these arms (``(name, model)``): one arm's as
+    LeRobot names it (``so_follower``); two SO-101s named left and right, LeRobot's
+    bimanual ``bi_so_follower``; other arms, theirs joined by ``+``."""
+    if len(arms) == 1:
+        return robot_type(arms[0][1])
+    if is_bimanual_so(arms):
+        return BIMANUAL_SO
+    return "+".join(robot_type(model) for _, model in arms)
+
+
+def column_order(arms: Sequence[tuple[str, str]]) -> list[int]:
+    """In which order the arms' columns go (indexes into ``arms``): left first for
+    LeRobot's bimanual SO follower, whatever order the server has them in; else as
+    given. Each arm's keys are then prefixed with its name and ``_`` (one arm: none)."""
+    if is_bimanual_so(arms):
+        return sorted(range(len(arms)), key=lambda i: BIMANUAL_ARMS.index(arms[i][0]))
+    return list(range(len(arms)))
+
+
 @dataclass(frozen=True)
 class JointUnits:
     """The conversion for one arm: its joint names in order and their limits (rad)."""

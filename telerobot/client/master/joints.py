@@ -365,11 +365,15 @@ class JointMirrors:
         self.link = link
         self.last_error: str | None = None  # a refusal of no mirror's increment (LEASE…)
         self._said: str | None = None
+        # The newest STATE's flags, whichever arm's: the lease's and the e-stop's are the
+        # server's, the same in every arm's STATE.
+        self.flags = 0
         self._worker = WorkerThread(self._run, "joint-mirror")
         link.on_state = self._on_state
         link.on_reply = self._on_reply
 
     def _on_state(self, fields: dict[str, Any]) -> None:
+        self.flags = int(fields["flags"])
         for mirror in self.mirrors:
             mirror._on_state(fields)  # (each takes its own arm's)
 

@@ -1,4 +1,6 @@
-"""``Telerobot``: LeRobot's ``Robot`` over ``telerobot.client.lerobot.arm.TelerobotArm``.
+"""``Telerobot``: LeRobot's ``Robot`` over ``telerobot.client.lerobot.arm.TelerobotArm``:
+a server's one arm as LeRobot's robot of that arm, its two arms as LeRobot's bimanual
+robot of them (``bi_so_follower`` for two SO-101s named left and right).
 
 Everything the arm does is the server's: the limits, the lease, the dead-man and the
 e-stop apply to every target sent; ``send_action`` returns the target as applied
@@ -18,8 +20,9 @@ from lerobot_robot_telerobot.config_telerobot import TelerobotConfig
 from telerobot.client.lerobot.arm import (
     ArmOptions,
     TelerobotArm,
-    describe_arm,
+    describe_arms,
     observation_features,
+    robot_type,
 )
 
 
@@ -48,22 +51,24 @@ class Telerobot(Robot):
             take_over=config.take_over,
             policy=config.policy,
         )
-        # LeRobot asks for the features before it connects: the arm's joints are the
-        # server's, asked now. A dataset is named for the arm (an SO-101's is LeRobot's
-        # so_follower), not for the way to it.
-        self.units = describe_arm(config.url)
-        self.name = self.robot_type = self.units.robot_type
+        # LeRobot asks for the features before it connects: the arms' joints are the
+        # server's, asked now. A dataset is named for the arms (an SO-101's is LeRobot's
+        # so_follower, two SO-101s named left and right its bi_so_follower), not for the
+        # way to them.
+        parts = describe_arms(config.url)
+        self.keys = [k for p in parts for k in p.keys]
+        self.name = self.robot_type = robot_type(parts)
         self.arm = TelerobotArm(self.options)
         # lerobot-record sizes its image writers by the cameras it sees here.
         self.cameras: dict[str, Any] = {"left": None, "right": None} if config.use_cameras else {}
 
     @cached_property
     def observation_features(self) -> dict[str, Any]:
-        return observation_features(self.units.feature_names, self.options)
+        return observation_features(self.keys, self.options)
 
     @cached_property
     def action_features(self) -> dict[str, type]:
-        return {k: float for k in self.units.feature_names}
+        return {k: float for k in self.keys}
 
     @property
     def is_connected(self) -> bool:
