@@ -106,6 +106,7 @@ import httpx
 import numpy as np
 import psutil
 
+from bench import nack_flood
 from bench.common import emit, machine, parser
 from harness.servers import serve_for_bench
 from telerobot.protocol import messages as m
@@ -1047,6 +1048,12 @@ def main() -> None:
         " e-stop) by this many nice steps, as the server raises its own (cpu_priority):"
         " they stand for other machines (0: the attackers' priority, the harsher case)",
     )
+    p.add_argument(
+        "--nack-flood-seconds",
+        type=float,
+        default=20.0,
+        help="bench.nack_flood's flood (a server with video, two tokenless viewers; 0: none)",
+    )
     args = p.parse_args()
     chosen = [a.strip() for a in args.attacks.split(",") if a.strip()]
     unknown = sorted(set(chosen) - set(ATTACKS))
@@ -1082,6 +1089,8 @@ def main() -> None:
     summary = summarise(results, relay, args.seconds)
     summary["attacker_nice"] = args.attacker_nice
     summary["client_priority"] = args.client_priority
+    if args.nack_flood_seconds > 0:
+        summary["nack_flood"] = nack_flood.run(args.nack_flood_seconds)
     emit(summary, args.json)
 
 

@@ -298,7 +298,7 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
 
     from aiortc.rtp import RTCP_RTPFB_NACK, RTP_HISTORY_SIZE, RtcpRtpfbPacket
 
-    from telerobot.server.media.viewer_link import ViewerLink, follow_link
+    from telerobot.server.media.viewer_link import KEYFRAME_AGAIN_S, ViewerLink, follow_link
 
     asked: list[int] = []
     handled: list[object] = []
@@ -329,24 +329,40 @@ async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None
         RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[300, 301])
     )
     assert (asked, link.nacks_superseded) == ([1], 2)
-    # Later packets lost and gone too (sent after it, at 65535 and across the wrap):
-    # a key frame again.
-    sender._RTCRtpSender__rtp_history = {
-        seq % RTP_HISTORY_SIZE: SimpleNamespace(sequence_number=seq % 65536)
-        for seq in range(65500, 65628)
-    }
+
+    # Later packets lost and gone too (sent after it): a key frame again.
+    def history(first: int) -> dict[int, object]:
+        return {
+            seq % RTP_HISTORY_SIZE: SimpleNamespace(sequence_number=seq % 65536)
+            for seq in range(first, first + 128)
+        }
+
+    sender._RTCRtpSender__rtp_history = history(2000)
+    lost_later = RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[1500])
+    await sender._handle_rtcp_packet(lost_later)
+    # (not at once: a viewer's NACKs ask for a key frame every KEYFRAME_AGAIN_S at most)
+    assert (asked, link.nacks_unservable, link.keyframe_covers_through) == ([1], 3, 627)
+    link.keyframe_covers_at -= KEYFRAME_AGAIN_S
+    await sender._handle_rtcp_packet(lost_later)
+    assert (asked, link.nacks_unservable, link.keyframe_covers_through) == ([1, 1], 4, 2127)
+    # Numbers never sent (ahead of the newest, or far behind it): no resend, no key frame
+    before = len(handled)
     await sender._handle_rtcp_packet(
-        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[700])
+        RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[2200, 40000])
     )
-    assert (asked, link.nacks_unservable, link.keyframe_covers_through) == ([1, 1], 3, 91)
+    assert (asked, len(handled), link.nacks_never_sent) == ([1, 1], before, 2)
+    # Across the wrap: a key frame asked when 65460 was the newest sent covers 65400 and
+    # 65450, NACKed once the stream is at 65500…91
+    link.keyframe_covers_through = 65460
+    sender._RTCRtpSender__rtp_history = history(65500)
     await sender._handle_rtcp_packet(
         RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[65400, 65450])
     )
-    assert (asked, link.nacks_superseded) == ([1, 1], 4)  # both sent before 91 (the wrap)
+    assert (asked, link.nacks_superseded) == ([1, 1], 4)
     # That key frame went out long ago: the same gap asked for again is not covered by
     # it any more (a 16-bit number far back reads as newer half the time): a new one
     link.keyframe_covers_at -= 60.0
     await sender._handle_rtcp_packet(
         RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=[65400])
     )
-    assert (asked, link.nacks_unservable) == ([1, 1, 1], 4)
+    assert (asked, link.nacks_unservable) == ([1, 1, 1], 5)

@@ -46,6 +46,7 @@ from telerobot.server.media.layers import (
 from telerobot.server.media.pacer import Pacer, pace_peer
 from telerobot.server.media.playout import AdaptivePlayout, stamp_playout_delay
 from telerobot.server.media.playout import allow as allow_playout_delay
+from telerobot.server.media.resend_budget import ResendBudget
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.media.viewer_link import Protection, ViewerLink, follow_link
 from telerobot.server.security import token_matches
@@ -357,6 +358,9 @@ class VideoPipeline:
         peer_id = secrets.token_hex(8)
         peer = Peer(pc, track, created=self.clock.now(), mode=mode)
         peer.choice.layer = layer
+        # Its resends within a budget of its own layer's rate (a flood of NACKs from one
+        # viewer took the shared encoder's time from every other: resend_budget.py).
+        peer.link.budget = ResendBudget(lambda: self._layer_rate_bps(peer))
         follow_link(
             sender, peer.link, lambda: peer.fec, lambda: self._repair_asked(peer), self.clock.now
         )
@@ -556,6 +560,10 @@ class VideoPipeline:
         lost = peer.link.fraction_lost
         if lost is not None and lost >= PACE_MAX_LOSS:
             return None
+        return self._layer_rate_bps(peer)
+
+    def _layer_rate_bps(self, peer: Peer) -> float | None:
+        """The measured rate of the layer this peer gets now (None: not known)."""
         try:
             return self.encoding.layer_rate[self._layer_of(peer)].bps(self.clock.now())
         except StopIteration:  # (between two layers)

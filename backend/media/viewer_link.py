@@ -8,6 +8,7 @@ passed in (``now``): the policy is tested on made-up clocks."""
 from __future__ import annotations
 
 import contextlib
+import math
 import statistics
 import time
 from collections import deque
@@ -28,6 +29,7 @@ from aiortc.rtp import (
 )
 
 from telerobot.server.media import fec as ulpfec
+from telerobot.server.media.resend_budget import ResendBudget
 from telerobot.server.telemetry.stats import DriftingFloor
 
 NACKED_KEPT = 1024  # media packets a viewer NACKed, remembered to count each once
@@ -59,7 +61,16 @@ NACK_RTT_FRESH_S = 10.0  # a NACK's round trip says how the link is for this lon
 # A key frame sent for NACKs replaces the packets before it for this long: a receiver
 # asks again for a gap for up to 10 round trips (libwebrtc), a few seconds.
 KEYFRAME_COVERS_S = 5.0
+# …and a viewer's NACKs ask for a key frame at most this often: a viewer NACKing the
+# oldest packets the sender keeps, again and again, forced one every 0.5 s (the fan-out
+# gate's most) for every viewer. A receiver that still misses a picture asks with a PLI.
+KEYFRAME_AGAIN_S = 2.0
 FLOOR_DRIFT = 0.01  # s per s
+# A NACKed number this far behind the newest sent, or ahead of it, was never sent to
+# this viewer (or so long ago that no receiver still waits for it): it is not loss, and
+# asks for no resend and no key frame (a flood of NACKs from a random base did).
+NACK_AGE_MAX = 3000
+RTP_OVERHEAD = 20  # bytes a resent packet adds to its payload (header, extensions)
 
 
 @dataclass
@@ -82,12 +93,17 @@ class ViewerLink:
     # where each had cost a key frame (every 0.5 s for 4 s after a 1.5 s cut on
     # `mobile`, each queueing the link for ~250 ms).
     keyframe_covers_through: int | None = None
-    keyframe_covers_at: float = 0.0  # (monotonic) when: it holds KEYFRAME_COVERS_S
+    keyframe_covers_at: float = -math.inf  # (monotonic) when: it holds KEYFRAME_COVERS_S
     nacks_superseded: int = 0
     # Packets a NACK asked for that were not resent: the key frame it brought (or the
     # one on its way) replaces them.
     resends_spared: int = 0
     jitter_s: float | None = None  # the receiver's interarrival jitter
+    # NACKed numbers never sent to this viewer (ahead of the newest, or NACK_AGE_MAX
+    # behind it): ignored.
+    nacks_never_sent: int = 0
+    # What its resends may cost (resend_budget.py); set by the pipeline.
+    budget: ResendBudget | None = None
     # The NACKs' own round trips (fec.FecSender.feedback_s: the queue included), the
     # newest few, and their floor (the link without a queue), which drifts up by
     # FLOOR_DRIFT so that a link whose delay grew for good is followed.
@@ -141,6 +157,8 @@ class ViewerLink:
             "nacks_unservable": self.nacks_unservable,
             "nacks_superseded": self.nacks_superseded,
             "resends_spared": self.resends_spared,
+            "nacks_never_sent": self.nacks_never_sent,
+            "resends": None if self.budget is None else self.budget.as_dict(),
             "jitter_ms": None if self.jitter_s is None else self.jitter_s * 1000,
             "packets_nacked": self.nacked,
             "nack_rtt_ms": None if (r := self.fresh_rtt(now)) is None else r * 1000,
@@ -205,6 +223,19 @@ def newest_sent(history: dict[int, Any]) -> int | None:
     return max(seqs, key=lambda s: (s - seqs[0] + 32768) % 65536)
 
 
+def sent_ever(seq: int, newest: int | None) -> bool:
+    """Whether ``seq`` can have been sent: not ahead of the newest number sent, nor more
+    than NACK_AGE_MAX behind it."""
+    return newest is not None and (newest - seq) % 65536 <= NACK_AGE_MAX
+
+
+def _lost(packet: Any, lost: list[int]) -> RtcpRtpfbPacket:
+    """The NACK ``packet`` naming only ``lost``."""
+    return RtcpRtpfbPacket(
+        fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=lost
+    )
+
+
 def follow_link(
     sender: RTCRtpSender,
     link: ViewerLink,
@@ -216,7 +247,8 @@ def follow_link(
     loss to itself: its handler is wrapped, as ``_send_keyframe`` is below). With FEC
     on (``fec()``), a NACK names the wire's sequence numbers: aiortc gets its own
     numbers for the media, the FEC packets are resent here. ``on_repair`` hears of
-    each NACK for media (a repair the viewer waits for)."""
+    each NACK for media (a repair the viewer waits for). Numbers never sent are
+    ignored, and resends are kept within ``link.budget`` (resend_budget.py)."""
     handle = sender._handle_rtcp_packet
 
     async def on_nack(packet: Any) -> None:
@@ -227,9 +259,13 @@ def follow_link(
             if rtt is not None:
                 link.nack_rtt(rtt, now())
             media, fec_seqs = protection.nacked(packet.lost)
-            packet = RtcpRtpfbPacket(
-                fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
-            )
+            packet = _lost(packet, media)
+        history = getattr(sender, "_RTCRtpSender__rtp_history", None)
+        if history is not None and packet.lost:
+            newest = newest_sent(history)
+            sent = [seq for seq in packet.lost if sent_ever(seq, newest)]
+            link.nacks_never_sent += len(packet.lost) - len(sent)
+            packet = _lost(packet, sent)
         link.count_nacked(packet.lost)
         if packet.lost:
             on_repair()
@@ -241,7 +277,6 @@ def follow_link(
         # sent before it, so none of those is resent: after a cut, the resends (a
         # history's worth, FEC's too) took the link for a second and the key frame
         # waited. The key frame's own packets, and any after it, are.
-        history = getattr(sender, "_RTCRtpSender__rtp_history", None)
         at = now()
         if at - link.keyframe_covers_at > KEYFRAME_COVERS_S:
             # The key frame went out long ago (and a 16-bit number compared with one
@@ -259,9 +294,10 @@ def follow_link(
                 link.nacks_superseded += len(gone)
             elif gone:
                 link.nacks_unservable += len(gone)
-                link.keyframe_covers_through = newest_sent(history)
-                link.keyframe_covers_at = at
-                sender._send_keyframe()
+                if at - link.keyframe_covers_at >= KEYFRAME_AGAIN_S:
+                    link.keyframe_covers_through = newest_sent(history)
+                    link.keyframe_covers_at = at
+                    sender._send_keyframe()
         covered = link.keyframe_covers_through
         if covered is not None:
             media = [s for s in packet.lost if seq_newer(s, covered)]
@@ -270,10 +306,19 @@ def follow_link(
             # What the key frame replaces and could have been resent (not the gone ones)
             spared_media = len(packet.lost) - len(gone) - len(media)
             link.resends_spared += spared_media + len(fec_seqs) - len(later_fec)
-            packet = RtcpRtpfbPacket(
-                fmt=packet.fmt, ssrc=packet.ssrc, media_ssrc=packet.media_ssrc, lost=media
-            )
+            packet = _lost(packet, media)
             fec_seqs = later_fec
+        budget = link.budget
+        if budget is not None and history is not None:
+            rtt = link.repair_s(at)
+            kept = []
+            for seq in packet.lost:
+                p = history.get(seq % RTP_HISTORY_SIZE)
+                held = p is not None and p.sequence_number == seq  # (a gone one: above)
+                if held and budget.allow(seq, len(p.payload) + RTP_OVERHEAD, rtt, at):
+                    kept.append(seq)
+            packet = _lost(packet, kept)
+            fec_seqs = [s for s in fec_seqs if budget.allow(("fec", s), RTP_OVERHEAD, rtt, at)]
         if packet.lost:
             await handle(packet)  # the media first: the repairs the viewer waits for
         if protection is not None:
