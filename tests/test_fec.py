@@ -9,7 +9,7 @@ import asyncio
 import logging
 import random
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, ClassVar
 
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
@@ -171,6 +171,10 @@ async def test_a_nack_reaches_aiortc_in_its_own_numbers_and_counts_the_loss() ->
 
     class Sender:
         _ssrc = 1
+        # (what aiortc keeps to resend: the media sent, by its own numbers)
+        _RTCRtpSender__rtp_history: ClassVar[dict[int, Any]] = {
+            s % 128: SimpleNamespace(sequence_number=s, payload=bytes(100)) for s in range(90, 120)
+        }
 
         async def _handle_rtcp_packet(self, packet: Any) -> None:
             handled.append(packet)

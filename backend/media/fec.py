@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 from aiortc.rtp import is_rtcp
 
+from telerobot.server.media import aiortc_compat
 from telerobot.server.media.rtp_extensions import block
 
 RED_MIME = "video/red"
@@ -512,16 +513,10 @@ class FecReceiver:
 
 def allow() -> None:
     """Let aiortc negotiate RED and ULPFEC for video (once per process). They carry no
-    encoder: aiortc sends with the first codec agreed, which stays H.264 or VP8."""
-    from aiortc.codecs import CODECS, h264, vpx
-    from aiortc.rtcrtpparameters import RTCRtpCodecParameters
-
-    h264.PACKET_MAX = min(h264.PACKET_MAX, MEDIA_PAYLOAD_MAX)
-    vpx.PACKET_MAX = min(vpx.PACKET_MAX, MEDIA_PAYLOAD_MAX)
-    video = CODECS["video"]
+    encoder: aiortc sends with the first codec agreed, which stays H.264 or VP8. (The
+    media's payloads are cut to MEDIA_PAYLOAD_MAX per protected sender: ``protect_peer``.)"""
     for mime, pt in ((RED_MIME, RED_OFFER_PT), (ULPFEC_MIME, ULPFEC_OFFER_PT)):
-        if all(c.mimeType.lower() != mime for c in video):
-            video.append(RTCRtpCodecParameters(mimeType=mime, clockRate=90000, payloadType=pt))
+        aiortc_compat.offer_video_codec(mime, pt)
 
 
 def is_fec_codec(codec: object) -> bool:
@@ -533,7 +528,9 @@ def negotiated(pc: object) -> tuple[int, int] | None:
     for transceiver in pc.getTransceivers():  # type: ignore[attr-defined]
         if transceiver.kind != "video":
             continue
-        types = {c.mimeType.lower(): c.payloadType for c in getattr(transceiver, "_codecs", [])}
+        types = {
+            c.mimeType.lower(): c.payloadType for c in aiortc_compat.agreed_codecs(transceiver)
+        }
         if RED_MIME in types and ULPFEC_MIME in types:
             return types[RED_MIME], types[ULPFEC_MIME]
     return None
@@ -549,10 +546,12 @@ def protect_peer(
         return None
     for transceiver in pc.getTransceivers():  # type: ignore[attr-defined]
         transport = getattr(transceiver.sender, "transport", None)
-        send = getattr(transport, "_send_rtp", None)
+        send = aiortc_compat.send_rtp_path(transport)
         if transceiver.kind != "video" or send is None or isinstance(send, FecSender):
             continue
+        # Room for RED's and FEC's headers in every packet: this sender's payloads only
+        aiortc_compat.limit_payload(transceiver, MEDIA_PAYLOAD_MAX)
         fec = FecSender(send, *types, share, drop=drop)
-        transport._send_rtp = fec  # type: ignore[union-attr]
+        aiortc_compat.put_in_rtp_path(transport, fec)
         return fec
     return None

@@ -31,6 +31,7 @@ from typing import Any
 from aiortc.clock import current_ntp_time
 from aiortc.rtp import is_rtcp
 
+from telerobot.server.media import aiortc_compat
 from telerobot.server.media.rtp_extensions import block
 
 PACING_FACTOR = 2.5  # × the layer's measured rate (libwebrtc's default)
@@ -181,10 +182,7 @@ def abs_send_time_offset(packet: bytes, ext_id: int) -> int | None:
 def negotiated_id(sender: Any) -> int | None:
     """The abs-send-time id the peers agreed on for this aiortc sender (None if none),
     from its private header-extension map (aiortc has no accessor for it)."""
-    extensions = getattr(sender, "_RTCRtpSender__rtp_header_extensions_map", None)
-    ids = getattr(extensions, "_HeaderExtensionsMap__ids", None)
-    value = getattr(ids, "abs_send_time", None)
-    return int(value) if value else None
+    return aiortc_compat.extension_id(sender, "abs_send_time")
 
 
 def pace_peer(pc: Any, rate_bps: Callable[[], float | None]) -> Pacer | None:
@@ -193,10 +191,10 @@ def pace_peer(pc: Any, rate_bps: Callable[[], float | None]) -> Pacer | None:
     senders = [t.sender for t in pc.getTransceivers() if getattr(t, "sender", None)]
     for sender in senders:
         transport = getattr(sender, "transport", None)
-        send = getattr(transport, "_send_rtp", None)
+        send = aiortc_compat.send_rtp_path(transport)
         if transport is None or send is None or isinstance(send, Pacer):
             continue
         pacer = Pacer(send, rate_bps, negotiated_id(sender))
-        transport._send_rtp = pacer  # the instance's attribute: the sender calls this
+        aiortc_compat.put_in_rtp_path(transport, pacer)
         return pacer
     return None

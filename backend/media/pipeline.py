@@ -30,6 +30,7 @@ from aiortc import (
 from telerobot.drivers.base import StereoCamera, TelerobotError
 from telerobot.drivers.clock import Clock, MonotonicClock
 from telerobot.protocol.netprio import mark_peer_low_priority
+from telerobot.server.media import aiortc_compat
 from telerobot.server.media import fec as ulpfec
 from telerobot.server.media.encoding import IDLE_POLL_S as IDLE_POLL_S
 from telerobot.server.media.encoding import Encoding
@@ -205,6 +206,7 @@ class VideoPipeline:
             raise ValueError(f"video fec must be one of {FEC_MODES}, not {self.settings.fec!r}")
         if self.settings.fec != "off":
             ulpfec.allow()
+        aiortc_compat.check()  # the internals the video uses are where they were
         self.clock: Clock = clock or MonotonicClock()
         self.max_viewers = max_viewers
         self.max_pending = max_pending
@@ -346,15 +348,8 @@ class VideoPipeline:
         fec_codecs = [c for c in caps if ulpfec.is_fec_codec(c) and self.settings.fec != "off"]
         transceiver.setCodecPreferences([c for c in caps if c.mimeType == wanted] + fec_codecs)
         sender = transceiver.sender
-        resend = (
-            sender._send_keyframe
-        )  # aiortc calls this on PLI/FIR; pre-encoded video needs us to act
-
-        def on_keyframe_request() -> None:
-            resend()
-            track.keyframe_requested()
-
-        sender._send_keyframe = on_keyframe_request  # type: ignore[method-assign]
+        # A viewer's PLI or FIR: pre-encoded video needs its encoder told
+        aiortc_compat.on_keyframe_request(sender, track.keyframe_requested)
         peer_id = secrets.token_hex(8)
         peer = Peer(pc, track, created=self.clock.now(), mode=mode)
         peer.choice.layer = layer
@@ -578,7 +573,5 @@ def _packets_sent(peer: Peer) -> int:
     if peer.fec is not None:
         return peer.fec.counts.media_packets
     for transceiver in peer.pc.getTransceivers():
-        count = getattr(transceiver.sender, "_RTCRtpSender__packet_count", None)
-        if isinstance(count, int):
-            return count
+        return aiortc_compat.packets_sent(transceiver.sender)
     return 0

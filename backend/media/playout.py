@@ -39,6 +39,7 @@ from typing import Any
 
 from aiortc.rtp import is_rtcp
 
+from telerobot.server.media import aiortc_compat
 from telerobot.server.media.rtp_extensions import ONE_BYTE_PROFILE, block
 
 URI = "http://www.webrtc.org/experiments/rtp-hdrext/playout-delay"
@@ -58,12 +59,7 @@ Send = Callable[[bytes], Awaitable[None]]
 
 def allow() -> None:
     """Let aiortc negotiate the extension for video (once per process)."""
-    from aiortc.codecs import HEADER_EXTENSIONS
-    from aiortc.rtcrtpparameters import RTCRtpHeaderExtensionParameters
-
-    video = HEADER_EXTENSIONS["video"]
-    if all(x.uri != URI for x in video):
-        video.append(RTCRtpHeaderExtensionParameters(id=OFFER_ID, uri=URI))
+    aiortc_compat.offer_video_extension(URI, OFFER_ID)
 
 
 def negotiated_id(pc: Any) -> int | None:
@@ -72,7 +68,7 @@ def negotiated_id(pc: Any) -> int | None:
     for transceiver in pc.getTransceivers():
         if transceiver.kind != "video":
             continue
-        for x in getattr(transceiver, "_headerExtensions", []):
+        for x in aiortc_compat.agreed_extensions(transceiver):
             if x.uri == URI:
                 return int(x.id)
     return None
@@ -178,10 +174,9 @@ def stamp_playout_delay(pc: Any, delay_ms: Callable[[], int] | None = None) -> b
         return False
     for transceiver in pc.getTransceivers():
         transport = getattr(transceiver.sender, "transport", None)
-        send = getattr(transport, "_send_rtp", None)
+        send = aiortc_compat.send_rtp_path(transport)
         if transceiver.kind != "video" or send is None or isinstance(send, PlayoutDelayStamp):
             continue
-        assert transport is not None
-        transport._send_rtp = PlayoutDelayStamp(send, ext_id, delay_ms)  # the sender calls this
+        aiortc_compat.put_in_rtp_path(transport, PlayoutDelayStamp(send, ext_id, delay_ms))
         return True
     return False

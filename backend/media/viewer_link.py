@@ -28,6 +28,7 @@ from aiortc.rtp import (
     unpack_remb_fci,
 )
 
+from telerobot.server.media import aiortc_compat
 from telerobot.server.media import fec as ulpfec
 from telerobot.server.media.resend_budget import ResendBudget
 from telerobot.server.telemetry.stats import DriftingFloor
@@ -244,12 +245,11 @@ def follow_link(
     now: Callable[[], float] = time.monotonic,
 ) -> None:
     """Copy what the receiver reports over RTCP into ``link`` (aiortc keeps REMB and the
-    loss to itself: its handler is wrapped, as ``_send_keyframe`` is below). With FEC
+    loss to itself: its handler is replaced, through aiortc_compat). With FEC
     on (``fec()``), a NACK names the wire's sequence numbers: aiortc gets its own
     numbers for the media, the FEC packets are resent here. ``on_repair`` hears of
     each NACK for media (a repair the viewer waits for). Numbers never sent are
     ignored, and resends are kept within ``link.budget`` (resend_budget.py)."""
-    handle = sender._handle_rtcp_packet
 
     async def on_nack(packet: Any) -> None:
         protection = fec()
@@ -260,8 +260,8 @@ def follow_link(
                 link.nack_rtt(rtt, now())
             media, fec_seqs = protection.nacked(packet.lost)
             packet = _lost(packet, media)
-        history = getattr(sender, "_RTCRtpSender__rtp_history", None)
-        if history is not None and packet.lost:
+        history = aiortc_compat.rtp_history(sender)
+        if packet.lost:
             newest = newest_sent(history)
             sent = [seq for seq in packet.lost if sent_ever(seq, newest)]
             link.nacks_never_sent += len(packet.lost) - len(sent)
@@ -282,22 +282,20 @@ def follow_link(
             # The key frame went out long ago (and a 16-bit number compared with one
             # far back would read as older half the time): forget it
             link.keyframe_covers_through = None
-        gone = []
-        if history is not None:
-            gone = [
-                seq
-                for seq in packet.lost
-                if getattr(history.get(seq % RTP_HISTORY_SIZE), "sequence_number", None) != seq
-            ]
-            covered = link.keyframe_covers_through
-            if gone and covered is not None and not any(seq_newer(s, covered) for s in gone):
-                link.nacks_superseded += len(gone)
-            elif gone:
-                link.nacks_unservable += len(gone)
-                if at - link.keyframe_covers_at >= KEYFRAME_AGAIN_S:
-                    link.keyframe_covers_through = newest_sent(history)
-                    link.keyframe_covers_at = at
-                    sender._send_keyframe()
+        gone = [
+            seq
+            for seq in packet.lost
+            if getattr(history.get(seq % RTP_HISTORY_SIZE), "sequence_number", None) != seq
+        ]
+        covered = link.keyframe_covers_through
+        if gone and covered is not None and not any(seq_newer(s, covered) for s in gone):
+            link.nacks_superseded += len(gone)
+        elif gone:
+            link.nacks_unservable += len(gone)
+            if at - link.keyframe_covers_at >= KEYFRAME_AGAIN_S:
+                link.keyframe_covers_through = newest_sent(history)
+                link.keyframe_covers_at = at
+                aiortc_compat.request_keyframe(sender)
         covered = link.keyframe_covers_through
         if covered is not None:
             media = [s for s in packet.lost if seq_newer(s, covered)]
@@ -309,13 +307,14 @@ def follow_link(
             packet = _lost(packet, media)
             fec_seqs = later_fec
         budget = link.budget
-        if budget is not None and history is not None:
+        if budget is not None:
             rtt = link.repair_s(at)
             kept = []
             for seq in packet.lost:
                 p = history.get(seq % RTP_HISTORY_SIZE)
-                held = p is not None and p.sequence_number == seq  # (a gone one: above)
-                if held and budget.allow(seq, len(p.payload) + RTP_OVERHEAD, rtt, at):
+                if p is None or p.sequence_number != seq:
+                    continue  # gone (above)
+                if budget.allow(seq, len(p.payload) + RTP_OVERHEAD, rtt, at):
                     kept.append(seq)
             packet = _lost(packet, kept)
             fec_seqs = [s for s in fec_seqs if budget.allow(("fec", s), RTP_OVERHEAD, rtt, at)]
@@ -331,16 +330,17 @@ def follow_link(
         await handle(packet)
         if isinstance(packet, RtcpRrPacket | RtcpSrPacket):
             for report in packet.reports:
-                if report.ssrc == sender._ssrc:
+                if report.ssrc == aiortc_compat.ssrc(sender):
                     link.fraction_lost = report.fraction_lost / 256
                     link.packets_lost = report.packets_lost
-                    link.rtt_s = getattr(sender, "_RTCRtpSender__rtt", None)
+                    link.rtt_s = aiortc_compat.rtt_s(sender)
                     link.jitter_s = report.jitter / 90000  # (video's clock)
                     link.reports += 1
         elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == RTCP_PSFB_APP:
             with contextlib.suppress(ValueError):
                 bitrate, ssrcs = unpack_remb_fci(packet.fci)
-                if sender._ssrc in ssrcs:
+                if aiortc_compat.ssrc(sender) in ssrcs:
                     link.estimated_bps = bitrate
 
-    sender._handle_rtcp_packet = on_rtcp  # type: ignore[method-assign]
+    # (aiortc's own handler: the on_* above call it for what aiortc still does)
+    handle = aiortc_compat.handle_rtcp(sender, on_rtcp)
