@@ -192,6 +192,10 @@ class ServerSettings(BaseSettings):
     # takes (the round trip and jitter, at most 0.5 s), back to 0 after 10 s without
     # one (media/playout.py). False: always shown at once, frozen while repaired.
     video_adaptive_playout: bool = True
+    # The most a frame is held for a repair (ms); a repair that takes longer is not
+    # waited for at all (it would freeze the picture anyway: media/playout.py). Less
+    # lag, more freezes: an operator's choice.
+    video_playout_max_ms: int = Field(500, ge=0, le=500)
     # Forward error correction (RED + ULPFEC, media/fec.py) to viewers that offer it
     # (Chromium does): "auto" follows each viewer's loss (none on a clean link), "on"
     # protects every viewer at the most (~1 FEC packet per 3 media packets; 1 per 2 for

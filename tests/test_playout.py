@@ -185,8 +185,20 @@ def test_the_delay_grows_with_a_repair_holds_while_they_go_on_and_shrinks_back()
     assert p.current(30.0) == 140  # held HOLD_S after it…
     assert p.current(31.0) == 90  # …then shrinking at 50 ms a second
     assert p.current(40.0) == 0
-    p.repair(41.0, 5.0)  # never beyond MAX_DELAY_MS
-    assert p.current(41.0) == playout.MAX_DELAY_MS
+    # A repair longer than the cap freezes the picture whatever the delay: not waited
+    # for (holding every frame would add the lag and keep the freeze)
+    p.repair(41.0, 5.0)
+    assert p.current(41.0) == 0 and p.too_slow == 1
+    p.repair(42.0, playout.MAX_DELAY_MS / 1000 + playout.TOLERANCE_S)  # at the cap: waited
+    assert p.current(42.0) == playout.MAX_DELAY_MS
+
+
+def test_an_operator_s_cap_bounds_the_delay_and_what_is_waited_for() -> None:
+    p = playout.AdaptivePlayout(max_ms=150)
+    p.repair(0.0, 0.3)  # 233 ms more than a late frame may be: beyond 150
+    assert (p.current(0.0), p.too_slow) == (0, 1)
+    p.repair(1.0, 0.2)  # 133 ms: waited for
+    assert p.current(1.0) == 140
 
 
 async def test_the_stamp_writes_the_delay_it_is_given() -> None:

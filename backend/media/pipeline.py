@@ -126,6 +126,7 @@ class VideoSettings:
     pacing: bool = _default("video_pacing")  # backend/media/pacer.py
     zero_playout_delay: bool = _default("video_zero_playout_delay")  # media/playout.py
     adaptive_playout: bool = _default("video_adaptive_playout")
+    playout_max_ms: int = _default("video_playout_max_ms")  # media/playout.py
     fec: str = _default("video_fec")  # RED + ULPFEC (backend/media/fec.py)
     drop_every: int = _default("video_drop_every")  # tests and demos: lost for good
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
@@ -141,6 +142,7 @@ class VideoSettings:
             pacing=settings.video_pacing,
             zero_playout_delay=settings.video_zero_playout_delay,
             adaptive_playout=settings.video_adaptive_playout,
+            playout_max_ms=settings.video_playout_max_ms,
             fec=settings.video_fec,
             drop_every=settings.video_drop_every,
             ice=settings.ice_config,
@@ -352,6 +354,7 @@ class VideoPipeline:
         aiortc_compat.on_keyframe_request(sender, track.keyframe_requested)
         peer_id = secrets.token_hex(8)
         peer = Peer(pc, track, created=self.clock.now(), mode=mode)
+        peer.playout = AdaptivePlayout(self.settings.playout_max_ms)
         peer.choice.layer = layer
         # Its resends within a budget of its own layer's rate (a flood of NACKs from one
         # viewer took the shared encoder's time from every other: resend_budget.py).
@@ -529,6 +532,9 @@ class VideoPipeline:
                         **p.fec.counts.as_dict(),
                     },
                     "playout_delay_ms": p.playout.current(now),
+                    # its cap, and the repairs not waited for (longer than the cap)
+                    "playout_max_ms": p.playout.max_ms,
+                    "repairs_too_slow": p.playout.too_slow,
                     # The pacer (None: not pacing): its rate now, and how many packets
                     # waited for it, how long in all.
                     "pacing": None

@@ -46,7 +46,9 @@ URI = "http://www.webrtc.org/experiments/rtp-hdrext/playout-delay"
 OFFER_ID = 5  # the id when we offer (aiortc's own video extensions take 1 and 3)
 ZERO = b"\x00\x00\x00"  # 12 bits of minimum, 12 of maximum delay, in 10 ms units
 UNIT_MS = 10
-MAX_DELAY_MS = 500  # never held longer (the operator's picture would lag too far)
+# Never held longer (the operator's picture would lag too far); an operator may set
+# less (video_playout_max_ms).
+MAX_DELAY_MS = 500
 HOLD_S = 10.0  # a repair's need holds this long…
 MAX_REPAIRS_KEPT = 256  # (repairs remembered for that: a burst of NACKs is many)
 SHRINK_MS_PER_S = 50.0  # …then shrinks back this fast
@@ -109,12 +111,19 @@ class AdaptivePlayout:
     most that the repairs asked for in the last ``HOLD_S`` need (what each takes, less
     ``TOLERANCE_S``), at once; shrinking by ``SHRINK_MS_PER_S`` towards that when it is
     less (the picture then catches up, a little faster than real time). ``now`` is
-    any monotonic clock (s)."""
+    any monotonic clock (s).
+
+    The rule: a repair is waited for only while waiting costs less than the freeze it
+    saves, i.e. while it comes within ``max_ms``. A repair that takes longer freezes
+    the picture whatever the delay, so holding every frame for it would add the lag
+    and keep the freeze (on bench.wan's `bad` link the delay sat at its 0.5 s cap and
+    the picture still froze): such a repair asks for no delay (``too_slow``)."""
 
     def __init__(self, max_ms: float = MAX_DELAY_MS) -> None:
         self.max_ms = max_ms
         self.delay_ms = 0.0
         self.repairs = 0
+        self.too_slow = 0  # repairs not waited for: longer than max_ms
         self._needs: deque[tuple[float, float]] = deque(maxlen=MAX_REPAIRS_KEPT)
         self._target = 0.0  # the most of ``_needs`` (kept: asked for at every packet)
         self._at: float | None = None
@@ -123,7 +132,10 @@ class AdaptivePlayout:
         """The viewer asked for a repair that takes ``repair_s`` (its round trip and
         jitter)."""
         self.repairs += 1
-        need = min(self.max_ms, max(0.0, (repair_s - TOLERANCE_S) * 1000))
+        need = max(0.0, (repair_s - TOLERANCE_S) * 1000)
+        if need > self.max_ms:
+            self.too_slow += 1
+            return
         self._needs.append((now, need))
         self._target = max(self._target, need)
         self.delay_ms = max(self.delay_ms, need)
