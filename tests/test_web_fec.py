@@ -244,7 +244,7 @@ def test_chromium_decodes_the_protected_stream_through_loss_for_good(
     page.close()
 
 
-PLAYOUT_TEXT = r"^(—|[\d.]+ ms( \(> \d+ ms\))?)( · FEC \d+ packets(, \d+ used)?)?$"
+PLAYOUT_TEXT = r"^(—|[\d.]+ ms( \(> \d+ ms\))?( · cap \d+ ms)?)( · FEC \d+ packets(, \d+ used)?)?$"
 
 
 def test_the_hud_shows_the_playout_row(browser: Browser, server: str) -> None:

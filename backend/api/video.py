@@ -90,6 +90,11 @@ class VideoStatus(BaseModel):
     height: int
     fps: float
     bitrate: int
+    playout_max_ms: int = Field(
+        500,
+        description="the most a frame is held to wait for a repair on a lossy link; a"
+        " repair that takes longer is not waited for (TELEROBOT_VIDEO_PLAYOUT_MAX_MS)",
+    )
     layout: str = "side-by-side: left eye in the left half"
     stats: dict[str, Any] | None
     error: str | None = Field(None, description="why there are no stats right now")
@@ -268,6 +273,7 @@ async def video_status(
         height=settings.video_height,
         fps=settings.video_fps,
         bitrate=settings.video_bitrate,
+        playout_max_ms=settings.video_playout_max_ms,
         stats=stats,
         error=error,
         path="relay" if relayed(media_server, operator) else "direct",

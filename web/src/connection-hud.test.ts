@@ -219,6 +219,10 @@ describe("the playout delay and FEC", () => {
     });
     expect(row({ playoutMs: null }, "playout")).toMatchObject({ level: "ok", text: "—" });
   });
+
+  it("says the server's cap: a repair longer than it is not waited for", () => {
+    expect(row({ playoutMs: 120, playoutCapMs: 300 }, "playout")).toMatchObject({ level: "ok", text: "120 ms · cap 300 ms" });
+  });
 });
 
 describe("freezes as the page sees them", () => {

@@ -2644,6 +2644,12 @@ export interface components {
             /** Bitrate */
             bitrate: number;
             /**
+             * Playout Max Ms
+             * @description the most a frame is held to wait for a repair on a lossy link; a repair that takes longer is not waited for (TELEROBOT_VIDEO_PLAYOUT_MAX_MS)
+             * @default 500
+             */
+            playout_max_ms: number;
+            /**
              * Layout
              * @default side-by-side: left eye in the left half
              */

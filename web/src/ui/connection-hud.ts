@@ -96,6 +96,9 @@ export interface HudFigures {
   /** How long the browser held each frame before showing it, over the last
    * STATS_WINDOW_MS (jitterBufferDelay / jitterBufferEmittedCount; ms). */
   playoutMs?: number | null;
+  /** The server's cap on it (GET /api/v1/video playout_max_ms): a repair that takes
+   * longer is not waited for. */
+  playoutCapMs?: number | null;
   /** FEC packets received, and those used (not discarded), over the peer's life. */
   fecPackets?: number | null;
   fecUsed?: number | null;
@@ -192,11 +195,12 @@ function freezesRow(f: HudFigures): HudRow {
 }
 
 function playoutRow(f: HudFigures): HudRow {
-  const limits = `frames held to wait for repairs on a lossy link (0 on a clean one): amber > ${PLAYOUT_AMBER_MS} ms`;
+  const cap = f.playoutCapMs != null ? ` · cap ${f.playoutCapMs} ms` : "";
+  const limits = `frames held to wait for repairs on a lossy link (0 on a clean one), never for a repair longer than the server's cap: amber > ${PLAYOUT_AMBER_MS} ms`;
   const fec = f.fecPackets ? ` · FEC ${f.fecPackets} packets${f.fecUsed != null ? `, ${f.fecUsed} used` : ""}` : "";
   if (f.playoutMs == null) return { key: "playout", label: "playout", text: `—${fec}`, level: "ok", limits };
   const level: HudLevel = f.playoutMs > PLAYOUT_AMBER_MS ? "amber" : "ok";
-  return { key: "playout", label: "playout", text: `${ms(f.playoutMs)}${over(level, `${PLAYOUT_AMBER_MS} ms`, "")}${fec}`, level, limits };
+  return { key: "playout", label: "playout", text: `${ms(f.playoutMs)}${over(level, `${PLAYOUT_AMBER_MS} ms`, "")}${cap}${fec}`, level, limits };
 }
 
 function forceRow(f: HudFigures): HudRow {
@@ -365,7 +369,7 @@ export interface HudSources {
   force(): { time: number } | null;
   /** The server's video settings (GET /api/v1/video): its frame rate and one eye's full
    * size (a smaller picture is the low layer). */
-  video?: Promise<{ fps: number; width: number } & Record<string, unknown>>;
+  video?: Promise<{ fps: number; width: number; playout_max_ms?: number } & Record<string, unknown>>;
 }
 
 export class ConnectionHud implements HudView {
@@ -383,6 +387,7 @@ export class ConnectionHud implements HudView {
   private pcSeen: RTCPeerConnection | null = null;
   private nominalFps: number | null = null;
   private fullWidth: number | null = null;
+  private playoutCapMs: number | null = null;
   private commandsSeen = 0;
   private commandAt: number | null = null;
 
@@ -391,6 +396,7 @@ export class ConnectionHud implements HudView {
       ?.then((v) => {
         this.nominalFps = v.fps;
         this.fullWidth = v.width;
+        this.playoutCapMs = v.playout_max_ms ?? null;
       })
       .catch(() => undefined);
   }
@@ -444,6 +450,7 @@ export class ConnectionHud implements HudView {
       decoderFreezes: sample?.freezeCount ?? null,
       decoderFreezeS: sample?.totalFreezesDuration ?? null,
       playoutMs: rates.playoutMs,
+      playoutCapMs: this.playoutCapMs,
       fecPackets: sample?.fecPacketsReceived ?? null,
       fecUsed: sample?.fecPacketsReceived != null ? sample.fecPacketsReceived - (sample.fecPacketsDiscarded ?? 0) : null,
       linkOpen: link.open,
