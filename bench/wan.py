@@ -376,7 +376,22 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
                 if attempt == 2:
                     raise
         await op.ws.send(m.encode(m.LEASE, op.next_seq(), m.LeaseAction.TAKE_OVER))
-        await op.expect(m.ACK, timeout=15)
+
+        async def beat() -> None:
+            # The dead-man runs from the take-over, not from its ACK: heartbeats go
+            # while the ACK comes down (the page beats from wanting control on). On
+            # `bad` the ACK took 0.6–2.4 s, and a silent client lost the lease before
+            # the run began in 2 of 17 runs (control_lost_at_s ~0.3, nothing executed).
+            while True:
+                with contextlib.suppress(Exception):
+                    await op.ws.send(m.encode(m.HEARTBEAT, op.next_seq(), time.monotonic()))
+                await asyncio.sleep(0.05)
+
+        beating = asyncio.create_task(beat())
+        try:
+            await op.expect(m.ACK, timeout=15)
+        finally:
+            beating.cancel()
         sent: dict[int, float] = {}
         acks: dict[int, tuple[float, int, float]] = {}  # seq -> server time, result, received
         errors: dict[int, tuple[int, str, float]] = {}

@@ -28,6 +28,7 @@ from telerobot.drivers.robot.puma560.kinematics import (
 from telerobot.server.control.clients import Client
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.errors import LimitExceeded, NotAllowed, SafetyStop
+from telerobot.server.control.lease import MAX_GRACE_EXTENSION_S, STALLS_WINDOW_S
 from telerobot.server.control.limits import SafetyLimits
 from tests.support import TOKEN
 from tests.support.clock import run_with_clock
@@ -156,11 +157,47 @@ async def test_a_slow_links_lease_grace_covers_the_reconnection(clock: ManualClo
         ds.limits.deadman_timeout_s + grace <= lapsed <= ds.limits.deadman_timeout_s + grace + 0.05
     )
     ticker.cancel()
-    a.transit_avg = 0.9  # a backlog of seconds: the extension stops at 1 s
-    assert ds.lease.grace(a) == ds.limits.lease_grace_s + 1.0
+    a.transit_avg = 0.9  # a backlog of seconds: the extension stops at 2 s
+    assert ds.lease.grace(a) == ds.limits.lease_grace_s + MAX_GRACE_EXTENSION_S == 4.0
     b = ds.join("bob", TOKEN)  # its client_time is not on our clock: its transit says
     b.transit_avg = 0.2  # nothing of the link (the clocks' offset is in it)
     assert ds.lease.grace(b) == ds.limits.lease_grace_s
+
+
+async def test_a_link_that_stalls_keeps_the_lease_through_its_stalls(clock: ManualClock) -> None:
+    """A holder whose link has stalled 1.2 s (a lossy narrow link's TCP: bench.wan's
+    `bad`) keeps the lease that much longer through a silence (a cut, begun in such a
+    stall); 30 s after its last stall it has the plain grace again. Stalls while it did
+    not hold control lengthen nothing. The arm is stopped after the dead-man's 150 ms
+    all along."""
+    ds, _ = await make(clock)
+    a = ds.join("alice", TOKEN)
+    await clock.advance(5.0)  # silent before taking control: not its link's stall
+    ds.seen(a.id)
+    await ds.take_lease(a.id)
+    assert ds.lease.grace(a) == ds.limits.lease_grace_s
+    ticker = asyncio.create_task(_tick_forever(ds, clock))
+
+    async def beats(seconds: float) -> None:
+        for _ in range(round(seconds / 0.05)):
+            ds.seen(a.id)
+            await clock.advance(0.05)
+
+    await beats(1.0)
+    await clock.advance(1.2)  # a stall: the dead-man stops the arm, the lease is kept
+    await beats(1.0)
+    assert ds.lease.grace(a) == pytest.approx(ds.limits.lease_grace_s + 1.2, abs=0.06)
+    limit = ds.limits.deadman_timeout_s + ds.lease.grace(a)
+    t_quiet = clock.now() - 0.05  # its last heartbeat
+    await clock.advance(ds.limits.deadman_timeout_s + ds.limits.lease_grace_s + 0.5)
+    assert ds.lease_holder == a.id and ds.state().halted  # past the plain grace: kept
+    while ds.lease_holder is not None:
+        await clock.advance(0.005)
+    assert limit <= clock.now() - t_quiet <= limit + 0.05
+    await ds.take_lease(a.id)  # (its own again)
+    await beats(STALLS_WINDOW_S + 1)  # no stall for 30 s: the plain grace
+    assert ds.lease.grace(a) == ds.limits.lease_grace_s
+    ticker.cancel()
 
 
 async def test_after_a_stall_the_lease_is_kept_and_only_a_fresh_command_moves(

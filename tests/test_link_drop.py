@@ -22,6 +22,7 @@ import pytest
 
 from harness.netem import NetemPair, emulator_available
 from harness.servers import serve_for_bench
+from telerobot.server.control.lease import MAX_GRACE_EXTENSION_S
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,16 +41,20 @@ CLIENT = textwrap.dedent(
 
     async def main():
         client = await RealtimeClient.connect(url, token, m.HelloFlags.RESUMABLE)
-        await client.ws.send(m.encode(m.LEASE, client.next_seq(), m.LeaseAction.TAKE))
-        await client.expect(m.ACK)
         seen = {"halted": False}
-        resumer = StallResumer(client, url)  # as the page's realtime.ts
 
         async def beat():
             while True:
                 with contextlib.suppress(Exception):
                     await client.ws.send(m.encode(m.HEARTBEAT, client.next_seq(), 0.0))
                 await asyncio.sleep(0.05)
+
+        # Beating from the take-over on, as the page does: the dead-man runs from it
+        early = asyncio.create_task(beat())
+        await client.ws.send(m.encode(m.LEASE, client.next_seq(), m.LeaseAction.TAKE))
+        await client.expect(m.ACK)
+        early.cancel()
+        resumer = StallResumer(client, url)  # as the page's realtime.ts
 
         async def listen():
             while True:
@@ -117,7 +122,9 @@ def test_a_short_drop_keeps_the_lease_and_a_long_one_loses_it() -> None:
             # …while the arm was halted on the silence (the server counts it; the client
             # may not see it: the resume's HELLO is news, which lifts the halt).
             assert short["halts"] >= 1, short
-            pair.link_down(3.0)  # longer than the grace
+            # Longer than the grace and the most a link's stalls lengthen it (the 1.5 s
+            # drop just now was such a stall: lease.py, MAX_GRACE_EXTENSION_S)
+            pair.link_down(2.0 + MAX_GRACE_EXTENSION_S + 1.0)
             long = check()
             assert long["controller"] is None, long  # control lost, and why
             assert "dead-man" in str(long["note"]), long

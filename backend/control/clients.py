@@ -7,6 +7,7 @@ table. The table decides who someone is and forgets those who left; what they ma
 from __future__ import annotations
 
 import secrets
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -42,6 +43,9 @@ ISSUE_POLICY_TOKEN = (
 )
 
 
+STALLS_KEPT = 32  # a client's recent stalls remembered (lease.py: its grace)
+
+
 @dataclass
 class Client:
     id: str
@@ -67,6 +71,11 @@ class Client:
     # beyond it is how long it waited on the way (a stalled link's backlog).
     transit_floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(TRANSIT_DRIFT))
     transit_avg: float | None = None  # the usual transit, on our clock (synced clients)
+    # Its recent silences longer than the dead-man's limit, (when it was heard again,
+    # how long): its link's stalls, which lengthen its lease's grace (lease.py).
+    stalls: deque[tuple[float, float]] = field(
+        default_factory=lambda: deque(maxlen=STALLS_KEPT), repr=False
+    )
     source: str = "ws"  # where it joined: ws, priority, rest, task (the recording says)
     # Its client_time is on our clock (it syncs with PING): its commands' age is known.
     synced_clock: bool = False
