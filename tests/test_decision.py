@@ -164,6 +164,23 @@ async def test_a_slow_links_lease_grace_covers_the_reconnection(clock: ManualClo
     assert ds.lease.grace(b) == ds.limits.lease_grace_s
 
 
+async def test_a_synced_clients_heartbeats_tell_its_links_transit(clock: ManualClock) -> None:
+    """Before its first command, a synced client's heartbeats say its link's transit,
+    which lengthens its grace (a take-over's first seconds on a lossy narrow link are
+    the most silent); a heartbeat sent at 0 or in the future says nothing."""
+    ds, _ = await make(clock)
+    a = ds.join("alice", TOKEN, synced_clock=True)
+    await clock.advance(10.0)
+    ds.heard_beat(a.id, 0.0)  # (a client that does not date its heartbeats)
+    ds.heard_beat(a.id, clock.now() + 1.0)
+    assert a.transit_avg is None
+    for _ in range(50):
+        ds.heard_beat(a.id, clock.now() - 0.25)
+        await clock.advance(0.05)
+    assert a.transit_avg == pytest.approx(0.25)
+    assert ds.lease.grace(a) == pytest.approx(ds.limits.lease_grace_s + 6 * 0.25)
+
+
 async def test_a_link_that_stalls_keeps_the_lease_through_its_stalls(clock: ManualClock) -> None:
     """A holder whose link has stalled 1.2 s (a lossy narrow link's TCP: bench.wan's
     `bad`) keeps the lease that much longer through a silence (a cut, begun in such a

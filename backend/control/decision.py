@@ -228,6 +228,13 @@ class DecisionServer:
         """A heartbeat: any message from a client counts as one."""
         self._heard(self.clients.get(client_id))
 
+    def heard_beat(self, client_id: str, client_time: float) -> None:
+        """A HEARTBEAT on the realtime channels: its transit is the link's (the lease's
+        grace follows it, lease.py); ``seen`` counted it already."""
+        client = self.clients.known(client_id)
+        if client is not None and math.isfinite(client_time):
+            self.ages.note_transit(client, client_time)
+
     def heartbeat(self, client_id: str) -> None:
         """A script's sign of life (``POST /lease/heartbeat``). It keeps the lease its
         client holds; and a client whose task holds the lease in its place (it

@@ -15,6 +15,7 @@ from telerobot.server.control.errors import SafetyStop
 from telerobot.server.control.limits import SafetyLimits
 from telerobot.server.telemetry.stats import StreamTally
 
+TRANSIT_BELIEVED_S = 10.0  # a message's transit longer than this is not believed
 TRANSIT_SMOOTHING = 0.1  # the usual transit: an exponential average of each command's
 # Every executed command's age (synced clients: our clock − its client_time, where it
 # goes to the driver), in ms: the last this many over all clients, and per client (a
@@ -51,6 +52,19 @@ class CommandAges:
             )
         return age
 
+    def note_transit(self, client: Client, client_time: float) -> None:
+        """A synced client's message sent at ``client_time`` (our clock) arrived now: its
+        transit goes into the usual one (``transit_avg``: the lease's grace follows it).
+        A heartbeat's too, so the grace fits the link before the first command: on a
+        lossy narrow link the first seconds after a take-over are silent the longest.
+        A time in the future or more than TRANSIT_BELIEVED_S ago says nothing of the
+        link (a client that sends 0): not counted."""
+        age = self.clock.now() - client_time
+        if not client.synced_clock or not -0.05 <= age <= TRANSIT_BELIEVED_S:
+            return
+        avg = client.transit_avg
+        client.transit_avg = age if avg is None else avg + TRANSIT_SMOOTHING * (age - avg)
+
     def check_fresh(self, client: Client, client_time: float | None) -> None:
         """Refuse an increment that waited on the way longer than the dead-man's limit
         (sent before a stall, read after it): motion resumes only on fresh commands.
@@ -64,9 +78,7 @@ class CommandAges:
         if client.synced_clock and client_time is not None:
             if not math.isfinite(client_time):
                 raise InvalidCommand("a command without a valid send time (client_time)")
-            age = now - client_time
-            avg = client.transit_avg
-            client.transit_avg = age if avg is None else avg + TRANSIT_SMOOTHING * (age - avg)
+            self.note_transit(client, client_time)
             self.check_age(client, client_time, now)
         if client_time is None or not math.isfinite(client_time):
             return

@@ -16,12 +16,13 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-# A second's budget is this share of the viewer's layer rate: a lossy link's repairs
-# (5 % lost on bench.netem's `bad`, each asked again after a round trip at most) fit
-# many times over; a flood does not.
-RESEND_SHARE = 0.5
-BURST_S = 0.5  # the bucket holds this many seconds of budget (a cut's burst of NACKs)
-FLOOR_BPS = 200_000  # the budget's floor, should the layer's rate be unknown or tiny
+# A second's budget is this share of the viewer's layer rate, as libwebrtc limits its
+# retransmissions to the target rate: a lossy link's repairs fit; a flood does not.
+# (Half of it, with a 200 kbit/s floor and half a second of burst, refused 182 of a
+# `bad` link's 275 repairs in one run: a lost key frame is tens of packets at once.)
+RESEND_SHARE = 1.0
+BURST_S = 1.0  # the bucket holds this many seconds of budget (a cut's burst of NACKs)
+FLOOR_BPS = 1_000_000  # the budget's floor, should the layer's rate be unknown or low
 MIN_GAP_S = 0.02  # resent again no sooner than this, whatever the round trip says
 DEFAULT_RTT_S = 0.1  # before the receiver's reports give one
 REMEMBERED = 1024  # packets whose last resend is remembered (aiortc keeps 128 to resend)

@@ -280,7 +280,8 @@ async def carry_out(
             )
             acknowledge(conn, hub, applied, received)
         case HeartbeatMessage():
-            pass  # `seen` (Session.receive) is the heartbeat
+            # `seen` (Session.receive) is the heartbeat; its transit is the link's
+            decision.heard_beat(client_id, msg.client_time)
         case EstopMessage():
             await decision.estop(client_id)
             conn.reply(applied_now(msg.seq, hub))
