@@ -162,6 +162,7 @@ def test_a_viewer_whose_link_loses_much_is_not_paced() -> None:
         _layer_of=lambda peer: "full",
         clock=SimpleNamespace(now=lambda: 2.0),
     )
+    pipeline._layer_rate_bps = lambda p: VideoPipeline._layer_rate_bps(pipeline, p)  # type: ignore[arg-type]
     peer = SimpleNamespace(link=ViewerLink())
     bps = VideoPipeline._layer_bps(pipeline, peer)  # type: ignore[arg-type]
     assert bps == pytest.approx(400_000, rel=0.1)  # no report yet: paced
