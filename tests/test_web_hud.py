@@ -51,7 +51,7 @@ FORMATS = {
     "loss": r"^[\d.]+ %( \(> \d+ %\))?$",
     "video": r"^\d+ fps( of 20 \(< [\d.]+\))? · \d+ kbit/s · (full|low) \d+×\d+$",
     "freezes": r"^(none in 10 s|\d+ in 10 s \(longest [\d.]+ s\))( · decoder \d+( \([\d.]+ s\))?)?$",
-    "playout": r"^([\d.]+ ms( \(> \d+ ms\))?|—)( · FEC \d+ packets(, \d+ used)?)?$",
+    "playout": r"^([\d.]+ ms( \(> \d+ ms\))?( · cap \d+ ms)?|—)( · FEC \d+ packets(, \d+ used)?)?$",
     "force": r"^[\d.]+ ms( \(> \d+ ms\))?$",
     "command": r"^— \(no command yet\)$",
     "clock": r"^[+−][\d.]+ m?s ± [\d.]+ ms( \(> ± \d+ ms\))?$",
