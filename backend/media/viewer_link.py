@@ -261,8 +261,8 @@ def follow_link(
             media, fec_seqs = protection.nacked(packet.lost)
             packet = _lost(packet, media)
         history = aiortc_compat.rtp_history(sender)
+        newest = newest_sent(history)
         if packet.lost:
-            newest = newest_sent(history)
             sent = [seq for seq in packet.lost if sent_ever(seq, newest)]
             link.nacks_never_sent += len(packet.lost) - len(sent)
             packet = _lost(packet, sent)
@@ -293,7 +293,7 @@ def follow_link(
         elif gone:
             link.nacks_unservable += len(gone)
             if at - link.keyframe_covers_at >= KEYFRAME_AGAIN_S:
-                link.keyframe_covers_through = newest_sent(history)
+                link.keyframe_covers_through = newest
                 link.keyframe_covers_at = at
                 aiortc_compat.request_keyframe(sender)
         covered = link.keyframe_covers_through

@@ -35,7 +35,7 @@ import httpx
 import numpy as np
 
 from telerobot.client.lerobot.cameras import CAMERAS, StereoFrame, StereoReceiver, wait_s
-from telerobot.client.lerobot.parts import ArmPart, describe_arms, detail, robot_type
+from telerobot.client.lerobot.parts import ArmPart, describe_arms, robot_type
 from telerobot.client.lerobot.units import FloatArray, JointUnits
 from telerobot.client.master.joints import JointMirror, JointMirrors, MirrorSettings
 from telerobot.client.master.link import PriorityLink, open_link
@@ -328,12 +328,12 @@ class TelerobotArm:
         if missing:
             raise ValueError(f"the action has no {', '.join(missing)} (the arm's joints: "
                              f"{', '.join(keys)})")  # fmt: skip
-        values = np.array([float(action[k]) for k in keys])
+        each = [np.array([float(action[k]) for k in part.keys]) for part in self.parts]
+        values = np.concatenate(each)
         if not np.all(np.isfinite(values)):
             raise ValueError(f"the action is not finite: {values.tolist()}")
         targets = []
-        for part in self.parts:
-            mine = np.array([float(action[k]) for k in part.keys])
+        for part, mine in zip(self.parts, each, strict=True):
             q, moved = part.units.clip(part.units.from_lerobot(mine))
             if moved:
                 self.clipped += 1
@@ -377,23 +377,16 @@ def _nobody_holds(mirror: JointMirrors) -> bool:
 
 
 def describe_arm(url: str) -> JointUnits:
-    """The server's one arm (``GET /api/v1/robot/model``): its joints and their units
-    (the teleoperator's: it reads one arm)."""
-    base = url if url.endswith("/") else url + "/"
-    try:
-        r = httpx.get(base + "api/v1/robot/model", timeout=10, verify=False)
-    except httpx.HTTPError as exc:
-        raise ConnectionError(f"cannot ask {base} for its arm: {exc}") from None
-    if r.status_code != 200:
-        # E.g. a server with two arms or more, which names them.
+    """The server's one arm: its joints and their units (the teleoperator's: it reads
+    one arm; a server with more is refused, naming them)."""
+    parts = describe_arms(url)
+    if len(parts) != 1:
+        names = ", ".join(p.name for p in parts)
         raise ConnectionError(
-            f"cannot ask {base} for its arm ({r.status_code}): {detail(r)}; the Telerobot"
-            " teleoperator reads a server with one arm (the robot drives two: docs/lerobot.md)"
+            f"{url} drives {len(parts)} arms ({names}); the Telerobot teleoperator reads a"
+            " server with one arm (the robot drives two: docs/lerobot.md)"
         )
-    try:
-        return JointUnits.from_described(r.json())
-    except (ValueError, KeyError) as exc:
-        raise ConnectionError(f"{base} described its arm in a way not understood: {exc}") from None
+    return parts[0].units
 
 
 def server_target(options: ArmOptions, parts: list[ArmPart]) -> dict[str, float]:
