@@ -9,7 +9,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from telerobot.server.control.clients import ClientTable
+from telerobot.server.control.clients import STALLS_KEPT, ClientTable
 from telerobot.server.control.lease import MAX_GRACE_EXTENSION_S, Lease
 from telerobot.server.control.limits import SafetyLimits
 
@@ -65,3 +65,16 @@ def test_a_silent_holder_is_stopped_then_loses_the_lease_within_a_bounded_grace(
     assert lapsed and lease.holder is None
     silent = clock.now() - last
     assert plain <= silent <= plain + MAX_GRACE_EXTENSION_S + 3 * TICK_S, silent
+
+
+def test_a_holders_remembered_stalls_are_bounded() -> None:
+    clock = SteppedClock()
+    limits = SafetyLimits()
+    clients = ClientTable(clock, TOKEN)
+    holder = clients.add("alice", TOKEN)
+    lease = Lease(clients, clock, limits)
+    lease.give(holder, "taken")
+    for _ in range(3 * STALLS_KEPT):  # a stall each time it is heard
+        clock.t += limits.deadman_timeout_s + 0.1
+        lease.heard(holder)
+    assert len(holder.stalls) == STALLS_KEPT
