@@ -201,6 +201,11 @@ class ServerSettings(BaseSettings):
     # protects every viewer at the most (~1 FEC packet per 3 media packets; 1 per 2 for
     # a still scene's one-packet frames), "off" never (nor offered).
     video_fec: Literal["auto", "on", "off"] = "auto"
+    # The operator's page (its peer opened with the operator token) gets an encoder of
+    # its own whose bitrate, size and frame rate follow a congestion estimate of its
+    # link, FEC inside that budget (media/rate_control.py); watchers share the layers.
+    # Off: the operator shares them too (one encode less: ~a third of a core at 2×720p).
+    video_operator_encoder: bool = True
     # Tests and demos: every Nth video packet to each viewer is lost for good, its
     # resends too (only FEC can bring it back). 0: none.
     video_drop_every: int = Field(0, ge=0, le=1000)

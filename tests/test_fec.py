@@ -360,7 +360,7 @@ def test_the_pipeline_judges_each_connected_viewer_on_its_clock() -> None:
     counts = fec.FecCounts()
     peer: Any = SimpleNamespace(
         connected=True, link=ViewerLink(), fec=SimpleNamespace(counts=counts),
-        protection=Protection(),
+        protection=Protection(), rate=None,
     )  # fmt: skip
     idle: Any = SimpleNamespace(connected=False, protection=Protection())
     pipeline.peers.update({"p": peer, "idle": idle})

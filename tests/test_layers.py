@@ -218,13 +218,15 @@ async def test_a_track_moves_on_the_new_layers_keyframe_without_a_gap() -> None:
 
 
 # ---------------------------------------------------------------- real viewers
-async def _viewer(pipeline: VideoPipeline, layer: str) -> tuple[RTCPeerConnection, object, str]:
+async def _viewer(
+    pipeline: VideoPipeline, layer: str, operator: bool = False
+) -> tuple[RTCPeerConnection, object, str]:
     pc = RTCPeerConnection()
     pc.addTransceiver("video", direction="recvonly")
     got: asyncio.Queue[object] = asyncio.Queue()
     pc.on("track", got.put_nowait)
     await pc.setLocalDescription(await pc.createOffer())
-    answer = await pipeline.answer(pc.localDescription.sdp, "offer", layer)  # type: ignore[arg-type]
+    answer = await pipeline.answer(pc.localDescription.sdp, "offer", layer, operator)  # type: ignore[arg-type]
     await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
     return pc, await asyncio.wait_for(got.get(), 10), answer["peer_id"]
 

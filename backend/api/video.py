@@ -187,7 +187,7 @@ async def offer(
             "observers watch through this server's media server, which makes the offer:"
             " POST /api/v1/webrtc/server-offer, then /api/v1/webrtc/answer"
         )
-    reply = await media.request(rpc.Answer(body.sdp, body.type, body.layer))
+    reply = await media.request(rpc.Answer(body.sdp, body.type, body.layer, operator))
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 
@@ -210,7 +210,7 @@ async def server_offer(
         address = request.client.host if request.client else ""
         reply = await media.request(rpc.RelayOffer(address))
     else:
-        reply = await media.request(rpc.Offer(layer))
+        reply = await media.request(rpc.Offer(layer, operator))
     return PeerDescription(**{k: reply[k] for k in ("peer_id", "peer_secret", "sdp", "type")})
 
 

@@ -84,6 +84,7 @@ class PacketEncoder:
         self._keyframe = threading.Event()
         self._keyframe.set()  # the first frame is one anyway
         self.frames = 0
+        self._new_bitrate: int | None = None
 
     def options(self, keyint: int | None) -> dict[str, str]:
         """The FFmpeg options; ``keyint``: frames between periodic keyframes (None: none)."""
@@ -91,6 +92,13 @@ class PacketEncoder:
 
     def request_keyframe(self) -> None:
         self._keyframe.set()
+
+    def set_bitrate(self, bps: int) -> None:
+        """A new average bitrate from the next frame on, at most the one it was opened
+        with (its VBV cap): libx264 takes it without a key frame (FFmpeg reconfigures
+        x264 when ``bit_rate`` changes, as long as the VBV was set through the codec
+        context's own maxrate and bufsize). Taken by ``encode``, on the encoder's thread."""
+        self._new_bitrate = max(1000, min(int(bps), self.bitrate))
 
     def encode(self, frame: StereoFrame) -> list[EncodedFrame]:
         started = time.perf_counter()
@@ -101,6 +109,9 @@ class PacketEncoder:
         video = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
         video.pts = round(frame.time * VIDEO_CLOCK)
         video.time_base = Fraction(1, VIDEO_CLOCK)
+        if (bps := self._new_bitrate) is not None:
+            self._new_bitrate = None
+            self.ctx.bit_rate = bps
         if self._keyframe.is_set():
             self._keyframe.clear()
             video.pict_type = av.video.frame.PictureType.I
@@ -133,14 +144,18 @@ class H264Encoder(PacketEncoder):
             "tune": "zerolatency",
             "profile": "baseline",
             "level": h264_level(self.width, self.height, self.fps),
+            # The VBV through the codec context (not x264-params), so that a new
+            # bit_rate later is taken (set_bitrate; FFmpeg's libx264 wrapper compares
+            # the context's maxrate and bufsize with x264's before it reconfigures).
+            "maxrate": f"{kbps}k",
+            "bufsize": f"{bufsize}k",
             "x264-params": (
                 f"keyint={keyint}:min-keyint={keyint}:" if keyint else "keyint=infinite:"
             )
-            + "bframes=0:scenecut=0:"
-            f"vbv-maxrate={kbps}:vbv-bufsize={bufsize}:repeat-headers=1"
+            + "bframes=0:scenecut=0:repeat-headers=1"
             # Constant bitrate: filler data tops every second up to the bitrate (a fixed
             # link budget, and the load the force-under-video benchmark needs).
-             + (":nal-hrd=cbr:filler=1" if self.cbr else ""),
+            + (":nal-hrd=cbr:filler=1" if self.cbr else ""),
         }
 
 

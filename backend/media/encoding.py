@@ -24,7 +24,8 @@ from telerobot.drivers.base import CameraStatus, StereoCamera, StereoFrame
 from telerobot.drivers.clock import Clock
 from telerobot.server.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from telerobot.server.media.fanout import Broadcaster
-from telerobot.server.media.layers import LAYERS, Layer, RateMeter, low_size
+from telerobot.server.media.layers import LAYERS, OPERATOR, Layer, RateMeter, low_size
+from telerobot.server.media.rate_control import RateControl
 from telerobot.server.telemetry.stats import InterArrival, StreamStats
 
 if TYPE_CHECKING:
@@ -61,8 +62,14 @@ class Encoding:
         # its viewers.
         self.encoders: dict[tuple[str, Layer], PacketEncoder] = {}
         self.broadcasters: dict[tuple[str, Layer], Broadcaster] = {}
+        # The operator's own stream (rate_control.py): its rate, size and frame rate
+        # follow the operator's link; None while no operator's peer has one.
+        self.operator_rate: RateControl | None = None
+        self._operator_frames = 0  # frames offered to it (every n-th is encoded)
+        self.operator_fec_share = 0.0  # FEC packets per media packet to the operator
         self.encoder = self.encoder_for("H264")
-        self.layer_rate = {layer: RateMeter() for layer in LAYERS}  # H.264 bits/s sent
+        # H.264 bits/s sent, per layer
+        self.layer_rate = {layer: RateMeter() for layer in (*LAYERS, OPERATOR)}
         self._grab = ThreadPoolExecutor(1, thread_name_prefix="video-grab")
         self._encode = ThreadPoolExecutor(1, thread_name_prefix="video-encode")
         self.capture_interarrival = InterArrival("video_capture")
@@ -80,6 +87,9 @@ class Encoding:
 
     def layer_size(self, layer: Layer) -> tuple[int, int]:
         """One eye's size in ``layer``."""
+        if layer == OPERATOR:
+            rate = self.operator_rate
+            layer = "low" if rate is not None and rate.size == "low" else "full"
         if layer == "full":
             return self.camera.width, self.camera.height
         return low_size(self.camera.width, self.camera.height, self.settings.low_scale)
@@ -88,19 +98,42 @@ class Encoding:
         """The encoder of ``codec`` in ``layer``, made (with its broadcaster) on first use."""
         key = (codec, layer)
         if key not in self.encoders:
-            s = self.settings
-            width, height = self.layer_size(layer)
-            enc = ENCODERS[codec](
-                2 * width,
-                height,
-                s.fps,
-                s.bitrate if layer == "full" else min(s.bitrate, s.low_bitrate),
-                s.keyframe_interval,
-                cbr=s.cbr,
+            self.encoders[key] = self._new_encoder(codec, layer)
+            # (the encoder of the moment: the operator's is replaced when its size changes)
+            self.broadcasters[key] = Broadcaster(
+                lambda: self.encoders[key].request_keyframe(), self.clock.now
             )
-            self.encoders[key] = enc
-            self.broadcasters[key] = Broadcaster(enc.request_keyframe, self.clock.now)
         return self.encoders[key]
+
+    def _new_encoder(self, codec: str, layer: Layer) -> PacketEncoder:
+        s = self.settings
+        width, height = self.layer_size(layer)
+        enc = ENCODERS[codec](
+            2 * width,
+            height,
+            s.fps,
+            min(s.bitrate, s.low_bitrate) if layer == "low" else s.bitrate,
+            s.keyframe_interval,
+            cbr=s.cbr and layer != OPERATOR,  # (filler would fill the operator's link)
+        )
+        if layer == OPERATOR and self.operator_rate is not None:
+            enc.set_bitrate(self.operator_rate.media_bps(self.operator_fec_share))
+        return enc
+
+    def follow_operator_rate(self, fec_share: float) -> None:
+        """The operator's rate control changed (or its FEC share did): the encoder's
+        bitrate follows from the next frame; a new size takes a new encoder, whose first
+        frame is a key frame (the operator's track waits for none: it was on this
+        broadcaster already, and a key frame is what a new size needs)."""
+        rate = self.operator_rate
+        self.operator_fec_share = fec_share
+        for (codec, layer), enc in list(self.encoders.items()):
+            if layer != OPERATOR or rate is None:
+                continue
+            if (enc.width // 2, enc.height) != self.layer_size(OPERATOR):
+                self.encoders[(codec, layer)] = self._new_encoder(codec, layer)
+            else:
+                enc.set_bitrate(rate.media_bps(fec_share))
 
     def start_tap(self, tap: Callable[[EncodedFrame], None], name: str = "recording") -> None:
         """Hand every H.264 packet to ``tap`` from now on, and ask for a keyframe (shared
@@ -163,9 +196,12 @@ class Encoding:
             tapped = bool(self.taps) and key == ("H264", "full")
             if broadcaster.sending == 0 and not tapped:
                 continue  # nobody on this layer, nothing recorded: no encoding
-            if layer == "low" and small is None:
+            if layer == OPERATOR and self._operator_skips():
+                continue  # its rate carries only every n-th frame
+            shrunk = self.layer_size(layer) != self.layer_size("full")
+            if shrunk and small is None:
                 small = await loop.run_in_executor(self._encode, self._shrink, frame)
-            source = small if layer == "low" and small is not None else frame
+            source = small if shrunk and small is not None else frame
             out.append(
                 (key, await loop.run_in_executor(self._encode, self.encoders[key].encode, source))
             )
@@ -179,6 +215,13 @@ class Encoding:
                     for tap in list(self.taps.values()):
                         tap(encoded)  # must not block: a bounded hand-over
                 self.broadcasters[key].publish(encoded)
+
+    def _operator_skips(self) -> bool:
+        """Whether the operator's stream leaves this frame out (half its frame rate
+        when its link carries too little for the full rate: rate_control.py)."""
+        self._operator_frames += 1
+        every = 1 if self.operator_rate is None else self.operator_rate.every
+        return self._operator_frames % every != 0
 
     def _shrink(self, frame: StereoFrame) -> StereoFrame:
         width, height = self.layer_size("low")
@@ -231,7 +274,8 @@ class Encoding:
                     if (bps := self.layer_rate[layer].bps(now)) is None
                     else bps / 1000,
                 }
-                for layer in LAYERS
+                for layer in (*LAYERS, OPERATOR)
+                if layer != OPERATOR or ("H264", OPERATOR) in self.broadcasters
             },
             "keyframes_forced": sum(b.keyframes.forced for b in self.broadcasters.values()),
         }

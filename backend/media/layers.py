@@ -20,8 +20,11 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-Layer = Literal["full", "low"]
+# "operator": the operator's own stream, not shared (rate_control.py); the other two
+# are the shared layers every watcher moves between.
+Layer = Literal["full", "low", "operator"]
 LAYERS: tuple[Layer, ...] = ("full", "low")
+OPERATOR: Layer = "operator"
 LayerMode = Literal["auto", "full", "low"]  # "auto": chosen by the viewer's link
 
 LOW_SCALE = 0.5  # of each side: 2×1280×720 → 2×640×360

@@ -40,6 +40,7 @@ from telerobot.server.media.ice import IceConfig, parse_url
 from telerobot.server.media.layers import (
     LOW_BITRATE,
     LOW_SCALE,
+    OPERATOR,
     Layer,
     LayerChoice,
     LayerMode,
@@ -47,6 +48,7 @@ from telerobot.server.media.layers import (
 from telerobot.server.media.pacer import Pacer, pace_peer
 from telerobot.server.media.playout import AdaptivePlayout, stamp_playout_delay
 from telerobot.server.media.playout import allow as allow_playout_delay
+from telerobot.server.media.rate_control import RateControl
 from telerobot.server.media.resend_budget import ResendBudget
 from telerobot.server.media.supervisor import MediaUnavailable
 from telerobot.server.media.viewer_link import Protection, ViewerLink, follow_link
@@ -128,6 +130,7 @@ class VideoSettings:
     adaptive_playout: bool = _default("video_adaptive_playout")
     playout_max_ms: int = _default("video_playout_max_ms")  # media/playout.py
     fec: str = _default("video_fec")  # RED + ULPFEC (backend/media/fec.py)
+    operator_encoder: bool = _default("video_operator_encoder")  # media/rate_control.py
     drop_every: int = _default("video_drop_every")  # tests and demos: lost for good
     ice: IceConfig = field(default_factory=IceConfig)  # STUN/TURN (backend/media/ice.py)
 
@@ -144,6 +147,7 @@ class VideoSettings:
             adaptive_playout=settings.video_adaptive_playout,
             playout_max_ms=settings.video_playout_max_ms,
             fec=settings.video_fec,
+            operator_encoder=settings.video_operator_encoder,
             drop_every=settings.video_drop_every,
             ice=settings.ice_config,
         )
@@ -164,6 +168,9 @@ class Peer:
     fec: ulpfec.FecSender | None = None  # likewise, if RED and ULPFEC were agreed
     playout: AdaptivePlayout = field(default_factory=AdaptivePlayout)
     protection: Protection = field(default_factory=Protection)  # its FEC share
+    operator: bool = False  # opened with the operator token
+    # The operator's own stream's rate (rate_control.py), while this peer has it
+    rate: RateControl | None = None
 
     def owned_by(self, secret: str | None) -> bool:
         return token_matches(secret, self.secret)
@@ -252,28 +259,83 @@ class VideoPipeline:
             self.expire_pending()
             self.adapt_layers()
             self.adapt_protection()
+            self.adapt_operator_rate()
+
+    def operator_peer(self) -> Peer | None:
+        """The peer that gets the operator's own stream: the newest connected one
+        opened with the operator token, on H.264 and "auto" (a layer asked for by name
+        is kept); None if there is none or the setting is off. One at most: each is an
+        encode of its own."""
+        if not self.settings.operator_encoder:
+            return None
+        candidates = [
+            p
+            for p in self.peers.values()
+            if p.operator and p.connected and p.mode == "auto" and self._codec_of(p) == "H264"
+        ]
+        return max(candidates, key=lambda p: p.created, default=None)
 
     def adapt_layers(self) -> None:
         """Each connected viewer on "auto" gets the layer its link carries (called about
-        once a second; the decision and its hysteresis are ``LayerChoice``'s)."""
+        once a second; the decision and its hysteresis are ``LayerChoice``'s), the
+        operator's peer its own stream (``operator_peer``)."""
         now = self.clock.now()
         full_bps = self.encoding.layer_rate["full"].bps(now)
+        chosen = self.operator_peer()
         for peer in self.peers.values():
             if not peer.connected or peer.mode != "auto":
                 continue
+            if peer is chosen:
+                if peer.rate is None:
+                    self._give_operator_stream(peer)
+                continue
+            if peer.rate is not None:  # another operator's peer is newer: back to sharing
+                peer.rate = None
+                self.set_layer(peer, peer.choice.layer)
             before = peer.choice.layer
             layer = peer.choice.decide(peer.link, full_bps, now)
             if layer != before:
                 log.info("a viewer moves to the %s layer: %s", layer, peer.choice.why)
                 self.set_layer(peer, layer)
 
+    def _give_operator_stream(self, peer: Peer) -> None:
+        """Move ``peer`` to an encoder of its own, its rate starting at the configured
+        bitrate and following its link from there (``adapt_operator_rate``)."""
+        s, encoding = self.settings, self.encoding
+        full, low = encoding.layer_size("full"), encoding.layer_size("low")
+        peer.rate = RateControl(s.bitrate, 2 * full[0] * full[1], 2 * low[0] * low[1], s.fps)
+        encoding.operator_rate = peer.rate
+        encoding.follow_operator_rate(peer.protection.fec_share)
+        log.info("the operator's viewer gets its own stream (its rate follows its link)")
+        self.set_layer(peer, OPERATOR)
+
     def adapt_protection(self) -> None:
         """Each connected viewer's loss (from its NACKs, about once a second) and the
-        FEC share that follows it (``Protection.judge``, backend/media/viewer_link.py)."""
+        FEC share that follows it (``Protection.judge``, backend/media/viewer_link.py);
+        the operator's FEC fits inside its rate (``budgeted``)."""
         now = self.clock.now()
         for peer in self.peers.values():
             if peer.connected:
-                peer.protection.judge(_packets_sent(peer), peer.link, self.settings.fec, now)
+                peer.protection.judge(
+                    _packets_sent(peer),
+                    peer.link,
+                    self.settings.fec,
+                    now,
+                    budgeted=peer.rate is not None,
+                )
+
+    def adapt_operator_rate(self) -> None:
+        """The operator's stream follows its link's latest report (``RateControl``),
+        and its encoder the rate, less FEC's share of it."""
+        peer = next((p for p in self.peers.values() if p.rate is not None), None)
+        if peer is None or peer.rate is None:
+            return
+        share = peer.protection.fec_share
+        changed = peer.rate.update(peer.link, peer.protection.loss, self.clock.now())
+        if changed or share != self.encoding.operator_fec_share:
+            if changed:
+                log.debug("the operator's stream: %s", peer.rate.why)
+            self.encoding.follow_operator_rate(share)
 
     def _repair_asked(self, peer: Peer) -> None:
         """The viewer NACKed media: a repair it waits for a round trip (and the
@@ -288,7 +350,7 @@ class VideoPipeline:
 
     def set_layer(self, peer: Peer, layer: Layer) -> None:
         """Move ``peer`` to ``layer`` (from that layer's next keyframe, asked for now)."""
-        codec = next(c for c, b in self.encoding.broadcasters.items() if b is peer.track.source)[0]
+        codec = self._codec_of(peer)
         self.encoding.encoder_for(codec, layer)
         peer.track.move_to(self.encoding.broadcasters[(codec, layer)])
 
@@ -338,7 +400,9 @@ class VideoPipeline:
         return peer
 
     # ------------------------------------------------------------ signalling
-    def _new_peer(self, codec: str = "H264", mode: LayerMode = "auto") -> tuple[str, Peer]:
+    def _new_peer(
+        self, codec: str = "H264", mode: LayerMode = "auto", operator: bool = False
+    ) -> tuple[str, Peer]:
         pc = RTCPeerConnection(_ice(self.settings.ice))
         layer: Layer = "low" if mode == "low" else "full"
         self.encoding.encoder_for(codec, layer)
@@ -353,7 +417,7 @@ class VideoPipeline:
         # A viewer's PLI or FIR: pre-encoded video needs its encoder told
         aiortc_compat.on_keyframe_request(sender, track.keyframe_requested)
         peer_id = secrets.token_hex(8)
-        peer = Peer(pc, track, created=self.clock.now(), mode=mode)
+        peer = Peer(pc, track, created=self.clock.now(), mode=mode, operator=operator)
         peer.playout = AdaptivePlayout(self.settings.playout_max_ms)
         peer.choice.layer = layer
         # Its resends within a budget of its own layer's rate (a flood of NACKs from one
@@ -397,6 +461,8 @@ class VideoPipeline:
     def _detach(self, peer_id: str) -> Peer | None:
         peer = self.peers.pop(peer_id, None)
         if peer is not None:
+            if peer.rate is not None and self.encoding.operator_rate is peer.rate:
+                self.encoding.operator_rate = None
             peer.track.stop()
             if peer.pacer is not None:
                 peer.pacer.close()
@@ -424,8 +490,11 @@ class VideoPipeline:
             raise NotYourPeer(f"this peer saves the alignment of viewer {peer.viewer!r} only")
         peer.viewer = viewer
 
-    async def answer(self, sdp: str, kind: str, layer: LayerMode = "auto") -> dict[str, str]:
-        """The browser offers, we answer (the usual way)."""
+    async def answer(
+        self, sdp: str, kind: str, layer: LayerMode = "auto", operator: bool = False
+    ) -> dict[str, str]:
+        """The browser offers, we answer (the usual way). ``operator``: the offer came
+        with the operator token (its peer may get the operator's own stream)."""
         if kind != "offer":
             raise BadOffer(f"expected an SDP of type 'offer', got {kind!r}")
         if "m=video" not in sdp:
@@ -438,7 +507,7 @@ class VideoPipeline:
         else:
             raise BadOffer("the offer accepts neither H.264 nor VP8 video")
         self._make_room()
-        peer_id, peer = self._new_peer(codec, layer)
+        peer_id, peer = self._new_peer(codec, layer, operator)
         try:
             await peer.pc.setRemoteDescription(RTCSessionDescription(sdp=sdp, type="offer"))
             await peer.pc.setLocalDescription(await peer.pc.createAnswer())
@@ -448,10 +517,10 @@ class VideoPipeline:
         await self._check_relay(peer_id, peer)
         return self._description(peer_id, peer)
 
-    async def offer(self, layer: LayerMode = "auto") -> dict[str, str]:
+    async def offer(self, layer: LayerMode = "auto", operator: bool = False) -> dict[str, str]:
         """We offer (for browsers that need the server to): answer with ``accept``."""
         self._make_room()
-        peer_id, peer = self._new_peer("H264", layer)
+        peer_id, peer = self._new_peer("H264", layer, operator)
         await peer.pc.setLocalDescription(await peer.pc.createOffer())
         await self._check_relay(peer_id, peer)
         return self._description(peer_id, peer)
@@ -520,6 +589,9 @@ class VideoPipeline:
                     "layer_mode": p.mode,
                     "layer_switches": p.track.switches,
                     "layer_why": p.choice.why,
+                    # The operator's own stream (None: this viewer shares the layers):
+                    # its rate now, size, frame rate and why it last changed.
+                    "rate": None if p.rate is None else p.rate.as_dict(),
                     "link": p.link.as_dict(now),
                     # FEC (None: not agreed with this viewer): the share now, the loss
                     # it follows, what was sent.
@@ -569,6 +641,9 @@ class VideoPipeline:
             return self.encoding.layer_rate[self._layer_of(peer)].bps(self.clock.now())
         except StopIteration:  # (between two layers)
             return None
+
+    def _codec_of(self, peer: Peer) -> str:
+        return next(c for (c, _), b in self.encoding.broadcasters.items() if b is peer.track.source)
 
     def _layer_of(self, peer: Peer) -> Layer:
         return next(x for (_, x), b in self.encoding.broadcasters.items() if b is peer.track.source)

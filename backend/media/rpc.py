@@ -22,6 +22,7 @@ class Answer:
     sdp: str
     type: str
     layer: LayerMode = "auto"
+    operator: bool = False  # the server checked the operator token (its own stream)
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,7 @@ class Offer:
     """The server offers first: a new peer's SDP offer (``peer_id``, ``peer_secret``)."""
 
     layer: LayerMode = "auto"
+    operator: bool = False
 
 
 @dataclass(frozen=True)

@@ -182,9 +182,14 @@ class Protection:
     queued_seconds: int = 0  # seconds in a row the link was seen queuing
     cut_at: float | None = None  # when its link was last seen cut
 
-    def judge(self, sent: int, link: ViewerLink, mode: str, now: float) -> None:
+    def judge(
+        self, sent: int, link: ViewerLink, mode: str, now: float, budgeted: bool = False
+    ) -> None:
         """A second more of the viewer's link: ``sent`` media packets so far, ``link``'s
-        NACKs; ``mode`` the setting ("auto", "on", "off")."""
+        NACKs; ``mode`` the setting ("auto", "on", "off"). ``budgeted``: this viewer's
+        encoder makes room for the FEC inside its link's estimate (the operator's own
+        stream, rate_control.py), so a queue is the rate's to answer, not a reason to
+        pause the FEC."""
         nacked = link.nacked
         d_sent, d_nacked = sent - self.counted[0], nacked - self.counted[1]
         if d_sent <= 0:
@@ -200,7 +205,7 @@ class Protection:
         if mode != "auto":
             return
         settled = self.cut_at is None or now - self.cut_at > CUT_SETTLE_S
-        queuing = settled and queued is not None and queued > QUEUED_NO_FEC_S
+        queuing = settled and not budgeted and queued is not None and queued > QUEUED_NO_FEC_S
         self.queued_seconds = self.queued_seconds + 1 if queuing else 0
         if self.queued_seconds >= QUEUED_SECONDS:
             self.fec_paused_until = now + FEC_PAUSE_S

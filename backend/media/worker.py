@@ -227,10 +227,10 @@ class _Served:
 
         pipeline, relay, tap = self.pipeline, self.relay, self.tap
         match req:
-            case rpc.Answer(sdp, kind, layer):
-                return await pipeline.answer(sdp, kind, layer)
-            case rpc.Offer(layer):
-                return await pipeline.offer(layer)
+            case rpc.Answer(sdp, kind, layer, operator):
+                return await pipeline.answer(sdp, kind, layer, operator)
+            case rpc.Offer(layer, operator):
+                return await pipeline.offer(layer, operator)
             case rpc.Accept(peer_id, sdp, kind, secret):
                 return await pipeline.accept(peer_id, sdp, kind, secret)
             case rpc.ClosePeer(peer_id, secret, operator):

@@ -1,0 +1,160 @@
+"""The operator's own video rate: a congestion estimate of the operator's link, and
+the bitrate, size and frame rate of the encoder that serves the operator alone
+(docs/architecture.md, "Media").
+
+Watchers share the layered stream (layers.py): one encode per layer, each viewer moved
+between layers by its link. The operator cannot wait for that: on a narrow link (the
+`bad` profile, 2 Mbit/s shared with the forces) the shared layer's rate is whatever the
+scene makes of the configured bitrate, FEC did not fit beside it and was switched off,
+and the picture froze. So the operator's peer gets an encoder of its own whose rate
+follows an estimate of its own link, the way a libwebrtc sender's does (GCC, Holmer et
+al., draft-ietf-rmcat-gcc), from what its receiver reports over RTCP about once a
+second:
+
+* **loss-based**: a report losing more than ``HIGH_LOSS`` cuts the rate by half the
+  loss (``rate × (1 − loss/2)``); one losing less than ``LOW_LOSS`` with no queue lets
+  it grow by ``INCREASE`` a second; in between it holds (a lossy but uncongested
+  link, as `bad`'s 5 % random loss, is FEC's to repair, not the rate's);
+* **delay-based**: the round trip grown ``QUEUE_S`` above its floor in
+  ``CONFIRM_REPORTS`` reports in a row is a queue the video builds: ``× DECREASE``;
+* **the receiver's own estimate** (REMB, from Chromium's delay-gradient estimator)
+  caps the rate once it has fallen from its peak (``ESTIMATE_FALL``): a receiver
+  starts low and climbs, so a low estimate that is still rising says nothing (as in
+  layers.py).
+
+The rate stays within [``MIN_BPS``, the configured bitrate]. Out of it come FEC's
+share and a margin for resends (``media_bps``), so FEC fits inside the estimate
+instead of being switched off. Below what the full size needs (``MIN_BITS_PER_PIXEL``)
+the encoder drops to the low layer's size, and below what that size needs at the full
+frame rate, to half the frame rate; each comes back only with ``UP_MARGIN`` to spare.
+Pure: time is passed in, the pipeline calls ``update`` on each fresh report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from telerobot.server.media.layers import LinkReport
+from telerobot.server.telemetry.stats import DriftingFloor
+
+MIN_BPS = 150_000
+HIGH_LOSS = 0.10
+LOW_LOSS = 0.02
+INCREASE = 1.08  # a clean second's growth (GCC's multiplicative increase)
+DECREASE = 0.85  # a queue's cut
+QUEUE_S = 0.15  # the round trip this far above its floor: a queue (jitter stays below)
+CONFIRM_REPORTS = 2  # a queue seen in this many reports in a row (one late RTCP is not)
+ESTIMATE_FALL = 0.85  # the receiver's estimate this far below its peak: it saw overuse
+FLOOR_DRIFT = 0.01  # s per s: the round trip's floor follows a link whose delay grew
+RESEND_SHARE = 0.1  # of the rate, kept for resends (resend_budget.py spends it)
+# Below this many bits per pixel x264 (ultrafast) turns to blocks: the smaller size
+# then looks better at the same rate.
+MIN_BITS_PER_PIXEL = 0.03
+UP_MARGIN = 1.3  # back to a bigger size or rate only with this much to spare
+FULL_SIZE_SHARE = 0.7  # of the configured bitrate: below it, never the full size…
+FULL_RATE_SHARE = 0.35  # …and never the full frame rate below this
+
+
+@dataclass
+class RateControl:
+    """One operator's link estimate and the encoder settings that follow it.
+
+    ``full_pixels`` and ``low_pixels``: one frame's pixels (both eyes) at the full and
+    the low size; ``fps``: the configured frame rate."""
+
+    max_bps: int
+    full_pixels: int
+    low_pixels: int
+    fps: float
+    target_bps: float = 0.0
+    size: str = "full"  # "full" or "low"
+    every: int = 1  # encode every n-th frame
+    why: str = "start: the configured bitrate"
+    seen_reports: int = 0
+    queue_strikes: int = 0
+    peak_estimate: int = 0
+    cuts: int = 0
+    floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
+
+    def __post_init__(self) -> None:
+        self.max_bps = max(self.max_bps, MIN_BPS)
+        self.target_bps = float(self.max_bps)
+        self._shape()
+
+    def update(self, link: LinkReport, loss: float | None, now: float) -> bool:
+        """A receiver report more (``loss``: the share its NACKs show lost, which a
+        receiver report hides once resent; the larger of the two counts). True if the
+        rate, size or frame rate changed."""
+        if link.reports <= self.seen_reports:
+            return False
+        self.seen_reports = link.reports
+        before = (round(self.target_bps), self.size, self.every)
+        lost = max(link.fraction_lost or 0.0, loss or 0.0)
+        queued = False
+        if link.rtt_s is not None and link.rtt_s > 0:
+            self.floor.update(link.rtt_s, now)
+            least = self.floor.value
+            queued = least is not None and link.rtt_s > least + QUEUE_S
+        self.queue_strikes = self.queue_strikes + 1 if queued else 0
+        estimate = link.estimated_bps
+        if estimate is not None:
+            self.peak_estimate = max(self.peak_estimate, estimate)
+        fallen = (
+            estimate is not None
+            and estimate < self.target_bps
+            and estimate < ESTIMATE_FALL * self.peak_estimate
+        )
+        if lost > HIGH_LOSS:
+            self._set(self.target_bps * (1 - lost / 2), f"{lost:.0%} lost")
+        elif self.queue_strikes >= CONFIRM_REPORTS:
+            rtt = (link.rtt_s or 0.0) * 1000
+            self._set(self.target_bps * DECREASE, f"a queue: round trip {rtt:.0f} ms")
+            self.queue_strikes = 0
+        elif fallen and estimate is not None:
+            self._set(estimate, f"the receiver's estimate fell to {estimate / 1e6:.2f} Mbit/s")
+            self.peak_estimate = estimate  # a new peak to fall from
+        elif lost < LOW_LOSS and not queued and self.target_bps < self.max_bps:
+            self._set(self.target_bps * INCREASE, "clean: growing")
+        self._shape()
+        return before != (round(self.target_bps), self.size, self.every)
+
+    def _set(self, bps: float, why: str) -> None:
+        bps = min(float(self.max_bps), max(float(MIN_BPS), bps))
+        if bps < self.target_bps:
+            self.cuts += 1
+        self.target_bps, self.why = bps, why
+
+    def media_bps(self, fec_share: float) -> int:
+        """The encoder's bitrate: the rate less the resends' margin and FEC's share
+        (``fec_share`` FEC packets per media packet)."""
+        return max(MIN_BPS // 2, round(self.target_bps * (1 - RESEND_SHARE) / (1 + fec_share)))
+
+    def _shape(self) -> None:
+        """The size and frame rate the rate can carry (``MIN_BITS_PER_PIXEL``), with
+        ``UP_MARGIN`` to spare before going back up. At the configured bitrate it is
+        always the full size and rate (as the shared layer), whatever the pixels: each
+        need is at most a share of it (``FULL_SIZE_SHARE``, ``FULL_RATE_SHARE``)."""
+        rate, top = self.target_bps, float(self.max_bps)
+        full_need = min(MIN_BITS_PER_PIXEL * self.full_pixels * self.fps, FULL_SIZE_SHARE * top)
+        low_need = min(MIN_BITS_PER_PIXEL * self.low_pixels * self.fps, FULL_RATE_SHARE * top)
+        if self.size == "full" and rate < full_need:
+            self.size = "low"
+        elif self.size == "low" and rate >= min(top, UP_MARGIN * full_need):
+            self.size = "full"
+        if self.size == "full":
+            self.every = 1
+        elif self.every == 1 and rate < low_need:
+            self.every = 2
+        elif self.every == 2 and rate >= min(top, UP_MARGIN * low_need):
+            self.every = 1
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "kbps": self.target_bps / 1000,
+            "max_kbps": self.max_bps / 1000,
+            "size": self.size,
+            "fps": self.fps / self.every,
+            "why": self.why,
+            "cuts": self.cuts,
+        }

@@ -1,0 +1,243 @@
+"""The operator's own video stream (backend/media/rate_control.py): the rate's rules on
+made-up receiver reports, an invariant over generated ones (Hypothesis), libx264
+taking a new bitrate without a new encoder, and a real aiortc operator's viewer moved
+to an encoder of its own whose size follows its rate while a watcher keeps the shared
+layer."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from telerobot.drivers.base import StereoFrame
+from telerobot.server.media.encoder import H264Encoder
+from telerobot.server.media.layers import low_size
+from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
+from telerobot.server.media.rate_control import (
+    DECREASE,
+    INCREASE,
+    MIN_BPS,
+    RESEND_SHARE,
+    RateControl,
+)
+from tests.support.video import SMALL, camera
+from tests.test_layers import _frames, _viewer
+
+MAX = 2_000_000
+FULL_PIXELS, LOW_PIXELS = 2 * 1280 * 720, 2 * 640 * 360  # (each needs 1.66, 0.41 Mbit/s)
+
+
+@dataclass
+class Link:
+    estimated_bps: int | None = None
+    fraction_lost: float | None = None
+    rtt_s: float | None = None
+    reports: int = 0
+
+    def report(self, lost: float = 0.0, rtt: float = 0.1, bps: int | None = None) -> Link:
+        self.fraction_lost, self.rtt_s, self.reports = lost, rtt, self.reports + 1
+        self.estimated_bps = bps
+        return self
+
+
+def control() -> RateControl:
+    return RateControl(MAX, FULL_PIXELS, LOW_PIXELS, 30.0)
+
+
+def test_a_clean_link_keeps_the_configured_rate_and_a_stale_report_counts_once() -> None:
+    rc, link = control(), Link()
+    for t in range(10):
+        rc.update(link.report(), None, float(t))
+    assert rc.target_bps == MAX and rc.size == "full" and rc.every == 1
+    link.report(lost=0.5)
+    assert rc.update(link, None, 10.0)
+    cut = rc.target_bps
+    assert not rc.update(link, None, 11.0)  # the same report again: nothing
+    assert rc.target_bps == cut == MAX * 0.75
+
+
+def test_heavy_loss_cuts_random_loss_holds_and_a_clean_second_grows() -> None:
+    rc, link = control(), Link()
+    rc.update(link.report(lost=0.2), None, 0.0)
+    assert rc.target_bps == MAX * 0.9 and "20% lost" in rc.why
+    # 5 % lost (a lossy, uncongested link: FEC's to repair) holds the rate…
+    for t in range(1, 5):
+        rc.update(link.report(lost=0.05), None, float(t))
+    assert rc.target_bps == MAX * 0.9
+    # …NACK-counted loss too (a receiver report hides what was resent)
+    rc.update(link.report(lost=0.0), 0.05, 5.0)
+    assert rc.target_bps == MAX * 0.9
+    rc.update(link.report(lost=0.0), 0.0, 6.0)
+    assert rc.target_bps == min(MAX, MAX * 0.9 * INCREASE)
+
+
+def test_a_queue_in_two_reports_in_a_row_cuts_the_rate() -> None:
+    rc, link = control(), Link()
+    rc.update(link.report(rtt=0.1), None, 0.0)
+    rc.update(link.report(rtt=0.4), None, 1.0)  # one late report: a hiccup
+    assert rc.target_bps == MAX
+    rc.update(link.report(rtt=0.45), None, 2.0)
+    assert rc.target_bps == MAX * DECREASE and "queue" in rc.why
+
+
+def test_the_receivers_estimate_caps_the_rate_only_once_it_has_fallen() -> None:
+    rc, link = control(), Link()
+    # Chromium's estimate starts low and climbs: no reason to cut
+    for t, bps in enumerate((70_000, 120_000, 200_000)):
+        rc.update(link.report(bps=bps), None, float(t))
+    assert rc.target_bps == MAX
+    for t, bps in enumerate((1_500_000, 1_800_000), start=3):
+        rc.update(link.report(bps=bps), None, float(t))
+    rc.update(link.report(bps=1_000_000), None, 5.0)  # fell: the receiver saw overuse
+    assert rc.target_bps == 1_000_000
+
+
+def test_size_and_frame_rate_follow_the_rate_with_a_margin_to_come_back() -> None:
+    # 8 Mbit/s configured: the bits a pixel decide (at 2 Mbit/s the shares would)
+    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0), Link()
+    clock = iter(range(1000))
+
+    def until(done: Callable[[], bool], lost: float) -> None:
+        for _ in range(100):
+            rc.update(link.report(lost=lost), None, float(next(clock)))
+            if done():
+                return
+
+    until(lambda: rc.size == "low", 0.3)
+    # below 0.03 bits a pixel of the full size at 30 fps
+    assert rc.target_bps < 0.03 * FULL_PIXELS * 30 and rc.every == 1
+    until(lambda: rc.every == 2, 0.3)
+    assert rc.size == "low" and rc.as_dict()["fps"] == 15.0
+    assert rc.target_bps >= MIN_BPS
+    # Back up only with UP_MARGIN to spare: the first clean second is not enough
+    rc.update(link.report(), None, float(next(clock)))
+    assert rc.every == 2
+    until(lambda: rc.size == "full", 0.0)
+    assert rc.every == 1 and rc.target_bps >= 1.3 * 0.03 * FULL_PIXELS * 30
+
+
+def test_at_the_configured_rate_it_is_the_full_size_and_rate_whatever_the_pixels() -> None:
+    # 2 Mbit/s for 2×1280×720 is below 0.03 bits a pixel: still full, as the shared layer
+    rc, link = control(), Link()
+    rc.update(link.report(), None, 0.0)
+    assert rc.target_bps == MAX and rc.size == "full" and rc.every == 1
+
+
+def test_fec_and_resends_come_out_of_the_rate() -> None:
+    rc = control()
+    assert rc.media_bps(0.0) == round(MAX * (1 - RESEND_SHARE))
+    assert rc.media_bps(0.3) == round(MAX * (1 - RESEND_SHARE) / 1.3)
+
+
+reports = st.lists(
+    st.tuples(
+        st.floats(0.0, 1.0),  # fraction lost
+        st.one_of(st.none(), st.floats(0.0, 1.0)),  # NACK-counted loss
+        st.one_of(st.none(), st.floats(0.001, 3.0)),  # round trip
+        st.one_of(st.none(), st.integers(0, 20_000_000)),  # the receiver's estimate
+        st.booleans(),  # a fresh report (else the last one seen again)
+    ),
+    max_size=60,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(reports)
+def test_the_rate_stays_in_bounds_and_never_grows_on_heavy_loss(seq: list) -> None:  # type: ignore[type-arg]
+    rc, link = control(), Link()
+    for t, (lost, nacked, rtt, bps, fresh) in enumerate(seq):
+        before = rc.target_bps
+        if fresh:
+            link.fraction_lost, link.rtt_s, link.estimated_bps = lost, rtt, bps
+            link.reports += 1
+        rc.update(link, nacked, float(t))
+        assert MIN_BPS <= rc.target_bps <= MAX
+        if not fresh:
+            assert rc.target_bps == before
+        elif max(lost, nacked or 0.0) > 0.1:
+            assert rc.target_bps <= before
+        assert rc.size in ("full", "low") and rc.every in (1, 2)
+        assert MIN_BPS // 2 <= rc.media_bps(0.35) <= MAX
+
+
+def test_libx264_takes_a_new_bitrate_without_a_new_encoder() -> None:
+    enc = H264Encoder(640, 180, 30, 2_000_000)
+    noise = np.random.default_rng(0).integers(0, 255, (180, 640, 3), dtype=np.uint8)
+
+    def bits_per_s(frames: range) -> float:
+        size = 0
+        for i in frames:
+            f = StereoFrame(i, float(Fraction(i, 30)), np.roll(noise, 7 * i, axis=1))
+            size += sum(e.size for e in enc.encode(f))
+        return size * 8 / (len(frames) / 30)
+
+    before = bits_per_s(range(0, 60))
+    enc.set_bitrate(400_000)
+    after = bits_per_s(range(60, 120))
+    assert after < before / 2, (before, after)
+    enc.set_bitrate(10**9)  # never above what it was opened with (its VBV cap)
+    assert enc._new_bitrate == 2_000_000
+
+
+async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its_rate() -> None:
+    cam = camera(**SMALL)
+    pipeline = VideoPipeline(cam, VideoSettings(bitrate=1_000_000))
+    pipeline.start()
+    try:
+        (po, to, ido), (pw, tw, idw) = await asyncio.gather(
+            _viewer(pipeline, "auto", operator=True), _viewer(pipeline, "auto")
+        )
+        await asyncio.gather(_frames(to, 3, cam.width), _frames(tw, 3, cam.width))
+        pipeline.adapt_layers()
+        operator = pipeline.peers[ido]
+        assert operator.rate is not None and pipeline.peers[idw].rate is None
+        await _frames(to, 10, cam.width)
+        stats = pipeline.stats(peer_ids=True)
+        layers = {v["peer_id"]: v["layer"] for v in stats["viewers"]}
+        assert layers == {ido: "operator", idw: "full"}
+        assert set(pipeline.encoding.encoders) == {("H264", "full"), ("H264", "operator")}
+        rate = next(v["rate"] for v in stats["viewers"] if v["peer_id"] == ido)
+        assert rate["kbps"] == 1000 and rate["size"] == "full"
+        # Its link loses half its packets, report after report: the rate falls to the
+        # low size (a new encoder, a key frame) while the watcher's picture stays full.
+        link = operator.link
+        for _ in range(100):
+            link.fraction_lost, link.reports = 0.5, link.reports + 1
+            pipeline.adapt_operator_rate()
+            if operator.rate.size == "low":
+                break
+        assert operator.rate.target_bps < 1_000_000
+        seen = await _frames(to, 30, cam.width)
+        assert seen[-1][:2] == low_size(cam.width, cam.height)
+        watcher = await _frames(tw, 5, cam.width)
+        assert {(w, h) for w, h, _ in watcher} == {(cam.width, cam.height)}
+        # The operator's viewer leaves: the watcher is untouched, the stream not encoded
+        await po.close()
+        await pipeline.close_peer(ido)
+        assert pipeline.encoding.operator_rate is None
+        await _frames(tw, 3, cam.width)
+        await pw.close()
+    finally:
+        await pipeline.close()
+
+
+async def test_with_the_setting_off_the_operator_shares_the_layers() -> None:
+    pipeline = VideoPipeline(
+        camera(**SMALL), VideoSettings(bitrate=1_000_000, operator_encoder=False)
+    )
+    pipeline.start()
+    try:
+        pc, track, pid = await _viewer(pipeline, "auto", operator=True)
+        await _frames(track, 3, SMALL["width"])
+        pipeline.adapt_layers()
+        assert pipeline.peers[pid].rate is None
+        assert set(pipeline.encoding.encoders) == {("H264", "full")}
+        await pc.close()
+    finally:
+        await pipeline.close()
