@@ -24,6 +24,7 @@ from telerobot.server.media.rate_control import (
     INCREASE,
     MIN_BPS,
     RESEND_SHARE,
+    SHARE_AGAIN_S,
     RateControl,
 )
 from tests.support.video import SMALL, camera
@@ -163,6 +164,9 @@ def test_the_rate_stays_in_bounds_and_never_grows_on_heavy_loss(seq: list) -> No
         elif max(lost, nacked or 0.0) > 0.1:
             assert rc.target_bps <= before
         assert rc.size in ("full", "low") and rc.every in (1, 2)
+        # below the configured rate it always has its own stream; at it, full size and rate
+        assert rc.needs_own_stream(float(t)) or rc.target_bps == MAX
+        assert rc.target_bps < MAX or (rc.size, rc.every) == ("full", 1)
         assert MIN_BPS // 2 <= rc.media_bps(0.35) <= MAX
 
 
@@ -197,16 +201,17 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
         pipeline.adapt_layers()
         operator = pipeline.peers[ido]
         assert operator.rate is not None and pipeline.peers[idw].rate is None
-        await _frames(to, 10, cam.width)
-        stats = pipeline.stats(peer_ids=True)
-        layers = {v["peer_id"]: v["layer"] for v in stats["viewers"]}
-        assert layers == {ido: "operator", idw: "full"}
-        assert set(pipeline.encoding.encoders) == {("H264", "full"), ("H264", "operator")}
-        rate = next(v["rate"] for v in stats["viewers"] if v["peer_id"] == ido)
-        assert rate["kbps"] == 1000 and rate["size"] == "full"
-        # Its link loses half its packets, report after report: the rate falls to the
-        # low size (a new encoder, a key frame) while the watcher's picture stays full.
+        # A clean link: the operator shares the full layer (the same stream, one encode)
         link = operator.link
+        for _ in range(3):
+            link.fraction_lost, link.reports = 0.0, link.reports + 1
+            pipeline.adapt_operator_rate()
+        assert set(pipeline.encoding.encoders) == {("H264", "full")}
+        rate = next(v for v in pipeline.stats(peer_ids=True)["viewers"] if v["peer_id"] == ido)
+        assert rate["layer"] == "full" and rate["rate"]["kbps"] == 1000, rate
+        # Its link loses half its packets, report after report: it gets its own encoder,
+        # whose rate falls to the low size (a new encoder, a key frame) while the
+        # watcher's picture stays full.
         for _ in range(100):
             link.fraction_lost, link.reports = 0.5, link.reports + 1
             pipeline.adapt_operator_rate()
@@ -215,8 +220,24 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
         assert operator.rate.target_bps < 1_000_000
         seen = await _frames(to, 30, cam.width)
         assert seen[-1][:2] == low_size(cam.width, cam.height)
+        stats = pipeline.stats(peer_ids=True)
+        layers = {v["peer_id"]: v["layer"] for v in stats["viewers"]}
+        assert layers == {ido: "operator", idw: "full"}
+        assert set(pipeline.encoding.encoders) == {("H264", "full"), ("H264", "operator")}
         watcher = await _frames(tw, 5, cam.width)
         assert {(w, h) for w, h, _ in watcher} == {(cam.width, cam.height)}
+        # Clean again up to the configured rate, and held there: shared again
+        for _ in range(100):
+            link.fraction_lost, link.reports = 0.0, link.reports + 1
+            pipeline.adapt_operator_rate()
+            if operator.rate.at_max_since is not None:
+                break
+        operator.rate.at_max_since -= SHARE_AGAIN_S  # (as if it had held that long)
+        link.reports += 1
+        pipeline.adapt_operator_rate()
+        seen = await _frames(to, 30, cam.width)
+        assert seen[-1][:2] == (cam.width, cam.height)
+        assert pipeline._layer_of(operator) == "full"
         # The operator's viewer leaves: the watcher is untouched, the stream not encoded
         await po.close()
         await pipeline.close_peer(ido)

@@ -71,7 +71,14 @@ def test_the_low_layer_is_shown_at_the_cameras_size_and_stays_registered(
         stats = httpx.get(server + "api/v1/video").json()["stats"]
         return sorted(v["layer"] for v in stats["viewers"])
 
-    until(lambda: layers() == ["full", "low"], 30, lambda: f"layers {layers()}", poll=0.2)
+    # (The operator's page shares the full layer while its link carries it; a busy
+    # machine's late RTCP, read as a queue, may give it its own stream for a while.)
+    until(
+        lambda: layers() in (["full", "low"], ["low", "operator"]),
+        30,
+        lambda: f"layers {layers()}",
+        poll=0.2,
+    )
     # Both views are the camera's size, and the fiducials are where the camera sees them
     # in both (the low picture stretched, not drawn in a corner at half size).
     # Read from a frame drawn undimmed: on a loaded machine a page may dim its view as

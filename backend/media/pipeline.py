@@ -287,27 +287,25 @@ class VideoPipeline:
                 continue
             if peer is chosen:
                 if peer.rate is None:
-                    self._give_operator_stream(peer)
-                continue
+                    self._follow_operator(peer)
+                continue  # its own rate decides (adapt_operator_rate), not the layers
             if peer.rate is not None:  # another operator's peer is newer: back to sharing
                 peer.rate = None
-                self.set_layer(peer, peer.choice.layer)
+                if self._layer_of(peer) == OPERATOR or peer.track.joining is not None:
+                    self.set_layer(peer, "full")
             before = peer.choice.layer
             layer = peer.choice.decide(peer.link, full_bps, now)
             if layer != before:
                 log.info("a viewer moves to the %s layer: %s", layer, peer.choice.why)
                 self.set_layer(peer, layer)
 
-    def _give_operator_stream(self, peer: Peer) -> None:
-        """Move ``peer`` to an encoder of its own, its rate starting at the configured
-        bitrate and following its link from there (``adapt_operator_rate``)."""
+    def _follow_operator(self, peer: Peer) -> None:
+        """Follow ``peer``'s link with a rate of its own, starting at the configured
+        bitrate; it stays on the shared full layer until the rate falls below that
+        (``adapt_operator_rate``)."""
         s, encoding = self.settings, self.encoding
         full, low = encoding.layer_size("full"), encoding.layer_size("low")
         peer.rate = RateControl(s.bitrate, 2 * full[0] * full[1], 2 * low[0] * low[1], s.fps)
-        encoding.operator_rate = peer.rate
-        encoding.follow_operator_rate(peer.protection.fec_share)
-        log.info("the operator's viewer gets its own stream (its rate follows its link)")
-        self.set_layer(peer, OPERATOR)
 
     def adapt_protection(self) -> None:
         """Each connected viewer's loss (from its NACKs, about once a second) and the
@@ -321,21 +319,36 @@ class VideoPipeline:
                     peer.link,
                     self.settings.fec,
                     now,
-                    budgeted=peer.rate is not None,
+                    budgeted=peer.rate is not None and self._layer_of(peer) == OPERATOR,
                 )
 
     def adapt_operator_rate(self) -> None:
-        """The operator's stream follows its link's latest report (``RateControl``),
-        and its encoder the rate, less FEC's share of it."""
+        """The operator's rate follows its link's latest report (``RateControl``); below
+        the configured bitrate the operator gets its own encoder, whose bitrate is that
+        rate less FEC's share of it, and shares the full layer again once the rate has
+        been back at the top for a while (``needs_own_stream``)."""
         peer = next((p for p in self.peers.values() if p.rate is not None), None)
         if peer is None or peer.rate is None:
             return
+        rate, encoding, now = peer.rate, self.encoding, self.clock.now()
         share = peer.protection.fec_share
-        changed = peer.rate.update(peer.link, peer.protection.loss, self.clock.now())
-        if changed or share != self.encoding.operator_fec_share:
-            if changed:
-                log.debug("the operator's stream: %s", peer.rate.why)
-            self.encoding.follow_operator_rate(share)
+        changed = rate.update(peer.link, peer.protection.loss, now)
+        own = self._layer_of(peer) == OPERATOR or (
+            peer.track.joining is not None
+            and peer.track.joining is encoding.broadcasters.get(("H264", OPERATOR))
+        )
+        if rate.needs_own_stream(now) and not own:
+            encoding.operator_rate = rate
+            encoding.follow_operator_rate(share)
+            log.info("the operator's viewer gets its own stream: %s", rate.why)
+            self.set_layer(peer, OPERATOR)
+        elif not rate.needs_own_stream(now) and self._layer_of(peer) != "full":
+            if peer.track.joining is None:  # (a move already asked for: its key frame)
+                log.info("the operator's link carries the full layer again: shared")
+                self.set_layer(peer, "full")
+        elif own and (changed or share != encoding.operator_fec_share):
+            log.debug("the operator's stream: %s", rate.why)
+            encoding.follow_operator_rate(share)
 
     def _repair_asked(self, peer: Peer) -> None:
         """The viewer NACKed media: a repair it waits for a round trip (and the
@@ -589,8 +602,9 @@ class VideoPipeline:
                     "layer_mode": p.mode,
                     "layer_switches": p.track.switches,
                     "layer_why": p.choice.why,
-                    # The operator's own stream (None: this viewer shares the layers):
-                    # its rate now, size, frame rate and why it last changed.
+                    # The operator's rate (None: a watcher): its link's estimate now,
+                    # the size and frame rate it carries, why it last changed (its own
+                    # stream while below the configured bitrate: layer "operator").
                     "rate": None if p.rate is None else p.rate.as_dict(),
                     "link": p.link.as_dict(now),
                     # FEC (None: not agreed with this viewer): the share now, the loss

@@ -27,11 +27,16 @@ share and a margin for resends (``media_bps``), so FEC fits inside the estimate
 instead of being switched off. Below what the full size needs (``MIN_BITS_PER_PIXEL``)
 the encoder drops to the low layer's size, and below what that size needs at the full
 frame rate, to half the frame rate; each comes back only with ``UP_MARGIN`` to spare.
-Pure: time is passed in, the pipeline calls ``update`` on each fresh report.
+While the rate is the configured bitrate the operator's peer stays on the shared full
+layer (the same stream, one encode less: on a clean link nothing changes); it gets its
+own encoder at the first cut, and shares again once back at the top for
+``SHARE_AGAIN_S``. Pure: time is passed in, the pipeline calls ``update`` on each fresh
+report.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -54,6 +59,8 @@ MIN_BITS_PER_PIXEL = 0.03
 UP_MARGIN = 1.3  # back to a bigger size or rate only with this much to spare
 FULL_SIZE_SHARE = 0.7  # of the configured bitrate: below it, never the full size…
 FULL_RATE_SHARE = 0.35  # …and never the full frame rate below this
+# Back at the configured rate this long: the operator shares the full layer again.
+SHARE_AGAIN_S = 10.0
 
 
 @dataclass
@@ -75,6 +82,8 @@ class RateControl:
     queue_strikes: int = 0
     peak_estimate: int = 0
     cuts: int = 0
+    # (the caller's clock) at the configured rate since; it starts there
+    at_max_since: float | None = -math.inf
     floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
 
     def __post_init__(self) -> None:
@@ -117,7 +126,18 @@ class RateControl:
         elif lost < LOW_LOSS and not queued and self.target_bps < self.max_bps:
             self._set(self.target_bps * INCREASE, "clean: growing")
         self._shape()
+        if self.target_bps < self.max_bps:
+            self.at_max_since = None
+        elif self.at_max_since is None:
+            self.at_max_since = now
         return before != (round(self.target_bps), self.size, self.every)
+
+    def needs_own_stream(self, now: float) -> bool:
+        """Whether the link needs the operator's own encoder: its rate is below the
+        configured one, or came back to it less than ``SHARE_AGAIN_S`` ago. Otherwise
+        the shared full layer is the same stream (one encode less)."""
+        since = self.at_max_since
+        return since is None or now - since < SHARE_AGAIN_S
 
     def _set(self, bps: float, why: str) -> None:
         bps = min(float(self.max_bps), max(float(MIN_BPS), bps))
