@@ -203,8 +203,12 @@ def test_safety_reports_every_executed_commands_age_and_one_clients_own(
             assert ack["seq"] == seq  # executed (limited: no time between them)
         ws.send_bytes(cart(4, clock.now() - 0.3))  # stale: refused, no age
         until_type(ws, m.ERROR)
-        safety = app.get("/api/v1/safety", params={"client": me}).json()
+        op = {"Authorization": f"Bearer {TOKEN}"}
+        safety = app.get("/api/v1/safety", params={"client": me}, headers=op).json()
         everyone = app.get("/api/v1/safety").json()
+        # A client's own ages are the operator's to read: no id in a tokenless answer
+        refused = app.get("/api/v1/safety", params={"client": me})
+        assert refused.status_code == 403 and "operator token" in refused.json()["detail"]
     mine = safety["executed_age_ms_client"]
     assert (mine["count"], mine["window"], mine["over_limit"]) == (2, 2, 0)
     assert mine["p50"] == pytest.approx(85.0) and mine["max"] == pytest.approx(120.0)
@@ -215,7 +219,9 @@ def test_safety_reports_every_executed_commands_age_and_one_clients_own(
     # Once the client has left, its figures go with it; the server's stay.
     until(
         lambda: (
-            app.get("/api/v1/safety", params={"client": me}).json()["executed_age_ms_client"]
+            app.get("/api/v1/safety", params={"client": me}, headers=op).json()[
+                "executed_age_ms_client"
+            ]
             is None
         ),
         what="the client's figures after it left",

@@ -313,6 +313,12 @@ def test_rest_endpoint(tmp_path: Path) -> None:
         op = {"Authorization": f"Bearer {token}"}
         r = c.post("/api/v1/recordings/nope/export/lerobot", headers=op, json={})
         assert r.status_code == 404
+        # A file of MCAP's magic alone (8 bytes): a clear 4xx, not a 500 with a traceback
+        magic = tmp_path / "recordings" / "20260101-000001-magic.mcap"
+        magic.write_bytes(b"\x89MCAP0\r\n")
+        r = c.post(f"/api/v1/recordings/{magic.name}/export/lerobot", headers=op, json={})
+        assert r.status_code == 422 and "nothing to export" in r.json()["detail"], r.text
+        magic.unlink()
         with export_api._one_at_a_time:  # another export is running
             r = c.post(url, headers=op, json={"fps": 10})
             assert r.status_code == 409 and "another export" in r.json()["detail"], r.text

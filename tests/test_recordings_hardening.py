@@ -539,3 +539,37 @@ def test_log_times_never_go_back_within_a_file(tmp_path: Path) -> None:
     logged = [m.log_time for m in messages]
     assert logged == sorted(logged) == [1_000, 3_000, 3_000, 4_000, 4_000, 5_000]
     assert [m.publish_time for m in messages] == taken
+
+
+def test_tokenless_reads_from_many_addresses_share_one_budget() -> None:
+    """Each address within its own budget, many addresses together are not: a budget
+    per address alone grew with the addresses a client had (six loopback ones raised
+    the operator's stale command drops ninefold)."""
+    budgets = readjobs.ReadBudgets(clock=lambda: 300.0)  # no time passes: no refill
+    served = 0
+    with pytest.raises(readjobs.TooManyReads, match="in all, whatever their addresses"):
+        for n in range(1000):
+            budgets.read(f"127.0.0.{n % 50}")  # 50 addresses, each far below its own burst
+            served += 1
+    assert served == readjobs.ALL_READ_BURST
+    # the bytes an answer sends count against everyone's budget too
+    budgets = readjobs.ReadBudgets(clock=lambda: 300.0)
+    budgets.sent("10.0.0.1", readjobs.ALL_READ_BURST * readjobs.BYTES_PER_READ)
+    with pytest.raises(readjobs.TooManyReads, match="in all"):
+        budgets.read("10.0.0.2")
+
+
+def test_a_timeline_names_clients_by_alias_never_by_their_id(tmp_path: Path) -> None:
+    """The timeline is read without a token; a client's live id in it opened that
+    client's own figures to anyone. Each id is "client-N" in the order seen, so the
+    review still tells who drove from who was refused."""
+    from telerobot.server.recording.timeline import timeline
+
+    path = tmp_path / "r.mcap"
+    build(path, duration=1.0)
+    commands = timeline(path, ["/commands"], 100)["topics"]["/commands"]
+    assert commands, "no commands in the timeline"
+    text = json.dumps(commands)
+    assert '"c1"' not in text and '"c2"' not in text
+    assert {c["client_id"] for c in commands} == {"client-1", "client-2"}
+    assert {c["lease_holder"] for c in commands} == {"client-1"}

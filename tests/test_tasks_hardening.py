@@ -368,3 +368,23 @@ def test_a_task_from_a_recording_that_jumps_asks_first_then_reports_done(
         assert math.dist(end, np.array(state["position"]) + [0, 0, -0.1]) < 0.005
     finally:
         rec.unlink(missing_ok=True)
+
+
+def test_tokenless_previews_from_many_addresses_share_one_budget() -> None:
+    """Past the shared budget every address is refused at once (no read is started),
+    whatever its own budget holds; the refusal costs the address nothing."""
+    from telerobot.server.tasks.source_reader import (
+        ALL_ADDRESSES_SHARE,
+        BURST,
+        TooManyPreviews,
+    )
+
+    reader = SourceReader(clock=lambda: 50.0)  # no refill
+    try:
+        for n in range(int(ALL_ADDRESSES_SHARE * BURST)):
+            reader._charge(f"10.0.0.{n}", 1.0)  # one look at the cache each, all fine
+        with pytest.raises(TooManyPreviews, match="without the operator token"):
+            reader._charge("10.0.0.200", 1.0)
+        assert reader.refused == 1
+    finally:
+        reader.close()

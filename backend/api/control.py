@@ -18,6 +18,7 @@ from telerobot.server.api.deps import (
     DriverClientDep,
     DriverDep,
     OperatorDep,
+    OperatorOrNot,
     SettingsDep,
 )
 from telerobot.server.api.requests import StrictRequest
@@ -322,6 +323,7 @@ async def release_lease(client: DriverClientDep, decision: DecisionDep) -> Safet
 @router.get("/safety")
 async def safety(
     decision: DecisionDep,
+    operator: OperatorOrNot,
     arm: Annotated[
         str | None,
         Query(max_length=32, description="whose limits and stopping (default: the first arm)"),
@@ -331,10 +333,15 @@ async def safety(
         Query(
             max_length=64,
             description="a client id (its WELCOME's, or POST /lease's): its own executed"
-            " commands' ages in executed_age_ms_client",
+            " commands' ages in executed_age_ms_client (with the operator token only)",
         ),
     ] = None,
 ) -> SafetyView:
+    if client is not None and not operator:
+        raise NotAllowed(
+            "a client's own command ages (?client=) are the operator's to read: send the"
+            " operator token, or leave out ?client= for everyone's"
+        )
     return _safety(decision, arm, client)
 
 

@@ -232,6 +232,14 @@ async def current_driver(
 
 
 OperatorDep = Annotated[str, Depends(require_operator)]
+
+
+def is_operator(decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]) -> bool:
+    """Whether the request carries the operator token (looked at, not required)."""
+    return decision.clients.check_token(token)
+
+
+OperatorOrNot = Annotated[bool, Depends(is_operator)]
 DriverDep = Annotated[str, Depends(require_driver)]
 ClientDep = Annotated[Client, Depends(current_client)]
 # A client on a route a policy may use too (the lease, moves): docs/lerobot.md.

@@ -19,18 +19,17 @@ from __future__ import annotations
 import time
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
+from fastapi import APIRouter, Header, Path, Query, Request, Response
 from pydantic import BaseModel, Field
 
 from telerobot.drivers.base import TelerobotError
 from telerobot.server.api.deps import (
     AlignmentsDep,
-    DecisionDep,
     MediaDep,
     MediaOrNoneDep,
     MediaServerDep,
+    OperatorOrNot,
     SettingsDep,
-    bearer_token,
 )
 from telerobot.server.api.requests import StrictRequest
 from telerobot.server.media import rpc
@@ -143,11 +142,6 @@ class IceConfiguration(BaseModel):
     )
 
 
-def is_operator(decision: DecisionDep, token: Annotated[str | None, Depends(bearer_token)]) -> bool:
-    return decision.clients.check_token(token)
-
-
-OperatorOrNot = Annotated[bool, Depends(is_operator)]
 PeerSecret = Annotated[str | None, Header(max_length=SECRET_MAX)]
 
 

@@ -272,7 +272,8 @@ class RecordingLibrary:
         path = await asyncio.to_thread(self.path, recording_id)
         mask = sum(1 << REVIEW_TOPICS.index(t) for t in set(topics))
         cache = await asyncio.to_thread(self._review)
-        out = cache / f"{path.stem}.timeline-{max_points}-{mask}.json"
+        # (v2: client ids replaced by aliases; a v1 file kept from before is not served)
+        out = cache / f"{path.stem}.timeline-v2-{max_points}-{mask}.json"
         if await asyncio.to_thread(self._fresh, out, path):
             return out
         if not privileged:

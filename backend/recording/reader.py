@@ -61,7 +61,7 @@ def valid_summary(f: IO[bytes]) -> Summary | None:
     """The file's summary when it has a whole one (else None: cut, torn or absent)."""
     try:
         s = make_reader(f).get_summary()
-    except BROKEN:
+    except (*BROKEN, OSError):  # (a file shorter than a footer: seeking before its start)
         return None
     return s if s is not None and s.statistics is not None else None
 

@@ -63,6 +63,12 @@ READ_BURST = 40  # …after a burst (the review page's first requests, a seek or
 # 2 MB timeline is ~5 MB/s from one address at most, not the 22 MB/s the server sent
 # (and spent its event loop on) before (bench.abuse's timeline_reads).
 BYTES_PER_READ = 512 * 1024
+# …and from every tokenless client together, whatever the number of their addresses: six
+# loopback addresses reading timelines at once took the operator's stale command drops
+# from 59 to 517 in 25 s (a per-address budget alone grows with the addresses).
+ALL_READS_PER_S = 15.0
+ALL_READ_BURST = 60
+ALL = "*"  # the shared budget's key
 JOBS_PER_S = 0.5  # reads that start a job, from one address…
 JOB_BURST = 8  # …after a burst (a review page: its list, timeline and MP4; a few of them)
 
@@ -94,7 +100,8 @@ ERRORS: dict[str, type[TelerobotError]] = {
 
 @dataclass
 class ReadBudgets:
-    """Per remote address (``PeerLimits``, bounded like ``/ws``'s table)."""
+    """Per remote address (``PeerLimits``, bounded like ``/ws``'s table), and one for
+    all tokenless readers together (``everyone``)."""
 
     clock: Callable[[], float] = time.monotonic
     reads: PeerLimits = field(
@@ -105,18 +112,33 @@ class ReadBudgets:
     jobs: PeerLimits = field(
         default_factory=lambda: PeerLimits(connections_per_s=JOBS_PER_S, connection_burst=JOB_BURST)
     )
+    everyone: PeerLimits = field(
+        default_factory=lambda: PeerLimits(
+            connections_per_s=ALL_READS_PER_S, connection_burst=ALL_READ_BURST
+        )
+    )
 
     def read(self, peer: str) -> None:
-        if self.reads.connect(peer, self.clock()) is None:
+        now = self.clock()
+        if self.reads.connect(peer, now) is None:
             raise TooManyReads(
                 f"too many recording reads from your address (at most {READS_PER_S:g} a"
                 f" second, each {BYTES_PER_READ >> 10} KiB sent counting as one more): try"
                 " again in a second, or with the operator token"
             )
+        if self.everyone.connect(ALL, now) is None:
+            raise TooManyReads(
+                "too many recording reads from clients without the operator token right"
+                f" now (at most {ALL_READS_PER_S:g} a second in all, whatever their"
+                " addresses): try again in a second, or with the operator token"
+            )
 
     def sent(self, peer: str, size: int) -> None:
-        """The answer's size, charged to the address's reads (its next reads wait)."""
-        self.reads.charge(peer, self.clock(), size / BYTES_PER_READ)
+        """The answer's size, charged to the address's reads and everyone's (the next
+        reads wait)."""
+        now = self.clock()
+        self.reads.charge(peer, now, size / BYTES_PER_READ)
+        self.everyone.charge(ALL, now, size / BYTES_PER_READ)
 
     def job(self, peer: str) -> None:
         if self.jobs.connect(peer, self.clock()) is None:

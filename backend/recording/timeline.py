@@ -28,6 +28,10 @@ MAX_EVENTS = 5_000  # commands, safety changes, episodes: the first this many
 MAX_TOPIC_BYTES = 4 * 1024 * 1024  # of one topic's kept payloads (a foreign file's may be big)
 MAX_ARMS = 16  # arms' series kept (a server drives at most 8; a foreign file may name more)
 SERIES = ("/force", "/robot/state")
+# Fields that hold a live client's id: the timeline is read without a token, and an id
+# opened that client's own figures to anyone (GET /safety?client=); each id becomes
+# "client-N" in the order it first appears (the review still tells clients apart).
+CLIENT_ID_FIELDS = ("client_id", "lease_holder")
 REVIEW_TOPICS = (
     "/force",  # with every arm's /arms/<name>/force (a multi-arm recording's)
     "/robot/state",  # with every arm's /arms/<name>/state
@@ -77,6 +81,7 @@ def timeline(path: str | os.PathLike[str], topics: list[str], max_points: int) -
     kept_bytes: dict[str, int] = dict.fromkeys(topics, 0)
     asked = set(topics)
     arm_series = 0
+    aliases: dict[str, str] = {}  # a client's id → its name here
     counts: dict[str, int] = {}
     first_ns: int | None = None
     last_ns = 0
@@ -112,6 +117,9 @@ def timeline(path: str | os.PathLike[str], topics: list[str], max_points: int) -
             continue
         kept_bytes[topic] += len(data)
         series = out[topic]
+        for key in CLIENT_ID_FIELDS:
+            if isinstance(m.get(key), str) and m[key]:
+                m[key] = aliases.setdefault(m[key], f"client-{len(aliases) + 1}")
         series.append({**m, "time": (log_ns - first_ns) / 1e9})
         if topic in stride and len(series) > max_points:  # no summary said how many
             series[:] = series[::2]

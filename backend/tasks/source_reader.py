@@ -56,6 +56,9 @@ RATE_PER_S = 2.0
 BURST = 20.0
 READ_COST = 10.0  # a read is ten looks at the cache: one every 5 s, after a burst of two
 MAX_ADDRESSES = 1024  # addresses with a budget; the one heard from longest ago goes first
+# Every tokenless address together gets this many times one address's budget: a budget
+# per address alone grows with the addresses a client has (six loopback ones in a probe).
+ALL_ADDRESSES_SHARE = 2.0
 ORPHAN_CHECK_S = 0.5  # how often the reader's process looks whether the server is gone
 MAX_QUEUED = 4  # the operator's reads waiting for the reader, at most
 
@@ -158,6 +161,9 @@ class SourceReader:
         self.refused = 0  # requests answered 429
         self._cache: OrderedDict[Key, PathPreview] = OrderedDict()
         self._budgets: OrderedDict[str, TokenBucket] = OrderedDict()
+        self._everyone = TokenBucket(
+            ALL_ADDRESSES_SHARE * rate_per_s, ALL_ADDRESSES_SHARE * burst
+        )  # every address's reads together
         self._executor: ProcessPoolExecutor | None = None  # started on the first read
         self._closed = False
         self._lock = threading.Lock()
@@ -235,7 +241,16 @@ class SourceReader:
         self._budgets[address] = bucket
         while len(self._budgets) > MAX_ADDRESSES:
             self._budgets.popitem(last=False)
-        wait = bucket.take(self.clock(), cost)
+        now = self.clock()
+        wait = bucket.take(now, cost)
+        if wait <= 0 and (wait := self._everyone.take(now, cost)) > 0:
+            bucket.tokens += cost  # refused: the address's budget is given back
+            self._everyone.tokens += cost
+            self.refused += 1
+            raise TooManyPreviews(
+                f"too many task previews from clients without the operator token right now:"
+                f" try again in {wait:.1f} s"
+            )
         if wait > 0:
             bucket.tokens += cost  # refused: it costs nothing more
             self.refused += 1
