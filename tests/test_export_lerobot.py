@@ -526,16 +526,17 @@ def test_an_fps_above_the_videos_rate_is_refused_unless_repeats_are_allowed(
     tmp_path: Path,
 ) -> None:
     built = recordings.build(tmp_path / "rec.mcap", duration=3.0, video_fps=20)
-    with pytest.raises(ExportError, match=r"ran at 20\.0 fps: 30 rows a second") as refused:
+    with pytest.raises(ExportError, match=r"ran at 20\.00 fps: 30 rows a second") as refused:
         export_lerobot(built.path, tmp_path / "ds", fps=30)
-    assert "export at 20 fps or fewer" in str(refused.value)
+    assert "(asked for)" in str(refused.value)
+    assert "ask for 20 fps or fewer (--fps 20)" in str(refused.value)
     assert "allow_repeated_frames" in str(refused.value)
     assert not (tmp_path / "ds").exists()  # refused before anything was written
     summary = export_lerobot(built.path, tmp_path / "ds", fps=30, allow_repeated_frames=True)
     assert summary.fps == 30
     seen = _repeats_seen(tmp_path / "ds")
     assert summary.repeated_frames == seen > summary.frames / 4  # every third row or so
-    assert any("ran at 20.0 fps" in w and "allowed" in w for w in summary.warnings)
+    assert any("ran at 20.00 fps" in w and "allowed" in w for w in summary.warnings)
 
 
 def test_a_steady_video_exports_without_repeats(exported: tuple[Any, Any, Path]) -> None:
@@ -647,7 +648,7 @@ def test_cli_shows_progress_the_video_rate_and_refuses_repeats(
     assert "the recorded video ran at 20.00 fps; 0 rows repeat the frame before them" in out
     assert main(["export", "lerobot", str(built.path), str(tmp_path / "ds30"), "--fps", "30"]) == 1
     said = capsys.readouterr()
-    assert "ran at 20.0 fps" in said.err and "--allow-repeated-frames" in said.err
+    assert "ran at 20.00 fps" in said.err and "--allow-repeated-frames" in said.err
     argv = ["export", "lerobot", str(built.path), str(tmp_path / "ds30"), "--fps", "30"]
     assert main([*argv, "--allow-repeated-frames"]) == 0
     assert any(line.startswith("warning: ") for line in capsys.readouterr().out.splitlines())
@@ -686,7 +687,7 @@ def test_rest_export_says_how_far_it_has_got_and_refuses_repeats(tmp_path: Path)
                 export_api._running = None
         # rows faster than the video: refused (422, saying why), or allowed and warned of
         r = c.post(url, headers=op, json={"fps": 30})
-        assert r.status_code == 422 and "ran at 20.0 fps" in r.json()["detail"], r.text
+        assert r.status_code == 422 and "ran at 20.00 fps" in r.json()["detail"], r.text
         # a real export, watched as it goes
         seen: list[dict[str, Any]] = []
         done = threading.Event()
@@ -743,21 +744,29 @@ def test_an_so101_export_is_in_the_units_lerobots_so_follower_reports(tmp_path: 
     assert ours["units"]["observation.state"] == "degrees, gripper 0–100 % of its range"
 
 
-def test_the_fps_is_the_configured_rate_and_late_frames_are_flagged(tmp_path: Path) -> None:
-    """The server was asked for 30 fps; a busy machine's camera gave 20. The dataset
-    says 30 (LeRobot merges only datasets of one fps), and the rows whose frame is more
-    than a row period old are flagged and counted, not silently held."""
+def test_the_fps_is_the_configured_rate_by_the_same_rule_as_one_asked_for(
+    tmp_path: Path,
+) -> None:
+    """The server was asked for 30 fps; a busy machine's camera gave 20. Rows never
+    outpace the video unless repeats are allowed, whichever way the rate was chosen:
+    the default (the configured rate) is lowered to the video's, with a warning saying
+    how to keep 30; with repeats allowed 30 is kept (LeRobot merges only datasets of one
+    fps), and the rows whose frame is more than a row period old are flagged and
+    counted, not silently held."""
     built = recordings.build(
         tmp_path / "rec.mcap", duration=3.0, video_fps=20, settings={"video_fps": 30.0}
     )
-    summary = export_lerobot(built.path, tmp_path / "ds")
+    lowered = export_lerobot(built.path, tmp_path / "ds20")
+    assert lowered.fps == 20 and lowered.repeated_frames <= 0.05 * lowered.frames
+    assert any("(configured)" in w and "exported at 20 fps instead" in w for w in lowered.warnings)
+    summary = export_lerobot(built.path, tmp_path / "ds", allow_repeated_frames=True)
     info = json.loads((tmp_path / "ds/meta/info.json").read_text())
     assert info["fps"] == summary.fps == 30
     data = pq.read_table(tmp_path / "ds/data/chunk-000/file-000.parquet").to_pydict()
     ages = np.array(data["telerobot.age_ms"])
     assert summary.stale_rows["frame"] == int(np.count_nonzero(ages[:, 2] > 1000 / 30 + 1e-3))
     assert summary.stale_rows["state"] == 0 and summary.stale_rows["force"] == 0
-    assert any("below the 30 fps configured" in w for w in summary.warnings)
+    assert any("(configured)" in w and "allowed" in w for w in summary.warnings)
     assert np.all(ages[:, 0] <= 20.0 + 1e-3) and np.all(ages[:, 1] <= 1.0 + 1e-3)
     ours = json.loads((tmp_path / "ds/meta/telerobot_export.json").read_text())
     assert ours["stale_rows"] == summary.stale_rows

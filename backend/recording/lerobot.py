@@ -17,16 +17,17 @@ The rows sit on the dataset's grid: episode ``e``'s row ``k`` is at ``start_e + 
 on the recording's clock, and its ``timestamp`` is ``k/fps``, as lerobot requires (it
 checks the spacing, and finds a row's video frame at ``from_timestamp + timestamp``).
 
-``fps`` defaults to the rate the server was configured for (the recording's
-``/settings`` ``video_fps``), whatever the load did to the video: LeRobot cannot merge
-datasets of different fps. A recording without settings defaults to the recorded video's
-real rate: its frames over its span, measured from their capture times (a video slowed
-by a busy machine ran at 10 fps though it was asked for 30, and its frames' typical
-spacing can still say 30: bursts). More rows a
-second than the video had frames would show the same frame on several rows: an ``fps``
-above that rate (with ``REPEAT_TOLERANCE``) is refused unless repeated frames are
-allowed, and the summary says the video's rate, how many rows repeat the frame before
-them, and warns when that is more than a few (a video that stalled in an episode).
+One rule for the rate: rows never outpace the recorded video unless repeated frames
+are allowed. The rate is ``fps`` as asked; else the rate the server was configured for
+(the recording's ``/settings`` ``video_fps``: LeRobot cannot merge datasets of
+different fps), lowered to the recorded video's real rate when the video ran slower
+(a warning says so, and how to keep the configured rate); else the video's rate. The
+video's rate is its frames over its span, measured from their capture times (a video
+slowed by a busy machine ran at 10 fps though it was asked for 30, and its frames'
+typical spacing can still say 30: bursts). An ``fps`` asked for above it (with
+``REPEAT_TOLERANCE``) is refused, saying the rate to ask for. The summary says the
+video's rate, how many rows repeat the frame before them, and warns when that is more
+than a few (a video that stalled in an episode).
 
 At each row time:
 
@@ -979,32 +980,34 @@ def _choose_fps(
     allow_repeated_frames: bool,
     warnings: list[str],
 ) -> int:
-    """The dataset's rate: as asked; else the rate the server was configured for; else
-    the recorded video's. Faster than the video is refused unless repeats are allowed."""
-    if fps is None and rec.configured_fps is not None:
-        # The rate the server was asked for, whatever the load did to the video (LeRobot
-        # cannot merge datasets of different fps): rows whose frame is then older than a
-        # row period are flagged (telerobot.age_ms) and counted, not hidden.
-        fps = max(1, round(rec.configured_fps))
-        if rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
-            warnings.append(
-                f"the recorded video ran at {rate:.1f} fps, below the {fps} fps configured: "
-                "rows whose frame is more than a row period old are flagged"
-            )
-    elif fps is None:
-        fps = default_fps(rate)
-    elif rate is not None and fps > rate * (1 + REPEAT_TOLERANCE):
-        too_fast = (
-            f"the recorded video ran at {rate:.1f} fps: {fps} rows a second would show each "
-            f"of its frames on about {fps / rate:.1f} rows"
-        )
-        if not allow_repeated_frames:
-            raise ExportError(
-                f"{too_fast}; export at {default_fps(rate)} fps or fewer (the default), or "
-                f"allow repeated frames ({ALLOW_REPEATS})"
-            )
-        warnings.append(f"{too_fast} (allowed)")
-    return fps
+    """The dataset's rate, by one rule: rows never outpace the recorded video unless
+    repeated frames are allowed. The rate is ``fps`` as asked; else the rate the server
+    was configured for (LeRobot merges only datasets of one fps), lowered to the video's
+    real rate when the video ran slower (said in a warning); else the video's rate. An
+    ``fps`` asked for above the video's rate is refused, saying the rate to ask for."""
+    if fps is None and rec.configured_fps is None:
+        return default_fps(rate)
+    asked = fps is not None
+    fps = fps if fps is not None else max(1, round(rec.configured_fps or 1))
+    if rate is None or fps <= rate * (1 + REPEAT_TOLERANCE):
+        return fps
+    slower = default_fps(rate)
+    too_fast = (
+        f"the recorded video ran at {rate:.2f} fps: {fps} rows a second"
+        f" ({'asked for' if asked else 'configured'}) would show each of its frames on"
+        f" about {fps / rate:.1f} rows"
+    )
+    keep = (
+        f"allow repeated frames ({ALLOW_REPEATS}) to keep {fps} fps: each row whose frame"
+        " is older than a row period is flagged in telerobot.age_ms"
+    )
+    if allow_repeated_frames:
+        warnings.append(f"{too_fast} (allowed: those rows are flagged)")
+        return fps
+    if asked:
+        raise ExportError(f"{too_fast}; ask for {slower} fps or fewer (--fps {slower}), or {keep}")
+    warnings.append(f"{too_fast}: exported at {slower} fps instead; {keep}")
+    return slower
 
 
 @dataclass(frozen=True)
