@@ -88,3 +88,43 @@ async def test_the_payload_cut_for_fec_is_the_protected_sender_s_alone() -> None
     # extensions, RED's byte and SRTP's tag, well under aiortc's 1300-byte payloads
     assert max(sizes) <= MEDIA_PAYLOAD_MAX + 60, max(sizes)
     assert h264.PACKET_MAX == 1300  # the process's constant as aiortc has it
+
+
+def test_a_connected_viewers_sockets_are_marked_as_video_on_the_servers_loop() -> None:
+    """On uvloop (the server's loop) a transport's socket is a PseudoSocket, not a
+    socket.socket: the marking was skipped for every viewer, said in the log each time.
+    The viewer's sockets are found through the adapter and marked CS1 on either loop."""
+    import socket
+
+    import uvloop
+
+    from telerobot.protocol.netprio import DSCP_CS1
+
+    async def watch() -> list[int]:
+        pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=1_000_000))
+        pipeline.start()
+        pc = RTCPeerConnection()
+        try:
+            pc.addTransceiver("video", direction="recvonly")
+            got: asyncio.Queue[Any] = asyncio.Queue()
+            pc.on("track", got.put_nowait)
+            await pc.setLocalDescription(await pc.createOffer())
+            answer = await pipeline.answer(pc.localDescription.sdp, "offer")
+            await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+            track = await asyncio.wait_for(got.get(), 10)
+            await asyncio.wait_for(track.recv(), 10)  # connected: marked by now
+            (peer,) = pipeline.peers.values()
+            socks = aiortc_compat.peer_sockets(peer.pc)
+            return [
+                s.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_TCLASS)
+                if s.family == socket.AF_INET6
+                else s.getsockopt(socket.IPPROTO_IP, socket.IP_TOS)
+                for s in socks
+            ]
+        finally:
+            await pc.close()
+            await pipeline.close()
+
+    for run in (asyncio.run, uvloop.run):
+        marks = run(watch())
+        assert marks and set(marks) == {DSCP_CS1}, (run, marks)

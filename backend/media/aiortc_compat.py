@@ -33,6 +33,9 @@ _SENDER_NEEDS = (_HISTORY, _RTT, _PACKETS, _EXTENSIONS, _ENCODER, "_ssrc",
                  "_handle_rtcp_packet", "_send_keyframe")  # fmt: skip
 _TRANSPORT_NEEDS = ("_send_rtp",)
 _TRANSCEIVER_NEEDS = ("_codecs", "_headerExtensions")
+# Where a peer's UDP sockets are: the ICE transport's aioice connection, its protocols
+_ICE_NEEDS = ("_connection",)
+_CONNECTION_NEEDS = ("_protocols",)
 
 
 class AiortcIncompatible(TelerobotError):
@@ -72,8 +75,12 @@ def check() -> None:
         pc = RTCPeerConnection()
         try:
             transceiver = pc.addTransceiver("video", direction="sendonly")
-            return _missing(transceiver.sender, _SENDER_NEEDS, "RTCRtpSender") + _missing(
-                transceiver, _TRANSCEIVER_NEEDS, "RTCRtpTransceiver"
+            ice = transceiver.sender.transport.transport
+            return (
+                _missing(transceiver.sender, _SENDER_NEEDS, "RTCRtpSender")
+                + _missing(transceiver, _TRANSCEIVER_NEEDS, "RTCRtpTransceiver")
+                + _missing(ice, _ICE_NEEDS, "RTCIceTransport")
+                + _missing(getattr(ice, "_connection", None), _CONNECTION_NEEDS, "aioice")
             )
         finally:
             await pc.close()
@@ -230,3 +237,19 @@ def send_rtp_path(transport: Any) -> Callable[[bytes], Awaitable[None]] | None:
 def put_in_rtp_path(transport: Any, send: Callable[[bytes], Awaitable[None]]) -> None:
     """``send`` becomes the transport's RTP path (it calls the one it wraps)."""
     transport._send_rtp = send
+
+
+def peer_sockets(pc: Any) -> list[Any]:
+    """The UDP sockets of a peer connection (aiortc exposes none: they sit in aioice's
+    connection behind the ICE transport). Each as its event loop gives it: a
+    ``socket.socket``, or uvloop's ``PseudoSocket`` (the server's loop), which takes
+    ``setsockopt`` as well."""
+    found = []
+    for transceiver in pc.getTransceivers():
+        ice = transceiver.sender.transport.transport
+        for protocol in ice._connection._protocols:
+            transport = getattr(protocol, "transport", None)
+            sock = transport.get_extra_info("socket") if transport is not None else None
+            if sock is not None:
+                found.append(sock)
+    return found

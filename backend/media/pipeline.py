@@ -29,7 +29,7 @@ from aiortc import (
 
 from telerobot.drivers.base import StereoCamera, TelerobotError
 from telerobot.drivers.clock import Clock, MonotonicClock
-from telerobot.protocol.netprio import mark_peer_low_priority
+from telerobot.protocol.netprio import mark_low_priority
 from telerobot.server.media import aiortc_compat
 from telerobot.server.media import fec as ulpfec
 from telerobot.server.media.encoding import IDLE_POLL_S as IDLE_POLL_S
@@ -445,7 +445,8 @@ class VideoPipeline:
         async def on_state() -> None:
             if pc.connectionState == "connected":
                 peer.connected = True  # no longer pending: it stays until it closes
-                mark_peer_low_priority(pc)  # forces and commands go first
+                for sock in aiortc_compat.peer_sockets(pc):
+                    mark_low_priority(sock)  # video: forces and commands go first
                 self._wrap_transport(peer)
             if pc.connectionState in ("failed", "closed"):
                 await self.close_peer(peer_id)

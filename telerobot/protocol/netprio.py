@@ -21,7 +21,9 @@ SO_PRIORITY_HIGH = 6  # TC_PRIO_INTERACTIVE: band 0 of the default queue
 SO_PRIORITY_LOW = 1  # TC_PRIO_FILLER: the last band
 
 
-def _mark(sock: socket.socket, tos: int, priority: int) -> None:
+def _mark(sock: Any, tos: int, priority: int) -> None:
+    """``sock``: a socket, or anything with ``family`` and ``setsockopt`` (uvloop's
+    ``PseudoSocket``, what its transports give)."""
     with contextlib.suppress(OSError, AttributeError):
         if sock.family == socket.AF_INET6:
             sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_TCLASS, tos)
@@ -32,30 +34,9 @@ def _mark(sock: socket.socket, tos: int, priority: int) -> None:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_PRIORITY, priority)
 
 
-def mark_high_priority(sock: socket.socket) -> None:
+def mark_high_priority(sock: Any) -> None:
     _mark(sock, DSCP_EF, SO_PRIORITY_HIGH)
 
 
-def mark_low_priority(sock: socket.socket) -> None:
+def mark_low_priority(sock: Any) -> None:
     _mark(sock, DSCP_CS1, SO_PRIORITY_LOW)
-
-
-def mark_peer_low_priority(pc: Any) -> int:
-    """Mark the UDP sockets of an aiortc peer connection as video: low priority.
-
-    aiortc does not expose its sockets; they sit in aioice's connection behind the
-    DTLS and ICE transports (private attributes, hence the defensive walk). Returns
-    how many sockets were marked."""
-    marked = 0
-    for transceiver in pc.getTransceivers():
-        dtls = getattr(transceiver.sender, "transport", None)
-        ice = getattr(getattr(dtls, "transport", None), "_connection", None)
-        for protocol in getattr(ice, "_protocols", []):
-            transport = getattr(protocol, "transport", None)
-            sock = transport.get_extra_info("socket") if transport is not None else None
-            if isinstance(sock, socket.socket):
-                mark_low_priority(sock)
-                marked += 1
-    if not marked:
-        log.info("could not mark the video's sockets low priority (aiortc internals changed?)")
-    return marked
