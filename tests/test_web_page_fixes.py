@@ -318,3 +318,71 @@ def test_the_calibration_page_fits_the_window_and_shows_live_images_before_freez
         assert "Click fiducial 1" in page.locator("#prompt").inner_text()
         assert errors == []
         page.close()
+
+
+# Each header state as the page shows it (the badges' words and the buttons its wiring
+# unhides: web/src/wiring/supervision.ts, ui/status.ts), set on the page's own elements.
+HEADER_STATES: dict[str, tuple[str, list[str]]] = {
+    "autonomous": ("AUTONOMOUS · act-so101-pick-and-place-policy · 30 Hz", ["pause-policy"]),
+    "paused": (
+        "PAUSED · act-so101-pick-and-place-policy — press P to let it drive (the"
+        " supervisor paused it from the page)",
+        ["resume-policy"],
+    ),
+    "correcting": (
+        "CORRECTING · browser on Linux x86_64 (ws 127.0.0.1:51234) drives,"
+        " act-so101-pick-and-place-policy waits",
+        ["hand-back", "release", "home"],
+    ),
+    "estop": ("", ["reset", "release", "home"]),
+}
+HEADER_FIT = """([badge, shown]) => {
+  const a = document.getElementById('autonomy');
+  a.hidden = badge === ''; a.textContent = badge;
+  for (const id of ['pause-policy', 'resume-policy', 'hand-back', 'release', 'reset', 'home'])
+    document.getElementById(id).hidden = !shown.includes(id);
+  document.getElementById('control-owner').textContent =
+    'control: browser on Linux x86_64 (ws 127.0.0.1:51234) (you)';
+  const h = document.querySelector('header');
+  const box = (e) => e.getBoundingClientRect();
+  const kids = [...h.children].filter((e) => !e.hidden && box(e).width > 0);
+  return {
+    height: box(h).height,
+    estop: box(document.getElementById('estop')).height,
+    inside: kids.every((e) => box(e).bottom <= box(h).bottom + 0.5 && box(e).right <= innerWidth + 0.5),
+    title: a.title,
+  };
+}"""
+TASKS_FIT = """() => {
+  const t = document.getElementById('tasks');
+  const select = document.getElementById('task-recording');
+  select.append(Object.assign(document.createElement('option'), {
+    textContent: '20261207-210000-a-rather-long-recording-name-of-a-pick-and-place-session.mcap',
+  }));
+  select.value = select.options[select.options.length - 1].value;
+  const r = t.getBoundingClientRect();
+  const cut = [...t.querySelectorAll('*')].filter((e) => e.getBoundingClientRect().right > r.right + 0.5);
+  return { right: r.right, width: innerWidth, cut: cut.map((e) => e.id || e.tagName) };
+}"""
+
+
+def test_the_header_is_one_line_and_the_tasks_panel_fits_at_1280_by_800(
+    browser: Browser, server: str
+) -> None:
+    """A new user at 1280×800 saw the header wrap to 2-3 lines in CORRECTING and PAUSED
+    ("E-/STOP" split over two) and the Tasks panel cut at its right edge."""
+    page, errors = open_page(browser, server, video=False)
+    page.set_viewport_size({"width": 1280, "height": 800})
+    plain = page.evaluate(HEADER_FIT, ["", []])
+    assert plain["inside"], plain
+    for mode, (badge, shown) in HEADER_STATES.items():
+        fit = page.evaluate(HEADER_FIT, [badge, shown])
+        assert fit["height"] <= plain["height"] + 1, (mode, fit, plain)  # one line
+        assert fit["estop"] <= plain["estop"] + 1, (mode, fit)  # "E-STOP" whole
+        assert fit["inside"], (mode, fit)
+        # a badge cut short keeps its whole text in its title
+        page.wait_for_function("(t) => document.getElementById('autonomy').title === t", arg=badge)
+    tasks = page.evaluate(TASKS_FIT)
+    assert tasks["right"] <= tasks["width"] and not tasks["cut"], tasks
+    assert not [e for e in errors if "Uncaught" in e], errors
+    page.close()

@@ -137,17 +137,37 @@ describe("the message log", () => {
     const log = new MessageLog(list, 3, () => new Date(2020, 0, 1, 12, 0, 0));
     log.add("first");
     for (let i = 0; i < 11; i++) log.add("E-STOP: e-stop pressed", true);
-    log.add("E-STOP: e-stop pressed"); // the same words, not an error: its own line
-    expect(log.entries.map((e) => [e.text, e.count])).toEqual([
-      ["E-STOP: e-stop pressed", 1],
-      ["E-STOP: e-stop pressed", 11],
-      ["first", 1],
+    log.add("E-STOP: e-stop pressed"); // the same words said as news: the same line, its colour now
+    expect(log.entries.map((e) => [e.text, e.count, e.error])).toEqual([
+      ["E-STOP: e-stop pressed", 12, false],
+      ["first", 1, false],
     ]);
     const time = new Date(2020, 0, 1, 12, 0, 0).toLocaleTimeString();
+    expect(items.map((li) => li.textContent)).toEqual([`${time} E-STOP: e-stop pressed ×12`, `${time} first`]);
+    expect(items[0]!.style.color).toBe("");
+  });
+
+  it("folds a message that comes back among the newest lines, and moves it to the top", () => {
+    const { items, list } = fakeList();
+    const log = new MessageLog(list, 10, () => new Date(2020, 0, 1, 12, 0, 0));
+    for (let i = 0; i < 3; i++) {
+      log.add("link lost: reconnecting", true);
+      log.add("link back");
+    }
+    log.add("something else");
+    log.add("video: no video", false);
+    log.add("video: no video", true); // one thing said by two layers
+    const time = new Date(2020, 0, 1, 12, 0, 0).toLocaleTimeString();
     expect(items.map((li) => li.textContent)).toEqual([
-      `${time} E-STOP: e-stop pressed`,
-      `${time} E-STOP: e-stop pressed ×11`,
-      `${time} first`,
+      `${time} video: no video ×2`,
+      `${time} something else`,
+      `${time} link back ×3`,
+      `${time} link lost: reconnecting ×3`,
     ]);
+    expect(items[0]!.style.color).toBe("#f88");
+    // Beyond the window a message is news again: its own line
+    for (const t of ["a", "b", "c"]) log.add(t);
+    log.add("something else");
+    expect(items.filter((li) => li.textContent.endsWith("something else"))).toHaveLength(2);
   });
 });

@@ -189,11 +189,15 @@ export type LogList = Pick<HTMLElement, "prepend" | "childElementCount" | "lastE
 export const LOG_LIMIT = 50;
 
 /** Newest first, at most `limit` lines, here and on the page; a message that comes
- * again right after itself updates its line ("×N", the latest time) instead of
- * pushing the others out. */
+ * again while it is still among the newest REPEAT_WINDOW lines (right after itself, or
+ * alternating with another: a reconnecting link, an error said twice by two layers)
+ * updates its line ("×N", the latest time, the newest's colour) and moves it to the top,
+ * instead of pushing the others out. */
+export const REPEAT_WINDOW = 3;
+
 export class MessageLog {
   readonly entries: LogEntry[] = [];
-  private newest: { textContent: string | null } | null = null;
+  private readonly lines = new Map<LogEntry, { textContent: string | null; style: { color: string }; remove(): void }>();
 
   constructor(
     private readonly list: LogList | null,
@@ -203,22 +207,28 @@ export class MessageLog {
 
   add(text: string, error = false): void {
     const time = this.clock().toLocaleTimeString();
-    const last = this.entries[0];
-    if (last && last.text === text && last.error === error) {
-      last.count += 1;
-      last.time = time;
-      if (this.newest) this.newest.textContent = `${time} ${text} ×${last.count}`;
-      return;
+    const again = this.entries.slice(0, REPEAT_WINDOW).findIndex((e) => e.text === text);
+    let entry: LogEntry;
+    if (again >= 0) {
+      entry = this.entries.splice(again, 1)[0]!;
+      entry.count += 1;
+      entry.time = time;
+      entry.error = error;
+      this.lines.get(entry)?.remove();
+    } else {
+      entry = { time, text, error, count: 1 };
     }
-    const entry = { time, text, error, count: 1 };
     this.entries.unshift(entry);
-    if (this.entries.length > this.limit) this.entries.length = this.limit;
+    for (const gone of this.entries.splice(this.limit)) {
+      this.lines.get(gone)?.remove();
+      this.lines.delete(gone);
+    }
     if (!this.list) return;
     const li = this.list.ownerDocument.createElement("li");
-    li.textContent = `${entry.time} ${text}`;
-    if (error) li.style.color = "#f88";
+    li.textContent = `${entry.time} ${text}${entry.count > 1 ? ` ×${entry.count}` : ""}`;
+    li.style.color = error ? "#f88" : "";
     this.list.prepend(li);
-    this.newest = li;
+    this.lines.set(entry, li);
     while (this.list.childElementCount > this.limit) this.list.lastElementChild?.remove();
   }
 }

@@ -11,6 +11,7 @@ import { GHOST_KEY } from "./ar/ghost";
 import { readServerArms } from "./robot/arms";
 import { viewerName } from "./ui/alignment";
 import { $ } from "./ui/dom";
+import { titleFollowsText } from "./ui/header-fit";
 import { readName } from "./ui/operator-name";
 import { StereoView } from "./view/stereo";
 import { setupArmDrawing } from "./wiring/arm-drawing";
@@ -53,8 +54,9 @@ async function main(): Promise<void> {
     view,
     video,
     controller: safety.controller ?? null,
-    late: { supervision: null, tasks: null, reloader: null },
+    late: { supervision: null, tasks: null, reloader: null, help: null },
   };
+  titleFollowsText([$("control-owner"), $("autonomy")]); // (cut to keep the header one line)
   const viewControls = await setupViewControls(ctx);
   const realtime = setupRealtime(ctx);
   const videoHandle = setupVideo(ctx, realtime.link, viewControls.alignment);

@@ -100,18 +100,24 @@ export class HelpOverlay {
     el.hidden = true;
     el.setAttribute("role", "dialog");
     el.setAttribute("aria-label", "Keys and controls");
-    el.innerHTML =
-      `<div class="help-box"><button type="button" class="help-close" title="Escape">×</button><h2>Keys and controls</h2>` +
-      helpSections(FRAMES, FRAME_KEYS, arms)
-        .map((s) => `<h3>${escape(s.title)}</h3><table>${s.rows.map((r) => `<tr><th>${escape(r.keys)}</th><td>${escape(r.does)}</td></tr>`).join("")}</table>`)
-        .join("") +
-      `</div>`;
+    this.element = el;
+    this.setArms(arms);
     el.addEventListener("click", (e) => {
       if (e.target === el || (e.target as HTMLElement).classList.contains("help-close")) this.hide();
     });
     doc.body.append(el);
-    this.element = el;
     if (button) button.onclick = () => this.toggle();
+  }
+
+  /** The server's arms (two or more: their section; fewer: none), as they are now: a
+   * server restarted with other arms is followed without a reload. */
+  setArms(arms: readonly string[]): void {
+    this.element.innerHTML =
+      `<div class="help-box"><button type="button" class="help-close" title="Escape">×</button><h2>Keys and controls</h2>` +
+      helpSections(FRAMES, FRAME_KEYS, arms.length > 1 ? arms : [])
+        .map((s) => `<h3>${escape(s.title)}</h3><table>${s.rows.map((r) => `<tr><th>${escape(r.keys)}</th><td>${escape(r.does)}</td></tr>`).join("")}</table>`)
+        .join("") +
+      `</div>`;
   }
 
   get open(): boolean {

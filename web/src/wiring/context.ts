@@ -2,6 +2,7 @@
 import type { Api, MessageLog, ResponseOf } from "../api";
 import type { ServerArmReloader } from "../robot/server-arm";
 import type { Supervision } from "../ui/autonomy";
+import type { HelpOverlay } from "../ui/help";
 import type { TasksPanel } from "../ui/tasks";
 import type { StereoView } from "../view/stereo";
 import type { PageArms } from "./page-arms";
@@ -35,5 +36,7 @@ export interface PageContext {
     tasks: TasksPanel | null;
     /** The arm drawn, read again at each new session. */
     reloader: ServerArmReloader | null;
+    /** The keys' overlay: its arms section follows the server's arms. */
+    help: HelpOverlay | null;
   };
 }

@@ -39,7 +39,8 @@ export function setupPageControls(ctx: PageContext, parts: ControlsParts): Contr
   const alarm = showControlAlerts(control, [keyboard, gamepad], () => loop.take());
   loop.onRelease = () => control.released(); // handing back to a policy, too
   const arms = ctx.arms.list;
-  const help = new HelpOverlay(document, $("help-button"), arms.length > 1 ? arms.map((a) => a.entry.name) : []);
+  const help = new HelpOverlay(document, $("help-button"), arms.map((a) => a.entry.name));
+  ctx.late.help = help;
   const keyTargets = {
     dialogs: () => pageDialogs(document),
     help,

@@ -45,6 +45,7 @@ export function setupTasks(ctx: PageContext, link: RealtimeLink, loop: InputLoop
       loop.setArms(driveArms(arms.list)); // the axis marker follows (onArmChange)
       view.overlayChanged();
       path.setCameras(next.cameras);
+      ctx.late.help?.setArms(arms.list.map((a) => a.entry.name)); // the keys' overlay too
       void tasks.load(); // which recordings this arm can repeat
     },
     log,
