@@ -7,8 +7,8 @@ from typing import Any
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from telerobot.server.api.deps import HubDep, MediaOrNoneDep, TelemetryDep
-from telerobot.server.api.video import OperatorOrNot, video_stats
+from telerobot.server.api.deps import HubDep, MediaOrNoneDep, OperatorOrNot, TelemetryDep
+from telerobot.server.api.video import video_stats
 
 router = APIRouter(prefix="/telemetry", tags=["telemetry"])
 
