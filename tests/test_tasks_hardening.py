@@ -388,3 +388,29 @@ def test_tokenless_previews_from_many_addresses_share_one_budget() -> None:
         assert reader.refused == 1
     finally:
         reader.close()
+
+
+def test_a_one_arm_recording_is_repeated_on_the_arm_named_of_a_two_arm_server(
+    tmp_path: Path,
+) -> None:
+    """A one-arm recording on a two-arm server: refused without an arm, naming the
+    server's arms; read as the named arm's path with one; an arm the server has not is
+    refused naming the ones it has."""
+    from telerobot.server.tasks.trajectory import OtherArms
+
+    rec = write_recording(tmp_path / "one.mcap", seconds=2.0, episode=(0.2, 1.8))
+    reader = SourceReader(arm_models={"left": "so101", "right": "so101"})
+    try:
+        with pytest.raises(OtherArms, match=r"name the arm to repeat it on \(arm: one of left"):
+            asyncio.run(reader.paths(rec, 0, None, operator=True, address=""))
+        paths = asyncio.run(reader.paths(rec, 0, None, operator=True, address="", onto="right"))
+        assert list(paths) == ["right"] and len(paths["right"]) > 10
+        preview = asyncio.run(reader.preview(rec, 0, None, operator=True, address="", onto="left"))
+        assert preview.arm == "left"
+        with pytest.raises(InvalidCommand, match=r"no arm 'middle'.*its arms: left, right"):
+            asyncio.run(reader.paths(rec, 0, None, operator=True, address="", onto="middle"))
+    finally:
+        reader.close()
+    # …and the task built from it runs on that arm alone
+    spec = TaskSpec.of_paths(paths)
+    assert [name for name, _ in spec.paths] == ["right"]

@@ -8,6 +8,8 @@ recording being written is refused (409); a torn one is read as far as it is val
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -30,7 +32,7 @@ from telerobot.server.tasks.runner import (
     TaskSpec,
 )
 from telerobot.server.tasks.source_reader import PathPreview
-from telerobot.server.tasks.trajectory import Trajectory
+from telerobot.server.tasks.trajectory import OtherArms, Trajectory
 
 MAX_FILE_NAME = 255  # a file name's bytes on every common file system (ASCII names here)
 
@@ -64,6 +66,12 @@ class TaskSource(StrictRequest):
     episode: int | None = Field(None, ge=0, description="repeat this episode")
     segment: tuple[float, float] | None = Field(
         None, description="or this span [t0, t1] s (of the episode, else of the recording)"
+    )
+    arm: str | None = Field(
+        None,
+        max_length=64,
+        description="on a server of several arms, the arm to repeat a one-arm recording on"
+        " (a recording of several arms repeats each on the arm of its name: leave it out)",
     )
 
 
@@ -161,10 +169,28 @@ def _caller(request: Request, decision: DecisionDep) -> tuple[bool, str]:
 
 
 async def _paths(body: TaskSource, recorder: Recorder, runner: TaskRunner) -> dict[str, Trajectory]:
-    """Each recorded arm's path (one arm's, or a multi-arm recording's each)."""
-    return await runner.sources.paths(
-        _source(body, recorder), body.episode, body.segment, operator=True, address=""
-    )
+    """Each recorded arm's path (one arm's, or a multi-arm recording's each; a one-arm
+    recording's on ``body.arm`` when named)."""
+    path = _source(body, recorder)
+    with _one_arm_only(body, path):
+        return await runner.sources.paths(
+            path, body.episode, body.segment, operator=True, address="", onto=body.arm
+        )
+
+
+@contextlib.contextmanager
+def _one_arm_only(body: TaskSource, path: Path) -> Iterator[None]:
+    """``arm`` names where a one-arm recording goes: a recording of several arms,
+    read with it, is refused saying so (not as the arms it did not find)."""
+    try:
+        yield
+    except OtherArms:
+        if body.arm is None:
+            raise
+        raise OtherArms(
+            f"{path.name} was recorded with several arms, each repeated on this server's"
+            " arm of its name: leave arm out (it names the arm for a one-arm recording)"
+        ) from None
 
 
 def _view(task: Task) -> TaskView:
@@ -223,9 +249,10 @@ async def preview_task(
     Without the operator token: a budget per address and one read at a time (429)."""
     operator, address = _caller(request, decision)
     path = _source(body, recorder)
-    preview = await runner.sources.preview(
-        path, body.episode, body.segment, operator=operator, address=address
-    )
+    with _one_arm_only(body, path):
+        preview = await runner.sources.preview(
+            path, body.episode, body.segment, operator=operator, address=address, onto=body.arm
+        )
     # The approach from where the arm is now, as POST /tasks would plan it (of a
     # multi-arm recording: its first arm's, on this server's arm of that name).
     p0, R0 = preview.positions[0], preview.start_rotation

@@ -125,13 +125,28 @@ class PathPreview:
         )
 
 
-Key = tuple[str, int, int, int | None, tuple[float, float] | None]
+Key = tuple[str, int, int, int | None, tuple[float, float] | None, str | None]
 
 
-def _key(path: Path, episode: int | None, segment: tuple[float, float] | None) -> Key:
-    """What a preview depends on: the file as it is now (one stat), and the span."""
+def _key(
+    path: Path, episode: int | None, segment: tuple[float, float] | None, onto: str | None = None
+) -> Key:
+    """What a preview depends on: the file as it is now (one stat), the span, and the
+    arm a one-arm recording is repeated on."""
     stat = path.stat()
-    return (path.name, stat.st_size, stat.st_mtime_ns, episode, segment)
+    return (path.name, stat.st_size, stat.st_mtime_ns, episode, segment, onto)
+
+
+def onto_arm(name: str, arm_models: Mapping[str, str] | None) -> str:
+    """The model of this server's arm ``name``, which a one-arm recording is to be
+    repeated on; InvalidCommand naming the server's arms if there is none of that name."""
+    models = dict(arm_models or {})
+    if name not in models or name == SINGLE_ARM:
+        names = ", ".join(n for n in models if n != SINGLE_ARM) or "none: it drives one arm"
+        raise InvalidCommand(
+            f"this server has no arm {name[:32]!r} to repeat the recording on (its arms: {names})"
+        )
+    return models[name]
 
 
 class SourceReader:
@@ -178,12 +193,14 @@ class SourceReader:
         *,
         operator: bool,
         address: str,
+        onto: str | None = None,
     ) -> dict[str, Trajectory]:
         """Each recorded arm's path (by name; one arm's named "arm") of ``path``'s
-        episode or segment, read now."""
+        episode or segment, read now; a one-arm recording's named ``onto`` (one of this
+        server's arms) when that is given (``onto_arm``)."""
         if not operator:
             self._charge(address, self.read_cost)
-        return await self._read(path, episode, segment, operator=operator)
+        return await self._read(path, episode, segment, operator=operator, onto=onto)
 
     async def trajectory(
         self,
@@ -208,10 +225,11 @@ class SourceReader:
         *,
         operator: bool,
         address: str,
+        onto: str | None = None,
     ) -> PathPreview:
         """The thinned path of ``path``'s episode or segment, from the cache if it has
-        been read since the file last changed."""
-        key = _key(path, episode, segment)
+        been read since the file last changed (``onto``: as for ``paths``)."""
+        key = _key(path, episode, segment, onto)
         cached = self._cache.get(key)
         if cached is not None:
             if not operator:
@@ -220,7 +238,9 @@ class SourceReader:
             return cached
         if not operator:
             self._charge(address, self.read_cost)
-        found = PathPreview.of_paths(await self._read(path, episode, segment, operator=operator))
+        found = PathPreview.of_paths(
+            await self._read(path, episode, segment, operator=operator, onto=onto)
+        )
         self._cache[key] = found
         while len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)
@@ -268,7 +288,12 @@ class SourceReader:
         segment: tuple[float, float] | None,
         *,
         operator: bool,
+        onto: str | None = None,
     ) -> dict[str, Trajectory]:
+        arm_models = self.arm_models
+        if onto is not None:
+            # Read as a one-arm recording of that arm's model; its path named after it.
+            arm_models = {SINGLE_ARM: onto_arm(onto, self.arm_models)}
         with self._lock:
             busy = self._in_flight
             if (busy and not operator) or busy >= MAX_QUEUED:
@@ -294,14 +319,15 @@ class SourceReader:
                 episode=episode,
                 segment=segment,
                 time_limit_s=self.time_limit_s,
-                arm_models=self.arm_models,
+                arm_models=arm_models,
             )
         except RuntimeError:  # shut down
             self._finished(None)
             raise TooManyPreviews("the server is stopping: no recording is read now") from None
         future.add_done_callback(self._finished)  # also when the request is gone
         try:
-            return await asyncio.wrap_future(future)
+            paths = await asyncio.wrap_future(future)
+            return paths if onto is None else {onto: paths[SINGLE_ARM]}
         except BrokenProcessPool:  # the worker died (killed, out of memory): a new one next
             self._executor = None
             raise ReadFailed(

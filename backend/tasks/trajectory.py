@@ -712,6 +712,12 @@ def other_arms_text(source: str, recorded: list[str], server: list[str]) -> str:
             return "one arm"
         return f"{len(names)} arms ({', '.join(n[:32] for n in names[:MAX_ARMS])})"
 
+    if recorded == [SINGLE_ARM] and len(server) > 1:
+        return (
+            f"{source} was recorded with one arm, and this server drives {arms(server)}:"
+            " name the arm to repeat it on (arm: one of"
+            f" {', '.join(n[:32] for n in server[:MAX_ARMS])})"
+        )
     return (
         f"{source} was recorded with {arms(recorded)}, and this server drives "
         f"{arms(server)}: a task repeats each recorded arm's path on this server's arm of "

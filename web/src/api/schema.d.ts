@@ -2390,6 +2390,11 @@ export interface components {
                 number
             ] | null;
             /**
+             * Arm
+             * @description on a server of several arms, the arm to repeat a one-arm recording on (a recording of several arms repeats each on the arm of its name: leave it out)
+             */
+            arm?: string | null;
+            /**
              * Speed
              * @description share of the taught speed
              * @default 1
@@ -2520,6 +2525,11 @@ export interface components {
                 number,
                 number
             ] | null;
+            /**
+             * Arm
+             * @description on a server of several arms, the arm to repeat a one-arm recording on (a recording of several arms repeats each on the arm of its name: leave it out)
+             */
+            arm?: string | null;
         };
         /** TaskView */
         TaskView: {
@@ -3147,10 +3157,12 @@ export interface operations {
             query?: {
                 /** @description whose limits and stopping (default: the first arm) */
                 arm?: string | null;
-                /** @description a client id (its WELCOME's, or POST /lease's): its own executed commands' ages in executed_age_ms_client */
+                /** @description a client id (its WELCOME's, or POST /lease's): its own executed commands' ages in executed_age_ms_client (with the operator token only) */
                 client?: string | null;
             };
-            header?: never;
+            header?: {
+                authorization?: string | null;
+            };
             path?: never;
             cookie?: never;
         };

@@ -1,7 +1,7 @@
 import { describe, expect, it } from "vitest";
 import { ApiError } from "../api";
 import type { Schema } from "../api";
-import { AWAY_FROM_START, approachQuestion, farFromStart, otherArm, previewText, recordingChoices, refusalView, whyNotRun } from "./tasks";
+import { approachQuestion, armOptions, AWAY_FROM_START, farFromStart, otherArm, previewText, recordingChoices, refusalView, whyNotRun } from "./tasks";
 
 // The server's 422 for a Run from where the README's script leaves the arm.
 const AWAY = "the tool is 60.8 mm / 5.7° from the task's first pose (it starts within 5 mm / 3°): move there, or confirm the approach (approach: true), a slow joint move there (its way: POST /tasks/preview, approach)";
@@ -115,5 +115,13 @@ describe("recordings of another arm model", () => {
     const why = "every recording here was made with another arm model than this server's SO-101";
     expect(whyNotRun({ ...ready, chosen: false, arm: why })).toBe(why);
     expect(recordingChoices([], SO101, "")).toEqual({ options: [{ value: "", text: "no recording with episodes", disabled: false, title: "" }], value: "" });
+  });
+});
+
+describe("the Arm choice on a server of several arms", () => {
+  it("offers each recorded arm on its own, or a one-arm recording on an arm named", () => {
+    expect(armOptions(["arm"])).toEqual([]);
+    expect(armOptions(["left", "right"]).map((o) => o.value)).toEqual(["", "left", "right"]);
+    expect(armOptions(["left", "right"])[2]!.text).toBe("on right (a one-arm recording)");
   });
 });

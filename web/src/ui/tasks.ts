@@ -33,9 +33,16 @@ export interface TaskSources {
   path: PathOverlay;
   /** Asks the operator (window.confirm on the page). */
   confirm?: (text: string) => boolean;
-  /** The arm whose model the recordings are checked against, on a server with two arms
-   * or more (its first; `?arm=`); null or absent: the only arm. */
-  arm?: () => string | null;
+  /** The server's arms' names (two or more: the panel's Arm choice; absent: one arm). */
+  arms?: () => readonly string[];
+}
+
+/** The Arm choice on a server of several arms: "" repeats each recorded arm on the arm
+ * of its name (a recording of several arms); an arm's name repeats a one-arm recording
+ * on that arm. */
+export function armOptions(arms: readonly string[]): { value: string; text: string }[] {
+  if (arms.length < 2) return [];
+  return [{ value: "", text: "each as recorded" }, ...arms.map((a) => ({ value: a, text: `on ${a} (a one-arm recording)` }))];
 }
 
 /** A stopped task's line: why, in the server's words. */
@@ -140,6 +147,8 @@ export class TasksPanel {
   arm: ServerArmName | null = null;
   private readonly recording = el("select", { id: "task-recording", title: "a recording (GET /api/v1/recordings)" });
   private readonly episode = el("select", { id: "task-episode", title: "the episode to repeat" });
+  private readonly armChoice = el("select", { id: "task-arm", title: "which arm repeats it: a one-arm recording on the arm named, a recording of several arms each on the arm of its name" });
+  private readonly armRow = el("label", { hidden: true }, "Arm ", this.armChoice);
   private readonly refreshButton = el("button", { id: "task-refresh", type: "button", title: "Read the recordings again", textContent: "↻" });
   private readonly speed = el("input", { id: "task-speed", type: "range", min: "0.1", max: "1", step: "0.05", value: "0.5" });
   private readonly speedValue = el("output", { id: "task-speed-value", textContent: "0.50" });
@@ -170,6 +179,7 @@ export class TasksPanel {
     box.append(
       el("label", {}, "Recording ", this.recording, " ", this.refreshButton),
       el("label", {}, "Episode ", this.episode),
+      this.armRow,
       el("label", {}, "Speed ", this.speed, " ", this.speedValue),
       el("label", { title: "the arm gives way along x, y and z" }, this.compliance, " Compliant, stiffness ", this.stiffness, " N/m"),
       el("div", {}, this.previewButton, " ", this.clearButton, " ", this.runButton, " ", this.approachButton),
@@ -179,6 +189,10 @@ export class TasksPanel {
     this.speed.oninput = () => (this.speedValue.textContent = Number(this.speed.value).toFixed(2));
     this.recording.onchange = () => this.fillEpisodes();
     this.episode.onchange = () => this.forget(); // the shown path was another episode's
+    this.armChoice.onchange = () => {
+      this.forget();
+      void this.load(); // the recordings this arm's model can repeat
+    };
     this.refreshButton.onclick = () => void this.load();
     this.previewButton.onclick = () => void this.preview();
     this.clearButton.onclick = () => this.src.path.clear();
@@ -213,7 +227,16 @@ export class TasksPanel {
 
   /** Read the recordings (and follow a task already under way). */
   async load(): Promise<void> {
-    const arm = this.src.arm?.() ?? null;
+    const names = this.src.arms?.() ?? [];
+    const options = armOptions(names);
+    if (options.map((o) => o.value).join() !== [...this.armChoice.options].map((o) => o.value).join()) {
+      const was = this.armChoice.value;
+      this.armChoice.replaceChildren(...options.map((o) => el("option", { value: o.value, textContent: o.text })));
+      this.armChoice.value = options.some((o) => o.value === was) ? was : "";
+    }
+    this.armRow.hidden = options.length === 0;
+    // The arm whose model the recordings are checked against: the one chosen, else the first.
+    const arm = names.length > 1 ? this.armChoice.value || names[0]! : null;
     try {
       const [recordings, tasks, model] = await Promise.all([
         this.src.api.request("get", "/api/v1/recordings"),
@@ -259,6 +282,11 @@ export class TasksPanel {
     return this.recordings.find((r) => r.file === this.recording.value && !otherArm(r, this.arm));
   }
 
+  /** The arm a one-arm recording is repeated on ({} : each recorded arm on its own). */
+  private onto(): { arm?: string } {
+    return this.armRow.hidden || !this.armChoice.value ? {} : { arm: this.armChoice.value };
+  }
+
   private chosenEpisode(): Schema<"Episode"> | undefined {
     return this.chosenRecording()?.episodes.find((e) => String(e.episode) === this.episode.value);
   }
@@ -273,7 +301,7 @@ export class TasksPanel {
     }
     try {
       // The server builds the path a task would follow (the same trajectory), moving nothing.
-      const preview = await this.src.api.request("post", "/api/v1/tasks/preview", { body: { recording: rec.file, episode: ep.episode } });
+      const preview = await this.src.api.request("post", "/api/v1/tasks/preview", { body: { recording: rec.file, episode: ep.episode, ...this.onto() } });
       const points = preview.positions.map((p) => [...p] as Vec3);
       if (points.length === 0) {
         this.src.log.add(`tasks: episode ${ep.episode} of ${rec.file} has no robot states`, true);
@@ -325,6 +353,7 @@ export class TasksPanel {
           compliance: this.compliance.checked ? { axes: "xyz", stiffness_n_per_m: Number(this.stiffness.value), damping_n_s_per_m: 2000, max_offset_m: 0.01, max_rate_m_s: 0.02 } : null,
           force_margin_n: 15,
           approach,
+          ...this.onto(),
         },
       });
       this.src.log.add(`task ${view.id} ${view.state}: episode ${ep.episode} of ${rec.file} at ${view.speed.toFixed(2)}×`);

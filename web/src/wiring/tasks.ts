@@ -28,7 +28,7 @@ export function setupTasks(ctx: PageContext, link: RealtimeLink, loop: InputLoop
     link,
     flags: () => (link.open ? (arms.combined?.flags ?? 0) : 0),
     path,
-    arm: () => (arms.list.length > 1 ? arms.list[0]!.entry.name : null),
+    arms: () => arms.list.map((a) => a.entry.name),
   });
   ctx.late.tasks = tasks;
   void tasks.load();
