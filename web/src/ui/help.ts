@@ -70,6 +70,12 @@ export function helpSections(frames: readonly string[] = FRAMES, keys: Readonly<
     },
     ...(arms.length > 1 ? [{ title: `Two arms (${arms.join(", ")})`, rows: armRows(arms) }] : []),
     {
+      title: "A policy to supervise",
+      rows: [
+        { keys: "telerobot policy demo", does: "run beside this server: a scripted policy reaches for targets (AUTONOMOUS); take over with T or the dead-man, correct, hand back with H (docs/lerobot.md for a learned one)" },
+      ],
+    },
+    {
       title: "Buttons",
       rows: [
         { keys: "Take / Release control", does: "the lease: one operator drives at a time" },
