@@ -55,6 +55,9 @@ its server figures (``server_viewer``, ``layer_switches``) are its own entry in 
   page's own capture → decoded meter, view/glass.ts, p50/p99; its worker reads frames
   from a queue, so on a starved machine it lags, and can read above capture → shown),
   ``receive_to_shown_ms`` (the metadata's receiveTime to expectedDisplayTime),
+  ``capture_to_callback_ms`` and ``expected_display_after_callback_ms`` (capture →
+  shown split at the callback's ``now``: headless Chromium expects the display
+  50-120 ms after the callback on this machine),
   ``before_outage``, ``page_operator`` (the server welcomed the page as operator),
   ``cpu_cores`` and ``cpu_by_kind`` (Chromium's processes' CPU over the run, in
   cores), and the leg's force and command figures (``command_p99_ms``,
@@ -922,6 +925,14 @@ def chromium_figures(
     receive = [
         r["expected"] - r["receive"] for r in steady if r.get("receive") and r.get("expected")
     ]
+    # The callback's own time against the expected display: capture → the callback
+    # (the page draws then) is capture → shown less this.
+    ahead = [r["expected"] - r["now"] for r in steady if r.get("expected")]
+    to_callback = [
+        age * 1000 - (r["expected"] - r["now"])
+        for r, (shown, age) in zip(records, shown_frames(records, origin), strict=True)
+        if age is not None and r.get("expected") and _in(shown, segments)
+    ]
     # The metadata's own capture time (a remote source's, through RTCP sender reports),
     # against the timecode's: how far the browser's estimate is off.
     meta = [
@@ -946,6 +957,8 @@ def chromium_figures(
         "read_error": errors[0] if errors else None,
         "decoded_latency_ms": {"p50": _pct(decoded, 50), "p99": _pct(decoded, 99)},
         "receive_to_shown_ms": {"p50": _pct(receive, 50), "p99": _pct(receive, 99)},
+        "capture_to_callback_ms": {"p50": _pct(to_callback, 50), "p99": _pct(to_callback, 99)},
+        "expected_display_after_callback_ms": {"p50": _pct(ahead, 50), "p99": _pct(ahead, 99)},
         "metadata_capture_minus_timecode_ms": _pct(meta, 50),
         **presented_counts(records, origin, segments),
         "frozen_share_incl_outage": row["frozen_share_incl_outage"],

@@ -128,6 +128,9 @@ def test_the_chromium_row_has_the_issues_keys_and_the_freezes_of_the_shown_frame
     assert c["lease_kept"] is True and c["page_held_lease"] is False
     assert c["decoded_latency_ms"]["p50"] == pytest.approx(60.0)
     assert c["receive_to_shown_ms"]["p50"] == pytest.approx(50.0, abs=0.1)
+    # The callback ran 16 ms before the expected display: 84 ms after the capture.
+    assert c["capture_to_callback_ms"]["p50"] == pytest.approx(84.0, abs=0.1)
+    assert c["expected_display_after_callback_ms"]["p50"] == pytest.approx(16.0)
     assert c["page_clock_offset_error_ms"] == pytest.approx(2.0)
     # presentedFrames counts every frame here: none missed by the callbacks.
     assert c["callbacks_missed"] == 0
