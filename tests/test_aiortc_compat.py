@@ -21,7 +21,7 @@ from harness import wan_receiver
 from telerobot.server.media import aiortc_compat
 from telerobot.server.media.fec import MEDIA_PAYLOAD_MAX
 from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
-from tests.support.video import SMALL, camera
+from tests.support.video import SMALL, camera, frames_of, viewer_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -103,26 +103,19 @@ def test_a_connected_viewers_sockets_are_marked_as_video_on_the_servers_loop() -
     async def watch() -> list[int]:
         pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=1_000_000))
         pipeline.start()
-        pc = RTCPeerConnection()
         try:
-            pc.addTransceiver("video", direction="recvonly")
-            got: asyncio.Queue[Any] = asyncio.Queue()
-            pc.on("track", got.put_nowait)
-            await pc.setLocalDescription(await pc.createOffer())
-            answer = await pipeline.answer(pc.localDescription.sdp, "offer")
-            await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
-            track = await asyncio.wait_for(got.get(), 10)
-            await asyncio.wait_for(track.recv(), 10)  # connected: marked by now
-            (peer,) = pipeline.peers.values()
-            socks = aiortc_compat.peer_sockets(peer.pc)
-            return [
+            pc, track, peer_id = await viewer_of(pipeline)
+            await frames_of(track, 1, SMALL["width"])  # connected: marked by now
+            socks = aiortc_compat.peer_sockets(pipeline.peers[peer_id].pc)
+            marks = [
                 s.getsockopt(socket.IPPROTO_IPV6, socket.IPV6_TCLASS)
                 if s.family == socket.AF_INET6
                 else s.getsockopt(socket.IPPROTO_IP, socket.IP_TOS)
                 for s in socks
             ]
-        finally:
             await pc.close()
+            return marks
+        finally:
             await pipeline.close()
 
     for run in (asyncio.run, uvloop.run):

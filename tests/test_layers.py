@@ -6,13 +6,10 @@ encoder. The same on emulated links: tests/test_layers_netem.py."""
 from __future__ import annotations
 
 import asyncio
-import time
 from dataclasses import dataclass
 
 import pytest
-from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from telerobot.drivers.camera import timecode
 from telerobot.drivers.clock import ManualClock
 from telerobot.server.media.fanout import Broadcaster
 from telerobot.server.media.layers import (
@@ -25,7 +22,7 @@ from telerobot.server.media.layers import (
     low_size,
 )
 from telerobot.server.media.pipeline import VideoPipeline, VideoSettings
-from tests.support.video import SMALL, Counter, camera, frame
+from tests.support.video import SMALL, Counter, camera, frame, frames_of, viewer_of
 
 
 @dataclass
@@ -218,42 +215,16 @@ async def test_a_track_moves_on_the_new_layers_keyframe_without_a_gap() -> None:
 
 
 # ---------------------------------------------------------------- real viewers
-async def _viewer(
-    pipeline: VideoPipeline, layer: str, operator: bool = False
-) -> tuple[RTCPeerConnection, object, str]:
-    pc = RTCPeerConnection()
-    pc.addTransceiver("video", direction="recvonly")
-    got: asyncio.Queue[object] = asyncio.Queue()
-    pc.on("track", got.put_nowait)
-    await pc.setLocalDescription(await pc.createOffer())
-    answer = await pipeline.answer(pc.localDescription.sdp, "offer", layer, operator)  # type: ignore[arg-type]
-    await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
-    return pc, await asyncio.wait_for(got.get(), 10), answer["peer_id"]
-
-
-async def _frames(track: object, n: int, full_width: int) -> list[tuple[int, int, float]]:
-    """(eye width, height, capture→decoded s) of the next ``n`` frames."""
-    out = []
-    for _ in range(n):
-        f = await asyncio.wait_for(track.recv(), 10)  # type: ignore[attr-defined]
-        rgb = f.to_ndarray(format="rgb24")
-        eye = rgb[:, : rgb.shape[1] // 2]
-        code = timecode.read(eye, scale=eye.shape[1] / full_width)
-        assert code is not None, f"no timecode in a {eye.shape[1]}×{eye.shape[0]} picture"
-        out.append((eye.shape[1], eye.shape[0], timecode.elapsed(code, time.monotonic())))
-    return out
-
-
 async def test_viewers_on_two_layers_get_two_sizes_from_two_shared_encoders() -> None:
     cam = camera(**SMALL)
     pipeline = VideoPipeline(cam, VideoSettings(bitrate=2_000_000, low_bitrate=400_000))
     pipeline.start()
     try:
         (pa, ta, ida), (pb, tb, idb) = await asyncio.gather(
-            _viewer(pipeline, "full"), _viewer(pipeline, "low")
+            viewer_of(pipeline, "full"), viewer_of(pipeline, "low")
         )
         full_frames, low_frames = await asyncio.gather(
-            _frames(ta, 10, cam.width), _frames(tb, 10, cam.width)
+            frames_of(ta, 10, cam.width), frames_of(tb, 10, cam.width)
         )
         assert {(w, h) for w, h, _ in full_frames} == {(cam.width, cam.height)}
         assert {(w, h) for w, h, _ in low_frames} == {low_size(cam.width, cam.height)}
@@ -270,7 +241,7 @@ async def test_viewers_on_two_layers_get_two_sizes_from_two_shared_encoders() ->
         # the low layer's, counted as one switch; the low encoder stays one encoder.
         peer = pipeline.peers[ida]
         pipeline.set_layer(peer, "low")
-        seen = await _frames(ta, 40, cam.width)
+        seen = await frames_of(ta, 40, cam.width)
         assert seen[-1][:2] == low_size(cam.width, cam.height)
         sizes = [s[:2] for s in seen]
         assert sizes == sorted(sizes, reverse=True)  # one change, never back
@@ -284,8 +255,8 @@ async def test_the_low_layer_is_not_encoded_while_nobody_takes_it() -> None:
     pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=1_000_000))
     pipeline.start()
     try:
-        pc, track, _ = await _viewer(pipeline, "auto")
-        await _frames(track, 5, SMALL["width"])
+        pc, track, _ = await viewer_of(pipeline, "auto")
+        await frames_of(track, 5, SMALL["width"])
         assert set(pipeline.encoding.encoders) == {("H264", "full")}  # never made
         assert pipeline.stats()["layers"]["low"]["kbps"] is None
         await pc.close()

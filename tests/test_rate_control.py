@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from dataclasses import dataclass
 from fractions import Fraction
 
 import numpy as np
@@ -27,24 +26,11 @@ from telerobot.server.media.rate_control import (
     SHARE_AGAIN_S,
     RateControl,
 )
-from tests.support.video import SMALL, camera
-from tests.test_layers import _frames, _viewer
+from tests.support.video import SMALL, camera, frames_of, viewer_of
+from tests.test_layers import Link
 
 MAX = 2_000_000
 FULL_PIXELS, LOW_PIXELS = 2 * 1280 * 720, 2 * 640 * 360  # (each needs 1.66, 0.41 Mbit/s)
-
-
-@dataclass
-class Link:
-    estimated_bps: int | None = None
-    fraction_lost: float | None = None
-    rtt_s: float | None = None
-    reports: int = 0
-
-    def report(self, lost: float = 0.0, rtt: float = 0.1, bps: int | None = None) -> Link:
-        self.fraction_lost, self.rtt_s, self.reports = lost, rtt, self.reports + 1
-        self.estimated_bps = bps
-        return self
 
 
 def control() -> RateControl:
@@ -80,10 +66,10 @@ def test_heavy_loss_cuts_random_loss_holds_and_a_clean_second_grows() -> None:
 
 def test_a_queue_in_two_reports_in_a_row_cuts_the_rate() -> None:
     rc, link = control(), Link()
-    rc.update(link.report(rtt=0.1), None, 0.0)
-    rc.update(link.report(rtt=0.4), None, 1.0)  # one late report: a hiccup
+    rc.update(link.report(rtt_s=0.1), None, 0.0)
+    rc.update(link.report(rtt_s=0.4), None, 1.0)  # one late report: a hiccup
     assert rc.target_bps == MAX
-    rc.update(link.report(rtt=0.45), None, 2.0)
+    rc.update(link.report(rtt_s=0.45), None, 2.0)
     assert rc.target_bps == MAX * DECREASE and "queue" in rc.why
 
 
@@ -195,9 +181,9 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
     pipeline.start()
     try:
         (po, to, ido), (pw, tw, idw) = await asyncio.gather(
-            _viewer(pipeline, "auto", operator=True), _viewer(pipeline, "auto")
+            viewer_of(pipeline, "auto", operator=True), viewer_of(pipeline, "auto")
         )
-        await asyncio.gather(_frames(to, 3, cam.width), _frames(tw, 3, cam.width))
+        await asyncio.gather(frames_of(to, 3, cam.width), frames_of(tw, 3, cam.width))
         pipeline.adapt_layers()
         operator = pipeline.peers[ido]
         assert operator.rate is not None and pipeline.peers[idw].rate is None
@@ -218,13 +204,13 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
             if operator.rate.size == "low":
                 break
         assert operator.rate.target_bps < 1_000_000
-        seen = await _frames(to, 30, cam.width)
+        seen = await frames_of(to, 30, cam.width)
         assert seen[-1][:2] == low_size(cam.width, cam.height)
         stats = pipeline.stats(peer_ids=True)
         layers = {v["peer_id"]: v["layer"] for v in stats["viewers"]}
         assert layers == {ido: "operator", idw: "full"}
         assert set(pipeline.encoding.encoders) == {("H264", "full"), ("H264", "operator")}
-        watcher = await _frames(tw, 5, cam.width)
+        watcher = await frames_of(tw, 5, cam.width)
         assert {(w, h) for w, h, _ in watcher} == {(cam.width, cam.height)}
         # Clean again up to the configured rate, and held there: shared again
         for _ in range(100):
@@ -235,14 +221,14 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
         operator.rate.at_max_since -= SHARE_AGAIN_S  # (as if it had held that long)
         link.reports += 1
         pipeline.adapt_operator_rate()
-        seen = await _frames(to, 30, cam.width)
+        seen = await frames_of(to, 30, cam.width)
         assert seen[-1][:2] == (cam.width, cam.height)
         assert pipeline._layer_of(operator) == "full"
         # The operator's viewer leaves: the watcher is untouched, the stream not encoded
         await po.close()
         await pipeline.close_peer(ido)
         assert pipeline.encoding.operator_rate is None
-        await _frames(tw, 3, cam.width)
+        await frames_of(tw, 3, cam.width)
         await pw.close()
     finally:
         await pipeline.close()
@@ -254,8 +240,8 @@ async def test_with_the_setting_off_the_operator_shares_the_layers() -> None:
     )
     pipeline.start()
     try:
-        pc, track, pid = await _viewer(pipeline, "auto", operator=True)
-        await _frames(track, 3, SMALL["width"])
+        pc, track, pid = await viewer_of(pipeline, "auto", operator=True)
+        await frames_of(track, 3, SMALL["width"])
         pipeline.adapt_layers()
         assert pipeline.peers[pid].rate is None
         assert set(pipeline.encoding.encoders) == {("H264", "full")}
