@@ -199,17 +199,16 @@ def test_a_server_with_two_arms_is_one_robot_of_both_left_first() -> None:
     """A two-arm server is one robot of both, as LeRobot's bimanual robots are: every
     key prefixed with its arm's name, two SO-101s named left and right in
     ``bi_so_follower``'s order (left first) though the server lists right first; each
-    arm moves by its own keys alone. The teleoperator, which reads one arm, refuses
-    naming the arms."""
-    from telerobot.client.lerobot.arm import describe_arm, robot_type
+    arm moves by its own keys alone. The teleoperator has the same shape (LeRobot's
+    ``bi_so_leader``): its action is each arm's target, under the same keys."""
+    from telerobot.client.lerobot.arm import robot_type
 
     two_arms = {"TELEROBOT_ARMS": "right=so101:sim,left=so101:sim"}
     with serving(two_arms) as base:
-        with pytest.raises(ConnectionError) as refused:
-            describe_arm(base)
-        assert "left" in str(refused.value) and "right" in str(refused.value)
         arm = TelerobotArm(ArmOptions(url=base, token=TOKEN, name="bimanual", cameras=False))
         arm.connect()
+        operator = TelerobotOperator(OperatorOptions(base, TOKEN, robot_client_name="bimanual"))
+        operator.connect()
         try:
             assert [p.name for p in arm.parts] == ["left", "right"]
             assert robot_type(arm.parts) == "bi_so_follower"
@@ -231,7 +230,11 @@ def test_a_server_with_two_arms_is_one_robot_of_both_left_first() -> None:
             assert [now[k] for k in left] == pytest.approx([here[k] for k in left], abs=0.1)
             with pytest.raises(ValueError, match=r"right_gripper\.pos"):
                 arm.send({k: v for k, v in moved.items() if k != "right_gripper.pos"})
+            assert operator.keys == keys
+            assert operator.action() == pytest.approx(moved, abs=1e-6)  # the arms' targets
+            assert not operator.intervening()  # the robot's own client drives
         finally:
+            operator.disconnect()
             arm.disconnect()
 
 

@@ -34,6 +34,9 @@ from types import TracebackType
 from typing import Any, Self
 
 import httpx
+from pydantic import SecretStr
+
+from telerobot.client.tokens import bearer, secret
 
 HEARTBEAT_S = 1.0
 DEFAULT_URL = "http://localhost:8000"
@@ -70,19 +73,24 @@ class TelerobotError(RuntimeError):
 
 
 class Telerobot:
+    """``token``: the operator token (a ``str`` or a ``pydantic.SecretStr``), held as a
+    ``SecretStr``: no repr, log line or error of the client shows it."""
+
     def __init__(
         self,
         url: str,
-        token: str,
+        token: str | SecretStr,
         *,
         name: str = "python client",
         idle_timeout_s: float = 5.0,
         take_over: bool = False,
         timeout_s: float = 120.0,
     ) -> None:
+        self.url = url
+        self.token = secret(token)
         self._http = httpx.Client(
             base_url=url.rstrip("/") + "/api/v1/",
-            headers={"Authorization": f"Bearer {token}", "X-Telerobot-Client": "python"},
+            headers={**bearer(self.token), "X-Telerobot-Client": "python"},
             timeout=timeout_s,
         )
         self.name = name
@@ -92,6 +100,9 @@ class Telerobot:
         self._stop = threading.Event()
         self._heartbeat: threading.Thread | None = None
         self.lease_error: str | None = None  # why the background heartbeat stopped
+
+    def __repr__(self) -> str:
+        return f"Telerobot({self.url!r}, name={self.name!r}, client_id={self.client_id!r})"
 
     @classmethod
     def local(cls, url: str | None = None, **options: Any) -> Telerobot:

@@ -43,11 +43,14 @@ def test_lerobot_discovers_both_plugins_by_their_distribution_names() -> None:
     assert teleop.__module__ == "lerobot_teleoperator_telerobot.config_telerobot"
 
 
-def _drive_as_an_operator(url: str, done: threading.Event, stop: threading.Event) -> None:
+def _drive_as_an_operator(
+    url: str, done: threading.Event, stop: threading.Event, arm: str | None = None
+) -> None:
     """A person at the page: once LeRobot's robot holds control, takes control over it,
-    moves the first joint there and back, and lets go; again and again until ``stop``,
-    so every episode holds a move however late LeRobot starts writing rows (on a busy
-    machine its first rows came after a single move had ended: a flat action column)."""
+    moves the first joint (of ``arm``, on a two-arm server) there and back, and lets go;
+    again and again until ``stop``, so every episode holds a move however late LeRobot
+    starts writing rows (on a busy machine its first rows came after a single move had
+    ended: a flat action column)."""
     deadline = time.monotonic() + 120
     while httpx.get(url + "api/v1/safety").json()["controller"] != "lerobot":
         if time.monotonic() > deadline or stop.is_set():
@@ -57,7 +60,7 @@ def _drive_as_an_operator(url: str, done: threading.Event, stop: threading.Event
         time.sleep(0.5)  # a few rows of the robot's own between the moves
         with Telerobot(url, TOKEN, name="scripted operator", take_over=True) as person:
             for step in (0.08, 0.08, -0.08, -0.08):  # (a jog's step is at most 0.1 rad)
-                person.move_joints([step, 0, 0, 0, 0, 0], relative=True)
+                person.move_joints([step, 0, 0, 0, 0, 0], relative=True, arm=arm)
         done.set()
 
 
@@ -264,6 +267,111 @@ def test_lerobot_teleoperate_with_lerobot_s_own_so101_leader(tmp_path: Path) -> 
     deg = np.array(state["joints_deg"][:5]) * 4096 / 4095
     expected = np.array([pan_steps * 360 / 4095, 0, 0, 0, 0])
     assert np.abs(deg - expected).max() < 2.0, (deg, said[-1500:])
+
+
+TWO_ARMS = {"TELEROBOT_ARMS": "right=so101:sim,left=so101:sim"}  # listed right first
+
+
+def test_on_two_arms_lerobot_record_and_replay_take_lerobots_bimanual_shape(
+    tmp_path: Path,
+) -> None:
+    """On a server with two SO-101s named left and right, `lerobot-record` with the
+    Telerobot robot and teleoperator writes LeRobot's ``bi_so_follower`` dataset (twelve
+    joints, left's first, for the state and the action) while a person moves the right
+    arm; `lerobot-replay` of that episode drives the right arm through the same poses,
+    the left one staying. The tokens are given on the command lines (none in the
+    environment) and are nowhere in what LeRobot prints (it logs its whole config)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    names = [f"{side}_{motor}.pos" for side in ("left", "right") for motor in SO_LEADER_MOTORS]
+    tokens_given = [f"--robot.token={TOKEN}"]
+    no_token_around = {
+        "TELEROBOT_OPERATOR_TOKEN": "",
+        "TELEROBOT_STATE_DIR": str(tmp_path / "no-state"),  # (no stored token either)
+    }
+    root = tmp_path / "bimanual"
+    with serving(env=TWO_ARMS) as (url, _state):
+        done, stop = threading.Event(), threading.Event()
+        person = threading.Thread(target=_drive_as_an_operator, args=(url, done, stop, "right"))
+        person.start()
+        try:
+            recorded = run_lerobot(
+                "lerobot-record",
+                [
+                    "--robot.type=telerobot",
+                    *tokens_given,
+                    "--robot.use_cameras=false",
+                    "--teleop.type=telerobot",
+                    f"--teleop.token={TOKEN}",
+                    "--dataset.repo_id=telerobot/bimanual",
+                    f"--dataset.root={root}",
+                    "--dataset.single_task=wave",
+                    "--dataset.num_episodes=1",
+                    "--dataset.episode_time_s=6",
+                    "--dataset.reset_time_s=1",
+                    "--dataset.fps=10",
+                    "--dataset.push_to_hub=false",
+                    "--play_sounds=false",
+                ],
+                url,
+                tmp_path,
+                env=no_token_around,
+            )
+        finally:
+            stop.set()
+            person.join(60)
+        assert done.is_set(), recorded[-3000:]
+        ds = LeRobotDataset("telerobot/bimanual", root=root)
+        actions = np.array([ds[i]["action"].numpy() for i in range(len(ds))])
+        left_start = httpx.get(url + "api/v1/robot/state", params={"arm": "left"}).json()
+        path: list[list[float]] = []
+        stop = threading.Event()
+
+        def watch() -> None:
+            while not stop.is_set():
+                right = httpx.get(url + "api/v1/robot/state", params={"arm": "right"}).json()
+                path.append(right["joints_deg"])
+                time.sleep(0.05)
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        try:
+            replayed = run_lerobot(
+                "lerobot-replay",
+                [
+                    "--robot.type=telerobot",
+                    *tokens_given,
+                    "--robot.use_cameras=false",
+                    "--dataset.repo_id=telerobot/bimanual",
+                    f"--dataset.root={root}",
+                    "--dataset.episode=0",
+                    "--play_sounds=false",
+                ],
+                url,
+                tmp_path,
+                env=no_token_around,
+            )
+        finally:
+            stop.set()
+            watcher.join()
+        left_end = httpx.get(url + "api/v1/robot/state", params={"arm": "left"}).json()
+    assert ds.meta.robot_type == "bi_so_follower"
+    assert ds.meta.features["observation.state"]["names"] == names
+    assert ds.meta.features["action"]["names"] == names
+    right_pan = names.index("right_shoulder_pan.pos")
+    assert np.ptp(actions[:, right_pan]) > 5.0, actions[:, right_pan]  # the person's move
+    assert np.ptp(actions[:, 0]) < 0.5, actions[:, 0]  # left's
+    # The right arm passed near every pose of the episode (LeRobot's degrees: 360/4095
+    # a step), the gripper aside; the left one stayed where it was.
+    went = np.array(path)[:, :5] * 4096 / 4095
+    right = actions[:, len(SO_LEADER_MOTORS) : len(SO_LEADER_MOTORS) + 5]
+    assert np.ptp(went[:, 0]) > 5.0, went[:, 0]
+    worst = max(_closest_pass(went, a) for a in right)
+    assert worst < 3.0, (worst, replayed[-1500:])
+    assert np.abs(np.subtract(left_end["joints"], left_start["joints"])).max() < 0.01
+    for said in (recorded, replayed):
+        assert "SecretStr('**********')" in said  # LeRobot printed its config…
+        assert TOKEN not in said  # …with no token in it
 
 
 def _record_an_episode(url: str) -> Path:
@@ -553,6 +661,57 @@ def test_lerobot_rollout_drives_as_a_supervised_policy_and_the_page_can_take_ove
         said[-3000:],
     )
     assert state["mode"] == "off" and state["interventions"] == 1, state  # it left, one takeover
+
+
+SECRET = "a-token-never-shown-0123456789abcdef"
+
+
+def test_the_tokens_are_read_from_the_command_line_and_never_shown() -> None:
+    """The plugins' tokens are SecretStr fields that LeRobot's parser (draccus) reads from
+    ``--robot.token=…`` and ``--teleop.token=…``; neither the configs' repr, the dict
+    LeRobot logs at start, a config written out, nor the error LeRobot raises quoting
+    the config (a server unreachable) shows the token, and that error keeps the reason."""
+    from dataclasses import asdict, make_dataclass
+    from pprint import pformat
+
+    import draccus
+    from lerobot.robots.config import RobotConfig
+    from lerobot.robots.utils import make_robot_from_config
+    from lerobot.teleoperators.config import TeleoperatorConfig
+    from lerobot.teleoperators.utils import make_teleoperator_from_config
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
+
+    # The robot and the teleoperator, as lerobot-record's config holds them.
+    Command = make_dataclass("Command", [("robot", RobotConfig), ("teleop", TeleoperatorConfig)])
+
+    nowhere = "http://127.0.0.1:9/"
+    cfg = draccus.parse(
+        Command,
+        args=[
+            "--robot.type=telerobot",
+            f"--robot.url={nowhere}",
+            f"--robot.token={SECRET}",
+            f"--robot.policy_token=tpol_{SECRET}",
+            "--teleop.type=telerobot",
+            f"--teleop.url={nowhere}",
+            f"--teleop.token={SECRET}",
+        ],
+    )
+    assert cfg.robot.token.get_secret_value() == SECRET
+    assert cfg.robot.policy_token.get_secret_value() == f"tpol_{SECRET}"
+    assert cfg.teleop.token.get_secret_value() == SECRET
+    written = json.dumps(draccus.encode(cfg))
+    assert SECRET not in repr(cfg) + str(cfg) + pformat(asdict(cfg)) + written
+    for make, config in (
+        (make_robot_from_config, cfg.robot),
+        (make_teleoperator_from_config, cfg.teleop),
+    ):
+        with pytest.raises(ValueError) as refused:
+            make(config)
+        said = f"{refused.value!r} {refused.value} {refused.value.__cause__}"
+        assert f"cannot ask {nowhere} for its arms" in said and SECRET not in said, said
 
 
 def test_lerobots_video_decoder_loads_with_no_traceback() -> None:

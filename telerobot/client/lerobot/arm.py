@@ -15,6 +15,7 @@ through the server like any other input's. Used by the ``lerobot_robot_telerobot
   every increment, and its replies keep the mirror's record its target exactly (a
   scaled or refused increment is taken back). A target outside the arm's limits is
   clipped to them, said once per joint in the log and counted (``clipped``).
+- **The token** is held as a ``SecretStr``: no repr, log line or error shows it.
 - **Observation.** The newest frame (waiting up to 1.5 frame periods for a new one),
   and the STATE the server sampled nearest to that frame's capture time (the skew is
   kept in ``last_skew_s``); the force is the newest sample. Without cameras, the
@@ -28,17 +29,19 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, cast
 
 import httpx
 import numpy as np
+from pydantic import SecretStr
 
 from telerobot.client.lerobot.cameras import CAMERAS, StereoFrame, StereoReceiver, wait_s
-from telerobot.client.lerobot.parts import ArmPart, describe_arms, robot_type
-from telerobot.client.lerobot.units import FloatArray, JointUnits
+from telerobot.client.lerobot.parts import ArmPart, describe_arms, read_json, robot_type
+from telerobot.client.lerobot.units import FloatArray
 from telerobot.client.master.joints import JointMirror, JointMirrors, MirrorSettings
 from telerobot.client.master.link import PriorityLink, open_link
+from telerobot.client.tokens import bearer, secret
 from telerobot.drivers.base import ForceSample, JointLeader, TelerobotError
 from telerobot.protocol import messages as m
 
@@ -63,7 +66,9 @@ RATE_KEPT = 0.9
 @dataclass
 class ArmOptions:
     url: str
-    token: str = field(repr=False)  # the operator token, or a policy's (policy=True)
+    # The operator token, or a policy's (policy=True); a str is held as a SecretStr, so
+    # no repr, log line or error shows it.
+    token: SecretStr | str
     name: str = "lerobot"
     cameras: bool = True
     width: int = 640  # of one camera: frames of another size are resized to it
@@ -76,6 +81,9 @@ class ArmOptions:
     # (docs/protocol.md, Supervised autonomy): an operator takes over at will, and its
     # actions are refused while paused or corrected (send returns the server's target).
     policy: bool = False
+
+    def __post_init__(self) -> None:
+        self.token = secret(self.token)
 
 
 class TelerobotArm:
@@ -123,7 +131,8 @@ class TelerobotArm:
         base = o.url if o.url.endswith("/") else o.url + "/"
         self.parts = describe_arms(o.url)
         try:
-            link = open_link(o.url, o.token, datagrams=False, name=o.name, policy=o.policy)
+            token = secret(o.token).get_secret_value()
+            link = open_link(o.url, token, datagrams=False, name=o.name, policy=o.policy)
         except TelerobotError as exc:  # no priority channel, or the token refused
             raise ConnectionError(str(exc)) from None
         if not link.operator:
@@ -170,7 +179,9 @@ class TelerobotArm:
                 raise ConnectionError(f"{base} did not give control to {o.name!r}: {why}")
             time.sleep(0.02)
         if o.cameras:
-            self.receiver = StereoReceiver(o.url, o.token, (o.width, o.height), self._server_now)
+            self.receiver = StereoReceiver(
+                o.url, secret(o.token), (o.width, o.height), self._server_now
+            )
             try:
                 self.receiver.start()
             except ConnectionError:
@@ -376,33 +387,20 @@ def _nobody_holds(mirror: JointMirrors) -> bool:
     return not mirror.flags & m.StateFlags.SOMEONE_HAS_CONTROL
 
 
-def describe_arm(url: str) -> JointUnits:
-    """The server's one arm: its joints and their units (the teleoperator's: it reads
-    one arm; a server with more is refused, naming them)."""
-    parts = describe_arms(url)
-    if len(parts) != 1:
-        names = ", ".join(p.name for p in parts)
-        raise ConnectionError(
-            f"{url} drives {len(parts)} arms ({names}); the Telerobot teleoperator reads a"
-            " server with one arm (the robot drives two: docs/lerobot.md)"
-        )
-    return parts[0].units
-
-
 def server_target(options: ArmOptions, parts: list[ArmPart]) -> dict[str, float]:
     """The arms' targets on the server now (``GET /api/v1/robot/state``), LeRobot's units."""
     base = options.url if options.url.endswith("/") else options.url + "/"
-    headers = {"Authorization": f"Bearer {options.token}"} if options.token else {}
     out: dict[str, float] = {}
-    for part in parts:
-        try:
-            r = httpx.get(base + "api/v1/robot/state", params=part.query, headers=headers,
-                          timeout=10, verify=False)  # fmt: skip
-            r.raise_for_status()
-            values = part.units.to_lerobot(r.json()["target_joints"])
-        except (httpx.HTTPError, ValueError, KeyError) as exc:
-            raise ConnectionError(f"cannot read the arm's target from {base}: {exc}") from None
-        out |= dict(zip(part.keys, map(float, values), strict=True))
+    headers = bearer(secret(options.token))
+    with httpx.Client(base_url=base, headers=headers, timeout=10, verify=False) as http:
+        for part in parts:
+            what = f"{part.name}'s target"
+            state = read_json(http, base, "api/v1/robot/state", part.query, what)
+            try:
+                values = part.units.to_lerobot(state["target_joints"])
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ConnectionError(f"{base} gave {what} not understood: {exc}") from None
+            out |= dict(zip(part.keys, map(float, values), strict=True))
     return out
 
 
@@ -426,7 +424,6 @@ __all__ = [
     "ArmPart",
     "TelerobotArm",
     "TelerobotError",
-    "describe_arm",
     "describe_arms",
     "observation_features",
     "robot_type",

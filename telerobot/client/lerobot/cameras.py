@@ -23,7 +23,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from pydantic import SecretStr
 
+from telerobot.client.lerobot.parts import detail
+from telerobot.client.tokens import bearer
 from telerobot.drivers.camera import timecode
 
 log = logging.getLogger(__name__)
@@ -56,7 +59,7 @@ class StereoReceiver:
     def __init__(
         self,
         url: str,
-        token: str,
+        token: SecretStr,
         size: tuple[int, int],
         server_clock: Callable[[], float],
         *,
@@ -122,7 +125,7 @@ class StereoReceiver:
             tracks: asyncio.Queue[Any] = asyncio.Queue()
             pc.on("track", tracks.put_nowait)
             await pc.setLocalDescription(await pc.createOffer())
-            headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
+            headers = bearer(self.token)
             async with httpx.AsyncClient(base_url=self.url, timeout=self.timeout_s) as http:
                 with contextlib.suppress(httpx.HTTPError, ValueError, KeyError):
                     video = (await http.get("api/v1/video")).json()
@@ -131,8 +134,9 @@ class StereoReceiver:
                 offer = {"sdp": pc.localDescription.sdp, "type": "offer"}
                 r = await http.post("api/v1/webrtc/offer", json=offer, headers=headers)
                 if r.status_code != 200:
-                    raise ConnectionError(f"the server refused the video: HTTP {r.status_code} "
-                                          f"{r.text[:200]}")  # fmt: skip
+                    raise ConnectionError(
+                        f"the server refused the video ({r.status_code}): {detail(r)}"
+                    )
                 answer = r.json()
                 await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
             track = await asyncio.wait_for(tracks.get(), self.timeout_s)

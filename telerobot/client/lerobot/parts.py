@@ -118,31 +118,36 @@ def describe_arms(url: str) -> list[ArmPart]:
     """The server's arms (``GET /api/v1/robot/arms``, each one's ``/robot/model``), in
     their columns' order."""
     base = url if url.endswith("/") else url + "/"
-    arms = _get(base, "api/v1/robot/arms", {}, "its arms")
-    try:
-        names = [(str(a["name"]), str(a["model"])) for a in arms]
-    except (TypeError, KeyError) as exc:
-        raise ConnectionError(f"{base} listed its arms in a way not understood: {exc}") from None
-    if not names:
-        raise ConnectionError(f"{base} drives no arm")
-    several = len(names) > 1
-    parts = []
-    for i in column_order(names):
-        name = names[i][0]
-        described = _get(base, "api/v1/robot/model", {"arm": name} if several else {}, "its arm")
+    with httpx.Client(base_url=base, timeout=10, verify=False) as http:
+        arms = read_json(http, base, "api/v1/robot/arms", {}, "its arms")
         try:
-            units = JointUnits.from_described(described)
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ConnectionError(
-                f"{base} described its arm {name} in a way not understood: {exc}"
-            ) from None
-        parts.append(ArmPart(name, f"{name}_" if several else "", units, several))
+            names = [(str(a["name"]), str(a["model"])) for a in arms]
+        except (TypeError, KeyError) as exc:
+            raise ConnectionError(f"{base} listed its arms not understood: {exc}") from None
+        if not names:
+            raise ConnectionError(f"{base} drives no arm")
+        several = len(names) > 1
+        parts = []
+        for i in column_order(names):
+            name = names[i][0]
+            query = {"arm": name} if several else {}
+            described = read_json(http, base, "api/v1/robot/model", query, "its arm")
+            try:
+                units = JointUnits.from_described(described)
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ConnectionError(
+                    f"{base} described its arm {name} in a way not understood: {exc}"
+                ) from None
+            parts.append(ArmPart(name, f"{name}_" if several else "", units, several))
     return parts
 
 
-def _get(base: str, path: str, params: dict[str, str], what: str) -> Any:
+def read_json(http: httpx.Client, base: str, path: str, params: dict[str, str], what: str) -> Any:
+    """``GET path`` (relative to ``http``'s base URL, ``base``): its JSON. Any failure is a
+    ConnectionError that says what was asked and, of a refusal, what the server said
+    (its problem detail: a two-arm server's names its arms), never only a status line."""
     try:
-        r = httpx.get(base + path, params=params, timeout=10, verify=False)
+        r = http.get(path, params=params)
     except httpx.HTTPError as exc:
         raise ConnectionError(f"cannot ask {base} for {what}: {exc}") from None
     if r.status_code != 200:
@@ -156,6 +161,9 @@ def _get(base: str, path: str, params: dict[str, str], what: str) -> Any:
 def detail(r: httpx.Response) -> str:
     """What the server said of a refusal (its problem detail), else its status line."""
     try:
-        return str(r.json().get("detail") or r.reason_phrase)
+        said = r.json().get("detail")
     except (ValueError, AttributeError):
         return r.reason_phrase
+    if isinstance(said, list):  # a request's fields refused (FastAPI's 422): each one's
+        return "; ".join(str(e.get("msg", e)) if isinstance(e, dict) else str(e) for e in said)
+    return str(said or r.reason_phrase)

@@ -4,8 +4,16 @@ import os
 from dataclasses import dataclass, field
 
 from lerobot.robots.config import RobotConfig
+from pydantic import SecretStr
 
 from telerobot.client import local_url, stored_token
+from telerobot.client.lerobot.draccus_tokens import given_or, teach_draccus
+
+teach_draccus()  # the tokens are SecretStr: --robot.token=… read into one
+
+
+def _policy_token() -> str | None:
+    return os.environ.get("TELEROBOT_POLICY_TOKEN")
 
 
 @RobotConfig.register_subclass("telerobot")
@@ -14,8 +22,9 @@ class TelerobotConfig(RobotConfig):
     # The server: TELEROBOT_URL, else http://localhost:8000 (what `make run` serves).
     url: str = field(default_factory=local_url)
     # The operator token: TELEROBOT_OPERATOR_TOKEN, else the one `telerobot serve` keeps
-    # on this machine. Commands need it; without it the server refuses control.
-    token: str = field(default_factory=lambda: stored_token() or "", repr=False)
+    # on this machine. Commands need it; without it the server refuses control. Held as
+    # a SecretStr: no repr, log line or error shows it (a str given is made one).
+    token: SecretStr = field(default_factory=lambda: given_or(None, stored_token))
     # The name this robot's client holds control by (the page shows it; the Telerobot
     # teleoperator tells an operator's control from it).
     client_name: str = "lerobot"
@@ -36,6 +45,9 @@ class TelerobotConfig(RobotConfig):
     # The credential a policy joins with (TELEROBOT_POLICY_TOKEN): a policy token, which
     # can only drive, and only while a person lets it. An operator issues it with
     # `telerobot policy-token new NAME`; the operator token is refused for a policy.
-    policy_token: str = field(
-        default_factory=lambda: os.environ.get("TELEROBOT_POLICY_TOKEN", ""), repr=False
-    )
+    policy_token: SecretStr = field(default_factory=lambda: given_or(None, _policy_token))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.token = given_or(self.token, stored_token)
+        self.policy_token = given_or(self.policy_token, _policy_token)

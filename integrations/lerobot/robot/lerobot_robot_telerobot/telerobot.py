@@ -33,7 +33,7 @@ class Telerobot(Robot):
     def __init__(self, config: TelerobotConfig) -> None:
         super().__init__(config)
         self.config = config
-        if config.policy and not config.policy_token:
+        if config.policy and not config.policy_token.get_secret_value():
             raise ValueError(
                 "a policy joins with a policy token: --robot.policy_token=… or"
                 " TELEROBOT_POLICY_TOKEN (an operator issues one: telerobot policy-token new"

@@ -1,6 +1,8 @@
 """``TelerobotTeleop``: LeRobot's ``Teleoperator`` over
 ``telerobot.client.lerobot.operator.TelerobotOperator``: the operator's joint targets
-as the action, their holding control as ``IS_INTERVENTION``."""
+as the action, their holding control as ``IS_INTERVENTION``. On a two-arm server, the
+robot plugin's shape: each arm's keys prefixed with its name (two SO-101s named left
+and right: LeRobot's ``bi_so_leader``, left first)."""
 
 from __future__ import annotations
 
@@ -12,8 +14,8 @@ from lerobot.teleoperators.utils import TeleopEvents
 from lerobot.utils.errors import DeviceAlreadyConnectedError, DeviceNotConnectedError
 
 from lerobot_teleoperator_telerobot.config_telerobot import TelerobotTeleopConfig
-from telerobot.client.lerobot.arm import describe_arm
 from telerobot.client.lerobot.operator import OperatorOptions, TelerobotOperator
+from telerobot.client.lerobot.parts import describe_arms
 
 
 class TelerobotTeleop(Teleoperator):
@@ -23,14 +25,16 @@ class TelerobotTeleop(Teleoperator):
     def __init__(self, config: TelerobotTeleopConfig) -> None:
         super().__init__(config)
         self.config = config
-        self.units = describe_arm(config.url)  # LeRobot asks for the features first
+        # LeRobot asks for the features before it connects: the arms' joints are the
+        # server's, asked now.
+        self.keys = [k for p in describe_arms(config.url) for k in p.keys]
         self.operator = TelerobotOperator(
             OperatorOptions(config.url, config.token, config.robot_client_name)
         )
 
     @cached_property
     def action_features(self) -> dict[str, type]:
-        return {k: float for k in self.units.feature_names}
+        return {k: float for k in self.keys}
 
     @cached_property
     def feedback_features(self) -> dict[str, type]:
