@@ -15,6 +15,10 @@ through the server like any other input's. Used by the ``lerobot_robot_telerobot
   every increment, and its replies keep the mirror's record its target exactly (a
   scaled or refused increment is taken back). A target outside the arm's limits is
   clipped to them, said once per joint in the log and counted (``clipped``).
+- **Refusals** (a paused policy's: every increment, 100 a second) and actions not sent
+  (someone else holds control) are said once a reason, with what the supervisor can
+  do, and once commands are applied again with how many were refused meanwhile
+  (``refusals``).
 - **The token** is held as a ``SecretStr``: no repr, log line or error shows it.
 - **Observation.** The newest frame (waiting up to 1.5 frame periods for a new one),
   and the STATE the server sampled nearest to that frame's capture time (the skew is
@@ -38,6 +42,7 @@ from pydantic import SecretStr
 
 from telerobot.client.lerobot.cameras import CAMERAS, StereoFrame, StereoReceiver, wait_s
 from telerobot.client.lerobot.parts import ArmPart, describe_arms, read_json, robot_type
+from telerobot.client.lerobot.refusals import Refusals, supervision_of, what_to_do
 from telerobot.client.lerobot.units import FloatArray
 from telerobot.client.master.joints import JointMirror, JointMirrors, MirrorSettings
 from telerobot.client.master.link import PriorityLink, open_link
@@ -100,7 +105,7 @@ class TelerobotArm:
         self.last_capture_time: float | None = None  # the newest observation's frame (server clock)
         self.repeated_frames = 0
         self.video_rate_hz: float | None = None  # new frames a second, counted at connect
-        self._said_not_in_control = False
+        self.refusals = Refusals(options.name, self._explain)
         self._asked_back = -math.inf  # when the free lease was last asked for (monotonic)
         self._last_sent = -math.inf  # when the last action was sent (monotonic)
 
@@ -155,7 +160,9 @@ class TelerobotArm:
             # (Targets is a JointLeader but for from_options: it is built here, not from a port.)
             leader = cast(JointLeader, part.targets)
             part.mirror = JointMirror(leader, link, part.units.names, settings, arm=part.wire)
+            part.mirror.on_increment_reply = self.refusals.on_reply
         self.mirrors = JointMirrors([cast(JointMirror, p.mirror) for p in self.parts])
+        self.mirrors.on_other_refusal = self.refusals.on_reply
         mirrors_state = link.on_state
 
         def on_state(fields: dict[str, Any]) -> None:
@@ -329,6 +336,22 @@ class TelerobotArm:
         log.info("%s takes control back: nobody holds it", self.options.name)
         mirror.link.lease(m.LeaseAction.TAKE)
 
+    def _explain(self, refused: str | None) -> str:
+        """The line said of this client's commands not applied (``refused``: the server's
+        words; None: not in control): a policy's with what its supervisor can do in the
+        state the server says it is in."""
+        o = self.options
+        if not o.policy:
+            if refused is None:
+                return f"{o.name} does not hold control: its actions are not sent"
+            return f"the server refused {o.name}'s commands: {refused}"
+        try:
+            autonomy, estop = supervision_of(o.url, bearer(secret(o.token)))
+        except ConnectionError as exc:
+            autonomy, estop = {}, False
+            log.info("the supervision's state is not known: %s", exc)
+        return what_to_do(o.name, autonomy, estop, refused)
+
     def send(self, action: dict[str, Any]) -> dict[str, float]:
         """The target in LeRobot's units (every joint's ``.pos``, each arm's prefixed on a
         server with more); returns the target as applied (clipped to the limits), in the
@@ -359,11 +382,9 @@ class TelerobotArm:
             # apply it twice. What was applied is the server's target. Once they let go,
             # the lease is taken back.
             self._take_back_if_free(mirrors)
-            if not self._said_not_in_control:
-                log.info("%s does not hold control: its actions are not sent", self.options.name)
-                self._said_not_in_control = True
+            self.refusals.withheld()
             return server_target(self.options, self.parts)
-        self._said_not_in_control = False
+        self.refusals.say()
         first = (
             any(p.targets.target is None for p in self.parts)
             or time.monotonic() - self._last_sent > IDLE_S

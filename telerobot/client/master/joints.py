@@ -138,6 +138,10 @@ class JointMirror:
         self.refused = 0
         self.last_error: str | None = None
         self._said: str | None = None  # the refusal last logged
+        # Set: every reply to its increments (ACK, ERROR) is handed here, and the mirror
+        # logs no refusal itself: its runner says them (the LeRobot robot, once a reason
+        # with what the supervisor can do: telerobot/client/lerobot/refusals.py).
+        self.on_increment_reply: Callable[[Reply], None] | None = None
         # When the server applied each increment (ACK's server_time), newest last: when
         # a new target first moved the arm (bench.rollout's observation → action).
         self.applied_at: collections.deque[float] = collections.deque(maxlen=10_000)
@@ -171,10 +175,13 @@ class JointMirror:
                 self.scaled += 1
             if dq is not None and reply.name == "ACK":
                 self.applied_at.append(float(reply.fields["server_time"]))
+        hand_to = self.on_increment_reply
+        if hand_to is not None and reply.name in ("ACK", "ERROR"):
+            hand_to(reply)
         if reply.name == "ERROR":
             # Said once until an increment is applied again: a policy held still by its
             # supervisor has each of its 100 increments a second refused alike.
-            if reply.text != self._said:
+            if reply.text != self._said and hand_to is None:
                 log.warning("server: %s", reply.text)
             self.last_error = self._said = reply.text
         elif reply.name == "ACK":
@@ -365,6 +372,9 @@ class JointMirrors:
         self.link = link
         self.last_error: str | None = None  # a refusal of no mirror's increment (LEASE…)
         self._said: str | None = None
+        # Set: such a refusal (a lease's, an increment's forgotten on losing control) is
+        # handed here and not logged, as the mirrors' own (``on_increment_reply``).
+        self.on_other_refusal: Callable[[Reply], None] | None = None
         # The newest STATE's flags, whichever arm's: the lease's and the e-stop's are the
         # server's, the same in every arm's STATE.
         self.flags = 0
@@ -388,7 +398,9 @@ class JointMirrors:
                 mirror._on_reply(reply)
                 return
         if reply.name == "ERROR":  # none of the increments: the lease, a heartbeat…
-            if reply.text != self._said:
+            if self.on_other_refusal is not None:
+                self.on_other_refusal(reply)
+            elif reply.text != self._said:
                 log.warning("server: %s", reply.text)
             self.last_error = self._said = reply.text
 
