@@ -6,12 +6,16 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import errno
 import logging
+import os
 import runpy
 import signal
+import socket
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 from pydantic import ValidationError
@@ -31,7 +35,91 @@ WS_MAX_MESSAGE = 64 * 1024
 GIL_SWITCH_INTERVAL_S = 0.0005
 
 
+# uvicorn's `websockets` implementation is chosen on purpose (`ws=` below: the sans-I/O
+# one parses a whole read of a frame flood at once, docs/PERFORMANCE.md); it, and the
+# websockets.legacy it runs on, say at every start that they are deprecated: news for
+# whoever upgrades uvicorn (pyproject pins it), not for the person starting the server.
+QUIET_WARNINGS = (
+    r"The `websockets` implementation is deprecated",
+    r"websockets\.legacy is deprecated",
+)
+
+
+def _quiet_known_warnings() -> None:
+    for message in QUIET_WARNINGS:
+        warnings.filterwarnings("ignore", message=message)
+
+
+def _cannot_listen(host: str, port: int) -> OSError | None:
+    """Why ``host:port`` cannot be listened on now (in use, not this machine's address,
+    a privileged port), or None; port 0 (any free one) always can. Bound with
+    SO_REUSEADDR as uvicorn and the priority channel bind, so a port left in TIME_WAIT
+    by a server just stopped is free."""
+    if port == 0:
+        return None
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except OSError:
+        return None  # (the server says it in its own words)
+    for family, kind, proto, _, address in infos:
+        with socket.socket(family, kind, proto) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind(address)
+            except OSError as exc:
+                return exc
+    return None
+
+
+def _ports_refused(host: str, ports: list[tuple[str, int, str, str]]) -> str | None:
+    """One line for the first port of ``ports`` (what, port, flag, variable) that cannot
+    be listened on, or None."""
+    for what, port, flag, variable in ports:
+        exc = _cannot_listen(host, port)
+        if exc is None:
+            continue
+        if exc.errno == errno.EADDRINUSE:
+            why = "is in use (another `telerobot serve`?)"
+        else:
+            why = f"cannot be listened on ({exc.strerror})"
+        return (
+            f"telerobot serve: {what} port {port} on {host} {why}: pick another with"
+            f" {flag} PORT (or {variable}; 0: any free port), or stop what holds it"
+        )
+    return None
+
+
+class _OneLineStartupError(logging.Filter):
+    """A server that cannot start says why in one line, not in the traceback Starlette
+    hands uvicorn as the message (-v: the whole traceback)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.msg
+        if isinstance(text, str) and text.startswith("Traceback (most recent call last):"):
+            last = text.rstrip().splitlines()[-1]
+            kind, _, why = last.partition(": ")
+            if kind.startswith("telerobot.") and why:
+                last = why  # ours say what to do; their class is no news
+            record.msg, record.args = f"the server cannot start: {last}", ()
+        return True
+
+
+def _token_hint(settings: object, url: str, path: Path, is_new: bool) -> list[str]:
+    """Where the operator token is kept and how the page takes it: never the token."""
+    configured = getattr(settings, "operator_token", None)
+    if configured and os.environ.get("TELEROBOT_OPERATOR_TOKEN") == configured:
+        where, placeholder = "set by TELEROBOT_OPERATOR_TOKEN", "$TELEROBOT_OPERATOR_TOKEN"
+    elif configured:
+        where, placeholder = "set in the settings (operator_token)", "the configured operator token"
+    else:
+        where, placeholder = f"kept in {path}", f"the token in {path}"
+    lines = [] if is_new else [f"Operator token: {where}"]
+    lines.append(f"Take control: open {url}?token=<{placeholder}> (without it the page watches)")
+    return lines
+
+
 def _serve(args: argparse.Namespace) -> int:
+    _quiet_known_warnings()
     import uvicorn
 
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
@@ -65,6 +153,17 @@ def _serve(args: argparse.Namespace) -> int:
     from telerobot.server.accesslog import limit_refusals_logged
     from telerobot.server.security import ensure_certificate, redact_server_logs, state_dir
 
+    refused = _ports_refused(
+        settings.host,
+        [
+            ("the HTTP", settings.http_port, "--http-port", "TELEROBOT_HTTP_PORT"),
+            ("the priority channel's", settings.priority_port, "--priority-port",
+             "TELEROBOT_PRIORITY_PORT"),
+        ],
+    )  # fmt: skip
+    if refused:
+        print(refused, file=sys.stderr)
+        return 1
     app = create_app(settings, record=args.record)
     ssl: dict[str, str] = {}
     if settings.tls:
@@ -92,10 +191,15 @@ def _serve(args: argparse.Namespace) -> int:
     )
     redact_server_logs()  # after uvicorn has configured its loggers
     limit_refusals_logged()
+    if not args.verbose:
+        logging.getLogger("uvicorn.error").addFilter(_OneLineStartupError())
     server = uvicorn.Server(config)
 
     async def run() -> None:
         task = asyncio.create_task(server.serve())
+        # A start that fails ends the task with SystemExit, raised out of the loop as
+        # well: taken here, it is not logged again as "never retrieved".
+        task.add_done_callback(lambda t: t.cancelled() or t.exception())
         while not server.started and not task.done():  # noqa: ASYNC110 (uvicorn only has a flag)
             await asyncio.sleep(0.05)
         if server.started:
@@ -112,12 +216,15 @@ def _serve(args: argparse.Namespace) -> int:
             )
             if services.viewer.view is not None:
                 print(f"3D view: http://{shown}:{services.viewer.view.port}/", flush=True)
+            path = state_dir(settings) / "operator-token"
             if services.token.is_new:
-                path = state_dir(settings) / "operator-token"
                 print(
                     f"Operator token (shown this once, kept in {path}): {services.token.value}",
                     flush=True,
                 )
+            url = f"{scheme}://{shown}:{port}/"
+            for line in _token_hint(settings, url, path, services.token.is_new):
+                print(line, flush=True)
             print(flush=True)
         await task
 
@@ -125,8 +232,13 @@ def _serve(args: argparse.Namespace) -> int:
     logging.getLogger("telerobot.tuning").info("%s", raise_cpu_priority(settings.cpu_priority))
     # Ctrl+C: uvicorn shuts the server down cleanly, then (mostly) raises the signal
     # again for whoever called it; at a terminal that is the way to stop, no error.
-    with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(run())
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            asyncio.run(run())
+    except SystemExit as exc:  # it did not start: uvicorn has said why (one line)
+        code = exc.code if isinstance(exc.code, int) else 1
+        print(f"telerobot serve: the server did not start (exit {code})", file=sys.stderr)
+        return code or 1
     print("Telerobot stopped.", flush=True)
     return 0
 
