@@ -4,6 +4,7 @@ so101-emulator, so101-calibrate, master, netft-emulator, move, export, bench."""
 from __future__ import annotations
 
 import argparse
+import ast
 import asyncio
 import contextlib
 import errno
@@ -333,7 +334,11 @@ def _export_lerobot(args: argparse.Namespace) -> int:
     from telerobot.server.recording.salvage import has_summary, is_mcap
 
     what = "telerobot export lerobot"
-    rec: Path = args.recording
+    try:
+        rec = _recording_file(args.recording, args.state_dir)
+    except LookupError as exc:
+        print(f"{what}: {exc}", file=sys.stderr)
+        return 1
     try:
         if not is_mcap(rec):
             print(f"{what}: {rec} is not an MCAP recording", file=sys.stderr)
@@ -380,6 +385,36 @@ def _export_lerobot(args: argparse.Namespace) -> int:
     for warning in summary.warnings:
         print(f"warning: {warning}")
     return 0
+
+
+def _recording_file(given: str, state: Path | None) -> Path:
+    """The recording ``given`` names: a file, or a recording's id as the page and GET
+    /api/v1/recordings show it (its file name, ``.mcap`` optional) in the server's
+    recordings folder (``--state-dir``, TELEROBOT_STATE_DIR, else ~/.config/telerobot).
+    LookupError saying where it looked otherwise."""
+    from telerobot.server.recording.library import ID, MAX_ID_CHARS
+    from telerobot.server.recording.recorder import recordings_folder
+    from telerobot.server.security import state_dir
+    from telerobot.server.settings import load_settings
+
+    path = Path(given).expanduser()
+    if path.is_file():
+        return path
+    try:
+        folder = recordings_folder(state_dir(load_settings(None, state_dir=state)))
+    except (ValidationError, ValueError) as exc:
+        raise LookupError(
+            f"no file {given}, and the settings name no recordings folder: {exc}"
+        ) from None
+    if len(given) <= MAX_ID_CHARS and ID.match(given):
+        found = folder / (given if given.endswith(".mcap") else f"{given}.mcap")
+        if found.is_file():
+            return found
+    raise LookupError(
+        f"no recording {given!r}: not a file here, nor in the recordings folder {folder}"
+        " (a recording's id is its file name, as the page's Recordings list and GET"
+        " /api/v1/recordings show it; another server's folder: --state-dir)"
+    )
 
 
 EXPORT_PROGRESS_STEP = 10  # percent between the export's progress lines
@@ -438,18 +473,83 @@ def _media_server(args: argparse.Namespace) -> int:
         return run_foreground(settings, Path(folder))
 
 
+BENCH_LINE = 78  # characters of a benchmark's description in the listing
+
+
+def _bench_folder() -> Path | None:
+    """The benchmarks' folder: beside the package's folders in a checkout (an installed
+    wheel has none)."""
+    folder = Path(__file__).resolve().parents[1] / "bench"
+    return folder if (folder / "__init__.py").is_file() else None
+
+
+def benchmarks() -> dict[str, str]:
+    """Each benchmark's name and what it measures (its docstring's first sentence), read
+    from the files, not imported: every module in bench/ that runs as a program."""
+    folder = _bench_folder()
+    found: dict[str, str] = {}
+    if folder is None:
+        return found
+    for path in sorted(folder.glob("*.py")):
+        text = path.read_text(encoding="utf-8", errors="replace")
+        if path.stem.startswith("_") or '__name__ == "__main__"' not in text:
+            continue
+        try:
+            doc = ast.get_docstring(ast.parse(text)) or ""
+        except SyntaxError:
+            doc = ""
+        first = " ".join(doc.split("\n\n")[0].replace("``", "").split())
+        sentence = first.split(". ")[0].rstrip(".:")
+        found[path.stem] = (
+            sentence if len(sentence) <= BENCH_LINE else sentence[: BENCH_LINE - 1] + "…"
+        )
+    return found
+
+
+def _bench_listing() -> str:
+    listed = benchmarks()
+    if not listed:
+        return "the benchmarks run from a checkout of the repository"
+    width = max(map(len, listed))
+    return "benchmarks:\n" + "\n".join(f"  {n:<{width}}  {what}" for n, what in listed.items())
+
+
+class _BenchHelp(argparse.Action):
+    """``telerobot bench --help``: the usage, then each benchmark in one line."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kw: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="show this, with the benchmarks")
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        parser.print_help()
+        print()
+        print(_bench_listing())
+        print("\neach takes its own options: telerobot bench NAME --help")
+        parser.exit()
+
+
 def _bench(args: argparse.Namespace) -> int:
     import importlib.util
 
     # In a checkout the benches are beside the package's folders (the console script's
     # path holds only its own bin/); an installed wheel has none.
-    checkout = Path(__file__).resolve().parents[1]
-    if (checkout / "bench" / "__init__.py").is_file() and str(checkout) not in sys.path:
-        sys.path.insert(0, str(checkout))
-    if importlib.util.find_spec("bench") is None:
+    folder = _bench_folder()
+    checkout = str(folder.parent) if folder is not None else None
+    if checkout is not None and checkout not in sys.path:
+        sys.path.insert(0, checkout)
+    if folder is None or importlib.util.find_spec("bench") is None:
         print(
             "telerobot bench: the benchmarks run from a checkout of the repository"
             " (cd telerobot && make run once, then .venv/bin/telerobot bench …)",
+            file=sys.stderr,
+        )
+        return 2
+    listed = benchmarks()
+    if args.name is None or args.name not in listed:
+        said = "name one" if args.name is None else f"no benchmark {args.name!r}"
+        print(
+            f"telerobot bench: {said}: {', '.join(listed)} (telerobot bench --help says"
+            " what each measures)",
             file=sys.stderr,
         )
         return 2
@@ -763,9 +863,19 @@ def build_parser() -> argparse.ArgumentParser:
     lerobot = export_sub.add_parser(
         "lerobot", help="the recording's episodes as a LeRobot v3.0 dataset in a new folder"
     )
-    lerobot.add_argument("recording", type=Path, help="the .mcap file")
+    lerobot.add_argument(
+        "recording",
+        help="the .mcap file, or a recording's id as the page lists it (its file name,"
+        " looked up in the server's recordings folder)",
+    )
     lerobot.add_argument("dir", type=Path, help="the dataset's folder (new or empty)")
     lerobot.add_argument("--fps", type=int, help="rows per second (default: the video's rate)")
+    lerobot.add_argument(
+        "--state-dir",
+        type=Path,
+        help="the server's state folder, whose recordings/ an id is looked up in"
+        " (default: TELEROBOT_STATE_DIR, else ~/.config/telerobot)",
+    )
     lerobot.add_argument(
         "--allow-repeated-frames",
         action="store_true",
@@ -773,9 +883,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     lerobot.set_defaults(func=_export_lerobot)
 
-    bench = sub.add_parser("bench", help="run a benchmark: telerobot bench kinematics --json")
-    bench.add_argument("name")
-    bench.add_argument("rest", nargs=argparse.REMAINDER)
+    bench = sub.add_parser(
+        "bench",
+        help="run a benchmark: telerobot bench kinematics --json (--help lists them)",
+        description="Run one of the benchmarks (a checkout's bench/): it prints figures,"
+        " never pass or fail; --json ends with one JSON line. docs/PERFORMANCE.md has"
+        " what they measured.",
+        add_help=False,
+    )
+    bench.add_argument("-h", "--help", action=_BenchHelp)
+    bench.add_argument("name", nargs="?", help="the benchmark (listed below)")
+    bench.add_argument("rest", nargs=argparse.REMAINDER, help="its own options")
     bench.set_defaults(func=_bench)
 
     return parser
