@@ -558,42 +558,91 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _arm_named(url: str, token: str, wanted: str | None, what: str) -> tuple[str | None, int]:
+    """The arm a command names (``--arm``), checked against the server's (GET
+    /api/v1/robot/arms), and its joint count: none named is the only arm of a one-arm
+    server; a two-arm server needs one. ValueError in one line naming the server's arms."""
+    from telerobot.client import Telerobot
+
+    robot = Telerobot(url, token, name=what)
+    try:
+        arms = robot.arms()
+    finally:
+        robot.close()
+    names = [str(a["name"]) for a in arms]
+    listed = ", ".join(names)
+    if wanted is None:
+        if len(arms) == 1:
+            return None, int(arms[0]["dof"])
+        raise ValueError(
+            f"the server drives {len(arms)} arms ({listed}): name one with --arm NAME"
+            f" ({what} --arm {names[0]} …)"
+        )
+    for arm in arms:
+        if arm["name"] == wanted:
+            return wanted, int(arm["dof"])
+    raise ValueError(f"the server has no arm {wanted!r}: it drives {listed} (--arm NAME)")
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _move(args: argparse.Namespace) -> int:
     """One bounded move from the shell, with the Python client (takes the lease,
-    moves, releases it)."""
+    moves, releases it); ``--arm`` names the arm on a server that drives more."""
     import httpx
 
     from telerobot.client import Telerobot, TelerobotError, local_url, stored_token
 
+    what = "telerobot move"
     token = args.token or stored_token()
     if not token:
         print(
-            "telerobot move: no operator token: pass --token, set TELEROBOT_OPERATOR_TOKEN,"
+            f"{what}: no operator token: pass --token, set TELEROBOT_OPERATOR_TOKEN,"
             " or run it where `telerobot serve` keeps it",
             file=sys.stderr,
         )
         return 2
-    values = [float(v) for v in args.values]
-    want = 6 if args.space == "joints" else 3
-    if len(values) != want:
-        print(f"telerobot move: {args.space} takes {want} numbers", file=sys.stderr)
-        return 2
     try:
-        url = args.url or local_url()
-        with Telerobot(url, token, name="telerobot move", take_over=args.take_over) as robot:
+        values = [float(v) for v in args.values]
+    except ValueError:
+        bad = next(v for v in args.values if not _is_number(v))
+        print(f"{what}: {bad!r} is not a number (the arm: --arm NAME)", file=sys.stderr)
+        return 2
+    url = args.url or local_url()
+    try:
+        arm, dof = _arm_named(url, token, args.arm, what)
+        want = dof if args.space == "joints" else 3
+        if len(values) != want:
+            said = f"an angle for each of the arm's {dof} joints (rad)"
+            said = said if args.space == "joints" else "x y z (m)"
+            print(f"{what}: {args.space} takes {want} numbers: {said}", file=sys.stderr)
+            return 2
+        with Telerobot(url, token, name=what, take_over=args.take_over) as robot:
             if args.space == "joints":
-                result = robot.move_joints(values, relative=args.relative)
+                result = robot.move_joints(values, relative=args.relative, arm=arm)
             else:
-                result = robot.move_cartesian(values, relative=args.relative, frame=args.frame)
+                result = robot.move_cartesian(
+                    values, relative=args.relative, frame=args.frame, arm=arm
+                )
+    except ValueError as exc:
+        print(f"{what}: {exc}", file=sys.stderr)
+        return 2
     except TelerobotError as exc:
-        print(f"telerobot move: {exc}", file=sys.stderr)
+        print(f"{what}: {exc}", file=sys.stderr)
         return 1
     except httpx.HTTPError as exc:
-        print(f"telerobot move: cannot reach {args.url or local_url()}: {exc}", file=sys.stderr)
+        print(f"{what}: cannot reach {url}: {exc}", file=sys.stderr)
         return 1
     state = result["state"]
-    print("position (m):", " ".join(f"{v:.4f}" for v in state["position"]))
-    print("joints (deg):", " ".join(f"{v:.2f}" for v in state["joints_deg"]))
+    on = f"{state['arm']}: " if arm is not None else ""
+    print(f"{on}position (m):", " ".join(f"{v:.4f}" for v in state["position"]))
+    print(f"{on}joints (deg):", " ".join(f"{v:.2f}" for v in state["joints_deg"]))
     return 0
 
 
@@ -825,7 +874,14 @@ def build_parser() -> argparse.ArgumentParser:
         "move", help="one move: telerobot move cartesian 0.6 -0.1 0.9 (or joints J1..J6)"
     )
     move.add_argument("space", choices=["joints", "cartesian"])
-    move.add_argument("values", nargs="+", help="6 angles (rad) or x y z (m, robot base)")
+    move.add_argument(
+        "values", nargs="+", help="an angle per joint (rad) or x y z (m, the arm's base)"
+    )
+    move.add_argument(
+        "--arm",
+        metavar="NAME",
+        help="which arm, on a server that drives two or more (GET /api/v1/robot/arms)",
+    )
     move.add_argument("--relative", action="store_true", help="by, not to")
     move.add_argument("--frame", choices=["base", "wrist", "tool"], help="of a relative move")
     # Named as for `telerobot master` and the Python client (telerobot/client/rest.py).
