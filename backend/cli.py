@@ -1,5 +1,6 @@
 """``telerobot`` subcommands: serve, media-server, recording, val-emulator,
-so101-emulator, so101-calibrate, master, netft-emulator, move, export, bench."""
+so101-emulator, so101-calibrate, master, netft-emulator, move, policy-token, policy demo,
+export, bench."""
 
 from __future__ import annotations
 
@@ -702,6 +703,47 @@ def _policy_token(args: argparse.Namespace) -> int:
     return 0
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _policy_demo(args: argparse.Namespace) -> int:
+    """``telerobot policy demo``: a scripted policy reaching for random targets, joined
+    as a policy, supervised from the page (telerobot/client/policy_demo.py)."""
+    from telerobot.client import local_url, stored_token
+    from telerobot.client.policy_demo import DemoError, DemoOptions, run_demo
+
+    what = "telerobot policy demo"
+    options = DemoOptions(
+        url=args.url or local_url(),
+        policy_token=args.token or os.environ.get("TELEROBOT_POLICY_TOKEN") or None,
+        operator_token=stored_token(),
+        arms=args.arm or [],
+        wait=args.wait,
+        seed=args.seed,
+        targets=args.targets,
+    )
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+
+    # Ctrl+C (even where a shell started it ignoring SIGINT) and SIGTERM stop it alike:
+    # control given back, the token it issued revoked.
+    previous = {s: signal.signal(s, signal.default_int_handler) for s in STOP_SIGNALS}
+    try:
+        run_demo(options, say)
+    except DemoError as exc:
+        print(f"{what}: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("stopped: control given back", flush=True)
+        return 0
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    print(f"stopped after {args.targets} targets: control given back", flush=True)
+    return 0
+
+
 def _recording_recover(args: argparse.Namespace) -> int:
     """Copy a torn recording, as far as it is valid, into NAME.recovered.mcap beside
     it (the original is left as it is); a file that is not an MCAP is refused."""
@@ -913,6 +955,45 @@ def build_parser() -> argparse.ArgumentParser:
             " keeps on this machine)",
         )
     policy_token.set_defaults(func=_policy_token)
+
+    policy = sub.add_parser(
+        "policy",
+        help="policies: demo (a scripted policy to try supervised autonomy with,"
+        " docs/policy-demo.md)",
+    )
+    policy_cmds = policy.add_subparsers(dest="policy_run", required=True)
+    demo = policy_cmds.add_parser(
+        "demo",
+        help="a scripted policy that reaches for random targets: watch AUTONOMOUS on the"
+        " page, take over, correct, hand back",
+        description="A scripted policy (no LeRobot, nothing learned) that reaches for"
+        " random targets near where the arm is, joined to the server as a policy: the page"
+        " says AUTONOMOUS; take over (T), correct, hand back (H), pause and resume (P)."
+        " Ctrl+C stops it. docs/policy-demo.md",
+    )
+    demo.add_argument("--url", help="the server (default: TELEROBOT_URL or http://localhost:8000)")
+    demo.add_argument(
+        "--token",
+        help="a policy token (default: TELEROBOT_POLICY_TOKEN, else one it issues itself"
+        " with the operator token and revokes when it stops)",
+    )
+    demo.add_argument(
+        "--arm",
+        metavar="NAME",
+        action="append",
+        help="the arm it moves, on a server with two or more (again for another;"
+        " default: every arm)",
+    )
+    demo.add_argument(
+        "--wait",
+        action="store_true",
+        help="start paused: a person lets it drive (P on the page), not this command",
+    )
+    demo.add_argument("--seed", type=int, help="the targets' random seed (the same targets)")
+    demo.add_argument(
+        "--targets", type=int, default=0, help="stop after this many targets (default: Ctrl+C)"
+    )
+    demo.set_defaults(func=_policy_demo)
 
     export = sub.add_parser("export", help="export a recording: export lerobot RECORDING DIR")
     export_sub = export.add_subparsers(dest="export_format", required=True)
