@@ -343,16 +343,19 @@ def _announce_recording(hub: RealtimeHub, e: RecordingEvent) -> None:
     hub.broadcast_event(EventKind.INFO, text)
 
 
-async def bring_up_robot(robot: Robot, initialize: bool) -> None:
+async def bring_up_robot(robot: Robot, initialize: bool, arm: str | None = None) -> None:
     """Connect and initialise; a failure leaves the robot in ERROR with its reason
-    (shown by the state endpoint) and the server keeps serving."""
+    (shown by the state endpoint) and the server keeps serving. ``arm``: its name on a
+    server of several arms (each says which it is: two drivers of one model have one
+    name)."""
+    who = f"robot {robot.name}" if arm is None else f"arm {arm} (robot {robot.name})"
     try:
         await robot.connect()
         if initialize:
             await robot.initialize()
-        log.info("robot %s is %s", robot.name, robot.status)
+        log.info("%s is %s", who, robot.status)
     except TelerobotError as exc:
-        log.error("robot %s could not be brought up: %s", robot.name, exc)
+        log.error("%s could not be brought up: %s", who, exc)
 
 
 async def start_services(s: Services) -> None:
@@ -376,7 +379,10 @@ async def start_services(s: Services) -> None:
     for arm in s.arms:
         s.tasks.append(
             asyncio.create_task(
-                bring_up_robot(arm.robot, s.settings.auto_initialize), name=f"bring-up-{arm.name}"
+                bring_up_robot(
+                    arm.robot, s.settings.auto_initialize, arm.name if len(s.arms) > 1 else None
+                ),
+                name=f"bring-up-{arm.name}",
             )
         )
 

@@ -9,6 +9,7 @@ import json
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -202,3 +203,29 @@ def test_both_arms_forces_come_as_datagrams_none_held_back_by_the_rate(server: s
         assert channel["limits"]["datagrams_over_rate"] == 0, channel
     finally:
         link.close()
+
+
+async def test_each_arm_says_it_is_ready_by_its_name(caplog: pytest.LogCaptureFixture) -> None:
+    """Two arms of one model have one robot name: 'robot sim-so101 is READY' came twice,
+    saying nothing of which arm. Each says its arm; a one-arm server as before."""
+    import logging
+    from types import SimpleNamespace
+
+    from telerobot.server.services import bring_up_robot
+
+    async def nothing() -> None:
+        return None
+
+    robot: Any = SimpleNamespace(
+        name="sim-so101", status="READY", connect=nothing, initialize=nothing
+    )
+    with caplog.at_level(logging.INFO, logger="telerobot"):
+        await bring_up_robot(robot, True, "left")
+        await bring_up_robot(robot, True, "right")
+        await bring_up_robot(robot, True)
+    said = [r.getMessage() for r in caplog.records if "READY" in r.getMessage()]
+    assert said == [
+        "arm left (robot sim-so101) is READY",
+        "arm right (robot sim-so101) is READY",
+        "robot sim-so101 is READY",
+    ]
