@@ -37,7 +37,7 @@ def joints(base: str) -> np.ndarray:
     return np.array(httpx.get(base + "api/v1/robot/state", timeout=10).json()["joints"])
 
 
-def moves(base: str, demo: Running, within: float = 20.0) -> None:
+def moves(base: str, demo: Running, within: float = 45.0) -> None:
     """The arm moves (more than 0.01 rad at some joint) within ``within`` s."""
     start = joints(base)
     until(

@@ -222,9 +222,8 @@ class ReachPolicy:
     """The policy: an observation (each moving arm's joints, rad) in, the targets out;
     a target held until every arm is at its own, then ``HOLD_S`` more, then the next."""
 
-    def __init__(self, arms: dict[str, ReachTargets], clock: Callable[[], float]) -> None:
+    def __init__(self, arms: dict[str, ReachTargets]) -> None:
         self.arms = arms
-        self.clock = clock
         self.targets = {name: t.draw() for name, t in arms.items()}
         self.number = 1  # of the current target
         self.reached_at: float | None = None
@@ -255,7 +254,6 @@ class Narrator:
     mode: str = ""
     refusals_said: dict[str, str] = field(default_factory=dict)  # kind → as said
     refused: int = 0  # actions refused in all (ERROR replies)
-    applied: int = 0  # actions applied (ACK replies)
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
@@ -274,8 +272,6 @@ class Narrator:
                 self.refusals_said[kind] = why
             if new:
                 self.say(f"refused: {why}")
-        elif reply.name == "ACK":
-            self.applied += 1
 
     def mode_is(self, mode: str, cause: str) -> None:
         with self._lock:
@@ -348,6 +344,9 @@ class PolicyDemo:
         self.reached = 0
         self._driving_s = 0.0  # time AUTONOMOUS toward the current target
         self._last_step: float | None = None
+        # The arms it does not move are held where they were when it last took control
+        # (not at each new reading: a real arm's noise would be chased).
+        self._held: dict[str, FloatArray] = {}
 
     # ---------------------------------------------------------------- start, stop
     def start(self) -> None:
@@ -436,7 +435,7 @@ class PolicyDemo:
                 reach_rad=o.reach_rad,
                 grippers=tuple(i for i, n in enumerate(part.units.names) if n == "gripper"),
             )
-        return ReachPolicy(arms, time.monotonic)
+        return ReachPolicy(arms)
 
     def _tool_targets(self) -> str:
         assert self.policy is not None
@@ -490,10 +489,13 @@ class PolicyDemo:
             )
             self._next_target()
         if not robot.has_control:
+            self._held.clear()
             return  # a person drives (or nobody): nothing to send
+        if not self._held:
+            self._held = {n: q for n, q in joints.items() if n not in policy.targets}
         action: dict[str, float] = {}
         for part in robot.parts:
-            q = policy.targets.get(part.name, joints[part.name])
+            q = policy.targets.get(part.name, self._held.get(part.name, joints[part.name]))
             values = part.units.to_lerobot(q)
             action |= dict(zip(part.keys, map(float, values), strict=True))
         try:
