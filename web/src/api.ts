@@ -49,7 +49,7 @@ export function tokenVerdict(sent: string, operator: boolean, remembered: string
   return `Token rejected: this page only watches.${kept} ${TOKEN_SOURCE}`;
 }
 
-export const TOKEN_SOURCE = "The operator token is printed by `telerobot serve` when it starts and kept in its state folder (operator-token).";
+export const TOKEN_SOURCE = "The operator token is kept in the server's state folder (operator-token); `telerobot serve` says where at every start, and the address to open with ?token=.";
 
 // ---- typed requests
 
