@@ -41,11 +41,13 @@ its server figures (``server_viewer``, ``layer_switches``) are its own entry in 
   (``new VideoFrame(video)`` in the callback, the 2-row strip and threshold
   view/glass.ts reads), the server's CLOCK_MONOTONIC at capture. The page's clock
   (performance.now(), Chromium's CLOCK_MONOTONIC from the page's start) is mapped onto
-  this machine's by the tightest of 15 (before, performance.now(), after) reads
+  this machine's by the tightest of 30 (before, performance.now(), after) reads (15 as
+  the run starts, 15 as it ends)
   (``page_origin``; ``clock_map_ms`` says how tight, ``page_clock_offset_error_ms``
   how far the page's own ping-synced offset is from it). So ``capture_to_shown_ms``
-  (p50, p99) is expectedDisplayTime − the frame's capture time, per frame; not the
-  page meter's capture → decoded plus an estimate. ``frozen_share`` and
+  (p50, p99) is expectedDisplayTime (never before the callback: the page draws the
+  frame into its WebGL view in it) − the frame's capture time, per frame; not the page
+  meter's capture → decoded plus an estimate. ``frozen_share`` and
   ``longest_freeze_ms`` over the shown times, with the modelled viewer's definitions
   (video_figures: gaps > 200 ms, whole gaps counted, the outage and the second after
   it left out); ``fps``: callbacks a second (frames the page drew); ``frames``;
@@ -54,7 +56,7 @@ its server figures (``server_viewer``, ``layer_switches``) are its own entry in 
   hidden <video> and replaced before a callback saw them), ``decoded_latency_ms`` (the
   page's own capture → decoded meter, view/glass.ts, p50/p99; its worker reads frames
   from a queue, so on a starved machine it lags, and can read above capture → shown),
-  ``receive_to_shown_ms`` (the metadata's receiveTime to expectedDisplayTime),
+  ``receive_to_shown_ms`` (the metadata's receiveTime to the shown time),
   ``capture_to_callback_ms`` and ``expected_display_after_callback_ms`` (capture →
   shown split at the callback's ``now``: headless Chromium expects the display
   50-120 ms after the callback on this machine),
@@ -524,14 +526,15 @@ def role_browser(base: str, token: str = "", bench_token: str = "") -> dict[str,
         page.goto(base + (f"?token={token}" if token else ""))
         yield_software_gpu()
         page.wait_for_function("window.telerobot && window.telerobot.view", timeout=60_000)
-        # A few frames shown, or on for the run without them after 30 s: an operator's
+        # A few frames shown, or on for the run without them after 20 s: an operator's
         # peer on a narrow link can take a minute to show ten (bad: 60 s in one run).
         with contextlib.suppress(PlaywrightTimeout):
-            page.wait_for_function("window.telerobot.view.frames > 3", timeout=30_000, polling=100)
+            page.wait_for_function("window.telerobot.view.frames > 3", timeout=20_000, polling=100)
         frames_at_ready = page.evaluate("window.telerobot.view.frames")
         full_width = 2 * int(_get_json(base, "api/v1/video")["width"])  # both eyes
         page.evaluate(PAGE_PROBE, full_width)
         renegotiated_before = page.evaluate("window.telerobot.video.renegotiations")
+        clock = _clock_samples(page)  # (and as many at the end: the tightest is taken)
         chromium = psutil.Process().children(recursive=True)
         cpu_before, cpu_at = _cpu_seconds(chromium), time.monotonic()
         # The server's per-viewer figures once a second, as the aiortc viewer polls them
@@ -556,7 +559,7 @@ def role_browser(base: str, token: str = "", bench_token: str = "") -> dict[str,
             " window.telerobot.video.peerId, window.telerobot.video.renegotiations,"
             " window.__peers]"
         )
-        clock = _clock_samples(page)
+        clock += _clock_samples(page)
         status = _get_json(base, "api/v1/video", bench_token)
         page.close()  # pagehide: the page closes its peer on the server (DELETE, keepalive)
         time.sleep(0.5)
@@ -828,8 +831,10 @@ def shown_frames(records: list[dict[str, Any]], origin: float) -> list[tuple[flo
     """Each frame the page showed (one requestVideoFrameCallback record, PAGE_PROBE):
     (shown, capture → shown), in s on the monotonic clock. Shown: the callback's
     ``expectedDisplayTime`` (when the compositor expects the frame on the screen; else
-    ``presentationTime``, else the callback's ``now``). Capture: the timecode read off
-    that frame's own picture (``code``, the server's clock at capture, 0.1 ms units
+    ``presentationTime``, else the callback's ``now``), never before the callback's
+    ``now`` (the page draws the frame then, into its WebGL view; a starved compositor's
+    expected time can come before it). Capture: the timecode read off that frame's own
+    picture (``code``, the server's clock at capture, 0.1 ms units
     modulo 2**32), taken back from the shown time; None when unread or a misread (over
     ``SHOWN_AGE_MAX_S``)."""
     from telerobot.drivers.camera import timecode
@@ -837,7 +842,7 @@ def shown_frames(records: list[dict[str, Any]], origin: float) -> list[tuple[flo
     frames: list[tuple[float, float | None]] = []
     for r in records:
         at = next((r[k] for k in ("expected", "presented", "now") if r.get(k)), 0.0)
-        shown = origin + float(at) / 1000
+        shown = origin + max(float(at), float(r.get("now") or 0.0)) / 1000
         code = r.get("code")
         age = None
         if isinstance(code, int | float) and not isinstance(code, bool) and code >= 0:
@@ -927,9 +932,9 @@ def chromium_figures(
     ]
     # The callback's own time against the expected display: capture → the callback
     # (the page draws then) is capture → shown less this.
-    ahead = [r["expected"] - r["now"] for r in steady if r.get("expected")]
+    ahead = [max(0.0, r["expected"] - r["now"]) for r in steady if r.get("expected")]
     to_callback = [
-        age * 1000 - (r["expected"] - r["now"])
+        age * 1000 - max(0.0, r["expected"] - r["now"])
         for r, (shown, age) in zip(records, shown_frames(records, origin), strict=True)
         if age is not None and r.get("expected") and _in(shown, segments)
     ]

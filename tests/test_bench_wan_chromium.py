@@ -158,3 +158,11 @@ def test_presented_frames_count_on_across_a_new_stream() -> None:
     records = [record(1010.0 + i * 0.1, 0.1, count=n) for i, n in enumerate([10, 12, 1, 2])]
     counts = presented_counts(records, ORIGIN, [(1010.0, 1011.0)])
     assert counts == {"fps_presented": pytest.approx(2 + 1 + 1), "callbacks_missed": 1}
+
+
+def test_a_frame_is_not_shown_before_its_callback_ran() -> None:
+    # A starved compositor's expectedDisplayTime 5 ms before the callback's own time.
+    rec = {**record(1010.0, 0.1), "now": 10_005.0}
+    ((shown, age),) = shown_frames([rec], ORIGIN)
+    assert shown == pytest.approx(1010.005)
+    assert age == pytest.approx(0.105, abs=1e-4)
