@@ -147,8 +147,11 @@ class Refusals:
         if why == self._said_reason:
             return
         self._said_reason = why
+        # Refused: a warning; not in control (a person corrects): what happens.
+        level = logging.INFO if refused is None else logging.WARNING
+        if not log.isEnabledFor(level):
+            return  # (a caller that says them itself: no need to ask the server)
         line = self._explain(refused)
         if line != self._said_line:  # (a correction's refusals, then its lost control)
-            # Refused: a warning; not in control (a person corrects): what happens.
-            log.log(logging.INFO if refused is None else logging.WARNING, "%s", line)
+            log.log(level, "%s", line)
         self._said_line = line
