@@ -11,6 +11,7 @@ from collections.abc import Callable
 from fractions import Fraction
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -73,7 +74,7 @@ def test_a_queue_in_two_reports_in_a_row_cuts_the_rate() -> None:
     assert rc.target_bps == MAX * DECREASE and "queue" in rc.why
 
 
-def test_the_receivers_estimate_caps_the_rate_only_once_it_has_fallen() -> None:
+def test_the_receivers_estimate_leads_the_rate_down_only_once_it_has_fallen() -> None:
     rc, link = control(), Link()
     # Chromium's estimate starts low and climbs: no reason to cut
     for t, bps in enumerate((70_000, 120_000, 200_000)):
@@ -81,8 +82,30 @@ def test_the_receivers_estimate_caps_the_rate_only_once_it_has_fallen() -> None:
     assert rc.target_bps == MAX
     for t, bps in enumerate((1_500_000, 1_800_000), start=3):
         rc.update(link.report(bps=bps), None, float(t))
-    rc.update(link.report(bps=1_000_000), None, 5.0)  # fell: the receiver saw overuse
-    assert rc.target_bps == 1_000_000
+    rc.update(link.report(bps=100_000), None, 5.0)  # fell once: a swing, not yet a cut
+    assert rc.target_bps == MAX
+    rc.update(link.report(bps=100_000), None, 6.0)  # twice: toward it, a step at a time
+    assert rc.target_bps == MAX * DECREASE and "estimate fell" in rc.why
+    for t in range(7, 40):
+        rc.update(link.report(bps=100_000), None, float(t))
+    assert rc.target_bps == pytest.approx(max(MIN_BPS, 100_000))
+
+
+def test_with_congestion_seen_the_rate_goes_to_what_the_receiver_gets_at_once() -> None:
+    # A new peer at the configured rate on a narrow link: 14 % lost, and the receiver
+    # (still climbing from its start) says it gets 0.6 Mbit/s
+    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0), Link()
+    rc.update(link.report(lost=0.14, bps=600_000), None, 0.0)
+    assert rc.target_bps == 600_000 and "the receiver gets 0.60 Mbit/s" in rc.why
+    assert rc.needs_own_stream(0.0)
+
+
+def test_a_new_peer_carries_on_from_the_last_rate() -> None:
+    rc = control()
+    rc.carry_on_from(500_000, "the previous peer's")
+    assert rc.target_bps == 500_000 and rc.size == "low" and rc.needs_own_stream(0.0)
+    rc.carry_on_from(10**9, "the previous peer's")
+    assert rc.target_bps == MAX and not rc.needs_own_stream(0.0)
 
 
 def test_size_and_frame_rate_follow_the_rate_with_a_margin_to_come_back() -> None:
@@ -245,6 +268,31 @@ async def test_with_the_setting_off_the_operator_shares_the_layers() -> None:
         pipeline.adapt_layers()
         assert pipeline.peers[pid].rate is None
         assert set(pipeline.encoding.encoders) == {("H264", "full")}
+        await pc.close()
+    finally:
+        await pipeline.close()
+
+
+async def test_the_operators_next_peer_starts_from_the_last_ones_rate() -> None:
+    """A page re-negotiates its video after a stall: its new peer, on the same link,
+    starts from the rate the last one had come down to, not from the configured one."""
+    pipeline = VideoPipeline(camera(**SMALL), VideoSettings(bitrate=1_000_000))
+    pipeline.start()
+    try:
+        pc, track, first = await viewer_of(pipeline, operator=True)
+        await frames_of(track, 2, SMALL["width"])
+        pipeline.adapt_layers()
+        link = pipeline.peers[first].link
+        link.fraction_lost, link.reports = 0.5, link.reports + 1
+        pipeline.adapt_operator_rate()
+        came_down = pipeline.peers[first].rate.target_bps  # type: ignore[union-attr]
+        assert came_down < 1_000_000
+        await pc.close()
+        await pipeline.close_peer(first)
+        pc, track, second = await viewer_of(pipeline, operator=True)
+        await frames_of(track, 2, SMALL["width"])
+        pipeline.adapt_layers()
+        assert pipeline.peers[second].rate.target_bps == came_down  # type: ignore[union-attr]
         await pc.close()
     finally:
         await pipeline.close()

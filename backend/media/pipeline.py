@@ -100,6 +100,10 @@ EXPIRY_CHECK_S = 1.0  # how often the worker looks for expired peers
 PEER_SECRET_BYTES = 16  # 128 bits, sent back once with the answer
 PACE_MAX_LOSS = 0.05  # a viewer's link losing this much is not paced (_layer_bps)
 FEC_MODES = ("auto", "off", "on")
+# A new operator's peer this soon after the last one's rate was known starts from that
+# rate (the page re-negotiates after a stall: bench.wan saw each new peer start at 8
+# Mbit/s on a 2 Mbit/s link, twice a run).
+OPERATOR_RATE_KEPT_S = 30.0
 
 
 def _declared(name: str) -> Any:
@@ -222,6 +226,9 @@ class VideoPipeline:
         self.pending_expiry_s = pending_expiry_s
         self.encoding = Encoding(camera, self.settings, self.clock)
         self.peers: dict[str, Peer] = {}
+        # The operator's last rate and when (a new operator's peer within
+        # OPERATOR_RATE_KEPT_S starts from it: the same link)
+        self._operator_rate_was: tuple[float, float] | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._closing: set[asyncio.Task[None]] = set()  # expired peers' connections
 
@@ -306,6 +313,13 @@ class VideoPipeline:
         s, encoding = self.settings, self.encoding
         full, low = encoding.layer_size("full"), encoding.layer_size("low")
         peer.rate = RateControl(s.bitrate, 2 * full[0] * full[1], 2 * low[0] * low[1], s.fps)
+        was = self._operator_rate_was
+        if was is not None and self.clock.now() - was[1] < OPERATOR_RATE_KEPT_S:
+            peer.rate.carry_on_from(was[0], "the operator's previous video peer's rate")
+
+    def _remember_operator_rate(self, peer: Peer) -> None:
+        if peer.rate is not None:
+            self._operator_rate_was = (peer.rate.target_bps, self.clock.now())
 
     def adapt_protection(self) -> None:
         """Each connected viewer's loss (from its NACKs, about once a second) and the
@@ -333,6 +347,7 @@ class VideoPipeline:
         rate, encoding, now = peer.rate, self.encoding, self.clock.now()
         share = peer.protection.fec_share
         changed = rate.update(peer.link, peer.protection.loss, now)
+        self._remember_operator_rate(peer)
         own = self._layer_of(peer) == OPERATOR or (
             peer.track.joining is not None
             and peer.track.joining is encoding.broadcasters.get(("H264", OPERATOR))

@@ -17,10 +17,13 @@ second:
   link, as `bad`'s 5 % random loss, is FEC's to repair, not the rate's);
 * **delay-based**: the round trip grown ``QUEUE_S`` above its floor in
   ``CONFIRM_REPORTS`` reports in a row is a queue the video builds: ``× DECREASE``;
-* **the receiver's own estimate** (REMB, from Chromium's delay-gradient estimator)
-  caps the rate once it has fallen from its peak (``ESTIMATE_FALL``): a receiver
-  starts low and climbs, so a low estimate that is still rising says nothing (as in
-  layers.py).
+* **the receiver's own estimate** (REMB, from Chromium's delay-gradient estimator):
+  with congestion seen (either rule above) the rate goes straight to it if it is lower
+  (what gets through); without, it leads the rate down, ``× DECREASE`` a report at
+  most, once it has fallen from its peak (``ESTIMATE_FALL``) in ``CONFIRM_REPORTS``
+  reports in a row: a receiver starts low and
+  climbs, so a low estimate that is still rising says nothing (as in layers.py), and on
+  a jittery link it swings far below what the link carries.
 
 The rate stays within [``MIN_BPS``, the configured bitrate]. Out of it come FEC's
 share and a margin for resends (``media_bps``), so FEC fits inside the estimate
@@ -80,6 +83,7 @@ class RateControl:
     why: str = "start: the configured bitrate"
     seen_reports: int = 0
     queue_strikes: int = 0
+    estimate_strikes: int = 0  # reports in a row whose estimate had fallen
     peak_estimate: int = 0
     cuts: int = 0
     # (the caller's clock) at the configured rate since; it starts there
@@ -114,15 +118,31 @@ class RateControl:
             and estimate < self.target_bps
             and estimate < ESTIMATE_FALL * self.peak_estimate
         )
-        if lost > HIGH_LOSS:
+        self.estimate_strikes = self.estimate_strikes + 1 if fallen else 0
+        congested = lost > HIGH_LOSS or self.queue_strikes >= CONFIRM_REPORTS
+        if congested and estimate is not None and estimate < self.target_bps:
+            # Congestion seen, and the receiver says what gets through: go there at
+            # once (a new peer starts at the configured rate, 8 Mbit/s, on a link of 2;
+            # cut by the loss alone it took a minute to come down).
+            self._set(
+                estimate,
+                f"congested ({self._congestion(lost, link)}): the receiver"
+                f" gets {estimate / 1e6:.2f} Mbit/s",
+            )
+            self.queue_strikes = 0
+        elif lost > HIGH_LOSS:
             self._set(self.target_bps * (1 - lost / 2), f"{lost:.0%} lost")
         elif self.queue_strikes >= CONFIRM_REPORTS:
-            rtt = (link.rtt_s or 0.0) * 1000
-            self._set(self.target_bps * DECREASE, f"a queue: round trip {rtt:.0f} ms")
+            self._set(self.target_bps * DECREASE, self._congestion(lost, link))
             self.queue_strikes = 0
-        elif fallen and estimate is not None:
-            self._set(estimate, f"the receiver's estimate fell to {estimate / 1e6:.2f} Mbit/s")
-            self.peak_estimate = estimate  # a new peak to fall from
+        elif self.estimate_strikes >= CONFIRM_REPORTS and estimate is not None:
+            # Toward the estimate, a step at a time (× DECREASE at most a report): a
+            # receiver's delay-gradient estimate on a jittery link (±50 ms each way on
+            # `bad`) swings far below what the link carries (bench.wan saw aiortc's at
+            # 0.05 Mbit/s on a 2 Mbit/s link) while nothing is lost and no queue grows.
+            to = max(float(estimate), self.target_bps * DECREASE)
+            self._set(to, f"the receiver's estimate fell to {estimate / 1e6:.2f} Mbit/s")
+            self.peak_estimate = max(estimate, round(to))  # a new peak to fall from
         elif lost < LOW_LOSS and not queued and self.target_bps < self.max_bps:
             self._set(self.target_bps * INCREASE, "clean: growing")
         self._shape()
@@ -132,12 +152,26 @@ class RateControl:
             self.at_max_since = now
         return before != (round(self.target_bps), self.size, self.every)
 
+    def carry_on_from(self, bps: float, why: str) -> None:
+        """Start from ``bps`` (the operator's previous peer's rate on the same link: a
+        page that re-negotiates its video after a stall would start again at the
+        configured rate on a link it had just found narrow)."""
+        self._set(bps, why)
+        self.at_max_since = -math.inf if self.target_bps >= self.max_bps else None
+        self._shape()
+
     def needs_own_stream(self, now: float) -> bool:
         """Whether the link needs the operator's own encoder: its rate is below the
         configured one, or came back to it less than ``SHARE_AGAIN_S`` ago. Otherwise
         the shared full layer is the same stream (one encode less)."""
         since = self.at_max_since
         return since is None or now - since < SHARE_AGAIN_S
+
+    @staticmethod
+    def _congestion(lost: float, link: LinkReport) -> str:
+        if lost > HIGH_LOSS:
+            return f"{lost:.0%} lost"
+        return f"a queue: round trip {(link.rtt_s or 0.0) * 1000:.0f} ms"
 
     def _set(self, bps: float, why: str) -> None:
         bps = min(float(self.max_bps), max(float(MIN_BPS), bps))
