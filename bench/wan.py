@@ -705,7 +705,10 @@ def role_command(base: str, token: str, hz: float) -> dict[str, Any]:
                 await task
         # The server's figures, with this client's own executed commands' ages (its
         # id stays the same through resumes; each profile's client is a new one).
-        safety = await asyncio.to_thread(_get_json, base, f"api/v1/safety?client={op.client_id}")
+        # (a client's own ages are the operator's to read: the token)
+        safety = await asyncio.to_thread(
+            _get_json, base, f"api/v1/safety?client={op.client_id}", token
+        )
         with contextlib.suppress(TimeoutError):  # the close handshake: not worth 10 s
             await asyncio.wait_for(op.close(), 1.0)
         return {
