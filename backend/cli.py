@@ -106,9 +106,21 @@ class _OneLineStartupError(logging.Filter):
         return True
 
 
+def _settings_error(exc: Exception) -> str:
+    """What is wrong with the settings, each field and why, never the value given (it
+    may be a token)."""
+    if not isinstance(exc, ValidationError):
+        return str(exc)
+    return "; ".join(
+        f"{'.'.join(str(x) for x in e['loc']) or 'settings'}: {e['msg']}"
+        for e in exc.errors(include_url=False, include_input=False)
+    )
+
+
 def _token_hint(settings: object, url: str, path: Path, is_new: bool) -> list[str]:
     """Where the operator token is kept and how the page takes it: never the token."""
-    configured = getattr(settings, "operator_token", None)
+    secret = getattr(settings, "operator_token", None)
+    configured = secret.get_secret_value() if secret is not None else None
     if configured and os.environ.get("TELEROBOT_OPERATOR_TOKEN") == configured:
         where, placeholder = "set by TELEROBOT_OPERATOR_TOKEN", "$TELEROBOT_OPERATOR_TOKEN"
     elif configured:
@@ -150,7 +162,7 @@ def _serve(args: argparse.Namespace) -> int:
             media_server_rtp_port=args.media_server_rtp_port,
         )
     except (ValidationError, FileNotFoundError, ValueError) as exc:
-        print(f"telerobot: bad settings: {exc}", file=sys.stderr)
+        print(f"telerobot: bad settings: {_settings_error(exc)}", file=sys.stderr)
         return 2
     from telerobot.server.accesslog import limit_refusals_logged
     from telerobot.server.security import ensure_certificate, redact_server_logs, state_dir

@@ -38,7 +38,7 @@ def write_private(path: Path, data: bytes) -> None:
 def operator_token(settings: Settings) -> tuple[str, bool]:
     """The configured token, or the one stored at first start; True when it was just made."""
     if settings.operator_token:
-        return settings.operator_token, False
+        return settings.operator_token.get_secret_value(), False
     path = state_dir(settings) / "operator-token"
     if path.is_file():
         token = path.read_text().strip()

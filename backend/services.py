@@ -60,7 +60,7 @@ MAX_ALIGNMENTS = 1000  # viewer names with a saved shift; the oldest written goe
 
 @dataclass(frozen=True)
 class OperatorToken:
-    value: str
+    value: str = field(repr=False)
     is_new: bool  # made at this start: printed once
 
 

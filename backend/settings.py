@@ -17,7 +17,14 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import Field, ValidationInfo, create_model, field_validator, model_validator
+from pydantic import (
+    Field,
+    SecretStr,
+    ValidationInfo,
+    create_model,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import (
     BaseSettings,
     NoDecode,
@@ -80,6 +87,13 @@ class ServerSettings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="TELEROBOT_", extra="forbid")
 
+    @field_validator("operator_token")
+    @classmethod
+    def _printable_token(cls, token: SecretStr | None) -> SecretStr | None:
+        if token is not None and not re.fullmatch(r"[\x21-\x7e]+", token.get_secret_value()):
+            raise ValueError("the operator token is printable ASCII, no spaces")
+        return token
+
     host: str = "127.0.0.1"
     http_port: int = Field(8000, ge=0, le=65535)
     # The priority channel (forces out, commands in; the master-arm bridge): TCP, 0 = any
@@ -137,9 +151,8 @@ class ServerSettings(BaseSettings):
     autonomy_release: Literal["autonomous", "pause"] = "autonomous"
 
     # Security: the operator token is generated into state_dir at first start unless given.
-    operator_token: str | None = Field(
-        None, min_length=16, max_length=64, pattern=r"^[\x21-\x7e]+$"
-    )
+    # A SecretStr: no repr, dump or log line shows it (.get_secret_value() where used).
+    operator_token: SecretStr | None = Field(None, min_length=16, max_length=64)
     state_dir: Path | None = None  # default: $XDG_CONFIG_HOME/telerobot or ~/.config/telerobot
     allowed_origins: list[str] = []  # extra browser origins allowed on /ws (same host always is)
     # Extra names this server answers to (a DNS name on the LAN); its host, loopback and

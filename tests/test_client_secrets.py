@@ -7,6 +7,7 @@ parsed by LeRobot's command lines: integrations/lerobot/tests.)"""
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Iterator
 
 import pytest
@@ -97,3 +98,29 @@ def test_a_refused_read_says_what_the_server_said(two_arms: str) -> None:
     said = str(refused.value)
     assert "no arm named 'middle'" in said and "right, left" in said, said
     assert "422" in said and TOKEN not in said
+
+
+def test_the_servers_settings_never_show_the_operator_token(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Its repr, its dump, the services' token and a refused setting's error: none
+    holds the token (a too-short one is still a secret someone typed)."""
+    from telerobot.server.cli import main
+    from telerobot.server.services import OperatorToken
+    from telerobot.server.settings import Settings
+
+    secret = "s3cr3t-operator-token-0123456789"
+    settings = Settings(operator_token=secret)
+    assert settings.operator_token is not None
+    assert settings.operator_token.get_secret_value() == secret
+    for text in (repr(settings), str(settings), str(settings.model_dump())):
+        assert secret not in text
+    assert secret not in repr(OperatorToken(secret, False))
+    short = "tooshort-s3cr3t"
+    os.environ["TELEROBOT_OPERATOR_TOKEN"] = short
+    try:
+        assert main(["serve", "--http-port", "0"]) == 2
+    finally:
+        del os.environ["TELEROBOT_OPERATOR_TOKEN"]
+    said = capsys.readouterr().err
+    assert "operator_token" in said and short not in said, said
