@@ -777,7 +777,7 @@ def video_figures(out: dict[str, Any], segments: Segments, t_up: float) -> dict[
     if len(nbytes) > 1:
         mbps = (nbytes[-1][1] - nbytes[0][1]) * 8 / (nbytes[-1][0] - nbytes[0][0]) / 1e6
     switches, source = layer_switches(out, (segments[0][0], segments[-1][1]))
-    viewers = (out.get("status") or {}).get("stats", {}).get("viewers") or []
+    viewers = ((out.get("status") or {}).get("stats") or {}).get("viewers") or []
     decoded = [
         age * 1000 for t, age in out.get("decoded") or [] if age is not None and _in(t, segments)
     ]
@@ -1007,7 +1007,7 @@ def layer_switches(out: dict[str, Any], window: tuple[float, float]) -> tuple[in
     """From GET /api/v1/video's per-viewer entries (this viewer's: ``_own_viewer``): a
     switch counter if the server has one, else the changes of ``layer`` polled once a
     second."""
-    viewers = (out.get("status") or {}).get("stats", {}).get("viewers") or []
+    viewers = ((out.get("status") or {}).get("stats") or {}).get("viewers") or []
     peer_id = out.get("peer_id")
     own = _own_viewer(viewers, peer_id)
     counters = sorted(
