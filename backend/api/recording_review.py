@@ -20,7 +20,8 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
 from telerobot.server.api.recordings import ReaderDep, RecorderDep, charge_sent
-from telerobot.server.recording.timeline import MAX_POINTS, REVIEW_TOPICS
+from telerobot.server.recording.library import RangeRefused
+from telerobot.server.recording.timeline import MAX_POINTS, MAX_RANGE_S, REVIEW_TOPICS
 
 router = APIRouter(prefix="/recordings", tags=["recordings"])
 
@@ -52,7 +53,13 @@ class Timeline(BaseModel):
     counts: dict[str, int] = Field(description="messages per topic read from the file")
     stride: dict[str, int] = Field(description="every how many messages a series keeps")
     topics: dict[str, list[dict[str, Any]]] = Field(
-        description="per topic, its messages (decimated) with `time` (timeline s) added"
+        description="per topic, its messages (decimated) with `time` (timeline s) added:"
+        " those logged in [range_start, range_end)"
+    )
+    range_start: float = Field(0.0, description="timeline s: the first time this answer holds")
+    range_end: float = Field(
+        description="timeline s: the messages logged before this (the whole: the duration,"
+        " its last message included)"
     )
 
 
@@ -63,14 +70,38 @@ async def recording_timeline(
     reader: ReaderDep,
     topics: Annotated[list[str] | None, Query(max_length=len(REVIEW_TOPICS))] = None,
     max_points: Annotated[int, Query(ge=10, le=MAX_POINTS)] = 4000,
+    start_s: Annotated[
+        float | None,
+        Query(ge=0, le=MAX_RANGE_S, description="a piece: from this timeline s (none: 0)"),
+    ] = None,
+    end_s: Annotated[
+        float | None,
+        Query(
+            gt=0,
+            le=MAX_RANGE_S,
+            description="a piece: up to this timeline s, not included (none: to the end)",
+        ),
+    ] = None,
 ) -> FileResponse:
     """The recording's channels on one timeline (s from its first message): forces and
     states decimated to ``max_points`` each, events (commands, safety, episodes,
-    calibration) as they are, up to 5000 each."""
+    calibration) as they are, up to 5000 each. With ``start_s``/``end_s``, a piece of
+    it: the messages logged in that range, kept as the whole timeline keeps them (the
+    same ``max_points`` asked of every piece of a partition: the pieces end to end are
+    the whole). Each piece is made once and kept; on a file with its summary it reads
+    only the part of the file it needs."""
+    if start_s is not None and end_s is not None and end_s <= start_s:
+        raise RangeRefused(f"end_s ({end_s:g}) must be after start_s ({start_s:g})")
     asked = set(topics or REVIEW_TOPICS)
     wanted = [t for t in REVIEW_TOPICS if t in asked]
     out = await recorder.library.timeline(
-        recording_id, wanted, max_points, peer=reader.peer, privileged=reader.privileged
+        recording_id,
+        wanted,
+        max_points,
+        start_s=start_s,
+        end_s=end_s,
+        peer=reader.peer,
+        privileged=reader.privileged,
     )
     charge_sent(recorder, reader, out)
     return FileResponse(out, media_type="application/json")

@@ -24,6 +24,7 @@ from typing import Any
 
 from telerobot.drivers.base import TelerobotError
 from telerobot.server.recording.index import (
+    MAX_TOPICS,
     RecordingIndex,
     blank_entry,
     episodes_listed,
@@ -32,13 +33,24 @@ from telerobot.server.recording.index import (
     stamped,
     summarise,
 )
-from telerobot.server.recording.readjobs import ReadBudgets, ReadJobs
+from telerobot.server.recording.readjobs import (
+    FIRST,
+    LATER,
+    NEXT,
+    ReadBudgets,
+    ReadJobs,
+    RecordingHasNoVideo,
+)
+from telerobot.server.recording.schemas import VIDEO as VIDEO_TOPIC
 from telerobot.server.recording.timeline import REVIEW_TOPICS
 
 MAX_ID_CHARS = 200  # a recording's id (its file name; the recorder's are < 100)
 ID = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]*$")
 REVIEW_DIR = ".review"  # the timelines and MP4s made for the review page
-TIMELINE_VARIANTS = 8  # timelines kept per recording (topics × points asked for)
+TIMELINE_VARIANTS = 8  # whole timelines kept per recording (topics × points asked for)
+# Pieces of timelines kept per recording (the review page's: a handful per load, the same
+# ranges each time; other ranges asked for push the oldest out).
+TIMELINE_PIECES = 32
 MAX_PAGE = 200  # recordings per page of the list
 DEFAULT_PAGE = 50
 # A tokenless reader's page of the list is the one encoded at most this long ago (s), a
@@ -62,6 +74,11 @@ class RecordingIdTooLong(TelerobotError):
 class RecordingActive(TelerobotError):
     code = "recording_active"
     http_status = 409
+
+
+class RangeRefused(TelerobotError):
+    code = "timeline_range_refused"
+    http_status = 422
 
 
 ActiveEntry = Callable[[], dict[str, Any] | None]
@@ -266,14 +283,30 @@ class RecordingLibrary:
             return False
 
     async def timeline(
-        self, recording_id: str, topics: list[str], max_points: int, *, peer: str, privileged: bool
+        self,
+        recording_id: str,
+        topics: list[str],
+        max_points: int,
+        *,
+        start_s: float | None = None,
+        end_s: float | None = None,
+        peer: str,
+        privileged: bool,
     ) -> Path:
-        """The timeline's JSON file: kept, or made now by a job."""
+        """The timeline's JSON file, or a piece of it (``start_s``/``end_s``): kept, or
+        made now by a job."""
         path = await asyncio.to_thread(self.path, recording_id)
         mask = sum(1 << REVIEW_TOPICS.index(t) for t in set(topics))
         cache = await asyncio.to_thread(self._review)
-        # (v2: client ids replaced by aliases; a v1 file kept from before is not served)
-        out = cache / f"{path.stem}.timeline-v2-{max_points}-{mask}.json"
+        # (v3: range_start and range_end said; v2: client ids replaced by aliases. A file
+        # kept from before is not served.)
+        whole = start_s is None and end_s is None
+        if whole:
+            out = cache / f"{path.stem}.timeline-v3-{max_points}-{mask}.json"
+        else:
+            lo = 0 if start_s is None else round(start_s * 1e9)
+            hi = "end" if end_s is None else round(end_s * 1e9)
+            out = cache / f"{path.stem}.piece-v3-{max_points}-{mask}-{lo}-{hi}.json"
         if await asyncio.to_thread(self._fresh, out, path):
             return out
         if not privileged:
@@ -283,34 +316,63 @@ class RecordingLibrary:
             "path": str(path),
             "topics": topics,
             "max_points": max_points,
+            "start_s": start_s,
+            "end_s": end_s,
+            # what a piece learnt of the chunks before it, for the next piece
+            "walk": str(cache / f"{path.stem}.walk-v1.json"),
             "out": str(out),
         }
-        await self.jobs.run(str(out), request, privileged=privileged)
-        await asyncio.to_thread(self._keep_newest_timelines, path.stem, out)
+        # A review page's first plots right after its picture; the rest of it after both.
+        first = not start_s
+        await self.jobs.run(
+            str(out), request, privileged=privileged, priority=NEXT if first else LATER
+        )
+        if whole:
+            await asyncio.to_thread(
+                self._keep_newest, path.stem, "timeline", out, TIMELINE_VARIANTS
+            )
+        else:
+            await asyncio.to_thread(self._keep_newest, path.stem, "piece", out, TIMELINE_PIECES)
         return out
 
-    def _keep_newest_timelines(self, stem: str, keep: Path) -> None:
+    def _keep_newest(self, stem: str, kind: str, keep: Path, count: int) -> None:
         made = sorted(
-            (self.folder / REVIEW_DIR).glob(f"{glob_escape(stem)}.timeline-*.json"),
+            (self.folder / REVIEW_DIR).glob(f"{glob_escape(stem)}.{kind}-*.json"),
             key=lambda p: p.stat().st_mtime_ns if p.exists() else 0,
             reverse=True,
         )
-        for old in [p for p in made if p != keep][TIMELINE_VARIANTS - 1 :]:
+        for old in [p for p in made if p != keep][count - 1 :]:
             with contextlib.suppress(OSError):
                 old.unlink()
 
     async def mp4(self, recording_id: str, *, peer: str, privileged: bool) -> Path:
-        """The recorded video as an MP4: kept, or remuxed now by a job."""
+        """The recorded video as an MP4: kept, or remuxed now by a job. A recording its
+        index says holds no video is answered so at once (the review page asks for the
+        video before it knows: no job, and no job's budget, for nothing)."""
         path = await asyncio.to_thread(self.path, recording_id)
         out = await asyncio.to_thread(lambda: self._review() / f"{path.stem}.mp4")
         if await asyncio.to_thread(self._fresh, out, path):
             return out
+        if await asyncio.to_thread(self._indexed_without_video, path):
+            raise RecordingHasNoVideo(f"{path.name} holds no video")
         if not privileged:
             self.budgets.job(peer)
-        await self.jobs.run(
-            str(out), {"kind": "mp4", "path": str(path), "out": str(out)}, privileged=privileged
+        await self.jobs.run(  # a review page's first picture: before what waits with it
+            str(out),
+            {"kind": "mp4", "path": str(path), "out": str(out)},
+            privileged=privileged,
+            priority=FIRST,
         )
         return out
+
+    def _indexed_without_video(self, path: Path) -> bool:
+        """Whether the recording's index entry counts its topics and no video among them."""
+        try:
+            entry = self.index.lookup(path.name, path.stat())
+        except OSError:
+            return False
+        counts = (entry or {}).get("counts") or {}
+        return 0 < len(counts) < MAX_TOPICS and VIDEO_TOPIC not in counts
 
     def forget(self, file: str) -> None:
         """A recording deleted: its index entry and what the review made of it go too."""

@@ -15,7 +15,9 @@ a smaller one of reads that start a job (``JOBS_PER_S``: what
 is not kept yet), as ``/ws`` budgets connections (``backend/realtime/ratelimit.py``);
 at most ``MAX_WAITING`` jobs wait behind the running one for clients without the
 operator token (the operator's wait however long the line is). A job already running
-or waiting for the same result is shared, not repeated.
+or waiting for the same result is shared, not repeated. Waiting jobs run in the order
+of their priority, then of their asking (``FIRST``: the review's video, what a review
+page shows first; ``NEXT``: a timeline's first piece; ``LATER``: the rest).
 
 ``python -m telerobot.server.recording.readjobs`` is the job's process: one JSON request on
 stdin, one JSON answer on stdout; it ends when its stdin closes (the server gone).
@@ -25,6 +27,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import heapq
+import itertools
 import json
 import logging
 import math
@@ -70,7 +74,10 @@ ALL_READS_PER_S = 15.0
 ALL_READ_BURST = 60
 ALL = "*"  # the shared budget's key
 JOBS_PER_S = 0.5  # reads that start a job, from one address…
-JOB_BURST = 8  # …after a burst (a review page: its list, timeline and MP4; a few of them)
+JOB_BURST = 8  # …after a burst (a review page: its list, MP4 and timeline's 3-6 pieces)
+# The order jobs wait in (issue 55: a review page's first picture, then its first plots,
+# were behind whatever was asked before them).
+FIRST, NEXT, LATER = 0, 1, 2
 
 
 class TooManyReads(TelerobotError):
@@ -155,12 +162,16 @@ class ReadJobs:
     def __init__(self, *, timeout_s: float = JOB_TIMEOUT_S, max_waiting: int = MAX_WAITING) -> None:
         self.timeout_s = timeout_s
         self.max_waiting = max_waiting
-        self._running: asyncio.Lock | None = None
+        self._busy = False  # a job is running
+        self._line: list[tuple[int, int, asyncio.Future[None]]] = []  # (priority, seq, go)
+        self._seq = itertools.count()
         self._jobs: dict[str, asyncio.Task[dict[str, Any]]] = {}
         self._waiting = 0
         self.started = 0  # processes started (tests count them)
 
-    async def run(self, key: str, request: dict[str, Any], *, privileged: bool) -> dict[str, Any]:
+    async def run(
+        self, key: str, request: dict[str, Any], *, privileged: bool, priority: int = LATER
+    ) -> dict[str, Any]:
         """The job's answer: shared with a job of the same ``key`` under way."""
         task = self._jobs.get(key)
         if task is None:
@@ -168,7 +179,7 @@ class ReadJobs:
                 raise ReadsBusy(
                     f"{self._waiting} reads of recordings are waiting: try again shortly"
                 )
-            task = asyncio.get_running_loop().create_task(self._queued(request))
+            task = asyncio.get_running_loop().create_task(self._queued(request, priority))
             self._jobs[key] = task
             task.add_done_callback(lambda t: self._done(key, t))
         return await asyncio.shield(task)  # a client that goes away leaves it to the others
@@ -179,18 +190,52 @@ class ReadJobs:
         if not task.cancelled():
             task.exception()  # retrieved: nobody may be left to await it
 
-    async def _queued(self, request: dict[str, Any]) -> dict[str, Any]:
-        if self._running is None:
-            self._running = asyncio.Lock()
-        self._waiting += 1
+    async def _turn(self, priority: int) -> None:
+        """Returns when it is this job's turn (the running one ended, and no job of a
+        higher priority, or asked earlier at this one, is waiting)."""
+        if not self._busy and not self._line:
+            self._busy = True
+            return
+        go: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        entry = (priority, next(self._seq), go)
+        heapq.heappush(self._line, entry)
         try:
-            await self._running.acquire()
+            await go
+        except asyncio.CancelledError:
+            if go.done() and not go.cancelled():  # its turn had come: pass it on
+                self._next()
+            elif entry in self._line:
+                self._line.remove(entry)
+                heapq.heapify(self._line)
+            raise
+
+    def _next(self) -> None:
+        """The running job ended: the next one's turn."""
+        while self._line:
+            _p, _s, go = heapq.heappop(self._line)
+            if not go.done():
+                go.set_result(None)
+                return
+        self._busy = False
+
+    async def _queued(self, request: dict[str, Any], priority: int) -> dict[str, Any]:
+        self._waiting += 1
+        asked = time.monotonic()
+        try:
+            await self._turn(priority)
         finally:
             self._waiting -= 1
+        started = time.monotonic()
         try:
             return await self._in_process(request)
         finally:
-            self._running.release()
+            self._next()
+            log.info(
+                "recording read job %s: %.2f s (after %.2f s waiting)",
+                _what(request),
+                time.monotonic() - started,
+                started - asked,
+            )
 
     async def _in_process(self, request: dict[str, Any]) -> dict[str, Any]:
         self.started += 1
@@ -240,6 +285,17 @@ class ReadJobs:
             raise ERRORS.get(error.get("code"), ReadFailed)(str(error.get("detail")))
         result: dict[str, Any] = answer
         return result
+
+
+def _what(request: dict[str, Any]) -> str:
+    """A job in a few words, for the log: its kind, its file, a timeline's range."""
+    name = Path(str(request.get("path") or "")).name or f"{len(request.get('paths', []))} files"
+    start, end = request.get("start_s"), request.get("end_s")
+    if start is not None or end is not None:
+        return (
+            f"{request['kind']} {start or 0:g}-{'end' if end is None else f'{end:g}'} s of {name}"
+        )
+    return f"{request['kind']} of {name}"
 
 
 def _start(argv: list[str], env: dict[str, str], line: bytes) -> subprocess.Popen[bytes]:
@@ -319,7 +375,14 @@ def do(request: dict[str, Any]) -> dict[str, Any]:
     if kind == "timeline":
         from telerobot.server.recording.timeline import timeline
 
-        result = timeline(request["path"], request["topics"], request["max_points"])
+        result = timeline(
+            request["path"],
+            request["topics"],
+            request["max_points"],
+            request.get("start_s"),
+            request.get("end_s"),
+            walk=request.get("walk"),
+        )
         _write_atomically(Path(request["out"]), _json(result))
         return {"written": request["out"]}
     if kind == "mp4":

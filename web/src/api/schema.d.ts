@@ -1009,7 +1009,11 @@ export interface paths {
          * Recording Timeline
          * @description The recording's channels on one timeline (s from its first message): forces and
          *     states decimated to ``max_points`` each, events (commands, safety, episodes,
-         *     calibration) as they are, up to 5000 each.
+         *     calibration) as they are, up to 5000 each. With ``start_s``/``end_s``, a piece of
+         *     it: the messages logged in that range, kept as the whole timeline keeps them (the
+         *     same ``max_points`` asked of every piece of a partition: the pieces end to end are
+         *     the whole). Each piece is made once and kept; on a file with its summary it reads
+         *     only the part of the file it needs.
          */
         get: operations["recording_timeline_api_v1_recordings__recording_id__timeline_get"];
         put?: never;
@@ -2616,13 +2620,24 @@ export interface components {
             };
             /**
              * Topics
-             * @description per topic, its messages (decimated) with `time` (timeline s) added
+             * @description per topic, its messages (decimated) with `time` (timeline s) added: those logged in [range_start, range_end)
              */
             topics: {
                 [key: string]: {
                     [key: string]: unknown;
                 }[];
             };
+            /**
+             * Range Start
+             * @description timeline s: the first time this answer holds
+             * @default 0
+             */
+            range_start: number;
+            /**
+             * Range End
+             * @description timeline s: the messages logged before this (the whole: the duration, its last message included)
+             */
+            range_end: number;
         };
         /** ValidationError */
         ValidationError: {
@@ -4433,6 +4448,10 @@ export interface operations {
             query?: {
                 topics?: string[] | null;
                 max_points?: number;
+                /** @description a piece: from this timeline s (none: 0) */
+                start_s?: number | null;
+                /** @description a piece: up to this timeline s, not included (none: to the end) */
+                end_s?: number | null;
             };
             header?: never;
             path: {
