@@ -9,6 +9,7 @@ same order as the ``mcap`` package's reader."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 from collections.abc import Iterator
@@ -334,3 +335,54 @@ def test_a_chunk_not_where_its_index_says_is_refused_as_damaged(tmp_path: Path) 
     path.write_bytes(bytes(data))
     with pytest.raises(reader.UnreadableRecording, match="damaged where its index points"):
         list(read_raw(path))
+
+
+# ---------------------------------------------------------------- the jobs' order
+class _Recorded(readjobs.ReadJobs):
+    """Jobs that record the order they ran in and end when told (no process)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ran: list[str] = []
+        self.started: dict[str, asyncio.Event] = {}
+        self.release: dict[str, asyncio.Event] = {}
+
+    def event(self, events: dict[str, asyncio.Event], name: str) -> asyncio.Event:
+        return events.setdefault(name, asyncio.Event())
+
+    async def _in_process(self, request: dict[str, Any]) -> dict[str, Any]:
+        self.ran.append(request["name"])
+        self.event(self.started, request["name"]).set()
+        await self.event(self.release, request["name"]).wait()
+        return {"name": request["name"]}
+
+
+async def test_waiting_jobs_run_by_priority_then_in_the_order_asked() -> None:
+    """The review's video before the timeline's first piece before the rest, whatever
+    order they were asked in; a job whose waiter goes away does not hold the line."""
+    jobs = _Recorded()
+
+    def ask(name: str, priority: int) -> asyncio.Task[dict[str, Any]]:
+        return asyncio.ensure_future(
+            jobs.run(name, {"name": name}, privileged=True, priority=priority)
+        )
+
+    async def finish(name: str) -> None:
+        await asyncio.wait_for(jobs.event(jobs.started, name).wait(), 10)
+        jobs.event(jobs.release, name).set()
+
+    running = ask("list", readjobs.LATER)
+    await asyncio.sleep(0)
+    later = [ask("piece 2", readjobs.LATER), ask("piece 3", readjobs.LATER)]
+    first_piece = ask("piece 1", readjobs.NEXT)
+    video = ask("video", readjobs.FIRST)
+    gone = ask("gone", readjobs.FIRST)
+    await asyncio.sleep(0)
+    jobs._jobs["gone"].cancel()  # (its client gone and the job with it: server shutting down)
+    for name in ("list", "video", "piece 1", "piece 2", "piece 3"):
+        await finish(name)
+    await asyncio.gather(running, video, first_piece, *later)
+    assert jobs.ran == ["list", "video", "piece 1", "piece 2", "piece 3"]
+    with pytest.raises(asyncio.CancelledError):
+        await gone
+    assert not jobs._busy and not jobs._line

@@ -290,12 +290,10 @@ class ReadJobs:
 def _what(request: dict[str, Any]) -> str:
     """A job in a few words, for the log: its kind, its file, a timeline's range."""
     name = Path(str(request.get("path") or "")).name or f"{len(request.get('paths', []))} files"
-    start, end = request.get("start_s"), request.get("end_s")
+    kind, start, end = request.get("kind"), request.get("start_s"), request.get("end_s")
     if start is not None or end is not None:
-        return (
-            f"{request['kind']} {start or 0:g}-{'end' if end is None else f'{end:g}'} s of {name}"
-        )
-    return f"{request['kind']} of {name}"
+        return f"{kind} {start or 0:g}-{'end' if end is None else f'{end:g}'} s of {name}"
+    return f"{kind} of {name}"
 
 
 def _start(argv: list[str], env: dict[str, str], line: bytes) -> subprocess.Popen[bytes]:
