@@ -76,7 +76,8 @@ def telerobot_process(
                     f"no line matching {wait_for!r} within {timeout} s:\n{''.join(seen)}"
                 )
         if drain:  # keep reading its output so a chatty server never blocks on a full pipe
-            threading.Thread(target=lambda: [None for _ in proc.stdout or []], daemon=True).start()
+            # (BENCH_SERVER_LOG=FILE: kept there, for a closer look at a bench's server)
+            threading.Thread(target=_drain, args=(proc, seen), daemon=True).start()
         yield proc, match
     finally:
         proc.terminate()
@@ -84,6 +85,19 @@ def telerobot_process(
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def _drain(proc: subprocess.Popen[str], seen: list[str]) -> None:
+    path = os.environ.get("BENCH_SERVER_LOG")
+    if not path:
+        for _ in proc.stdout or []:
+            pass
+        return
+    with open(path, "a") as log:
+        log.writelines(seen)
+        for line in proc.stdout or []:
+            log.write(line)
+            log.flush()
 
 
 SERVED = r"https?://(\S+?):(\d+)/"  # the URL `telerobot serve` prints: host, port

@@ -87,7 +87,14 @@ class MediaSupervisor:
         self._ready.clear()
         self._proc = self._ctx.Process(
             target=worker_main,
-            args=(child, self.settings.model_dump_json(), self._arms, video_out),
+            # (without the operator token: the worker needs none, and a SecretStr
+            # dumps as asterisks, which the worker's settings would refuse)
+            args=(
+                child,
+                self.settings.model_dump_json(exclude={"operator_token"}),
+                self._arms,
+                video_out,
+            ),
             name="telerobot-media",
             daemon=True,
         )
