@@ -9,6 +9,8 @@ import { formatTime } from "./timeline";
 
 export interface CommandLogHandle {
   update(t: number): void;
+  /** Lists the commands the timeline's last piece brought. */
+  grow(): void;
   testView: Pick<ReviewTestView, "commands">;
 }
 
@@ -21,20 +23,28 @@ export function commandLine(c: RecordedCommand, several: boolean): string {
 
 export function setupCommandLog({ recording }: ReviewContext): CommandLogHandle {
   const list = $("review-commands");
-  const rows = recording.commands.map((c) => {
-    const li = document.createElement("li");
-    li.textContent = commandLine(c, recording.several);
-    if (!c.accepted) li.classList.add("refused");
-    list.append(li);
-    return li;
-  });
-  list.hidden = rows.length === 0;
+  const rows: HTMLLIElement[] = [];
   const greyed = new CursorRows(recording.commands, rows);
+  const testView = { commands: 0 };
+  const grow = () => {
+    for (const c of recording.commands.slice(rows.length)) {
+      const li = document.createElement("li");
+      li.textContent = commandLine(c, recording.several);
+      if (!c.accepted) li.classList.add("refused");
+      list.append(li);
+      rows.push(li);
+    }
+    list.hidden = rows.length === 0;
+    testView.commands = rows.length;
+    greyed.again();
+  };
+  grow();
   return {
     update(t) {
       const at = greyed.update(t);
       if (at !== null) rows[at]?.scrollIntoView({ block: "nearest" });
     },
-    testView: { commands: recording.commands.length },
+    grow,
+    testView,
   };
 }

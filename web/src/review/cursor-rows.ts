@@ -17,6 +17,11 @@ export class CursorRows {
     private readonly rows: readonly GreyableRow[],
   ) {}
 
+  /** Rows were added (the timeline's next piece): the next update greys them all again. */
+  again(): void {
+    this.shown = -2;
+  }
+
   /** Greys the rows after timeline time t. The row at t (-1: before the first) if that
    * changed, else null. */
   update(t: number): number | null {

@@ -11,6 +11,8 @@ const FORCE_COLOURS = ["#e44", "#4c4", "#48f", "#e9e", "#ee4", "#4ee"];
 
 export interface ForcePlotHandle {
   update(t: number): void;
+  /** The plot's scale and extent again (the timeline's last piece brought more). */
+  grow(): void;
   testView: Pick<ReviewTestView, "forces">;
 }
 
@@ -30,12 +32,18 @@ export function bandLabel(arm: string | null, range: number): string {
 }
 
 export function setupForcePlot({ recording }: ReviewContext): ForcePlotHandle {
-  const { armForces, arms, several, duration } = recording;
+  const { armForces, arms, several } = recording; // (grown in place)
   const plot = $<HTMLCanvasElement>("review-force");
   const context = plot.getContext("2d");
-  const forces = armForces.flat();
-  const range = forceRange(forces);
-  plot.hidden = forces.length === 0; // no force sensor recorded: no empty plot
+  let range = 1;
+  const testView = { forces: 0 };
+  const grow = () => {
+    const forces = armForces.flat();
+    range = forceRange(forces);
+    plot.hidden = forces.length === 0; // no force sensor recorded: no empty plot
+    testView.forces = forces.length;
+  };
+  grow();
   // Several arms: the plot twice as tall, a band for each arm's forces.
   if (several) plot.height = plot.height * Math.min(arms.length, 4);
   return {
@@ -43,7 +51,7 @@ export function setupForcePlot({ recording }: ReviewContext): ForcePlotHandle {
       if (!context) return;
       const { width: w, height: h } = plot;
       context.clearRect(0, 0, w, h);
-      const x = plotX(duration, w);
+      const x = plotX(recording.duration, w);
       armForces.forEach((series, k) => {
         const band = forceBand(k, armForces.length, h);
         drawBand(context, series, x, bandY(band, range));
@@ -56,7 +64,8 @@ export function setupForcePlot({ recording }: ReviewContext): ForcePlotHandle {
       context.lineTo(x(t), h);
       context.stroke();
     },
-    testView: { forces: forces.length },
+    grow,
+    testView,
   };
 }
 

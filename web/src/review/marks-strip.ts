@@ -22,6 +22,8 @@ export interface StripMark {
 
 export interface MarksStripHandle {
   update(t: number): void;
+  /** Draws the strip and the list again (the timeline's last piece brought more). */
+  grow(): void;
   testView: Pick<ReviewTestView, "episodes" | "safety" | "drove">;
 }
 
@@ -42,25 +44,32 @@ export function stripMarks(episodes: readonly ReviewEpisode[], safety: readonly 
 }
 
 export function setupMarksStrip({ recording }: ReviewContext, seekTo: (t: number) => void): MarksStripHandle {
-  const { episodes, safety, drove, duration } = recording;
-  const cursor = drawStrip(stripMarks(episodes, safety, drove, duration), seekTo);
+  const { episodes, safety, drove } = recording; // (grown in place)
   const eventList = $("review-events");
-  const events = markRows(episodes, safety);
-  const rows = events.map((r) => {
-    const li = document.createElement("li");
-    li.className = r.kind;
-    li.textContent = r.text;
-    li.onclick = () => seekTo(r.time);
-    eventList.append(li);
-    return li;
-  });
-  eventList.hidden = rows.length === 0;
-  const greyed = new CursorRows(events, rows);
+  let cursor: HTMLElement;
+  let greyed: CursorRows;
+  const draw = () => {
+    cursor = drawStrip(stripMarks(episodes, safety, drove, recording.duration), seekTo);
+    const events = markRows(episodes, safety);
+    eventList.replaceChildren();
+    const rows = events.map((r) => {
+      const li = document.createElement("li");
+      li.className = r.kind;
+      li.textContent = r.text;
+      li.onclick = () => seekTo(r.time);
+      eventList.append(li);
+      return li;
+    });
+    eventList.hidden = rows.length === 0;
+    greyed = new CursorRows(events, rows);
+  };
+  draw();
   return {
     update(t) {
-      cursor.style.left = `${spanOf(t, t, duration).left}%`;
+      cursor.style.left = `${spanOf(t, t, recording.duration).left}%`;
       greyed.update(t);
     },
+    grow: draw,
     testView: { episodes, safety, drove },
   };
 }
@@ -68,6 +77,7 @@ export function setupMarksStrip({ recording }: ReviewContext, seekTo: (t: number
 /** Puts the marks on the strip (none: the strip hidden), the cursor over them; the cursor. */
 function drawStrip(marks: readonly StripMark[], seekTo: (t: number) => void): HTMLElement {
   const strip = $("review-marks");
+  strip.replaceChildren();
   const cursor = document.createElement("div");
   cursor.className = "cursor";
   for (const m of marks) {

@@ -3,11 +3,19 @@
 // it — without the cameras' timecode stripe (review/frame.ts) — with play/pause, 0.25–4×
 // speed and a seek slider on the recording's timeline. Without video, the slider is the
 // time and there is no picture.
+// Set up before the timeline (issue 55): the video is asked for at once, its picture
+// shown as soon as it comes; the recording's length and the video's place on the
+// timeline are known from the timeline's first piece (know()); until then the video's own
+// time is the cursor's.
+import type { MessageLog } from "../api";
 import { $ } from "../ui/dom";
 import { shownFrame } from "./frame";
-import { hasVideo, type ReviewContext } from "./recording";
+import { hasVideo, type ReviewRecording } from "./recording";
 import type { ReviewTestView } from "./test-view";
 import { SPEEDS, formatTime, timelineOf, videoTimeOf } from "./timeline";
+
+/** What the player needs of the recording (from the timeline's first piece). */
+type Known = Pick<ReviewRecording, "duration" | "videoStart">;
 
 /** The part of each frame shown, and the canvas's size: `crop` rows cut at the top. */
 export interface ShownFrame {
@@ -34,7 +42,10 @@ export interface PlayerHandle {
   /** Draws the video's current frame, cropped, on the canvas; false while there is none
    * (nothing to draw over). */
   drawPicture(): boolean;
-  testView: Pick<ReviewTestView, "video" | "frame">;
+  /** The recording's length and its video's start are known (the timeline's first
+   * piece): the slider spans it; a recording without video shows no picture. */
+  know(recording: Known): void;
+  testView: Pick<ReviewTestView, "video" | "frame" | "pictures">;
 }
 
 /** The timeline time at the cursor: the video's time on the timeline, or without video the slider's value. */
@@ -42,51 +53,64 @@ export function cursorTime(videoStart: number | null | undefined, sliderValue: n
   return videoStart === null || videoStart === undefined ? sliderValue : timelineOf(videoTime, videoStart);
 }
 
-export function setupPlayer({ recording, log }: ReviewContext): PlayerHandle {
+export function setupPlayer(id: string, log: MessageLog): PlayerHandle {
   const video = $<HTMLVideoElement>("review-video");
   const canvas = $<HTMLCanvasElement>("review-view");
   const context = canvas.getContext("2d");
   const seek = $<HTMLInputElement>("review-seek");
   const time = $("review-time");
-  const withVideo = hasVideo(recording);
-  setupControls(video, seek, recording);
-  if (withVideo) {
-    video.src = `${location.origin}/api/v1/recordings/${encodeURIComponent(recording.id)}/video.mp4`;
-    video.onerror = () => log.add(`video: ${video.error?.message ?? "cannot play"}`, true);
-  } else log.add("this recording has no video");
-  canvas.hidden = !withVideo; // not a black box where there is no picture
+  let known: Known | null = null;
+  let withVideo = true; // until the timeline says otherwise: asked for at once
+  const videoStart = () => (known ? known.videoStart : 0); // before: the video's own time
+  setupControls(video, seek, videoStart);
+  video.src = `${location.origin}/api/v1/recordings/${encodeURIComponent(id)}/video.mp4`;
+  video.onerror = () => {
+    if (withVideo) log.add(`video: ${video.error?.message ?? "cannot play"}`, true);
+  };
   // The part of each frame shown: the rows below the timecode stripe (as the live page).
   const shown: ShownFrame = { crop: 0, width: canvas.width, height: canvas.height };
+  const pictures = { drawn: 0 };
   video.onloadedmetadata = () => {
     Object.assign(shown, shownFrame(video.videoWidth, video.videoHeight));
     canvas.width = shown.width;
     canvas.height = shown.height;
+    if (!known && Number.isFinite(video.duration)) seek.max = String(video.duration);
   };
   return {
     picture: { canvas, context, shown },
-    cursorTime: () => cursorTime(recording.videoStart, Number(seek.value), video.currentTime),
+    cursorTime: () => cursorTime(videoStart(), Number(seek.value), video.currentTime),
     seekTo(t) {
       seek.value = String(t);
-      if (withVideo) video.currentTime = videoTimeOf(t, recording.videoStart, video.duration);
+      if (withVideo) video.currentTime = videoTimeOf(t, videoStart(), video.duration);
     },
     update(t) {
       if (document.activeElement !== seek) seek.value = String(t);
-      time.textContent = `${formatTime(t)} / ${formatTime(recording.duration)}`;
+      time.textContent = `${formatTime(t)} / ${known ? formatTime(known.duration) : "…"}`;
     },
     drawPicture() {
-      if (!context || video.readyState < 2) return false;
+      if (!withVideo || !context || video.readyState < 2) return false;
       context.drawImage(video, 0, shown.crop, shown.width, shown.height, 0, 0, canvas.width, canvas.height);
+      pictures.drawn++;
       return true;
     },
-    testView: { video, frame: shown },
+    know(recording) {
+      known = recording;
+      seek.max = String(recording.duration);
+      if (hasVideo(recording)) return;
+      withVideo = false;
+      log.add("this recording has no video");
+      canvas.hidden = true; // not a black box where there is no picture
+      video.removeAttribute("src");
+      video.load();
+    },
+    testView: { video, frame: shown, pictures },
   };
 }
 
 /** Play/pause, the speeds and the seek slider, on the recording's timeline. */
-function setupControls(video: HTMLVideoElement, seek: HTMLInputElement, recording: ReviewContext["recording"]): void {
+function setupControls(video: HTMLVideoElement, seek: HTMLInputElement, videoStart: () => number | null | undefined): void {
   const play = $<HTMLButtonElement>("review-play");
   const speed = $<HTMLSelectElement>("review-speed");
-  seek.max = String(recording.duration);
   for (const s of SPEEDS) {
     const o = document.createElement("option");
     o.value = String(s);
@@ -99,6 +123,6 @@ function setupControls(video: HTMLVideoElement, seek: HTMLInputElement, recordin
   video.onplay = () => (play.textContent = "Pause");
   video.onpause = () => (play.textContent = "Play");
   seek.oninput = () => {
-    video.currentTime = videoTimeOf(Number(seek.value), recording.videoStart, video.duration);
+    video.currentTime = videoTimeOf(Number(seek.value), videoStart(), video.duration);
   };
 }

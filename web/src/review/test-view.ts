@@ -1,7 +1,10 @@
 // What the review page shows its browser tests as `window.review` (read by
-// tests/test_web_review.py, tests/test_web_review_arms.py and tests/test_web_recording.py):
-// each part of the page gives its fields as its handle's `testView`, and review.ts puts
-// them together here, in one object. Renaming or reshaping a field breaks those tests.
+// tests/test_web_review.py, tests/test_web_review_arms.py, tests/test_web_recording.py and
+// tests/test_web_review_loading.py): each part of the page gives its fields as its
+// handle's `testView`, and review.ts puts them together here, in one object, again as
+// each piece of the timeline comes (the player's and the loading's first: before any).
+// Renaming or reshaping a field breaks those tests.
+import type { LoadState } from "./loading";
 import type { OverlayPixels } from "./overlay";
 import type { ShownFrame } from "./player";
 import type { DroveSpan, ReviewEpisode, SafetyMark } from "./marks";
@@ -34,6 +37,11 @@ export interface ReviewTestView {
   frame: ShownFrame;
   /** Each recorded arm: its name, and how many states and force samples it has. */
   arms: { name: string; states: number; forces: number }[];
+  /** How many times a video frame was drawn on the canvas (live: the same object all along). */
+  pictures: { drawn: number };
+  /** What the loading indicator shows: the timeline's seconds loaded, the video's state
+   * (live: the same object all along). */
+  loading: LoadState;
 }
 
 /** The recording's own fields of the test view (its length, its video, its arms). */

@@ -35,7 +35,9 @@ export function forceRange(samples: readonly { values: readonly number[] }[]): n
   return m;
 }
 
+/** "m:ss.s", rounded to a tenth first (119.97 s is 2:00.0, not 1:60.0). */
 export function formatTime(s: number): string {
-  const m = Math.floor(s / 60);
-  return `${m}:${(s - m * 60).toFixed(1).padStart(4, "0")}`;
+  const tenths = Math.round(s * 10);
+  const m = Math.floor(tenths / 600);
+  return `${m}:${((tenths - m * 600) / 10).toFixed(1).padStart(4, "0")}`;
 }
