@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 from mcap.reader import make_reader
-from mcap.writer import Writer
+from mcap.writer import CompressionType, Writer
 
 from harness.recordings import build
 from telerobot.server.app import create_app
@@ -295,11 +295,11 @@ def _mcap_read(path: Path, topics: list[str] | None, in_file_order: bool) -> lis
         ]
 
 
-def _overlapping_chunks(path: Path) -> Path:
+def _overlapping_chunks(path: Path, compression: CompressionType = CompressionType.ZSTD) -> Path:
     """Chunks whose times overlap (messages written out of time order, as threads racing
     by a few µs do, far more here), two channels, equal times."""
     with path.open("wb") as f:
-        w = Writer(f, chunk_size=300)
+        w = Writer(f, chunk_size=300, compression=compression)
         w.start(profile="", library="test")
         s = w.register_schema("s", "jsonschema", b"{}")
         a = w.register_channel("/a", "json", s)
@@ -316,14 +316,30 @@ def _overlapping_chunks(path: Path) -> Path:
 def test_the_indexed_reader_reads_what_the_mcap_package_reads(
     tmp_path: Path, long_recording: Path, in_file_order: bool, topics: list[str] | None
 ) -> None:
-    scrambled = _overlapping_chunks(tmp_path / "scrambled.mcap")
-    got = list(read_raw(scrambled, topics, in_file_order=in_file_order))
-    assert got == _mcap_read(scrambled, topics, in_file_order)
-    assert len(got) > 100 or topics is not None
+    for compression in CompressionType:  # zstd (the recorder's), lz4, none
+        scrambled = _overlapping_chunks(tmp_path / f"{compression.name}.mcap", compression)
+        got = list(read_raw(scrambled, topics, in_file_order=in_file_order))
+        assert got == _mcap_read(scrambled, topics, in_file_order)
+        assert len(got) > 100 or topics is not None
     real = ["/force", "/video/stereo"] if topics else None
     assert list(read_raw(long_recording, real, in_file_order=in_file_order)) == _mcap_read(
         long_recording, real, in_file_order
     )
+
+
+def test_a_chunk_that_inflates_past_what_its_index_says_is_refused(tmp_path: Path) -> None:
+    """A crafted file cannot make the reader allocate more than its index admits."""
+    path = _overlapping_chunks(tmp_path / "r.mcap")
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    first = min(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    data = bytearray(path.read_bytes())
+    at = first.chunk_start_offset + 1 + 8 + 8 + 8  # the chunk's uncompressed size
+    data[at : at + 8] = (first.uncompressed_size - 10).to_bytes(8, "little")
+    path.write_bytes(bytes(data))
+    with pytest.raises(reader.UnreadableRecording, match="damaged"):
+        list(read_raw(path))
 
 
 def test_a_chunk_not_where_its_index_says_is_refused_as_damaged(tmp_path: Path) -> None:

@@ -206,16 +206,19 @@ class IndexedRecording:
 
 
 def _inflate(compression: str, body: bytes, size: int) -> bytes:
+    """A chunk's records, inflated to at most the size its index says (one byte more
+    tells it lied): a crafted chunk cannot make the reader allocate more."""
     if compression == "":
         return body
     if compression == "zstd":
         import zstandard
 
-        out: bytes = zstandard.decompress(body, size)
+        with zstandard.ZstdDecompressor().stream_reader(body) as inflating:
+            out: bytes = inflating.read(size + 1)
     elif compression == "lz4":
         import lz4.frame  # type: ignore[import-untyped]
 
-        out = lz4.frame.decompress(body)
+        out = lz4.frame.LZ4FrameDecompressor().decompress(body, max_length=size + 1)
     else:
         raise ValueError(f"a chunk compressed with {compression[:20]!r}")
     if len(out) != size:
