@@ -43,6 +43,8 @@ export interface CommandLink {
   lease(action: number): void;
   wantControl(on: boolean): void;
   estop(): void;
+  /** The dead-man (a key, the gamepad's, an XR grip) was pressed or let go. */
+  deadman?(held: boolean): void;
 }
 /** The local model that shows each command at once. */
 export interface CommandPredictor {
@@ -127,6 +129,7 @@ export class InputLoop {
   private xrHeld: boolean[] = [false];
   private heldTakeover = false; // this correction began by holding the dead-man or the grip
   private letGoAt: number | null = null;
+  private deadmanSaid = false; // what the link was told of the dead-man
 
   constructor(private readonly o: InputLoopOptions) {
     this.last = o.now;
@@ -239,7 +242,7 @@ export class InputLoop {
     const deadman = this.deadmen.some(Boolean);
     if (deadman && !this.deadmanWas) this.takeOverFromPolicy();
     this.deadmanWas = deadman;
-    this.handBackWhenLetGo(now);
+    this.afterFrame(now);
     const routing = routingText(this.armNames, this.routing);
     const inputState = `${pad.pad ? "gamepad" : "no gamepad"} · dead-man ${deadman ? "held" : "released"}${routing ? ` · ${routing}` : ""}`;
     if (inputState !== this.inputState) this.onInputState?.((this.inputState = inputState));
@@ -258,12 +261,12 @@ export class InputLoop {
       this.xr.update(false, [0, 0, 0], [0, 0, 0, 1], 0);
       this.gripWas = false;
       this.xrHeld = this.arms.map(() => false);
-      this.handBackWhenLetGo(now);
+      this.afterFrame(now);
       return;
     }
     if (controller.gripping && !this.gripWas) this.takeOverFromPolicy();
     this.gripWas = controller.gripping;
-    this.handBackWhenLetGo(now);
+    this.afterFrame(now);
     this.xrHeld = this.arms.map((_, i) => i === this.selected && controller.gripping);
     const delta = this.xr.update(controller.gripping, controller.position, controller.orientation, now / 1000);
     if (!delta || !this.hasControl) return;
@@ -280,7 +283,7 @@ export class InputLoop {
     const gripping = !!hands.left?.gripping || !!hands.right?.gripping;
     if (gripping && !this.gripWas) this.takeOverFromPolicy();
     this.gripWas = gripping;
-    this.handBackWhenLetGo(now);
+    this.afterFrame(now);
     this.xrHeld = this.arms.map((_, i) => (i === left && !!hands.left?.gripping) || (i === right && !!hands.right?.gripping));
     for (const hand of ["left", "right"] as const) {
       const r = hands[hand];
@@ -304,9 +307,13 @@ export class InputLoop {
     }
   }
 
-  /** A correction begun by holding hands back once the dead-man and the grip have both
+  /** After each frame's inputs: the link is told when the dead-man (or the grip) is
+   * pressed or let go (its worker keeps a stalled page's lease only while it is held);
+   * and a correction begun by holding hands back once the dead-man and the grip have both
    * been let go for HAND_BACK_MS (the server then gives control to the policy). */
-  private handBackWhenLetGo(now: number): void {
+  private afterFrame(now: number): void {
+    const held = this.deadmanWas || this.gripWas;
+    if (held !== this.deadmanSaid) this.o.link.deadman?.((this.deadmanSaid = held));
     if (!this.heldTakeover) return;
     if (this.deadmanWas || this.gripWas) {
       this.letGoAt = null;

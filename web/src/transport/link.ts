@@ -10,6 +10,7 @@ export type ToWorker =
   | { op: "connect"; url: string; token: string; timeOrigin: number }
   | { op: "alive" }
   | { op: "want-control"; on: boolean }
+  | { op: "deadman"; held: boolean }
   | { op: "visible"; on: boolean }
   | { op: "lease"; action: number }
   | { op: "estop" }
@@ -85,6 +86,12 @@ export class RealtimeLink implements LinkMeta {
   /** Ask for heartbeats while we want control (the worker also beats while we hold it). */
   wantControl(on: boolean): void {
     this.post({ op: "want-control", on });
+  }
+
+  /** The dead-man is held (or let go): while it is, a page that stands still keeps its
+   * lease once the server has stopped the arm (heartbeat.ts). */
+  deadman(held: boolean): void {
+    this.post({ op: "deadman", held });
   }
 
   lease(action: number): void {

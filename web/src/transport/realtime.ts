@@ -242,6 +242,11 @@ export class RealtimeClient {
     return this.clock.bestRtt;
   }
 
+  /** The server's clock is known (a PING came back this session): `offset` holds. */
+  get synced(): boolean {
+    return this.clock.synced;
+  }
+
   /** Now on the server's clock (what commands carry as client_time). */
   private serverNow(): number {
     return this.now() + this.clock.offset;

@@ -1,7 +1,7 @@
 // The realtime channel in its own thread: the WebSocket, the clock sync, the arrival
 // times of state and forces, and the dead-man heartbeat run here, where the page's
 // rendering cannot stall them. The page talks to it through RealtimeLink (link.ts).
-import { BeatRecord, HEARTBEAT_PERIOD_MS, TimerLateness, heartbeatSkip } from "./heartbeat";
+import { type BeatSkip, BeatRecord, HEARTBEAT_PERIOD_MS, PageSilence, TimerLateness } from "./heartbeat";
 import type { FromWorker, ToWorker } from "./link";
 import { StateFlags } from "./messages";
 import { RealtimeClient } from "./realtime";
@@ -15,7 +15,8 @@ let mainOrigin = 0; // the page's performance.timeOrigin: times go back on its c
 let wantControl = false;
 let hasControl = false;
 let visible = true;
-let pageSeen = performance.now();
+// The main thread's last check-in, its dead-man, and whether the server stopped the arm since.
+const page = new PageSilence(performance.now());
 const lateness = new TimerLateness();
 const beats = new BeatRecord();
 const pageGaps = new TimerLateness(); // between the main thread's messages
@@ -38,24 +39,34 @@ function meta(c: RealtimeClient) {
   };
 }
 
-function beat(): void {
+/** The heartbeat timer fired: a heartbeat if one is due (what it did is recorded). */
+function tick(): void {
   lateness.fired(performance.now(), HEARTBEAT_PERIOD_MS);
   if (!client) return;
-  const skip = heartbeatSkip({ now: performance.now(), wanted: visible && (wantControl || hasControl), lastSent: client.lastSent, pageSeen });
-  if (skip === null) client.heartbeat();
-  beats.fired(skip, client.lastSent);
+  beats.fired(beat(client), client.lastSent);
+}
+
+/** A heartbeat if one is due; why not otherwise. */
+function beat(c: RealtimeClient): BeatSkip | null {
+  const skip = page.skip(performance.now(), visible && (wantControl || hasControl), hasControl, c.lastSent);
+  if (skip === null) c.heartbeat();
+  return skip;
 }
 
 port.onmessage = (e) => {
   const m = e.data;
-  pageSeen = performance.now();
-  pageGaps.fired(pageSeen, 0);
+  page.checkIn(performance.now());
+  pageGaps.fired(page.seen, 0);
   if (m.op === "connect") {
     if (client) return;
     mainOrigin = m.timeOrigin;
     const c = (client = new RealtimeClient(m.url, m.token, {
       state: (state) => {
         hasControl = (state.flags & StateFlags.YOU_HAVE_CONTROL) !== 0;
+        // The server's news that it stopped the arm of a page silent past PAGE_SILENCE_MS:
+        // the heartbeats keep the lease from now (heartbeat.ts), the first one at once.
+        const at = c.synced ? (state.serverTime - c.offset) * 1000 : null; // this worker's clock
+        if (page.state(state.flags, at)) beat(c);
         port.postMessage({ kind: "state", state, at: pageNow(), meta: meta(c) });
       },
       forces: (samples, arm) => port.postMessage({ kind: "forces", samples, arm, at: pageNow() }),
@@ -67,7 +78,7 @@ port.onmessage = (e) => {
       welcome: () => port.postMessage({ kind: "welcome", meta: meta(c) }),
     }));
     c.connect();
-    setInterval(beat, HEARTBEAT_PERIOD_MS);
+    setInterval(tick, HEARTBEAT_PERIOD_MS);
     return;
   }
   if (!client) return;
@@ -77,6 +88,9 @@ port.onmessage = (e) => {
     case "want-control":
       wantControl = m.on;
       if (m.on) client.heartbeat();
+      break;
+    case "deadman":
+      page.deadman = m.held;
       break;
     case "visible":
       visible = m.on;
