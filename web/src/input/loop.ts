@@ -129,6 +129,11 @@ export class InputLoop {
   private xrHeld: boolean[] = [false];
   private heldTakeover = false; // this correction began by holding the dead-man or the grip
   private letGoAt: number | null = null;
+  // A take is on its way (take(), WANT_CONTROL_MS): a dead-man pressed meanwhile (T, then
+  // Space to drive, before the STATE says control came: seconds on a loaded machine)
+  // drives that correction; it does not make it one that letting go hands back.
+  private asking = false;
+  private asks = 0; // takes so far: the latest one's WANT_CONTROL_MS counts
   private deadmanSaid = false; // what the link was told of the dead-man
 
   constructor(private readonly o: InputLoopOptions) {
@@ -196,10 +201,17 @@ export class InputLoop {
   take(): void {
     this.o.link.lease(takeAction(this.o.flags()));
     this.o.link.wantControl(true);
-    setTimeout(() => this.o.link.wantControl(false), WANT_CONTROL_MS); // from then on: only while we hold it
+    this.asking = true;
+    const ask = ++this.asks;
+    setTimeout(() => {
+      if (ask !== this.asks) return; // asked again since: that one's time counts
+      this.asking = false;
+      this.o.link.wantControl(false); // from then on: only while we hold it
+    }, WANT_CONTROL_MS);
   }
 
   release(): void {
+    this.asking = false;
     this.onRelease?.();
     this.o.link.wantControl(false);
     this.o.link.lease(LeaseAction.RELEASE);
@@ -301,17 +313,19 @@ export class InputLoop {
    * server stops the arm where it is; the increments drive from there once the STATE
    * says this page has control (none is sent before). */
   private takeOverFromPolicy(): void {
-    if (this.o.policyHolds?.() && !this.hasControl) {
+    if (this.o.policyHolds?.() && !this.hasControl && !this.asking) {
       this.take();
       this.heldTakeover = true;
     }
   }
 
-  /** After each frame's inputs: the link is told when the dead-man (or the grip) is
-   * pressed or let go (its worker keeps a stalled page's lease only while it is held);
-   * and a correction begun by holding hands back once the dead-man and the grip have both
-   * been let go for HAND_BACK_MS (the server then gives control to the policy). */
+  /** After each frame's inputs: a take is answered once control came; the link is told
+   * when the dead-man (or the grip) is pressed or let go (its worker keeps a stalled
+   * page's lease only while it is held); and a correction begun by holding hands back
+   * once the dead-man and the grip have both been let go for HAND_BACK_MS (the server
+   * then gives control to the policy). */
   private afterFrame(now: number): void {
+    if (this.hasControl) this.asking = false;
     const held = this.deadmanWas || this.gripWas;
     if (held !== this.deadmanSaid) this.o.link.deadman?.((this.deadmanSaid = held));
     if (!this.heldTakeover) return;

@@ -93,12 +93,41 @@ export interface AutonomyActions {
   release(): void;
   lease(action: number): void;
   youHaveControl(): boolean;
+  /** Tell the operator (the page's messages) why H did not hand back, or what it did instead. */
+  say?(text: string): void;
+}
+
+/** The supervision changed because a correcting operator's control lapsed (the server's
+ * cause: "<name>'s control lapsed: <why>", backend/control/autonomy.py). */
+function lapsed(s: AutonomyState | null): boolean {
+  return /'s control lapsed: /.test(s?.cause ?? "");
+}
+
+/** What H says when it has no correction of this page's to hand back (null: nothing to
+ * say: it hands back, or resumes a policy a person paused). `lostHere`: this page was
+ * correcting and its control went without its hand-back (a lapse, another's takeover). */
+export function handBackNote(s: AutonomyState | null, youHaveControl: boolean, lostHere: boolean): string | null {
+  if (youHaveControl) return null;
+  const mode = s?.mode ?? "off";
+  const why = s?.cause ? ` (${s.cause})` : "";
+  if (mode === "paused") return lostHere ? `H: this page's control was lost before H${why}, which paused the policy; H lets it drive again.` : null;
+  if (mode === "correcting") {
+    const who = s?.operator ?? "another operator";
+    return lostHere
+      ? `H did not hand back: this page's control was lost${why}; ${who} is correcting now, and hands back.`
+      : `H did not hand back: this page does not have control; ${who} is correcting, and hands back.`;
+  }
+  if (mode === "autonomous") return `H did not hand back: the policy already drives${lostHere ? `; this page's control was lost${why}` : ""}.`;
+  return null;
 }
 
 /** The supervision's state and what the operator's actions send. */
 export class Supervision {
   state: AutonomyState | null = null;
   onChange: ((view: AutonomyView) => void) | null = null;
+  // This page held control in a correction, which has not ended by a hand-back since
+  // (it is going on, or it ended by a lapse): H then says if the control was lost.
+  private correctingHere = false;
 
   constructor(private readonly a: AutonomyActions) {}
 
@@ -119,7 +148,11 @@ export class Supervision {
   }
 
   refresh(): void {
-    this.onChange?.(autonomyView(this.state, this.a.youHaveControl()));
+    const control = this.a.youHaveControl();
+    const mode = this.state?.mode ?? "off";
+    if (mode === "correcting" && control) this.correctingHere = true;
+    else if (mode !== "correcting" && !lapsed(this.state)) this.correctingHere = false;
+    this.onChange?.(autonomyView(this.state, control));
   }
 
   takeOver(): void {
@@ -131,8 +164,17 @@ export class Supervision {
     else if (this.state?.mode === "paused") this.a.lease(LeaseAction.RESUME);
   }
 
+  /** H: hand this page's correction back. Whenever the page has control the release
+   * goes (the server hands a correction back; the page's mode may lag the STATE that
+   * says control came, on a loaded machine); a paused policy is resumed; otherwise
+   * nothing is sent and the page says why (handBackNote), never silently nothing. */
   handBack(): void {
-    if (this.state?.mode === "correcting" && this.a.youHaveControl()) this.a.release();
+    const control = this.a.youHaveControl();
+    const lost = this.correctingHere && !control && (this.state?.mode === "correcting" || lapsed(this.state));
+    this.correctingHere = false; // said once; handed back on purpose is not a loss
+    const note = handBackNote(this.state, control, lost);
+    if (note) this.a.say?.(note);
+    if (control) this.a.release();
     else if (this.state?.mode === "paused") this.a.lease(LeaseAction.RESUME);
   }
 

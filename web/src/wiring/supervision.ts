@@ -27,7 +27,13 @@ export function setupSupervision(ctx: PageContext, loop: InputLoop, link: Realti
     if (youHaveControl()) givingUp(); // pausing or resuming from a correction hands control back
     link.lease(action);
   };
-  const s = new Supervision({ take: () => loop.take(), release: () => loop.release(), lease, youHaveControl });
+  const s = new Supervision({
+    take: () => loop.take(),
+    release: () => loop.release(),
+    lease,
+    youHaveControl,
+    say: (text) => ctx.log.add(text, true),
+  });
   const badge = $("autonomy");
   s.onChange = (v) => {
     badge.hidden = v.badge === "";
