@@ -35,7 +35,14 @@ export function setupSupervision(ctx: PageContext, loop: InputLoop, link: Realti
     say: (text) => ctx.log.add(text, true),
   });
   const badge = $("autonomy");
+  // Every STATE (50 a second) refreshes the view; what it shows is drawn again only when
+  // it changed: the header's layout, and the headset's line, a 2D canvas (issue 27 found
+  // a software GPU's 2D canvases holding the page's main thread for seconds).
+  let shown = "";
   s.onChange = (v) => {
+    const now = JSON.stringify([v, s.state?.mode ?? "off", link.operator]);
+    if (now === shown) return;
+    shown = now;
     badge.hidden = v.badge === "";
     badge.textContent = v.badge;
     badge.dataset.mode = s.state?.mode ?? "off";
