@@ -43,8 +43,8 @@ describe("the timeline's pieces", () => {
   });
   it("asks again, later, only while the server is busy or a budget is spent", () => {
     expect(retryAfterMs(new ApiError("busy", 503, {}), 0)).toBe(1000);
-    expect(retryAfterMs(new ApiError("too many", 429, {}), 1)).toBe(2000);
-    expect(retryAfterMs(new ApiError("too many", 429, {}), 9)).toBe(4000);
+    expect(retryAfterMs(new ApiError("too many", 429, {}), 9)).toBe(1000);
+    expect(retryAfterMs(new ApiError("too many", 429, {}), 10)).toBe(4000);
     expect(retryAfterMs(new ApiError("too many", 429, {}), PIECE_ATTEMPTS)).toBeNull();
     expect(retryAfterMs(new ApiError("no such", 404, {}), 0)).toBeNull();
     expect(retryAfterMs(new Error("network"), 0)).toBeNull();

@@ -176,15 +176,16 @@ export function lastPiece(range: PieceRange, duration: number): boolean {
   return range.end_s === undefined || range.end_s > duration;
 }
 
-/** Times a piece is asked again while the server says to wait (~2.5 min in all). */
+/** Times a piece is asked again while the server says to wait (~2.2 min in all). */
 export const PIECE_ATTEMPTS = 40;
 
 /** The answers worth asking again — a read budget spent (a page without the token: the
- * video it was just sent counts one read per 512 KiB), the server's reads busy — and how
- * long to wait: 1, 2, then 4 s. Null: not to ask again. */
+ * video it was just sent counts one read per 512 KiB, a few seconds of its budget), the
+ * server's reads busy — and how long to wait: a second (the server's Retry-After) ten
+ * times, then 4 s. Null: not to ask again. */
 export function retryAfterMs(error: unknown, attempt: number): number | null {
   if (!(error instanceof ApiError) || (error.status !== 429 && error.status !== 503) || attempt >= PIECE_ATTEMPTS) return null;
-  return 1000 * 2 ** Math.min(attempt, 2);
+  return attempt < 10 ? 1000 : 4000;
 }
 
 /** One piece of recording `id`'s timeline (asked again, later, while the server says to
