@@ -25,6 +25,8 @@ from telerobot.server.media.rate_control import (
     MIN_BPS,
     RESEND_SHARE,
     SHARE_AGAIN_S,
+    START_BPS,
+    STARTUP_INCREASE,
     RateControl,
 )
 from tests.support.video import SMALL, camera, frames_of, viewer_of
@@ -35,7 +37,8 @@ FULL_PIXELS, LOW_PIXELS = 2 * 1280 * 720, 2 * 640 * 360  # (each needs 1.66, 0.4
 
 
 def control() -> RateControl:
-    return RateControl(MAX, FULL_PIXELS, LOW_PIXELS, 30.0)
+    """One already at the configured rate (past its start-up: the rules below)."""
+    return RateControl(MAX, FULL_PIXELS, LOW_PIXELS, 30.0, start_bps=MAX)
 
 
 def test_a_clean_link_keeps_the_configured_rate_and_a_stale_report_counts_once() -> None:
@@ -94,7 +97,7 @@ def test_the_receivers_estimate_leads_the_rate_down_only_once_it_has_fallen() ->
 def test_with_congestion_seen_the_rate_goes_to_what_the_receiver_gets_at_once() -> None:
     # A new peer at the configured rate on a narrow link: 14 % lost, and the receiver
     # (still climbing from its start) says it gets 0.6 Mbit/s
-    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0), Link()
+    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0, start_bps=8_000_000), Link()
     rc.update(link.report(lost=0.14, bps=600_000), None, 0.0)
     assert rc.target_bps == 600_000 and "the receiver gets 0.60 Mbit/s" in rc.why
     assert rc.needs_own_stream(0.0)
@@ -108,9 +111,40 @@ def test_a_new_peer_carries_on_from_the_last_rate() -> None:
     assert rc.target_bps == MAX and not rc.needs_own_stream(0.0)
 
 
+def test_a_new_peer_starts_low_and_a_clean_link_brings_it_to_the_top_in_seconds() -> None:
+    """Nothing is known of a new peer's link: it starts at START_BPS, not at the
+    configured 8 Mbit/s (which, sent into `bad`'s 2 Mbit/s and its deep queue, held the
+    forces and commands behind it); clean reports grow it fast until the top, where it
+    shares the full layer at once (no second encode held on a LAN)."""
+    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0), Link()
+    assert rc.target_bps == START_BPS and rc.needs_own_stream(0.0)
+    t = 0
+    while rc.target_bps < 8_000_000:
+        t += 1
+        rc.update(link.report(rtt_s=0.01), None, float(t))
+        assert "starting up" in rc.why or rc.target_bps == 8_000_000
+    assert t <= 6 and not rc.needs_own_stream(float(t))
+    # A small max: it starts there (nothing to grow into)
+    small = RateControl(600_000, FULL_PIXELS, LOW_PIXELS, 30.0)
+    assert small.target_bps == 600_000 and not small.needs_own_stream(0.0)
+
+
+def test_the_start_up_ends_at_the_first_congestion_and_random_loss_holds_it() -> None:
+    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0), Link()
+    # `bad`'s 5 % random loss: neither growth nor a cut (FEC's to repair)
+    for t in range(5):
+        rc.update(link.report(lost=0.05, rtt_s=0.3), None, float(t))
+    assert rc.target_bps == START_BPS
+    rc.update(link.report(lost=0.2, rtt_s=0.3), None, 5.0)  # congestion: a cut
+    assert rc.target_bps == START_BPS * 0.9 and not rc.starting
+    rc.update(link.report(rtt_s=0.3), None, 6.0)
+    assert rc.target_bps == pytest.approx(START_BPS * 0.9 * INCREASE)
+    assert STARTUP_INCREASE > INCREASE
+
+
 def test_size_and_frame_rate_follow_the_rate_with_a_margin_to_come_back() -> None:
     # 8 Mbit/s configured: the bits a pixel decide (at 2 Mbit/s the shares would)
-    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0), Link()
+    rc, link = RateControl(8_000_000, FULL_PIXELS, LOW_PIXELS, 30.0, start_bps=8_000_000), Link()
     clock = iter(range(1000))
 
     def until(done: Callable[[], bool], lost: float) -> None:
@@ -158,9 +192,10 @@ reports = st.lists(
 
 
 @settings(max_examples=200, deadline=None)
-@given(reports)
-def test_the_rate_stays_in_bounds_and_never_grows_on_heavy_loss(seq: list) -> None:  # type: ignore[type-arg]
-    rc, link = control(), Link()
+@given(reports, st.sampled_from((START_BPS, MAX)))
+def test_the_rate_stays_in_bounds_and_never_grows_on_heavy_loss(seq: list, start: int) -> None:  # type: ignore[type-arg]
+    """From a new peer's start (START_BPS) or from the top."""
+    rc, link = RateControl(MAX, FULL_PIXELS, LOW_PIXELS, 30.0, start_bps=start), Link()
     for t, (lost, nacked, rtt, bps, fresh) in enumerate(seq):
         before = rc.target_bps
         if fresh:

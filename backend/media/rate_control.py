@@ -25,6 +25,16 @@ second:
   climbs, so a low estimate that is still rising says nothing (as in layers.py), and on
   a jittery link it swings far below what the link carries.
 
+A new peer starts at ``START_BPS`` (or the configured bitrate, if lower), not at the
+top: nothing is known of its link yet, and 8 Mbit/s sent into a 2 Mbit/s link with a
+deep queue (`bad`'s: 1000 packets, seconds of it) delays everything behind it, the
+forces and the commands too, for as long as the estimate takes to come down (quiet
+runs of bench.wan saw the page's peer start at 6.8 Mbit/s there, stall and never show
+a picture). Until its link first shows congestion (the start-up, as GCC's slow start
+and libwebrtc's probes) a clean report grows it by ``STARTUP_INCREASE``, so a clean
+link is back at the top in a few seconds; from the first congestion on, by
+``INCREASE``.
+
 The rate stays within [``MIN_BPS``, the configured bitrate]. Out of it come FEC's
 share and a margin for resends (``media_bps``), so FEC fits inside the estimate
 instead of being switched off. Below what the full size needs (``MIN_BITS_PER_PIXEL``)
@@ -50,6 +60,8 @@ MIN_BPS = 150_000
 HIGH_LOSS = 0.10
 LOW_LOSS = 0.02
 INCREASE = 1.08  # a clean second's growth (GCC's multiplicative increase)
+START_BPS = 1_000_000  # a new peer's rate: what a narrow link (2 Mbit/s with the forces) carries
+STARTUP_INCREASE = 1.5  # a clean report's growth until the link first shows congestion
 DECREASE = 0.85  # a queue's cut
 QUEUE_S = 0.15  # the round trip this far above its floor: a queue (jitter stays below)
 CONFIRM_REPORTS = 2  # a queue seen in this many reports in a row (one late RTCP is not)
@@ -77,22 +89,26 @@ class RateControl:
     full_pixels: int
     low_pixels: int
     fps: float
+    start_bps: int = START_BPS  # a new peer's rate (the configured one, if lower)
     target_bps: float = 0.0
     size: str = "full"  # "full" or "low"
     every: int = 1  # encode every n-th frame
-    why: str = "start: the configured bitrate"
+    why: str = "start: nothing known of the link yet"
     seen_reports: int = 0
     queue_strikes: int = 0
     estimate_strikes: int = 0  # reports in a row whose estimate had fallen
     peak_estimate: int = 0
     cuts: int = 0
-    # (the caller's clock) at the configured rate since; it starts there
-    at_max_since: float | None = -math.inf
+    starting: bool = True  # no congestion seen yet: growing by STARTUP_INCREASE
+    # (the caller's clock) at the configured rate since (None: below it)
+    at_max_since: float | None = None
     floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
 
     def __post_init__(self) -> None:
         self.max_bps = max(self.max_bps, MIN_BPS)
-        self.target_bps = float(self.max_bps)
+        self.target_bps = float(min(self.max_bps, max(MIN_BPS, self.start_bps)))
+        if self.target_bps >= self.max_bps:
+            self.at_max_since = -math.inf
         self._shape()
 
     def update(self, link: LinkReport, loss: float | None, now: float) -> bool:
@@ -120,6 +136,8 @@ class RateControl:
         )
         self.estimate_strikes = self.estimate_strikes + 1 if fallen else 0
         congested = lost > HIGH_LOSS or self.queue_strikes >= CONFIRM_REPORTS
+        if congested or self.estimate_strikes >= CONFIRM_REPORTS:
+            self.starting = False
         if congested and estimate is not None and estimate < self.target_bps:
             # Congestion seen, and the receiver says what gets through: go there at
             # once (a new peer starts at the configured rate, 8 Mbit/s, on a link of 2;
@@ -144,12 +162,18 @@ class RateControl:
             self._set(to, f"the receiver's estimate fell to {estimate / 1e6:.2f} Mbit/s")
             self.peak_estimate = max(estimate, round(to))  # a new peak to fall from
         elif lost < LOW_LOSS and not queued and self.target_bps < self.max_bps:
-            self._set(self.target_bps * INCREASE, "clean: growing")
+            if self.starting:
+                self._set(self.target_bps * STARTUP_INCREASE, "clean: starting up")
+            else:
+                self._set(self.target_bps * INCREASE, "clean: growing")
         self._shape()
         if self.target_bps < self.max_bps:
             self.at_max_since = None
         elif self.at_max_since is None:
-            self.at_max_since = now
+            # At the top straight out of the start-up: the link never pushed back, the
+            # shared full layer is the same stream at once (a LAN's operator runs a
+            # second encode only for the start-up's few seconds).
+            self.at_max_since = -math.inf if self.starting else now
         return before != (round(self.target_bps), self.size, self.every)
 
     def carry_on_from(self, bps: float, why: str) -> None:
@@ -157,6 +181,7 @@ class RateControl:
         page that re-negotiates its video after a stall would start again at the
         configured rate on a link it had just found narrow)."""
         self._set(bps, why)
+        self.starting = False  # the link was found already
         self.at_max_since = -math.inf if self.target_bps >= self.max_bps else None
         self._shape()
 
