@@ -27,6 +27,11 @@ from av.video.codeccontext import VideoCodecContext
 from telerobot.drivers.base import StereoFrame
 
 VIDEO_CLOCK = 90_000
+# The VBV buffer, in time at the bitrate: what a key frame (or a burst of motion) can put
+# on the link at once, so the queue it makes behind it stays this short at any frame
+# rate (4 frames at 30 fps, as it was measured; 8 at 60: a frame's own share of the
+# bitrate halves at 60 fps, its key frames' bound does not).
+VBV_S = 4 / 30
 
 
 def h264_level(width: int, height: int, fps: float) -> str:
@@ -137,8 +142,8 @@ class H264Encoder(PacketEncoder):
 
     def options(self, keyint: int | None) -> dict[str, str]:
         kbps = self.bitrate // 1000
-        # VBV: at most ~4 frames' worth of bits in flight, so a keyframe stays bounded.
-        bufsize = max(kbps // max(1, round(self.fps)) * 4, 1)
+        # VBV: at most VBV_S of the bitrate in flight, so a keyframe stays bounded.
+        bufsize = max(round(kbps * VBV_S), 1)
         return {
             "preset": "ultrafast",
             "tune": "zerolatency",

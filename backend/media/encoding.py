@@ -12,6 +12,7 @@ codec and layer here (``encoder_for``, ``broadcasters``) and nothing else."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -24,12 +25,15 @@ from telerobot.drivers.base import CameraStatus, StereoCamera, StereoFrame
 from telerobot.drivers.clock import Clock
 from telerobot.server.media.encoder import ENCODERS, EncodedFrame, PacketEncoder
 from telerobot.server.media.fanout import Broadcaster
+from telerobot.server.media.frame_rate import FrameRateRule
 from telerobot.server.media.layers import LAYERS, OPERATOR, Layer, RateMeter, low_size
 from telerobot.server.media.rate_control import RateControl
 from telerobot.server.telemetry.stats import InterArrival, StreamStats
 
 if TYPE_CHECKING:
     from telerobot.server.media.pipeline import VideoSettings
+
+log = logging.getLogger(__name__)
 
 IDLE_POLL_S = 0.05  # with no viewer, how often the pipeline looks for one
 
@@ -57,6 +61,11 @@ class Encoding:
         self.camera = camera
         self.settings = settings
         self.clock = clock
+        # The frame rate the encoders run at: the configured one while this machine
+        # keeps it, 30 when it cannot (frame_rate.py); frames between are passed over.
+        self.frame_rate = FrameRateRule(settings.fps)
+        self._last: tuple[int, float] | None = None  # the last frame pulled: seq, time
+        self._encoded_at = -float("inf")  # the last encoded frame's capture time
         # One encoder per codec and layer in use (H.264 full; VP8 only while a viewer
         # needs it; the low layer only while a viewer takes it), each shared by all of
         # its viewers.
@@ -85,6 +94,24 @@ class Encoding:
         # H.264 even with no direct viewer.
         self.taps: dict[str, Callable[[EncodedFrame], None]] = {}
 
+    @property
+    def camera_fps(self) -> float:
+        """The rate the camera delivers (a real device may grant less than asked)."""
+        fps = float(getattr(self.camera, "fps", 0.0) or 0.0)
+        return fps if fps > 0 else self.settings.fps
+
+    @property
+    def fps(self) -> float:
+        """The frame rate encoded now: the rule's, never above the camera's."""
+        return min(self.frame_rate.target, self.camera_fps)
+
+    @property
+    def fps_why(self) -> str:
+        camera = self.camera_fps
+        if camera < self.frame_rate.target:
+            return f"the camera delivers {camera:g} fps (asked for {self.settings.fps:g})"
+        return self.frame_rate.why
+
     def layer_size(self, layer: Layer) -> tuple[int, int]:
         """One eye's size in ``layer``."""
         if layer == OPERATOR:
@@ -111,7 +138,7 @@ class Encoding:
         enc = ENCODERS[codec](
             2 * width,
             height,
-            s.fps,
+            self.fps,
             min(s.bitrate, s.low_bitrate) if layer == "low" else s.bitrate,
             s.keyframe_interval,
             cbr=s.cbr and layer != OPERATOR,  # (filler would fill the operator's link)
@@ -161,6 +188,7 @@ class Encoding:
                 # Nobody to send to and nothing recorded: pull no frames, so a camera that
                 # renders on demand (the simulated one) does not take ~10 % of a core from
                 # the force stream.
+                self._last = None  # (the gap until someone watches again is no skip)
                 await asyncio.sleep(IDLE_POLL_S)
                 continue
             # Recording: every frame, oldest first (a skipped one would be missing from
@@ -177,19 +205,73 @@ class Encoding:
                     -self._no_signal_seq,
                     time.monotonic(),
                 )
-            else:
-                seq = frame.seq
-                self.capture_interarrival.tick(frame.time)
-            await self._encode_and_publish(loop, frame)
+                self._last = None
+                await self._encode_and_publish(loop, frame)
+                continue
+            skipped = self._skipped(frame)
+            seq = frame.seq
+            self.capture_interarrival.tick(frame.time)
+            now = self.clock.now()
+            if not self._due(frame):
+                self.frame_rate.frame(now, skipped, None)  # passed over at this rate
+                continue
+            self._encoded_at = frame.time
+            work_ms = await self._encode_and_publish(loop, frame)
+            self.frame_rate.frame(now, skipped, work_ms)
+            if self.frame_rate.decide(now):
+                self._follow_frame_rate()
+
+    def _skipped(self, frame: StereoFrame) -> int:
+        """Frames the camera made (or should have, on its grid) between the last one
+        pulled and ``frame``: a gap in their numbers (the loop was busy) or in their
+        times (the camera fell behind)."""
+        last, self._last = self._last, (frame.seq, frame.time)
+        if last is None or frame.seq <= last[0]:
+            return 0
+        by_time = round((frame.time - last[1]) * self.camera_fps) - 1
+        return max(frame.seq - last[0] - 1, by_time, 0)
+
+    def _due(self, frame: StereoFrame) -> bool:
+        """Whether ``frame`` is encoded at the rate of the moment (a camera faster
+        than it: every n-th frame, on the rate's grid within half a camera frame)."""
+        fps, camera = self.fps, self.camera_fps
+        if fps >= camera * 0.99:
+            return True
+        return frame.time >= self._encoded_at + 1.0 / fps - 0.5 / camera
+
+    def _follow_frame_rate(self) -> None:
+        """The rule changed the rate: said once, and every encoder made again for it
+        (libx264's rate control spends the bitrate over its configured frame rate: at
+        60 fps configured and 30 fed, half of it); each new encoder starts on a key
+        frame, which is every viewer's and the recording's new start."""
+        down = self.frame_rate.target < self.settings.fps
+        log.log(
+            logging.WARNING if down else logging.INFO,
+            "video: %g fps: %s",
+            self.fps,
+            self.frame_rate.why,
+        )
+        for codec, layer in list(self.encoders):
+            self.encoders[(codec, layer)] = self._new_encoder(codec, layer)
 
     async def _encode_and_publish(
         self, loop: asyncio.AbstractEventLoop, frame: StereoFrame
-    ) -> None:
+    ) -> float:
         """Encode ``frame`` in every layer someone takes, then hand all of it out at
         once: a viewer moving between layers on this frame's keyframe finds the other
         layer's copy of the same frame still queued (and drops it), never already sent
-        (two pictures with one RTP timestamp)."""
+        (two pictures with one RTP timestamp). Returns the time all of it took on the
+        encode thread (ms)."""
         out: list[tuple[tuple[str, Layer], list[EncodedFrame]]] = []
+        work = [0.0]
+
+        def timed(fn: Callable[[StereoFrame], Any], source: StereoFrame) -> Any:
+            started = time.perf_counter()
+            try:
+                return fn(source)
+            finally:
+                work[0] += (time.perf_counter() - started) * 1000
+
         small: StereoFrame | None = None
         for key, broadcaster in list(self.broadcasters.items()):
             layer = key[1]
@@ -200,11 +282,10 @@ class Encoding:
                 continue  # its rate carries only every n-th frame
             shrunk = self.layer_size(layer) != self.layer_size("full")
             if shrunk and small is None:
-                small = await loop.run_in_executor(self._encode, self._shrink, frame)
+                small = await loop.run_in_executor(self._encode, timed, self._shrink, frame)
             source = small if shrunk and small is not None else frame
-            out.append(
-                (key, await loop.run_in_executor(self._encode, self.encoders[key].encode, source))
-            )
+            encode = self.encoders[key].encode
+            out.append((key, await loop.run_in_executor(self._encode, timed, encode, source)))
         now = self.clock.now()
         for key, encoded_frames in out:
             for encoded in encoded_frames:
@@ -215,6 +296,7 @@ class Encoding:
                     for tap in list(self.taps.values()):
                         tap(encoded)  # must not block: a bounded hand-over
                 self.broadcasters[key].publish(encoded)
+        return work[0]
 
     def _operator_skips(self) -> bool:
         """Whether the operator's stream leaves this frame out (half its frame rate
@@ -254,6 +336,12 @@ class Encoding:
                 "message": self.camera.status_message,
             },
             "capture_fps": 1000.0 / cap.mean if cap.count and cap.mean > 0 else None,
+            # The frame rate encoded now, the configured one, and why they differ (the
+            # rule in frame_rate.py, or a camera that delivers less).
+            "fps_target": self.fps,
+            "fps_configured": self.settings.fps,
+            "fps_why": self.fps_why,
+            "fps_rule": self.frame_rate.as_dict(),
             "encode_ms_p50": enc.p50 if enc.count else None,
             "encode_ms_p99": enc.p99 if enc.count else None,
             "bytes_per_frame_mean": size.mean if size.count else None,

@@ -312,7 +312,7 @@ class VideoPipeline:
         (``adapt_operator_rate``)."""
         s, encoding = self.settings, self.encoding
         full, low = encoding.layer_size("full"), encoding.layer_size("low")
-        peer.rate = RateControl(s.bitrate, 2 * full[0] * full[1], 2 * low[0] * low[1], s.fps)
+        peer.rate = RateControl(s.bitrate, 2 * full[0] * full[1], 2 * low[0] * low[1], encoding.fps)
         was = self._operator_rate_was
         if was is not None and self.clock.now() - was[1] < OPERATOR_RATE_KEPT_S:
             peer.rate.carry_on_from(was[0], "the operator's previous video peer's rate")
@@ -345,6 +345,7 @@ class VideoPipeline:
         if peer is None or peer.rate is None:
             return
         rate, encoding, now = peer.rate, self.encoding, self.clock.now()
+        rate.fps = encoding.fps  # (30 while the machine cannot keep 60: frame_rate.py)
         share = peer.protection.fec_share
         changed = rate.update(peer.link, peer.protection.loss, now)
         self._remember_operator_rate(peer)
@@ -373,7 +374,7 @@ class VideoPipeline:
         rtt = peer.link.repair_s(self.clock.now())
         if rtt is None:
             return
-        repair = rtt + 2 * (peer.link.jitter_s or 0.0) + 1.0 / self.settings.fps
+        repair = rtt + 2 * (peer.link.jitter_s or 0.0) + 1.0 / self.encoding.fps
         peer.playout.repair(self.clock.now(), repair)
 
     def set_layer(self, peer: Peer, layer: Layer) -> None:

@@ -52,8 +52,9 @@ MAX_DELAY_MS = 500
 HOLD_S = 10.0  # a repair's need holds this long…
 MAX_REPAIRS_KEPT = 256  # (repairs remembered for that: a burst of NACKs is many)
 SHRINK_MS_PER_S = 50.0  # …then shrinks back this fast
-# A repaired frame this late (two frame intervals at 30 fps) still shows before the
-# picture visibly stops: the delay covers only the rest of a repair.
+# A repaired frame this late (two frame intervals at 30 fps, four at 60: a time the eye
+# sees, not a count of frames) still shows before the picture visibly stops: the delay
+# covers only the rest of a repair.
 TOLERANCE_S = 0.067
 
 Send = Callable[[bytes], Awaitable[None]]

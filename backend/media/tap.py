@@ -30,9 +30,10 @@ from telerobot.server.media.encoder import EncodedFrame
 log = logging.getLogger(__name__)
 
 HEADER = struct.Struct("<?dqQ")
-# Packets the worker holds for the server: ~2 s at 30 fps. A keyframe is ~100 kB at
-# the default 8 Mbit/s, so the queue holds at most a few MB.
-TAP_QUEUE = 64
+# Packets the worker holds for the server: ~2 s at 60 fps (4 s at 30). A keyframe is
+# ~100 kB at the default 8 Mbit/s, a frame ~17 kB at 60 fps, so the queue holds at most
+# a few MB.
+TAP_QUEUE = 128
 RECORDING_KEYFRAME_S = 2.0  # the longest stretch a player must decode to seek
 
 

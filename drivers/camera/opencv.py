@@ -4,6 +4,12 @@ Two devices are grabbed back to back and only then retrieved (decoded), which ke
 the exposure skew to the time between two grabs; the skew is reported with every
 frame. A device that fails or disappears puts the camera in FAILED with the reason;
 the capture thread keeps retrying and resumes on its own.
+
+The frame rate is asked of each device (``CAP_PROP_FPS``); a device that grants less
+(most UVC cameras offer 60 fps only at smaller sizes or in MJPEG) is taken at its own
+rate: ``fps`` becomes what it grants, the status says so, and the pipeline encodes at
+that rate (``fps_target``, ``fps_why`` in the video's stats). A device that does not
+say (0) is taken as asked.
 """
 
 from __future__ import annotations
@@ -61,6 +67,7 @@ class _OpenCVCapture:
         time_source: Callable[[], float] = time.monotonic,
     ) -> None:
         self.width, self.height, self.fps = width, height, fps
+        self.asked_fps = fps  # what the settings asked of the devices
         self.retry_s = retry_s
         self._now = time_source
         self._slot = FrameSlot()
@@ -110,6 +117,20 @@ class _OpenCVCapture:
         """One side-by-side RGB frame, its capture time and the skew; None on failure."""
         raise NotImplementedError
 
+    def _granted(self, caps: list[cv2.VideoCapture]) -> None:
+        """Take the rate the devices grant (the slowest's), if they say one below the
+        rate asked for."""
+        said = [f for f in (float(c.get(cv2.CAP_PROP_FPS) or 0.0) for c in caps) if f > 0]
+        granted = min(said, default=self.asked_fps)
+        self.fps = min(self.asked_fps, granted)
+        if self.fps < self.asked_fps:
+            log.warning(
+                "%s: asked for %g fps, the device gives %g: capturing at that",
+                self.name,
+                self.asked_fps,
+                self.fps,
+            )
+
     # thread ---------------------------------------------------------------
     def start(self) -> None:
         self._worker.start()
@@ -122,7 +143,6 @@ class _OpenCVCapture:
         return self._slot.next_frame(after_seq, timeout, every)
 
     def _run(self) -> None:
-        period = 1.0 / self.fps
         while not self._stop.is_set():
             try:
                 self._open()
@@ -131,7 +151,9 @@ class _OpenCVCapture:
                 self.retries += 1
                 self._stop.wait(self.retry_s)
                 continue
-            self._status, self._message = CameraStatus.RUNNING, f"capturing {self.fps:g} fps"
+            period = 1.0 / self.fps  # (the rate the device granted)
+            less = f" (asked for {self.asked_fps:g})" if self.fps < self.asked_fps else ""
+            self._status, self._message = CameraStatus.RUNNING, f"capturing {self.fps:g} fps{less}"
             next_t = self._now()
             while not self._stop.is_set():
                 got = self._read()
@@ -199,7 +221,10 @@ class OpenCVStereoCamera(_OpenCVCapture):
 
     def _open(self) -> None:
         self._close()
-        self._caps = [_open_capture(d, self.width, self.height, self.fps) for d in self.devices]
+        self._caps = [
+            _open_capture(d, self.width, self.height, self.asked_fps) for d in self.devices
+        ]
+        self._granted(self._caps)
 
     def _close(self) -> None:
         for cap in self._caps:
@@ -250,7 +275,8 @@ class OpenCVSideBySideCamera(_OpenCVCapture):
 
     def _open(self) -> None:
         self._close()
-        self._cap = _open_capture(self.device, 2 * self.width, self.height, self.fps)
+        self._cap = _open_capture(self.device, 2 * self.width, self.height, self.asked_fps)
+        self._granted([self._cap])
 
     def _close(self) -> None:
         if self._cap is not None:
