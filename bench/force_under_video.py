@@ -3,6 +3,14 @@ saw its force packets go from 0.68 ms mean inter-arrival to 5.4 ms mean and ~20 
 worst while a stereo frame was on the wire.
 
     python -m bench.force_under_video [--json] [--seconds 20] [--busy-core] [--unprivileged]
+                                      [--fps 60 [--vs-30]]
+
+``--fps`` (issue 56): the server's video rate (TELEROBOT_VIDEO_FPS, 30 by default); the
+JSON says it (``fps``) and what the server made of it at the end of each run
+(``server_video``: ``fps_target``, ``fps_why``, ``capture_fps``, ``encode_ms_p50``/
+``_p99``, ``frames_encoded``, the frame-rate rule's figures: backend/media/frame_rate.py).
+``--vs-30``: the loopback run again at 30 fps right after, under ``at_30`` (its usual
+keys), and ``p99_ratio_vs_30``: the p99 under video at ``--fps`` over that at 30.
 
 ``--unprivileged`` (issue 51): the loopback run again with the server and the client as
 nobody (``setpriv``, no capabilities: the 1 kHz threads ordinary, in short slices, and no
@@ -11,7 +19,7 @@ raised priority), under ``unprivileged`` {"loopback": {"p99_ms_video", "p99_ms_n
 ``force_threads`` says what the server's 1 kHz threads got (GET /api/v1/health), and
 ``machine.euid`` who ran the bench.
 
-The server runs on the simulation with the stereo camera at 2×1280×720, 30 fps,
+The server runs on the simulation with the stereo camera at 2×1280×720, 30 fps (``--fps``),
 H.264 at a constant 9 Mbit/s (filler data tops a still scene up to the budget, so
 the link carries all of it). In a separate client process the master-arm bridge
 (simulated master, as an operator) receives every 1 kHz force sample on the priority
@@ -234,6 +242,7 @@ def measure(
     arms_model: str | None = None,
     tcp: bool = False,
     user: int | None = None,
+    fps: float = 30.0,
 ) -> dict[str, Any]:
     """One run: on loopback when ``netns`` is None or False (bench.recording passes
     False), else the server in the pair's server namespace, the client in its client's.
@@ -246,7 +255,7 @@ def measure(
         "TELEROBOT_VIDEO": "true",
         "TELEROBOT_VIDEO_WIDTH": "1280",
         "TELEROBOT_VIDEO_HEIGHT": "720",
-        "TELEROBOT_VIDEO_FPS": "30",
+        "TELEROBOT_VIDEO_FPS": f"{fps:g}",
         "TELEROBOT_VIDEO_BITRATE": str(VIDEO_BITRATE),
         "TELEROBOT_VIDEO_CBR": "true",
         "TELEROBOT_OPERATOR_TOKEN": (token := secrets.token_hex(16)),
@@ -266,6 +275,7 @@ def measure(
         if out.returncode != 0:
             raise RuntimeError(f"the client failed:\n{out.stderr[-3000:]}")
         result: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
+        server_video = video_stats(base, token)
     quiet, busy = result["no_video"], result["video"]
     figures = {
         "p50_ms_no_video": quiet["p50_ms"],
@@ -282,6 +292,8 @@ def measure(
         "samples": quiet["samples"] + busy["samples"],
         "video_mbps": result["video_mbps"],
         "force_threads": dict(SERVER_SCHEDULING),
+        "fps": fps,
+        "server_video": server_video,
         **(
             {
                 "ws_p99_ms_no_video": result["ws"]["no_video"]["p99_ms"],
@@ -295,6 +307,24 @@ def measure(
     if result.get("per_arm"):
         figures.update(per_arm_figures(result, arms))
     return figures
+
+
+VIDEO_KEYS = (
+    "fps_target", "fps_configured", "fps_why", "fps_rule", "capture_fps", "encode_ms_p50",
+    "encode_ms_p99", "frames_encoded",
+)  # fmt: skip
+
+
+def video_stats(base: str, token: str) -> dict[str, Any] | None:
+    """What the server made of its video rate by the end of the run (None: no answer)."""
+    try:
+        r = httpx.get(
+            base.rstrip("/") + "/api/v1/video", headers={"Authorization": f"Bearer {token}"}
+        )
+        stats = r.json().get("stats") or {}
+    except (httpx.HTTPError, ValueError):
+        return None
+    return {k: stats.get(k) for k in VIDEO_KEYS}
 
 
 def unprivileged(seconds: float, tcp: bool, privileged: dict[str, Any]) -> dict[str, Any]:
@@ -430,6 +460,14 @@ def main() -> None:
         help="also run the server and the client as nobody (no rights: the forces' threads"
         " ordinary), on loopback, after the privileged run",
     )
+    p.add_argument(
+        "--fps", type=float, default=30.0, help="the server's video rate (TELEROBOT_VIDEO_FPS)"
+    )
+    p.add_argument(
+        "--vs-30",
+        action="store_true",
+        help="with --fps: the loopback run again at 30 fps right after, for a same-run ratio",
+    )
     p.add_argument("--client", metavar="URL", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.client:
@@ -439,7 +477,7 @@ def main() -> None:
 
     def one_link(link: str, netns: NetemPair | Literal[False]) -> dict[str, Any]:
         if args.arms == 1:
-            return measure(args.seconds, netns, args.compare_ws, tcp=args.tcp)
+            return measure(args.seconds, netns, args.compare_ws, tcp=args.tcp, fps=args.fps)
         one, arms[link] = compare_arms(
             args.seconds, netns, args.arms, args.arms_model, args.rounds, args.tcp
         )
@@ -455,9 +493,14 @@ def main() -> None:
         else:
             figures["netns"] = None
             figures["netns_skipped"] = why_not
+        if args.vs_30 and args.arms == 1:
+            at_30 = measure(args.seconds, False, args.compare_ws, tcp=args.tcp, fps=30.0)
+            figures["at_30"] = at_30
+            figures["p99_ratio_vs_30"] = figures["loopback"]["p99_ms_video"] / at_30["p99_ms_video"]
         if args.unprivileged:
             figures["unprivileged"] = unprivileged(args.seconds, args.tcp, figures["loopback"])
     figures["busy_core"] = args.busy_core
+    figures["fps"] = args.fps
     figures["forces_on"] = "tcp" if args.tcp else "datagrams"
     if arms:
         for key in ("p99_ms_per_arm_under_video", "p99_ratio_two_vs_one", "lost_per_arm"):
