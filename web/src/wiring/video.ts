@@ -3,6 +3,7 @@
 // connection HUD over the picture (RTT, loss, video, freezes, force and command age).
 import { Rolling } from "../stats";
 import type { RealtimeLink } from "../transport/link";
+import { PeerSilence, packetsIn } from "../transport/peer-silence";
 import { VideoConnection, layerParam } from "../transport/video";
 import type { Alignment } from "../ui/alignment";
 import { ConnectionHud } from "../ui/connection-hud";
@@ -51,6 +52,37 @@ export function setupVideo(ctx: PageContext, link: RealtimeLink, alignment: Alig
     connection.frame();
     hud.frame(now);
   };
-  view.onStale = (ms) => connection.stalled(ms);
+  view.onStale = stallWatch(connection);
   return { connection, glass, videoInterval, hud };
+}
+
+/** A stalled picture gets a new peer only when the peer is dead (its packets stopped)
+ * or the picture has waited for a repair too long (transport/peer-silence.ts): the
+ * counters are read, at most every 250 ms, only while the picture is stale. */
+function stallWatch(connection: VideoConnection): (ms: number | null) => void {
+  const silence = new PeerSilence(performance.now());
+  let seen: RTCPeerConnection | null = null;
+  let reading = false;
+  let readAt = -Infinity;
+  return (ms) => {
+    const now = performance.now();
+    const pc = connection.peer?.pc ?? null;
+    if (pc !== seen) {
+      seen = pc;
+      silence.reset(now);
+    }
+    if (ms === null) {
+      silence.reset(now); // live: a stall's silence counts from its first read
+      return connection.stalled(null);
+    }
+    if (pc && !reading && now - readAt >= 250) {
+      reading = true;
+      readAt = now;
+      pc.getStats()
+        .then((stats) => silence.sample(packetsIn(stats.values() as Iterable<{ type: string }>), performance.now()))
+        .catch(() => undefined)
+        .finally(() => (reading = false));
+    }
+    if (silence.renegotiate(ms, now)) connection.stalled(ms);
+  };
 }
