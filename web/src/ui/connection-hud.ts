@@ -66,6 +66,9 @@ export const COMMAND_IDLE_MS = 5000;
 export const PLAYOUT_AMBER_MS = 150;
 /** Loss, bitrate and (without framesPerSecond) the frame rate are taken over this window (ms). */
 export const STATS_WINDOW_MS = 2000;
+/** The server's own video rate (GET /api/v1/video: fps_target, fps_why) is read this
+ * often (ms): it changes at most every few seconds (backend/media/frame_rate.py). */
+export const SERVER_VIDEO_PERIOD_MS = 5000;
 
 /** What the HUD shows, measured just now (null: not known). */
 export interface HudFigures {
@@ -79,6 +82,10 @@ export interface HudFigures {
   fps: number | null;
   /** The rate the server sends at (TELEROBOT_VIDEO_FPS), when known. */
   nominalFps: number | null;
+  /** The rate the server encodes at now (its fps_target: 30 when the machine cannot
+   * keep a configured 60), and why it is below nominalFps; null: not known. */
+  serverFps?: number | null;
+  serverFpsWhy?: string | null;
   bitrateKbps: number | null;
   /** The video layer the server sends this page: "full", or "low" (half each way) when
    * the link cannot carry the full one ("—" before a frame). */
@@ -168,10 +175,26 @@ function lossRow(f: HudFigures): HudRow {
   return { key: "loss", label: "loss", text: `${f.lossPercent.toFixed(1)} %` + over(level, `${LOSS_AMBER_PERCENT} %`, `${LOSS_RED_PERCENT} %`), level, limits };
 }
 
+/** The server's reason in a few words: its first clause ("encoding took 15.0 ms a
+ * frame (p90 over 5 s), over …" → "encoding took 15.0 ms a frame"). */
+export function shortWhy(why: string): string {
+  const cut = why.search(/ \(|: |, /);
+  return cut > 0 ? why.slice(0, cut) : why;
+}
+
+/** " · sent at 30 of 60 fps: <why>" while the server encodes below its configured rate. */
+export function serverRate(f: HudFigures): string {
+  if (f.serverFps == null || f.nominalFps === null || f.serverFps >= f.nominalFps) return "";
+  return ` · sent at ${f.serverFps} of ${f.nominalFps} fps${f.serverFpsWhy ? `: ${shortWhy(f.serverFpsWhy)}` : ""}`;
+}
+
 function videoRow(f: HudFigures): HudRow {
-  const { amber, red } = fpsLimits(f.nominalFps);
-  const limits = `amber below ${amber} fps or no new frame for ${FREEZE_MS} ms; red below ${red} fps or none for ${FROZEN_RED_MS} ms`;
-  const row = (text: string, level: HudLevel): HudRow => ({ key: "video", label: "video", text, level, limits });
+  // Judged against the rate the server sends now (30 while it cannot keep a configured 60).
+  const sending = f.serverFps != null && f.nominalFps !== null && f.serverFps < f.nominalFps ? f.serverFps : f.nominalFps;
+  const { amber, red } = fpsLimits(sending);
+  const why = serverRate(f) && f.serverFpsWhy ? `; the server sends ${f.serverFps} of ${f.nominalFps} fps: ${f.serverFpsWhy}` : "";
+  const limits = `amber below ${amber} fps or no new frame for ${FREEZE_MS} ms; red below ${red} fps or none for ${FROZEN_RED_MS} ms${why}`;
+  const row = (text: string, level: HudLevel): HudRow => ({ key: "video", label: "video", text: text + serverRate(f), level, limits });
   if (!f.videoUp) return row("no video peer (reconnecting)", "red");
   if (f.sinceFrameMs === null) return row("waiting for the first frame", "amber");
   if (f.sinceFrameMs > FREEZE_MS) return row(`frozen: no new frame for ${seconds(f.sinceFrameMs)}`, f.sinceFrameMs > FROZEN_RED_MS ? "red" : "amber");
@@ -179,7 +202,7 @@ function videoRow(f: HudFigures): HudRow {
   const rate = f.bitrateKbps !== null ? ` · ${f.bitrateKbps.toFixed(0)} kbit/s` : "";
   if (f.fps === null) return row(`— fps${rate} · ${layer}`, "ok");
   const level: HudLevel = f.fps < red ? "red" : f.fps < amber ? "amber" : "ok";
-  const of = f.nominalFps !== null && level !== "ok" ? ` of ${f.nominalFps}` : "";
+  const of = sending !== null && level !== "ok" ? ` of ${sending}` : "";
   const below = level === "red" ? ` (< ${red})` : level === "amber" ? ` (< ${amber})` : "";
   return row(`${f.fps.toFixed(0)} fps${of}${below}${rate} · ${layer}`, level);
 }
@@ -370,6 +393,8 @@ export interface HudSources {
   /** The server's video settings (GET /api/v1/video): its frame rate and one eye's full
    * size (a smaller picture is the low layer). */
   video?: Promise<{ fps: number; width: number; playout_max_ms?: number } & Record<string, unknown>>;
+  /** The same read again, every SERVER_VIDEO_PERIOD_MS: its stats' fps_target and fps_why. */
+  serverVideo?: () => Promise<{ stats?: Record<string, unknown> | null } & Record<string, unknown>>;
 }
 
 export class ConnectionHud implements HudView {
@@ -388,6 +413,9 @@ export class ConnectionHud implements HudView {
   private nominalFps: number | null = null;
   private fullWidth: number | null = null;
   private playoutCapMs: number | null = null;
+  private serverFps: number | null = null;
+  private serverFpsWhy: string | null = null;
+  private serverReadAt = -Infinity;
   private commandsSeen = 0;
   private commandAt: number | null = null;
 
@@ -406,8 +434,24 @@ export class ConnectionHud implements HudView {
     this.freezes.frame(now);
   }
 
+  /** The server's rate of the moment, from its video stats (null where it does not say). */
+  private readServerRate(now: number): void {
+    const read = this.src.serverVideo;
+    if (!read || now - this.serverReadAt < SERVER_VIDEO_PERIOD_MS) return;
+    this.serverReadAt = now;
+    read()
+      .then((v) => {
+        const target = v.stats?.fps_target;
+        const why = v.stats?.fps_why;
+        this.serverFps = typeof target === "number" ? target : null;
+        this.serverFpsWhy = typeof why === "string" ? why : null;
+      })
+      .catch(() => undefined);
+  }
+
   /** Read every source once, now. */
   async collect(now = performance.now()): Promise<HudFigures> {
+    this.readServerRate(now);
     const pc = this.src.pc();
     if (pc !== this.pcSeen) {
       // A new peer: its counters start again from zero. (The frames' gap across a
@@ -441,6 +485,8 @@ export class ConnectionHud implements HudView {
       lossPercent: rates.lossPercent,
       fps: rates.fps,
       nominalFps: this.nominalFps,
+      serverFps: this.serverFps,
+      serverFpsWhy: this.serverFpsWhy,
       bitrateKbps: rates.kbps,
       layer: layerOf(sample?.frameWidth ?? null, this.fullWidth),
       frameSize: sample?.frameWidth && sample.frameHeight ? `${sample.frameWidth}×${sample.frameHeight}` : null,

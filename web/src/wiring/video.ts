@@ -44,7 +44,14 @@ export function setupVideo(ctx: PageContext, link: RealtimeLink, alignment: Alig
   connection.start().catch((e: Error) => log.add(`video: ${e.message}`, true));
   const videoStatus = api.request("get", "/api/v1/video");
   videoStatus.then((v) => (view.nativeSize = { width: v.width, height: v.height })).catch(() => undefined);
-  const hud = new ConnectionHud({ pc: () => connection.peer?.pc ?? null, link, force: () => ctx.arms.newestForce(), video: videoStatus });
+  const hud = new ConnectionHud({
+    pc: () => connection.peer?.pc ?? null,
+    link,
+    force: () => ctx.arms.newestForce(),
+    video: videoStatus,
+    // its rate of the moment (30 while the machine cannot keep a configured 60) and why
+    serverVideo: () => api.request("get", "/api/v1/video"),
+  });
   hud.start($("hud"));
   view.onFrame = () => {
     const now = performance.now();
