@@ -182,6 +182,9 @@ class ServerSettings(BaseSettings):
 
     video_width: int = Field(1280, ge=160, le=3840)  # of one eye
     video_height: int = Field(720, ge=120, le=2160)
+    # Frames a second, cameras and encoders. Above 30 (e.g. 60) the media worker drops
+    # to 30 by itself while it cannot keep the rate with room to spare, and comes back
+    # after a clean stretch (media/frame_rate.py; GET /api/v1/video's fps_target, fps_why).
     video_fps: float = Field(30.0, ge=1.0, le=120.0)
     video_bitrate: int = Field(8_000_000, ge=100_000, le=100_000_000)
     video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
