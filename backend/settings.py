@@ -186,6 +186,8 @@ class ServerSettings(BaseSettings):
     # to 30 by itself while it cannot keep the rate with room to spare, and comes back
     # after a clean stretch (media/frame_rate.py; GET /api/v1/video's fps_target, fps_why).
     video_fps: float = Field(30.0, ge=1.0, le=120.0)
+    # False: the configured rate whatever the machine does (a benchmark's fixed load).
+    video_fps_auto: bool = True
     video_bitrate: int = Field(8_000_000, ge=100_000, le=100_000_000)
     video_nice: int = Field(10, ge=0, le=19)  # the media worker's niceness: video yields the CPU
     # The server raises its own CPU priority by this many nice steps at start, where the

@@ -63,7 +63,7 @@ class Encoding:
         self.clock = clock
         # The frame rate the encoders run at: the configured one while this machine
         # keeps it, 30 when it cannot (frame_rate.py); frames between are passed over.
-        self.frame_rate = FrameRateRule(settings.fps)
+        self.frame_rate = FrameRateRule(settings.fps, settings.fps_auto)
         self._last: tuple[int, float] | None = None  # the last frame pulled: seq, time
         self._encoded_at = -float("inf")  # the last encoded frame's capture time
         # One encoder per codec and layer in use (H.264 full; VP8 only while a viewer

@@ -9,14 +9,15 @@ on the encode thread, so a machine whose cores are busy shows it). The rule, jud
 once a second over the last ``WINDOW_S``:
 
 * **down** to ``FLOOR_FPS`` when the window's 90th percentile of a frame's encoding is
-  above ``DROP_WORK_SHARE`` of the configured frame period (75 %: 12.5 ms at 60 fps:
-  the encode thread alone busy three quarters of a core, with the camera's rendering
-  and the packets beside it, on a 2-core machine whose other core is the forces'), or
-  more than ``DROP_SKIPPED_SHARE`` of the camera's frames were skipped (the encoder
-  does not keep up at all);
+  above ``DROP_WORK_SHARE`` of the configured frame period (85 %: 14.2 ms at 60 fps:
+  one frame in ten leaves the encode thread almost no pause before the next, which
+  with the camera's rendering and the packets beside it is a whole core of a 2-core
+  machine whose other core is the forces'; bench.force_under_video measured the forces
+  unharmed at 2×1280×720, 60 fps, p90 10–13 ms), or more than ``DROP_SKIPPED_SHARE``
+  of the camera's frames were skipped (the encoder does not keep up at all);
 * **back up** only after ``up_hold_s`` (``UP_HOLD_S``, 30 s) in which every judgement
   was clean: that 90th percentile at most ``UP_WORK_SHARE`` of the configured period
-  (50 %: a frame's work is about the same at either rate) and at most
+  (60 %: 10 ms at 60 fps; a frame's work is about the same at either rate) and at most
   ``UP_SKIPPED_SHARE`` skipped. A drop within ``FAILED_PROBE_S`` of going up doubles
   the next wait (up to ``MAX_UP_HOLD_S``), so a machine on the edge tries less and
   less often; a long stretch at the configured rate starts the wait afresh.
@@ -42,8 +43,8 @@ FLOOR_FPS = 30.0  # never below this (nor above the configured rate)
 WINDOW_S = 5.0  # the figures judged: the frames of the last this many seconds
 JUDGE_S = 1.0  # judged this often
 QUANTILE = 90.0  # the percentile of a frame's encoding judged
-DROP_WORK_SHARE = 0.75  # of the configured frame period: down above it
-UP_WORK_SHARE = 0.5  # …and back up only at or below this
+DROP_WORK_SHARE = 0.85  # of the configured frame period: down above it
+UP_WORK_SHARE = 0.6  # …and back up only at or below this
 DROP_SKIPPED_SHARE = 0.05  # of the camera's frames skipped: down above it
 UP_SKIPPED_SHARE = 0.01  # …back up only at or below this
 MIN_ENCODED = 10  # frames encoded in a window, at least, for it to be judged
@@ -59,6 +60,7 @@ class FrameRateRule:
     server's ``video_fps``."""
 
     configured: float
+    auto: bool = True  # False: the configured rate whatever happens (video_fps_auto)
     target: float = 0.0
     why: str = "configured"
     changes: int = 0
@@ -74,6 +76,8 @@ class FrameRateRule:
     def __post_init__(self) -> None:
         self.target = self.configured
         self.why = f"configured ({self.configured:g} fps)"
+        if not self.auto:
+            self.why += ", kept whatever the machine does (TELEROBOT_VIDEO_FPS_AUTO=false)"
 
     @property
     def floor(self) -> float:
@@ -82,7 +86,7 @@ class FrameRateRule:
     @property
     def active(self) -> bool:
         """Whether there is anything to drop to (a rate of 30 or less is kept as is)."""
-        return self.configured > self.floor
+        return self.auto and self.configured > self.floor
 
     @property
     def period_ms(self) -> float:

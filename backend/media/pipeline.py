@@ -124,6 +124,7 @@ class VideoSettings:
     field's (backend/settings.py, where each is explained)."""
 
     fps: float = _default("video_fps")
+    fps_auto: bool = _default("video_fps_auto")  # down to 30 when it cannot keep it
     bitrate: int = _default("video_bitrate")
     keyframe_interval: float = _default("keyframe_interval_s")  # 0: only when asked
     cbr: bool = _default("video_cbr")
@@ -143,6 +144,7 @@ class VideoSettings:
         """The server's settings for the video."""
         return cls(
             fps=settings.video_fps,
+            fps_auto=settings.video_fps_auto,
             bitrate=settings.video_bitrate,
             keyframe_interval=settings.keyframe_interval_s,
             cbr=settings.video_cbr,
