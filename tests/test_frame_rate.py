@@ -176,3 +176,11 @@ def test_the_encode_loop_passes_over_every_other_frame_at_30_and_counts_gaps_as_
         assert enc.fps == 25 and "the camera delivers 25 fps" in enc.fps_why
     finally:
         _Camera.fps = 60.0
+
+
+def test_the_first_seconds_after_encoding_starts_are_not_judged() -> None:
+    run = Run(FrameRateRule(60.0))
+    run.rule.start(0.0)
+    run.feed(fr.START_S - 0.2, SLOW, skip_every=2)  # a first key frame, a handshake
+    run.feed(fr.WINDOW_S + 2, FAST)
+    assert run.rule.target == 60 and run.changes == []

@@ -208,6 +208,8 @@ class Encoding:
                 self._last = None
                 await self._encode_and_publish(loop, frame)
                 continue
+            if self._last is None:
+                self.frame_rate.start(self.clock.now())
             skipped = self._skipped(frame)
             seq = frame.seq
             self.capture_interarrival.tick(frame.time)
