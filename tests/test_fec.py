@@ -335,9 +335,11 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
 
     assert second(100, 0) == 0.0  # clean: no FEC
     assert second(100, 2) == 0.0  # two seconds known: not yet (FEC_AFTER_S)
-    assert second(100, 2) == pytest.approx(fec.protection_share(0.02, False))
-    # A cut (every packet of a second NACKed) is one second of five: the median stays
-    assert second(100, 100) == pytest.approx(fec.protection_share(0.02, True))
+    # the packets NACKed over those sent, the window's: 4 of 300
+    assert second(100, 2) == pytest.approx(fec.protection_share(4 / 300, False))
+    # A cut (every packet of a second NACKed) is left out: FEC cannot help it
+    assert second(100, 100) == pytest.approx(fec.protection_share(4 / 300, True))
+    assert protection.loss == pytest.approx(4 / 300)
     for t in range(4):  # the NACKs come back later and later: a queue on the link
         link.nack_rtt(0.25 + 0.1 * t, now + t - 4)
     # Right after a cut that is its backlog (resends, the forces held up): not judged
@@ -355,6 +357,20 @@ def test_protection_follows_the_nacks_loss_and_pauses_while_the_link_queues() ->
     assert second(100, 0, mode="on") == fec.MAX_SHARE  # "on": the most, whatever the loss
 
 
+def test_sparse_random_loss_turns_protection_on() -> None:
+    """1 % random loss at ~90 packets a second: most seconds NACK nothing. The median of
+    each second's share said 0 and FEC stayed off on bench.wan's `wan`; the window's
+    packets NACKed over those sent say 1 %."""
+    link, protection = ViewerLink(), Protection()
+    sent, now = 0, 0.0
+    for nacked in (0, 2, 0, 0, 3, 0, 2, 0, 0, 3):  # the last five seconds: 5 of 450
+        sent, now = sent + 90, now + 1.0
+        link.nacked += nacked
+        protection.judge(sent, link, "auto", now)
+    assert protection.loss == pytest.approx(5 / 450)
+    assert protection.fec_share > 0.0
+
+
 def test_the_pipeline_judges_each_connected_viewer_on_its_clock() -> None:
     pipeline = VideoPipeline(camera(**SMALL), VideoSettings())  # "auto"; not started
     counts = fec.FecCounts()
@@ -369,6 +385,7 @@ def test_the_pipeline_judges_each_connected_viewer_on_its_clock() -> None:
         peer.link.nacked += 2
         pipeline.adapt_protection()
     assert peer.protection.fec_share == pytest.approx(fec.protection_share(0.02, False))
+    assert peer.protection.loss == pytest.approx(0.02)
     assert idle.protection.counted == (0, 0)  # a viewer still connecting: not judged
 
 
