@@ -16,13 +16,18 @@ from telerobot.server.control.limits import SafetyLimits
 
 log = logging.getLogger(__name__)
 
-# A lease holder on a slow link gets its grace lengthened by the time a resume takes
-# to reach us once its link is back: ~5 one-way trips (TCP's handshake, the WebSocket
-# upgrade, HELLO), 6 with a margin, at its commands' usual transit time. On `mobile`
-# (one-way ~120 ms) a 1.5 s cut plus a reconnection ran past a fixed 2 s; the arm is
-# stopped all along, so only who may take control over waits longer. Bounded, so a
-# cut of the grace plus a second still releases the lease on any link.
-RECONNECT_ONE_WAYS = 6
+# A lease holder on a slow link gets its grace lengthened by the time it takes to be
+# heard from again once its link is back, in one-way trips at its commands' usual
+# transit time: a resume is ~5 (TCP's handshake, the WebSocket upgrade, HELLO; on
+# `mobile`, one-way ~120 ms, a 1.5 s cut plus a reconnection ran past a fixed 2 s), and
+# TCP's own resends after a cut take longer still: the first comes one RTO (a round
+# trip and four times its variance: about two round trips on a jittery link) after the
+# loss, the next two RTOs after that, so on `bad` (one-way ~0.25 s loaded) a 1.5 s
+# cut was heard from again 3.55 s after the holder's last heartbeat, 0.01 s past a
+# grace of six trips: Chromium's page lost the lease (bench.wan, quiet). Twelve cover
+# it. The arm is stopped all along, so only who may take control over waits longer.
+# Bounded, so a cut of the grace plus a second still releases the lease on any link.
+RETRANSMIT_ONE_WAYS = 12
 # …or by the longest silence its link has kept it in over the last STALLS_WINDOW_S,
 # whichever is longer: on a lossy narrow link (bench.wan's `bad`) a TCP connection
 # stalls 0.4–2.6 s at a time, so a cut's silence begins before the cut and its
@@ -30,7 +35,7 @@ RECONNECT_ONE_WAYS = 6
 # 3.15 s, the last one losing the lease by 64 ms. The arm is stopped after 150 ms
 # whatever the grace: this decides only how long another may not take over.
 STALLS_WINDOW_S = 30.0  # (clients.STALLS_KEPT of them at most)
-MAX_GRACE_EXTENSION_S = 2.0
+MAX_GRACE_EXTENSION_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -84,13 +89,13 @@ class Lease:
 
     def grace(self, client: Client) -> float:
         """How long past the dead-man's stop ``client`` keeps the lease: the setting,
-        plus the time a resume takes on its link (``RECONNECT_ONE_WAYS`` of its usual
-        transit, known for a client on our clock) or the longest silence its link kept
-        it in over the last ``STALLS_WINDOW_S``, whichever is longer, at most
+        plus the time it takes to be heard from after a cut (``RETRANSMIT_ONE_WAYS`` of
+        its usual transit, known for a client on our clock) or the longest silence its
+        link kept it in over the last ``STALLS_WINDOW_S``, whichever is longer, at most
         ``MAX_GRACE_EXTENSION_S``."""
         extra = 0.0
         if client.synced_clock and client.transit_avg is not None:
-            extra = RECONNECT_ONE_WAYS * max(0.0, client.transit_avg)
+            extra = RETRANSMIT_ONE_WAYS * max(0.0, client.transit_avg)
         now = self.clock.now()
         recent = [silent for at, silent in client.stalls if now - at <= STALLS_WINDOW_S]
         extra = max(extra, max(recent, default=0.0))
