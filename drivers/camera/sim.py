@@ -5,8 +5,9 @@ known projections.
 The static scene (background, table, block, fiducials, each arm's pedestal) is
 rendered once per eye; each frame copies it and draws every arm (``DrawnArm``: its own
 model's drawing, kinematics and state, placed at its mount) at its current joints,
-plus an optional visual timecode. Rendering runs in its own thread on an absolute
-schedule and hands frames over through a newest-wins slot.
+plus an optional visual timecode and, beside it, a motion mark (motion_mark.py: the
+first arm's tool position as rulers, for bench.hand_to_eye). Rendering runs in its own
+thread on an absolute schedule and hands frames over through a newest-wins slot.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from telerobot.drivers.base import (
     FloatArray,
     StereoFrame,
 )
-from telerobot.drivers.camera import timecode
+from telerobot.drivers.camera import motion_mark, timecode
 from telerobot.drivers.camera.charuco_board import BoardSpec, board_poses, draw_board, view_distance
 from telerobot.drivers.camera.slot import FrameSlot
 from telerobot.drivers.robot.kinematics import ArmKinematics
@@ -118,6 +119,7 @@ class SimStereoCamera:
         more_arms: Sequence[DrawnArm] = (),
         fps: float = 30.0,
         show_timecode: bool = True,
+        show_motion_mark: bool | None = None,
         time_source: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
@@ -141,6 +143,8 @@ class SimStereoCamera:
         )
         self.arms: tuple[DrawnArm, ...] = (first, *more_arms)
         self.show_timecode = show_timecode
+        # The motion mark goes with the timecode unless said (it is read beside it).
+        self.show_motion_mark = show_timecode if show_motion_mark is None else show_motion_mark
         self._now = time_source
         self._sleep = sleep
         self._slot = FrameSlot()
@@ -359,7 +363,17 @@ class SimStereoCamera:
                 draw_board(eye, cam.K, cam.R, cam.t, board[0], board[1], BOARD)
         if self.show_timecode:
             timecode.draw(sbs[:, : self.width], t)
+        if self.show_motion_mark:
+            motion_mark.draw(sbs[:, : self.width], self.tool_in_left_camera(joints[0]))
         return sbs
+
+    def tool_in_left_camera(self, q: FloatArray) -> FloatArray:
+        """The first arm's tool (where its gripper is drawn) at joints ``q``, in the left
+        camera's frame (x right, y down, z forward; metres)."""
+        arm = self.arms[0]
+        tool = arm.placed(arm.kinematics.link_origins(q))[-1]
+        at: FloatArray = self.cameras[0].to_camera(tool[None])[0]
+        return at
 
     # ------------------------------------------------------------ calibration board
     def show_board(self, view: int | None, views: int = 12) -> None:

@@ -50,8 +50,10 @@ export interface RealtimeHandlers {
   event?: (text: string, kind: number) => void;
   error?: (text: string, seq: number, code: number) => void;
   connection?: (up: boolean, why: string) => void;
-  /** A command's latency (ms): sent here → taken by the server's driver. */
-  ack?: (latencyMs: number) => void;
+  /** A command's latency (ms): sent here → taken by the server's driver; and both times
+   * on this client's clock (performance.now(), ms): the ACK's server time through the
+   * clock sync (view/handeye.ts joins them to key presses). */
+  ack?: (latencyMs: number, times: { sentAt: number; appliedAt: number }) => void;
   /** The server answered HELLO: the role it gave (operator: the token was accepted). */
   welcome?: (operator: boolean, clientId: string) => void;
 }
@@ -360,9 +362,10 @@ export class RealtimeClient {
         const sent = this.sentAt.get(msg.seq);
         if (sent !== undefined) {
           this.sentAt.delete(msg.seq);
-          const latency = (msg.server_time - this.offset - sent) * 1000;
+          const applied = msg.server_time - this.offset;
+          const latency = (applied - sent) * 1000;
           this.commandLatency.add(latency);
-          this.handlers.ack?.(latency);
+          this.handlers.ack?.(latency, { sentAt: sent * 1000, appliedAt: applied * 1000 });
         }
         break;
       }

@@ -6,9 +6,13 @@ import type { FromWorker, ToWorker } from "./link";
 import { StateFlags } from "./messages";
 import { RealtimeClient } from "./realtime";
 
+/** An ACK also carries its command's times on the page's clock (ms): sent from here,
+ * taken by the server's driver (view/handeye.ts; the page's RealtimeLink reads the
+ * latency, the hand-to-eye recorder the times, test-view.ts). */
+type AckTimes = Extract<FromWorker, { kind: "ack" }> & { sentAt: number; appliedAt: number };
 const port = self as unknown as {
   onmessage: ((e: MessageEvent<ToWorker>) => void) | null;
-  postMessage(message: FromWorker): void;
+  postMessage(message: FromWorker | AckTimes): void;
 };
 let client: RealtimeClient | null = null;
 let mainOrigin = 0; // the page's performance.timeOrigin: times go back on its clock
@@ -74,7 +78,10 @@ port.onmessage = (e) => {
       event: (text, eventKind) => port.postMessage({ kind: "event", text, eventKind }),
       error: (text, seq, code) => port.postMessage({ kind: "error", text, seq, code }),
       connection: (up, why) => port.postMessage({ kind: "connection", up, why, meta: meta(c) }),
-      ack: (latencyMs) => port.postMessage({ kind: "ack", latencyMs, meta: meta(c) }),
+      ack: (latencyMs, t) => {
+        const toPage = performance.timeOrigin - mainOrigin; // this worker's clock → the page's
+        port.postMessage({ kind: "ack", latencyMs, meta: meta(c), sentAt: t.sentAt + toPage, appliedAt: t.appliedAt + toPage });
+      },
       welcome: () => port.postMessage({ kind: "welcome", meta: meta(c) }),
     }));
     c.connect();

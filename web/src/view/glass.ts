@@ -1,5 +1,6 @@
 // Glass-to-glass latency, measured in the page for every frame.
 import type { Rolling } from "../stats";
+import { type DecodedFrame, decodedFrames, markStrip, readMark } from "./motion-mark";
 
 /** The clock sync the measurement needs: server − page clock (s), valid once bestRtt is finite. */
 export interface ServerClock {
@@ -10,11 +11,19 @@ export interface ServerClock {
 /** Page → glass worker. */
 export type ToGlassWorker =
   | { op: "track"; track: MediaStreamTrack; pageOrigin: number }
-  | { op: "clock"; offset: number; bestRtt: number; fullWidth: number | null }
+  | { op: "clock"; offset: number; bestRtt: number; fullWidth: number | null; mark: boolean }
   | { op: "stop" };
-/** Glass worker → page: latencies (ms) since the last message; whether it can read;
- * that it has stopped (every frame it was given closed). */
-export type FromGlassWorker = { op: "ms"; ms: number[] } | { op: "unsupported" } | { op: "stopped" };
+/** Glass worker → page: latencies (ms) since the last message (and the frames read with
+ * their motion mark, while asked: `mark`); whether it can read; that it has stopped
+ * (every frame it was given closed). */
+export type FromGlassWorker = { op: "ms"; ms: number[]; frames: DecodedFrame[] } | { op: "unsupported" } | { op: "stopped" };
+
+/** What the reader does with each frame's motion mark: whether to read it now, and where
+ * each frame read with it goes. */
+export interface MarkSink {
+  on(): boolean;
+  add(frame: DecodedFrame): void;
+}
 
 type Processor = new (i: { track: MediaStreamTrack }) => { readable: ReadableStream<VideoFrame> };
 
@@ -52,11 +61,15 @@ export function measureGlass(
 
 function measureInWorker(worker: Worker, clock: ServerClock, glass: Rolling, fullWidth: () => number | null): { stop(): void } {
   const tell = (msg: ToGlassWorker) => worker.postMessage(msg);
-  const sendClock = () => tell({ op: "clock", offset: clock.offset, bestRtt: clock.bestRtt, fullWidth: fullWidth() });
+  const sendClock = () =>
+    tell({ op: "clock", offset: clock.offset, bestRtt: clock.bestRtt, fullWidth: fullWidth(), mark: decodedFrames.on });
   sendClock();
   const timer = setInterval(sendClock, 500);
   worker.onmessage = (e: MessageEvent<FromGlassWorker>) => {
-    if (e.data.op === "ms") for (const v of e.data.ms) glass.add(v);
+    if (e.data.op === "ms") {
+      for (const v of e.data.ms) glass.add(v);
+      for (const f of e.data.frames) decodedFrames.log.push(f);
+    }
     if (e.data.op === "stopped" || e.data.op === "unsupported") {
       clearInterval(timer);
       worker.terminate();
@@ -77,7 +90,8 @@ function measureHere(track: MediaStreamTrack, clock: ServerClock, glass: Rolling
   const Processor = trackProcessor(globalThis);
   if (!Processor) return { stop: () => track.stop() }; // not Chromium: the panel shows no glass-to-glass figure
   const reader = new Processor({ track }).readable.getReader();
-  void readFrames(reader, () => performance.now() / 1000, clock, (ms) => glass.add(ms), fullWidth);
+  const marks: MarkSink = { on: () => decodedFrames.on, add: (f) => decodedFrames.log.push(f) };
+  void readFrames(reader, () => performance.now() / 1000, clock, (ms) => glass.add(ms), fullWidth, marks);
   return { stop: () => stopReading(track, reader) };
 }
 
@@ -110,13 +124,15 @@ export function timecodeStrip(scale: number): { rect: { x: number; y: number; wi
 
 /** Read every frame until the stream ends, each closed once read; `now`: the page's
  * clock (s), `add`: one frame's capture → decoded age (ms); `fullWidth`: the full
- * picture's width (both eyes), when known, so a smaller layer is read at its scale. */
+ * picture's width (both eyes), when known, so a smaller layer is read at its scale;
+ * `marks`: while it says so, each frame's motion mark is read too (view/handeye.ts). */
 export async function readFrames(
   reader: ReadableStreamDefaultReader<VideoFrame>,
   now: () => number,
   clock: ServerClock,
   add: (ms: number) => void,
   fullWidth: () => number | null = () => null,
+  marks: MarkSink | null = null,
 ): Promise<void> {
   for (;;) {
     const { value: frame, done } = await reader.read().catch(() => ({ value: undefined, done: true }));
@@ -124,7 +140,8 @@ export async function readFrames(
     const at = now();
     try {
       const full = fullWidth();
-      const { rect, xs } = timecodeStrip(full ? frame.displayWidth / full : 1);
+      const scale = full ? frame.displayWidth / full : 1;
+      const { rect, xs } = timecodeStrip(scale);
       const buffer = new Uint8Array(frame.allocationSize({ rect }));
       const layout = await frame.copyTo(buffer, { rect });
       const rgb = (frame.format ?? "").startsWith("RGB") || (frame.format ?? "").startsWith("BGR");
@@ -137,6 +154,13 @@ export async function readFrames(
         const server = at + clock.offset;
         const behind = ((((Math.round(server / 1e-4) - code) % wrap) + wrap) % wrap) / 10; // ms
         if (behind < 5000) add(behind);
+        if (behind < 5000 && marks?.on()) {
+          const m = markStrip(scale);
+          const copy = new Uint8Array(frame.allocationSize({ rect: m.rect }));
+          const [plane] = await frame.copyTo(copy, { rect: m.rect });
+          const mark = readMark(copy, plane?.offset ?? 0, plane?.stride ?? m.rect.width * (rgb ? 4 : 1), rgb, scale);
+          marks.add({ code, exposureAt: at * 1000 - behind, decodedAt: at * 1000, mark });
+        }
       }
     } finally {
       frame.close();

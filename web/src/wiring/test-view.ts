@@ -3,6 +3,7 @@
 // tests/support/browser.py) and the benches (bench/browser.py, held_control.py, wan.py)
 // use this surface only: read-only figures and a few switches, each documented here, so
 // the page's insides can change without them.
+import { HandEyeRecorder } from "../view/handeye";
 import type { Ball, StereoView, ViewMode } from "../view/stereo";
 import type { Rolling } from "../stats";
 import type { LinkMeta } from "../transport/link";
@@ -96,6 +97,9 @@ export function pageTestView(h: PageHandles) {
     tasks: tasksTestView(tasks),
     /** The recording panel: the header's REC state, the last file, the polls made. */
     recording: recordingTestView(realtime),
+    /** Hand to eye (view/handeye.ts; bench/hand_to_eye.py): `start()` records key
+     * presses, commands and frames; `motions()` joins them, one per motion key press. */
+    handEye: handEyeTestView(realtime, view),
   };
 }
 
@@ -264,6 +268,35 @@ function recordingTestView(realtime: RealtimeHandle) {
     },
     get polls(): number {
       return realtime.recording.polls;
+    },
+  };
+}
+
+function handEyeTestView(realtime: RealtimeHandle, view: StereoView) {
+  const recorder = new HandEyeRecorder();
+  return {
+    start: () => {
+      if (recorder.started) return;
+      // Each ACK's times, as the realtime worker posts them beside the latency the link
+      // keeps (the link has no hook for them: its worker is listened to here).
+      const worker = (realtime.link as unknown as { worker: Worker }).worker;
+      worker.addEventListener("message", (e: MessageEvent<{ kind?: string; sentAt?: number; appliedAt?: number }>) => {
+        const m = e.data;
+        if (m.kind === "ack" && typeof m.sentAt === "number" && typeof m.appliedAt === "number") {
+          recorder.command({ sentAt: m.sentAt, appliedAt: m.appliedAt });
+        }
+      });
+      recorder.start(window, view.video, () => (view.nativeSize ? 2 * view.nativeSize.width : null));
+    },
+    get started(): boolean {
+      return recorder.started;
+    },
+    /** Every motion found so far (times in ms), the presses left out and why, and the
+     * frames recorded (decoded with their mark, presented). */
+    motions: (threshold?: number) => recorder.motions(threshold),
+    /** The raw records, for a bench that joins them itself. */
+    get counts(): { presses: number; commands: number; presented: number } {
+      return { presses: recorder.presses.items.length, commands: recorder.commands.items.length, presented: recorder.presented.items.length };
     },
   };
 }
