@@ -52,6 +52,10 @@ its server figures (``server_viewer``, ``layer_switches``) are its own entry in 
   (video_figures: gaps > 200 ms, whole gaps counted, the outage and the second after
   it left out); ``fps``: callbacks a second (frames the page drew); ``frames``;
   ``lease_kept`` (that leg's command client). Beside them: ``fps_presented`` and
+  ``webrtc`` (Chromium's own freeze counters, inbound-rtp ``freezeCount`` and
+  ``totalFreezesDuration``, read once a second: ``frozen_share``, ``freezes``,
+  ``fps_decoded``; the decoder's output as the <video> got it, so on a machine whose
+  software GPU starves the page's drawing, the link's part apart from the page's), and
   ``callbacks_missed`` (the compositor's presentedFrames: frames presented to the
   hidden <video> and replaced before a callback saw them), ``decoded_latency_ms`` (the
   page's own capture → decoded meter, view/glass.ts, p50/p99; its worker reads frames
@@ -444,6 +448,21 @@ PAGE_PROBE = """
   window.telerobot.glass.listen((v) => {
     if (ages.length < 100000) ages.push([performance.now(), v]);
   });
+  // WebRTC's own freeze counters (inbound-rtp freezeCount, totalFreezesDuration: the
+  // decoder's frames as the <video> sink received them, not the page's drawing), and the
+  // frames decoded, once a second with the peer they are of (a new peer starts at 0).
+  const rtc = (window.__rtc = []);
+  setInterval(async () => {
+    const id = window.telerobot.video.peerId;
+    const stats = await window.telerobot.video.stats().catch(() => null);
+    if (!stats || rtc.length >= 10000) return;
+    stats.forEach((r) => {
+      if (r.type === "inbound-rtp" && r.kind === "video") {
+        rtc.push([performance.now(), id, r.freezeCount ?? null, r.totalFreezesDuration ?? null,
+          r.framesDecoded ?? null]);
+      }
+    });
+  }, 1000);
   const peers = (window.__peers = []);
   setInterval(() => {
     const id = window.telerobot.video.peerId;  // a new one: the page re-negotiated
@@ -553,11 +572,11 @@ def role_browser(base: str, token: str = "", bench_token: str = "") -> dict[str,
         sys.stdin.readline()
         stop.set()
         cpu = cpu_share(cpu_before, _cpu_seconds(chromium), time.monotonic() - cpu_at)
-        frames, ages, lease, client, layer, peer_id, renegotiations, peers = page.evaluate(
+        frames, ages, lease, client, layer, peer_id, renegotiations, peers, rtc = page.evaluate(
             "[window.__frames, window.__ages, window.__lease, window.telerobot.client,"
             " window.telerobot.hud && window.telerobot.hud.rows.find((r) => r.key === 'video'),"
             " window.telerobot.video.peerId, window.telerobot.video.renegotiations,"
-            " window.__peers]"
+            " window.__peers, window.__rtc]"
         )
         clock += _clock_samples(page)
         status = _get_json(base, "api/v1/video", bench_token)
@@ -572,6 +591,7 @@ def role_browser(base: str, token: str = "", bench_token: str = "") -> dict[str,
         "renegotiations": renegotiations - renegotiated_before,
         "frames_at_ready": frames_at_ready,
         "peers": peers,  # [page time (ms), peer id]: the page's peers, each new one's time
+        "rtc": rtc,  # [page time (ms), peer id, freezeCount, totalFreezesDuration, decoded]
         "rvfc": frames,
         "glass": ages,  # [page time (ms), capture → decoded (ms)]
         "clock": clock,
@@ -916,6 +936,33 @@ def peer_history(
     }
 
 
+def webrtc_freezes(samples: list[list[Any]], origin: float, segments: Segments) -> dict[str, Any]:
+    """Chromium's own freeze counters (PAGE_PROBE's ``__rtc``, once a second) over the
+    steady segments: the time its decoder's output was frozen by WebRTC's definition (a
+    frame later than max(3 × the mean frame interval, the mean + 150 ms)) as a share of
+    the time, the freezes, and the frames decoded a second. Only pairs of samples of one
+    peer both inside one segment count, so a re-negotiation's gap (a new peer's counters
+    start at 0) is left out here and counted by the page's own figures."""
+    frozen = freezes = decoded = 0.0
+    span = 0.0
+    for a, b in itertools.pairwise(samples):
+        ta, tb = origin + a[0] / 1000, origin + b[0] / 1000
+        same = a[1] == b[1] and all(v is not None for v in (*a[2:], *b[2:]))
+        inside = any(lo <= ta and tb <= hi for lo, hi in segments)
+        if not (same and inside) or b[4] < a[4]:
+            continue
+        span += tb - ta
+        freezes += b[2] - a[2]
+        frozen += b[3] - a[3]
+        decoded += b[4] - a[4]
+    return {
+        "frozen_share": frozen / span if span else None,
+        "freezes": int(freezes),
+        "fps_decoded": decoded / span if span else None,
+        "seconds": span,
+    }
+
+
 def chromium_figures(
     out: dict[str, Any], row: dict[str, Any], early: dict[str, Any], segments: Segments
 ) -> dict[str, Any]:
@@ -969,6 +1016,7 @@ def chromium_figures(
         "expected_display_after_callback_ms": {"p50": _pct(ahead, 50), "p99": _pct(ahead, 99)},
         "metadata_capture_minus_timecode_ms": _pct(meta, 50),
         **presented_counts(records, origin, segments),
+        "webrtc": webrtc_freezes(out.get("rtc") or [], origin, segments),
         "frozen_share_incl_outage": row["frozen_share_incl_outage"],
         "video_recovery_ms": row["video_recovery_ms"],
         "before_outage": {

@@ -16,6 +16,7 @@ from bench.wan import (
     presented_counts,
     shown_frames,
     video_figures,
+    webrtc_freezes,
 )
 from telerobot.drivers.camera import timecode
 
@@ -166,3 +167,22 @@ def test_a_frame_is_not_shown_before_its_callback_ran() -> None:
     ((shown, age),) = shown_frames([rec], ORIGIN)
     assert shown == pytest.approx(1010.005)
     assert age == pytest.approx(0.105, abs=1e-4)
+
+
+def test_webrtc_freezes_count_one_peers_samples_inside_the_steady_run() -> None:
+    # origin 0: page ms = s × 1000; steady (1, 5) and (7, 9): the outage between
+    samples = [
+        [1000, "a", 0, 0.0, 0],
+        [2000, "a", 1, 0.3, 20],  # 0.3 s frozen in this second
+        [3000, "a", 1, 0.3, 50],
+        [4000, "b", 0, 0.0, 10],  # a new peer: this pair is left out
+        [5000, "b", 0, 0.0, 40],
+        [6000, "b", 2, 1.0, 50],  # across the outage: left out
+        [7000, "b", 2, 1.0, 60],
+        [8000, "b", 2, 1.0, 90],
+    ]
+    out = webrtc_freezes(samples, 0.0, [(1.0, 5.0), (7.0, 9.0)])
+    assert out["seconds"] == 4.0 and out["freezes"] == 1
+    assert out["frozen_share"] == 0.3 / 4.0
+    assert out["fps_decoded"] == (20 + 30 + 30 + 30) / 4.0
+    assert webrtc_freezes([], 0.0, [(1.0, 5.0)])["frozen_share"] is None
