@@ -31,7 +31,9 @@ so an operator's eye sees the motion later than the mark does, by the time the t
 takes to cross that pixel. Conditions: ``--fps`` (the server's ``video_fps``), the
 browser held back (default: its session and software GPU at nice 10, the media worker
 at 0, as bench.browser's ``yields``) or ``--browser-equal`` (nothing reniced, the media
-worker at the product's nice 10), ``--busy-core`` (stress-ng on one core).
+worker at the product's nice 10), ``--busy-core`` (stress-ng on one core);
+``--send-on-frame``: the page sends a key's first command at its next animation frame,
+as it did before issue 56 (it now sends at the keydown).
 """
 
 from __future__ import annotations
@@ -140,6 +142,8 @@ def run(args: Any) -> dict[str, Any]:
             "window.telerobot.state && (window.telerobot.state.flags & 1)", timeout=30_000
         )
         mark = mark_figures(base)
+        if args.send_on_frame:  # as before issue 56's item 3
+            page.evaluate("window.telerobot.loop.driveOnKey = false")
         page.evaluate("window.telerobot.handEye.start()")
         time.sleep(1.5)  # the glass meter reads the mark from its next clock message on
         d0, t0 = page.evaluate(DECODER), time.monotonic()
@@ -175,6 +179,7 @@ def run(args: Any) -> dict[str, Any]:
         "gpu_threads_niced": gpu_threads,
         "video_nice": int(env.get("TELEROBOT_VIDEO_NICE", "10")),
         "busy_core": args.busy_core,
+        "drive_on": "next frame" if args.send_on_frame else "keydown",
         "decoded_width": d1["width"],
         "seconds": round(elapsed, 1),
     }
@@ -189,6 +194,11 @@ def main() -> None:
     p.add_argument("--width", type=int, default=1280)
     p.add_argument("--height", type=int, default=720)
     p.add_argument("--seed", type=int, default=56)
+    p.add_argument(
+        "--send-on-frame",
+        action="store_true",
+        help="the page sends a key's first command at its next animation frame (as before)",
+    )
     args = p.parse_args()
     figures = run(args)
     emit(figures, False)

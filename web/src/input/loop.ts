@@ -29,6 +29,13 @@ export const HAND_BACK_MS = 600;
 /** The frames the operator drives in: the view (W away from the camera, A left and R up
  * in the image) or one of the server's. */
 export type DriveFrame = "view" | FrameName;
+/** Keys that drive (KeyboardEvent.code): the dead-man and the motion keys. Pressed, they
+ * drive at once (`key`), not at the next animation frame: on a page whose drawing takes
+ * a software GPU's time that frame is tens of ms away (docs/hand-to-eye.md). */
+export const DRIVE_KEYS = new Set(["Space", "KeyW", "KeyS", "KeyA", "KeyD", "KeyR", "KeyF", "KeyQ", "KeyE"]);
+/** A key drives at once only while the animation frames tick (not in an XR session,
+ * whose frames drive instead): the last tick this recent (ms). */
+export const TICKING_MS = 250;
 /** In the order the gamepad's Y cycles them. */
 export const FRAMES: readonly DriveFrame[] = ["view", "base", "wrist", "tool"];
 /** Keys that pick a frame (KeyboardEvent.code). */
@@ -117,6 +124,9 @@ export class InputLoop {
   selected = 0;
   /** Two arms or more: the gamepad drives both (a side each) or the selected one. */
   padMode: PadMode = "both";
+  /** A driving key drives at its keydown (DRIVE_KEYS); false: at the next frame only, as
+   * before (bench.hand_to_eye --send-on-frame measures both). */
+  driveOnKey = true;
   private arms: DriveArm[];
   private last: number;
   private inputState = "";
@@ -135,6 +145,8 @@ export class InputLoop {
   private asking = false;
   private asks = 0; // takes so far: the latest one's WANT_CONTROL_MS counts
   private deadmanSaid = false; // what the link was told of the dead-man
+  private lastPad: GamepadState | null = null; // the last tick's gamepad
+  private tickedAt = -Infinity;
 
   constructor(private readonly o: InputLoopOptions) {
     this.last = o.now;
@@ -221,14 +233,20 @@ export class InputLoop {
     this.o.link.estop();
   }
 
-  /** A key went down (KeyboardEvent.code): Escape is the e-stop, 1/2/3/4 pick the
-   * base/wrist/tool/view frame, [ and ] the arm (two arms or more). */
-  key(code: string): void {
+  /** A key went down (KeyboardEvent.code) at `now` (ms, the clock `tick` is given):
+   * Escape is the e-stop, 1/2/3/4 pick the base/wrist/tool/view frame, [ and ] the arm
+   * (two arms or more); a driving key drives at once (DRIVE_KEYS). */
+  key(code: string, now: number = performance.now()): void {
     if (code === "Escape") this.estop();
     const frame = FRAME_KEYS[code];
     if (frame) this.pickFrame(frame);
     const step = ARM_KEYS[code];
     if (step && this.arms.length > 1) this.selectArm(this.selected + step);
+    if (this.driveOnKey && DRIVE_KEYS.has(code) && this.lastPad && now - this.tickedAt < TICKING_MS && now > this.last) {
+      // The same as a frame's inputs, the gamepad as the last frame read it (its
+      // buttons' edges were taken then); the next frame goes on from here.
+      this.drive(now, { ...this.lastPad, cycleFrame: false, swapArms: false, pickArm: 0 });
+    }
   }
 
   private pickFrame(frame: DriveFrame): void {
@@ -238,9 +256,9 @@ export class InputLoop {
 
   /** One animation frame at `now` (ms); gives the gamepad's state (for its rumble). */
   tick(now: number): GamepadState {
-    const dt = Math.min(MAX_FRAME_S, (now - this.last) / 1000);
-    this.last = now;
     const pad = this.o.gamepad.read();
+    this.lastPad = pad;
+    this.tickedAt = now;
     if (pad.cycleFrame) this.pickFrame(FRAMES[(FRAMES.indexOf(this.frame) + 1) % FRAMES.length]!);
     if (this.arms.length > 1) {
       if (pad.swapArms) {
@@ -249,6 +267,15 @@ export class InputLoop {
       }
       if (pad.pickArm) this.selectArm(this.selected + pad.pickArm);
     }
+    this.drive(now, pad);
+    return pad;
+  }
+
+  /** The inputs at `now` (the keys as held now, the gamepad's `pad`) to commands: the
+   * increments of the time since the last frame or key. */
+  private drive(now: number, pad: GamepadState): void {
+    const dt = Math.min(MAX_FRAME_S, Math.max(0, now - this.last) / 1000);
+    this.last = now;
     const cmds = armCommands(this.routing, pad, this.o.keyboard.read());
     this.deadmen = cmds.map((c) => c.deadman);
     const deadman = this.deadmen.some(Boolean);
@@ -263,7 +290,6 @@ export class InputLoop {
       const step = increments(cmd, speed, dt);
       if (step && this.hasControl) this.send(step.dX, step.rotvec, this.frame, now, i);
     });
-    return pad;
   }
 
   /** One XR frame at `now` (ms): the controller that drives (null: none). While its grip

@@ -219,6 +219,13 @@ function loopTestView(inputs: InputsHandle) {
       return inputs.loop.frame;
     },
     release: () => inputs.loop.release(),
+    /** Whether a driving key drives at its keydown (else at the next frame only). */
+    get driveOnKey(): boolean {
+      return inputs.loop.driveOnKey;
+    },
+    set driveOnKey(on: boolean) {
+      inputs.loop.driveOnKey = on;
+    },
   };
 }
 
