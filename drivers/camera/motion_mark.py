@@ -7,8 +7,9 @@ Ruler k (k = 0, 1, 2: the left camera's x right, y down, z forward) is a white b
 black whose length is the tool's coordinate along that axis at ``M_PER_PX`` (0.1 mm)
 per pixel, modulo ``LENGTH`` pixels (9.6 mm). It is drawn from the same joints the arm
 is drawn with, so it moves when the drawn arm does, magnified: in the picture itself one
-pixel is about 1 mm of the tool's motion (the PUMA's tool ~1.2 m from the cameras at
-1280×720), ten times the mark's.
+pixel is about 1.5 mm of the tool's motion (the PUMA's tool at qn 1.7 m from the left
+camera, focal length 1109 px at 1280×720), 15 times the mark's 0.1 mm (31 times at
+640×360); bench.hand_to_eye reports it as ``mark``.
 
 Layout (full size; a layer ``scale`` times the size has it at that scale): the rulers
 start at x = ``X0`` (after the timecode's black frame) and sit in rows
