@@ -202,6 +202,8 @@ def main() -> None:
     args = p.parse_args()
     figures = run(args)
     emit(figures, False)
+    for key in ("hand_to_eye_ms", "parts_ms", "mean_ms", "mark"):
+        print(f"{key}: {figures[key]}")
     if args.json:
         import json
 

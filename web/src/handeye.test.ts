@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import { readFrames, timecodeStrip } from "./view/glass";
-import { type CommandTimes, type PresentedFrame, type Press, PARTS, codeAtOrAfter, joinMotions } from "./view/handeye";
+import { type CommandTimes, type PresentedFrame, type Press, PARTS, joinMotions } from "./view/handeye";
 import { type DecodedFrame, MARK, markStrip, movedPx, readMark } from "./view/motion-mark";
 
 /** A copy of `markStrip(scale)`'s rect with the rulers at `lengths` (full-size px) drawn
@@ -50,23 +50,28 @@ describe("the motion mark as the page reads it", () => {
     expect(MARK.length * MARK.mPerPx).toBeCloseTo(0.0096, 9);
   });
 
-  it("tells a timecode at or after another across the wrap", () => {
-    expect(codeAtOrAfter(10, 5)).toBe(true);
-    expect(codeAtOrAfter(5, 5)).toBe(true);
-    expect(codeAtOrAfter(4, 5)).toBe(false);
-    expect(codeAtOrAfter(3, 2 ** 32 - 2)).toBe(true);
-  });
-
   it("is read in the glass meter's frames while asked, with the exposure and decoded times", async () => {
     const code = 100_000 - 250; // exposed 25 ms before the server's now (10 s)
     const lengths = [12, 40, 80];
+    // The picture's luma, 1280 × 40: the timecode's blocks and the mark's rulers drawn
+    // as the camera draws them; a copy is of the rect asked for (one copy holds both).
+    const W = 1280;
+    const picture = new Uint8Array(W * 40);
+    for (let i = 0; i < 32; i++) {
+      if (!((code >>> (31 - i)) & 1)) continue;
+      for (let y = 8; y < 24; y++) picture.fill(255, y * W + 8 + i * 16, y * W + 8 + (i + 1) * 16);
+    }
+    MARK.readRows.forEach((row, i) => {
+      for (const y of [row, row + 1]) picture.fill(255, y * W + MARK.x0, y * W + MARK.x0 + lengths[i]!);
+    });
+    const copies: number[] = [];
     const frame = {
       format: "I420",
-      displayWidth: 1280,
+      displayWidth: W,
       allocationSize: ({ rect }: { rect: { width: number; height: number } }) => rect.width * rect.height,
-      copyTo: async (buffer: Uint8Array, { rect }: { rect: { x: number; width: number } }) => {
-        if (rect.x === markStrip(1).rect.x) buffer.set(markCopy(lengths, 1).buffer);
-        else timecodeStrip(1).xs.forEach((x, i) => (buffer[x] = (code >>> (31 - i)) & 1 ? 255 : 0));
+      copyTo: async (buffer: Uint8Array, { rect }: { rect: { x: number; y: number; width: number; height: number } }) => {
+        copies.push(rect.width * rect.height);
+        for (let y = 0; y < rect.height; y++) buffer.set(picture.subarray((rect.y + y) * W + rect.x, (rect.y + y) * W + rect.x + rect.width), y * rect.width);
         return [{ offset: 0, stride: rect.width }];
       },
       close: () => undefined,
@@ -79,6 +84,8 @@ describe("the motion mark as the page reads it", () => {
       } as unknown as ReadableStreamDefaultReader<VideoFrame>;
       await readFrames(reader, () => 10, { bestRtt: 0.001, offset: 0 }, () => undefined, () => 1280, { on: () => on, add: (f) => got.push(f) });
     }
+    expect(copies).toHaveLength(2); // one copy a frame, with the mark or without
+    expect(copies[0]).toBeGreaterThan(copies[1]!);
     expect(got).toHaveLength(1); // not read once no longer asked
     expect(got[0]!.code).toBe(code);
     expect(got[0]!.mark).toEqual(lengths);
@@ -92,9 +99,9 @@ describe("one motion from its records", () => {
   // after their exposure; the mark moves from 1030 ms's exposure on.
   const decoded: DecodedFrame[] = Array.from({ length: 100 }, (_, i) => {
     const t = 20 * i;
-    return { code: t * 10, exposureAt: t, decodedAt: t + 15, mark: [50, 20, 70 + (t >= 1030 ? 4 : 0)] };
+    return { code: t * 10, mediaUs: 1000 * t + 7, exposureAt: t, decodedAt: t + 15, mark: [50, 20, 70 + (t >= 1030 ? 4 : 0)] };
   });
-  const presented: PresentedFrame[] = decoded.map((f) => ({ code: f.code, submittedAt: f.decodedAt + 2, presentedAt: f.decodedAt + 9 }));
+  const presented: PresentedFrame[] = decoded.map((f) => ({ mediaUs: f.mediaUs, submittedAt: f.decodedAt + 2, presentedAt: f.decodedAt + 9 }));
   const press: Press = { key: "KeyW", at: 1000.5 };
   const commands: CommandTimes[] = [
     { sentAt: 990, appliedAt: 991 }, // an earlier motion's
@@ -129,7 +136,7 @@ describe("one motion from its records", () => {
   });
 
   it("is shown by the next frame presented when its own one was skipped", () => {
-    const skipped = presented.filter((p) => p.code !== 10_400);
+    const skipped = presented.filter((p) => p.mediaUs !== 1_040_007);
     const [m] = joinMotions([press], commands, decoded, skipped).motions;
     expect(m!.parts.decoded_to_presented).toBe(20 + 9);
   });

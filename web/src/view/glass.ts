@@ -122,6 +122,18 @@ export function timecodeStrip(scale: number): { rect: { x: number; y: number; wi
   return { rect, xs };
 }
 
+/** The smallest rect holding both `a` and `b` (their corners even: so is its). */
+export function spanning(
+  a: { x: number; y: number; width: number; height: number },
+  b: { x: number; y: number; width: number; height: number },
+): { x: number; y: number; width: number; height: number } {
+  const x = Math.min(a.x, b.x);
+  const y = Math.min(a.y, b.y);
+  const right = Math.max(a.x + a.width, b.x + b.width);
+  const bottom = Math.max(a.y + a.height, b.y + b.height);
+  return { x, y, width: right - x, height: bottom - y };
+}
+
 /** Read every frame until the stream ends, each closed once read; `now`: the page's
  * clock (s), `add`: one frame's capture → decoded age (ms); `fullWidth`: the full
  * picture's width (both eyes), when known, so a smaller layer is read at its scale;
@@ -142,24 +154,29 @@ export async function readFrames(
       const full = fullWidth();
       const scale = full ? frame.displayWidth / full : 1;
       const { rect, xs } = timecodeStrip(scale);
-      const buffer = new Uint8Array(frame.allocationSize({ rect }));
-      const layout = await frame.copyTo(buffer, { rect });
+      // With the mark wanted, one copy holds both (a second copyTo a frame cut this
+      // worker's reads from 30 to 6 a second on a software GPU): the rect from the
+      // timecode's strip over the mark's rulers.
+      const m = marks?.on() ? markStrip(scale) : null;
+      const whole = m ? spanning(rect, m.rect) : rect;
+      const buffer = new Uint8Array(frame.allocationSize({ rect: whole }));
+      const layout = await frame.copyTo(buffer, { rect: whole });
       const rgb = (frame.format ?? "").startsWith("RGB") || (frame.format ?? "").startsWith("BGR");
+      const stride = layout[0]?.stride ?? whole.width * (rgb ? 4 : 1);
+      const codeAt = (layout[0]?.offset ?? 0) + (rect.y - whole.y) * stride + (rect.x - whole.x) * (rgb ? 4 : 1);
       let code = 0;
       for (const x of xs) {
-        code = code * 2 + ((buffer[(layout[0]?.offset ?? 0) + (rgb ? x * 4 + 1 : x)] ?? 0) > 128 ? 1 : 0);
+        code = code * 2 + ((buffer[codeAt + (rgb ? x * 4 + 1 : x)] ?? 0) > 128 ? 1 : 0);
       }
       if (clock.bestRtt < Infinity) {
         const wrap = 2 ** 32;
         const server = at + clock.offset;
         const behind = ((((Math.round(server / 1e-4) - code) % wrap) + wrap) % wrap) / 10; // ms
         if (behind < 5000) add(behind);
-        if (behind < 5000 && marks?.on()) {
-          const m = markStrip(scale);
-          const copy = new Uint8Array(frame.allocationSize({ rect: m.rect }));
-          const [plane] = await frame.copyTo(copy, { rect: m.rect });
-          const mark = readMark(copy, plane?.offset ?? 0, plane?.stride ?? m.rect.width * (rgb ? 4 : 1), rgb, scale);
-          marks.add({ code, exposureAt: at * 1000 - behind, decodedAt: at * 1000, mark });
+        if (behind < 5000 && m && marks) {
+          const markAt = (layout[0]?.offset ?? 0) + (m.rect.y - whole.y) * stride + (m.rect.x - whole.x) * (rgb ? 4 : 1);
+          const mark = readMark(buffer, markAt, stride, rgb, scale);
+          marks.add({ code, mediaUs: frame.timestamp, exposureAt: at * 1000 - behind, decodedAt: at * 1000, mark });
         }
       }
     } finally {

@@ -3,31 +3,27 @@
 // camera draws a motion mark beside the timecode (drivers/camera/motion_mark.py: the
 // tool's position as three rulers at 0.1 mm a pixel, wrapping every 96 px); the glass
 // meter's worker reads it with the timecode in every decoded frame (view/glass.ts), a
-// requestVideoFrameCallback here reads the timecode of every frame presented, and the
-// realtime worker tells each command's send and the server's applying of it (its ACK).
+// requestVideoFrameCallback here tells which decoded frame is presented when (by its
+// media timestamp: no pixel read on the main thread), and the realtime worker tells
+// each command's send and the server's applying of it (its ACK).
 // Joined per key press:
 //   press ─ input_to_sent ─ sent ─ sent_to_applied ─ applied ─ applied_to_exposure ─
 //   exposure (the first frame whose mark moved) ─ exposure_to_decoded ─ decoded ─
 //   decoded_to_presented ─ presented (the first frame shown from that exposure on),
 // every time on this page's clock (performance.now(), ms), the server's through the
 // ping clock sync; the parts sum to the whole (presented − press) by construction.
-import { timecodeStrip } from "./glass";
 import { type DecodedFrame, Kept, MOVED_PX, decodedFrames, movedPx } from "./motion-mark";
 
-const WRAP = 2 ** 32;
 /** A motion whose parts are not all found within this long of its press is not counted. */
 export const WITHIN_MS = 2000;
 
-/** Whether timecode `a` is at or after `b` (wrap-aware: within half the wrap). */
-export function codeAtOrAfter(a: number, b: number): boolean {
-  return (((a - b) % WRAP) + WRAP) % WRAP < WRAP / 2;
-}
-
-/** A frame presented: its timecode, when it was handed to the compositor
- * (requestVideoFrameCallback's presentationTime: decoded by then) and expected on
- * screen (its expectedDisplayTime), ms. */
+/** A frame presented: its media timestamp (requestVideoFrameCallback's mediaTime, µs:
+ * the decoded VideoFrame's timestamp, so no pixel of it is read on the page's main
+ * thread: reading each presented frame's timecode there cut the glass meter's reads
+ * from 30 to 5 a second on a software GPU), when it was handed to the compositor
+ * (presentationTime: decoded by then) and expected on screen (expectedDisplayTime), ms. */
 export interface PresentedFrame {
-  code: number;
+  mediaUs: number;
   submittedAt: number;
   presentedAt: number;
 }
@@ -86,11 +82,11 @@ export function joinMotions(
     }
     if (!base) return miss("no frame before");
     if (!moved) return miss("no motion seen");
-    const shown = presented.find((p) => codeAtOrAfter(p.code, moved.code) && p.presentedAt >= moved.exposureAt);
+    const shown = presented.find((p) => p.mediaUs >= moved.mediaUs && p.presentedAt >= moved.exposureAt);
     if (!shown) return miss("not presented");
     // Decoded: when the glass meter's worker read it, or when the <video> had it for the
     // compositor if that was earlier (a worker held up reads late).
-    const own = presented.find((p) => p.code === moved.code && p.presentedAt >= moved.exposureAt);
+    const own = presented.find((p) => p.mediaUs === moved.mediaUs && p.presentedAt >= moved.exposureAt);
     const decodedAt = Math.min(moved.decodedAt, own?.submittedAt ?? Infinity);
     const parts: Record<Part, number> = {
       input_to_sent: cmd.sentAt - press.at,
@@ -115,10 +111,8 @@ export class HandEyeRecorder {
   readonly presented = new Kept<PresentedFrame>();
   started = false;
 
-  /** Start recording: key presses on `target`, and every frame `video` presents (its
-   * timecode read from the frame itself; `fullWidth`: the full picture's width, both
-   * eyes, so a smaller layer is read at its scale). */
-  start(target: Window, video: HTMLVideoElement, fullWidth: () => number | null): void {
+  /** Start recording: key presses on `target`, and every frame `video` presents. */
+  start(target: Window, video: HTMLVideoElement): void {
     if (this.started) return;
     this.started = true;
     decodedFrames.on = true;
@@ -127,15 +121,7 @@ export class HandEyeRecorder {
     });
     const tick = (_now: number, md: VideoFrameCallbackMetadata) => {
       video.requestVideoFrameCallback(tick);
-      let frame: VideoFrame;
-      try {
-        frame = new VideoFrame(video);
-      } catch {
-        return;
-      }
-      void readCode(frame, fullWidth()).then((code) => {
-        if (code !== null) this.presented.push({ code, submittedAt: md.presentationTime, presentedAt: md.expectedDisplayTime });
-      });
+      this.presented.push({ mediaUs: Math.round(md.mediaTime * 1e6), submittedAt: md.presentationTime, presentedAt: md.expectedDisplayTime });
     };
     video.requestVideoFrameCallback(tick);
   }
@@ -148,22 +134,5 @@ export class HandEyeRecorder {
   motions(threshold = MOVED_PX): ReturnType<typeof joinMotions> & { decoded: number; presented: number } {
     const out = joinMotions(this.presses.items, this.commands.items, decodedFrames.log.items, this.presented.items, threshold);
     return { ...out, decoded: decodedFrames.log.items.length, presented: this.presented.items.length };
-  }
-}
-
-/** The timecode in `frame` (closed here); null if it could not be read. */
-async function readCode(frame: VideoFrame, full: number | null): Promise<number | null> {
-  try {
-    const { rect, xs } = timecodeStrip(full ? frame.displayWidth / full : 1);
-    const buffer = new Uint8Array(frame.allocationSize({ rect }));
-    const layout = await frame.copyTo(buffer, { rect });
-    const rgb = (frame.format ?? "").startsWith("RGB") || (frame.format ?? "").startsWith("BGR");
-    let code = 0;
-    for (const x of xs) code = code * 2 + ((buffer[(layout[0]?.offset ?? 0) + (rgb ? x * 4 + 1 : x)] ?? 0) > 128 ? 1 : 0);
-    return code;
-  } catch {
-    return null;
-  } finally {
-    frame.close();
   }
 }

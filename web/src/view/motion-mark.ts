@@ -41,10 +41,13 @@ export function movedPx(before: readonly number[], after: readonly number[]): nu
   return most;
 }
 
-/** One decoded frame, read in the glass meter: its timecode, when it was exposed and
- * decoded (page clock, ms) and its mark (null: not read). */
+/** One decoded frame, read in the glass meter: its timecode, its media timestamp (the
+ * VideoFrame's, µs: the <video>'s requestVideoFrameCallback says the same of the frame
+ * it presents as mediaTime), when it was exposed and decoded (page clock, ms) and its
+ * mark (null: not read). */
 export interface DecodedFrame {
   code: number;
+  mediaUs: number;
   exposureAt: number;
   decodedAt: number;
   mark: number[] | null;

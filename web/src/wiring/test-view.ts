@@ -4,6 +4,7 @@
 // use this surface only: read-only figures and a few switches, each documented here, so
 // the page's insides can change without them.
 import { HandEyeRecorder } from "../view/handeye";
+import { decodedFrames } from "../view/motion-mark";
 import type { Ball, StereoView, ViewMode } from "../view/stereo";
 import type { Rolling } from "../stats";
 import type { LinkMeta } from "../transport/link";
@@ -293,7 +294,7 @@ function handEyeTestView(realtime: RealtimeHandle, view: StereoView) {
           recorder.command({ sentAt: m.sentAt, appliedAt: m.appliedAt });
         }
       });
-      recorder.start(window, view.video, () => (view.nativeSize ? 2 * view.nativeSize.width : null));
+      recorder.start(window, view.video);
     },
     get started(): boolean {
       return recorder.started;
@@ -301,7 +302,15 @@ function handEyeTestView(realtime: RealtimeHandle, view: StereoView) {
     /** Every motion found so far (times in ms), the presses left out and why, and the
      * frames recorded (decoded with their mark, presented). */
     motions: (threshold?: number) => recorder.motions(threshold),
-    /** The raw records, for a bench that joins them itself. */
+    /** The raw records (presses, ACKed commands, decoded frames with their mark,
+     * presented frames), for a bench that looks closer. */
+    records: () => ({
+      presses: recorder.presses.items,
+      commands: recorder.commands.items,
+      decoded: decodedFrames.log.items,
+      presented: recorder.presented.items,
+    }),
+    /** How many of each are recorded. */
     get counts(): { presses: number; commands: number; presented: number } {
       return { presses: recorder.presses.items.length, commands: recorder.commands.items.length, presented: recorder.presented.items.length };
     },
