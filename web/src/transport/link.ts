@@ -43,7 +43,7 @@ export type FromWorker =
   | { kind: "event"; text: string; eventKind: number }
   | { kind: "error"; text: string; seq: number; code: number }
   | { kind: "connection"; up: boolean; why: string; meta: LinkMeta }
-  | { kind: "ack"; latencyMs: number; meta: LinkMeta }
+  | { kind: "ack"; latencyMs: number; sentAt?: number; appliedAt?: number; meta: LinkMeta }
   | { kind: "welcome"; meta: LinkMeta };
 
 export class RealtimeLink implements LinkMeta {
@@ -62,6 +62,9 @@ export class RealtimeLink implements LinkMeta {
   readonly stateInterval = new Rolling();
   readonly forceInterval = new Rolling(2000);
   readonly commandLatency = new Rolling();
+  /** Each ACKed command's send and the server's applying of it, on this page's clock
+   * (ms): the hand-to-eye measurement's (view/handeye.ts). */
+  onAck: ((sentAt: number, appliedAt: number) => void) | null = null;
   private readonly worker: Worker;
 
   constructor(
@@ -141,6 +144,7 @@ export class RealtimeLink implements LinkMeta {
         break;
       case "ack":
         this.commandLatency.add(m.latencyMs);
+        if (m.sentAt !== undefined && m.appliedAt !== undefined) this.onAck?.(m.sentAt, m.appliedAt);
         break;
       case "welcome":
         this.handlers.welcome?.(m.meta.operator, m.meta.clientId);

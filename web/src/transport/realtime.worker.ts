@@ -6,13 +6,11 @@ import type { FromWorker, ToWorker } from "./link";
 import { StateFlags } from "./messages";
 import { RealtimeClient } from "./realtime";
 
-/** An ACK also carries its command's times on the page's clock (ms): sent from here,
- * taken by the server's driver (view/handeye.ts; the page's RealtimeLink reads the
- * latency, the hand-to-eye recorder the times, test-view.ts). */
-type AckTimes = Extract<FromWorker, { kind: "ack" }> & { sentAt: number; appliedAt: number };
+// An ACK also carries its command's times on the page's clock (ms): sent from here,
+// taken by the server's driver (RealtimeLink.onAck: the hand-to-eye recorder's).
 const port = self as unknown as {
   onmessage: ((e: MessageEvent<ToWorker>) => void) | null;
-  postMessage(message: FromWorker | AckTimes): void;
+  postMessage(message: FromWorker): void;
 };
 let client: RealtimeClient | null = null;
 let mainOrigin = 0; // the page's performance.timeOrigin: times go back on its clock

@@ -285,15 +285,7 @@ function handEyeTestView(realtime: RealtimeHandle, view: StereoView) {
   return {
     start: () => {
       if (recorder.started) return;
-      // Each ACK's times, as the realtime worker posts them beside the latency the link
-      // keeps (the link has no hook for them: its worker is listened to here).
-      const worker = (realtime.link as unknown as { worker: Worker }).worker;
-      worker.addEventListener("message", (e: MessageEvent<{ kind?: string; sentAt?: number; appliedAt?: number }>) => {
-        const m = e.data;
-        if (m.kind === "ack" && typeof m.sentAt === "number" && typeof m.appliedAt === "number") {
-          recorder.command({ sentAt: m.sentAt, appliedAt: m.appliedAt });
-        }
-      });
+      realtime.link.onAck = (sentAt, appliedAt) => recorder.command({ sentAt, appliedAt });
       recorder.start(window, view.video);
     },
     get started(): boolean {
