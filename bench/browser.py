@@ -41,7 +41,7 @@ from typing import Any
 
 import httpx
 import numpy as np
-from playwright.sync_api import sync_playwright
+from playwright.sync_api import Browser, Page, Playwright, sync_playwright
 
 from bench.common import busy_core, emit, machine, parser
 from harness.chromium import ARGS, yield_browser_session, yield_software_gpu
@@ -90,6 +90,24 @@ def per_frame_ms(
     return (d1[total] - d0[total]) / n * 1000.0 if n > 0 else None
 
 
+def open_operator_page(
+    pw: Playwright, base: str, token: str, yields: bool
+) -> tuple[Browser, Page, int, bool]:
+    """Debian's Chromium with the operator page (1600×900), showing video; ``yields``:
+    its session and software GPU at nice 10 (the browser modelled as on another
+    machine). Returns the browser, the page, the GPU threads reniced and whether the
+    session was."""
+    browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+    page = browser.new_page(viewport={"width": 1600, "height": 900})
+    page.goto(base + f"?token={token}")
+    gpu_threads = yield_software_gpu() if yields else 0
+    yielded_session = yield_browser_session() if yields else False
+    page.wait_for_function(
+        "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
+    )
+    return browser, page, gpu_threads, yielded_session
+
+
 LEGS = {"yields": True, "equal": False}
 
 
@@ -111,14 +129,7 @@ def run_leg(args: argparse.Namespace, yields: bool) -> dict[str, Any]:
         busy_core(args.busy_core),
         sync_playwright() as pw,
     ):
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
-        page = browser.new_page(viewport={"width": 1600, "height": 900})
-        page.goto(base + f"?token={token}")
-        gpu_threads = yield_software_gpu() if yields else 0
-        yielded_session = yield_browser_session() if yields else False
-        page.wait_for_function(
-            "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
-        )
+        browser, page, gpu_threads, yielded_session = open_operator_page(pw, base, token, yields)
         time.sleep(3)  # past the first keyframe and the clock sync
         f0, n0, d0, e0, t0 = (
             page.evaluate("window.telerobot.view.frames"),

@@ -47,9 +47,8 @@ import httpx
 import numpy as np
 from playwright.sync_api import Page, sync_playwright
 
-from bench.browser import DECODER
+from bench.browser import DECODER, open_operator_page
 from bench.common import busy_core, emit, machine, p50_p99, parser
-from harness.chromium import ARGS, yield_browser_session, yield_software_gpu
 from harness.servers import serve_for_bench
 from telerobot.drivers.camera import motion_mark
 
@@ -130,14 +129,7 @@ def run(args: Any) -> dict[str, Any]:
         busy_core(args.busy_core),
         sync_playwright() as pw,
     ):
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
-        page = browser.new_page(viewport={"width": 1600, "height": 900})
-        page.goto(base + f"?token={token}")
-        gpu_threads = yield_software_gpu() if yields else 0
-        yielded_session = yield_browser_session() if yields else False
-        page.wait_for_function(
-            "window.telerobot && window.telerobot.view.frames > 30", timeout=60_000, polling=200
-        )
+        browser, page, gpu_threads, yielded_session = open_operator_page(pw, base, token, yields)
         page.click("#take")
         page.wait_for_function(
             "window.telerobot.state && (window.telerobot.state.flags & 1)", timeout=30_000
