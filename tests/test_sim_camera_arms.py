@@ -70,6 +70,7 @@ def camera_for(settings: Settings, arms: Arms) -> SimStereoCamera:
     camera = build_arms_camera(settings, [arms.probe(i) for i in range(len(arms.q))])
     assert isinstance(camera, SimStereoCamera)
     camera.show_timecode = False
+    camera.show_motion_mark = False  # (drawn beside the timecode: both off for a clean frame)
     return camera
 
 
