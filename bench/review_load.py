@@ -115,6 +115,18 @@ def record(seconds: float, out: Path) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
+def serving(recording: Path) -> Iterator[str]:
+    """A fresh server (video on) whose state folder holds a copy of ``recording``
+    alone; its base URL."""
+    with tempfile.TemporaryDirectory() as state:
+        folder = Path(state) / "recordings"
+        folder.mkdir()
+        shutil.copy(recording, folder / recording.name)
+        with serve_for_bench("--state-dir", state, env=VIDEO_ENV, ready=True) as (_, base):
+            yield base
+
+
+@contextlib.contextmanager
 def busy(on: bool) -> Iterator[None]:
     if not on:
         yield
@@ -136,34 +148,27 @@ def load_once(
 
     from harness.chromium import ARGS
 
-    with tempfile.TemporaryDirectory() as state:
-        folder = Path(state) / "recordings"
-        folder.mkdir()
-        shutil.copy(recording, folder / recording.name)
-        with (
-            serve_for_bench("--state-dir", state, env=VIDEO_ENV, ready=True) as (_, base),
-            sync_playwright() as pw,
-        ):
-            browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
-            try:
-                # The browser at the server's priority, on the same machine, as the user's
-                # was (not yielded as the tests' is: its own time is part of the figure).
-                page = browser.new_page(viewport={"width": 1500, "height": 900})
-                errors: list[str] = []
-                page.on("pageerror", lambda e: errors.append(str(e)))
-                with busy(cpu_busy):
-                    page.add_init_script(POLL % PROBE)
-                    query = f"id={recording.name}" + (f"&token={TOKEN}" if token else "")
-                    page.goto(base + f"review.html?{query}", wait_until="commit")
-                    page.wait_for_function(
-                        "() => { const m = window.__reviewLoadMarks ?? {};"
-                        " return m.picture !== undefined && m.complete !== undefined; }",
-                        timeout=timeout_s * 1000,
-                        polling=250,
-                    )
-                marks: dict[str, float] = page.evaluate("window.__reviewLoadMarks")
-            finally:
-                browser.close()
+    with serving(recording) as base, sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
+        try:
+            # The browser at the server's priority, on the same machine, as the user's
+            # was (not yielded as the tests' is: its own time is part of the figure).
+            page = browser.new_page(viewport={"width": 1500, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            with busy(cpu_busy):
+                page.add_init_script(POLL % PROBE)
+                query = f"id={recording.name}" + (f"&token={TOKEN}" if token else "")
+                page.goto(base + f"review.html?{query}", wait_until="commit")
+                page.wait_for_function(
+                    "() => { const m = window.__reviewLoadMarks ?? {};"
+                    " return m.picture !== undefined && m.complete !== undefined; }",
+                    timeout=timeout_s * 1000,
+                    polling=250,
+                )
+            marks: dict[str, float] = page.evaluate("window.__reviewLoadMarks")
+        finally:
+            browser.close()
     got = {
         "first_progress_s": None if "progress" not in marks else marks["progress"] / 1000,
         "first_picture_s": marks["picture"] / 1000,
@@ -178,25 +183,21 @@ def load_once(
 def requests_once(recording: Path) -> dict[str, float]:
     """Each read timed alone on a fresh server (nothing kept): the whole timeline, the
     first piece (a server before issue 55 ignores the range: its whole), the MP4."""
-    with tempfile.TemporaryDirectory() as state:
-        folder = Path(state) / "recordings"
-        folder.mkdir()
-        shutil.copy(recording, folder / recording.name)
-        with (
-            serve_for_bench("--state-dir", state, env=VIDEO_ENV, ready=True) as (_, base),
-            httpx.Client(base_url=base + "api/v1/recordings/", headers=AUTH, timeout=600) as http,
+    with (
+        serving(recording) as base,
+        httpx.Client(base_url=base + "api/v1/recordings/", headers=AUTH, timeout=600) as http,
+    ):
+        out = {}
+        for name, url, params in (
+            ("first_piece", "timeline", {"max_points": 4000, "start_s": 0, "end_s": 10}),
+            ("mp4", "video.mp4", {}),
+            ("whole_timeline", "timeline", {"max_points": 4000}),
         ):
-            out = {}
-            for name, url, params in (
-                ("first_piece", "timeline", {"max_points": 4000, "start_s": 0, "end_s": 10}),
-                ("mp4", "video.mp4", {}),
-                ("whole_timeline", "timeline", {"max_points": 4000}),
-            ):
-                t0 = time.perf_counter()
-                r = http.get(f"{recording.name}/{url}", params=params)
-                r.raise_for_status()
-                out[name] = round(time.perf_counter() - t0, 2)
-            return out
+            t0 = time.perf_counter()
+            r = http.get(f"{recording.name}/{url}", params=params)
+            r.raise_for_status()
+            out[name] = round(time.perf_counter() - t0, 2)
+        return out
 
 
 def main() -> None:
