@@ -23,7 +23,7 @@ import os
 import numpy as np
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
-from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
+from hypothesis.stateful import initialize, invariant, precondition, rule
 
 from telerobot.drivers.base import ForceSample, TelerobotError
 from telerobot.drivers.clock import ManualClock
@@ -32,7 +32,7 @@ from telerobot.server.control.clients import Client
 from telerobot.server.control.decision import DecisionServer
 from telerobot.server.control.errors import NotAllowed
 from tests.support import TOKEN
-from tests.support.decision import RecordingPuma, make
+from tests.support.decision import OwnLoopMachine, RecordingPuma, make
 
 STEP = np.array([0.002, 0, 0, 0, 0, 0])
 EXAMPLES = int(os.environ.get("TELEROBOT_RULE_EXAMPLES", "1000"))
@@ -40,10 +40,9 @@ HIGH_N = 80.0  # above the force limit
 LOW_N = 0.0
 
 
-class Supervision(RuleBasedStateMachine):
+class Supervision(OwnLoopMachine):
     def __init__(self) -> None:
         super().__init__()
-        self.loop = asyncio.new_event_loop()
         self.clock = ManualClock()
         self.ds: DecisionServer
         self.robot: RecordingPuma
@@ -55,16 +54,6 @@ class Supervision(RuleBasedStateMachine):
         self.go = False
         self.force_limited = False
         self.moves_by_policy = 0
-
-    def run(self, coro):  # type: ignore[no-untyped-def]
-        return self.loop.run_until_complete(coro)
-
-    def teardown(self) -> None:
-        pending = asyncio.all_tasks(self.loop)
-        for task in pending:  # the simulated arm's reporter
-            task.cancel()
-        self.loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
-        self.loop.close()
 
     # ------------------------------------------------------------ helpers
     def attempt(self, coro) -> bool:  # type: ignore[no-untyped-def]

@@ -15,19 +15,18 @@ worker's heartbeats, silences of any length, and late commands from before a sil
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 
 import numpy as np
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
-from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
+from hypothesis.stateful import invariant, rule
 
 from telerobot.drivers.base import TelerobotError
 from telerobot.drivers.clock import ManualClock
 from telerobot.server.control.decision import DecisionServer
 from tests.support import TOKEN
-from tests.support.decision import RecordingPuma, make
+from tests.support.decision import OwnLoopMachine, RecordingPuma, make
 
 STEP_M = np.array([0.001, 0.0, 0.0])
 # Silences around the dead-man's limit (0.15 s), a page's stall (1 s and more), the grace
@@ -38,10 +37,9 @@ SILENCES = st.one_of(
 )
 
 
-class StalledPage(RuleBasedStateMachine):
+class StalledPage(OwnLoopMachine):
     def __init__(self) -> None:
         super().__init__()
-        self.loop = asyncio.new_event_loop()
         self.clock = ManualClock()
         self.ds: DecisionServer
         self.robot: RecordingPuma
@@ -56,16 +54,6 @@ class StalledPage(RuleBasedStateMachine):
         )
         self.heard = self.clock.now()  # the server last heard the page then
         self.longest_silence = 0.0
-
-    def run(self, coro):  # type: ignore[no-untyped-def]
-        return self.loop.run_until_complete(coro)
-
-    def teardown(self) -> None:
-        pending = asyncio.all_tasks(self.loop)
-        for task in pending:  # the simulated arm's reporter
-            task.cancel()
-        self.loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
-        self.loop.close()
 
     @property
     def holds(self) -> bool:

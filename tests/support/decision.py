@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import asyncio
+from collections.abc import Coroutine
+from typing import Any, TypeVar
+
+from hypothesis.stateful import RuleBasedStateMachine
+
 from telerobot.drivers.base import FloatArray
 from telerobot.drivers.clock import ManualClock
 from telerobot.drivers.robot.puma560.kinematics import (
@@ -68,3 +74,25 @@ async def policy_let_drive(ds: DecisionServer, name: str = "act-policy") -> tupl
     await ds.take_lease(policy.id)
     await ds.resume_policy(alice.id)  # a person says go: a policy never starts by itself
     return policy, alice
+
+
+T = TypeVar("T")
+
+
+class OwnLoopMachine(RuleBasedStateMachine):
+    """A Hypothesis state machine driving a DecisionServer on an event loop of its own
+    (``run``), its leftover tasks (the simulated arm's reporter) cancelled at the end."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.loop = asyncio.new_event_loop()
+
+    def run(self, coro: Coroutine[Any, Any, T]) -> T:
+        return self.loop.run_until_complete(coro)
+
+    def teardown(self) -> None:
+        pending = asyncio.all_tasks(self.loop)
+        for task in pending:
+            task.cancel()
+        self.loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+        self.loop.close()
