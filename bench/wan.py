@@ -452,14 +452,20 @@ PAGE_PROBE = """
   // decoder's frames as the <video> sink received them, not the page's drawing), and the
   // frames decoded, once a second with the peer they are of (a new peer starts at 0).
   const rtc = (window.__rtc = []);
+  // And what the link did to them: loss, repairs (FEC and NACK), the jitter buffer.
+  const RTC_MORE = ["packetsReceived", "packetsLost", "fecPacketsReceived", "fecPacketsDiscarded",
+    "nackCount", "pliCount", "framesReceived", "framesDropped", "jitterBufferDelay",
+    "jitterBufferEmittedCount", "jitterBufferTargetDelay"];
   setInterval(async () => {
     const id = window.telerobot.video.peerId;
     const stats = await window.telerobot.video.stats().catch(() => null);
     if (!stats || rtc.length >= 10000) return;
     stats.forEach((r) => {
       if (r.type === "inbound-rtp" && r.kind === "video") {
+        const more = {};
+        for (const k of RTC_MORE) more[k] = r[k] ?? null;
         rtc.push([performance.now(), id, r.freezeCount ?? null, r.totalFreezesDuration ?? null,
-          r.framesDecoded ?? null]);
+          r.framesDecoded ?? null, more]);
       }
     });
   }, 1000);
@@ -945,9 +951,10 @@ def webrtc_freezes(samples: list[list[Any]], origin: float, segments: Segments) 
     start at 0) is left out here and counted by the page's own figures."""
     frozen = freezes = decoded = 0.0
     span = 0.0
+    more: dict[str, float] = {}
     for a, b in itertools.pairwise(samples):
         ta, tb = origin + a[0] / 1000, origin + b[0] / 1000
-        same = a[1] == b[1] and all(v is not None for v in (*a[2:], *b[2:]))
+        same = a[1] == b[1] and all(v is not None for v in (*a[2:5], *b[2:5]))
         inside = any(lo <= ta and tb <= hi for lo, hi in segments)
         if not (same and inside) or b[4] < a[4]:
             continue
@@ -955,11 +962,28 @@ def webrtc_freezes(samples: list[list[Any]], origin: float, segments: Segments) 
         freezes += b[2] - a[2]
         frozen += b[3] - a[3]
         decoded += b[4] - a[4]
+        for key, value in (b[5] if len(b) > 5 else {}).items():
+            before = a[5].get(key) if len(a) > 5 else None
+            if value is not None and before is not None:
+                more[key] = more.get(key, 0.0) + value - before
+    buffered = more.get("jitterBufferEmittedCount")
     return {
         "frozen_share": frozen / span if span else None,
         "freezes": int(freezes),
         "fps_decoded": decoded / span if span else None,
         "seconds": span,
+        # The link's work on them, over the same pairs (inbound-rtp's counters' growth).
+        "counters": {k: v for k, v in more.items() if not k.startswith("jitterBuffer")},
+        "jitter_buffer_ms": (
+            1000 * more["jitterBufferDelay"] / buffered
+            if buffered and "jitterBufferDelay" in more
+            else None
+        ),
+        "jitter_buffer_target_ms": (
+            1000 * more["jitterBufferTargetDelay"] / buffered
+            if buffered and "jitterBufferTargetDelay" in more
+            else None
+        ),
     }
 
 

@@ -186,3 +186,26 @@ def test_webrtc_freezes_count_one_peers_samples_inside_the_steady_run() -> None:
     assert out["frozen_share"] == 0.3 / 4.0
     assert out["fps_decoded"] == (20 + 30 + 30 + 30) / 4.0
     assert webrtc_freezes([], 0.0, [(1.0, 5.0)])["frozen_share"] is None
+
+
+def test_webrtc_freezes_add_up_the_links_counters_over_the_same_pairs() -> None:
+    def more(lost: int, fec: int, delay: float, emitted: int) -> dict[str, float | None]:
+        return {
+            "packetsLost": lost,
+            "fecPacketsReceived": fec,
+            "nackCount": None,  # not reported: left out
+            "jitterBufferDelay": delay,
+            "jitterBufferEmittedCount": emitted,
+        }
+
+    samples = [
+        [1000, "a", 0, 0.0, 0, more(0, 0, 0.0, 0)],
+        [2000, "a", 0, 0.0, 30, more(5, 40, 3.0, 30)],  # 100 ms a frame
+        [3000, "b", 0, 0.0, 0, more(0, 0, 0.0, 0)],  # a new peer: left out
+        [4000, "b", 0, 0.0, 30, more(1, 10, 6.0, 30)],  # 200 ms a frame
+    ]
+    out = webrtc_freezes(samples, 0.0, [(0.0, 5.0)])
+    assert out["counters"]["packetsLost"] == 6 and out["counters"]["fecPacketsReceived"] == 50
+    assert "nackCount" not in out["counters"]
+    assert out["jitter_buffer_ms"] == pytest.approx(150.0)
+    assert out["jitter_buffer_target_ms"] is None

@@ -13,17 +13,24 @@ second:
 
 * **loss-based**: a report losing more than ``HIGH_LOSS`` cuts the rate by half the
   loss (``rate × (1 − loss/2)``); one losing less than ``LOW_LOSS`` with no queue lets
-  it grow by ``INCREASE`` a second; in between it holds (a lossy but uncongested
-  link, as `bad`'s 5 % random loss, is FEC's to repair, not the rate's);
+  it grow by ``INCREASE`` a second; in between it holds, unless the loss is the link's
+  own: no more than ``LOW_LOSS`` above the median of the last ``LOSS_REPORTS`` reports
+  with the round trip flat (a lossy but uncongested link, as `bad`'s 5 % random loss,
+  is FEC's to repair, not the rate's: GCC's rule alone held the rate wherever one
+  report's loss had cut it, and on `bad` that was its 150 kbit/s floor for good);
 * **delay-based**: the round trip grown ``QUEUE_S`` above its floor in
   ``CONFIRM_REPORTS`` reports in a row is a queue the video builds: ``× DECREASE``;
 * **the receiver's own estimate** (REMB, from Chromium's delay-gradient estimator):
   with congestion seen (either rule above) the rate goes straight to it if it is lower
   (what gets through); without, it leads the rate down, ``× DECREASE`` a report at
   most, once it has fallen from its peak (``ESTIMATE_FALL``) in ``CONFIRM_REPORTS``
-  reports in a row: a receiver starts low and
-  climbs, so a low estimate that is still rising says nothing (as in layers.py), and on
-  a jittery link it swings far below what the link carries.
+  reports in a row while the round trip has begun to grow (``EARLY_QUEUE_S`` above its
+  floor): a receiver starts low and climbs, so a low estimate that is still rising says
+  nothing (as in layers.py), and on a jittery link it swings far below what the link
+  carries with no queue behind it (`bad`, ±50 ms each way: Chromium's fell to
+  0.05 Mbit/s on a 2 Mbit/s link, the rate followed to its floor, and at 150 kbit/s a
+  key frame took the link for a second: the picture was frozen two thirds of the
+  time).
 
 A new peer starts at ``START_BPS`` (or the configured bitrate, if lower), not at the
 top: nothing is known of its link yet, and 8 Mbit/s sent into a 2 Mbit/s link with a
@@ -50,6 +57,8 @@ report.
 from __future__ import annotations
 
 import math
+import statistics
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,11 +68,13 @@ from telerobot.server.telemetry.stats import DriftingFloor
 MIN_BPS = 150_000
 HIGH_LOSS = 0.10
 LOW_LOSS = 0.02
+LOSS_REPORTS = 10  # the link's own loss: the median of this many reports' (≥ 3 of them)
 INCREASE = 1.08  # a clean second's growth (GCC's multiplicative increase)
 START_BPS = 1_000_000  # a new peer's rate: what a narrow link (2 Mbit/s with the forces) carries
 STARTUP_INCREASE = 1.5  # a clean report's growth until the link first shows congestion
 DECREASE = 0.85  # a queue's cut
 QUEUE_S = 0.15  # the round trip this far above its floor: a queue (jitter stays below)
+EARLY_QUEUE_S = 0.075  # …this far: one beginning, which a fallen estimate confirms
 CONFIRM_REPORTS = 2  # a queue seen in this many reports in a row (one late RTCP is not)
 ESTIMATE_FALL = 0.85  # the receiver's estimate this far below its peak: it saw overuse
 FLOOR_DRIFT = 0.01  # s per s: the round trip's floor follows a link whose delay grew
@@ -103,6 +114,7 @@ class RateControl:
     # (the caller's clock) at the configured rate since (None: below it)
     at_max_since: float | None = None
     floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
+    recent_loss: deque[float] = field(default_factory=lambda: deque(maxlen=LOSS_REPORTS))
 
     def __post_init__(self) -> None:
         self.max_bps = max(self.max_bps, MIN_BPS)
@@ -120,11 +132,14 @@ class RateControl:
         self.seen_reports = link.reports
         before = (round(self.target_bps), self.size, self.every)
         lost = max(link.fraction_lost or 0.0, loss or 0.0)
-        queued = False
+        self.recent_loss.append(lost)
+        own = statistics.median(self.recent_loss) if len(self.recent_loss) >= 3 else 0.0
+        queued = growing = False
         if link.rtt_s is not None and link.rtt_s > 0:
             self.floor.update(link.rtt_s, now)
             least = self.floor.value
             queued = least is not None and link.rtt_s > least + QUEUE_S
+            growing = least is not None and link.rtt_s > least + EARLY_QUEUE_S
         self.queue_strikes = self.queue_strikes + 1 if queued else 0
         estimate = link.estimated_bps
         if estimate is not None:
@@ -133,6 +148,7 @@ class RateControl:
             estimate is not None
             and estimate < self.target_bps
             and estimate < ESTIMATE_FALL * self.peak_estimate
+            and growing
         )
         self.estimate_strikes = self.estimate_strikes + 1 if fallen else 0
         congested = lost > HIGH_LOSS or self.queue_strikes >= CONFIRM_REPORTS
@@ -154,10 +170,9 @@ class RateControl:
             self._set(self.target_bps * DECREASE, self._congestion(lost, link))
             self.queue_strikes = 0
         elif self.estimate_strikes >= CONFIRM_REPORTS and estimate is not None:
-            # Toward the estimate, a step at a time (× DECREASE at most a report): a
-            # receiver's delay-gradient estimate on a jittery link (±50 ms each way on
-            # `bad`) swings far below what the link carries (bench.wan saw aiortc's at
-            # 0.05 Mbit/s on a 2 Mbit/s link) while nothing is lost and no queue grows.
+            # Toward the estimate, a step at a time (× DECREASE at most a report): even
+            # with the round trip growing, a receiver's delay-gradient estimate on a
+            # jittery link swings far below what the link carries.
             to = max(float(estimate), self.target_bps * DECREASE)
             self._set(to, f"the receiver's estimate fell to {estimate / 1e6:.2f} Mbit/s")
             self.peak_estimate = max(estimate, round(to))  # a new peak to fall from
@@ -166,6 +181,8 @@ class RateControl:
                 self._set(self.target_bps * STARTUP_INCREASE, "clean: starting up")
             else:
                 self._set(self.target_bps * INCREASE, "clean: growing")
+        elif lost < own + LOW_LOSS and not growing and self.target_bps < self.max_bps:
+            self._set(self.target_bps * INCREASE, f"the link's own {own:.0%} lost: growing")
         self._shape()
         if self.target_bps < self.max_bps:
             self.at_max_since = None
