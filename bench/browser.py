@@ -91,14 +91,17 @@ def per_frame_ms(
 
 
 def open_operator_page(
-    pw: Playwright, base: str, token: str, yields: bool
+    pw: Playwright, base: str, token: str, yields: bool, camera_pixels: bool = False
 ) -> tuple[Browser, Page, int, bool]:
     """Debian's Chromium with the operator page (1600×900), showing video; ``yields``:
     its session and software GPU at nice 10 (the browser modelled as on another
-    machine). Returns the browser, the page, the GPU threads reniced and whether the
-    session was."""
+    machine); ``camera_pixels``: its view draws every camera pixel, whatever its box
+    shows (as before issue 56; the page draws the box's). Returns the browser, the page,
+    the GPU threads reniced and whether the session was."""
     browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS)
     page = browser.new_page(viewport={"width": 1600, "height": 900})
+    if camera_pixels:
+        page.add_init_script("window.telerobotDrawAtCameraPixels = true;")
     page.goto(base + f"?token={token}")
     gpu_threads = yield_software_gpu() if yields else 0
     yielded_session = yield_browser_session() if yields else False

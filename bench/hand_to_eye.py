@@ -3,7 +3,7 @@ screen, the whole loop, measured by the page itself for every motion (issue 56;
 docs/hand-to-eye.md).
 
     python -m bench.hand_to_eye [--json] [--fps 30|60] [--browser-equal] [--busy-core]
-                                [--motions 200] [--width 1280 --height 720]
+                                [--motions 200] [--width 1280 --height 720] [--camera-pixels]
 
 Debian's Chromium (Playwright, never a downloaded browser) opens the page of a
 ``telerobot serve`` (simulation, video on), takes control and drives as an operator
@@ -129,7 +129,9 @@ def run(args: Any) -> dict[str, Any]:
         busy_core(args.busy_core),
         sync_playwright() as pw,
     ):
-        browser, page, gpu_threads, yielded_session = open_operator_page(pw, base, token, yields)
+        browser, page, gpu_threads, yielded_session = open_operator_page(
+            pw, base, token, yields, args.camera_pixels
+        )
         page.click("#take")
         page.wait_for_function(
             "window.telerobot.state && (window.telerobot.state.flags & 1)", timeout=30_000
@@ -154,6 +156,10 @@ def run(args: Any) -> dict[str, Any]:
         time.sleep(0.5)
         d1, elapsed = page.evaluate(DECODER), time.monotonic() - t0
         found = page.evaluate("window.telerobot.handEye.motions()")
+        canvas = page.evaluate(
+            "(() => { const c = window.telerobot.view.canvas;"
+            " return { width: c.width, height: c.height, shown: c.clientWidth }; })()"
+        )
         browser.close()
     motions = found["motions"]
     whole = [m["wholeMs"] for m in motions]
@@ -183,6 +189,8 @@ def run(args: Any) -> dict[str, Any]:
         "video_nice": int(env.get("TELEROBOT_VIDEO_NICE", "10")),
         "busy_core": args.busy_core,
         "drive_on": "next frame" if args.send_on_frame else "keydown",
+        "drawn": "camera pixels" if args.camera_pixels else "the box's pixels",
+        "canvas": canvas,
         "decoded_width": d1["width"],
         "seconds": round(elapsed, 1),
     }
@@ -203,6 +211,11 @@ def main() -> None:
         "--send-on-frame",
         action="store_true",
         help="the page sends a key's first command at its next animation frame (as before)",
+    )
+    p.add_argument(
+        "--camera-pixels",
+        action="store_true",
+        help="the view draws every camera pixel, whatever its box shows (as before)",
     )
     args = p.parse_args()
     figures = run(args)

@@ -135,6 +135,20 @@ def test_a_new_peer_carries_on_from_the_last_rate() -> None:
     assert rc.target_bps == MAX and not rc.needs_own_stream(0.0)
 
 
+def test_it_grows_by_the_second_however_often_the_receiver_reports() -> None:
+    # Chromium's NACKs and REMBs each carry a receiver report: ten a second grow the
+    # rate as one a second does.
+    (often, a), (once, b) = (control(), Link()), (control(), Link())
+    often.update(a.report(lost=0.5), None, 0.0)  # cut below the top
+    once.update(b.report(lost=0.5), None, 0.0)
+    for i in range(1, 31):
+        often.update(a.report(), None, i / 10)
+    for t in (1.0, 2.0, 3.0):
+        once.update(b.report(), None, t)
+    assert often.target_bps == pytest.approx(once.target_bps)
+    assert once.target_bps == pytest.approx(MAX * 0.75 * INCREASE**3)
+
+
 def test_a_new_peer_starts_low_and_a_clean_link_brings_it_to_the_top_in_seconds() -> None:
     """Nothing is known of a new peer's link: it starts at START_BPS, not at the
     configured 8 Mbit/s (which, sent into `bad`'s 2 Mbit/s and its deep queue, held the
@@ -299,6 +313,8 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
         # Clean again up to the configured rate, and held there: shared again
         for _ in range(100):
             link.fraction_lost, link.reports = 0.0, link.reports + 1
+            if operator.rate.last_report_at is not None:
+                operator.rate.last_report_at -= 1.0  # (as if a second had passed: it grows)
             pipeline.adapt_operator_rate()
             if operator.rate.at_max_since is not None:
                 break

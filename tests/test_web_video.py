@@ -219,3 +219,49 @@ def test_the_view_fills_the_stage_goes_fullscreen_hides_the_timecode_and_rings_t
         assert not [p for p in centre if ball_colour(p)], f"eye {eye}: {centre}"
     assert errors == []
     page.close()
+
+
+# The mean colour of the picture's shown rows in the decoded video (each eye's rows below
+# the cropped ones) and in the view's canvas, whatever its size.
+MEAN_COLOURS = """() => {
+  const view = window.telerobot.view, video = document.getElementById("video");
+  const mean = (source, sx, sy, sw, sh) => {
+    const c = document.createElement("canvas"); c.width = 64; c.height = 16;
+    const g = c.getContext("2d"); g.drawImage(source, sx, sy, sw, sh, 0, 0, 64, 16);
+    const d = g.getImageData(0, 0, 64, 16).data, m = [0, 0, 0];
+    for (let i = 0; i < d.length; i += 4) for (let k = 0; k < 3; k++) m[k] += d[i + k] / (64 * 16);
+    return m;
+  };
+  const crop = view.croppedRows, c = view.canvas;
+  return [mean(video, 0, crop, video.videoWidth, video.videoHeight - crop),
+          mean(c, 0, 0, c.width, c.height)];
+}"""
+
+
+def test_the_view_draws_no_more_pixels_than_its_box_shows(browser: Browser, server: str) -> None:
+    # The page's default (the other tests here draw every camera pixel to read them):
+    # a box narrower than the picture gets a drawing buffer of the box's pixels, the
+    # picture's shape kept, and the same picture in it.
+    page, errors = open_page(browser, server, camera_pixels=False)
+    page.set_viewport_size({"width": 700, "height": 500})
+    page.evaluate("window.telerobot.setMode('side-by-side')")
+    fitted = """() => {
+      const c = window.telerobot.view.canvas, shown = parseFloat(c.style.width) * devicePixelRatio;
+      return c.width > 0 && Math.abs(c.width - shown) <= 1;
+    }"""
+    wait(page, f"({fitted})()")
+    w, h = page.evaluate(
+        "[window.telerobot.view.canvas.width, window.telerobot.view.canvas.height]"
+    )
+    camera = page.evaluate("window.telerobot.view.videoSize")
+    crop = page.evaluate("window.telerobot.view.croppedRows")
+    assert w < camera["width"]  # 2×640 camera pixels in a box of fewer
+    assert w / h == pytest.approx(camera["width"] / (camera["height"] - crop), rel=0.02)
+    f0 = page.evaluate("window.telerobot.view.frames")
+    wait(page, f"window.telerobot.view.frames > {f0} + 5")  # drawn at this size
+    # (Still, the arm at rest: the decoded frame and the last one drawn look alike.)
+    wait(page, "!(window.telerobot.view.pacer?.waiting ?? false)")
+    video, drawn = page.evaluate(MEAN_COLOURS)
+    assert drawn == pytest.approx(video, abs=12), (video, drawn)
+    assert errors == []
+    page.close()

@@ -38,7 +38,7 @@ deep queue (`bad`'s: 1000 packets, seconds of it) delays everything behind it, t
 forces and the commands too, for as long as the estimate takes to come down (quiet
 runs of bench.wan saw the page's peer start at 6.8 Mbit/s there, stall and never show
 a picture). Until its link first shows congestion (the start-up, as GCC's slow start
-and libwebrtc's probes) a clean report grows it by ``STARTUP_INCREASE``, so a clean
+and libwebrtc's probes) a clean second grows it by ``STARTUP_INCREASE``, so a clean
 link is back at the top in a few seconds; from the first congestion on, by
 ``INCREASE``.
 
@@ -71,7 +71,7 @@ LOW_LOSS = 0.02
 LOSS_REPORTS = 10  # the link's own loss: the median of this many reports' (≥ 3 of them)
 INCREASE = 1.08  # a clean second's growth (GCC's multiplicative increase)
 START_BPS = 1_000_000  # a new peer's rate: what a narrow link (2 Mbit/s with the forces) carries
-STARTUP_INCREASE = 1.5  # a clean report's growth until the link first shows congestion
+STARTUP_INCREASE = 1.5  # a clean second's growth until the link first shows congestion
 DECREASE = 0.85  # a queue's cut
 QUEUE_S = 0.15  # the round trip this far above its floor: a queue (jitter stays below)
 EARLY_QUEUE_S = 0.075  # …this far: one beginning, which a fallen estimate confirms
@@ -106,6 +106,7 @@ class RateControl:
     every: int = 1  # encode every n-th frame
     why: str = "start: nothing known of the link yet"
     seen_reports: int = 0
+    last_report_at: float | None = None  # (the caller's clock)
     queue_strikes: int = 0
     estimate_strikes: int = 0  # reports in a row whose estimate had fallen
     peak_estimate: int = 0
@@ -130,6 +131,14 @@ class RateControl:
         if link.reports <= self.seen_reports:
             return False
         self.seen_reports = link.reports
+        # Growth is by the second, not by the report: Chromium's NACKs and REMBs each
+        # carry a receiver report (10 a second on `bad`), and a rate grown ×1.08 at
+        # each filled the link's 1000-packet queue in seconds (bench.wan: the command
+        # client's HELLO waited behind it for 5 s).
+        since = (
+            1.0 if self.last_report_at is None else min(1.0, max(0.0, now - self.last_report_at))
+        )
+        self.last_report_at = now
         before = (round(self.target_bps), self.size, self.every)
         lost = max(link.fraction_lost or 0.0, loss or 0.0)
         self.recent_loss.append(lost)
@@ -178,11 +187,11 @@ class RateControl:
             self.peak_estimate = max(estimate, round(to))  # a new peak to fall from
         elif lost < LOW_LOSS and not queued and self.target_bps < self.max_bps:
             if self.starting:
-                self._set(self.target_bps * STARTUP_INCREASE, "clean: starting up")
+                self._set(self.target_bps * STARTUP_INCREASE**since, "clean: starting up")
             else:
-                self._set(self.target_bps * INCREASE, "clean: growing")
+                self._set(self.target_bps * INCREASE**since, "clean: growing")
         elif lost < own + LOW_LOSS and not growing and self.target_bps < self.max_bps:
-            self._set(self.target_bps * INCREASE, f"the link's own {own:.0%} lost: growing")
+            self._set(self.target_bps * INCREASE**since, f"the link's own {own:.0%} lost: growing")
         self._shape()
         if self.target_bps < self.max_bps:
             self.at_max_since = None

@@ -111,10 +111,13 @@ def open_page(
     xr: bool = False,
     query: str = "",
     video: bool = True,
+    camera_pixels: bool = True,
 ) -> tuple[Page, list[str]]:
     """The operator page (``query``: more of its URL's parameters, e.g. "layer=low"),
     once it plays the video (``video``) or, on a server without video (NO_VIDEO), once
-    the server's state reaches it."""
+    the server's state reaches it. ``camera_pixels``: its view draws every camera pixel
+    (the tests read the canvas at camera coordinates), not only as many as its box shows
+    (the page's default: view/stereo.ts drawingBufferSize)."""
     # The emulated headset draws at the window's size in software: a smaller window.
     page = browser.new_page(
         viewport={"width": 960, "height": 540} if xr else {"width": 1500, "height": 900}
@@ -130,6 +133,8 @@ def open_page(
     page.on("console", console)
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.add_init_script(FAKE_GAMEPAD)
+    if camera_pixels:
+        page.add_init_script("window.telerobotDrawAtCameraPixels = true;")
     if xr:
         if not IWER.exists():
             pytest.fail(

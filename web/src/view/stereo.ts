@@ -121,6 +121,24 @@ export function staleText(ms: number): string {
 
 export type { Eye, EyeSize, OverlayPainter };
 
+interface Size {
+  width: number;
+  height: number;
+}
+
+/** The drawing buffer for a picture of `camera` pixels shown in a box `shown` CSS pixels
+ * large, on a screen of `ratio` device pixels to a CSS pixel: no more pixels than the
+ * screen shows, and never more than the camera's own. Every pixel drawn is shaded, and a
+ * software GPU (SwiftShader, where there is no graphics hardware) shades them on the
+ * CPU: 2×1280×720 side by side in a 640 px box is 16 pixels drawn for each one seen, and
+ * the page drew 7–9 frames a second of 28 decoded (docs/PERFORMANCE.md). Null `shown`
+ * (not laid out yet): the camera's size. */
+export function drawingBufferSize(camera: Size, shown: Size | null, ratio: number): Size {
+  const fit = shown ? Math.min(1, (shown.width * ratio) / camera.width, (shown.height * ratio) / camera.height) : 1;
+  const scale = fit > 0 ? fit : 1;
+  return { width: Math.max(1, Math.round(camera.width * scale)), height: Math.max(1, Math.round(camera.height * scale)) };
+}
+
 export class StereoView {
   readonly renderer: THREE.WebGLRenderer;
   private readonly scene = new THREE.Scene();
@@ -154,6 +172,13 @@ export class StereoView {
   private readonly xrQuads: THREE.Mesh[] = [];
   private cropTop = TIMECODE_ROWS;
   private container: HTMLElement | null = null;
+  /** The box the picture is shown in (CSS pixels), once laid out. */
+  private shown: Size | null = null;
+  /** The picture in camera pixels (see layout()). */
+  private output: Size = { width: 2560, height: 720 };
+  /** Draw every camera pixel, whatever the box shows: for a test reading the canvas at
+   * camera coordinates (tests/support/browser.py sets `telerobotDrawAtCameraPixels`). */
+  drawAtCameraPixels = (globalThis as { telerobotDrawAtCameraPixels?: boolean }).telerobotDrawAtCameraPixels === true;
 
   constructor(
     readonly canvas: HTMLCanvasElement,
@@ -237,10 +262,22 @@ export class StereoView {
     const style = getComputedStyle(box);
     const w = box.clientWidth - parseFloat(style.paddingLeft) - parseFloat(style.paddingRight);
     const h = box.clientHeight - parseFloat(style.paddingTop) - parseFloat(style.paddingBottom);
-    const scale = Math.min(w / this.canvas.width, h / this.canvas.height);
+    const { width, height } = this.output;
+    const scale = Math.min(w / width, h / height);
     if (!(scale > 0)) return;
-    this.canvas.style.width = `${Math.floor(this.canvas.width * scale)}px`;
-    this.canvas.style.height = `${Math.floor(this.canvas.height * scale)}px`;
+    this.shown = { width: Math.floor(width * scale), height: Math.floor(height * scale) };
+    this.canvas.style.width = `${this.shown.width}px`;
+    this.canvas.style.height = `${this.shown.height}px`;
+    this.sizeBuffer();
+  }
+
+  /** The drawing buffer for the picture as shown (drawingBufferSize); the shader works in
+   * camera pixels (outSize) whatever the buffer's size. */
+  private sizeBuffer(): void {
+    if (this.renderer.xr.isPresenting) return; // (in XR the session's layer sizes it)
+    const shown = this.drawAtCameraPixels ? null : this.shown;
+    const { width, height } = drawingBufferSize(this.output, shown, window.devicePixelRatio || 1);
+    if (this.canvas.width !== width || this.canvas.height !== height) this.renderer.setSize(width, height, false);
   }
 
   /** Rows of each camera image not shown at the top: a shown pixel (x, y) is the
@@ -427,11 +464,11 @@ export class StereoView {
     const w = wide ? 2 * eyeW : eyeW;
     const crop = Math.min(this.cropTop, eyeH - 1);
     const h = eyeH - crop;
-    // (In XR the session's layer sizes the canvas.)
-    if (!this.renderer.xr.isPresenting && (this.canvas.width !== w || this.canvas.height !== h)) {
-      this.renderer.setSize(w, h, false);
-      this.fitBox();
+    if (this.output.width !== w || this.output.height !== h) {
+      this.output = { width: w, height: h };
+      this.fitBox(); // the box's aspect follows the picture's
     }
+    this.sizeBuffer();
     for (const q of this.xrQuads) q.scale.x = eyeW / h / (16 / 9);
     if (this.overlay.resize({ width: eyeW, height: eyeH })) this.overlayTexture.dispose(); // a new size: a new texture
     if (this.overlay.dirty) {
