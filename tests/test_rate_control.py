@@ -139,14 +139,33 @@ def test_it_grows_by_the_second_however_often_the_receiver_reports() -> None:
     # Chromium's NACKs and REMBs each carry a receiver report: ten a second grow the
     # rate as one a second does.
     (often, a), (once, b) = (control(), Link()), (control(), Link())
-    often.update(a.report(lost=0.5), None, 0.0)  # cut below the top
-    once.update(b.report(lost=0.5), None, 0.0)
-    for i in range(1, 31):
-        often.update(a.report(), None, i / 10)
-    for t in (1.0, 2.0, 3.0):
+    often.update(a.report(lost=0.8), None, 0.0)  # cut below the top
+    once.update(b.report(lost=0.8), None, 0.0)
+    for i in range(31):
+        often.update(a.report(), None, 1.0 + i / 10)
+    for t in (1.0, 2.0, 3.0, 4.0):
         once.update(b.report(), None, t)
     assert often.target_bps == pytest.approx(once.target_bps)
-    assert once.target_bps == pytest.approx(MAX * 0.75 * INCREASE**3)
+    assert once.target_bps == pytest.approx(MAX * 0.6 * INCREASE**4)
+
+
+def test_one_cut_a_round_trip_however_often_the_receiver_reports() -> None:
+    rc, link = control(), Link()
+    for i in range(10):  # a second of reports losing 20 %, the round trip 0.3 s
+        rc.update(link.report(lost=0.2, rtt_s=0.3), None, i / 10)
+    assert rc.cuts == 2 and rc.target_bps == pytest.approx(MAX * 0.9 * 0.9)
+
+
+def test_a_reports_loss_is_that_of_the_last_second() -> None:
+    # Ten reports a second, each of a few packets: one lost of four (25 %) is a 2.5 %
+    # second, no cut; a second of them losing 25 % each is.
+    rc, link = control(), Link()
+    for i in range(10):
+        rc.update(link.report(lost=0.25 if i == 5 else 0.0), None, i / 10)
+    assert rc.target_bps == MAX
+    for i in range(10, 20):
+        rc.update(link.report(lost=0.25), None, i / 10)
+    assert rc.target_bps < MAX and "lost" in rc.why
 
 
 def test_a_new_peer_starts_low_and_a_clean_link_brings_it_to_the_top_in_seconds() -> None:
@@ -273,6 +292,14 @@ def test_libx264_takes_a_new_bitrate_without_a_new_encoder() -> None:
     assert enc._new_bitrate == 2_000_000
 
 
+def a_second_later(rate: RateControl) -> None:
+    """As if a second had passed since its last report (the pipeline's clock is real):
+    it grows by a second's worth, and may cut again."""
+    if rate.last_report_at is not None:
+        rate.last_report_at -= 1.0
+    rate.last_cut_at -= 1.0
+
+
 async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its_rate() -> None:
     cam = camera(**SMALL)
     pipeline = VideoPipeline(cam, VideoSettings(bitrate=1_000_000))
@@ -298,6 +325,7 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
         # watcher's picture stays full.
         for _ in range(100):
             link.fraction_lost, link.reports = 0.5, link.reports + 1
+            a_second_later(operator.rate)
             pipeline.adapt_operator_rate()
             if operator.rate.size == "low":
                 break
@@ -313,8 +341,7 @@ async def test_the_operators_viewer_gets_its_own_stream_and_its_size_follows_its
         # Clean again up to the configured rate, and held there: shared again
         for _ in range(100):
             link.fraction_lost, link.reports = 0.0, link.reports + 1
-            if operator.rate.last_report_at is not None:
-                operator.rate.last_report_at -= 1.0  # (as if a second had passed: it grows)
+            a_second_later(operator.rate)
             pipeline.adapt_operator_rate()
             if operator.rate.at_max_since is not None:
                 break

@@ -69,10 +69,16 @@ MIN_BPS = 150_000
 HIGH_LOSS = 0.10
 LOW_LOSS = 0.02
 LOSS_REPORTS = 10  # the link's own loss: the median of this many reports' (≥ 3 of them)
+# A report's loss is the mean of those of the last second: each of Chromium's reports
+# (10 a second on `bad`, one in each NACK) covers a few packets, one lost of four is
+# 25 %, and one such report had cut the rate to the receiver's estimate (GCC waits
+# for 20 packets' worth).
+LOSS_WINDOW_S = 1.0
 INCREASE = 1.08  # a clean second's growth (GCC's multiplicative increase)
 START_BPS = 1_000_000  # a new peer's rate: what a narrow link (2 Mbit/s with the forces) carries
 STARTUP_INCREASE = 1.5  # a clean second's growth until the link first shows congestion
 DECREASE = 0.85  # a queue's cut
+CUT_GAP_S = 0.5  # one cut at most in this long, or a round trip if longer
 QUEUE_S = 0.15  # the round trip this far above its floor: a queue (jitter stays below)
 EARLY_QUEUE_S = 0.075  # …this far: one beginning, which a fallen estimate confirms
 CONFIRM_REPORTS = 2  # a queue seen in this many reports in a row (one late RTCP is not)
@@ -107,6 +113,7 @@ class RateControl:
     why: str = "start: nothing known of the link yet"
     seen_reports: int = 0
     last_report_at: float | None = None  # (the caller's clock)
+    last_cut_at: float = -math.inf
     queue_strikes: int = 0
     estimate_strikes: int = 0  # reports in a row whose estimate had fallen
     peak_estimate: int = 0
@@ -116,6 +123,8 @@ class RateControl:
     at_max_since: float | None = None
     floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
     recent_loss: deque[float] = field(default_factory=lambda: deque(maxlen=LOSS_REPORTS))
+    # (time, loss) of the reports of the last LOSS_WINDOW_S (at most 100 kept)
+    window: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=100))
 
     def __post_init__(self) -> None:
         self.max_bps = max(self.max_bps, MIN_BPS)
@@ -140,7 +149,10 @@ class RateControl:
         )
         self.last_report_at = now
         before = (round(self.target_bps), self.size, self.every)
-        lost = max(link.fraction_lost or 0.0, loss or 0.0)
+        self.window.append((now, max(link.fraction_lost or 0.0, loss or 0.0)))
+        while self.window and self.window[0][0] <= now - LOSS_WINDOW_S:
+            self.window.popleft()
+        lost = statistics.fmean(x for _, x in self.window) if self.window else 0.0
         self.recent_loss.append(lost)
         own = statistics.median(self.recent_loss) if len(self.recent_loss) >= 3 else 0.0
         queued = growing = False
@@ -163,10 +175,18 @@ class RateControl:
         congested = lost > HIGH_LOSS or self.queue_strikes >= CONFIRM_REPORTS
         if congested or self.estimate_strikes >= CONFIRM_REPORTS:
             self.starting = False
-        if congested and estimate is not None and estimate < self.target_bps:
-            # Congestion seen, and the receiver says what gets through: go there at
-            # once (a new peer starts at the configured rate, 8 Mbit/s, on a link of 2;
-            # cut by the loss alone it took a minute to come down).
+        # One cut a round trip (at least CUT_GAP_S): what a cut does shows in the reports
+        # a round trip later, and a queue draining, or a lossy second, seen again in
+        # each of ten reports a second had cut ten times.
+        gap = max(CUT_GAP_S, link.rtt_s or 0.0)
+        if now - self.last_cut_at < gap and (congested or self.estimate_strikes >= CONFIRM_REPORTS):
+            pass  # hold: the last cut has not shown yet
+        elif lost > HIGH_LOSS and estimate is not None and estimate < self.target_bps:
+            # Heavy loss, and the receiver says what gets through: go there at once (a
+            # new peer at the configured rate, 8 Mbit/s, on a link of 2; cut by the
+            # loss alone it took a minute to come down). A queue alone does not: on a
+            # jittery link (`bad`) Chromium's estimate said 0.16 Mbit/s of 2, and the
+            # rate took half a minute to grow back.
             self._set(
                 estimate,
                 f"congested ({self._congestion(lost, link)}): the receiver"
@@ -228,6 +248,7 @@ class RateControl:
         bps = min(float(self.max_bps), max(float(MIN_BPS), bps))
         if bps < self.target_bps:
             self.cuts += 1
+            self.last_cut_at = self.last_report_at if self.last_report_at is not None else 0.0
         self.target_bps, self.why = bps, why
 
     def media_bps(self, fec_share: float) -> int:
