@@ -264,50 +264,6 @@ async def test_the_low_layer_is_not_encoded_while_nobody_takes_it() -> None:
         await pipeline.close()
 
 
-async def test_a_packet_resent_and_still_on_its_way_asks_for_no_key_frame() -> None:
-    """The receiver asks again for a packet every 100 ms or so while its resend crosses
-    the link (600 ms round trip on `bad`); by then it may have left aiortc's history.
-    That is no reason for a key frame; a packet never resent, or resent long ago, is."""
-    from types import SimpleNamespace
-
-    from aiortc.rtp import RTCP_RTPFB_NACK, RTP_HISTORY_SIZE, RtcpRtpfbPacket
-
-    from telerobot.server.media.resend_budget import ResendBudget
-    from telerobot.server.media.viewer_link import ViewerLink, follow_link
-
-    asked: list[int] = []
-
-    async def handle(packet: object) -> None:
-        pass
-
-    def history(first: int) -> dict[int, object]:
-        return {
-            seq % RTP_HISTORY_SIZE: SimpleNamespace(sequence_number=seq, payload=b"x" * 1000)
-            for seq in range(first, first + 128)
-        }
-
-    now = [100.0]
-    sender = SimpleNamespace(_ssrc=7, _handle_rtcp_packet=handle)
-    sender._RTCRtpSender__rtp_history = history(500)
-    sender._send_keyframe = lambda: asked.append(1)
-    link = ViewerLink(rtt_s=0.6)
-    link.budget = ResendBudget(lambda: 1_000_000)
-    follow_link(sender, link, now=lambda: now[0])  # type: ignore[arg-type]
-
-    def nack(*lost: int) -> RtcpRtpfbPacket:
-        return RtcpRtpfbPacket(fmt=RTCP_RTPFB_NACK, ssrc=1, media_ssrc=7, lost=list(lost))
-
-    await sender._handle_rtcp_packet(nack(520, 521))  # resent
-    assert link.budget.counts.resent == 2
-    now[0] += 0.5  # asked again, its resend on its way, gone from the history meanwhile
-    sender._RTCRtpSender__rtp_history = history(700)
-    await sender._handle_rtcp_packet(nack(520, 521))
-    assert (asked, link.nacks_unservable) == ([], 0)
-    now[0] += 1.0  # two round trips on: it was lost again, and only a key frame helps
-    await sender._handle_rtcp_packet(nack(520))
-    assert (asked, link.nacks_unservable) == ([1], 1)
-
-
 async def test_a_nack_for_a_packet_no_longer_kept_asks_for_a_key_frame() -> None:
     """After a cut, a receiver asks for packets older than the sender's history: they
     cannot be resent, so a key frame is sent instead of leaving it to wait."""

@@ -13,11 +13,15 @@ second:
 
 * **loss-based**: a report losing more than ``HIGH_LOSS`` cuts the rate by half the
   loss (``rate × (1 − loss/2)``); one losing less than ``LOW_LOSS`` with no queue lets
-  it grow by ``INCREASE`` a second; in between it holds, unless the loss is the link's
-  own: no more than ``LOW_LOSS`` above the median of the last ``LOSS_REPORTS`` reports
-  with the round trip flat (a lossy but uncongested link, as `bad`'s 5 % random loss,
-  is FEC's to repair, not the rate's: GCC's rule alone held the rate wherever one
-  report's loss had cut it, and on `bad` that was its 150 kbit/s floor for good);
+  it grow by ``INCREASE`` a second; in between it holds (a lossy but uncongested
+  link, as `bad`'s 5 % random loss, is FEC's to repair, not the rate's). A report's
+  loss is the mean of the last ``LOSS_WINDOW_S``'s reports, and the rate is cut at
+  most once a round trip (``CUT_GAP_S`` at least): Chromium's reports come ten a
+  second on `bad` (one in each NACK), each of a few packets, and one losing one of
+  four had cut the rate to its 150 kbit/s floor, where the loss held it for good.
+  (Growing through the link's own loss, the median of recent reports, was tried: on
+  `bad` the rate grew into the link's queue, the round trip to 0.6–0.8 s, and every
+  repair came too late for the playout delay.)
 * **delay-based**: the round trip grown ``QUEUE_S`` above its floor in
   ``CONFIRM_REPORTS`` reports in a row is a queue the video builds: ``× DECREASE``;
 * **the receiver's own estimate** (REMB, from Chromium's delay-gradient estimator):
@@ -68,7 +72,6 @@ from telerobot.server.telemetry.stats import DriftingFloor
 MIN_BPS = 150_000
 HIGH_LOSS = 0.10
 LOW_LOSS = 0.02
-LOSS_REPORTS = 10  # the link's own loss: the median of this many reports' (≥ 3 of them)
 # A report's loss is the mean of those of the last second: each of Chromium's reports
 # (10 a second on `bad`, one in each NACK) covers a few packets, one lost of four is
 # 25 %, and one such report had cut the rate to the receiver's estimate (GCC waits
@@ -122,7 +125,6 @@ class RateControl:
     # (the caller's clock) at the configured rate since (None: below it)
     at_max_since: float | None = None
     floor: DriftingFloor = field(default_factory=lambda: DriftingFloor(FLOOR_DRIFT))
-    recent_loss: deque[float] = field(default_factory=lambda: deque(maxlen=LOSS_REPORTS))
     # (time, loss) of the reports of the last LOSS_WINDOW_S (at most 100 kept)
     window: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=100))
 
@@ -153,8 +155,6 @@ class RateControl:
         while self.window and self.window[0][0] <= now - LOSS_WINDOW_S:
             self.window.popleft()
         lost = statistics.fmean(x for _, x in self.window) if self.window else 0.0
-        self.recent_loss.append(lost)
-        own = statistics.median(self.recent_loss) if len(self.recent_loss) >= 3 else 0.0
         queued = growing = False
         if link.rtt_s is not None and link.rtt_s > 0:
             self.floor.update(link.rtt_s, now)
@@ -210,8 +210,6 @@ class RateControl:
                 self._set(self.target_bps * STARTUP_INCREASE**since, "clean: starting up")
             else:
                 self._set(self.target_bps * INCREASE**since, "clean: growing")
-        elif lost < own + LOW_LOSS and not growing and self.target_bps < self.max_bps:
-            self._set(self.target_bps * INCREASE**since, f"the link's own {own:.0%} lost: growing")
         self._shape()
         if self.target_bps < self.max_bps:
             self.at_max_since = None

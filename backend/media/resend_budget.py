@@ -81,12 +81,6 @@ class ResendBudget:
         self.counts.bytes_resent += size
         return True
 
-    def resent_since(self, key: object, since: float) -> bool:
-        """Whether ``key`` was resent at ``since`` or later (its resend may still be on
-        its way)."""
-        last = self._last.get(key)
-        return last is not None and last >= since
-
     def as_dict(self) -> dict[str, float | int]:
         c = self.counts
         return {

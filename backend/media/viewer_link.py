@@ -293,18 +293,10 @@ def follow_link(
             # The key frame went out long ago (and a 16-bit number compared with one
             # far back would read as older half the time): forget it
             link.keyframe_covers_through = None
-        # A packet resent within the last two round trips is on its way (the receiver
-        # asks again every 100 ms or so, by its own reckoning of the round trip): not
-        # to be replaced by a key frame because it has since left aiortc's 128-packet
-        # history (on `bad`, 0.85 s of it at 1.2 Mbit/s: 89 key frames asked for in a
-        # leg, each a freeze while it crossed the link).
-        budget = link.budget
-        in_flight = at - 2 * (link.repair_s(at) or 0.0)
         gone = [
             seq
             for seq in packet.lost
             if getattr(history.get(seq % RTP_HISTORY_SIZE), "sequence_number", None) != seq
-            and not (budget is not None and budget.resent_since(seq, in_flight))
         ]
         covered = link.keyframe_covers_through
         if gone and covered is not None and not any(seq_newer(s, covered) for s in gone):
@@ -325,6 +317,7 @@ def follow_link(
             link.resends_spared += spared_media + len(fec_seqs) - len(later_fec)
             packet = _lost(packet, media)
             fec_seqs = later_fec
+        budget = link.budget
         if budget is not None:
             rtt = link.repair_s(at)
             kept = []
