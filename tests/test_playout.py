@@ -191,12 +191,22 @@ def test_the_delay_grows_with_a_repair_holds_while_they_go_on_and_shrinks_back()
     assert p.current(41.0) == 0 and p.too_slow == 1
     p.repair(42.0, playout.MAX_DELAY_MS / 1000 + playout.TOLERANCE_S)  # at the cap: waited
     assert p.current(42.0) == playout.MAX_DELAY_MS
+    # A little past the cap (bad: repairs of 0.45–0.55 s against 0.5): the cap's worth is
+    # waited, and what is left of the stop is too short to be a freeze
+    q = playout.AdaptivePlayout()
+    q.repair(0.0, (playout.MAX_DELAY_MS + playout.SHORT_STOP_MS - 10) / 1000 + playout.TOLERANCE_S)
+    assert (q.current(0.0), q.too_slow) == (playout.MAX_DELAY_MS, 0)
+    q.repair(1.0, (playout.MAX_DELAY_MS + playout.SHORT_STOP_MS + 10) / 1000 + playout.TOLERANCE_S)
+    assert q.too_slow == 1
 
 
 def test_an_operator_s_cap_bounds_the_delay_and_what_is_waited_for() -> None:
     p = playout.AdaptivePlayout(max_ms=150)
-    p.repair(0.0, 0.3)  # 233 ms more than a late frame may be: beyond 150
+    p.repair(0.0, 0.4)  # 333 ms more than a late frame may be: beyond 150 + 100
     assert (p.current(0.0), p.too_slow) == (0, 1)
+    p.repair(0.5, 0.3)  # 233: a stop of 83 ms left after 150, no freeze: the cap waited
+    assert (p.current(0.5), p.too_slow) == (150, 1)
+    p = playout.AdaptivePlayout(max_ms=150)
     p.repair(1.0, 0.2)  # 133 ms: waited for
     assert p.current(1.0) == 140
 
