@@ -74,8 +74,11 @@ LEROBOT_PY := $(LEROBOT_VENV)/bin/python
 # torchcodec (LeRobot's video decoder) loads FFmpeg's shared libraries (4 to 8): Debian
 # 12's are FFmpeg 5.1's; without them LeRobot prints a long traceback at every start.
 FFMPEG_LIBS := libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4
-# [feetech]: LeRobot's own SO-101 leader, on Telerobot's emulated servo bus, in the tests
-LEROBOT_SPEC := lerobot[dataset,feetech]==$(LEROBOT_VERSION) pytest pytest-timeout httpx aiortc setuptools
+# [feetech]: LeRobot's own SO-101 leader, on Telerobot's emulated servo bus, in the tests.
+# Telerobot's client comes from this checkout's path, not installed, so what it imports
+# is listed here (pydantic for its tokens, websockets for the tests' realtime client): a
+# fresh machine's venv had neither, and LeRobot's tests stopped at their first import.
+LEROBOT_SPEC := lerobot[dataset,feetech]==$(LEROBOT_VERSION) pytest pytest-timeout httpx aiortc setuptools pydantic>=2.6 websockets
 # Checked on every run (cheap): the stamp holds the spec and the interpreter it was made
 # with, so a changed spec or a venv whose Python no longer runs installs again.
 lerobot-deps:
