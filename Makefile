@@ -34,11 +34,13 @@ run: $(STAMP) web
 	$(BIN)/telerobot serve $(ARGS)
 
 ## make test: install what is missing, then lint, type-check and run every test (browser
-## and LeRobot's tools included). With a core to spare the checks (lint, mypy, the page's
-## lint, types and vitest) and LeRobot's tests run beside the tests that need no browser
-## (those mostly wait: 1.2 of 2 cores), their output shown when both are done; on a busy
-## machine one after the other, the checks first. LEROBOT_BESIDE=yes|no decides.
-LEROBOT_BESIDE ?= auto
+## and LeRobot's tools included), one part after the other: the checks (lint, mypy, the
+## page's lint, types and vitest), the tests that need no browser, LeRobot's, the
+## browser's. LEROBOT_BESIDE=yes (or auto: when 1.5 cores are idle at the start) runs the
+## checks and LeRobot's tests beside the tests that need no browser, their output shown
+## when both are done. Not by default: on a 2-core Intel Xeon it saved 29 s of 641 and
+## four timing-bound tests failed under the load (docs/PERFORMANCE.md, machine B).
+LEROBOT_BESIDE ?= no
 test: $(STAMP) browser-deps turn-deps media-server-deps lerobot-deps web
 	@beside='$(LEROBOT_BESIDE)'; \
 	  if [ "$$beside" = auto ]; then \
@@ -136,9 +138,10 @@ typecheck: $(STAMP)
 # and sockets mostly wait: 286 s on two → 233 s on three here, 1.2 cores used), then the
 # browser tests on one, which share one Chromium and take the CPU the page's software
 # rendering needs (two workers are no faster: 389 s against 378; docs/PERFORMANCE.md).
-# Beside the first, `make test` runs LeRobot's tests when 1.5 cores are idle
-# (tools/idle-cores): quiet, 384 s for both against 382 + 138; with a core busy they
-# slowed each other (594 s for the first alone) and are run one after the other.
+# With LEROBOT_BESIDE=yes (or auto and 1.5 cores idle: tools/idle-cores) `make test`
+# runs LeRobot's tests beside the first: on machine A quiet, 384 s for both against
+# 382 + 138; on machine B 612 + 370 s against 465 + 176 one after the other, with four
+# timing-bound failures; with a core busy they slowed each other (594 s for the first).
 unit: unit-no-browser unit-browser
 
 unit-no-browser: $(STAMP)
