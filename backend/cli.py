@@ -164,6 +164,14 @@ def _serve(args: argparse.Namespace) -> int:
     except (ValidationError, FileNotFoundError, ValueError) as exc:
         print(f"telerobot: bad settings: {_settings_error(exc)}", file=sys.stderr)
         return 2
+    if args.port is not None and settings.robot != "val" and not args.arms:
+        # `--port 8765` read as the page's port started a server on 8000 and said nothing
+        print(
+            f"telerobot serve: --port is a robot's serial port (--robot val); the"
+            f" {settings.robot} robot has none. The page's port is --http-port PORT",
+            file=sys.stderr,
+        )
+        return 2
     from telerobot.server.accesslog import limit_refusals_logged
     from telerobot.server.security import ensure_certificate, redact_server_logs, state_dir
 

@@ -209,6 +209,21 @@ def test_bench_help_lists_each_benchmark_with_what_it_measures(
 
 
 # ------------------------------------------------------------ what serve says at a start
+def test_a_serial_port_given_to_a_robot_without_one_is_said_in_one_line(tmp_path: Path) -> None:
+    out = subprocess.run(
+        [str(BIN), "serve", "--port", "8765", "--state-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, **QUIET_SERVER},
+    )
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.splitlines() == [
+        "telerobot serve: --port is a robot's serial port (--robot val); the sim robot has"
+        " none. The page's port is --http-port PORT"
+    ]
+
+
 def test_serve_says_where_the_token_is_and_never_a_token(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
