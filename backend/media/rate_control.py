@@ -25,9 +25,9 @@ second:
 * **delay-based**: the round trip grown ``QUEUE_S`` above its floor in
   ``CONFIRM_REPORTS`` reports in a row is a queue the video builds: ``× DECREASE``;
 * **the receiver's own estimate** (REMB, from Chromium's delay-gradient estimator):
-  with congestion seen (either rule above) the rate goes straight to it if it is lower
-  (what gets through); without, it leads the rate down, ``× DECREASE`` a report at
-  most, once it has fallen from its peak (``ESTIMATE_FALL``) in ``CONFIRM_REPORTS``
+  with heavy loss (above ``HIGH_LOSS``) the rate goes straight to it if it is lower
+  (what gets through); otherwise it leads the rate down, ``× DECREASE`` a cut at most,
+  once it has fallen from its peak (``ESTIMATE_FALL``) in ``CONFIRM_REPORTS``
   reports in a row while the round trip has begun to grow (``EARLY_QUEUE_S`` above its
   floor): a receiver starts low and climbs, so a low estimate that is still rising says
   nothing (as in layers.py), and on a jittery link it swings far below what the link
@@ -199,7 +199,7 @@ class RateControl:
             self._set(self.target_bps * DECREASE, self._congestion(lost, link))
             self.queue_strikes = 0
         elif self.estimate_strikes >= CONFIRM_REPORTS and estimate is not None:
-            # Toward the estimate, a step at a time (× DECREASE at most a report): even
+            # Toward the estimate, a step at a time (× DECREASE at most a cut): even
             # with the round trip growing, a receiver's delay-gradient estimate on a
             # jittery link swings far below what the link carries.
             to = max(float(estimate), self.target_bps * DECREASE)
