@@ -967,6 +967,11 @@ def webrtc_freezes(samples: list[list[Any]], origin: float, segments: Segments) 
             if value is not None and before is not None:
                 more[key] = more.get(key, 0.0) + value - before
     buffered = more.get("jitterBufferEmittedCount")
+
+    def buffered_ms(total: str) -> float | None:
+        """A jitter-buffer total (s) over the frames it let out, in ms a frame."""
+        return 1000 * more[total] / buffered if buffered and total in more else None
+
     return {
         "frozen_share": frozen / span if span else None,
         "freezes": int(freezes),
@@ -974,16 +979,8 @@ def webrtc_freezes(samples: list[list[Any]], origin: float, segments: Segments) 
         "seconds": span,
         # The link's work on them, over the same pairs (inbound-rtp's counters' growth).
         "counters": {k: v for k, v in more.items() if not k.startswith("jitterBuffer")},
-        "jitter_buffer_ms": (
-            1000 * more["jitterBufferDelay"] / buffered
-            if buffered and "jitterBufferDelay" in more
-            else None
-        ),
-        "jitter_buffer_target_ms": (
-            1000 * more["jitterBufferTargetDelay"] / buffered
-            if buffered and "jitterBufferTargetDelay" in more
-            else None
-        ),
+        "jitter_buffer_ms": buffered_ms("jitterBufferDelay"),
+        "jitter_buffer_target_ms": buffered_ms("jitterBufferTargetDelay"),
     }
 
 

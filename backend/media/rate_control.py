@@ -154,7 +154,7 @@ class RateControl:
         self.window.append((now, max(link.fraction_lost or 0.0, loss or 0.0)))
         while self.window and self.window[0][0] <= now - LOSS_WINDOW_S:
             self.window.popleft()
-        lost = statistics.fmean(x for _, x in self.window) if self.window else 0.0
+        lost = statistics.fmean(x for _, x in self.window)  # (this report's is in it)
         queued = growing = False
         if link.rtt_s is not None and link.rtt_s > 0:
             self.floor.update(link.rtt_s, now)
