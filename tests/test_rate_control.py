@@ -382,3 +382,13 @@ async def test_the_operators_next_peer_starts_from_the_last_ones_rate() -> None:
         await pc.close()
     finally:
         await pipeline.close()
+
+
+def test_a_flood_of_reports_keeps_at_most_a_hundred_in_the_loss_window() -> None:
+    # A receiver's reports are a client's to send: a thousand in a second are held to
+    # the newest hundred, and the rate still follows their loss.
+    rc, link = control(), Link()
+    for i in range(1000):
+        rc.update(link.report(lost=0.5 if i >= 900 else 0.0), None, i / 1000)
+    assert len(rc.window) == 100 and all(lost == 0.5 for _, lost in rc.window)
+    assert rc.target_bps < MAX and "lost" in rc.why
